@@ -1,0 +1,35 @@
+# scanqa: two commands do everything on a fresh Debian machine (as root).
+#   make demo   - set up .venv, install what is missing, run the demo
+#   make test   - same set-up, then the whole test suite
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: demo test bench lint setup syslibs clean
+
+setup: $(STAMP)
+
+syslibs:
+	@sh tools/install_syslibs.sh
+
+$(STAMP): pyproject.toml | syslibs
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@$(BIN)/python -m pip install --quiet --upgrade pip
+	@$(BIN)/python -m pip install --quiet -e '.[test]'
+	@touch $(STAMP)
+
+demo: syslibs $(STAMP)
+	@$(BIN)/python -m scanqa.cli demo $(DEMO_ARGS)
+
+test: syslibs $(STAMP)
+	@$(BIN)/python -m pytest -q $(PYTEST_ARGS)
+
+lint: $(STAMP)
+	@$(BIN)/ruff check src tests benchmarks
+
+bench: $(STAMP)
+	@$(BIN)/python benchmarks/run_all.py
+
+clean:
+	rm -rf $(VENV) build src/*.egg-info .pytest_cache .ruff_cache

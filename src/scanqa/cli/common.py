@@ -1,0 +1,93 @@
+"""Argument helpers shared by the subcommands (parsing only)."""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from scanqa.config import ScannerConfig, load_config
+from scanqa.errors import InputError
+
+
+def add_config_argument(parser: argparse.ArgumentParser, required: bool = True) -> None:
+    """``--config FILE`` and ``--profile NAME``."""
+    parser.add_argument("--config", required=required, metavar="FILE",
+                        help="scanner config TOML (e.g. calib/paper_scanner.toml); "
+                             "FILE#PROFILE selects a profile")
+    parser.add_argument("--profile", metavar="NAME", default=None,
+                        help="apply the [profiles.NAME] table of the config (e.g. f11)")
+
+
+def config_from_args(args: argparse.Namespace) -> ScannerConfig:
+    """Load the config named by ``--config``/``--profile``."""
+    return load_config(args.config, profile=args.profile)
+
+
+def float_list(text: str) -> list[float]:
+    """argparse type: '0.25,0.49' -> [0.25, 0.49]."""
+    try:
+        values = [float(t) for t in text.split(",") if t.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected comma-separated numbers, got {text!r}") from None
+    if not values:
+        raise argparse.ArgumentTypeError("expected at least one number")
+    return values
+
+
+def add_output_arguments(parser: argparse.ArgumentParser, plot: bool = True) -> None:
+    """``--json``, ``--csv`` and (optionally) ``--plot FILE.png``."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--json", action="store_true", help="print rows as JSON")
+    group.add_argument("--csv", action="store_true", help="print rows as CSV")
+    if plot:
+        parser.add_argument("--plot", metavar="FILE.png", default=None,
+                            help="also write a PNG plot to this file")
+
+
+def _clean(value: object) -> object:
+    """JSON-safe value: NaN and inf become null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def format_rows(rows: Sequence[dict], as_json: bool, as_csv: bool) -> str:
+    """Rows as JSON, CSV or an aligned text table."""
+    if as_json:
+        return json.dumps([{k: _clean(v) for k, v in r.items()} for r in rows], indent=1)
+    if not rows:
+        return ""
+    keys = list(rows[0])
+    if as_csv:
+        buf = io.StringIO()
+        writer = csv.DictWriter(buf, fieldnames=keys, lineterminator="\n")
+        writer.writeheader()
+        writer.writerows(rows)
+        return buf.getvalue().rstrip("\n")
+    cells = [[_fmt(r[k]) for k in keys] for r in rows]
+    widths = [max(len(k), *(len(c[i]) for c in cells)) for i, k in enumerate(keys)]
+    lines = ["  ".join(k.rjust(w) for k, w in zip(keys, widths, strict=True))]
+    lines += ["  ".join(c.rjust(w) for c, w in zip(cell, widths, strict=True)) for cell in cells]
+    return "\n".join(lines)
+
+
+def _fmt(value: object) -> str:
+    if isinstance(value, float):
+        return f"{value:.6g}"
+    return str(value)
+
+
+def output_path(text: str | None) -> Path | None:
+    """Check that an output file's folder exists; None passes through."""
+    if text is None:
+        return None
+    path = Path(text)
+    if path.parent and not path.parent.exists():
+        raise InputError(f"cannot write {path}: folder {path.parent} does not exist")
+    return path

@@ -1,0 +1,422 @@
+"""Scanner configs: TOML files in ``calib/`` loaded into validated frozen dataclasses.
+
+A config describes one camera-projector pair in the scanner frame (the camera frame:
+origin at the camera lens, +Z along the optical axis, +X right, +Y down), the fringe
+periods, the parameters of the defocus model and, optionally, simulator-only settings.
+Units are in the key names (``focal_mm``, ``pixel_um``, ``wavelength_nm``).
+
+Profiles (``[profiles.NAME]`` tables) override keys of the base file, so that variants
+of one scanner (the paper's f/11 and f/16 settings) need no edited copy::
+
+    [profiles.f11]
+    camera.f_number = 11.0
+    model.gamma = 5.0
+
+Every invalid value raises one :class:`~scanqa.errors.ConfigError` naming the key, the
+value, the expected range and the file.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import os
+import sys
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+
+from scanqa.errors import ConfigError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover - Python 3.10
+    import tomli as tomllib
+
+#: The two readings of Eq. 17 (DESIGN.md section 3, reading (i)).
+FILTER_FLOORS = ("none", "one")
+#: The two readings of how attenuation enters s_O (DESIGN.md section 3, reading (ii)).
+NOISE_READINGS = ("power", "amplitude")
+
+
+def _spec(unit: str = "", gt: float | None = None, ge: float | None = None,
+          le: float | None = None, kind: str = "float", choices: tuple = (),
+          default: Any = dataclass) -> Any:
+    """A dataclass field carrying its unit and valid range for validation."""
+    meta = {"unit": unit, "gt": gt, "ge": ge, "le": le, "kind": kind, "choices": choices}
+    if default is dataclass:
+        return field(metadata=meta)
+    if isinstance(default, (list, dict)):
+        return field(default_factory=lambda: copy.deepcopy(default), metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def _expected(meta: dict) -> str:
+    """Human-readable expected range of a field, e.g. '> 0 mm'."""
+    unit = f" {meta['unit']}" if meta["unit"] else ""
+    parts = []
+    if meta["gt"] is not None:
+        parts.append(f"> {meta['gt']:g}{unit}")
+    if meta["ge"] is not None:
+        parts.append(f">= {meta['ge']:g}{unit}")
+    if meta["le"] is not None:
+        parts.append(f"<= {meta['le']:g}{unit}")
+    if meta["choices"]:
+        parts.append("one of " + ", ".join(repr(c) for c in meta["choices"]))
+    return " and ".join(parts) or f"a {meta['kind']}"
+
+
+def _check_number(key: str, value: Any, meta: dict) -> float:
+    """Validate one scalar against its field spec and return it as float or int."""
+    kind = meta["kind"]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(f"{key} must be a number ({_expected(meta)}), got {value!r}")
+    if kind == "int" and (not float(value).is_integer()):
+        raise ConfigError(f"{key} must be a whole number ({_expected(meta)}), got {value!r}")
+    v = float(value)
+    bad = (not math.isfinite(v)
+           or (meta["gt"] is not None and not v > meta["gt"])
+           or (meta["ge"] is not None and not v >= meta["ge"])
+           or (meta["le"] is not None and not v <= meta["le"]))
+    if bad:
+        raise ConfigError(f"{key} must be {_expected(meta)}, got {value!r}")
+    return int(v) if kind == "int" else v
+
+
+def _check_value(key: str, value: Any, meta: dict) -> Any:
+    """Validate a field of any kind (float, int, bool, str, vec3, list)."""
+    kind = meta["kind"]
+    if kind == "bool":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{key} must be true or false, got {value!r}")
+        return value
+    if kind == "str":
+        if value not in meta["choices"]:
+            raise ConfigError(f"{key} must be {_expected(meta)}, got {value!r}")
+        return value
+    if kind in ("vec3", "list"):
+        if not isinstance(value, (list, tuple)) or (kind == "vec3" and len(value) != 3) \
+                or len(value) == 0:
+            what = "a list of 3 numbers" if kind == "vec3" else "a non-empty list of numbers"
+            raise ConfigError(f"{key} must be {what} [{meta['unit']}], got {value!r}")
+        item = dict(meta, kind="float")
+        return tuple(_check_number(f"{key}[{i}]", v, item) for i, v in enumerate(value))
+    return _check_number(key, value, meta)
+
+
+class _Section:
+    """Mixin: validates every field of a frozen dataclass in ``__post_init__``."""
+
+    section: ClassVar[str] = ""
+
+    def __post_init__(self) -> None:
+        for f in fields(self):  # type: ignore[arg-type]
+            value = _check_value(f"{self.section}.{f.name}", getattr(self, f.name), f.metadata)
+            object.__setattr__(self, f.name, value)
+        self._check_cross()
+
+    def _check_cross(self) -> None:
+        """Checks that involve several fields (overridden where needed)."""
+
+
+@dataclass(frozen=True)
+class CameraConfig(_Section):
+    """Camera lens and sensor. Its frame is the scanner frame."""
+
+    section: ClassVar[str] = "camera"
+    focal_mm: float = _spec("mm", gt=0)
+    f_number: float = _spec("", gt=0)
+    pixel_um: float = _spec("um", gt=0)
+    width_px: int = _spec("px", ge=1, kind="int")
+    height_px: int = _spec("px", ge=1, kind="int")
+    focus_mm: float = _spec("mm", gt=0)
+
+    def _check_cross(self) -> None:
+        if self.focus_mm <= self.focal_mm:
+            raise ConfigError(
+                f"camera.focus_mm must be > camera.focal_mm = {self.focal_mm:g} mm "
+                f"(a lens cannot focus closer than its focal length), got {self.focus_mm!r}")
+
+    @property
+    def aperture_mm(self) -> float:
+        """Aperture diameter Phi_c = f / N [mm] (Eq. 2)."""
+        return self.focal_mm / self.f_number
+
+    @property
+    def principal_distance_px(self) -> float:
+        """Pinhole principal distance: the thin-lens image distance at focus [px]."""
+        v = self.focal_mm * self.focus_mm / (self.focus_mm - self.focal_mm)
+        return v / (self.pixel_um * 1e-3)
+
+    @property
+    def principal_point_px(self) -> tuple[float, float]:
+        """Principal point (u0, v0) at the sensor centre [px]."""
+        return ((self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0)
+
+
+@dataclass(frozen=True)
+class ProjectorConfig(_Section):
+    """Projector lens, panel and pose in the scanner frame.
+
+    Fringes vary along the projector's x axis (panel columns), so the decoded phase is
+    the projector column coordinate x_p [projector px].
+    """
+
+    section: ClassVar[str] = "projector"
+    focal_mm: float = _spec("mm", gt=0)
+    aperture_mm: float = _spec("mm", gt=0)
+    pitch_um: float = _spec("um", gt=0)
+    width_px: int = _spec("px", ge=1, kind="int")
+    height_px: int = _spec("px", ge=1, kind="int")
+    focus_mm: float = _spec("mm", gt=0)
+    position_mm: tuple = _spec("mm", kind="vec3")
+    look_at_mm: tuple = _spec("mm", kind="vec3")
+
+    def _check_cross(self) -> None:
+        if self.focus_mm <= self.focal_mm:
+            raise ConfigError(
+                f"projector.focus_mm must be > projector.focal_mm = {self.focal_mm:g} mm "
+                f"(a lens cannot focus closer than its focal length), got {self.focus_mm!r}")
+        if np.allclose(self.position_mm, self.look_at_mm):
+            raise ConfigError("projector.look_at_mm must differ from projector.position_mm, "
+                              f"got both {list(self.position_mm)}")
+
+    @property
+    def rotation(self) -> np.ndarray:
+        """(3, 3) rotation from scanner to projector frame: Q_p = R (Q - position)."""
+        z = np.subtract(self.look_at_mm, self.position_mm)
+        z = z / np.linalg.norm(z)
+        x = np.cross([0.0, 1.0, 0.0], z)
+        if np.linalg.norm(x) < 1e-9:
+            raise ConfigError("projector optical axis must not be parallel to the scanner Y axis")
+        x /= np.linalg.norm(x)
+        y = np.cross(z, x)
+        return np.vstack([x, y, z])
+
+    @property
+    def principal_distance_px(self) -> float:
+        """Pinhole principal distance: the thin-lens image distance at focus [px]."""
+        v = self.focal_mm * self.focus_mm / (self.focus_mm - self.focal_mm)
+        return v / (self.pitch_um * 1e-3)
+
+    @property
+    def principal_point_px(self) -> tuple[float, float]:
+        """Principal point (x0, y0) at the panel centre [px]."""
+        return ((self.width_px - 1) / 2.0, (self.height_px - 1) / 2.0)
+
+
+@dataclass(frozen=True)
+class FringeConfig(_Section):
+    """Fringe periods in projector pixels; the first is the working (finest) period."""
+
+    section: ClassVar[str] = "fringes"
+    periods_px: tuple = _spec("px", gt=0, kind="list")
+
+    @property
+    def working_period_px(self) -> float:
+        """The period whose phase noise sets the point noise [px]: the smallest one."""
+        return float(min(self.periods_px))
+
+
+@dataclass(frozen=True)
+class ModelConfig(_Section):
+    """Parameters and open readings of the defocus model (paper Sect. 3).
+
+    ``filter_floor``: "none" applies Eq. 17 as printed, F = sqrt(b_c b_d) / gamma, which
+    can be < 1 (filtering amplifies noise); "one" clamps F >= 1 as the paper's bound
+    1 <= gamma <= sqrt(b_c b_d) implies. ``noise_reading``: "power" divides s_O by the
+    attenuation A (squared magnitude ratio, Eq. 19 as printed); "amplitude" by sqrt(A)
+    (phase noise of additive intensity noise scales with 1 / magnitude).
+    """
+
+    section: ClassVar[str] = "model"
+    wavelength_nm: float = _spec("nm", gt=0)
+    gamma: float = _spec("", ge=1)
+    sigma_p_px: float = _spec("px", gt=0)
+    filter_floor: str = _spec(kind="str", choices=FILTER_FLOORS, default="none")
+    noise_reading: str = _spec(kind="str", choices=NOISE_READINGS, default="power")
+
+
+@dataclass(frozen=True)
+class SimulatorConfig(_Section):
+    """Simulator-only settings (ignored by the model). All optional."""
+
+    section: ClassVar[str] = "simulator"
+    seed: int = _spec("", ge=0, kind="int", default=0)
+    supersampling: int = _spec("", ge=1, le=16, kind="int", default=3)
+    bit_depth: int = _spec("bit", ge=8, le=16, kind="int", default=12)
+    gain_e_per_dn: float = _spec("e-/DN", gt=0, default=4.0)
+    read_noise_e: float = _spec("e-", ge=0, default=8.0)
+    full_well_e: float = _spec("e-", gt=0, default=16000.0)
+    scene_noise_rel: float = _spec("", ge=0, default=0.02)
+    mean_signal_e: float = _spec("e-", gt=0, default=6000.0)
+    modulation_ratio: float = _spec("", gt=0, le=1, default=0.8)
+    projector_samples: int = _spec("", ge=16, kind="int", default=64)
+
+
+_SECTIONS = {"camera": CameraConfig, "projector": ProjectorConfig, "fringes": FringeConfig,
+             "model": ModelConfig, "simulator": SimulatorConfig}
+_OPTIONAL = {"simulator"}
+
+
+@dataclass(frozen=True)
+class ScannerConfig:
+    """A whole scanner config, as loaded from a TOML file (and an optional profile)."""
+
+    camera: CameraConfig
+    projector: ProjectorConfig
+    fringes: FringeConfig
+    model: ModelConfig
+    simulator: SimulatorConfig = field(default_factory=SimulatorConfig)
+    name: str = ""
+    source: str = ""
+    profile: str = ""
+
+    def to_dict(self) -> dict:
+        """Plain dict of every section (for provenance in output files)."""
+        out = {name: asdict(getattr(self, name)) for name in _SECTIONS}
+        for sec in out.values():
+            for k, v in sec.items():
+                if isinstance(v, tuple):
+                    sec[k] = list(v)
+        out["name"] = self.name
+        return out
+
+    def replace_model(self, **changes: Any) -> ScannerConfig:
+        """Copy with some model parameters changed (validated again)."""
+        model = ModelConfig(**{**asdict(self.model), **changes})
+        return ScannerConfig(self.camera, self.projector, self.fringes, model,
+                             self.simulator, self.name, self.source, self.profile)
+
+    def replace_simulator(self, **changes: Any) -> ScannerConfig:
+        """Copy with some simulator settings changed (validated again)."""
+        sim = SimulatorConfig(**{**asdict(self.simulator), **changes})
+        return ScannerConfig(self.camera, self.projector, self.fringes, self.model,
+                             sim, self.name, self.source, self.profile)
+
+
+def _merge(base: dict, over: dict) -> dict:
+    """Deep-merge ``over`` into a copy of ``base``."""
+    out = copy.deepcopy(base)
+    for k, v in over.items():
+        if isinstance(v, dict) and isinstance(out.get(k), dict):
+            out[k] = _merge(out[k], v)
+        else:
+            out[k] = copy.deepcopy(v)
+    return out
+
+
+def _build_section(name: str, table: Any) -> Any:
+    """Build one section dataclass, rejecting unknown and missing keys."""
+    cls = _SECTIONS[name]
+    if not isinstance(table, dict):
+        raise ConfigError(f"[{name}] must be a table, got {table!r}")
+    known = {f.name: f for f in fields(cls)}
+    unknown = sorted(set(table) - set(known))
+    if unknown:
+        raise ConfigError(f"unknown key {name}.{unknown[0]} (known keys of [{name}]: "
+                          f"{', '.join(sorted(known))})")
+    missing = [k for k, f in known.items()
+               if k not in table and f.default is f.default_factory is _MISSING]
+    if missing:
+        meta = known[missing[0]].metadata
+        raise ConfigError(f"missing key {name}.{missing[0]} (expected {_expected(meta)})")
+    return cls(**table)
+
+
+_MISSING = fields(CameraConfig)[0].default  # dataclasses.MISSING without importing it
+
+
+def config_from_dict(data: dict, source: str = "<dict>", profile: str | None = None
+                     ) -> ScannerConfig:
+    """Validate a config given as nested dicts (the parsed TOML).
+
+    Parameters
+    ----------
+    data : dict
+        Parsed TOML: tables ``camera``, ``projector``, ``fringes``, ``model``, optional
+        ``simulator`` and ``profiles``, and an optional top-level ``name``.
+    source : str
+        File name used in error messages.
+    profile : str, optional
+        Name of a ``[profiles.NAME]`` table to apply over the base values.
+    """
+    try:
+        return _config_from_dict(data, source, profile)
+    except ConfigError as err:
+        raise ConfigError(f"{err} (in {source})") from None
+    except TypeError as err:  # pragma: no cover - defensive: bad table shapes
+        raise ConfigError(f"{err} (in {source})") from None
+
+
+def _config_from_dict(data: dict, source: str, profile: str | None) -> ScannerConfig:
+    data = dict(data)
+    profiles = data.pop("profiles", {})
+    name = data.pop("name", Path(source).stem)
+    if profile:
+        if profile not in profiles:
+            avail = ", ".join(sorted(profiles)) or "none"
+            raise ConfigError(f"unknown profile {profile!r} (profiles in this file: {avail})")
+        data = _merge(data, profiles[profile])
+    unknown = sorted(set(data) - set(_SECTIONS))
+    if unknown:
+        raise ConfigError(f"unknown table or key {unknown[0]!r} (known: "
+                          f"{', '.join(_SECTIONS)}, name, profiles)")
+    for sec in _SECTIONS:
+        if sec not in data and sec not in _OPTIONAL:
+            raise ConfigError(f"missing table [{sec}]")
+    built = {sec: _build_section(sec, data.get(sec, {})) for sec in _SECTIONS}
+    for pname, ptable in profiles.items():  # profiles must be valid too
+        if profile != pname:
+            _check_profile_keys(pname, ptable)
+    return ScannerConfig(**built, name=str(name), source=source, profile=profile or "")
+
+
+def _check_profile_keys(pname: str, ptable: Any) -> None:
+    """Reject profile keys that do not exist in the schema."""
+    if not isinstance(ptable, dict):
+        raise ConfigError(f"[profiles.{pname}] must be a table")
+    for sec, table in ptable.items():
+        if sec not in _SECTIONS or not isinstance(table, dict):
+            raise ConfigError(f"unknown table {sec!r} in [profiles.{pname}]")
+        known = {f.name for f in fields(_SECTIONS[sec])}
+        for key in table:
+            if key not in known:
+                raise ConfigError(f"unknown key {sec}.{key} in [profiles.{pname}]")
+
+
+def load_config(path: str | os.PathLike, profile: str | None = None) -> ScannerConfig:
+    """Load and validate a scanner config TOML file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The TOML file. ``FILE#PROFILE`` selects a profile too.
+    profile : str, optional
+        Name of a ``[profiles.NAME]`` table to apply.
+
+    Returns
+    -------
+    ScannerConfig
+        The validated config.
+
+    Raises
+    ------
+    ConfigError
+        On an unreadable file, TOML syntax error, unknown or missing key, or bad value.
+    """
+    text_path = str(path)
+    if "#" in text_path and profile is None:
+        text_path, profile = text_path.rsplit("#", 1)
+    p = Path(text_path)
+    try:
+        raw = p.read_bytes()
+    except OSError as err:
+        raise ConfigError(f"cannot read scanner config {p}: {err.strerror}") from None
+    try:
+        data = tomllib.loads(raw.decode("utf-8"))
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise ConfigError(f"{p} is not valid TOML: {err}") from None
+    return config_from_dict(data, source=str(p), profile=profile)

@@ -1,0 +1,454 @@
+"""The defocus uncertainty model of a phase-shift scanner (Sect. 3, Eqs. 1-19 of [1]).
+
+Every function is vectorised over numpy arrays and propagates NaN. Lengths are in
+millimetres, fringe periods in projector pixels, phase noise in projector pixels.
+
+The model in one line (Eq. 18/19)::
+
+    sigma(Q) = s_T(Q) * sigma_p / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
+
+Two readings of the paper are open (DESIGN.md section 3) and are explicit options:
+
+* ``filter_floor``: "none" (default) applies Eq. 17 as printed; "one" clamps F >= 1, the
+  bound 1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17. The default is "none" because
+  only that reading gives the local maximum of sigma at focus that the paper reports
+  (Fig. 3): with gamma = 3 and the paper's optics, sqrt(b_c b_d) / gamma < 1 near focus.
+* ``noise_reading``: "power" (default) divides by A, the squared magnitude ratio, as
+  Eq. 19 is printed; "amplitude" divides by sqrt(A), which is what additive intensity
+  noise gives. The characterisation fit (``scanqa characterize``) reports which reading
+  the data supports.
+
+Validity: the paper calls the disc-kernel model valid for r = C / omega_o <= 1/2. Past
+the first zero of J1 (r = 1.2197) the fringe contrast inverts. :func:`predict` flags
+points with r > 1/2 as outside the model's validity and returns NaN past the first zero.
+
+References
+----------
+.. [1] M.-A. Drouin, F. Blais, G. Godin, "Characterizing the impact of optically induced
+   blurring of a high-resolution phase-shift 3D scanner", Machine Vision and
+   Applications, 2017 (``shared/seed/000_b7b040f6e40e841e.txt``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import ArrayLike
+from scipy.optimize import brentq
+from scipy.special import j1
+
+from scanqa.config import ScannerConfig
+from scanqa.errors import RangeError
+
+#: Validity limit of the disc-kernel model, r = C / omega_o (Sect. 3.1 of [1]) [-].
+VALID_RATIO = 0.5
+#: First zero of J1(pi r): r = j_{1,1} / pi, where the fringe contrast inverts [-].
+FIRST_ZERO_RATIO = 3.8317059702075125 / np.pi
+
+
+def circle_of_confusion(z: ArrayLike, focus: float, aperture: float) -> np.ndarray:
+    """Diameter of the circle of confusion in the object plane (Eqs. 1, 2).
+
+    Parameters
+    ----------
+    z : array_like
+        Distance of the object plane from the lens, Z_c or Z_p [mm].
+    focus : float
+        On-focus distance Z' [mm].
+    aperture : float
+        Aperture diameter Phi = f / N [mm].
+
+    Returns
+    -------
+    ndarray
+        C(Z) = Phi |Z - Z'| / Z' [mm].
+
+    Examples
+    --------
+    >>> float(circle_of_confusion(460.0, 450.0, 12.5))
+    0.2777777777777778
+    """
+    z = np.asarray(z, dtype=float)
+    return aperture * np.abs(z - focus) / focus
+
+
+def projector_magnification(z_p: ArrayLike, focus: float, focal: float) -> np.ndarray:
+    """Projector magnification m_p (Eq. 3), implemented as printed.
+
+    Parameters
+    ----------
+    z_p : array_like
+        Distance of the object plane from the projector lens, Z_p [mm].
+    focus : float
+        Projector on-focus distance Z_p' [mm].
+    focal : float
+        Projector focal length f_p [mm].
+
+    Returns
+    -------
+    ndarray
+        m_p = 2 f_p / (Z_p' - 2 f_p + sqrt(Z_p (Z_p - 4 f_p))) [-]; NaN where
+        Z_p < 4 f_p (the square root is undefined).
+
+    Notes
+    -----
+    Eq. 3 is the thin-lens magnification written for a total object-image distance; the
+    paper applies it with Z_p as the object distance and so does this function, so that
+    the paper's tables are reproduced. It differs from the pinhole magnification of the
+    geometry (:attr:`ProjectorConfig.principal_distance_px`) by a few percent.
+    """
+    z_p = np.asarray(z_p, dtype=float)
+    with np.errstate(invalid="ignore"):
+        root = np.sqrt(z_p * (z_p - 4.0 * focal))
+    return 2.0 * focal / (focus - 2.0 * focal + root)
+
+
+def fringe_period_on_object(z_p: ArrayLike, period_px: float, pitch_mm: float,
+                            focus: float, focal: float) -> np.ndarray:
+    """Period of the projected sine wave on the object, omega_o (Eq. 4).
+
+    Parameters
+    ----------
+    z_p : array_like
+        Distance from the projector lens, Z_p [mm].
+    period_px : float
+        Fringe period omega in the projector image [projector px].
+    pitch_mm : float
+        Projector pixel pitch [mm].
+    focus, focal : float
+        Projector on-focus distance Z_p' and focal length f_p [mm].
+
+    Returns
+    -------
+    ndarray
+        omega_o = omega * pitch / m_p(Z_p) [mm].
+    """
+    return period_px * pitch_mm / projector_magnification(z_p, focus, focal)
+
+
+def attenuation(r: ArrayLike) -> np.ndarray:
+    """Attenuation of the sine wave by a disc blur kernel, A(r) (Eq. 12).
+
+    Parameters
+    ----------
+    r : array_like
+        Ratio of blur diameter to fringe period, r = c / p [-].
+
+    Returns
+    -------
+    ndarray
+        A(r) = (2 J1(pi r) / (pi r))^2 [-], with A(0) = 1.
+
+    Notes
+    -----
+    A is the squared magnitude ratio. It reaches 0 at the first zero of J1,
+    r = 1.2197 (:data:`FIRST_ZERO_RATIO`); past it the contrast is inverted and A
+    rises again in side lobes. The paper's model is valid for r <= 1/2.
+
+    Examples
+    --------
+    >>> float(attenuation(0.0))
+    1.0
+    >>> round(float(attenuation(0.5)), 4)
+    0.5191
+    """
+    r = np.asarray(r, dtype=float)
+    x = np.pi * np.abs(r)
+    small = x < 1e-8
+    safe = np.where(small, 1.0, x)
+    ratio = np.where(small, 1.0 - x**2 / 8.0, 2.0 * j1(safe) / safe)
+    return ratio**2
+
+
+def ratio_at_attenuation(level: float) -> float:
+    """Inverse of :func:`attenuation` on its main lobe: the r with A(r) = level.
+
+    Parameters
+    ----------
+    level : float
+        Attenuation level a, 0 < a <= 1 [-].
+
+    Returns
+    -------
+    float
+        r in [0, 1.2197) [-].
+    """
+    if not 0.0 < level <= 1.0:
+        raise RangeError(f"attenuation level must be in (0, 1], got {level!r}")
+    if level == 1.0:
+        return 0.0
+    return float(brentq(lambda r: attenuation(r) - level, 0.0, FIRST_ZERO_RATIO, xtol=1e-14))
+
+
+def image_blur_diameter(z_c: ArrayLike, focal: float, focus: float, aperture: float
+                        ) -> np.ndarray:
+    """Diameter of the circle of confusion in the camera image, c_c (Eq. 14).
+
+    Parameters
+    ----------
+    z_c : array_like
+        Object distance Z_c [mm].
+    focal, focus, aperture : float
+        Camera focal length f_c, focus distance Z_c' and aperture Phi_c [mm].
+
+    Returns
+    -------
+    ndarray
+        c_c = f_c / (Z_c - f_c) * C_c(Z_c) [mm].
+    """
+    z_c = np.asarray(z_c, dtype=float)
+    return focal / (z_c - focal) * circle_of_confusion(z_c, focus, aperture)
+
+
+def camera_blur_area(c_image: ArrayLike, pixel: float) -> np.ndarray:
+    """Area of the camera-induced blur in pixel units, b_c (Eq. 13).
+
+    Parameters
+    ----------
+    c_image : array_like
+        Image-side blur diameter c_c [mm].
+    pixel : float
+        Camera pixel size s_c [mm].
+
+    Returns
+    -------
+    ndarray
+        b_c = max(pi (c_c / (2 s_c))^2, 1) [px^2]; NaN stays NaN.
+    """
+    c_image = np.asarray(c_image, dtype=float)
+    area = np.pi * (c_image / (2.0 * pixel)) ** 2
+    return np.where(np.isnan(area), np.nan, np.maximum(area, 1.0))
+
+
+def airy_diameter(wavelength: float, f_number: float) -> float:
+    """Diameter of the Airy disc in the camera image, d_c (Eq. 15).
+
+    Parameters
+    ----------
+    wavelength : float
+        Wavelength lambda [mm] (the paper's 450 um is a typo for 450 nm).
+    f_number : float
+        Camera f-number N [-].
+
+    Returns
+    -------
+    float
+        d_c = 2 * 1.22 * lambda * N [mm].
+
+    Examples
+    --------
+    >>> round(airy_diameter(450e-6, 8.0) * 1e3, 4)
+    8.784
+    """
+    return 2.0 * 1.22 * wavelength * f_number
+
+
+def diffraction_blur_area(airy: float, pixel: float) -> float:
+    """Area of the diffraction blur in pixel units, b_d (Eq. 16).
+
+    Parameters
+    ----------
+    airy : float
+        Airy disc diameter d_c [mm].
+    pixel : float
+        Camera pixel size s_c [mm].
+
+    Returns
+    -------
+    float
+        b_d = pi (d_c / (2 s_c))^2 [px^2].
+    """
+    return float(np.pi * (airy / (2.0 * pixel)) ** 2)
+
+
+def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none"
+                  ) -> np.ndarray:
+    """Noise reduction by camera blur and diffraction, F_gamma (Eq. 17).
+
+    Parameters
+    ----------
+    b_c : array_like
+        Camera blur area [px^2].
+    b_d : float
+        Diffraction blur area [px^2].
+    gamma : float
+        Spatial correlation of the noise, >= 1 [-].
+    floor : {"none", "one"}
+        "none": Eq. 17 as printed (F may be < 1); "one": F clamped to >= 1.
+
+    Returns
+    -------
+    ndarray
+        F_gamma = sqrt(b_c b_d) / gamma [-].
+    """
+    f = np.sqrt(np.asarray(b_c, dtype=float) * b_d) / gamma
+    if floor == "one":
+        return np.where(np.isnan(f), np.nan, np.maximum(f, 1.0))
+    if floor != "none":
+        raise ValueError(f"floor must be 'none' or 'one', got {floor!r}")
+    return f
+
+
+def optical_scale(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
+                  reading: str = "power") -> np.ndarray:
+    """The optically induced blurring scale factor, s_O (Eq. 19).
+
+    Parameters
+    ----------
+    f_gamma : array_like
+        Filter factor F_gamma [-].
+    a_p, a_c : array_like
+        Projector and camera attenuation A [-].
+    reading : {"power", "amplitude"}
+        "power": 1 / (F A_p A_c) as printed; "amplitude": 1 / (F sqrt(A_p A_c)).
+
+    Returns
+    -------
+    ndarray
+        s_O [-]; inf where an attenuation is 0.
+    """
+    a = np.asarray(a_p, dtype=float) * np.asarray(a_c, dtype=float)
+    if reading == "amplitude":
+        a = np.sqrt(a)
+    elif reading != "power":
+        raise ValueError(f"reading must be 'power' or 'amplitude', got {reading!r}")
+    with np.errstate(divide="ignore"):
+        return 1.0 / (np.asarray(f_gamma, dtype=float) * a)
+
+
+def to_projector_frame(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
+    """Express scanner-frame points in the projector frame.
+
+    Parameters
+    ----------
+    points : (..., 3) array_like
+        Points in the scanner (camera) frame [mm].
+    config : ScannerConfig
+        Gives the projector pose.
+
+    Returns
+    -------
+    (..., 3) ndarray
+        Q_p = R (Q - position) [mm].
+    """
+    q = np.asarray(points, dtype=float)
+    proj = config.projector
+    return (q - np.asarray(proj.position_mm)) @ proj.rotation.T
+
+
+def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
+    """Triangulation scale s_T from the config's pinhole geometry (no table).
+
+    Parameters
+    ----------
+    points : (..., 3) array_like
+        Points in the scanner frame [mm].
+    config : ScannerConfig
+        Camera and projector geometry.
+
+    Returns
+    -------
+    (...,) ndarray
+        |dQ/dx_p| along the camera's line of sight [mm / projector px].
+
+    Notes
+    -----
+    The point moves along its camera ray Q(t) = t d; its projector column is
+    x_p = f_p X_p / Z_p + x_0, so dx_p/dt = f_p (X_p' Z_p - X_p Z_p') / Z_p^2 with
+    X_p' = R_x . d and Z_p' = R_z . d. With a calibration table, use the table's slope
+    instead (DESIGN.md section 3).
+    """
+    q = np.asarray(points, dtype=float)
+    rot = config.projector.rotation
+    with np.errstate(invalid="ignore", divide="ignore"):
+        d = q / np.linalg.norm(q, axis=-1, keepdims=True)
+        qp = to_projector_frame(q, config)
+        dx, dz = d @ rot[0], d @ rot[2]
+        dxp_dt = config.projector.principal_distance_px * (dx * qp[..., 2] - qp[..., 0] * dz) \
+            / qp[..., 2] ** 2
+        return 1.0 / np.abs(dxp_dt)
+
+
+@dataclass(frozen=True)
+class Prediction:
+    """Every intermediate quantity of the model for a set of points (arrays of one shape).
+
+    Lengths in mm, ratios and factors dimensionless, ``sigma`` in mm. ``valid`` is False
+    where a blur ratio exceeds 1/2 (outside the paper's validity); ``sigma`` is NaN past
+    the first zero of J1 and for NaN input.
+    """
+
+    z_c: np.ndarray
+    z_p: np.ndarray
+    omega_o: np.ndarray
+    ratio_camera: np.ndarray
+    ratio_projector: np.ndarray
+    attenuation_camera: np.ndarray
+    attenuation_projector: np.ndarray
+    blur_area_camera: np.ndarray
+    filter_factor: np.ndarray
+    s_o: np.ndarray
+    s_t: np.ndarray
+    sigma: np.ndarray
+    valid: np.ndarray
+    filter_floor: str
+    noise_reading: str
+
+    @property
+    def sigma_trusted(self) -> np.ndarray:
+        """``sigma`` where the model is valid, NaN elsewhere [mm]."""
+        return np.where(self.valid, self.sigma, np.nan)
+
+
+def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = None,
+            s_t: ArrayLike | None = None, sigma_p: float | None = None,
+            filter_floor: str | None = None, noise_reading: str | None = None) -> Prediction:
+    """Predicted standard deviation sigma(Q) of points (Eqs. 1-19).
+
+    Parameters
+    ----------
+    points : (..., 3) array_like
+        Points in the scanner (camera) frame [mm].
+    config : ScannerConfig
+        Scanner config (optics, poses, model parameters and readings).
+    period_px : float, optional
+        Fringe period [projector px]; default the config's working (finest) period.
+    s_t : array_like, optional
+        Triangulation scale |dQ/dx_p| [mm / px], e.g. from a calibration table's slope;
+        default from the config geometry (:func:`triangulation_scale`).
+    sigma_p : float, optional
+        Phase noise [projector px]; default ``config.model.sigma_p_px``.
+    filter_floor, noise_reading : str, optional
+        Override the config's readings (see module notes).
+
+    Returns
+    -------
+    Prediction
+        sigma along the line of sight [mm] and every intermediate quantity.
+    """
+    cam, proj, model = config.camera, config.projector, config.model
+    q = np.asarray(points, dtype=float)
+    period = config.fringes.working_period_px if period_px is None else period_px
+    floor = model.filter_floor if filter_floor is None else filter_floor
+    reading = model.noise_reading if noise_reading is None else noise_reading
+    z_c = q[..., 2]
+    z_p = to_projector_frame(q, config)[..., 2]
+    omega_o = fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3, proj.focus_mm,
+                                      proj.focal_mm)
+    r_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm) / omega_o
+    r_p = circle_of_confusion(z_p, proj.focus_mm, proj.aperture_mm) / omega_o
+    a_c, a_p = attenuation(r_c), attenuation(r_p)
+    b_c = camera_blur_area(image_blur_diameter(z_c, cam.focal_mm, cam.focus_mm,
+                                               cam.aperture_mm), cam.pixel_um * 1e-3)
+    b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
+                                cam.pixel_um * 1e-3)
+    f_gamma = filter_factor(b_c, b_d, model.gamma, floor)
+    s_o = optical_scale(f_gamma, a_p, a_c, reading)
+    s_o = np.where((r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO), np.nan, s_o)
+    s_t = triangulation_scale(q, config) if s_t is None else np.asarray(s_t, dtype=float)
+    sp = model.sigma_p_px if sigma_p is None else sigma_p
+    sigma = s_t * s_o * sp
+    valid = (r_c <= VALID_RATIO) & (r_p <= VALID_RATIO) & np.isfinite(sigma)
+    return Prediction(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma, s_o,
+                      np.broadcast_to(s_t, np.shape(sigma)), sigma, valid, floor, reading)
