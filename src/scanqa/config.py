@@ -197,9 +197,17 @@ class ProjectorConfig(_Section):
 
     @property
     def principal_distance_px(self) -> float:
-        """Pinhole principal distance: the thin-lens image distance at focus [px]."""
-        v = self.focal_mm * self.focus_mm / (self.focus_mm - self.focal_mm)
-        return v / (self.pitch_um * 1e-3)
+        """Pinhole principal distance, consistent with Eq. 3 at focus [px].
+
+        The projector's pinhole magnification at its focus distance equals the paper's
+        m_p(Z_p') (Eq. 3), so that the fringe period on an object at focus is the model's
+        omega_o(Z_p') exactly; the pitch was inferred through Eq. 3 (calib/*.toml).
+        Away from focus the pinhole period grows as Z_p, Eq. 4 as 1 / m_p(Z_p).
+        """
+        z = self.focus_mm
+        m_focus = 2.0 * self.focal_mm / (z - 2.0 * self.focal_mm
+                                         + math.sqrt(z * (z - 4.0 * self.focal_mm)))
+        return m_focus * z / (self.pitch_um * 1e-3)
 
     @property
     def principal_point_px(self) -> tuple[float, float]:
