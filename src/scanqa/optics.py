@@ -5,7 +5,8 @@ millimetres, fringe periods in projector pixels, phase noise in projector pixels
 
 The model in one line (Eq. 18/19)::
 
-    sigma(Q) = s_T(Q) * sigma_p / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
+    sigma(Q) = s_T(Q) * sigma_p
+               / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
 
 Two readings of the paper are open (DESIGN.md section 3) and are explicit options:
 
@@ -151,7 +152,7 @@ def attenuation(r: ArrayLike) -> np.ndarray:
     >>> float(attenuation(0.0))
     1.0
     >>> round(float(attenuation(0.5)), 4)
-    0.5191
+    0.5209
     """
     r = np.asarray(r, dtype=float)
     x = np.pi * np.abs(r)

@@ -1,0 +1,145 @@
+"""Design tools: ``scanqa dof``, ``curve``, ``volume`` and ``flatten`` (parsing only)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+
+from scanqa import design
+from scanqa.cli.common import (
+    add_config_argument,
+    add_output_arguments,
+    config_from_args,
+    float_list,
+    format_rows,
+    output_path,
+)
+from scanqa.report import design as plots
+
+_FMT = argparse.RawDescriptionHelpFormatter
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the four design subcommands."""
+    p = sub.add_parser("dof", formatter_class=_FMT,
+                       help="depth of field per attenuation level and period (Tables 1, 2)",
+                       epilog="example:\n  scanqa dof --config calib/paper_scanner.toml "
+                              "--periods 5,7,10 --json")
+    add_config_argument(p)
+    p.add_argument("--levels", type=float_list, default=list(design.TABLE_LEVELS),
+                   help="attenuation levels [-] (default: the ten of Table 1)")
+    p.add_argument("--periods", type=float_list, default=None,
+                   help="fringe periods [projector px] (default: the config's)")
+    add_output_arguments(p)
+    p.set_defaults(func=run_dof)
+
+    p = sub.add_parser("curve", formatter_class=_FMT,
+                       help="attenuation, F_gamma and sigma over range on the camera axis",
+                       epilog="example:\n  scanqa curve --config calib/paper_scanner.toml "
+                              "--z-min 420 --z-max 480 --step 0.5 --plot w.png")
+    _add_range(p)
+    p.set_defaults(func=run_curve)
+
+    p = sub.add_parser("volume", formatter_class=_FMT,
+                       help="usable reconstruction volume at an attenuation level (Sect. 5.1)",
+                       epilog="example:\n  scanqa volume --config calib/paper_scanner.toml "
+                              "--level 0.49 --plot volume.png")
+    add_config_argument(p)
+    p.add_argument("--level", type=float, default=0.49,
+                   help="combined attenuation threshold A_c*A_p [-] (default 0.49)")
+    p.add_argument("--z-min", type=float, default=None, help="near plane [mm]")
+    p.add_argument("--z-max", type=float, default=None, help="far plane [mm]")
+    p.add_argument("--step", type=float, default=1.0, help="voxel size [mm] (default 1)")
+    add_output_arguments(p)
+    p.set_defaults(func=run_volume)
+
+    p = sub.add_parser("flatten", formatter_class=_FMT,
+                       help="digital filter diameter that flattens the W curve (Sect. 5.2)",
+                       epilog="example:\n  scanqa flatten --config calib/paper_scanner.toml "
+                              "--plot flat.png --csv")
+    _add_range(p)
+    p.set_defaults(func=run_flatten)
+
+
+def _add_range(p: argparse.ArgumentParser) -> None:
+    add_config_argument(p)
+    p.add_argument("--z-min", type=float, default=None,
+                   help="first range [mm] (default: camera focus - 10 %%)")
+    p.add_argument("--z-max", type=float, default=None,
+                   help="last range [mm] (default: camera focus + 10 %%)")
+    p.add_argument("--step", type=float, default=0.5, help="range step [mm] (default 0.5)")
+    p.add_argument("--period", type=float, default=None,
+                   help="fringe period [projector px] (default: the finest of the config)")
+    add_output_arguments(p)
+
+
+def _range(args: argparse.Namespace, focus: float) -> tuple[float, float, float]:
+    z_min = 0.9 * focus if args.z_min is None else args.z_min
+    z_max = 1.1 * focus if args.z_max is None else args.z_max
+    return z_min, z_max, args.step
+
+
+def _columns_to_rows(columns: dict) -> list[dict]:
+    keys = list(columns)
+    n = len(columns[keys[0]])
+    return [{k: _py(columns[k][i]) for k in keys} for i in range(n)]
+
+
+def _py(value: object) -> object:
+    if isinstance(value, (np.bool_, bool)):
+        return bool(value)
+    return float(value)
+
+
+def _emit(args: argparse.Namespace, rows: list[dict], extra: str = "") -> None:
+    print(format_rows(rows, args.json, args.csv))
+    if extra and not (args.json or args.csv):
+        print(extra)
+
+
+def run_dof(args: argparse.Namespace) -> int:
+    config = config_from_args(args)
+    plot = output_path(args.plot)
+    rows = design.dof_table(config, args.levels, args.periods)
+    _emit(args, [r.as_row() for r in rows])
+    if plot:
+        plots.plot_dof(rows, plot)
+    return 0
+
+
+def run_curve(args: argparse.Namespace) -> int:
+    config = config_from_args(args)
+    plot = output_path(args.plot)
+    curve = design.axis_curve(config, *_range(args, config.camera.focus_mm), args.period)
+    _emit(args, _columns_to_rows(curve))
+    if plot:
+        plots.plot_curve(curve, plot, config.camera.focus_mm)
+    return 0
+
+
+def run_volume(args: argparse.Namespace) -> int:
+    config = config_from_args(args)
+    plot = output_path(args.plot)
+    vol = design.usable_volume(config, args.level, args.z_min, args.z_max, args.step)
+    row = {"level": vol.level, "z_min_mm": vol.z_min_mm, "z_max_mm": vol.z_max_mm,
+           "step_mm": vol.step_mm, "total_mm3": vol.total_mm3, "usable_mm3": vol.usable_mm3,
+           "fraction": vol.fraction}
+    if args.json:
+        print(json.dumps(row, indent=1))
+    else:
+        print(format_rows([row], False, args.csv))
+    if plot:
+        plots.plot_volume(vol, plot)
+    return 0
+
+
+def run_flatten(args: argparse.Namespace) -> int:
+    config = config_from_args(args)
+    plot = output_path(args.plot)
+    res = design.flatten_curve(config, *_range(args, config.camera.focus_mm), args.period)
+    _emit(args, _columns_to_rows(res))
+    if plot:
+        plots.plot_flatten(res, plot)
+    return 0

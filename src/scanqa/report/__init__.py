@@ -1,0 +1,1 @@
+"""Rendering only: plots and reports from results computed elsewhere."""

@@ -1,0 +1,18 @@
+"""Shared fixtures: the paper's scanner config."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+from scanqa.config import ScannerConfig, load_config
+
+ROOT = Path(__file__).resolve().parents[1]
+PAPER_CONFIG = ROOT / "calib" / "paper_scanner.toml"
+
+
+@pytest.fixture(scope="session")
+def paper_config() -> ScannerConfig:
+    """calib/paper_scanner.toml at f/8 (the set-up of Tables 1 and 2)."""
+    return load_config(PAPER_CONFIG)

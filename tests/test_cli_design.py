@@ -1,0 +1,96 @@
+"""The design-tool CLI: output formats, plots and one-line errors."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+
+import numpy as np
+import pytest
+
+from scanqa.cli import main
+
+from .conftest import PAPER_CONFIG
+
+CFG = str(PAPER_CONFIG)
+
+
+def run(capsys, *argv):
+    code = main(list(argv))
+    out = capsys.readouterr()
+    return code, out.out, out.err
+
+
+def test_dof_json_rows(capsys):
+    code, out, _ = run(capsys, "dof", "--config", CFG, "--json")
+    rows = json.loads(out)
+    assert code == 0 and len(rows) == 60  # default: ten levels x three periods x two devices
+    assert {"device", "level", "period_px", "dof_mm"} <= set(rows[0])
+    cam = {(r["period_px"], r["level"]): r["dof_mm"] for r in rows if r["device"] == "camera"}
+    np.testing.assert_allclose(cam[(5.0, 0.49)], 27.9, rtol=1e-3)  # Table 1
+
+
+def test_dof_csv_and_plot(capsys, tmp_path):
+    png = tmp_path / "dof.png"
+    code, out, _ = run(capsys, "dof", "--config", CFG, "--levels", "0.49", "--periods", "5",
+                       "--csv", "--plot", str(png))
+    rows = list(csv.DictReader(io.StringIO(out)))
+    assert code == 0 and [r["device"] for r in rows] == ["camera", "projector"]
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_curve_json_keys_and_f11_profile(capsys):
+    code, out, _ = run(capsys, "curve", "--config", CFG, "--z-min", "440", "--z-max", "460",
+                       "--step", "5", "--json")
+    rows = json.loads(out)
+    assert code == 0 and [r["z_mm"] for r in rows] == [440, 445, 450, 455, 460]
+    keys = {"z_mm", "attenuation_camera", "attenuation_projector", "filter_factor", "sigma_um"}
+    assert keys <= set(rows[0])
+    _, out11, _ = run(capsys, "curve", "--config", CFG, "--profile", "f11", "--z-min", "440",
+                      "--z-max", "460", "--step", "5", "--json")
+    # a smaller aperture attenuates less at the same defocus
+    assert json.loads(out11)[0]["attenuation_camera"] > rows[0]["attenuation_camera"]
+
+
+def test_volume_and_flatten(capsys, tmp_path):
+    code, out, _ = run(capsys, "volume", "--config", CFG, "--step", "4", "--json",
+                       "--plot", str(tmp_path / "v.png"))
+    vol = json.loads(out)
+    assert code == 0 and 0 < vol["fraction"] < 1
+    code, out, _ = run(capsys, "flatten", "--config", CFG, "--z-min", "440", "--z-max", "460",
+                       "--json", "--plot", str(tmp_path / "f.png"))
+    rows = json.loads(out)
+    assert code == 0 and "filter_diameter_px" in rows[0]
+    assert (tmp_path / "v.png").exists() and (tmp_path / "f.png").exists()
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["dof", "--config", "missing.toml"], "cannot read scanner config missing.toml"),
+    (["dof", "--config", CFG, "--levels", "1.5"], "attenuation level must be in (0, 1)"),
+    (["curve", "--config", CFG, "--z-min", "460", "--z-max", "440"], "--z-max must be >"),
+    (["curve", "--config", CFG, "--plot", "/nonexistent/dir/x.png"], "does not exist"),
+    (["dof", "--config", CFG, "--profile", "f99"], "unknown profile 'f99'"),
+])
+def test_bad_input_is_one_line_and_nonzero(capsys, argv, message):
+    code, _, err = run(capsys, *argv)
+    assert code == 2
+    assert err.startswith("scanqa: ") and message in err
+    assert "Traceback" not in err and err.count("\n") == 1
+
+
+def test_argparse_errors_are_short(capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["dof", "--levels", "abc", "--config", CFG])
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    assert "expected comma-separated numbers" in err and "Traceback" not in err
+
+
+def test_every_subcommand_has_help_with_example(capsys):
+    from scanqa.cli import build_parser
+
+    parser = build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command")
+    for name, p in sub.choices.items():
+        assert "example:" in (p.epilog or ""), name
