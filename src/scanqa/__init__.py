@@ -8,6 +8,6 @@ from __future__ import annotations
 
 __version__ = "0.1.0"
 
-from scanqa.errors import ConfigError, InputError, ScanQAError  # noqa: E402
+from scanqa.errors import ConfigError, InputError, ScanQAError
 
 __all__ = ["ConfigError", "InputError", "ScanQAError", "__version__"]
