@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml | syslibs
 	@touch $(STAMP)
 
 demo: syslibs $(STAMP)
-	@$(BIN)/python -m scanqa.cli demo $(DEMO_ARGS)
+	@$(BIN)/scanqa demo $(DEMO_ARGS)
 
 test: syslibs $(STAMP)
 	@$(BIN)/python -m pytest -q $(PYTEST_ARGS)
