@@ -1,0 +1,589 @@
+"""Weighted nonparametric calibration table (Bumbaca-Blais style, DESIGN.md section 4).
+
+No global lens model is fitted for range. A flat target is scanned at K known stage
+positions; the table maps raw sensor coordinates (u, v) and the unwrapped projector
+coordinate x_p to metric X, Y, Z [mm].
+
+The table is a regular grid over (u, v, s) with s = x_p - x_ref(u, v) [projector px]: the
+x_p axis is sheared per column band by a smooth reference phase x_ref (the phase of the
+middle of the sweep at that node), so that a grid line of constant s stays near one depth
+across a cell and interpolation in (u, v) is accurate. Each node holds X, Y, Z and the
+slope dQ/dx_p; a query is bilinear in (u, v) and cubic Hermite in s (constant time per
+point, smooth, no quantisation to the calibrated planes).
+
+Building a node is a weighted aggregation in two stages:
+
+1. Per observed plane, the samples of a cell of ``cell_px`` x ``cell_px`` pixels are fitted
+   with a local plane x_p = a + b du + c dv (orthogonal regression is not needed: u, v
+   are exact). Samples flagged by the decoder (low modulation, saturation, unwrapping
+   inconsistency) are rejected first; then samples whose residual exceeds a robust
+   threshold (unwrapping jumps of the scan) are rejected, both counted per reason.
+2. Per node, the cell estimates x_k of all planes (and repeats) are fitted with the
+   projective model of one camera ray, x (1 + g z) = a + b z + d z^2 with z the scaled
+   stage position (exact, d = 0, for pinhole optics; d absorbs mild distortion), by
+   weighted least squares with weight 1 / var(x_k). ``weights="model"`` takes var(x_k)
+   from the optics model at that node and plane (s_O sigma_p)^2 / n; ``"modulation"`` from
+   the decoder's per-pixel sigma_xp; ``"none"`` weighs every sample equally.
+
+The table's own uncertainty (per node, along the line of sight) is propagated from the
+parameter covariance of stage 2, scaled by the fit's reduced chi-square.
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scanqa import __version__, optics
+from scanqa.config import ScannerConfig, config_from_dict
+from scanqa.errors import InputError
+
+TABLE_FORMAT = "scanqa-table/1"
+WEIGHT_MODES = ("model", "modulation", "none")
+#: Reasons a calibration sample is rejected, in report order.
+REJECT_REASONS = ("decoder_mask", "low_modulation", "unwrap_jump", "sparse_cell")
+
+
+@dataclass(frozen=True)
+class PlaneObservation:
+    """One decoded scan of the flat target at one stage position.
+
+    Parameters
+    ----------
+    z_mm : float
+        Z of the target plane in the scanner frame (the stage position) [mm].
+    xp : (H, W) ndarray
+        Unwrapped projector coordinate, NaN where invalid [projector px].
+    mask : (H, W) uint8 ndarray, optional
+        Decoder reason codes, 0 = valid.
+    modulation : (H, W) ndarray, optional
+        Fringe modulation B [DN].
+    sigma_xp : (H, W) ndarray, optional
+        Decoder's per-pixel phase noise [projector px].
+    x_mm, y_mm : (H, W) ndarray, optional
+        Lateral coordinates of the target per pixel (a marked target) [mm]; otherwise
+        they come from the camera intrinsics.
+    source : str
+        Where it came from, for messages and provenance.
+    """
+
+    z_mm: float
+    xp: np.ndarray
+    mask: np.ndarray | None = None
+    modulation: np.ndarray | None = None
+    sigma_xp: np.ndarray | None = None
+    x_mm: np.ndarray | None = None
+    y_mm: np.ndarray | None = None
+    source: str = ""
+
+
+@dataclass
+class BuildReport:
+    """What the build did: counts per rejection reason and per-position residuals."""
+
+    rejected: dict = field(default_factory=lambda: dict.fromkeys(REJECT_REASONS, 0))
+    used_samples: int = 0
+    positions: list = field(default_factory=list)
+
+    def as_dict(self) -> dict:
+        return {"rejected": dict(self.rejected), "used_samples": self.used_samples,
+                "positions": self.positions}
+
+
+@dataclass(frozen=True)
+class TableLookup:
+    """Result of applying a table: arrays shaped like the query."""
+
+    xyz: np.ndarray          # (..., 3) [mm]
+    slope: np.ndarray        # (..., 3) dQ/dx_p [mm / projector px]
+    sigma_table: np.ndarray  # (...,) table's own std along the line of sight [mm]
+    in_volume: np.ndarray    # (...,) bool: phase inside the pixel's calibrated range
+
+    @property
+    def s_t(self) -> np.ndarray:
+        """Triangulation scale |dQ/dx_p| [mm / projector px]."""
+        return np.linalg.norm(self.slope, axis=-1)
+
+
+@dataclass(frozen=True)
+class CalibrationTable:
+    """A built table. Arrays: nodes (n_v, n_u), s-grid (n_s,), values (n_v, n_u, n_s, 3)."""
+
+    node_u: np.ndarray
+    node_v: np.ndarray
+    x_ref: np.ndarray
+    s_nodes: np.ndarray
+    xyz: np.ndarray
+    dxyz: np.ndarray
+    sigma_node: np.ndarray
+    s_lo: np.ndarray
+    s_hi: np.ndarray
+    width_px: int
+    height_px: int
+    weights: str
+    config: dict
+    provenance: dict
+
+    @property
+    def cell_px(self) -> float:
+        """Node spacing in u and v [camera px]."""
+        return float(self.node_u[1] - self.node_u[0]) if self.node_u.size > 1 else 1.0
+
+    @property
+    def z_range_mm(self) -> tuple[float, float]:
+        """Calibrated stage range [mm]."""
+        zs = [p["z_mm"] for p in self.provenance.get("positions", [])]
+        return (min(zs), max(zs)) if zs else (float("nan"), float("nan"))
+
+    def scanner_config(self) -> ScannerConfig:
+        """The config the table was built with."""
+        return config_from_dict(self.config, source="calibration table")
+
+    def apply(self, u: np.ndarray, v: np.ndarray, xp: np.ndarray,
+              extrapolate: bool = False) -> TableLookup:
+        """Map pixel coordinates and phase to metric points.
+
+        Parameters
+        ----------
+        u, v : array_like
+            Pixel coordinates (column, row) [camera px].
+        xp : array_like
+            Unwrapped projector coordinate [projector px].
+        extrapolate : bool
+            Return points for phases outside a pixel's calibrated range (still flagged);
+            by default they are NaN.
+
+        Returns
+        -------
+        TableLookup
+            X, Y, Z [mm], slope dQ/dx_p, the table's sigma and the in-volume flag.
+        """
+        return _apply(self, *np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float),
+                                                 np.asarray(xp, float)), extrapolate)
+
+    def apply_image(self, xp: np.ndarray, extrapolate: bool = False) -> TableLookup:
+        """Apply the table to a whole (H, W) phase map of the calibrated camera."""
+        xp = np.asarray(xp, dtype=float)
+        if xp.shape != (self.height_px, self.width_px):
+            raise InputError(f"phase map is {xp.shape[1]} x {xp.shape[0]} px but the table "
+                             f"was built for a {self.width_px} x {self.height_px} px camera")
+        v, u = np.indices(xp.shape, dtype=float)
+        return _apply(self, u, v, xp, extrapolate)
+
+
+# --------------------------------------------------------------------------- building
+
+
+def _block_view(img: np.ndarray, cell: int, n_v: int, n_u: int) -> np.ndarray:
+    """(H, W) -> (n_v, n_u, cell*cell), NaN-padded to whole cells."""
+    h, w = img.shape
+    pad = np.full((n_v * cell, n_u * cell), np.nan)
+    pad[:h, :w] = img
+    return pad.reshape(n_v, cell, n_u, cell).transpose(0, 2, 1, 3).reshape(n_v, n_u, -1)
+
+
+def _fit_cells(x: np.ndarray, ok: np.ndarray, du: np.ndarray, dv: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Least-squares plane x = a + b du + c dv per cell; returns a, residuals, counts."""
+    w = ok.astype(float)
+    xs = np.where(ok, x, 0.0)
+    cols = (np.ones_like(du), du, dv)
+    ata = np.empty((*x.shape[:2], 3, 3))
+    atb = np.empty((*x.shape[:2], 3))
+    for i, ci in enumerate(cols):
+        atb[..., i] = (w * ci * xs).sum(-1)
+        for j, cj in enumerate(cols):
+            ata[..., i, j] = (w * ci * cj).sum(-1)
+    n = w.sum(-1)
+    good = n >= 6
+    ata[~good] = np.eye(3)
+    coef = np.linalg.solve(ata, atb[..., None])[..., 0]
+    pred = coef[..., :1] + coef[..., 1:2] * du + coef[..., 2:3] * dv
+    return np.where(good, coef[..., 0], np.nan), x - pred, n
+
+
+def _robust_sigma(res: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Per-cell robust std of residuals (1.4826 MAD) [px]."""
+    r = np.where(ok, np.abs(res), np.nan)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            return 1.4826 * np.nanmedian(r, axis=-1)
+
+
+@dataclass
+class _CellStats:
+    """Stage-1 output for one observation: one estimate per cell."""
+
+    z_mm: float
+    x: np.ndarray       # (n_v, n_u) phase at the cell centre [px]
+    var: np.ndarray     # (n_v, n_u) variance used for the weight [px^2]
+    n: np.ndarray       # (n_v, n_u) samples used
+    scatter: np.ndarray  # (n_v, n_u) robust residual std [px]
+    lat: tuple | None   # (X, Y) cell estimates [mm] from lateral maps
+
+
+def _stage1(obs: PlaneObservation, cell: int, n_v: int, n_u: int, jump_px: float,
+            min_modulation: float, report: BuildReport) -> _CellStats:
+    """Cell estimates of one observation with rejections counted."""
+    x = _block_view(obs.xp, cell, n_v, n_u)
+    ok = np.isfinite(x)
+    if obs.mask is not None:
+        m = _block_view(obs.mask.astype(float), cell, n_v, n_u)
+        bad = ok & (m > 0)
+        report.rejected["decoder_mask"] += int(bad.sum())
+        report.rejected["decoder_mask"] += int((~ok & (m > 0)).sum())
+        ok &= ~bad
+    if obs.modulation is not None and min_modulation > 0:
+        low = ok & (_block_view(obs.modulation, cell, n_v, n_u) < min_modulation)
+        report.rejected["low_modulation"] += int(low.sum())
+        ok &= ~low
+    c = (cell - 1) / 2.0
+    dv, du = np.divmod(np.arange(cell * cell, dtype=float), cell)
+    du, dv = du - c, dv - c
+    a, res, n = _fit_cells(x, ok, du, dv)
+    sig = _robust_sigma(res, ok)
+    thr = np.minimum(jump_px, np.maximum(6.0 * sig, 1e-3))[..., None]
+    jump = ok & (np.abs(res) > thr)
+    report.rejected["unwrap_jump"] += int(jump.sum())
+    ok &= ~jump
+    a, res, n = _fit_cells(x, ok, du, dv)
+    sparse = n < 6
+    report.rejected["sparse_cell"] += int(n[sparse].sum())
+    report.used_samples += int(n[~sparse].sum())
+    scatter = np.sqrt(np.where(ok, res, 0.0).__pow__(2).sum(-1) / np.maximum(n - 3, 1))
+    var = _sample_var(obs, ok, cell, n_v, n_u)
+    lat = None
+    if obs.x_mm is not None and obs.y_mm is not None:
+        lat = tuple(_fit_cells(_block_view(m, cell, n_v, n_u), ok, du, dv)[0]
+                    for m in (obs.x_mm, obs.y_mm))
+    a = np.where(sparse, np.nan, a)
+    return _CellStats(obs.z_mm, a, var, np.where(sparse, 0, n), scatter, lat)
+
+
+def _sample_var(obs: PlaneObservation, ok: np.ndarray, cell: int, n_v: int, n_u: int
+                ) -> np.ndarray | None:
+    """Mean decoder variance per cell (for modulation weights), or None."""
+    if obs.sigma_xp is None:
+        return None
+    s = _block_view(obs.sigma_xp, cell, n_v, n_u)
+    with np.errstate(all="ignore"):
+        return np.where(ok, s**2, 0.0).sum(-1) / np.maximum(ok.sum(-1), 1)
+
+
+def _node_points(config: ScannerConfig, node_u: np.ndarray, node_v: np.ndarray,
+                 z: float) -> np.ndarray:
+    """Points on the node rays at plane Z = z from the camera intrinsics [mm]."""
+    cam = config.camera
+    f = cam.principal_distance_px
+    uu, vv = np.meshgrid(node_u, node_v)
+    return np.stack([(uu - cam.principal_point_px[0]) / f * z,
+                     (vv - cam.principal_point_px[1]) / f * z, np.full_like(uu, z)], -1)
+
+
+def _weights(st: _CellStats, mode: str, config: ScannerConfig, node_u: np.ndarray,
+             node_v: np.ndarray) -> np.ndarray:
+    """Stage-2 weight of each cell estimate: 1 / var(x_k) [1/px^2]."""
+    n = st.n.astype(float)
+    if mode == "none":
+        w = n
+    elif mode == "model":
+        pred = optics.predict(_node_points(config, node_u, node_v, st.z_mm), config)
+        sig_x = pred.s_o * config.model.sigma_p_px
+        w = n / sig_x**2
+    else:
+        if st.var is None:
+            raise InputError("--weights modulation needs the decoder's sigma_xp in every "
+                             "phase file of the sweep; use --weights model or none")
+        w = n / st.var
+    return np.where(np.isfinite(st.x) & np.isfinite(w) & (n > 0), w, 0.0)
+
+
+def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
+                weights: str = "model", cell_px: int = 16, s_step_px: float = 1.0,
+                min_modulation: float = 0.0, jump_fraction: float = 0.25,
+                provenance: dict | None = None,
+                progress: Callable[[int, int], None] | None = None
+                ) -> tuple[CalibrationTable, BuildReport]:
+    """Build a calibration table from decoded scans of a flat target on a stage.
+
+    Parameters
+    ----------
+    observations : iterable of PlaneObservation
+        Scans at three or more distinct stage positions (repeats allowed), all of one
+        camera size. Consumed one at a time: memory holds one image.
+    config : ScannerConfig
+        Scanner config (intrinsics for lateral X, Y and the model weights).
+    weights : {"model", "modulation", "none"}
+        How samples are weighted (module notes).
+    cell_px : int
+        Node spacing in u and v [camera px].
+    s_step_px : float
+        Node spacing along the sheared phase axis [projector px].
+    min_modulation : float
+        Samples with modulation below this are rejected [DN]; 0 keeps the decoder's mask.
+    jump_fraction : float
+        Residuals larger than this fraction of the working period count as unwrapping
+        jumps (also any beyond 6 robust std of the cell) [-].
+    provenance : dict, optional
+        Sweep description stored in the table.
+    progress : callable, optional
+        Called as progress(done, total) after each observation.
+
+    Returns
+    -------
+    (CalibrationTable, BuildReport)
+    """
+    if weights not in WEIGHT_MODES:
+        raise InputError(f"--weights must be one of {', '.join(WEIGHT_MODES)}, got {weights!r}")
+    obs_list = list(observations)
+    report = BuildReport()
+    stats, shape = [], None
+    for i, obs in enumerate(obs_list):
+        if shape is None:
+            shape = obs.xp.shape
+            n_v, n_u = -(-shape[0] // cell_px), -(-shape[1] // cell_px)
+        elif obs.xp.shape != shape:
+            raise InputError(f"{obs.source or 'observation'}: image is {obs.xp.shape[1]} x "
+                             f"{obs.xp.shape[0]} px, the sweep's first is {shape[1]} x "
+                             f"{shape[0]} px: all scans must come from one camera")
+        jump = jump_fraction * config.fringes.working_period_px
+        stats.append(_stage1(obs, cell_px, n_v, n_u, jump, min_modulation, report))
+        if progress:
+            progress(i + 1, len(obs_list))
+    zs = sorted({s.z_mm for s in stats})
+    if len(zs) < 3:
+        raise InputError(f"a calibration sweep needs at least 3 distinct positions, got "
+                         f"{len(zs)}")
+    node_u = np.arange(n_u) * cell_px + (cell_px - 1) / 2.0
+    node_v = np.arange(n_v) * cell_px + (cell_px - 1) / 2.0
+    table = _stage2(stats, config, weights, node_u, node_v, s_step_px, shape, provenance,
+                    report)
+    return table, report
+
+
+def _stage2(stats: list[_CellStats], config: ScannerConfig, weights: str,
+            node_u: np.ndarray, node_v: np.ndarray, s_step: float, shape: tuple,
+            provenance: dict | None, report: BuildReport) -> CalibrationTable:
+    """Fit the per-node ray model and sample it on the (u, v, s) grid."""
+    z = np.array([s.z_mm for s in stats])
+    z0, half = 0.5 * (z.min() + z.max()), 0.5 * (z.max() - z.min())
+    zeta = (z - z0) / half
+    x = np.stack([s.x for s in stats], -1)                     # (n_v, n_u, M)
+    w = np.stack([_weights(s, weights, config, node_u, node_v) for s in stats], -1)
+    x0 = np.where(w > 0, x, 0.0)
+    cols = np.stack(np.broadcast_arrays(np.ones_like(x0), zeta, zeta**2, -x0 * zeta), -1)
+    theta, cov, n_obs = _wls(cols, x0, w)
+    _position_residuals(stats, theta, zeta, x0, w, z, report)
+    return _sample_grid(theta, cov, n_obs, x0, w, z0, half, config, node_u, node_v, s_step,
+                        shape, weights, stats, provenance, report)
+
+
+def _wls(cols: np.ndarray, x: np.ndarray, w: np.ndarray
+         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Weighted LS per node; covariance scaled by the reduced chi-square."""
+    ata = np.einsum("...m,...mi,...mj->...ij", w, cols, cols)
+    atb = np.einsum("...m,...mi,...m->...i", w, cols, x)
+    n_obs = (w > 0).sum(-1)
+    good = n_obs >= 5
+    ata[~good] = np.eye(4)
+    inv = np.linalg.inv(ata)
+    theta = np.einsum("...ij,...j->...i", inv, atb)
+    res = x - np.einsum("...mi,...i->...m", cols, theta)
+    chi2 = (w * res**2).sum(-1) / np.maximum(n_obs - 4, 1)
+    theta[~good] = np.nan
+    return theta, inv * chi2[..., None, None], n_obs
+
+
+def _position_residuals(stats, theta, zeta, x, w, z, report: BuildReport) -> None:
+    """Per-position RMS of the fit residual, in projector px and mm along Z."""
+    a, b, d, g = (theta[..., i, None] for i in range(4))
+    pred = (a + b * zeta + d * zeta**2) / (1 + g * zeta)
+    res = np.where(w > 0, x - pred, np.nan)
+    slope = np.abs((b + 2 * d * zeta - g * pred) / (1 + g * zeta))  # dx/dzeta
+    half = 0.5 * (z.max() - z.min())
+    res_mm = res / slope * half
+    for k, st in enumerate(stats):
+        r, rm = res[..., k], res_mm[..., k]
+        ok = np.isfinite(r)
+        report.positions.append({
+            "z_mm": float(st.z_mm), "cells": int(ok.sum()),
+            "rms_residual_px": float(np.sqrt(np.mean(r[ok] ** 2))) if ok.any() else None,
+            "rms_residual_um": float(1e3 * np.sqrt(np.mean(rm[ok] ** 2))) if ok.any() else None,
+        })
+
+
+def _solve_zeta(theta: np.ndarray, xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """zeta(x) of the node model and dzeta/dx, for x broadcast against theta[..., 0]."""
+    a, b, d, g = (theta[..., i, None] for i in range(4))
+    lin = (xq - a) / (b - g * xq)
+    zeta = lin
+    for _ in range(6):  # Newton on F = a + b z + d z^2 - x - g x z
+        f = a + b * zeta + d * zeta**2 - xq - g * xq * zeta
+        zeta = zeta - f / (b + 2 * d * zeta - g * xq)
+    dzdx = (1 + g * zeta) / (b + 2 * d * zeta - g * xq)
+    return zeta, dzdx
+
+
+def _sample_grid(theta, cov, n_obs, x, w, z0, half, config, node_u, node_v, s_step, shape,
+                 weights, stats, provenance, report) -> CalibrationTable:
+    """Evaluate every node's model on the sheared s grid."""
+    x_ref = _solve_x(theta, 0.0)
+    has = w > 0
+    xmin = np.where(has, x, np.inf).min(-1)
+    xmax = np.where(has, x, -np.inf).max(-1)
+    s_lo = np.where(n_obs >= 5, xmin - x_ref, np.nan)
+    s_hi = np.where(n_obs >= 5, xmax - x_ref, np.nan)
+    if not np.isfinite(s_lo).any():
+        raise InputError("no table node has samples on 5 or more planes: the sweep covers "
+                         "too little of the image (check masks and positions)")
+    lo = np.floor(np.nanmin(s_lo) / s_step) - 1
+    hi = np.ceil(np.nanmax(s_hi) / s_step) + 1
+    s_nodes = np.arange(lo, hi + 1) * s_step
+    xq = x_ref[..., None] + s_nodes
+    zeta, dzdx = _solve_zeta(theta, xq)
+    zz = z0 + half * zeta
+    dz = half * dzdx
+    lat = _lateral(stats, w, z0, half, config, node_u, node_v)
+    xyz = np.stack([lat[0] + lat[1] * zz, lat[2] + lat[3] * zz, zz], -1)
+    dxyz = np.stack([lat[1] * dz, lat[3] * dz, dz], -1)
+    sig = _node_sigma(theta, cov, zeta, xq) * half * np.linalg.norm(
+        np.stack([lat[1] + 0 * zz, lat[3] + 0 * zz, np.ones_like(zz)], -1), axis=-1)
+    prov = dict(provenance or {})
+    prov.setdefault("positions", [{"z_mm": float(s.z_mm)} for s in stats])
+    prov["report"] = report.as_dict()
+    prov["scanqa_version"] = __version__
+    return CalibrationTable(node_u, node_v, x_ref, s_nodes, xyz, dxyz, sig, s_lo, s_hi,
+                            int(shape[1]), int(shape[0]), weights, config.to_dict(), prov)
+
+
+def _solve_x(theta: np.ndarray, zeta: float) -> np.ndarray:
+    """x at a scaled position zeta for every node [px]."""
+    a, b, d, g = (theta[..., i] for i in range(4))
+    return (a + b * zeta + d * zeta**2) / (1 + g * zeta)
+
+
+def _node_sigma(theta, cov, zeta, xq) -> np.ndarray:
+    """Std of zeta(x) at each grid node from the parameter covariance [-]."""
+    b, d, g = theta[..., 1, None], theta[..., 2, None], theta[..., 3, None]
+    dfdz = b + 2 * d * zeta - g * xq
+    grad = -np.stack([np.ones_like(zeta), zeta, zeta**2, -xq * zeta], -1) / dfdz[..., None]
+    var = np.einsum("...si,...ij,...sj->...s", grad, cov, grad)
+    return np.sqrt(np.maximum(var, 0.0))
+
+
+def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
+    """X = X0 + kx Z, Y = Y0 + ky Z per node ray [mm], from maps or intrinsics."""
+    if all(s.lat is not None for s in stats):
+        z = np.array([s.z_mm for s in stats])
+        out = []
+        for j in (0, 1):
+            m = np.stack([s.lat[j] for s in stats], -1)
+            ww = np.where(np.isfinite(m) & (w > 0), 1.0, 0.0)
+            m = np.where(ww > 0, m, 0.0)
+            sw, sz, sm = ww.sum(-1), (ww * z).sum(-1), (ww * m).sum(-1)
+            szz, szm = (ww * z * z).sum(-1), (ww * z * m).sum(-1)
+            with np.errstate(all="ignore"):
+                k = (sw * szm - sz * sm) / (sw * szz - sz**2)
+            out += [((sm - k * sz) / sw)[..., None], k[..., None]]
+        return tuple(out)
+    cam = config.camera
+    f = cam.principal_distance_px
+    uu, vv = np.meshgrid(node_u, node_v)
+    kx = ((uu - cam.principal_point_px[0]) / f)[..., None]
+    ky = ((vv - cam.principal_point_px[1]) / f)[..., None]
+    return (np.zeros_like(kx), kx, np.zeros_like(ky), ky)
+
+
+# --------------------------------------------------------------------------- applying
+
+
+def _apply(t: CalibrationTable, u, v, xp, extrapolate: bool) -> TableLookup:
+    """Bilinear in (u, v), cubic Hermite in s."""
+    shape = xp.shape
+    u, v, xp = u.ravel(), v.ravel(), xp.ravel()
+    n_v, n_u, n_s = t.xyz.shape[:3]
+    cell = t.cell_px
+    fu = (u - t.node_u[0]) / cell
+    fv = (v - t.node_v[0]) / cell
+    iu = np.clip(np.floor(fu), 0, max(n_u - 2, 0)).astype(np.intp)
+    iv = np.clip(np.floor(fv), 0, max(n_v - 2, 0)).astype(np.intp)
+    tu, tv = fu - iu, fv - iv
+    corners = [(0, 0, (1 - tv) * (1 - tu)), (0, 1, (1 - tv) * tu), (1, 0, tv * (1 - tu)),
+               (1, 1, tv * tu)]
+    xref = sum(wc * t.x_ref[iv + dv, iu + du] for dv, du, wc in corners)
+    s = xp - xref
+    h = t.s_nodes[1] - t.s_nodes[0]
+    fs = (s - t.s_nodes[0]) / h
+    ks = np.clip(np.floor(np.nan_to_num(fs)), 0, n_s - 2).astype(np.intp)
+    ts = (fs - ks)[:, None]
+    h00, h10 = 2 * ts**3 - 3 * ts**2 + 1, ts**3 - 2 * ts**2 + ts
+    h01, h11 = -2 * ts**3 + 3 * ts**2, ts**3 - ts**2
+    g00, g10 = (6 * ts**2 - 6 * ts) / h, 3 * ts**2 - 4 * ts + 1
+    g01, g11 = (-6 * ts**2 + 6 * ts) / h, 3 * ts**2 - 2 * ts
+    xyz = np.zeros((u.size, 3))
+    slope = np.zeros((u.size, 3))
+    sig = np.zeros(u.size)
+    inside = np.isfinite(s)
+    flat_xyz = t.xyz.reshape(-1, 3)
+    flat_d = t.dxyz.reshape(-1, 3)
+    flat_sig = t.sigma_node.reshape(-1)
+    for dv, du, wc in corners:
+        node = ((iv + dv) * n_u + (iu + du)) * n_s + ks
+        p0, p1 = flat_xyz[node], flat_xyz[node + 1]
+        m0, m1 = flat_d[node] * h, flat_d[node + 1] * h
+        wcol = wc[:, None]
+        xyz += wcol * (h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1)
+        slope += wcol * (g00 * p0 + g10 * m0 / h + g01 * p1 + g11 * m1 / h)
+        sig += wc * ((1 - ts[:, 0]) * flat_sig[node] + ts[:, 0] * flat_sig[node + 1])
+        lo = t.s_lo[iv + dv, iu + du]
+        hi = t.s_hi[iv + dv, iu + du]
+        with np.errstate(invalid="ignore"):
+            inside &= (s >= lo) & (s <= hi)
+    if not extrapolate:
+        xyz[~inside] = np.nan
+        slope[~inside] = np.nan
+        sig[~inside] = np.nan
+    return TableLookup(xyz.reshape(*shape, 3), slope.reshape(*shape, 3), sig.reshape(shape),
+                       inside.reshape(shape))
+
+
+# --------------------------------------------------------------------------- file
+
+
+_ARRAYS = ("node_u", "node_v", "x_ref", "s_nodes", "xyz", "dxyz", "sigma_node", "s_lo", "s_hi")
+
+
+def save_table(path, table: CalibrationTable) -> None:
+    """Write a table as one npz file (no pickle), atomically."""
+    from scanqa.io.atomic import atomic_path
+
+    meta = {"format": TABLE_FORMAT, "width_px": table.width_px, "height_px": table.height_px,
+            "weights": table.weights, "config": table.config, "provenance": table.provenance}
+    arrays = {k: getattr(table, k) for k in _ARRAYS}
+    with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
+        np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
+
+
+def load_table(path) -> CalibrationTable:
+    """Read a table written by :func:`save_table`, checking its format version."""
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            meta = json.loads(str(data["meta"][()]))
+            if meta.get("format") != TABLE_FORMAT:
+                raise InputError(f"{path}: table format {meta.get('format')!r} is not "
+                                 f"supported by this scanqa (reads {TABLE_FORMAT!r}); rebuild "
+                                 "it with 'scanqa calibrate'")
+            arrays = {k: data[k] for k in _ARRAYS}
+    except FileNotFoundError:
+        raise InputError(f"calibration table {path} does not exist") from None
+    except (OSError, KeyError, ValueError) as err:
+        raise InputError(f"{path} is not a scanqa calibration table ({err})") from None
+    return CalibrationTable(**arrays, width_px=int(meta["width_px"]),
+                            height_px=int(meta["height_px"]), weights=meta["weights"],
+                            config=meta["config"], provenance=meta["provenance"])
