@@ -249,19 +249,36 @@ class ModelConfig(_Section):
 
 @dataclass(frozen=True)
 class SimulatorConfig(_Section):
-    """Simulator-only settings (ignored by the model). All optional."""
+    """Simulator-only settings (ignored by the model). All optional.
+
+    The light reaching the camera is ``mean_signal_e`` electrons per pixel for a white
+    surface lit at normal incidence: ``(1 - modulation_ratio)`` of it ambient, the rest
+    the projected pattern (so B / A = modulation_ratio at focus). ``scene_noise_rel``
+    is the std of the scene/projector-side temporal noise relative to that level, i.i.d.
+    per pattern and per object cell of ``scene_noise_cell_mm`` (0: white per
+    supersample, scaled so its std per camera pixel is ``scene_noise_rel``); it is
+    added before the camera blur, which filters it. ``unwrap_periods_px`` are the
+    coarser phase sets (``steps`` frames each, like the working period) that unwrap
+    the working period. ``roi_width_px``/``roi_height_px`` render a centred window of
+    the sensor (0: the whole sensor) with unchanged optics.
+    """
 
     section: ClassVar[str] = "simulator"
     seed: int = _spec("", ge=0, kind="int", default=0)
     supersampling: int = _spec("", ge=1, le=16, kind="int", default=3)
     bit_depth: int = _spec("bit", ge=8, le=16, kind="int", default=12)
-    gain_e_per_dn: float = _spec("e-/DN", gt=0, default=4.0)
-    read_noise_e: float = _spec("e-", ge=0, default=8.0)
-    full_well_e: float = _spec("e-", gt=0, default=16000.0)
-    scene_noise_rel: float = _spec("", ge=0, default=0.02)
-    mean_signal_e: float = _spec("e-", gt=0, default=6000.0)
+    gain_e_per_dn: float = _spec("e-/DN", gt=0, default=10.0)
+    read_noise_e: float = _spec("e-", ge=0, default=10.0)
+    full_well_e: float = _spec("e-", gt=0, default=40000.0)
+    scene_noise_rel: float = _spec("", ge=0, default=0.05)
+    scene_noise_cell_mm: float = _spec("mm", ge=0, default=0.06)
+    mean_signal_e: float = _spec("e-", gt=0, default=20000.0)
     modulation_ratio: float = _spec("", gt=0, le=1, default=0.8)
-    projector_samples: int = _spec("", ge=16, kind="int", default=64)
+    projector_samples: int = _spec("", ge=16, kind="int", default=256)
+    steps: int = _spec("", ge=3, le=64, kind="int", default=4)
+    unwrap_periods_px: tuple = _spec("px", gt=0, kind="list", default=[64.0, 1280.0])
+    roi_width_px: int = _spec("px", ge=0, kind="int", default=0)
+    roi_height_px: int = _spec("px", ge=0, kind="int", default=0)
 
 
 _SECTIONS = {"camera": CameraConfig, "projector": ProjectorConfig, "fringes": FringeConfig,

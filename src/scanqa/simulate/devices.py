@@ -1,0 +1,146 @@
+"""Pinhole camera and projector of the virtual scanner, with poses and thin-lens blur.
+
+The world frame is the nominal scanner frame (the camera frame when no stage moves:
+origin at the camera lens, +Z along its optical axis, +X right, +Y down) [mm]. A device
+pose maps a world point Q to the device frame as ``Q_d = R (Q - centre)``.
+
+Camera: pixel (u, v) centres at integer coordinates, principal point at the sensor
+centre, principal distance ``camera.principal_distance_px`` (the thin-lens image
+distance at focus). Projector: ``x_p = f_p X_p / Z_p + x_0`` with
+``projector.principal_distance_px``, consistent with Eq. 3 at focus.
+
+Blur is exact thin-lens cone geometry:
+
+* projector: a point at distance Z_p (along the projector axis) receives light from the
+  panel disc of diameter ``Phi_p |Z_p - Z_p'| / Z_p' * f_p / Z_p`` [panel px], centred at
+  its pinhole projection (the object-side circle of Eq. 1 back-projected);
+* camera: a point at Z_c images to a disc of diameter
+  ``Phi_c f_c |Z_c - Z_c'| / (Z_c (Z_c' - f_c))`` [mm] on the sensor, which projects to
+  Eq. 2's object-side circle exactly.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanqa.config import ScannerConfig
+from scanqa.errors import InputError
+
+
+@dataclass(frozen=True)
+class Pose:
+    """A rigid device pose: ``Q_device = rotation @ (Q_world - centre)``.
+
+    Attributes
+    ----------
+    rotation : (3, 3) float
+        World-to-device rotation [-].
+    centre : (3,) float
+        Lens centre in the world frame [mm].
+    """
+
+    rotation: np.ndarray
+    centre: np.ndarray
+
+    def to_device(self, points: np.ndarray) -> np.ndarray:
+        """(..., 3) world points -> (..., 3) device-frame points [mm]."""
+        return (np.asarray(points, dtype=float) - self.centre) @ self.rotation.T
+
+    @property
+    def axis(self) -> np.ndarray:
+        """Optical axis (device +Z) in the world frame [-]."""
+        return self.rotation[2]
+
+
+def camera_pose(offset_mm: float = 0.0) -> Pose:
+    """Camera pose after moving it by ``offset_mm`` along its optical axis (+Z) [mm]."""
+    return Pose(np.eye(3), np.array([0.0, 0.0, float(offset_mm)]))
+
+
+def projector_pose(config: ScannerConfig, offset_mm: float = 0.0) -> Pose:
+    """Projector pose from the config, moved by ``offset_mm`` along its axis [mm]."""
+    rot = config.projector.rotation
+    centre = np.asarray(config.projector.position_mm, dtype=float) + float(offset_mm) * rot[2]
+    return Pose(rot, centre)
+
+
+@dataclass(frozen=True)
+class Window:
+    """The rendered window of the sensor: columns u0..u0+width-1, rows v0..v0+height-1."""
+
+    u0: int
+    v0: int
+    width: int
+    height: int
+
+
+def sensor_window(config: ScannerConfig) -> Window:
+    """The centred region of interest of ``[simulator] roi_*`` (the whole sensor if 0)."""
+    cam, sim = config.camera, config.simulator
+    w = sim.roi_width_px or cam.width_px
+    h = sim.roi_height_px or cam.height_px
+    if w > cam.width_px or h > cam.height_px:
+        raise InputError(f"simulator.roi_width_px x roi_height_px = {w} x {h} exceeds the "
+                         f"sensor ({cam.width_px} x {cam.height_px} px)")
+    return Window((cam.width_px - w) // 2, (cam.height_px - h) // 2, w, h)
+
+
+def camera_rays(config: ScannerConfig, pose: Pose, u: np.ndarray, v: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """World rays through sensor coordinates.
+
+    Parameters
+    ----------
+    config : ScannerConfig
+        Camera intrinsics.
+    pose : Pose
+        Camera pose.
+    u, v : (...) float
+        Sensor coordinates, pixel centres at integers [px].
+
+    Returns
+    -------
+    origins, directions : (..., 3) float
+        Ray origin (the lens centre) [mm] and unnormalised direction with unit device Z.
+    """
+    f = config.camera.principal_distance_px
+    u0, v0 = config.camera.principal_point_px
+    d_cam = np.stack(np.broadcast_arrays((np.asarray(u, float) - u0) / f,
+                                         (np.asarray(v, float) - v0) / f, 1.0), axis=-1)
+    directions = d_cam @ pose.rotation
+    return np.broadcast_to(pose.centre, directions.shape), directions
+
+
+def project_to_projector(config: ScannerConfig, pose: Pose, points: np.ndarray
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Projector coordinates of world points.
+
+    Returns
+    -------
+    x_p, y_p : (...) float
+        Panel column and row, pixel centres at integers [projector px].
+    z_p : (...) float
+        Distance along the projector axis [mm].
+    """
+    q = pose.to_device(points)
+    f = config.projector.principal_distance_px
+    x0, y0 = config.projector.principal_point_px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return f * q[..., 0] / q[..., 2] + x0, f * q[..., 1] / q[..., 2] + y0, q[..., 2]
+
+
+def projector_blur_px(config: ScannerConfig, z_p: np.ndarray) -> np.ndarray:
+    """Diameter of the projector's blur disc on the panel [projector px]."""
+    proj = config.projector
+    c_obj = proj.aperture_mm * np.abs(z_p - proj.focus_mm) / proj.focus_mm
+    return c_obj * proj.principal_distance_px / z_p
+
+
+def camera_blur_px(config: ScannerConfig, z_c: np.ndarray) -> np.ndarray:
+    """Diameter of the camera's defocus disc on the sensor [camera px]."""
+    cam = config.camera
+    c_img = (cam.aperture_mm * cam.focal_mm * np.abs(z_c - cam.focus_mm)
+             / (z_c * (cam.focus_mm - cam.focal_mm)))
+    return c_img / (cam.pixel_um * 1e-3)

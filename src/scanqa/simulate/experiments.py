@@ -1,0 +1,316 @@
+"""The simulated experiments of Sect. 4 and their output folders.
+
+Each experiment is a list of acquisitions (position x repeat). Its folder holds::
+
+    DIR/manifest.toml            experiment, seed, scanqa version, the config, positions
+    DIR/p000_r0/                 images + patterns.toml of position 0, repeat 0
+    DIR/truth/p000.npz           ground truth of position 0 (X, Y, Z, xp_true, ...)
+
+README.md, "### Simulated experiment folders", documents every key. The manifest is
+written last, so a folder without one is an interrupted run.
+
+Experiments:
+
+* ``camera-sweep`` (Sect. 4.1): an optical flat fixed where the axes cross, facing the
+  bisector of the two axes (so its fringe period seen by the camera is omega_o as in
+  the model); the camera moves along its axis by ``positions`` [mm] (+ towards the flat).
+* ``projector-sweep`` (Sect. 4.2): the same flat; the projector moves along its axis.
+* ``calibration-sweep``: a flat perpendicular to the camera axis at world Z =
+  ``positions`` [mm] (a translation stage), ``repeats`` scans per position.
+* ``gauge-blocks`` (Sect. 4.3): the artefact of :func:`~scanqa.simulate.scene.paper_gauge_layout`,
+  ``repeats`` scans.
+* ``mesh``: any STL/PLY/OBJ mesh (world frame, mm), ``repeats`` scans.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+import zipfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scanqa import __version__
+from scanqa.config import ScannerConfig
+from scanqa.errors import InputError
+from scanqa.io.atomic import atomic_path, write_text
+from scanqa.io.patterns import PatternDescription, PhaseSet, SensorModel, write_pattern_set
+from scanqa.simulate import devices, render, scene
+from scanqa.simulate.render import Acquisition
+
+#: Experiments :func:`run_experiment` knows, with their default repeats.
+EXPERIMENTS = {"camera-sweep": 1, "projector-sweep": 1, "calibration-sweep": 2,
+               "gauge-blocks": 3, "mesh": 1}
+#: Value of the manifest's ``format`` key.
+MANIFEST_FORMAT = "scanqa-simulation/1"
+
+
+@dataclass(frozen=True)
+class Position:
+    """One position of an experiment: stage value, device offsets and its scene."""
+
+    index: int
+    stage_mm: float
+    camera_offset_mm: float
+    projector_offset_mm: float
+    scene: scene.Scene
+
+    @property
+    def label(self) -> str:
+        """Folder label, e.g. ``p007``."""
+        return f"p{self.index:03d}"
+
+
+def pattern_description(config: ScannerConfig, periods: Sequence[float] | None = None
+                        ) -> PatternDescription:
+    """The projected sets: working period(s) plus the coarser unwrapping periods.
+
+    Parameters
+    ----------
+    config : ScannerConfig
+        Gives ``fringes.working_period_px``, ``simulator.unwrap_periods_px``, steps,
+        the panel width and the sensor.
+    periods : sequence of float, optional
+        Fine periods [projector px]; default the working period.
+    """
+    sim = config.simulator
+    fine = [config.fringes.working_period_px] if periods is None else list(periods)
+    all_periods = sorted(set(map(float, [*sim.unwrap_periods_px, *fine])), reverse=True)
+    sets = tuple(PhaseSet(f"p{p:g}", p, sim.steps) for p in all_periods)
+    sensor = SensorModel(bit_depth=sim.bit_depth, gain_e_per_dn=sim.gain_e_per_dn,
+                         read_noise_e=sim.read_noise_e,
+                         saturation_dn=render.sensor_saturation_dn(config))
+    return PatternDescription(config.projector.width_px, sets, sensor,
+                              description="scanqa simulate")
+
+
+def axes_crossing(config: ScannerConfig) -> np.ndarray:
+    """Point of the camera axis closest to the projector axis (world frame) [mm]."""
+    p = np.asarray(config.projector.position_mm, dtype=float)
+    a = config.projector.rotation[2]
+    e = np.array([0.0, 0.0, 1.0])
+    w = -p
+    b, d, f = e @ a, e @ w, a @ w
+    denom = 1.0 - b * b
+    t = (b * f - d) / denom if denom > 1e-12 else config.camera.focus_mm
+    return t * e
+
+
+def bisector_flat(config: ScannerConfig) -> scene.Scene:
+    """The optical flat of Sects. 4.1/4.2: at the axes' crossing, normal on the bisector."""
+    c = axes_crossing(config)
+    to_cam = -c / np.linalg.norm(c)
+    to_proj = np.asarray(config.projector.position_mm) - c
+    normal = to_cam + to_proj / np.linalg.norm(to_proj)
+    return scene.flat_target(c, normal, (160.0, 130.0), name="optical_flat")
+
+
+def _range(start: float, stop: float, step: float) -> list[float]:
+    n = int(np.floor((stop - start) / step + 1e-9)) + 1
+    return [round(start + i * step, 9) for i in range(n)]
+
+
+def default_positions(name: str, config: ScannerConfig) -> list[float]:
+    """Default stage positions of an experiment [mm]."""
+    focus = config.camera.focus_mm
+    if name == "camera-sweep":
+        return _range(-30.0, 30.0, 1.0)
+    if name == "projector-sweep":
+        return _range(-45.0, 45.0, 1.5)
+    if name == "calibration-sweep":
+        return _range(focus - 30.0, focus + 30.0, 2.0)
+    return [0.0]
+
+
+def build_positions(name: str, config: ScannerConfig, positions: Sequence[float],
+                    mesh: str | os.PathLike | None = None) -> list[Position]:
+    """The scenes and device offsets of each position of an experiment."""
+    if name == "camera-sweep":
+        flat = bisector_flat(config)
+        return [Position(i, p, p, 0.0, flat) for i, p in enumerate(positions)]
+    if name == "projector-sweep":
+        flat = bisector_flat(config)
+        return [Position(i, p, 0.0, p, flat) for i, p in enumerate(positions)]
+    if name == "calibration-sweep":
+        return [Position(i, p, 0.0, 0.0, scene.plane_scene(p)) for i, p in enumerate(positions)]
+    if name == "gauge-blocks":
+        art = scene.gauge_block_artefact(scene.paper_gauge_layout(config.camera.focus_mm))
+        return [Position(i, p, 0.0, 0.0, art) for i, p in enumerate(positions)]
+    if name == "mesh":
+        if mesh is None:
+            raise InputError("experiment 'mesh' needs a mesh file (--mesh FILE.stl)")
+        obj = scene.load_mesh(mesh)
+        return [Position(i, p, 0.0, 0.0, obj) for i, p in enumerate(positions)]
+    raise InputError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
+
+
+def acquisition(config: ScannerConfig, pos: Position, repeat: int) -> Acquisition:
+    """The acquisition of one position and repeat (poses and noise stream)."""
+    return Acquisition(pos.scene, devices.camera_pose(pos.camera_offset_mm),
+                       devices.projector_pose(config, pos.projector_offset_mm),
+                       (pos.index, repeat))
+
+
+def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
+                   positions: Sequence[float] | None = None, repeats: int | None = None,
+                   periods: Sequence[float] | None = None,
+                   mesh: str | os.PathLike | None = None, progress: bool = False) -> Path:
+    """Simulate an experiment and write its folder.
+
+    Parameters
+    ----------
+    name : str
+        One of :data:`EXPERIMENTS`.
+    config : ScannerConfig
+        Scanner config (optics and ``[simulator]``).
+    out_dir : str or PathLike
+        Output folder (created; existing files of the same names are replaced).
+    positions : sequence of float, optional
+        Stage positions or device offsets [mm]; default :func:`default_positions`.
+    repeats : int, optional
+        Scans per position; default per experiment (:data:`EXPERIMENTS`).
+    periods : sequence of float, optional
+        Fine fringe periods [projector px]; default the working period.
+    mesh : path, optional
+        Mesh file for the ``mesh`` experiment.
+    progress : bool
+        Print a progress bar on stderr.
+
+    Returns
+    -------
+    Path
+        The written manifest.toml.
+    """
+    if name not in EXPERIMENTS:
+        raise InputError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
+    positions = default_positions(name, config) if positions is None else list(positions)
+    repeats = EXPERIMENTS[name] if repeats is None else int(repeats)
+    if not positions or repeats < 1:
+        raise InputError("need at least one position and repeats >= 1")
+    desc = pattern_description(config, periods)
+    pos_list = build_positions(name, config, positions, mesh)
+    out = Path(out_dir)
+    (out / "truth").mkdir(parents=True, exist_ok=True)
+    bar = _Progress(name, len(pos_list) * repeats) if progress else None
+    entries = []
+    for pos in pos_list:
+        truth = render.truth_for(config, acquisition(config, pos, 0))
+        if not truth.valid.any():
+            raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of "
+                             f"{name}: the scene is outside the camera or projector frustum")
+        write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
+        for rep in range(repeats):
+            folder = f"{pos.label}_r{rep}"
+            hook = bar.tile_hook(len(entries)) if bar else None
+            images = render.render_images(config, acquisition(config, pos, rep), desc, hook)
+            write_pattern_set(out / folder, desc, images, "png")
+            entries.append(_entry(pos, rep, folder))
+    if bar:
+        bar.done()
+    manifest = _manifest(name, config, desc, pos_list, repeats, entries)
+    return write_text(out / "manifest.toml", dump_toml(manifest))
+
+
+def _entry(pos: Position, rep: int, folder: str) -> dict:
+    return {"index": pos.index, "repeat": rep, "stage_mm": pos.stage_mm,
+            "camera_offset_mm": pos.camera_offset_mm,
+            "projector_offset_mm": pos.projector_offset_mm, "folder": folder,
+            "truth": f"truth/{pos.label}.npz"}
+
+
+def _manifest(name: str, config: ScannerConfig, desc: PatternDescription,
+              pos_list: list[Position], repeats: int, entries: list[dict]) -> dict:
+    win = devices.sensor_window(config)
+    meaning = {"camera-sweep": "camera offset along its axis, + towards the flat [mm]",
+               "projector-sweep": "projector offset along its axis, + towards the flat [mm]",
+               "calibration-sweep": "world Z of the flat target (perpendicular to the "
+                                    "camera axis) [mm]",
+               "gauge-blocks": "none (fixed artefact) [mm]", "mesh": "none [mm]"}[name]
+    return {
+        "format": MANIFEST_FORMAT, "experiment": name, "scanqa_version": __version__,
+        "seed": config.simulator.seed, "scene": pos_list[0].scene.name,
+        "stage_meaning": meaning, "repeats": repeats,
+        "periods_px": [s.period_px for s in desc.phase_sets],
+        "working_period_px": desc.working_period_px,
+        "window": {"u0_px": win.u0, "v0_px": win.v0, "width_px": win.width,
+                   "height_px": win.height},
+        "truth_frame": "camera frame of each acquisition (the scanner frame when the "
+                       "camera does not move) [mm]",
+        "config": config.to_dict(),
+        "acquisition": entries,
+    }
+
+
+def write_npz(path: Path, arrays: dict) -> Path:
+    """Write arrays as an uncompressed-deflate npz with fixed timestamps (reproducible)."""
+    with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
+        for key, arr in arrays.items():
+            buf = io.BytesIO()
+            np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
+            info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            info.compress_type = zipfile.ZIP_DEFLATED
+            zf.writestr(info, buf.getvalue())
+    return path
+
+
+def dump_toml(data: dict) -> str:
+    """TOML text of a dict of scalars, lists, tables and arrays of tables."""
+    lines: list[str] = []
+    _dump_table(data, "", lines)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _dump_table(data: dict, prefix: str, lines: list[str]) -> None:
+    scalars = {k: v for k, v in data.items() if not isinstance(v, dict) and not _is_aot(v)}
+    for k, v in scalars.items():
+        lines.append(f"{k} = {_toml_value(v)}")
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines += ["", f"[{prefix}{k}]"]
+            _dump_table(v, f"{prefix}{k}.", lines)
+    for k, v in data.items():
+        if _is_aot(v):
+            for item in v:
+                lines += ["", f"[[{prefix}{k}]]"]
+                _dump_table(item, f"{prefix}{k}.", lines)
+
+
+def _is_aot(value: object) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
+
+
+def _toml_value(value: object) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, (int, np.integer)):
+        return str(int(value))
+    if isinstance(value, (float, np.floating)):
+        return repr(float(value)) if np.isfinite(value) else "nan"
+    if isinstance(value, str):
+        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")
+
+
+class _Progress:
+    """A one-line progress bar on stderr."""
+
+    def __init__(self, name: str, total: int) -> None:
+        self.name, self.total = name, total
+
+    def tile_hook(self, done_scans: int):
+        def hook(tiles_done: int, tiles_total: int) -> None:
+            frac = (done_scans + tiles_done / tiles_total) / self.total
+            bar = "#" * int(30 * frac)
+            sys.stderr.write(f"\rsimulate {self.name}: [{bar:<30}] {100 * frac:5.1f}% "
+                             f"(scan {done_scans + 1}/{self.total})")
+            sys.stderr.flush()
+        return hook
+
+    def done(self) -> None:
+        sys.stderr.write("\n")

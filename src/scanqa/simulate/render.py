@@ -1,0 +1,406 @@
+"""Image formation of the virtual scanner: from a scene and poses to fringe images.
+
+Per pattern, in this order (DESIGN.md section 5):
+
+1. geometry: camera rays through a supersampled pixel grid hit the scene (open3d, then
+   float64 against the hit face); a point is lit when it faces the projector, lies on
+   the panel and the projector's ray reaches it unblocked (shadows are hard, decided
+   by the chief ray); unlit points get only the ambient light;
+2. projector defocus: the pattern reaching a point is the panel pattern averaged over
+   the point's blur disc on the panel, by a fixed disc quadrature
+   (:class:`~scanqa.simulate.optics_kernels.DiscAverage`), with Lambertian incidence;
+3. scene/projector-side temporal noise, i.i.d. per pattern and object cell, added to
+   the supersampled radiance before the camera blur (so the blur filters it);
+4. camera defocus: each sample spreads over its own disc (depth-dependent) - samples
+   are split between the two nearest of a fine ladder of blur diameters, each layer is
+   convolved with its disc convolved with the Airy PSF, and the layers are summed
+   (no partial occlusion of the aperture at depth edges);
+5. pixel integration (mean of the s x s supersamples), then the sensor: Poisson shot
+   noise in electrons, Gaussian read noise, full-well saturation, quantisation.
+
+The window is processed in tiles of ``TILE_PX`` pixels with a halo wide enough for the
+largest blur, so memory is bounded; every random stream is keyed by (seed, stream key,
+pattern, tile), so the output does not depend on anything but the inputs.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.signal import fftconvolve
+
+from scanqa.config import ScannerConfig
+from scanqa.errors import InputError
+from scanqa.io.patterns import PatternDescription, PhaseSet
+from scanqa.simulate import devices
+from scanqa.simulate.devices import Pose, Window
+from scanqa.simulate.optics_kernels import DiscAverage, airy_kernel, camera_kernel, disc_average
+from scanqa.simulate.scene import Scene
+
+#: Tile size of the chunked renderer [camera px].
+TILE_PX = 128
+#: Largest halo around a tile; blur beyond it is clipped [camera px].
+MAX_HALO_PX = 64
+#: Blur-diameter ladder: linear steps up to _D_LIN, then geometric [supersamples].
+_D_STEP, _D_LIN, _D_RATIO = 0.25, 4.0, 1.03
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """Everything one scan needs: scene, device poses and the stream key of its noise.
+
+    ``key`` is a tuple of small non-negative integers (e.g. position and repeat
+    indices) that, with the config's seed, selects independent noise.
+    """
+
+    scene: Scene
+    camera: Pose
+    projector: Pose
+    key: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True)
+class Truth:
+    """Ground truth at pixel centres of the window, in the acquisition's camera frame.
+
+    ``x, y, z`` [mm] are NaN where the pixel sees nothing; ``xp``/``yp`` [projector px]
+    and ``zp`` [mm] are the hit point's projector coordinates; ``valid`` is True where
+    the point is seen by the camera and lit by the projector.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    xp: np.ndarray
+    yp: np.ndarray
+    zp: np.ndarray
+    valid: np.ndarray
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Arrays keyed as in the truth npz files (X, Y, Z, xp_true, yp_true, zp, valid)."""
+        return {"X": self.x, "Y": self.y, "Z": self.z, "xp_true": self.xp,
+                "yp_true": self.yp, "zp": self.zp, "valid": self.valid}
+
+
+# ------------------------------------------------------------------ geometry of points
+
+@dataclass(frozen=True)
+class _Points:
+    """Geometry of rays of one grid: camera Z, projector x_p and blur, lighting."""
+
+    hit: np.ndarray
+    world: np.ndarray
+    z_c: np.ndarray
+    x_p: np.ndarray
+    y_p: np.ndarray
+    z_p: np.ndarray
+    lit: np.ndarray
+    shade: np.ndarray
+
+
+def _geometry(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndarray
+              ) -> _Points:
+    """Cast camera rays through sensor coordinates (u, v) and light the hits."""
+    origins, dirs = devices.camera_rays(config, acq.camera, u, v)
+    hits = acq.scene.cast(origins, dirs)
+    world = origins + hits.t[..., None] * dirs
+    z_c = acq.camera.to_device(world)[..., 2]
+    x_p, y_p, z_p = devices.project_to_projector(config, acq.projector, world)
+    lit, shade = _lighting(config, acq, world, hits.normals, hits.hit, x_p, y_p, z_p)
+    return _Points(hits.hit, world, z_c, x_p, y_p, z_p, lit, shade)
+
+
+def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
+              normals: np.ndarray, hit: np.ndarray, x_p: np.ndarray, y_p: np.ndarray,
+              z_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Lit mask (on the panel, facing, unshadowed) and cos of the incidence angle."""
+    proj = config.projector
+    to_proj = acq.projector.centre - world
+    dist = np.linalg.norm(to_proj, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        towards_cam = np.einsum("...i,...i->...", normals, acq.camera.centre - world)
+        normals = np.where((towards_cam < 0)[..., None], -normals, normals)  # two-sided
+        shade = np.einsum("...i,...i->...", normals, to_proj) / dist
+        on_panel = ((z_p > 0) & (x_p >= -0.5) & (x_p <= proj.width_px - 0.5)
+                    & (y_p >= -0.5) & (y_p <= proj.height_px - 0.5))
+    lit = hit & on_panel & (shade > 0)
+    if lit.any():
+        back = acq.scene.cast(acq.projector.centre, -to_proj[lit])
+        reach = np.zeros_like(lit)
+        reach[lit] = np.nan_to_num(back.t, nan=np.inf) >= 1.0 - 1e-7
+        lit &= reach
+    return lit, np.where(lit, shade, 0.0)
+
+
+# --------------------------------------------------------------------------- truth
+
+def truth_for(config: ScannerConfig, acq: Acquisition) -> Truth:
+    """Exact geometry at the pixel centres of the window (no images)."""
+    win = devices.sensor_window(config)
+    v, u = np.mgrid[win.v0:win.v0 + win.height, win.u0:win.u0 + win.width]
+    pts = _geometry(config, acq, u.astype(float), v.astype(float))
+    cam = acq.camera.to_device(pts.world)
+    nan = ~pts.hit
+    xp = np.where(pts.lit, pts.x_p, np.nan)
+    yp = np.where(pts.lit, pts.y_p, np.nan)
+    zp = np.where(pts.hit, pts.z_p, np.nan)
+    return Truth(np.where(nan, np.nan, cam[..., 0]), np.where(nan, np.nan, cam[..., 1]),
+                 np.where(nan, np.nan, cam[..., 2]), xp, yp, zp, pts.lit.copy())
+
+
+# --------------------------------------------------------------------- noise streams
+
+_M1, _M2, _GOLD = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB), \
+    np.uint64(0x9E3779B97F4A7C15)
+
+
+def _mix(x: np.ndarray) -> np.ndarray:
+    """splitmix64 finaliser (a counter-based hash) on uint64 arrays."""
+    x = x + _GOLD
+    x = (x ^ (x >> np.uint64(30))) * _M1
+    x = (x ^ (x >> np.uint64(27))) * _M2
+    return x ^ (x >> np.uint64(31))
+
+
+def _hash_normal(key: int, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+    """Standard normal values that depend only on (key, ix, iy) (Box-Muller)."""
+    with np.errstate(over="ignore"):
+        h = _mix(_mix(np.uint64(key) ^ ix.astype(np.int64).view(np.uint64))
+                 ^ iy.astype(np.int64).view(np.uint64))
+        h2 = _mix(h)
+    u1 = ((h >> np.uint64(11)).astype(np.float64) + 1.0) * 2.0 ** -53
+    u2 = (h2 >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
+    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
+
+
+def _stream_key(config: ScannerConfig, key: Sequence[int]) -> int:
+    """One 63-bit integer from the seed and a tuple of stream indices."""
+    seq = np.random.SeedSequence([config.simulator.seed, *[int(k) for k in key]])
+    return int(seq.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+
+
+def _scene_noise(config: ScannerConfig, key: int, pts: _Points, uu: np.ndarray,
+                 vv: np.ndarray) -> np.ndarray:
+    """Unit-variance scene noise per object cell (or per supersample when cell = 0)."""
+    sim = config.simulator
+    cell = sim.scene_noise_cell_mm
+    if cell == 0:
+        s = sim.supersampling
+        iu = np.round(uu * s - 0.5).astype(np.int64)
+        iv = np.round(vv * s - 0.5).astype(np.int64)
+        return _hash_normal(key, iu, iv) * s
+    first = pts.world[pts.hit][0] if pts.hit.any() else np.zeros(3)
+    ix = np.floor(np.where(pts.hit, pts.world[..., 0], first[0]) / cell).astype(np.int64)
+    iy = np.floor(np.where(pts.hit, pts.world[..., 1], first[1]) / cell).astype(np.int64)
+    x0, y0 = ix.min(), iy.min()
+    gx, gy = np.meshgrid(np.arange(x0, ix.max() + 1), np.arange(y0, iy.max() + 1))
+    grid = _hash_normal(key, gx, gy)
+    return grid[iy - y0, ix - x0]
+
+
+# ------------------------------------------------------------------ camera blur layers
+
+def _layer_coord(d: np.ndarray) -> np.ndarray:
+    """Continuous index of a blur diameter on the ladder [-]."""
+    lin = _D_LIN / _D_STEP
+    with np.errstate(divide="ignore"):
+        geo = lin + np.log(np.maximum(d, _D_LIN) / _D_LIN) / np.log(_D_RATIO)
+    return np.where(d <= _D_LIN, d / _D_STEP, geo)
+
+
+def _layer_diameter(i: int) -> float:
+    """Blur diameter of ladder layer i [supersamples]."""
+    lin = _D_LIN / _D_STEP
+    return i * _D_STEP if i <= lin else _D_LIN * _D_RATIO ** (i - lin)
+
+
+@dataclass(frozen=True)
+class _Layer:
+    """One blur layer of a tile: its diameter, bounding box and sample weights."""
+
+    diameter: float
+    rows: slice
+    cols: slice
+    weight: np.ndarray
+
+
+def _layers(diameter: np.ndarray, hit: np.ndarray) -> list[_Layer]:
+    """Split samples between the two nearest ladder diameters (linear weights)."""
+    lam = np.where(hit, _layer_coord(np.where(hit, diameter, 0.0)), -1.0)
+    i0 = np.floor(lam).astype(np.int64)
+    frac = lam - i0
+    out = []
+    for i in np.unique(np.concatenate([i0[hit], i0[hit] + 1])):
+        w = np.where(i0 == i, 1.0 - frac, 0.0) + np.where(i0 + 1 == i, frac, 0.0)
+        w = np.where(hit, w, 0.0)
+        rr, cc = np.nonzero(w > 1e-12)
+        if rr.size == 0:
+            continue
+        rows, cols = slice(rr.min(), rr.max() + 1), slice(cc.min(), cc.max() + 1)
+        out.append(_Layer(_layer_diameter(int(i)), rows, cols, w[rows, cols]))
+    return out
+
+
+def _blur(radiance: np.ndarray, layers: list[_Layer], airy: np.ndarray) -> np.ndarray:
+    """Depth-dependent disc blur (scatter) of a supersampled radiance image."""
+    out = np.zeros_like(radiance)
+    for layer in layers:
+        kern = camera_kernel(layer.diameter, airy)
+        h = kern.shape[0] // 2
+        conv = fftconvolve(radiance[layer.rows, layer.cols] * layer.weight, kern, mode="full")
+        r0, c0 = layer.rows.start - h, layer.cols.start - h
+        rs = slice(max(r0, 0), min(r0 + conv.shape[0], out.shape[0]))
+        cs = slice(max(c0, 0), min(c0 + conv.shape[1], out.shape[1]))
+        out[rs, cs] += conv[rs.start - r0:rs.stop - r0, cs.start - c0:cs.stop - c0]
+    return out
+
+
+# --------------------------------------------------------------------------- sensor
+
+def _sensor(config: ScannerConfig, electrons: np.ndarray, rng: np.random.Generator
+            ) -> np.ndarray:
+    """Shot noise, read noise, full well, quantisation: electrons -> DN (uint16)."""
+    sim = config.simulator
+    e = rng.poisson(np.clip(electrons, 0.0, None)).astype(np.float64)
+    e += rng.normal(0.0, sim.read_noise_e, size=e.shape) if sim.read_noise_e > 0 else 0.0
+    e = np.clip(e, 0.0, sim.full_well_e)
+    dn = np.floor(e / sim.gain_e_per_dn + 0.5)
+    return np.clip(dn, 0, 2 ** sim.bit_depth - 1).astype(np.uint16)
+
+
+def sensor_saturation_dn(config: ScannerConfig) -> float:
+    """Level at which the sensor saturates [DN] (full well or the ADC range)."""
+    sim = config.simulator
+    return float(min(math.floor(sim.full_well_e / sim.gain_e_per_dn + 0.5),
+                     2 ** sim.bit_depth - 1))
+
+
+# ------------------------------------------------------------------------ rendering
+
+def halo_px(config: ScannerConfig, acq: Acquisition) -> int:
+    """Halo of a tile: the largest blur radius over the scene's depth range [px]."""
+    corners = np.array(np.meshgrid(*acq.scene.bounds.T)).reshape(3, -1).T
+    z = acq.camera.to_device(corners)[:, 2]
+    z = np.clip(z, config.camera.focal_mm * 1.05, None)
+    blur = float(np.max(devices.camera_blur_px(config, z)))
+    z_range = np.linspace(z.min(), z.max(), 64)
+    blur = max(blur, float(np.max(devices.camera_blur_px(config, z_range))))
+    airy = 2.44 * config.model.wavelength_nm * 1e-6 * config.camera.f_number * 2.0
+    return int(min(MAX_HALO_PX, math.ceil(blur / 2 + airy / (config.camera.pixel_um * 1e-3)) + 2))
+
+
+def _tiles(win: Window) -> list[tuple[int, int, int, int]]:
+    """(row0, row1, col0, col1) of the tiles of a window, window-relative [px]."""
+    return [(r, min(r + TILE_PX, win.height), c, min(c + TILE_PX, win.width))
+            for r in range(0, win.height, TILE_PX) for c in range(0, win.width, TILE_PX)]
+
+
+def _supersample_grid(config: ScannerConfig, win: Window, tile: tuple, halo: int
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor coordinates of the supersamples of a tile with its halo [px]."""
+    s = config.simulator.supersampling
+    r0, r1, c0, c1 = tile
+    sub = (np.arange(s) + 0.5) / s - 0.5
+    rows = (np.arange(win.v0 + r0 - halo, win.v0 + r1 + halo)[:, None] + sub).ravel()
+    cols = (np.arange(win.u0 + c0 - halo, win.u0 + c1 + halo)[:, None] + sub).ravel()
+    vv, uu = np.meshgrid(rows, cols, indexing="ij")
+    return uu, vv
+
+
+def render_images(config: ScannerConfig, acq: Acquisition, desc: PatternDescription,
+           progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
+    """Render the camera images of every set of a pattern description.
+
+    Parameters
+    ----------
+    config : ScannerConfig
+        Optics and simulator settings.
+    acq : Acquisition
+        Scene, poses and noise stream.
+    desc : PatternDescription
+        Phase sets with vertical fringes (what the projector shows).
+    progress : callable, optional
+        Called as ``progress(done, total)`` after every tile.
+
+    Returns
+    -------
+    list of (N, H, W) uint16
+        One image stack per set, in ``desc.sets`` order [DN].
+
+    Raises
+    ------
+    InputError
+        For sets this renderer cannot form (Gray code, horizontal fringes), or when no
+        pixel of the window sees a lit point of the scene.
+    """
+    _check_desc(desc)
+    win = devices.sensor_window(config)
+    images = [np.zeros((s.steps, win.height, win.width), np.uint16) for s in desc.sets]
+    halo = halo_px(config, acq)
+    tiles = _tiles(win)
+    table = disc_average(config.simulator.projector_samples)
+    lit_any = False
+    for n, tile in enumerate(tiles):
+        lit_any |= _render_tile(config, acq, desc, win, tile, halo, table, images, n)
+        if progress:
+            progress(n + 1, len(tiles))
+    if not lit_any:
+        raise InputError("zero valid pixels: no pixel of the camera sees a point of scene "
+                         f"{acq.scene.name!r} lit by the projector (is the scene outside "
+                         "both frusta, or behind the devices?)")
+    return images
+
+
+def _check_desc(desc: PatternDescription) -> None:
+    for s in desc.sets:
+        if not isinstance(s, PhaseSet) or s.orientation != "vertical":
+            raise InputError(f"the simulator renders vertical phase sets only, got set "
+                             f"{s.name!r}")
+
+
+def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescription,
+                 win: Window, tile: tuple, halo: int, table: DiscAverage,
+                 images: list[np.ndarray], tile_index: int) -> bool:
+    """Render every pattern of one tile into ``images``; True if any sample is lit."""
+    sim, s = config.simulator, config.simulator.supersampling
+    uu, vv = _supersample_grid(config, win, tile, halo)
+    pts = _geometry(config, acq, uu, vv)
+    if not pts.hit.any():
+        return False
+    layers = _layers(np.nan_to_num(devices.camera_blur_px(config, pts.z_c)) * s, pts.hit)
+    airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
+                       config.camera.pixel_um * 1e-3 / s)
+    d_panel = np.where(pts.lit, devices.projector_blur_px(config, pts.z_p), 0.0)
+    m = sim.modulation_ratio
+    ambient = np.where(pts.hit, 1.0 - m, 0.0)
+    mean_level = sim.mean_signal_e * (ambient + m * pts.shade)
+    r0, r1, c0, c1 = tile
+    k_pattern = 0
+    for set_index, pset in enumerate(desc.sets):
+        phasor = _phasor(pts, d_panel, pset.period_px, table)
+        for k, delta in enumerate(pset.shifts_rad):
+            key = _stream_key(config, (*acq.key, k_pattern))
+            lit_part = m * pts.shade * (1.0 + (phasor * np.exp(1j * delta)).real)
+            radiance = sim.mean_signal_e * (ambient + lit_part)
+            if sim.scene_noise_rel > 0:
+                radiance += sim.scene_noise_rel * mean_level * _scene_noise(
+                    config, key, pts, uu, vv)
+            blurred = _blur(np.where(pts.hit, radiance, 0.0), layers, airy)
+            core = blurred[halo * s:(halo + r1 - r0) * s, halo * s:(halo + c1 - c0) * s]
+            pixels = core.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3))
+            rng = np.random.Generator(np.random.PCG64(
+                np.random.SeedSequence([key, tile_index, 7])))
+            images[set_index][k, r0:r1, c0:c1] = _sensor(config, pixels, rng)
+            k_pattern += 1
+    return bool(pts.lit.any())
+
+
+def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage
+            ) -> np.ndarray:
+    """Disc-averaged complex fringe M(pi d / P) exp(i 2 pi x_p / P) of lit samples."""
+    x_p = np.where(pts.lit, pts.x_p, 0.0)
+    contrast = table(np.pi * d_panel / period)
+    return np.where(pts.lit, contrast * np.exp(2j * np.pi * x_p / period), 0.0)

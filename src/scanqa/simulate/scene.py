@@ -1,0 +1,247 @@
+"""Scenes of the virtual scanner: triangle meshes in the world frame, ray cast with open3d.
+
+open3d's :class:`RaycastingScene` finds the hit triangle in float32; :meth:`Scene.cast`
+then recomputes the hit distance in float64 against that triangle's plane, so that the
+ground truth of a planar face is exact to rounding (about 1e-13 mm), not to float32.
+
+Built-in scenes: a flat target (:func:`flat_target`), the gauge-block artefact of
+Sect. 4.3 (:func:`gauge_block_artefact`, layout in :func:`paper_gauge_layout`), and any
+STL/PLY/OBJ mesh (:func:`load_mesh`).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import trimesh
+
+from scanqa.errors import InputError
+
+#: Gauge-block heights of Table 3, block 1 (tallest) first [mm].
+GAUGE_HEIGHTS_MM = (50.80, 25.40, 12.70, 7.62, 6.35, 5.08, 3.18, 2.54)
+
+
+@dataclass(frozen=True)
+class Hits:
+    """Result of casting rays: float64 distances, hit mask, unit normals, face ids.
+
+    ``t`` is the ray parameter (distance in units of the direction's length), NaN where
+    nothing is hit; ``normals`` are the hit faces' unit normals (NaN where no hit).
+    """
+
+    t: np.ndarray
+    hit: np.ndarray
+    normals: np.ndarray
+    face: np.ndarray
+
+
+class Scene:
+    """A triangle mesh in the world frame with an open3d ray-casting structure.
+
+    Parameters
+    ----------
+    mesh : trimesh.Trimesh
+        The scene geometry [mm].
+    name : str
+        Label used in manifests and messages.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh, name: str = "mesh") -> None:
+        import open3d as o3d
+
+        if len(mesh.faces) == 0:
+            raise InputError(f"scene {name!r} has no triangles")
+        self.mesh = mesh
+        self.name = name
+        self._v = np.asarray(mesh.vertices, dtype=np.float64)
+        self._f = np.asarray(mesh.faces, dtype=np.int64)
+        normals = np.cross(self._v[self._f[:, 1]] - self._v[self._f[:, 0]],
+                           self._v[self._f[:, 2]] - self._v[self._f[:, 0]])
+        norm = np.linalg.norm(normals, axis=1, keepdims=True)
+        self._n = normals / np.where(norm > 0, norm, 1.0)
+        self._raycast = o3d.t.geometry.RaycastingScene()
+        self._raycast.add_triangles(o3d.core.Tensor(self._v.astype(np.float32)),
+                                    o3d.core.Tensor(self._f.astype(np.uint32)))
+
+    @property
+    def bounds(self) -> np.ndarray:
+        """(2, 3) axis-aligned bounding box [mm]."""
+        return np.array([self._v.min(axis=0), self._v.max(axis=0)])
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+        """Cast rays and return float64 hits.
+
+        Parameters
+        ----------
+        origins, directions : (..., 3) float
+            Ray origins [mm] and directions (any length) in the world frame.
+
+        Returns
+        -------
+        Hits
+            Arrays of shape (...,) and (..., 3).
+        """
+        import open3d as o3d
+
+        shape = np.shape(directions)[:-1]
+        o = np.ascontiguousarray(np.broadcast_to(origins, np.shape(directions))).reshape(-1, 3)
+        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
+        rays = np.concatenate([o, d], axis=1).astype(np.float32)
+        ans = self._raycast.cast_rays(o3d.core.Tensor(rays))
+        face = ans["primitive_ids"].numpy().astype(np.int64)
+        hit = np.isfinite(ans["t_hit"].numpy()) & (face != np.iinfo(np.uint32).max)
+        face = np.where(hit, face, -1)
+        n = np.where(hit[:, None], self._n[np.maximum(face, 0)], np.nan)
+        v0 = self._v[self._f[np.maximum(face, 0), 0]]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = np.einsum("ij,ij->i", n, v0 - o) / np.einsum("ij,ij->i", n, d)
+        t = np.where(hit, t, np.nan)
+        return Hits(t.reshape(shape), hit.reshape(shape), n.reshape(*shape, 3),
+                    face.reshape(shape))
+
+
+def flat_target(centre_mm, normal, size_mm: tuple[float, float] = (160.0, 130.0),
+                name: str = "flat") -> Scene:
+    """A rectangular flat target (two triangles), its face towards the scanner.
+
+    Parameters
+    ----------
+    centre_mm : (3,) float
+        Centre of the flat [mm].
+    normal : (3,) float
+        Normal pointing towards the scanner (any length) [-].
+    size_mm : (2,) float
+        Extent along the flat's in-plane axes [mm] (the first is closest to world X).
+    """
+    n = np.asarray(normal, dtype=float)
+    n /= np.linalg.norm(n)
+    a = np.cross([0.0, 1.0, 0.0], n)
+    a /= np.linalg.norm(a)
+    b = np.cross(n, a)
+    c = np.asarray(centre_mm, dtype=float)
+    hx, hy = size_mm[0] / 2.0, size_mm[1] / 2.0
+    corners = [c - hx * a - hy * b, c + hx * a - hy * b, c + hx * a + hy * b, c - hx * a + hy * b]
+    faces = np.array([[0, 1, 2], [0, 2, 3]])
+    mesh = trimesh.Trimesh(np.array(corners), faces, process=False)
+    _orient_towards(mesh, n)
+    return Scene(mesh, name)
+
+
+def _orient_towards(mesh: trimesh.Trimesh, normal: np.ndarray) -> None:
+    """Flip faces whose normal points away from ``normal``."""
+    flip = mesh.face_normals @ normal < 0
+    if flip.any():
+        faces = mesh.faces.copy()
+        faces[flip] = faces[flip][:, ::-1]
+        mesh.faces = faces
+
+
+def plane_scene(z_mm: float, size_mm: tuple[float, float] = (200.0, 170.0)) -> Scene:
+    """A flat target perpendicular to the camera axis at world Z = ``z_mm`` [mm]."""
+    return flat_target([0.0, 0.0, z_mm], [0.0, 0.0, -1.0], size_mm, name=f"plane_z{z_mm:g}")
+
+
+@dataclass(frozen=True)
+class GaugeBlock:
+    """One block of the artefact: id, nominal height and its top face region.
+
+    ``region_mm`` is (x_min, x_max, y_min, y_max) in the scanner frame [mm]; the top face
+    lies at Z = ``base_z_mm - height_mm``.
+    """
+
+    block_id: int
+    height_mm: float
+    region_mm: tuple[float, float, float, float]
+
+
+@dataclass(frozen=True)
+class GaugeLayout:
+    """The gauge-block artefact: base plate (Z = ``base_z_mm``) and blocks on it."""
+
+    base_z_mm: float
+    base_region_mm: tuple[float, float, float, float]
+    blocks: tuple[GaugeBlock, ...]
+    base_thickness_mm: float = 10.0
+
+
+def paper_gauge_layout(focus_mm: float = 450.0) -> GaugeLayout:
+    """The 8 blocks of Sect. 4.3 in 2 rows x 4, focus between the tops of blocks 2 and 3.
+
+    Blocks 1-4 (left to right) on the row Y < 0, blocks 5-8 on the row Y > 0; each top
+    face is 12 x 18 mm. Block 1 is on the far left (-X) so that its shadow (the
+    projector is at +X) falls off the artefact. The base plate lies at
+    ``focus + (25.40 + 12.70) / 2`` so that focus is midway between tops 2 and 3.
+    """
+    base_z = focus_mm + (GAUGE_HEIGHTS_MM[1] + GAUGE_HEIGHTS_MM[2]) / 2.0
+    xs, ys, hw, hh = (-24.0, -8.0, 8.0, 24.0), (-12.0, 12.0), 6.0, 9.0
+    blocks = tuple(GaugeBlock(i + 1, h, (xs[i % 4] - hw, xs[i % 4] + hw,
+                                         ys[i // 4] - hh, ys[i // 4] + hh))
+                   for i, h in enumerate(GAUGE_HEIGHTS_MM))
+    return GaugeLayout(base_z, (-45.0, 45.0, -37.5, 37.5), blocks)
+
+
+def _box(x0: float, x1: float, y0: float, y1: float, z0: float, z1: float) -> trimesh.Trimesh:
+    """Axis-aligned box mesh."""
+    box = trimesh.creation.box(extents=[x1 - x0, y1 - y0, z1 - z0])
+    box.apply_translation([(x0 + x1) / 2, (y0 + y1) / 2, (z0 + z1) / 2])
+    return box
+
+
+def gauge_block_artefact(layout: GaugeLayout | None = None) -> Scene:
+    """Scene of the base plate with its blocks (boxes; faces outward)."""
+    layout = layout or paper_gauge_layout()
+    z = layout.base_z_mm
+    parts = [_box(*layout.base_region_mm, z, z + layout.base_thickness_mm)]
+    parts += [_box(*b.region_mm, z - b.height_mm, z) for b in layout.blocks]
+    return Scene(trimesh.util.concatenate(parts), "gauge_blocks")
+
+
+def gauge_layout_toml(layout: GaugeLayout) -> str:
+    """The layout file text (``calib/gauge_blocks_paper.toml``; README documents it)."""
+    def rect(r: tuple) -> str:
+        return "[" + ", ".join(f"{v:.3f}" for v in r) + "]"
+
+    lines = [
+        "# Gauge-block artefact of Sect. 4.3 as simulated by scanqa.simulate",
+        "# (paper_gauge_layout). Scanner frame: X right, Y down, Z along the camera",
+        "# axis [mm]. Regions are rectangles [x_min, x_max, y_min, y_max] of the top",
+        "# faces seen along Z; a block's top face lies at Z = base_z_mm - height.",
+        'format = "scanqa-gauge-layout/1"',
+        'name = "paper_gauge_blocks"',
+        'frame = "scanner"',
+        f"base_z_mm = {layout.base_z_mm:.3f}",
+        "",
+        "[base]",
+        f"region_mm = {rect(layout.base_region_mm)}",
+        "normal = [0.0, 0.0, -1.0]",
+    ]
+    for b in layout.blocks:
+        lines += ["", "[[block]]", f"id = {b.block_id}",
+                  f"nominal_height_mm = {b.height_mm:.2f}",
+                  f"top_z_mm = {layout.base_z_mm - b.height_mm:.3f}",
+                  f"region_mm = {rect(b.region_mm)}"]
+    return "\n".join(lines) + "\n"
+
+
+def load_mesh(path: str | os.PathLike, translate_mm=(0.0, 0.0, 0.0)) -> Scene:
+    """Load an STL/PLY/OBJ mesh as a scene (coordinates in mm, world frame).
+
+    Raises
+    ------
+    InputError
+        When the file is missing, unreadable or holds no triangles.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"mesh file {p} does not exist")
+    try:
+        mesh = trimesh.load(p, force="mesh")
+    except Exception as err:  # trimesh raises many types on corrupt files
+        raise InputError(f"cannot load mesh {p}: {err} (need a valid STL, PLY or OBJ)") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise InputError(f"mesh {p} holds no triangles (need a valid STL, PLY or OBJ)")
+    mesh.apply_translation(np.asarray(translate_mm, dtype=float))
+    return Scene(mesh, p.stem)
