@@ -61,6 +61,7 @@ MASK_REASONS = {MASK_VALID: "valid", MASK_SATURATED: "saturated",
                 MASK_OUT_OF_RANGE: "out_of_range"}
 
 _TWO_PI = 2.0 * np.pi
+_CHUNK_PIXELS = 32768  # pixels per chunk: measured fastest on 2448 x 2048 (cache-sized)
 
 
 @dataclass(frozen=True, eq=False)
@@ -105,11 +106,11 @@ class PhaseMap:
                   "mask": np.uint8, "sigma_xp": np.float32}
         shape = np.shape(self.xp)
         for name, dtype in arrays.items():
-            arr = np.array(getattr(self, name), dtype=dtype)
+            arr = np.asarray(getattr(self, name), dtype=dtype).view()  # no copy
             if arr.ndim != 2 or arr.shape != shape:
                 raise InputError(f"PhaseMap.{name} must be a 2-D array of the shape of xp "
                                  f"{shape}, got {arr.shape}")
-            arr.flags.writeable = False
+            arr.flags.writeable = False  # on the view only: the caller's array is untouched
             object.__setattr__(self, name, arr)
         self._check_consistency()
 
@@ -118,10 +119,11 @@ class PhaseMap:
         if unknown.size:
             raise InputError(f"PhaseMap.mask holds unknown reason codes {unknown.tolist()} "
                              f"(known: {MASK_REASONS})")
-        if np.isfinite(self.xp[self.mask != MASK_VALID]).any():
+        finite, valid = np.isfinite(self.xp), self.mask == MASK_VALID
+        if (finite & ~valid).any():
             raise InputError("PhaseMap.xp must be NaN where mask != 0 (masked pixels carry "
                              "no coordinate)")
-        if not np.isfinite(self.xp[self.mask == MASK_VALID]).all():
+        if (valid & ~finite).any():
             raise InputError("PhaseMap.xp must be finite where mask == 0; mask the pixel")
         if not (np.isfinite(self.period_px) and self.period_px > 0):
             raise InputError(f"PhaseMap.period_px must be > 0 [px], got {self.period_px!r}")
@@ -307,7 +309,7 @@ def demodulate(images: np.ndarray, shifts_rad: Sequence[float] | None = None,
 # ------------------------------------------------------------------------- decoding
 
 def decode(desc: PatternDescription, images: Sequence[np.ndarray], *,
-           chunk_rows: int = 64, progress: Callable[[str], None] | None = None
+           chunk_rows: int | None = None, progress: Callable[[str], None] | None = None
            ) -> PhaseMap:
     """Decode a pattern set into a :class:`PhaseMap`.
 
@@ -318,8 +320,9 @@ def decode(desc: PatternDescription, images: Sequence[np.ndarray], *,
     images : sequence of (N, H, W) arrays
         One stack per set, in ``desc.sets`` order [DN]. Integer stacks are treated as
         quantised (the 1/12 DN^2 term enters the noise).
-    chunk_rows : int
-        Rows decoded at a time (bounds the working memory) [px].
+    chunk_rows : int, optional
+        Rows decoded at a time [px]; default: about 32k pixels per chunk, which keeps
+        the temporaries in the CPU cache and bounds the working memory.
     progress : callable, optional
         Receives short progress messages.
 
@@ -343,8 +346,9 @@ def decode(desc: PatternDescription, images: Sequence[np.ndarray], *,
     height, width = stacks[0].shape[1:]
     out = _allocate(height, width)
     by_name = {s.name: st for s, st in zip(desc.sets, stacks, strict=True)}
-    for r0 in range(0, height, max(int(chunk_rows), 1)):
-        rows = slice(r0, min(r0 + max(int(chunk_rows), 1), height))
+    step = max(int(chunk_rows or _CHUNK_PIXELS // max(width, 1)), 1)
+    for r0 in range(0, height, step):
+        rows = slice(r0, min(r0 + step, height))
         unwrap_rows(plan, {k: v[:, rows] for k, v in by_name.items()},
                     {k: v[rows] for k, v in out.items()})
     if progress:

@@ -1,0 +1,176 @@
+"""Benchmark: decode 3 periods x 4 steps of a 2448 x 2048 camera, scanqa vs fringes.
+
+Each decoder runs in its own subprocess so that its peak memory (``ru_maxrss``) is its
+own (VmHWM); the images are written once to a temporary ``.npy`` stack (uint16, 12-bit values
+with Gaussian noise) and loaded by both. Reported per decoder: the best wall time of
+``--repeat`` runs, the process peak RSS, and the peak above the loaded inputs. For
+scanqa the numpy peak from tracemalloc is reported too. fringes (PyPI, numba) is
+JIT-warmed on a small image first so that its compile time is not counted; it runs
+its numba kernel on all cores, scanqa is plain numpy.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_decode.py [--rows 2048 --cols 2448 --repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+PERIODS = (1280.0, 80.0, 16.0)
+WIDTH = 1280
+
+
+def _description():
+    from scanqa.io.patterns import PatternDescription, PhaseSet, SensorModel
+
+    sets = tuple(PhaseSet(f"p{p:g}", p, 4) for p in PERIODS)
+    return PatternDescription(WIDTH, sets, sensor=SensorModel(bit_depth=12))
+
+
+def make_images(rows: int, cols: int, seed: int = 0) -> np.ndarray:
+    """(12, rows, cols) uint16 fringe images of a tilted plane, with noise [DN]."""
+    from scanqa.io.patterns import synthesize_images
+
+    rng = np.random.default_rng(seed)
+    xp = np.linspace(0.0, WIDTH - 1.0, cols)[None, :] + np.linspace(0, 5, rows)[:, None]
+    out = np.empty((4 * len(PERIODS), rows, cols), np.uint16)
+    for i, stack in enumerate(synthesize_images(_description(), xp, 1500.0, 1000.0)):
+        for k, frame in enumerate(stack):
+            noisy = frame + rng.normal(0.0, 3.0, frame.shape)
+            out[4 * i + k] = np.clip(np.rint(noisy), 0, 4095)
+    return out
+
+
+def _rss_mb() -> float:
+    """Current resident set size [MB] (Linux /proc)."""
+    with open("/proc/self/statm") as fh:
+        return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 1e6
+
+
+def _maxrss_mb() -> float:
+    """Peak resident set size of this process [MB].
+
+    VmHWM from /proc, because ``ru_maxrss`` survives fork + exec and would report the
+    parent's peak (the image synthesis) instead of the decoder's.
+    """
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1e3  # kB
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e3  # Linux: kB
+
+
+def _run_scanqa(images: np.ndarray, repeat: int) -> dict:
+    import tracemalloc
+
+    from scanqa.phase import decode
+
+    desc = _description()
+    stacks = [images[4 * i:4 * i + 4] for i in range(len(PERIODS))]
+    base = _rss_mb()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        pm = decode(desc, stacks)
+        times.append(time.perf_counter() - t0)
+    tracemalloc.start()
+    decode(desc, stacks)
+    traced = tracemalloc.get_traced_memory()[1] / 1e6
+    tracemalloc.stop()
+    return {"times": times, "base_mb": base, "maxrss_mb": _maxrss_mb(),
+            "tracemalloc_peak_mb": traced, "valid": int(pm.valid.sum())}
+
+
+def _run_fringes(images: np.ndarray, repeat: int) -> dict:
+    import logging
+
+    from fringes import Fringes
+
+    logging.getLogger("fringes").setLevel(logging.ERROR)
+    f = Fringes(X=WIDTH, Y=16, K=len(PERIODS), N=4, v=tuple(WIDTH / p for p in PERIODS),
+                axes=(1,), reverse=True, p0=0.0, dtype="uint16")
+    f.decode(images[:, :16, :64])  # JIT warm-up (compile or load from numba's cache)
+    base = _rss_mb()
+    times = []
+    for _ in range(repeat):
+        t0 = time.perf_counter()
+        dec = f.decode(images)
+        times.append(time.perf_counter() - t0)
+    valid = int(np.isfinite(dec.x).sum())
+    return {"times": times, "base_mb": base, "maxrss_mb": _maxrss_mb(), "valid": valid}
+
+
+def _child(which: str, stack_path: str, repeat: int) -> None:
+    images = np.load(stack_path)
+    runner = _run_scanqa if which == "scanqa" else _run_fringes
+    print(json.dumps(runner(images, repeat)))
+
+
+def _spawn(which: str, stack_path: Path, repeat: int) -> dict | None:
+    cmd = [sys.executable, __file__, "--child", which, "--stack", str(stack_path),
+           "--repeat", str(repeat)]
+    proc = subprocess.run(cmd, capture_output=True, text=True, check=False)
+    if proc.returncode != 0:
+        print(f"{which} failed:\n{proc.stderr.strip()[-2000:]}", file=sys.stderr)
+        return None
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def _report(name: str, res: dict | None) -> str:
+    if res is None:
+        return f"{name:8s} not available"
+    extra = res["maxrss_mb"] - res["base_mb"]
+    line = (f"{name:8s} best {min(res['times']):6.3f} s (runs: "
+            f"{', '.join(f'{t:.3f}' for t in res['times'])}), peak RSS "
+            f"{res['maxrss_mb']:.0f} MB = inputs {res['base_mb']:.0f} MB + {extra:.0f} MB, "
+            f"valid px {res['valid']}")
+    if "tracemalloc_peak_mb" in res:
+        line += f", numpy peak (tracemalloc) {res['tracemalloc_peak_mb']:.0f} MB"
+    return line
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run both decoders on the same images and print one result line."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--rows", type=int, default=2048)
+    ap.add_argument("--cols", type=int, default=2448)
+    ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--child", choices=("scanqa", "fringes"), help=argparse.SUPPRESS)
+    ap.add_argument("--stack", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.child:
+        _child(args.child, args.stack, args.repeat)
+        return 0
+    with tempfile.TemporaryDirectory() as tmp:
+        stack = Path(tmp) / "images.npy"
+        np.save(stack, make_images(args.rows, args.cols))
+        results = {w: _spawn(w, stack, args.repeat) for w in ("scanqa", "fringes")}
+    print(f"decode {len(PERIODS)} periods x 4 steps, {args.cols} x {args.rows} px, uint16:")
+    for name, res in results.items():
+        print("  " + _report(name, res))
+    sq, fr = results["scanqa"], results["fringes"]
+    t_sq = f"{min(sq['times']):.3f} s" if sq else "n/a"
+    t_fr = f"{min(fr['times']):.3f} s" if fr else "n/a"
+    ratio = f", scanqa/fringes time {min(sq['times']) / min(fr['times']):.2f}" if sq and fr \
+        else ""
+    print(f"RESULT bench_decode: scanqa {t_sq}, fringes {t_fr}{ratio} (target < 3 s and "
+          "faster than fringes)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
