@@ -1,0 +1,82 @@
+"""``scanqa decode``: the command writes phase.npz and prints a one-line summary."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from scanqa.cli import main
+from scanqa.io.patterns import (
+    PatternDescription,
+    PhaseSet,
+    SensorModel,
+    synthesize_images,
+    write_pattern_set,
+)
+from scanqa.io.phasemap import load_phase_map
+
+
+def _scan(folder, fmt="png"):
+    sets = (PhaseSet("p800", 800.0, 4), PhaseSet("p40", 40.0, 4))
+    desc = PatternDescription(800, sets, sensor=SensorModel(bit_depth=12))
+    xp = np.broadcast_to(np.linspace(1.0, 798.0, 50), (20, 50))
+    offset = np.full((20, 50), 1500.0)
+    offset[:, :5] = 3800.0  # saturated
+    images = [np.clip(np.rint(im), 0, 4095).astype(np.uint16)
+              for im in synthesize_images(desc, xp, offset, 1000.0)]
+    write_pattern_set(folder, desc, images, image_format=fmt)
+    return xp
+
+
+def test_decode_writes_the_map_and_prints_a_summary(tmp_path, capsys):
+    xp = _scan(tmp_path / "scan")
+    out = tmp_path / "phase.npz"
+    assert main(["decode", str(tmp_path / "scan"), "--out", str(out)]) == 0
+    captured = capsys.readouterr()
+    lines = captured.out.strip().splitlines()
+    assert len(lines) == 1
+    assert lines[0].startswith("900 of 1000 pixels valid (90.0 %); masked: saturated 100, "
+                               "low_modulation 0, inconsistent 0, out_of_range 0 -> ")
+    assert "scanqa decode: read 8 images of 50 x 20 px (uint16)" in captured.err
+    pm = load_phase_map(out)
+    np.testing.assert_allclose(pm.xp[:, 5:], xp[:, 5:], atol=0.01)
+    assert pm.provenance["patterns"]["set"][1]["period_px"] == 40.0
+    assert pm.provenance["version"]
+
+
+def test_quiet_and_toml_path(tmp_path, capsys):
+    _scan(tmp_path / "scan", fmt="npz")
+    out = tmp_path / "phase.npz"
+    toml = tmp_path / "scan" / "patterns.toml"
+    assert main(["decode", str(toml), "--out", str(out), "--quiet"]) == 0
+    assert capsys.readouterr().err == ""
+    assert out.exists()
+
+
+@pytest.mark.parametrize("breakage,match", [
+    ("unknown_key", "scanqa: unknown key set[0].colour"),
+    ("missing_image", "scanqa: image file"),
+    ("no_folder", "scanqa: no pattern description"),
+])
+def test_errors_exit_2_without_traceback_or_output(tmp_path, capsys, breakage, match):
+    folder = tmp_path / "scan"
+    _scan(folder)
+    if breakage == "unknown_key":
+        toml = folder / "patterns.toml"
+        toml.write_text(toml.read_text().replace('kind = "phase"', 'kind = "phase"\ncolour = 1',
+                                                 1))
+    elif breakage == "missing_image":
+        (folder / "p40_02.png").unlink()
+    else:
+        folder = tmp_path / "nowhere"
+    out = tmp_path / "phase.npz"
+    assert main(["decode", str(folder), "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert match in err and "Traceback" not in err
+    assert not out.exists()
+
+
+def test_help_has_an_example(capsys):
+    with pytest.raises(SystemExit):
+        main(["decode", "--help"])
+    assert "scanqa decode scans/plane_010 --out" in capsys.readouterr().out
