@@ -31,8 +31,11 @@ parameter covariance of stage 2, scaled by the fit's reduced chi-square.
 
 from __future__ import annotations
 
+import functools
 import json
+import os
 from collections.abc import Callable, Iterable
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -127,6 +130,11 @@ class CalibrationTable:
     config: dict
     provenance: dict
 
+    @functools.cached_property
+    def packed(self) -> tuple[np.ndarray, np.ndarray, float]:
+        """Hermite and lateral coefficients for fast lookups (computed once)."""
+        return _packed(self)
+
     @property
     def cell_px(self) -> float:
         """Node spacing in u and v [camera px]."""
@@ -171,7 +179,7 @@ class CalibrationTable:
             raise InputError(f"phase map is {xp.shape[1]} x {xp.shape[0]} px but the table "
                              f"was built for a {self.width_px} x {self.height_px} px camera")
         v, u = np.indices(xp.shape, dtype=float)
-        return _apply(self, u, v, xp, extrapolate)
+        return _apply(self, u, v, xp, extrapolate, image=True)
 
 
 # --------------------------------------------------------------------------- building
@@ -308,7 +316,7 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
                 weights: str = "model", cell_px: int = 16, s_step_px: float = 1.0,
                 min_modulation: float = 0.0, jump_fraction: float = 0.25,
                 provenance: dict | None = None,
-                progress: Callable[[int, int], None] | None = None
+                progress: Callable[[int], None] | None = None
                 ) -> tuple[CalibrationTable, BuildReport]:
     """Build a calibration table from decoded scans of a flat target on a stage.
 
@@ -333,7 +341,7 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     provenance : dict, optional
         Sweep description stored in the table.
     progress : callable, optional
-        Called as progress(done, total) after each observation.
+        Called as progress(done) after each observation.
 
     Returns
     -------
@@ -341,10 +349,9 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     """
     if weights not in WEIGHT_MODES:
         raise InputError(f"--weights must be one of {', '.join(WEIGHT_MODES)}, got {weights!r}")
-    obs_list = list(observations)
     report = BuildReport()
     stats, shape = [], None
-    for i, obs in enumerate(obs_list):
+    for i, obs in enumerate(observations):
         if shape is None:
             shape = obs.xp.shape
             n_v, n_u = -(-shape[0] // cell_px), -(-shape[1] // cell_px)
@@ -355,7 +362,7 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
         jump = jump_fraction * config.fringes.working_period_px
         stats.append(_stage1(obs, cell_px, n_v, n_u, jump, min_modulation, report))
         if progress:
-            progress(i + 1, len(obs_list))
+            progress(i + 1)
     zs = sorted({s.z_mm for s in stats})
     if len(zs) < 3:
         raise InputError(f"a calibration sweep needs at least 3 distinct positions, got "
@@ -503,54 +510,140 @@ def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
 # --------------------------------------------------------------------------- applying
 
 
-def _apply(t: CalibrationTable, u, v, xp, extrapolate: bool) -> TableLookup:
-    """Bilinear in (u, v), cubic Hermite in s."""
+_CHUNK = 1 << 18  # points per block in _apply: keeps temporaries in cache-sized pieces
+
+
+def _packed(t: CalibrationTable) -> tuple[np.ndarray, np.ndarray, float]:
+    """Hermite coefficients of Z per (node, segment) and lateral ray coefficients per node.
+
+    Returns ``coef`` (n_v * n_u * n_s, 6) float32: a0 - z_off, a1..a3 of Z(t) on the
+    segment and the table sigma at its two ends; ``lat`` (n_v * n_u, 4): X0, kx, Y0, ky
+    with X = X0 + kx Z; and ``z_off`` [mm].
+    """
+    h = t.s_nodes[1] - t.s_nodes[0]
+    z, dz = t.xyz[..., 2], t.dxyz[..., 2] * h
+    p0, p1 = z, np.roll(z, -1, axis=-1)
+    m0, m1 = dz, np.roll(dz, -1, axis=-1)
+    sig = t.sigma_node
+    z_off = float(np.nanmean(z))
+    coef = np.stack([p0 - z_off, m0, -3 * p0 + 3 * p1 - 2 * m0 - m1,
+                     2 * p0 - 2 * p1 + m0 + m1, sig, np.roll(sig, -1, axis=-1) - sig], -1)
+    centre = t.s_nodes.size // 2
+    with np.errstate(invalid="ignore", divide="ignore"):
+        kx = t.dxyz[..., centre, 0] / t.dxyz[..., centre, 2]
+        ky = t.dxyz[..., centre, 1] / t.dxyz[..., centre, 2]
+    zc = t.xyz[..., centre, 2]
+    lat = np.stack([t.xyz[..., centre, 0] - kx * zc, kx, t.xyz[..., centre, 1] - ky * zc, ky],
+                   -1)
+    # float32 halves the memory traffic of the gathers; Z is stored relative to its mean
+    # so the rounding stays below 10 nm over a +-100 mm sweep
+    return coef.reshape(-1, 6).astype(np.float32), lat.reshape(-1, 4), z_off
+
+
+def _apply(t: CalibrationTable, u, v, xp, extrapolate: bool,
+           image: bool = False) -> TableLookup:
+    """Bilinear in (u, v), cubic Hermite in s; vectorised in chunks.
+
+    With ``image`` (u, v the full pixel grid, row-major) the lateral coefficients are
+    interpolated separably per row instead of gathered per pixel.
+    """
     shape = xp.shape
     u, v, xp = u.ravel(), v.ravel(), xp.ravel()
-    n_v, n_u, n_s = t.xyz.shape[:3]
-    cell = t.cell_px
-    fu = (u - t.node_u[0]) / cell
-    fv = (v - t.node_v[0]) / cell
-    iu = np.clip(np.floor(fu), 0, max(n_u - 2, 0)).astype(np.intp)
-    iv = np.clip(np.floor(fv), 0, max(n_v - 2, 0)).astype(np.intp)
-    tu, tv = fu - iu, fv - iv
-    corners = [(0, 0, (1 - tv) * (1 - tu)), (0, 1, (1 - tv) * tu), (1, 0, tv * (1 - tu)),
-               (1, 1, tv * tu)]
-    xref = sum(wc * t.x_ref[iv + dv, iu + du] for dv, du, wc in corners)
-    s = xp - xref
-    h = t.s_nodes[1] - t.s_nodes[0]
-    fs = (s - t.s_nodes[0]) / h
-    ks = np.clip(np.floor(np.nan_to_num(fs)), 0, n_s - 2).astype(np.intp)
-    ts = (fs - ks)[:, None]
-    h00, h10 = 2 * ts**3 - 3 * ts**2 + 1, ts**3 - 2 * ts**2 + ts
-    h01, h11 = -2 * ts**3 + 3 * ts**2, ts**3 - ts**2
-    g00, g10 = (6 * ts**2 - 6 * ts) / h, 3 * ts**2 - 4 * ts + 1
-    g01, g11 = (-6 * ts**2 + 6 * ts) / h, 3 * ts**2 - 2 * ts
-    xyz = np.zeros((u.size, 3))
-    slope = np.zeros((u.size, 3))
-    sig = np.zeros(u.size)
-    inside = np.isfinite(s)
-    flat_xyz = t.xyz.reshape(-1, 3)
-    flat_d = t.dxyz.reshape(-1, 3)
-    flat_sig = t.sigma_node.reshape(-1)
-    for dv, du, wc in corners:
-        node = ((iv + dv) * n_u + (iu + du)) * n_s + ks
-        p0, p1 = flat_xyz[node], flat_xyz[node + 1]
-        m0, m1 = flat_d[node] * h, flat_d[node + 1] * h
-        wcol = wc[:, None]
-        xyz += wcol * (h00 * p0 + h10 * m0 + h01 * p1 + h11 * m1)
-        slope += wcol * (g00 * p0 + g10 * m0 / h + g01 * p1 + g11 * m1 / h)
-        sig += wc * ((1 - ts[:, 0]) * flat_sig[node] + ts[:, 0] * flat_sig[node + 1])
-        lo = t.s_lo[iv + dv, iu + du]
-        hi = t.s_hi[iv + dv, iu + du]
-        with np.errstate(invalid="ignore"):
-            inside &= (s >= lo) & (s <= hi)
+    coef, lat, z_off = t.packed
+    lat_u = _lateral_columns(t, lat, shape[-1]) if image else None
+    xyz = np.empty((u.size, 3))
+    slope = np.empty((u.size, 3))
+    sig = np.empty(u.size)
+    inside = np.empty(u.size, dtype=bool)
+    step = _CHUNK if lat_u is None else max(1, _CHUNK // shape[-1]) * shape[-1]
+
+    def chunk(a: int) -> None:
+        b = min(a + step, u.size)
+        lc = _lateral_rows(t, lat_u, v[a:b], shape[-1]) if image else None
+        _apply_chunk(t, coef, lat, z_off, u[a:b], v[a:b], xp[a:b], lc,
+                     (xyz[a:b], slope[a:b], sig[a:b], inside[a:b]))
+
+    starts = range(0, u.size, step)
+    if len(starts) > 1:  # numpy releases the GIL in these loops: chunks run on all cores
+        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
+            list(pool.map(chunk, starts))
+    else:
+        for a in starts:
+            chunk(a)
     if not extrapolate:
         xyz[~inside] = np.nan
         slope[~inside] = np.nan
         sig[~inside] = np.nan
     return TableLookup(xyz.reshape(*shape, 3), slope.reshape(*shape, 3), sig.reshape(shape),
                        inside.reshape(shape))
+
+
+def _node_index(t: CalibrationTable, coord: np.ndarray, axis: int):
+    """Lower node index and fraction along u (axis 1) or v (axis 0)."""
+    nodes = t.node_u if axis == 1 else t.node_v
+    f = (coord - nodes[0]) / t.cell_px
+    i = np.clip(np.floor(f), 0, max(nodes.size - 2, 0)).astype(np.intp)
+    return i, f - i
+
+
+def _lateral_columns(t: CalibrationTable, lat: np.ndarray, width: int) -> np.ndarray:
+    """Lateral coefficients interpolated along u for every node row: (n_v, W, 4)."""
+    lat = lat.reshape(t.node_v.size, t.node_u.size, 4)
+    iu, tu = _node_index(t, np.arange(width, dtype=float), 1)
+    return (1 - tu)[None, :, None] * lat[:, iu] + tu[None, :, None] * lat[:, iu + 1]
+
+
+def _lateral_rows(t: CalibrationTable, lat_u: np.ndarray, v: np.ndarray, width: int
+                  ) -> np.ndarray:
+    """Per-pixel lateral coefficients for whole rows: (n, 4)."""
+    rows = v[::width]
+    iv, tv = _node_index(t, rows, 0)
+    out = (1 - tv)[:, None, None] * lat_u[iv] + tv[:, None, None] * lat_u[iv + 1]
+    return out.reshape(-1, 4)
+
+
+def _apply_chunk(t, coef, lat, z_off, u, v, xp, lc, out) -> None:
+    """One chunk of :func:`_apply`, writing into the output slices ``out``."""
+    xyz, slope, sig, inside = out
+    n_u, n_s = t.node_u.size, t.s_nodes.size
+    iu, tu = _node_index(t, u, 1)
+    iv, tv = _node_index(t, v, 0)
+    base = iv * n_u + iu
+    offsets = (0, 1, n_u, n_u + 1)
+    weights = ((1 - tv) * (1 - tu), (1 - tv) * tu, tv * (1 - tu), tv * tu)
+    x_ref, s_lo, s_hi = t.x_ref.ravel(), t.s_lo.ravel(), t.s_hi.ravel()
+    s = xp - sum(w * np.take(x_ref, base + o) for o, w in zip(offsets, weights, strict=True))
+    h = t.s_nodes[1] - t.s_nodes[0]
+    fs = (s - t.s_nodes[0]) / h
+    ks = np.clip(np.floor(np.nan_to_num(fs)), 0, n_s - 2).astype(np.intp)
+    ts = fs - ks
+    c = np.zeros((u.size, 6), dtype=np.float32)
+    gc = np.empty((u.size, 6), dtype=np.float32)
+    gather_lat = lc is None
+    if gather_lat:
+        lc, gl = np.zeros((u.size, 4)), np.empty((u.size, 4))
+    ok = np.isfinite(s)
+    for o, w in zip(offsets, weights, strict=True):
+        node = base + o
+        # np.take is several times faster than fancy indexing for row gathers
+        np.take(coef, node * n_s + ks, axis=0, out=gc)
+        c += np.multiply(gc, w[:, None].astype(np.float32), out=gc)
+        if gather_lat:
+            np.take(lat, node, axis=0, out=gl)
+            lc += np.multiply(gl, w[:, None], out=gl)
+        with np.errstate(invalid="ignore"):
+            ok &= (s >= np.take(s_lo, node)) & (s <= np.take(s_hi, node))
+    c64 = c.astype(np.float64)
+    z = z_off + c64[:, 0] + ts * (c64[:, 1] + ts * (c64[:, 2] + ts * c64[:, 3]))
+    dz = (c64[:, 1] + ts * (2 * c64[:, 2] + 3 * ts * c64[:, 3])) / h
+    xyz[:, 0] = lc[:, 0] + lc[:, 1] * z
+    xyz[:, 1] = lc[:, 2] + lc[:, 3] * z
+    xyz[:, 2] = z
+    slope[:, 0] = lc[:, 1] * dz
+    slope[:, 1] = lc[:, 3] * dz
+    slope[:, 2] = dz
+    sig[:] = c64[:, 4] + ts * c64[:, 5]
+    inside[:] = ok
 
 
 # --------------------------------------------------------------------------- file

@@ -43,9 +43,11 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     out = check_out_dir(args.out)
     sweep = load_sweep(args.sweep)
+    total = sweep.observation_count()
     table, report = build_table(iter_observations(sweep), config, weights=args.weights,
                                 cell_px=args.cell, min_modulation=args.min_modulation,
-                                provenance=sweep.provenance(), progress=_progress)
+                                provenance=sweep.provenance(),
+                                progress=lambda done: _progress(done, total))
     save_table(out, table)
     stem = out.with_suffix("")
     info = report_calibration.summary(table, report)
