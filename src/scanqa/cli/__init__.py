@@ -19,6 +19,7 @@ from scanqa.errors import ScanQAError
 #: Modules that register subcommands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
     "scanqa.cli.design",
+    "scanqa.cli.calibrate",
     "scanqa.cli.demo",
     "scanqa.cli.decode",
 )
