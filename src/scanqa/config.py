@@ -276,7 +276,7 @@ class SimulatorConfig(_Section):
     modulation_ratio: float = _spec("", gt=0, le=1, default=0.8)
     projector_samples: int = _spec("", ge=16, kind="int", default=256)
     steps: int = _spec("", ge=3, le=64, kind="int", default=4)
-    unwrap_periods_px: tuple = _spec("px", gt=0, kind="list", default=[64.0, 1280.0])
+    unwrap_periods_px: tuple = _spec("px", gt=0, kind="list", default=[80.0, 1280.0])
     roi_width_px: int = _spec("px", ge=0, kind="int", default=0)
     roi_height_px: int = _spec("px", ge=0, kind="int", default=0)
 

@@ -22,6 +22,7 @@ COMMAND_MODULES = (
     "scanqa.cli.calibrate",
     "scanqa.cli.demo",
     "scanqa.cli.decode",
+    "scanqa.cli.simulate",
 )
 
 

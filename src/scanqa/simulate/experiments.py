@@ -211,8 +211,23 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
             entries.append(_entry(pos, rep, folder))
     if bar:
         bar.done()
+    if name == "calibration-sweep":
+        write_text(out / "sweep.toml", dump_toml(_sweep(pos_list, entries)))
     manifest = _manifest(name, config, desc, pos_list, repeats, entries)
     return write_text(out / "manifest.toml", dump_toml(manifest))
+
+
+def _sweep(pos_list: list[Position], entries: list[dict]) -> dict:
+    """The calibration's ``sweep.toml`` (scanqa.io.sweep): positions in increasing Z."""
+    rows = []
+    for pos in sorted(pos_list, key=lambda p: p.stage_mm):
+        folders = [e["folder"] for e in entries if e["index"] == pos.index]
+        rows.append({"z_mm": pos.stage_mm, "patterns": folders,
+                     "lateral": f"truth/{pos.label}.npz"})
+    return {"format": "scanqa-sweep/1",
+            "description": f"simulated flat target, {len(pos_list)} positions, "
+                           f"{len(entries) // len(pos_list)} repeats",
+            "position": rows}
 
 
 def _entry(pos: Position, rep: int, folder: str) -> dict:

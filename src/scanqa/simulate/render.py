@@ -30,14 +30,19 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import fftconvolve
+from scipy.fft import irfft2, next_fast_len, rfft2
 
 from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
 from scanqa.io.patterns import PatternDescription, PhaseSet
 from scanqa.simulate import devices
 from scanqa.simulate.devices import Pose, Window
-from scanqa.simulate.optics_kernels import DiscAverage, airy_kernel, camera_kernel, disc_average
+from scanqa.simulate.optics_kernels import (
+    DiscAverage,
+    airy_kernel,
+    camera_kernel,
+    disc_average,
+)
 from scanqa.simulate.scene import Scene
 
 #: Tile size of the chunked renderer [camera px].
@@ -45,7 +50,7 @@ TILE_PX = 128
 #: Largest halo around a tile; blur beyond it is clipped [camera px].
 MAX_HALO_PX = 64
 #: Blur-diameter ladder: linear steps up to _D_LIN, then geometric [supersamples].
-_D_STEP, _D_LIN, _D_RATIO = 0.25, 4.0, 1.03
+_D_STEP, _D_LIN, _D_RATIO = 0.5, 4.0, 1.06
 
 
 @dataclass(frozen=True)
@@ -182,23 +187,33 @@ def _stream_key(config: ScannerConfig, key: Sequence[int]) -> int:
     return int(seq.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
 
 
-def _scene_noise(config: ScannerConfig, key: int, pts: _Points, uu: np.ndarray,
-                 vv: np.ndarray) -> np.ndarray:
-    """Unit-variance scene noise per object cell (or per supersample when cell = 0)."""
+def _noise_cells(config: ScannerConfig, pts: _Points, uu: np.ndarray, vv: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray, float]:
+    """Integer cell indices of every sample and the noise scale per cell [-].
+
+    Cells are squares of ``scene_noise_cell_mm`` in world X, Y (fixed to the scene, so
+    a moving camera sees the same cells); with cell 0, each supersample is a cell and
+    the std is scaled by s so that it is ``scene_noise_rel`` per camera pixel.
+    """
     sim = config.simulator
     cell = sim.scene_noise_cell_mm
     if cell == 0:
         s = sim.supersampling
-        iu = np.round(uu * s - 0.5).astype(np.int64)
-        iv = np.round(vv * s - 0.5).astype(np.int64)
-        return _hash_normal(key, iu, iv) * s
+        return (np.round(uu * s - 0.5).astype(np.int64),
+                np.round(vv * s - 0.5).astype(np.int64), float(s))
     first = pts.world[pts.hit][0] if pts.hit.any() else np.zeros(3)
     ix = np.floor(np.where(pts.hit, pts.world[..., 0], first[0]) / cell).astype(np.int64)
     iy = np.floor(np.where(pts.hit, pts.world[..., 1], first[1]) / cell).astype(np.int64)
+    return ix, iy, 1.0
+
+
+def _scene_noise(key: int, ix: np.ndarray, iy: np.ndarray, scale: float) -> np.ndarray:
+    """Unit-variance (times ``scale``) noise of each sample's cell, for one pattern."""
     x0, y0 = ix.min(), iy.min()
+    if (ix.max() - x0 + 1) * (iy.max() - y0 + 1) > 4 * ix.size:
+        return _hash_normal(key, ix, iy) * scale
     gx, gy = np.meshgrid(np.arange(x0, ix.max() + 1), np.arange(y0, iy.max() + 1))
-    grid = _hash_normal(key, gx, gy)
-    return grid[iy - y0, ix - x0]
+    return _hash_normal(key, gx, gy)[iy - y0, ix - x0] * scale
 
 
 # ------------------------------------------------------------------ camera blur layers
@@ -219,15 +234,17 @@ def _layer_diameter(i: int) -> float:
 
 @dataclass(frozen=True)
 class _Layer:
-    """One blur layer of a tile: its diameter, bounding box and sample weights."""
+    """One blur layer of a tile: bounding box, sample weights and its kernel's FFT."""
 
-    diameter: float
     rows: slice
     cols: slice
     weight: np.ndarray
+    half: int
+    fft_shape: tuple[int, int]
+    kernel_fft: np.ndarray
 
 
-def _layers(diameter: np.ndarray, hit: np.ndarray) -> list[_Layer]:
+def _layers(diameter: np.ndarray, hit: np.ndarray, airy: np.ndarray) -> list[_Layer]:
     """Split samples between the two nearest ladder diameters (linear weights)."""
     lam = np.where(hit, _layer_coord(np.where(hit, diameter, 0.0)), -1.0)
     i0 = np.floor(lam).astype(np.int64)
@@ -240,17 +257,22 @@ def _layers(diameter: np.ndarray, hit: np.ndarray) -> list[_Layer]:
         if rr.size == 0:
             continue
         rows, cols = slice(rr.min(), rr.max() + 1), slice(cc.min(), cc.max() + 1)
-        out.append(_Layer(_layer_diameter(int(i)), rows, cols, w[rows, cols]))
+        kern = camera_kernel(_layer_diameter(int(i)), airy)
+        shape = tuple(next_fast_len(n + k - 1, real=True) for n, k in
+                      zip(w[rows, cols].shape, kern.shape, strict=True))
+        out.append(_Layer(rows, cols, w[rows, cols], kern.shape[0] // 2, shape,
+                          rfft2(kern, s=shape)))
     return out
 
 
-def _blur(radiance: np.ndarray, layers: list[_Layer], airy: np.ndarray) -> np.ndarray:
+def _blur(radiance: np.ndarray, layers: list[_Layer]) -> np.ndarray:
     """Depth-dependent disc blur (scatter) of a supersampled radiance image."""
     out = np.zeros_like(radiance)
     for layer in layers:
-        kern = camera_kernel(layer.diameter, airy)
-        h = kern.shape[0] // 2
-        conv = fftconvolve(radiance[layer.rows, layer.cols] * layer.weight, kern, mode="full")
+        crop = radiance[layer.rows, layer.cols] * layer.weight
+        h = layer.half
+        conv = irfft2(rfft2(crop, s=layer.fft_shape) * layer.kernel_fft, s=layer.fft_shape)
+        conv = conv[:crop.shape[0] + 2 * h, :crop.shape[1] + 2 * h]
         r0, c0 = layer.rows.start - h, layer.cols.start - h
         rs = slice(max(r0, 0), min(r0 + conv.shape[0], out.shape[0]))
         cs = slice(max(c0, 0), min(c0 + conv.shape[1], out.shape[1]))
@@ -370,9 +392,11 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
     pts = _geometry(config, acq, uu, vv)
     if not pts.hit.any():
         return False
-    layers = _layers(np.nan_to_num(devices.camera_blur_px(config, pts.z_c)) * s, pts.hit)
     airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
                        config.camera.pixel_um * 1e-3 / s)
+    layers = _layers(np.nan_to_num(devices.camera_blur_px(config, pts.z_c)) * s, pts.hit,
+                     airy)
+    ix, iy, scale = _noise_cells(config, pts, uu, vv)
     d_panel = np.where(pts.lit, devices.projector_blur_px(config, pts.z_p), 0.0)
     m = sim.modulation_ratio
     ambient = np.where(pts.hit, 1.0 - m, 0.0)
@@ -386,9 +410,8 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
             lit_part = m * pts.shade * (1.0 + (phasor * np.exp(1j * delta)).real)
             radiance = sim.mean_signal_e * (ambient + lit_part)
             if sim.scene_noise_rel > 0:
-                radiance += sim.scene_noise_rel * mean_level * _scene_noise(
-                    config, key, pts, uu, vv)
-            blurred = _blur(np.where(pts.hit, radiance, 0.0), layers, airy)
+                radiance += sim.scene_noise_rel * mean_level * _scene_noise(key, ix, iy, scale)
+            blurred = _blur(np.where(pts.hit, radiance, 0.0), layers)
             core = blurred[halo * s:(halo + r1 - r0) * s, halo * s:(halo + c1 - c0) * s]
             pixels = core.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3))
             rng = np.random.Generator(np.random.PCG64(

@@ -1,0 +1,423 @@
+"""Characterisation of a camera or projector sweep (the procedure of Figs. 3 and 4).
+
+For every position of a sweep of an optical flat (``scanqa simulate camera-sweep`` or
+``projector-sweep``, or measured data in the same folder layout):
+
+1. decode the scan (:func:`scanqa.phase.decode_pattern_dir`);
+2. fit a low-order (quadratic) surface to the flat's x_p map over a central region of
+   the image, with one pass of 4-sigma rejection of unwrapping blunders; the residual
+   std is the phase noise [projector px];
+3. measure the attenuation as the squared median modulation relative to the position
+   nearest to focus.
+
+The measured attenuation is compared with A(C/omega_o) (Eq. 12) and the depth of field
+per level with :mod:`scanqa.design`; the residual std is fitted by
+``sigma_p * s_O`` (Eqs. 17-19) for each of the model's readings (DESIGN.md section 3:
+``filter_floor`` none/one x ``noise_reading`` power/amplitude), where the swept
+device's attenuation is at least ``min_attenuation``. With ``filter_floor = "none"``
+only the product sigma_p * gamma is identifiable, so gamma is held at the config's
+value there. The variant with the smallest RMS relative error is the one the data
+supports.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+from scanqa import design, optics
+from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig
+from scanqa.errors import InputError
+from scanqa.io.atomic import atomic_path, write_text
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+#: Attenuation levels whose depth of field is compared (Tables 1 and 2) [-].
+DOF_LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81)
+
+
+@dataclass(frozen=True)
+class PositionResult:
+    """Measurements at one position of a sweep (lengths in mm, std in projector px)."""
+
+    stage_mm: float
+    z_c_mm: float
+    z_p_mm: float
+    residual_std_px: float
+    modulation_dn: float
+    attenuation: float
+    attenuation_model: float
+    valid_pixels: int
+
+
+@dataclass(frozen=True)
+class VariantFit:
+    """Fit of sigma_p (and gamma) for one reading of the model."""
+
+    filter_floor: str
+    noise_reading: str
+    sigma_p_px: float
+    gamma: float
+    gamma_fitted: bool
+    rms_relative: float
+
+
+@dataclass(frozen=True)
+class Characterization:
+    """Result of :func:`characterize_sweep`."""
+
+    experiment: str
+    period_px: float
+    positions: tuple[PositionResult, ...]
+    fits: tuple[VariantFit, ...]
+    dof: tuple[dict, ...]
+    min_attenuation: float
+    attenuation_max_abs_error: float
+    w_shape: bool
+
+    @property
+    def best(self) -> VariantFit:
+        """The variant with the smallest RMS relative error."""
+        return min(self.fits, key=lambda f: f.rms_relative)
+
+    def model_std(self, fit: VariantFit, config: ScannerConfig) -> np.ndarray:
+        """sigma_p * s_O of a fit at every position [projector px]."""
+        z_c = np.array([p.z_c_mm for p in self.positions])
+        z_p = np.array([p.z_p_mm for p in self.positions])
+        return fit.sigma_p_px * _scale(config, self.experiment, z_c, z_p, self.period_px,
+                                       fit.gamma, fit.filter_floor, fit.noise_reading)
+
+    def summary(self) -> dict:
+        """JSON-ready summary: best variant, every fit, DOF table, key numbers."""
+        best = self.best
+        return {"experiment": self.experiment, "period_px": self.period_px,
+                "best_variant": {"filter_floor": best.filter_floor,
+                                 "noise_reading": best.noise_reading,
+                                 "sigma_p_px": best.sigma_p_px, "gamma": best.gamma,
+                                 "rms_relative": best.rms_relative},
+                "fits": [asdict(f) for f in self.fits],
+                "min_attenuation": self.min_attenuation,
+                "attenuation_max_abs_error_r_le_0.5": self.attenuation_max_abs_error,
+                "w_shape": self.w_shape, "dof": list(self.dof),
+                "positions": [asdict(p) for p in self.positions]}
+
+
+# ------------------------------------------------------------------------- reading
+
+def load_manifest(sweep_dir: str | os.PathLike) -> dict:
+    """Read ``manifest.toml`` of a simulated experiment folder."""
+    path = Path(sweep_dir) / "manifest.toml"
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise InputError(f"{path} does not exist (is {sweep_dir} a folder written by "
+                         "'scanqa simulate'?)") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"{path} is not valid TOML: {err}") from None
+    if data.get("format") != "scanqa-simulation/1" or "acquisition" not in data:
+        raise InputError(f"{path} is not a scanqa-simulation/1 manifest")
+    return data
+
+
+def _device_distances(config: ScannerConfig, entry: dict) -> tuple[float, float]:
+    """Z_c and Z_p of the flat's centre (the axes' crossing) at one position [mm]."""
+    from scanqa.simulate.experiments import axes_crossing
+
+    c = axes_crossing(config)
+    z_c = float(c[2]) - float(entry["camera_offset_mm"])
+    z_p = float(np.linalg.norm(c - np.asarray(config.projector.position_mm))) \
+        - float(entry["projector_offset_mm"])
+    return z_c, z_p
+
+
+def _central(shape: tuple[int, int], size: int) -> tuple[slice, slice]:
+    h, w = shape
+    sh, sw = min(size, h), min(size, w)
+    return slice((h - sh) // 2, (h + sh) // 2), slice((w - sw) // 2, (w + sw) // 2)
+
+
+def surface_residual_std(xp: np.ndarray, valid: np.ndarray) -> float:
+    """Std of the residual of a quadratic surface fitted to x_p(u, v) [projector px].
+
+    One pass of 4-sigma rejection removes unwrapping blunders before the final fit.
+    """
+    v, u = np.nonzero(valid)
+    if u.size < 12:
+        return float("nan")
+    uc, vc = (u - u.mean()) / 100.0, (v - v.mean()) / 100.0
+    design_m = np.column_stack([np.ones_like(uc), uc, vc, uc * uc, uc * vc, vc * vc])
+    y = xp[v, u]
+    keep = np.ones(y.size, bool)
+    for _ in range(2):
+        coef, *_ = np.linalg.lstsq(design_m[keep], y[keep], rcond=None)
+        res = y - design_m @ coef
+        keep = np.abs(res) <= 4.0 * np.std(res[keep]) + 1e-12
+    return float(np.std(res[keep]))
+
+
+def _measure(sweep_dir: Path, entries: list[dict], roi_px: int) -> list[tuple]:
+    """(residual std, median modulation, valid count) per acquisition."""
+    from scanqa.phase import decode_pattern_dir
+
+    out = []
+    for entry in entries:
+        pm = decode_pattern_dir(sweep_dir / entry["folder"])
+        rows, cols = _central(pm.shape, roi_px)
+        xp, valid = pm.xp[rows, cols], pm.valid[rows, cols]
+        mod = float(np.median(pm.modulation[rows, cols][valid])) if valid.any() else np.nan
+        out.append((surface_residual_std(xp, valid), mod, int(valid.sum())))
+    return out
+
+
+# -------------------------------------------------------------------------- model
+
+def _model_attenuation(config: ScannerConfig, experiment: str, z_c: np.ndarray,
+                       z_p: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A_camera, A_projector) of the model at the given distances [-]."""
+    cam, proj = config.camera, config.projector
+    omega_o = optics.fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3,
+                                             proj.focus_mm, proj.focal_mm)
+    a_c = optics.attenuation(optics.circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm)
+                             / omega_o)
+    a_p = optics.attenuation(optics.circle_of_confusion(z_p, proj.focus_mm,
+                                                        proj.aperture_mm) / omega_o)
+    return a_c, a_p
+
+
+def _scale(config: ScannerConfig, experiment: str, z_c: np.ndarray, z_p: np.ndarray,
+           period: float, gamma: float, floor: str, reading: str) -> np.ndarray:
+    """s_O (Eq. 19) at the given distances for one reading [-]."""
+    cam = config.camera
+    a_c, a_p = _model_attenuation(config, experiment, z_c, z_p, period)
+    b_c = optics.camera_blur_area(optics.image_blur_diameter(
+        z_c, cam.focal_mm, cam.focus_mm, cam.aperture_mm), cam.pixel_um * 1e-3)
+    b_d = optics.diffraction_blur_area(optics.airy_diameter(
+        config.model.wavelength_nm * 1e-6, cam.f_number), cam.pixel_um * 1e-3)
+    f_gamma = optics.filter_factor(b_c, b_d, gamma, floor)
+    return optics.optical_scale(f_gamma, a_p, a_c, reading)
+
+
+def fit_variant(config: ScannerConfig, experiment: str, z_c: np.ndarray, z_p: np.ndarray,
+                period: float, std: np.ndarray, floor: str, reading: str) -> VariantFit:
+    """Least-squares fit (relative residuals) of sigma_p and gamma >= 1 for one reading."""
+    fit_gamma = floor == "one"
+
+    def rel(params: np.ndarray) -> np.ndarray:
+        gamma = float(np.exp(params[1])) + 1.0 if fit_gamma else config.model.gamma
+        model = np.exp(params[0]) * _scale(config, experiment, z_c, z_p, period, gamma,
+                                           floor, reading)
+        return model / std - 1.0
+
+    best = None
+    for g0 in ((0.1, 1.0, 3.0, 10.0) if fit_gamma else (0.0,)):
+        x0 = [np.log(np.median(std)), np.log(g0)] if fit_gamma else [np.log(np.median(std))]
+        res = least_squares(rel, x0)
+        if best is None or res.cost < best.cost:
+            best = res
+    gamma = float(np.exp(best.x[1])) + 1.0 if fit_gamma else config.model.gamma
+    rms = float(np.sqrt(np.mean(rel(best.x) ** 2)))
+    return VariantFit(floor, reading, float(np.exp(best.x[0])), gamma, fit_gamma, rms)
+
+
+# ---------------------------------------------------------------------- analysis
+
+def measured_dof(z: np.ndarray, attenuation: np.ndarray, level: float) -> float:
+    """Length of the interval around the peak where the attenuation is >= level [mm].
+
+    Linear interpolation between positions; NaN when the sweep does not reach the
+    level on both sides.
+    """
+    order = np.argsort(z)
+    z, a = z[order], attenuation[order]
+    k = int(np.nanargmax(a))
+    below_lo = np.nonzero(a[:k] < level)[0]
+    below_hi = np.nonzero(a[k:] < level)[0]
+    if below_lo.size == 0 or below_hi.size == 0:
+        return float("nan")
+    i = below_lo[-1]
+    j = k + below_hi[0]
+    z_lo = z[i] + (level - a[i]) * (z[i + 1] - z[i]) / (a[i + 1] - a[i])
+    z_hi = z[j - 1] + (level - a[j - 1]) * (z[j] - z[j - 1]) / (a[j] - a[j - 1])
+    return float(z_hi - z_lo)
+
+
+def _dof_rows(config: ScannerConfig, experiment: str, z: np.ndarray, att: np.ndarray,
+              period: float) -> tuple[dict, ...]:
+    rows = []
+    for level in DOF_LEVELS:
+        if experiment == "camera-sweep":
+            model = design.camera_dof(config, level, period).dof_mm
+        else:
+            model = design.projector_dof(config, level, period).dof_mm
+        sim = measured_dof(z, att, level)
+        rows.append({"level": level, "dof_measured_mm": sim, "dof_model_mm": model,
+                     "deviation_pct": 100.0 * (sim - model) / model})
+    return tuple(rows)
+
+
+def is_w_shape(z: np.ndarray, std: np.ndarray, focus: float) -> bool:
+    """A local maximum of the std near focus with a lower minimum on each side."""
+    order = np.argsort(z)
+    z, s = z[order], std[order]
+    k = int(np.argmin(np.abs(z - focus)))
+    left, right = s[:k], s[k + 1:]
+    if left.size < 2 or right.size < 2:
+        return False
+    i, j = int(np.argmin(left)), int(np.argmin(right))
+    peak = s[k]
+    return bool(left[i] < 0.8 * peak and right[j] < 0.8 * peak and left[0] > left[i]
+                and right[-1] > right[j])
+
+
+def characterize_sweep(sweep_dir: str | os.PathLike, config: ScannerConfig,
+                       min_attenuation: float = 0.49, roi_px: int = 256) -> Characterization:
+    """Decode a camera/projector sweep and fit the model to it (Figs. 3, 4).
+
+    Parameters
+    ----------
+    sweep_dir : str or PathLike
+        Folder written by ``scanqa simulate camera-sweep`` or ``projector-sweep``.
+    config : ScannerConfig
+        The scanner config the model uses (its geometry gives Z_c, Z_p per position).
+    min_attenuation : float
+        Fit where the swept device's model attenuation is at least this [-].
+    roi_px : int
+        Side of the central square analysed [px].
+
+    Returns
+    -------
+    Characterization
+        Per-position measurements, the four fits, the DOF table.
+    """
+    sweep = Path(sweep_dir)
+    manifest = load_manifest(sweep)
+    experiment = manifest.get("experiment")
+    if experiment not in ("camera-sweep", "projector-sweep"):
+        raise InputError(f"characterize needs a camera-sweep or projector-sweep, got "
+                         f"experiment {experiment!r} in {sweep / 'manifest.toml'}")
+    if not 0.0 < min_attenuation < 1.0:
+        raise InputError(f"--min-attenuation must be in (0, 1), got {min_attenuation}")
+    entries = manifest["acquisition"]
+    period = float(manifest["working_period_px"])
+    measured = _measure(sweep, entries, roi_px)
+    positions = _positions(config, experiment, entries, measured, period)
+    return _analyse(config, experiment, positions, period, min_attenuation)
+
+
+def _positions(config: ScannerConfig, experiment: str, entries: list[dict],
+               measured: list[tuple], period: float) -> tuple[PositionResult, ...]:
+    """Average repeats per stage position and attach model attenuation."""
+    stages = sorted({float(e["stage_mm"]) for e in entries})
+    ref = min(stages, key=abs)
+    mods = {s: np.nanmean([m[1] for e, m in zip(entries, measured, strict=True)
+                           if float(e["stage_mm"]) == s]) for s in stages}
+    if not np.isfinite(mods[ref]) or mods[ref] <= 0:
+        raise InputError("zero valid pixels at the position nearest to focus; cannot "
+                         "normalise the modulation")
+    out = []
+    for s in stages:
+        group = [(e, m) for e, m in zip(entries, measured, strict=True)
+                 if float(e["stage_mm"]) == s]
+        z_c, z_p = _device_distances(config, group[0][0])
+        a_c, a_p = _model_attenuation(config, experiment, np.array(z_c), np.array(z_p),
+                                      period)
+        a_model = float(a_c if experiment == "camera-sweep" else a_p)
+        std = float(np.sqrt(np.nanmean([m[0] ** 2 for _, m in group])))
+        out.append(PositionResult(s, z_c, z_p, std, float(mods[s]),
+                                  float((mods[s] / mods[ref]) ** 2), a_model,
+                                  int(sum(m[2] for _, m in group))))
+    return tuple(out)
+
+
+def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionResult, ...],
+             period: float, min_attenuation: float) -> Characterization:
+    z_c = np.array([p.z_c_mm for p in positions])
+    z_p = np.array([p.z_p_mm for p in positions])
+    std = np.array([p.residual_std_px for p in positions])
+    att = np.array([p.attenuation for p in positions])
+    a_model = np.array([p.attenuation_model for p in positions])
+    sel = (a_model >= min_attenuation) & np.isfinite(std)
+    if sel.sum() < 3:
+        raise InputError(f"only {int(sel.sum())} positions with attenuation >= "
+                         f"{min_attenuation}; need at least 3 to fit sigma_p and gamma")
+    fits = tuple(fit_variant(config, experiment, z_c[sel], z_p[sel], period, std[sel], fl, rd)
+                 for fl in FILTER_FLOORS for rd in NOISE_READINGS)
+    z = z_c if experiment == "camera-sweep" else z_p
+    r_ok = a_model >= float(optics.attenuation(0.5))
+    att_err = float(np.max(np.abs(att - a_model)[r_ok])) if r_ok.any() else float("nan")
+    focus = config.camera.focus_mm if experiment == "camera-sweep" else \
+        config.projector.focus_mm
+    return Characterization(experiment, period, positions, fits,
+                            _dof_rows(config, experiment, z, att, period), min_attenuation,
+                            att_err, is_w_shape(z, std, focus))
+
+
+# ------------------------------------------------------------------------- output
+
+def write_characterization(result: Characterization, out_dir: str | os.PathLike,
+                           config: ScannerConfig | None = None) -> Path:
+    """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir``."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    summary = json.dumps(_json_safe(result.summary()), indent=1)
+    write_text(out / "summary.json", summary + "\n")
+    if config is not None:
+        _plot(result, config, out)
+    return out / "summary.json"
+
+
+def _json_safe(value: object) -> object:
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _plot(result: Characterization, config: ScannerConfig, out: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cam = result.experiment == "camera-sweep"
+    z = np.array([p.z_c_mm if cam else p.z_p_mm for p in result.positions])
+    std = np.array([p.residual_std_px for p in result.positions])
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(z, std, "o", ms=3, label="simulated (surface-fit residual)")
+    for fit in result.fits:
+        style = "-" if fit is result.best else ":"
+        ax.plot(z, result.model_std(fit, config), style, label=(
+            f"{fit.filter_floor}/{fit.noise_reading}: sigma_p={fit.sigma_p_px:.4f}, "
+            f"gamma={fit.gamma:.2f}, rms={100 * fit.rms_relative:.1f}%"))
+    ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
+    ax.set_ylabel("std of x_p [projector px]")
+    ax.set_ylim(0, np.nanmax(std) * 1.3)
+    ax.legend(fontsize=6)
+    _save(fig, out / "std.png")
+    fig, ax = plt.subplots(figsize=(6, 4))
+    ax.plot(z, [p.attenuation for p in result.positions], "o", ms=3, label="simulated")
+    ax.plot(z, [p.attenuation_model for p in result.positions], "-", label="A(C/omega_o)")
+    ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
+    ax.set_ylabel("attenuation [-]")
+    ax.legend()
+    _save(fig, out / "attenuation.png")
+
+
+def _save(fig, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
+    plt.close(fig)

@@ -1,0 +1,99 @@
+"""``scanqa simulate`` and ``scanqa characterize`` (parsing only)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from scanqa.cli.common import add_config_argument, config_from_args, float_list
+from scanqa.errors import InputError
+
+_FMT = argparse.RawDescriptionHelpFormatter
+
+
+def _positions(text: str) -> list[float]:
+    """argparse type: 'START:STOP:STEP' (inclusive) or a comma-separated list [mm]."""
+    if ":" not in text:
+        return float_list(text)
+    try:
+        start, stop, step = (float(t) for t in text.split(":"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected START:STOP:STEP or a comma-separated list, got {text!r}") from None
+    if not step > 0 or stop < start or (stop - start) / step > 10000:
+        raise argparse.ArgumentTypeError(f"need STEP > 0 and STOP >= START, got {text!r}")
+    n = int((stop - start) / step + 1e-9) + 1
+    return [round(start + i * step, 9) for i in range(n)]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``simulate`` and ``characterize`` subcommands."""
+    from scanqa.simulate.experiments import EXPERIMENTS
+
+    p = sub.add_parser(
+        "simulate", formatter_class=_FMT,
+        help="virtual scanner: write the images and ground truth of an experiment",
+        description="Simulate an experiment with the virtual phase-shift scanner: images "
+                    "+ patterns.toml per scan, ground truth per position, manifest.toml.",
+        epilog="examples:\n"
+               "  scanqa simulate camera-sweep --config calib/paper_scanner.toml --out cam\n"
+               "  scanqa simulate calibration-sweep --config calib/paper_scanner.toml "
+               "--positions 420:480:2 --repeats 2 --out sweep\n"
+               "  scanqa simulate mesh --mesh part.stl --config calib/paper_scanner.toml "
+               "--out part")
+    p.add_argument("experiment", metavar="EXPERIMENT",
+                   help=f"one of: {', '.join(EXPERIMENTS)}")
+    add_config_argument(p)
+    p.add_argument("--out", required=True, metavar="DIR", help="output folder")
+    p.add_argument("--positions", type=_positions, default=None, metavar="LIST",
+                   help="stage positions or device offsets [mm]: START:STOP:STEP or a,b,c")
+    p.add_argument("--repeats", type=int, default=None, help="scans per position")
+    p.add_argument("--periods", type=float_list, default=None,
+                   help="fine fringe periods [projector px] (default: the working period)")
+    p.add_argument("--mesh", default=None, metavar="FILE", help="STL/PLY/OBJ for 'mesh'")
+    p.add_argument("--seed", type=int, default=None, help="override simulator.seed")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run_simulate)
+
+    p = sub.add_parser(
+        "characterize", formatter_class=_FMT,
+        help="fit sigma_p, gamma and the model variant to a simulated or measured sweep",
+        description="Decode a camera or projector sweep, fit a low-order surface to the "
+                    "flat's x_p map per position, compare the residual std and the "
+                    "attenuation with the model (Figs. 3/4), fit sigma_p and gamma for "
+                    "each reading of the model, and report the one the data supports.",
+        epilog="example:\n  scanqa characterize cam --config calib/paper_scanner.toml "
+               "--out cam/characterize")
+    p.add_argument("sweep", metavar="SWEEP_DIR", help="folder written by scanqa simulate")
+    add_config_argument(p)
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="folder for summary.json and plots (default: SWEEP_DIR/characterize)")
+    p.add_argument("--min-attenuation", type=float, default=0.49,
+                   help="fit where the model attenuation is at least this [-] (default 0.49)")
+    p.set_defaults(func=run_characterize)
+
+
+def run_simulate(args: argparse.Namespace) -> int:
+    from scanqa.simulate.experiments import run_experiment
+
+    config = config_from_args(args)
+    if args.seed is not None:
+        if args.seed < 0:
+            raise InputError(f"--seed must be >= 0, got {args.seed}")
+        config = config.replace_simulator(seed=args.seed)
+    manifest = run_experiment(args.experiment, config, args.out, positions=args.positions,
+                              repeats=args.repeats, periods=args.periods, mesh=args.mesh,
+                              progress=not args.quiet)
+    print(f"wrote {manifest}")
+    return 0
+
+
+def run_characterize(args: argparse.Namespace) -> int:
+    from scanqa.characterize import characterize_sweep, write_characterization
+
+    config = config_from_args(args)
+    result = characterize_sweep(args.sweep, config, min_attenuation=args.min_attenuation)
+    out = write_characterization(result, args.out or f"{args.sweep}/characterize", config)
+    print(json.dumps(result.summary(), indent=1))
+    print(f"wrote {out}")
+    return 0
