@@ -82,17 +82,20 @@ def _run_scanqa(images: np.ndarray, repeat: int) -> dict:
     desc = _description()
     stacks = [images[4 * i:4 * i + 4] for i in range(len(PERIODS))]
     base = _rss_mb()
-    times = []
+    times, pm = [], None
     for _ in range(repeat):
+        pm = None  # free the previous result: the peak is that of one decode
         t0 = time.perf_counter()
         pm = decode(desc, stacks)
         times.append(time.perf_counter() - t0)
+    valid = int(pm.valid.sum())
+    pm = None
     tracemalloc.start()
     decode(desc, stacks)
     traced = tracemalloc.get_traced_memory()[1] / 1e6
     tracemalloc.stop()
     return {"times": times, "base_mb": base, "maxrss_mb": _maxrss_mb(),
-            "tracemalloc_peak_mb": traced, "valid": int(pm.valid.sum())}
+            "tracemalloc_peak_mb": traced, "valid": valid}
 
 
 def _run_fringes(images: np.ndarray, repeat: int) -> dict:
@@ -105,8 +108,9 @@ def _run_fringes(images: np.ndarray, repeat: int) -> dict:
                 axes=(1,), reverse=True, p0=0.0, dtype="uint16")
     f.decode(images[:, :16, :64])  # JIT warm-up (compile or load from numba's cache)
     base = _rss_mb()
-    times = []
+    times, dec = [], None
     for _ in range(repeat):
+        dec = None  # free the previous result: the peak is that of one decode
         t0 = time.perf_counter()
         dec = f.decode(images)
         times.append(time.perf_counter() - t0)

@@ -1,17 +1,7 @@
 """Pattern sets: the ``patterns.toml`` description, its images, and the ideal patterns.
 
 A pattern directory holds the camera images of one scan and a ``patterns.toml`` that
-says what was projected (README.md, "### patterns.toml", documents every key)::
-
-    format = "scanqa-patterns/1"
-    projector_width_px = 1280
-    [sensor]
-    bit_depth = 12
-    [[set]]
-    kind = "phase"
-    period_px = 1280.0
-    steps = 4
-    files = ["p0_0.png", "p0_1.png", "p0_2.png", "p0_3.png"]
+says what was projected (README.md, "### patterns.toml", documents every key).
 
 The image model shared with the simulator is, for frame k of a phase set,
 ``I_k = A + B cos(2 pi x_p / period + delta_k)`` with ``delta_k = 2 pi k / N`` unless
