@@ -8,6 +8,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from scanqa.errors import InputError
 from scanqa.io.patterns import (
@@ -113,6 +115,22 @@ def test_noise_free_multi_period_is_exact(steps, shifts):
     np.testing.assert_allclose(pm.xp, xp, rtol=0, atol=1e-6)  # acceptance: 1e-6 px
     assert np.abs(pm.xp - xp).max() < 1e-9  # float64 throughout: far better in fact
     assert pm.period_px == 16.0
+
+
+@settings(max_examples=25, deadline=None)
+@given(steps=st.integers(3, 9), ratio=st.floats(2.0, 40.0), coarse=st.floats(1.0, 1.3),
+       gain=st.floats(0.2, 50.0), seed=st.integers(0, 2 ** 16))
+def test_noise_free_decoding_is_exact_for_any_steps_and_periods(steps, ratio, coarse, gain,
+                                                               seed):
+    # invariant: without noise the decoded x_p is the true one, whatever the number of
+    # steps, the period ratio, the coarse period's margin and the image gain
+    width = 800
+    sets = (PhaseSet("c", coarse * width, steps), PhaseSet("f", coarse * width / ratio, steps))
+    desc = PatternDescription(width, sets, sensor=_gaussian_sensor(1e-3))
+    xp = np.random.default_rng(seed).uniform(-0.5, width - 0.5, (4, 64))
+    pm = decode(desc, synthesize_images(desc, xp, 500.0 * gain, 400.0 * gain))
+    assert pm.valid.all()
+    np.testing.assert_allclose(pm.xp, xp, rtol=0, atol=1e-6)
 
 
 @pytest.mark.parametrize("inverse", [True, False])
