@@ -283,11 +283,11 @@ def demodulate(images: np.ndarray, shifts_rad: Sequence[float] | None = None,
 
     Examples
     --------
-    >>> x = np.array([[0.0, 1.0, 2.0]])
+    >>> x = np.array([[0.5, 1.0, 7.25]])
     >>> frames = np.stack([100 + 50 * np.cos(2 * np.pi * x / 8 + 2 * np.pi * k / 4)
     ...                    for k in range(4)])
     >>> (demodulate(frames).phase_rad * 8 / (2 * np.pi)).round(9).tolist()
-    [[0.0, 1.0, 2.0]]
+    [[0.5, 1.0, 7.25]]
     """
     stack = np.asarray(images)
     if stack.ndim != 3 or stack.shape[0] < 3:
