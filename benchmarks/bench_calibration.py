@@ -21,9 +21,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from tests.synth_sweep import plane_truth, small_camera, sweep  # noqa: E402
+
 from scanqa.calibration import build_table  # noqa: E402
 from scanqa.config import load_config  # noqa: E402
-from tests.synth_sweep import plane_truth, small_camera, sweep  # noqa: E402
 
 
 def peak_rss_gb() -> float:
@@ -49,7 +50,7 @@ def main() -> int:
             yield obs
 
     t0 = time.perf_counter()
-    table, report = build_table(observations(), cfg)
+    table, _report = build_table(observations(), cfg)
     build = time.perf_counter() - t0 - gen_time[0]
     build_peak = peak_rss_gb()
     xp, q = plane_truth(cfg, 451.3)

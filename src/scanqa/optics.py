@@ -335,7 +335,19 @@ def to_projector_frame(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     """
     q = np.asarray(points, dtype=float)
     proj = config.projector
-    return (q - np.asarray(proj.position_mm)) @ proj.rotation.T
+    d = [q[..., i] - proj.position_mm[i] for i in range(3)]
+    rot = proj.rotation
+    # explicit sums: a (n, 3) @ (3, 3) matmul is far slower for large n
+    return np.stack([rot[j, 0] * d[0] + rot[j, 1] * d[1] + rot[j, 2] * d[2]
+                     for j in range(3)], axis=-1)
+
+
+def projector_depth(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
+    """Z of scanner-frame points in the projector frame, Z_p [mm]; shape (...)."""
+    q = np.asarray(points, dtype=float)
+    proj = config.projector
+    rz = proj.rotation[2]
+    return sum(rz[i] * (q[..., i] - proj.position_mm[i]) for i in range(3))
 
 
 def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
@@ -434,7 +446,7 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
     floor = model.filter_floor if filter_floor is None else filter_floor
     reading = model.noise_reading if noise_reading is None else noise_reading
     z_c = q[..., 2]
-    z_p = to_projector_frame(q, config)[..., 2]
+    z_p = projector_depth(q, config)
     omega_o = fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3, proj.focus_mm,
                                       proj.focal_mm)
     r_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm) / omega_o

@@ -20,6 +20,7 @@ from scanqa.errors import ScanQAError
 COMMAND_MODULES = (
     "scanqa.cli.design",
     "scanqa.cli.calibrate",
+    "scanqa.cli.annotate",
     "scanqa.cli.demo",
     "scanqa.cli.decode",
     "scanqa.cli.simulate",

@@ -1,0 +1,64 @@
+"""``scanqa annotate``: a scan and a calibration table to an annotated point cloud."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from scanqa.calibration import load_table
+from scanqa.cli.common import add_config_argument, config_from_args
+from scanqa.errors import InputError
+from scanqa.io.atomic import check_out_dir
+from scanqa.io.cloud import WRITERS, write_cloud
+from scanqa.phase import PhaseMap
+from scanqa.uncertainty import annotate
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "annotate", formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="phase map + calibration table -> point cloud with per-point sigmas",
+        epilog="example:\n  scanqa annotate scan/phase.npz --table table.npz "
+               "--config calib/paper_scanner.toml --out cloud.ply --repeats rep1.npz rep2.npz"
+               "\n\nformats by suffix: " + ", ".join(WRITERS))
+    p.add_argument("scan", metavar="SCAN", help="decoded phase file (.npz) or pattern folder")
+    p.add_argument("--table", required=True, help="calibration table (scanqa calibrate)")
+    add_config_argument(p)
+    p.add_argument("--out", required=True, help="output cloud (.ply, .las, .csv, .parquet)")
+    p.add_argument("--repeats", nargs="+", default=[], metavar="SCAN",
+                   help="further scans of the same scene: adds the measured per-point std")
+    p.add_argument("--keep-invalid", action="store_true",
+                   help="keep points outside the calibrated volume (extrapolated, flagged)")
+    p.set_defaults(func=run)
+
+
+def load_scan(path: str) -> PhaseMap:
+    """A decoded phase file, or a pattern folder decoded on the fly."""
+    from scanqa.io.phasemap import load_phase_map
+    from scanqa.phase import decode_pattern_dir
+
+    p = Path(path)
+    if p.is_dir():
+        return decode_pattern_dir(p)
+    if not p.exists():
+        raise InputError(f"scan {p} does not exist (give a phase .npz or a pattern folder)")
+    return load_phase_map(p)
+
+
+def run(args: argparse.Namespace) -> int:
+    out = check_out_dir(args.out)
+    if out.suffix.lower() not in WRITERS:
+        raise InputError(f"--out {out}: unknown suffix (use one of {', '.join(WRITERS)})")
+    config = config_from_args(args)
+    table = load_table(args.table)
+    scan = load_scan(args.scan)
+    repeats = [load_scan(r) for r in args.repeats]
+    cloud = annotate(scan, table, config, repeats, args.keep_invalid, source=args.scan)
+    if not cloud.counts["written"]:
+        raise InputError(f"{args.scan}: no point lies inside the calibrated volume; nothing "
+                         "written (use --keep-invalid to extrapolate)")
+    print(f"annotate: {cloud.summary()}", file=sys.stderr)
+    write_cloud(out, cloud.xyz, cloud.attributes)
+    print(f"{out}: {cloud.summary()}")
+    return 0

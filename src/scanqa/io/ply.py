@@ -1,0 +1,137 @@
+"""Binary PLY point clouds with per-point attributes named ``scalar_<name>``.
+
+Coordinates are ``double x, y, z`` [mm]; every other column is a ``float`` vertex
+property called ``scalar_<name>``. CloudCompare's command line loads only ``scalar_*``
+properties as scalar fields, and it first matches property names by substring for
+colours and normals (RED, GREEN, BLUE, NX, NY, NZ, INTENSITY, GRAY, GREY), so
+:func:`check_attribute_name` refuses names that contain any of those. Open3D's tensor
+reader (``open3d.t.io.read_point_cloud``) loads the same properties under their names.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.errors import InputError
+from scanqa.io.atomic import atomic_path
+
+#: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
+RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
+PREFIX = "scalar_"
+
+
+def check_attribute_name(name: str) -> None:
+    """Raise if ``name`` would not survive CloudCompare's PLY loader as itself."""
+    low = f"{PREFIX}{name}".lower()
+    for bad in RESERVED_SUBSTRINGS:
+        if bad in low:
+            raise InputError(f"attribute name {name!r} contains {bad!r}, which CloudCompare "
+                             "would read as a colour or normal: rename it")
+    if not re.fullmatch(r"[A-Za-z0-9_]+", name):
+        raise InputError(f"attribute name {name!r} must be letters, digits and underscores")
+
+
+def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray]
+              ) -> Path:
+    """Write points and attributes as a binary little-endian PLY, atomically.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Output file; its folder must exist.
+    xyz : (n, 3) float
+        Coordinates [mm], written as double.
+    attributes : dict of str to (n,) array
+        Per-point values, written as float properties ``scalar_<name>``.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    xyz = np.asarray(xyz, dtype="<f8")
+    n = xyz.shape[0]
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    for name, values in attributes.items():
+        check_attribute_name(name)
+        if np.shape(values) != (n,):
+            raise InputError(f"attribute {name!r} has shape {np.shape(values)}, expected ({n},)")
+        fields.append((PREFIX + name, "<f4"))
+    rec = np.empty(n, dtype=fields)
+    rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    for name, values in attributes.items():
+        rec[PREFIX + name] = values
+    header = ["ply", "format binary_little_endian 1.0", "comment scanqa point cloud, mm",
+              f"element vertex {n}"]
+    header += [f"property {'double' if t == '<f8' else 'float'} {f}" for f, t in fields]
+    header.append("end_header")
+    with atomic_path(path, suffix=".ply") as tmp, open(tmp, "wb") as fh:
+        fh.write(("\n".join(header) + "\n").encode("ascii"))
+        rec.tofile(fh)
+    return Path(path)
+
+
+_PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4",
+              "uint": "u4", "float": "f4", "double": "f8", "int8": "i1", "uint8": "u1",
+              "int16": "i2", "uint16": "u2", "int32": "i4", "uint32": "u4",
+              "float32": "f4", "float64": "f8"}
+
+
+def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Read a binary little-endian PLY vertex element (as written by :func:`write_ply`).
+
+    Returns
+    -------
+    xyz : (n, 3) float64
+        Coordinates [mm].
+    attributes : dict
+        Every other vertex property, ``scalar_`` prefix removed.
+    """
+    path = Path(path)
+    try:
+        with open(path, "rb") as fh:
+            fields, n = _read_header(fh, path)
+            data = np.fromfile(fh, dtype=fields, count=n)
+    except OSError as err:
+        raise InputError(f"cannot read point cloud {path}: {err.strerror}") from None
+    if data.size != n:
+        raise InputError(f"{path}: truncated PLY ({data.size} of {n} vertices)")
+    names = data.dtype.names or ()
+    if not {"x", "y", "z"} <= set(names):
+        raise InputError(f"{path}: PLY has no x, y, z vertex properties")
+    xyz = np.stack([data["x"], data["y"], data["z"]], -1).astype(float)
+    attrs = {(k[len(PREFIX):] if k.startswith(PREFIX) else k): np.asarray(data[k])
+             for k in names if k not in ("x", "y", "z")}
+    return xyz, attrs
+
+
+def _read_header(fh, path: Path) -> tuple[list, int]:
+    if fh.readline().strip() != b"ply":
+        raise InputError(f"{path} is not a PLY file")
+    fields, n, in_vertex = [], 0, False
+    while True:
+        line = fh.readline()
+        if not line:
+            raise InputError(f"{path}: PLY header has no end_header")
+        parts = line.decode("ascii", "replace").split()
+        if not parts or parts[0] in ("comment", "obj_info"):
+            continue
+        if parts[0] == "format" and parts[1] != "binary_little_endian":
+            raise InputError(f"{path}: only binary_little_endian PLY is supported, got "
+                             f"{parts[1]}")
+        if parts[0] == "element":
+            in_vertex = parts[1] == "vertex"
+            if in_vertex:
+                n = int(parts[2])
+            elif n:
+                raise InputError(f"{path}: elements after 'vertex' are not supported")
+        elif parts[0] == "property" and in_vertex:
+            if parts[1] == "list" or parts[1] not in _PLY_TYPES:
+                raise InputError(f"{path}: unsupported vertex property {' '.join(parts[1:])}")
+            fields.append((parts[2], "<" + _PLY_TYPES[parts[1]]))
+        elif parts[0] == "end_header":
+            return fields, n

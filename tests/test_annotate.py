@@ -1,0 +1,237 @@
+"""Annotated point clouds: values, names that survive CloudCompare, round trips, errors."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+
+import numpy as np
+import pytest
+
+from scanqa import optics
+from scanqa.calibration import build_table, save_table
+from scanqa.cli import main
+from scanqa.errors import InputError
+from scanqa.io.cloud import read_cloud, write_cloud
+from scanqa.io.phasemap import save_phase_map
+from scanqa.io.ply import RESERVED_SUBSTRINGS, check_attribute_name
+from scanqa.phase import PhaseMap
+from scanqa.uncertainty import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
+
+from .conftest import PAPER_CONFIG
+from .synth_sweep import plane_truth, small_camera, sweep
+
+W, H = 96, 64
+REQUIRE_CLIENTS = os.environ.get("SCANQA_REQUIRE_CLIENTS") == "1"
+
+
+@pytest.fixture(scope="module")
+def cfg(paper_config):
+    return small_camera(paper_config, W, H)
+
+
+@pytest.fixture(scope="module")
+def table(cfg):
+    return build_table(sweep(cfg, np.arange(430.0, 470.1, 2.0), seed=2), cfg)[0]
+
+
+def scan(cfg, z=447.0, sigma=0.02, seed=0, nan_rows=0):
+    xp, q = plane_truth(cfg, z)
+    rng = np.random.default_rng(seed)
+    shape = xp.shape
+    xp = xp + rng.normal(0, sigma, shape)
+    xp[:nan_rows] = np.nan
+    mask = np.zeros(shape, np.uint8)
+    mask[:nan_rows] = 2  # low modulation
+    pm = PhaseMap(xp=xp, modulation=np.full(shape, 400.0),
+                  offset=np.full(shape, 900.0), mask=mask,
+                  sigma_xp=np.full(shape, sigma), period_px=5.0, projector_width_px=1280)
+    return pm, q
+
+
+def test_points_and_sigmas_are_consistent(cfg, table):
+    pm, q = scan(cfg, sigma=0.0)
+    cloud = annotate(pm, table, cfg)
+    assert cloud.counts["written"] == W * H
+    err = cloud.xyz - q.reshape(-1, 3)
+    # the table was built from a noisy sweep: sub-um RMS, a few um at extrapolated corners
+    assert np.sqrt(np.mean(err**2)) < 1e-3 and np.abs(err).max() < 5e-3
+    a = cloud.attributes
+    # sigma_model is Eq. 18 with the table's slope as s_T
+    pred = optics.predict(cloud.xyz, cfg, s_t=a["s_t_um_px"].astype(float) * 1e-3)
+    np.testing.assert_allclose(a["sigma_model_um"], 1e3 * pred.sigma, rtol=1e-5)
+    # components along the line of sight add up to the total
+    comp = np.sqrt(a["sx_um"] ** 2 + a["sy_um"] ** 2 + a["sz_um"] ** 2)
+    np.testing.assert_allclose(comp, a["sigma_model_um"], rtol=1e-5)
+    np.testing.assert_allclose(a["sigma_total_um"], np.hypot(a["sigma_model_um"],
+                                                             a["sigma_table_um"]), rtol=1e-5)
+    assert set(a) == set(ATTRIBUTES)
+
+
+def test_repeats_give_measured_std(cfg, table):
+    sigma_xp = 0.03
+    scans = [scan(cfg, sigma=sigma_xp, seed=s)[0] for s in range(12)]
+    cloud = annotate(scans[0], table, cfg, repeats=scans[1:])
+    a = cloud.attributes
+    assert set(REPEAT_ATTRIBUTES) <= set(a) and (a["n_repeats"] == 12).all()
+    expected = a["s_t_um_px"] * sigma_xp  # s_T x phase noise, along the ray [um]
+    ratio = a["sigma_meas_um"] / expected
+    # 12 repeats: the std of one estimate is ~21 %; the median over 6144 pixels is tight
+    assert abs(np.median(ratio) - 1.0) < 0.03
+    np.testing.assert_allclose(np.median(a["sigma_phase_um"] / expected), 1.0, rtol=1e-5)
+
+
+def test_attribute_names_survive_cloudcompare():
+    for name in ATTRIBUTES + REPEAT_ATTRIBUTES:
+        check_attribute_name(name)
+        low = name.lower()
+        assert not any(bad in f"scalar_{low}" for bad in RESERVED_SUBSTRINGS)
+        # M3C2 precision maps pick fields containing sx/sy/sz: only the three components do
+        assert (("sx" in low) + ("sy" in low) + ("sz" in low)) == (low in ("sx_um", "sy_um",
+                                                                           "sz_um"))
+    with pytest.raises(InputError, match="'sigma_pred_um' contains 'red'"):
+        check_attribute_name("sigma_pred_um")
+
+
+@pytest.mark.parametrize("suffix", [".ply", ".csv", ".las"])
+def test_round_trip_through_our_readers(cfg, table, tmp_path, suffix):
+    cloud = annotate(scan(cfg)[0], table, cfg)
+    path = write_cloud(tmp_path / f"c{suffix}", cloud.xyz, cloud.attributes)
+    xyz, attrs = read_cloud(path)
+    atol = 1e-4 if suffix == ".las" else 1e-9  # LAS stores 0.1 um integers
+    np.testing.assert_allclose(xyz, cloud.xyz, atol=atol)
+    for name, values in cloud.attributes.items():
+        np.testing.assert_allclose(attrs[name], values, rtol=1e-6, err_msg=name)
+
+
+def test_open3d_tensor_reader_round_trip(cfg, table, tmp_path):
+    o3d = pytest.importorskip("open3d")
+    cloud = annotate(scan(cfg)[0], table, cfg)
+    path = write_cloud(tmp_path / "c.ply", cloud.xyz, cloud.attributes)
+    pcd = o3d.t.io.read_point_cloud(str(path))
+    np.testing.assert_array_equal(pcd.point["positions"].numpy(), cloud.xyz)
+    for name, values in cloud.attributes.items():
+        np.testing.assert_array_equal(pcd.point[f"scalar_{name}"].numpy().ravel(), values)
+
+
+def _cloudcompare_asc(path, tmp_path):
+    """Load a cloud with CloudCompare's command line and export it as ASC with header."""
+    exe = shutil.which("CloudCompare")
+    xvfb = shutil.which("xvfb-run")
+    if not (exe and xvfb):
+        if REQUIRE_CLIENTS:
+            pytest.fail("CloudCompare/xvfb-run missing although make test installs them")
+        pytest.skip("CloudCompare not installed (make test installs it)")
+    subprocess.run([xvfb, "-a", exe, "-SILENT", "-NO_TIMESTAMP", "-O", str(path),
+                    "-C_EXPORT_FMT", "ASC", "-ADD_HEADER", "-SAVE_CLOUDS"], cwd=tmp_path,
+                   check=True, capture_output=True, timeout=300)
+    asc = path.with_suffix(".asc")
+    header = asc.read_text().splitlines()[0].lstrip("/").split()
+    return header, np.loadtxt(asc, comments="//", ndmin=2)
+
+
+def test_cloudcompare_reads_every_attribute(cfg, table, tmp_path):
+    scans = [scan(cfg, seed=s)[0] for s in range(3)]
+    cloud = annotate(scans[0], table, cfg, repeats=scans[1:])
+    path = write_cloud(tmp_path / "cloud.ply", cloud.xyz, cloud.attributes)
+    header, data = _cloudcompare_asc(path, tmp_path)
+    assert header[:3] == ["X", "Y", "Z"]
+    assert header[3:] == list(cloud.attributes)  # every attribute, under its own name
+    # CloudCompare keeps coordinates in float32: 0.03 um resolution at 450 mm
+    np.testing.assert_allclose(data[:, :3], cloud.xyz, atol=1e-4)
+    for i, name in enumerate(header[3:], start=3):
+        np.testing.assert_allclose(data[:, i], cloud.attributes[name], rtol=1e-6,
+                                   equal_nan=True, err_msg=name)
+
+
+def _read_las_by_spec(path):
+    """Independent LAS 1.4 reader (point format 6 + float extra bytes), from the spec.
+
+    Debian 12's CloudCompare is built without LAS support and PDAL is not packaged, so
+    the LAS export is checked against the ASPRS LAS 1.4 R15 layout directly, not through
+    laspy (which wrote it).
+    """
+    import struct
+
+    raw = path.read_bytes()
+    assert raw[:4] == b"LASF" and raw[24:26] == bytes([1, 4])
+    header_size, = struct.unpack_from("<H", raw, 94)
+    offset_points, n_vlr = struct.unpack_from("<II", raw, 96)
+    fmt, rec_len = struct.unpack_from("<BH", raw, 104)
+    scale = struct.unpack_from("<3d", raw, 131)
+    origin = struct.unpack_from("<3d", raw, 155)
+    n_points, = struct.unpack_from("<Q", raw, 247)
+    assert fmt == 6
+    names, pos = [], header_size
+    for _ in range(n_vlr):
+        user = raw[pos + 2:pos + 18].rstrip(b"\0")
+        rec_id, length = struct.unpack_from("<HH", raw, pos + 18)
+        if user == b"LASF_Spec" and rec_id == 4:
+            for d in range(length // 192):
+                base = pos + 54 + 192 * d
+                assert raw[base + 2] == 9  # data type 9: float
+                names.append(raw[base + 4:base + 36].rstrip(b"\0").decode())
+        pos += 54 + length
+    dtype = np.dtype([("xyz", "<i4", 3), ("base", "V18")] + [(n, "<f4") for n in names])
+    assert dtype.itemsize == rec_len
+    pts = np.frombuffer(raw, dtype=dtype, count=n_points, offset=offset_points)
+    xyz = pts["xyz"] * np.array(scale) + np.array(origin)
+    return xyz, {n: pts[n] for n in names}
+
+
+def test_las_extra_bytes_follow_the_spec(cfg, table, tmp_path):
+    cloud = annotate(scan(cfg)[0], table, cfg)
+    path = write_cloud(tmp_path / "cloud.las", cloud.xyz, cloud.attributes)
+    xyz, attrs = _read_las_by_spec(path)
+    np.testing.assert_allclose(xyz, cloud.xyz, atol=1e-4)  # 0.1 um integer grid
+    assert list(attrs) == list(cloud.attributes)
+    for name, values in cloud.attributes.items():
+        np.testing.assert_array_equal(attrs[name], values, err_msg=name)
+
+
+def test_keep_invalid_and_counts(cfg, table):
+    pm, _ = scan(cfg, z=480.0, nan_rows=10)  # beyond the calibrated range (430-470 mm)
+    with_invalid = annotate(pm, table, cfg, keep_invalid=True)
+    assert with_invalid.counts == {"written": W * H - 10 * W, "decoder_masked": 10 * W,
+                                   "out_of_volume": W * H - 10 * W,
+                                   "model_invalid": with_invalid.counts["model_invalid"],
+                                   "kept_invalid": True}
+    assert (with_invalid.attributes["in_volume"] == 0).all()
+    assert annotate(pm, table, cfg).counts["written"] == 0
+
+
+def test_bad_inputs(cfg, table, tmp_path, capsys):
+    other = small_camera(cfg, 48, 64)
+    with pytest.raises(InputError, match="is 48 x 64 px but the calibration table was built "
+                                         "for a 96 x 64 px camera"):
+        annotate(scan(other)[0], table, cfg)
+    moved = cfg.replace_model()  # same model; change the projector pose instead
+    from dataclasses import replace
+
+    from scanqa.config import ScannerConfig
+
+    proj = replace(moved.projector, position_mm=(150.0, 0.0, 0.0))
+    wrong = ScannerConfig(cfg.camera, proj, cfg.fringes, cfg.model, source="wrong.toml")
+    with pytest.raises(InputError, match=r"does not match the table.s: projector\.position_mm"):
+        annotate(scan(cfg)[0], table, wrong)
+    pm, _ = scan(cfg, nan_rows=H)
+    with pytest.raises(InputError, match="no valid phase at all"):
+        annotate(pm, table, cfg)
+    # CLI: output in a missing folder, no half file, one line
+    save_table(tmp_path / "t.npz", table)
+    save_phase_map(tmp_path / "s.npz", scan(cfg)[0])
+    cfg_file = tmp_path / "small.toml"
+    cfg_file.write_text(PAPER_CONFIG.read_text().replace("width_px = 2448", f"width_px = {W}")
+                        .replace("height_px = 2048", f"height_px = {H}"))
+    code = main(["annotate", str(tmp_path / "s.npz"), "--table", str(tmp_path / "t.npz"),
+                 "--config", str(cfg_file), "--out", str(tmp_path / "no" / "c.ply")])
+    err = capsys.readouterr().err
+    assert code == 2 and "does not exist" in err and err.count("\n") == 1
+    code = main(["annotate", str(tmp_path / "s.npz"), "--table", str(tmp_path / "t.npz"),
+                 "--config", str(cfg_file), "--out", str(tmp_path / "c.ply")])
+    out = capsys.readouterr().out
+    assert code == 0 and f"{W * H} points written" in out
+    xyz, attrs = read_cloud(tmp_path / "c.ply")
+    assert xyz.shape == (W * H, 3) and "sigma_model_um" in attrs
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
