@@ -46,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_argument(p)
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--positions", type=_positions, default=None, metavar="LIST",
-                   help="stage positions or device offsets [mm]: START:STOP:STEP or a,b,c")
+                   help="stage positions or device offsets [mm]: START:STOP:STEP or a,b,c "
+                        "(write --positions=-30:30:2 when it starts with -)")
     p.add_argument("--repeats", type=int, default=None, help="scans per position")
     p.add_argument("--periods", type=float_list, default=None,
                    help="fine fringe periods [projector px] (default: the working period)")

@@ -1,0 +1,66 @@
+"""Benchmark: one simulated gauge-block scan (12 patterns) at 640 x 512 and 2448 x 2048.
+
+Each size runs in its own process so that the peak resident memory (ru_maxrss) is that
+of one scan. The 640 x 512 camera is the paper's sensor binned to the same field of view
+(pixel 30.6 um); the 2448 x 2048 one is the paper's. Targets (issue 4): under 15 s and
+under 8 GB.
+
+    .venv/bin/python benchmarks/bench_simulate.py            # both sizes
+    .venv/bin/python benchmarks/bench_simulate.py 640        # one size
+"""
+
+from __future__ import annotations
+
+import json
+import resource
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SIZES = {"640": (640, 512), "2448": (2448, 2048)}
+
+
+def _config(width: int, height: int):
+    from scanqa.config import CameraConfig, ScannerConfig, load_config
+
+    base = load_config(ROOT / "calib" / "paper_scanner.toml")
+    scale = base.camera.width_px / width
+    cam = CameraConfig(**{**asdict(base.camera), "width_px": width, "height_px": height,
+                          "pixel_um": base.camera.pixel_um * scale})
+    return ScannerConfig(cam, base.projector, base.fringes, base.model, base.simulator,
+                         base.name, base.source, base.profile)
+
+
+def run_one(key: str) -> dict:
+    """Simulate and write one gauge-block scan; return time and peak memory."""
+    from scanqa.simulate.experiments import run_experiment
+
+    config = _config(*SIZES[key])
+    with tempfile.TemporaryDirectory() as tmp:
+        t0 = time.perf_counter()
+        run_experiment("gauge-blocks", config, tmp, repeats=1)
+        seconds = time.perf_counter() - t0
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    return {"size": f"{config.camera.width_px} x {config.camera.height_px}",
+            "pixel_um": config.camera.pixel_um, "patterns": 12,
+            "seconds": round(seconds, 2), "peak_rss_mb": round(peak_mb, 1)}
+
+
+def main(argv: list[str]) -> int:
+    if len(argv) == 2 and argv[0] == "--child":
+        print(json.dumps(run_one(argv[1])))
+        return 0
+    keys = argv or list(SIZES)
+    for key in keys:
+        out = subprocess.run([sys.executable, __file__, "--child", key], check=True,
+                             capture_output=True, text=True)
+        print(out.stdout.strip())
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
