@@ -21,6 +21,7 @@ COMMAND_MODULES = (
     "scanqa.cli.design",
     "scanqa.cli.calibrate",
     "scanqa.cli.annotate",
+    "scanqa.cli.qa",
     "scanqa.cli.demo",
     "scanqa.cli.decode",
     "scanqa.cli.simulate",

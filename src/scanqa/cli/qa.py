@@ -1,0 +1,111 @@
+"""``scanqa qa``: gauge-block QA of an annotated cloud (or a scan + table)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from scanqa import design
+from scanqa.cli.common import add_config_argument, config_from_args
+from scanqa.errors import InputError
+from scanqa.gauge import detect_blocks, load_layout, run_qa
+from scanqa.io.cloud import read_cloud, write_cloud
+from scanqa.report import qa as qa_report
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "qa", formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="gauge-block QA: plane fits, measured vs predicted std, steps with U",
+        epilog="examples:\n  scanqa qa cloud.ply --layout calib/gauge_blocks_paper.toml "
+               "--out qa/\n  scanqa qa scan/phase.npz --table table.npz --config "
+               "calib/paper_scanner.toml --layout calib/gauge_blocks_paper.toml --out qa/\n\n"
+               "writes report.html, blocks.csv, steps.csv, summary.json, cloud_qa.ply")
+    p.add_argument("cloud", metavar="CLOUD",
+                   help="annotated cloud (.ply/.las/.csv) or, with --table, a scan")
+    p.add_argument("--layout", help="block layout TOML (nominal heights and regions)")
+    p.add_argument("--auto", action="store_true",
+                   help="find the blocks by plane segmentation; match nominal heights from "
+                        "--layout (regions ignored) or --heights")
+    p.add_argument("--heights", default=None,
+                   help="with --auto and no --layout: id=height_mm pairs, e.g. 1=50.8,2=25.4")
+    p.add_argument("--table", help="calibration table, when CLOUD is a scan")
+    add_config_argument(p, required=False)
+    p.add_argument("--out", required=True, help="output folder (created)")
+    p.add_argument("--margin", type=float, default=1.0, help="edge margin [mm] (default 1)")
+    p.add_argument("--outliers", type=float, default=None, metavar="K",
+                   help="reject points beyond K robust std of the first plane fit")
+    p.add_argument("--tolerance", type=float, default=20.0,
+                   help="tolerance on each height difference [um] (default 20)")
+    p.add_argument("--k", type=float, default=2.0, help="coverage factor (default 2)")
+    p.set_defaults(func=run)
+
+
+def _load(args: argparse.Namespace) -> tuple[np.ndarray, dict, object]:
+    if args.table:
+        if not args.config:
+            raise InputError("--table needs --config (the config the table was built with)")
+        from scanqa.calibration import load_table
+        from scanqa.cli.annotate import load_scan
+        from scanqa.uncertainty import annotate
+
+        config = config_from_args(args)
+        cloud = annotate(load_scan(args.cloud), load_table(args.table), config,
+                         keep_invalid=True, source=args.cloud)
+        return cloud.xyz, cloud.attributes, config
+    config = config_from_args(args) if args.config else None
+    xyz, attrs = read_cloud(args.cloud)
+    return xyz, attrs, config
+
+
+def _heights(args: argparse.Namespace) -> dict[int, float]:
+    if args.layout:
+        return {b.block_id: b.nominal_height_mm for b in load_layout(args.layout).blocks}
+    if not args.heights:
+        raise InputError("--auto needs nominal heights: give --layout or --heights")
+    try:
+        pairs = [item.split("=") for item in args.heights.split(",")]
+        return {int(k): float(v) for k, v in pairs}
+    except ValueError:
+        raise InputError(f"--heights must look like 1=50.8,2=25.4, got {args.heights!r}"
+                         ) from None
+
+
+def run(args: argparse.Namespace) -> int:
+    if not args.layout and not args.auto:
+        raise InputError("give --layout FILE, or --auto to find the blocks")
+    out = Path(args.out)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output folder {out}: {err.strerror}") from None
+    xyz, attrs, config = _load(args)
+    layout = detect_blocks(xyz, _heights(args)) if args.auto else load_layout(args.layout)
+    result = run_qa(xyz, attrs, layout, args.margin, args.outliers, args.tolerance, args.k)
+    curve = None
+    if config is not None:
+        zs = [b.mean_z_mm for b in result.blocks if np.isfinite(b.mean_z_mm)]
+        if zs:
+            curve = design.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25)
+    info = qa_report.write_outputs(result, out, xyz)
+    if curve is not None:  # re-render with the model curve
+        from scanqa.io.atomic import write_text
+
+        write_text(out / "report.html", qa_report.render(result, xyz, curve))
+    extra = {"qa_block_id": result.block_id, "qa_residual_um": result.residual_um,
+             "qa_local_std_um": result.local_std_um}
+    write_cloud(out / "cloud_qa.ply", xyz, {**attrs, **extra})
+    for b in result.blocks:
+        print(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
+              f"predicted {b.predicted_std_um:.1f} um, {b.status}")
+    for s in result.steps:
+        print(f"step {s.block_a}-{s.block_b}: error {s.error_um:+.1f} um, U {s.expanded_um:.1f}"
+              f" um, {s.decision}")
+    for note in result.notes:
+        print(f"note: {note}")
+    frac = info["fraction_within_U"]
+    print(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of steps inside the "
+                                              "volume within U)" if frac is not None else ""))
+    return 0

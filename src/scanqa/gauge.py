@@ -1,0 +1,487 @@
+"""Gauge-block QA (Sect. 4.3, Tables 3 and 4 of the paper; DESIGN.md section 6).
+
+Vocabulary follows VDI/VDE 2634-2 and the GUM: per block a least-squares plane
+(orthogonal distances), its residuals, the measured standard deviation, the flatness
+(max - min residual) and the predicted standard deviation (RMS of the points' predicted
+sigma along the plane normal); per pair of successive blocks the measured height
+difference, its standard uncertainty u propagated from the points, the expanded
+uncertainty U = k u (k = 2) and an ISO 14253-1 decision against a tolerance T.
+
+Height difference between blocks a and b (a the reference, normally the taller):
+d = n_a . (c_a - c_b), the distance from block b's centroid c_b to the plane of block a,
+along block a's normal n_a (oriented towards the camera). Its uncertainty combines the
+plane's height uncertainty at c_b (from the per-point sigmas through the fit), the
+uncertainty of c_b along n_a, and the calibration table's sigma of both blocks, taken as
+fully correlated within a block and independent between blocks.
+
+Decision (ISO 14253-1): conformance is proven when |error| <= T - U ("pass"),
+non-conformance when |error| > T + U ("fail"), otherwise "undecided".
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.errors import InputError
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+LAYOUT_FORMAT = "scanqa-gauge-layout/1"
+#: Block status values, in the order they are checked.
+STATUSES = ("no_points", "too_few_points", "degenerate", "outside_volume", "model_invalid",
+            "ok")
+
+
+@dataclass(frozen=True)
+class BlockSpec:
+    """One block of a layout: id, nominal height [mm], top-face region [mm]."""
+
+    block_id: int
+    nominal_height_mm: float
+    region_mm: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
+    top_z_mm: float | None = None
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A gauge-block artefact: blocks in the scanner frame."""
+
+    name: str
+    blocks: tuple[BlockSpec, ...]
+    source: str = ""
+
+
+def _err(path, msg: str) -> InputError:
+    return InputError(f"{path}: {msg}")
+
+
+def load_layout(path: str | os.PathLike) -> Layout:
+    """Read a layout TOML (``format = "scanqa-gauge-layout/1"``).
+
+    Keys: ``name``, optional ``frame``, ``base_z_mm`` and ``[base]``; per ``[[block]]``:
+    ``id`` (int), ``nominal_height_mm``, ``region_mm = [x_min, x_max, y_min, y_max]``
+    (top face seen along Z, scanner frame) and optional ``top_z_mm``.
+    """
+    path = Path(path)
+    try:
+        data = tomllib.loads(path.read_text(encoding="utf-8"))
+    except OSError as err:
+        raise InputError(f"cannot read layout {path}: {err.strerror}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
+        raise InputError(f"{path} is not valid TOML: {err}") from None
+    if data.get("format") != LAYOUT_FORMAT:
+        raise _err(path, f"format must be {LAYOUT_FORMAT!r}, got {data.get('format')!r}")
+    known = {"format", "name", "frame", "base_z_mm", "base", "block"}
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise _err(path, f"unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+    raw = data.get("block", [])
+    if not raw:
+        raise _err(path, "no [[block]] entries")
+    blocks = tuple(_block(path, i, b) for i, b in enumerate(raw))
+    ids = [b.block_id for b in blocks]
+    if len(set(ids)) != len(ids):
+        raise _err(path, f"block ids must be unique, got {ids}")
+    return Layout(str(data.get("name", path.stem)), blocks, str(path))
+
+
+def _block(path, i: int, table: dict) -> BlockSpec:
+    where = f"block {i + 1}"
+    unknown = sorted(set(table) - {"id", "nominal_height_mm", "region_mm", "top_z_mm"})
+    if unknown:
+        raise _err(path, f"{where}: unknown key {unknown[0]!r}")
+    bid, h, region = table.get("id"), table.get("nominal_height_mm"), table.get("region_mm")
+    if not isinstance(bid, int) or isinstance(bid, bool):
+        raise _err(path, f"{where}: id must be an integer, got {bid!r}")
+    if isinstance(h, bool) or not isinstance(h, (int, float)) or not h > 0:
+        raise _err(path, f"{where} (id {bid}): nominal_height_mm must be > 0 mm, got {h!r}")
+    if (not isinstance(region, list) or len(region) != 4
+            or not all(isinstance(v, (int, float)) for v in region)
+            or not (region[0] < region[1] and region[2] < region[3])):
+        raise _err(path, f"{where} (id {bid}): region_mm must be [x_min, x_max, y_min, y_max] "
+                         f"with min < max [mm], got {region!r}")
+    top = table.get("top_z_mm")
+    return BlockSpec(bid, float(h), tuple(float(v) for v in region),
+                     None if top is None else float(top))
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """Orthogonal least-squares plane: centroid [mm], unit normal (towards the camera)."""
+
+    centroid: np.ndarray
+    normal: np.ndarray
+    residuals: np.ndarray  # signed orthogonal distances [mm]
+    axes: np.ndarray       # (2, 3) in-plane unit vectors
+
+
+def fit_plane(points: np.ndarray, where: str = "points") -> PlaneFit:
+    """Fit a plane by orthogonal least squares (SVD of the centred points).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Points [mm], n >= 3 and not collinear.
+    where : str
+        Name used in error messages.
+
+    Returns
+    -------
+    PlaneFit
+        Normal oriented towards the camera (the scanner origin).
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.shape[0] < 3:
+        raise InputError(f"{where}: a plane needs at least 3 points, got {pts.shape[0]}")
+    c = pts.mean(axis=0)
+    _, s, vt = np.linalg.svd(pts - c, full_matrices=False)
+    if s[1] <= 1e-9 * max(s[0], 1e-300):
+        raise InputError(f"{where}: the points are collinear, no plane is defined")
+    n = vt[2]
+    if np.dot(n, -c) < 0:  # towards the camera at the origin
+        n = -n
+    return PlaneFit(c, n, (pts - c) @ n, vt[:2])
+
+
+@dataclass
+class BlockResult:
+    """Per-block QA numbers (lengths in mm, standard deviations in um)."""
+
+    block_id: int
+    nominal_height_mm: float
+    n_points: int = 0
+    measured_std_um: float = math.nan
+    predicted_std_um: float = math.nan
+    flatness_um: float = math.nan
+    mean_attenuation: float = math.nan
+    in_volume_fraction: float = math.nan
+    model_valid_fraction: float = math.nan
+    mean_z_mm: float = math.nan
+    outliers: int = 0
+    status: str = "no_points"
+    message: str = ""
+    fit: PlaneFit | None = field(default=None, repr=False)
+    index: np.ndarray | None = field(default=None, repr=False)
+    u_plane: np.ndarray | None = field(default=None, repr=False)  # (3, 3) covariance
+    sigma_n: np.ndarray | None = field(default=None, repr=False)
+    table_sigma_um: float = math.nan
+
+    @property
+    def ratio(self) -> float:
+        """Measured / predicted std [-]."""
+        return self.measured_std_um / self.predicted_std_um
+
+    def row(self) -> dict:
+        return {"block_id": self.block_id, "nominal_height_mm": self.nominal_height_mm,
+                "n_points": self.n_points, "measured_std_um": self.measured_std_um,
+                "predicted_std_um": self.predicted_std_um, "ratio": self.ratio,
+                "flatness_um": self.flatness_um, "mean_attenuation": self.mean_attenuation,
+                "in_volume_fraction": self.in_volume_fraction, "status": self.status}
+
+
+@dataclass(frozen=True)
+class StepResult:
+    """Height difference between two blocks (mm and um as named)."""
+
+    block_a: int
+    block_b: int
+    nominal_diff_mm: float
+    measured_diff_mm: float
+    u_um: float
+    k: float
+    tolerance_um: float
+
+    @property
+    def error_um(self) -> float:
+        return 1e3 * (self.measured_diff_mm - self.nominal_diff_mm)
+
+    @property
+    def expanded_um(self) -> float:
+        return self.k * self.u_um
+
+    @property
+    def decision(self) -> str:
+        """ISO 14253-1: "pass", "fail" or "undecided"."""
+        e, big_u, t = abs(self.error_um), self.expanded_um, self.tolerance_um
+        if not (math.isfinite(e) and math.isfinite(big_u)):
+            return "undecided"
+        if e <= t - big_u:
+            return "pass"
+        return "fail" if e > t + big_u else "undecided"
+
+    def row(self) -> dict:
+        return {"block_a": self.block_a, "block_b": self.block_b,
+                "nominal_diff_mm": self.nominal_diff_mm,
+                "measured_diff_mm": self.measured_diff_mm, "error_um": self.error_um,
+                "u_um": self.u_um, "U_um": self.expanded_um, "k": self.k,
+                "tolerance_um": self.tolerance_um, "pass": self.decision}
+
+
+@dataclass
+class QAResult:
+    """Everything the QA computed; the report layer only renders it."""
+
+    blocks: list[BlockResult]
+    steps: list[StepResult]
+    block_id: np.ndarray       # (n,) per point, -1 outside every block
+    residual_um: np.ndarray    # (n,) per point, NaN outside blocks
+    local_std_um: np.ndarray   # (n,) per point
+    has_prediction: bool
+    notes: list[str]
+    settings: dict
+
+
+def _attr(attrs: dict, name: str, n: int, default: float = math.nan) -> np.ndarray:
+    v = attrs.get(name)
+    return np.full(n, default) if v is None else np.asarray(v, dtype=float)
+
+
+def _select(xyz: np.ndarray, spec: BlockSpec, margin: float, z_window: float) -> np.ndarray:
+    x0, x1, y0, y1 = spec.region_mm
+    sel = ((xyz[:, 0] >= x0 + margin) & (xyz[:, 0] <= x1 - margin)
+           & (xyz[:, 1] >= y0 + margin) & (xyz[:, 1] <= y1 - margin))
+    if spec.top_z_mm is not None:
+        sel &= np.abs(xyz[:, 2] - spec.top_z_mm) <= z_window
+    return np.flatnonzero(sel)
+
+
+def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
+                  outlier_k: float | None, z_window: float = 3.0) -> BlockResult:
+    """Plane fit and statistics of one block (see module notes)."""
+    res = BlockResult(spec.block_id, spec.nominal_height_mm)
+    idx = _select(xyz, spec, margin, z_window)
+    res.n_points = int(idx.size)
+    if idx.size == 0:
+        res.message = (f"block {spec.block_id}: no points inside its region after the "
+                       f"{margin:g} mm edge margin (occluded, outside the calibrated volume "
+                       "or a wrong layout?)")
+        return res
+    if idx.size < 3:
+        res.status = "too_few_points"
+        res.message = f"block {spec.block_id}: only {idx.size} points, a plane needs 3"
+        return res
+    try:
+        fit = fit_plane(xyz[idx], f"block {spec.block_id}")
+        if outlier_k:
+            keep = np.abs(fit.residuals) <= outlier_k * _robust_std(fit.residuals)
+            res.outliers = int((~keep).sum())
+            idx = idx[keep]
+            fit = fit_plane(xyz[idx], f"block {spec.block_id}")
+    except InputError as err:
+        res.status, res.message = "degenerate", str(err)
+        return res
+    _fill_block(res, fit, idx, xyz, attrs)
+    return res
+
+
+def _robust_std(r: np.ndarray) -> float:
+    return float(1.4826 * np.median(np.abs(r - np.median(r)))) or float(np.std(r)) or 1e-12
+
+
+def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray,
+                attrs: dict) -> None:
+    n = idx.size
+    pts = xyz[idx]
+    los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
+    cos = np.abs(los @ fit.normal)
+    sig = _attr(attrs, "sigma_model_um", len(xyz))[idx] * 1e-3 * cos
+    res.n_points, res.fit, res.index = n, fit, idx
+    res.measured_std_um = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
+    res.flatness_um = 1e3 * float(np.ptp(fit.residuals))
+    res.predicted_std_um = 1e3 * float(np.sqrt(np.nanmean(sig**2))) if np.isfinite(sig).any() \
+        else math.nan
+    att = _attr(attrs, "att_camera", len(xyz))[idx] * _attr(attrs, "att_projector",
+                                                            len(xyz))[idx]
+    res.mean_attenuation = float(np.nanmean(att)) if np.isfinite(att).any() else math.nan
+    res.in_volume_fraction = float(np.mean(_attr(attrs, "in_volume", len(xyz), 1.0)[idx]))
+    res.model_valid_fraction = float(np.mean(_attr(attrs, "model_valid", len(xyz), 1.0)[idx]))
+    res.mean_z_mm = float(pts[:, 2].mean())
+    tab = _attr(attrs, "sigma_table_um", len(xyz), 0.0)[idx] * cos
+    res.table_sigma_um = float(np.sqrt(np.nanmean(tab**2))) if np.isfinite(tab).any() else 0.0
+    # per-point sigma along the normal: predicted where available, else measured
+    res.sigma_n = np.where(np.isfinite(sig), sig, res.measured_std_um * 1e-3)
+    res.u_plane = _plane_covariance(pts, fit, res.sigma_n)
+    res.status = ("outside_volume" if res.in_volume_fraction < 0.5 else
+                  "model_invalid" if res.model_valid_fraction < 0.5 else "ok")
+
+
+def _plane_covariance(pts: np.ndarray, fit: PlaneFit, sigma: np.ndarray) -> np.ndarray:
+    """Covariance of (offset, slope_1, slope_2) of the plane from per-point sigmas [mm^2]."""
+    d = pts - fit.centroid
+    a = np.column_stack([np.ones(len(pts)), d @ fit.axes[0], d @ fit.axes[1]])
+    ata_inv = np.linalg.inv(a.T @ a)
+    return ata_inv @ (a.T * sigma**2) @ a @ ata_inv
+
+
+def step_between(a: BlockResult, b: BlockResult, k: float, tolerance_um: float) -> StepResult:
+    """Height difference of block b relative to block a (module notes)."""
+    fa, fb = a.fit, b.fit
+    d_ab = fa.centroid - fb.centroid
+    measured = float(fa.normal @ d_ab)
+    off = fb.centroid - fa.centroid
+    g = np.array([1.0, off @ fa.axes[0], off @ fa.axes[1]])
+    var_plane = float(g @ a.u_plane @ g)
+    var_centroid = float(np.sum(b.sigma_n**2)) / b.n_points**2
+    var_table = (a.table_sigma_um * 1e-3) ** 2 + (b.table_sigma_um * 1e-3) ** 2
+    u_um = 1e3 * math.sqrt(var_plane + var_centroid + var_table)
+    return StepResult(a.block_id, b.block_id, a.nominal_height_mm - b.nominal_height_mm,
+                      measured, u_um, k, tolerance_um)
+
+
+def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k: int = 16
+              ) -> np.ndarray:
+    """Std of the residuals of each point's k nearest neighbours in its block [mm]."""
+    from scipy.spatial import cKDTree
+
+    out = np.full(len(xyz), np.nan)
+    for bid in np.unique(block_id[block_id >= 0]):
+        idx = np.flatnonzero(block_id == bid)
+        kk = min(k, idx.size)
+        if kk < 3:
+            continue
+        _, nn = cKDTree(xyz[idx, :2]).query(xyz[idx, :2], k=kk)
+        out[idx] = np.std(residual_mm[idx][nn], axis=1, ddof=1)
+    return out
+
+
+def run_qa(xyz: np.ndarray, attrs: dict, layout: Layout, margin_mm: float = 1.0,
+           outlier_k: float | None = None, tolerance_um: float = 20.0, k: float = 2.0,
+           knn: int = 16) -> QAResult:
+    """Gauge-block QA of an annotated cloud.
+
+    Parameters
+    ----------
+    xyz : (n, 3) float
+        Points in the scanner frame [mm].
+    attrs : dict
+        Per-point attributes of :mod:`scanqa.uncertainty` (any may be missing).
+    layout : Layout
+        Blocks with nominal heights and regions.
+    margin_mm : float
+        Edge margin removed from every region [mm].
+    outlier_k : float, optional
+        Reject points beyond this many robust std from the first plane fit.
+    tolerance_um : float
+        Tolerance T on each height difference [um].
+    k : float
+        Coverage factor of the expanded uncertainty.
+    knn : int
+        Neighbours for the per-point local std.
+
+    Returns
+    -------
+    QAResult
+    """
+    xyz = np.asarray(xyz, dtype=float)
+    notes = []
+    has_pred = "sigma_model_um" in attrs
+    if not has_pred:
+        notes.append("the cloud has no sigma attributes: the predicted-std column is missing "
+                     "and step uncertainties use the measured residual std instead")
+    blocks = [analyse_block(xyz, attrs, spec, margin_mm, outlier_k) for spec in layout.blocks]
+    notes += [b.message for b in blocks if b.message]
+    ordered = sorted((b for b in blocks), key=lambda b: -b.nominal_height_mm)
+    steps = [step_between(a, b, k, tolerance_um) for a, b in itertools.pairwise(ordered)
+             if a.fit is not None and b.fit is not None]
+    block_id = np.full(len(xyz), -1)
+    residual = np.full(len(xyz), np.nan)
+    for b in blocks:
+        if b.fit is not None:
+            block_id[b.index] = b.block_id
+            residual[b.index] = b.fit.residuals
+    settings = {"margin_mm": margin_mm, "outlier_k": outlier_k, "tolerance_um": tolerance_um,
+                "k": k, "knn": knn, "layout": layout.source}
+    return QAResult(blocks, steps, block_id, 1e3 * residual,
+                    1e3 * local_std(xyz, residual, block_id, knn), has_pred, notes, settings)
+
+
+def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 0.3,
+                  match_tol_mm: float = 0.5, min_points: int = 50) -> Layout:
+    """Find the blocks without a layout: planar patches at distinct heights above the base.
+
+    Open3D's RANSAC plane segmentation finds the base plate (the largest plane); every
+    point gets its height above it. Peaks of the height histogram are the block tops
+    (all parallel to the base), and Open3D's DBSCAN splits each height band into
+    connected patches. Each nominal height is matched to the nearest patch height within
+    ``match_tol_mm``.
+
+    Parameters
+    ----------
+    xyz : (n, 3) float
+        Points [mm].
+    nominal : dict of int to float
+        Block id -> nominal height [mm].
+    voxel_mm : float
+        Voxel size of the down-sampling that keeps the search fast [mm].
+    match_tol_mm : float
+        Largest accepted |height - nominal| [mm].
+    min_points : int
+        Smallest patch (after down-sampling) accepted as a block top.
+
+    Returns
+    -------
+    Layout
+        The blocks found; regions are the bounding boxes of their patches [mm].
+    """
+    import open3d as o3d
+
+    o3d.utility.random.seed(0)  # RANSAC: the same scan finds the same blocks
+    pts = np.asarray(xyz, dtype=float)
+    pts = pts[np.isfinite(pts).all(axis=1)]
+    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(voxel_mm)
+    if len(pcd.points) < 3 * min_points:
+        raise InputError("--auto: too few points to find a base plate and blocks")
+    _, inliers = pcd.segment_plane(distance_threshold=0.1, ransac_n=3, num_iterations=2000)
+    base_fit = fit_plane(np.asarray(pcd.points)[inliers], "base plate")
+    arr = np.asarray(pcd.points)
+    height = (arr - base_fit.centroid) @ base_fit.normal
+    patches = []
+    for peak in _height_peaks(height[height > 0.5], min_points):
+        band = np.flatnonzero(np.abs(height - peak) <= 0.15)
+        sub = pcd.select_by_index(band)
+        labels = np.asarray(sub.cluster_dbscan(eps=3 * voxel_mm, min_points=5))
+        for lab in np.unique(labels[labels >= 0]):
+            members = band[labels == lab]
+            if members.size >= min_points:
+                patches.append((float(np.median(height[members])), arr[members]))
+    blocks, used = [], set()
+    for bid, h_nom in sorted(nominal.items()):
+        cands = [(abs(h - h_nom), i) for i, (h, _) in enumerate(patches) if i not in used]
+        if cands and min(cands)[0] <= match_tol_mm:
+            i = min(cands)[1]
+            used.add(i)
+            p = patches[i][1]
+            region = (float(p[:, 0].min()), float(p[:, 0].max()), float(p[:, 1].min()),
+                      float(p[:, 1].max()))
+            blocks.append(BlockSpec(bid, h_nom, region, float(np.median(p[:, 2]))))
+    if not blocks:
+        raise InputError("--auto matched no planar patch to a nominal height (within "
+                         f"{match_tol_mm} mm)")
+    return Layout("auto", tuple(blocks), "auto")
+
+
+def _height_peaks(h: np.ndarray, min_points: int, bin_mm: float = 0.02) -> list[float]:
+    """Heights where the histogram has a local maximum of at least min_points [mm]."""
+    if h.size == 0:
+        return []
+    edges = np.arange(h.min() - bin_mm, h.max() + 2 * bin_mm, bin_mm)
+    counts, _ = np.histogram(h, edges)
+    smooth = np.convolve(counts, np.ones(7), mode="same")  # +-0.06 mm window
+    peaks = []
+    for i in np.argsort(smooth)[::-1]:
+        if smooth[i] < min_points:
+            break
+        centre = 0.5 * (edges[i] + edges[i + 1])
+        if all(abs(centre - p) > 0.3 for p in peaks):
+            peaks.append(float(centre))
+    return peaks
