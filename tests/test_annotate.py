@@ -115,6 +115,12 @@ def test_open3d_tensor_reader_round_trip(cfg, table, tmp_path):
         np.testing.assert_array_equal(pcd.point[f"scalar_{name}"].numpy().ravel(), values)
 
 
+def _clean_qt_env() -> dict:
+    """The environment without Qt variables: importing cv2 (pulled in by the fringes test)
+    points QT_QPA_PLATFORM_PLUGIN_PATH at its own plugins, which aborts CloudCompare."""
+    return {k: v for k, v in os.environ.items() if not k.startswith("QT_")}
+
+
 def _cloudcompare_asc(path, tmp_path):
     """Load a cloud with CloudCompare's command line and export it as ASC with header."""
     exe = shutil.which("CloudCompare")
@@ -123,9 +129,11 @@ def _cloudcompare_asc(path, tmp_path):
         if REQUIRE_CLIENTS:
             pytest.fail("CloudCompare/xvfb-run missing although make test installs them")
         pytest.skip("CloudCompare not installed (make test installs it)")
-    subprocess.run([xvfb, "-a", exe, "-SILENT", "-NO_TIMESTAMP", "-O", str(path),
-                    "-C_EXPORT_FMT", "ASC", "-ADD_HEADER", "-SAVE_CLOUDS"], cwd=tmp_path,
-                   check=True, capture_output=True, timeout=300)
+    run = subprocess.run([xvfb, "-a", exe, "-SILENT", "-NO_TIMESTAMP", "-O", str(path),
+                          "-C_EXPORT_FMT", "ASC", "-ADD_HEADER", "-SAVE_CLOUDS"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300,
+                         stdin=subprocess.DEVNULL, env=_clean_qt_env())
+    assert run.returncode == 0, f"CloudCompare failed ({run.returncode}): {run.stderr[-2000:]}"
     asc = path.with_suffix(".asc")
     header = asc.read_text().splitlines()[0].lstrip("/").split()
     return header, np.loadtxt(asc, comments="//", ndmin=2)
