@@ -98,8 +98,11 @@ def test_injected_unwrapping_jumps_are_rejected_and_counted(cfg):
     injected = 0.01 * n_pix
     extra = rep.rejected["unwrap_jump"] - clean.rejected["unwrap_jump"]
     assert abs(extra - injected) < 0.1 * injected, (extra, injected)
-    np.testing.assert_allclose(_holdout_rms_um(cfg, table), _holdout_rms_um(cfg, clean_table),
-                               atol=0.2)
+    # (the injection draws from the same generator, so the noise differs between the two
+    # runs): one 5-px jump averaged into a 256-sample cell would shift it by ~9 um
+    rms_jump = np.sqrt(np.mean(_holdout_rms_um(cfg, table) ** 2))
+    rms_clean = np.sqrt(np.mean(_holdout_rms_um(cfg, clean_table) ** 2))
+    assert rms_jump < 1.5 * rms_clean + 0.2, (rms_jump, rms_clean)
 
 
 def test_file_round_trip_and_version_check(tables, tmp_path):

@@ -26,8 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="TABLE.npz", help="table file to write")
     p.add_argument("--weights", choices=WEIGHT_MODES, default="model",
                    help="sample weights: optics model (default), decoder sigma_xp, or none")
-    p.add_argument("--cell", type=int, default=16, metavar="PX",
-                   help="node spacing in u and v [camera px] (default 16)")
+    p.add_argument("--cell", type=int, default=None, metavar="PX",
+                   help="node spacing in u and v [camera px] (default: ~0.45 mm on the "
+                        "object, at least 4 px)")
     p.add_argument("--min-modulation", type=float, default=0.0, metavar="DN",
                    help="reject samples with modulation below this [DN] (default: decoder "
                         "mask only)")
