@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 
 from scanqa import design, optics
 from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig
-from scanqa.errors import InputError
+from scanqa.errors import InputError, ScanQAError
 from scanqa.io.atomic import atomic_path, write_text
 
 if sys.version_info >= (3, 11):
@@ -421,3 +421,33 @@ def _save(fig, path: Path) -> None:
     with atomic_path(path) as tmp:
         fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
     plt.close(fig)
+
+
+def load_fitted_model(path: str | os.PathLike) -> dict:
+    """The best variant of a characterisation ``summary.json`` as ``[model]`` overrides.
+
+    Returns
+    -------
+    dict
+        ``filter_floor``, ``noise_reading``, ``sigma_p_px`` and ``gamma``.
+    """
+    path = Path(path)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+        best = data["best_variant"]
+        return {"filter_floor": str(best["filter_floor"]),
+                "noise_reading": str(best["noise_reading"]),
+                "sigma_p_px": float(best["sigma_p_px"]), "gamma": float(best["gamma"])}
+    except OSError as err:
+        raise InputError(f"cannot read characterisation {path}: {err.strerror}") from None
+    except (ValueError, KeyError, TypeError) as err:
+        raise InputError(f"{path} is not a characterisation summary (scanqa characterize "
+                         f"writes one; missing or bad {err})") from None
+
+
+def apply_fitted_model(config: ScannerConfig, path: str | os.PathLike) -> ScannerConfig:
+    """``config`` with the model parameters and readings that the data supported."""
+    try:
+        return config.replace_model(**load_fitted_model(path))
+    except ScanQAError as err:
+        raise InputError(f"{path}: fitted model is not a valid [model] table: {err}") from None

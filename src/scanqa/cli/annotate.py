@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 
 from scanqa.calibration import load_table
-from scanqa.cli.common import add_config_argument, config_from_args
+from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
 from scanqa.io.cloud import WRITERS, write_cloud
@@ -25,6 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scan", metavar="SCAN", help="decoded phase file (.npz) or pattern folder")
     p.add_argument("--table", required=True, help="calibration table (scanqa calibrate)")
     add_config_argument(p)
+    add_model_argument(p)
     p.add_argument("--out", required=True, help="output cloud (.ply, .las, .csv, .parquet)")
     p.add_argument("--repeats", nargs="+", default=[], metavar="SCAN",
                    help="further scans of the same scene: adds the measured per-point std")

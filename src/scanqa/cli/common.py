@@ -23,9 +23,21 @@ def add_config_argument(parser: argparse.ArgumentParser, required: bool = True) 
                         help="apply the [profiles.NAME] table of the config (e.g. f11)")
 
 
+def add_model_argument(parser: argparse.ArgumentParser) -> None:
+    """``--model SUMMARY.json``: the model variant a characterisation supported."""
+    parser.add_argument("--model", metavar="SUMMARY.json", default=None,
+                        help="use the sigma_p, gamma and reading fitted by 'scanqa "
+                             "characterize' (its summary.json) instead of the config's")
+
+
 def config_from_args(args: argparse.Namespace) -> ScannerConfig:
-    """Load the config named by ``--config``/``--profile``."""
-    return load_config(args.config, profile=args.profile)
+    """Load the config named by ``--config``/``--profile`` (and ``--model`` if given)."""
+    config = load_config(args.config, profile=args.profile)
+    if getattr(args, "model", None):
+        from scanqa.characterize import apply_fitted_model
+
+        config = apply_fitted_model(config, args.model)
+    return config
 
 
 def float_list(text: str) -> list[float]:

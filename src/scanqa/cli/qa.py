@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa import design
-from scanqa.cli.common import add_config_argument, config_from_args
+from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.errors import InputError
 from scanqa.gauge import detect_blocks, load_layout, run_qa
 from scanqa.io.cloud import read_cloud, write_cloud
@@ -33,6 +33,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="with --auto and no --layout: id=height_mm pairs, e.g. 1=50.8,2=25.4")
     p.add_argument("--table", help="calibration table, when CLOUD is a scan")
     add_config_argument(p, required=False)
+    add_model_argument(p)
     p.add_argument("--out", required=True, help="output folder (created)")
     p.add_argument("--margin", type=float, default=1.0, help="edge margin [mm] (default 1)")
     p.add_argument("--outliers", type=float, default=None, metavar="K",
