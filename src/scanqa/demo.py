@@ -123,7 +123,10 @@ def run_demo(out: str | Path, full: bool = False, say: Callable[[str], None] | N
     """
     say = say or (lambda msg: print(msg, file=sys.stderr, flush=True))
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output folder {out}: {err.strerror}") from None
     stage = _Stages(7 if full else 6, say)
     if full:
         stage("simulating the data at the paper's resolution (long)")

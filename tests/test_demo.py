@@ -1,0 +1,81 @@
+"""The demo on the committed sample data, and one-line errors from every subcommand."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from scanqa.cli import build_parser, main
+
+
+@pytest.fixture(scope="module")
+def demo_out(tmp_path_factory):
+    out = tmp_path_factory.mktemp("demo")
+    assert main(["demo", "--out", str(out)]) == 0
+    return out
+
+
+def test_demo_writes_every_output(demo_out):
+    for name in ("table.npz", "table_report.html", "table_report.json", "gauge_cloud.ply",
+                 "qa/report.html", "qa/blocks.csv", "qa/steps.csv", "qa/summary.json",
+                 "qa/cloud_qa.ply", "characterization/summary.json", "design/dof.png"):
+        assert (demo_out / name).stat().st_size > 0, name
+    html = (demo_out / "qa" / "report.html").read_text()
+    for section in ("Summary", "Table 3", "over range", "Residual maps", "Table 4"):
+        assert section in html, section
+
+
+def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
+    """Issue 7 acceptance on the sample data: block 1 flagged, blocks 2-8 measured vs
+    predicted within 20 %, >= 90 % of the steps inside the volume within U."""
+    info = json.loads((demo_out / "qa" / "summary.json").read_text())
+    blocks = {b["block_id"]: b for b in info["blocks"]}
+    assert blocks[1]["status"] in ("outside_volume", "model_invalid")
+    for bid in range(2, 9):
+        assert blocks[bid]["status"] == "ok", bid
+        assert 0.8 <= blocks[bid]["ratio"] <= 1.2, (bid, blocks[bid]["ratio"])
+    assert info["steps_inside_volume"] >= 6
+    assert info["fraction_within_U"] >= 0.9
+
+
+def test_demo_prints_summary_and_report_path(capsys, tmp_path):
+    assert main(["demo", "--out", str(tmp_path / "d")]) == 0
+    out = capsys.readouterr().out
+    assert "report: " in out and str(tmp_path / "d" / "qa" / "report.html") in out
+    assert "block  measured  predicted" in out and "steps between blocks" in out
+
+
+BAD_INPUTS = {
+    "dof": ["--config", "nope.toml"],
+    "curve": ["--config", "nope.toml"],
+    "volume": ["--config", "nope.toml"],
+    "flatten": ["--config", "nope.toml"],
+    "decode": ["nope_dir", "--out", "x.npz"],
+    "calibrate": ["nope.toml", "--config", "calib/paper_scanner.toml", "--out", "t.npz"],
+    "annotate": ["nope.npz", "--table", "t.npz", "--config", "calib/paper_scanner.toml",
+                 "--out", "c.ply"],
+    "qa": ["nope.ply", "--layout", "calib/gauge_blocks_paper.toml", "--out", "qa_out"],
+    "simulate": ["warp-drive", "--config", "calib/paper_scanner.toml", "--out", "sim"],
+    "characterize": ["nope_dir", "--config", "calib/paper_scanner.toml"],
+    "demo": ["--out", "/proc/forbidden/demo"],
+}
+
+
+def test_every_subcommand_is_covered():
+    sub = next(a for a in build_parser()._actions if a.dest == "command")
+    assert set(sub.choices) == set(BAD_INPUTS)
+
+
+@pytest.mark.parametrize("command", sorted(BAD_INPUTS))
+def test_bad_input_gives_one_line_and_exit_2(command, capsys, tmp_path, monkeypatch):
+    from .conftest import ROOT
+
+    monkeypatch.chdir(ROOT)
+    argv = [a if a != "qa_out" else str(tmp_path / "qa") for a in BAD_INPUTS[command]]
+    argv = [str(tmp_path / a) if a in ("x.npz", "t.npz", "c.ply", "sim") else a for a in argv]
+    code = main([command, *argv])
+    err = capsys.readouterr().err
+    assert code == 2, err
+    assert err.startswith("scanqa: ") and err.count("\n") == 1, err
+    assert "Traceback" not in err
