@@ -49,10 +49,10 @@ def test_characterize_cli_writes_summary_and_plots(camera_sweep, tmp_path):
     cfg = tmp_path / "cfg.toml"
     base = (folder / "manifest.toml").read_text()
     assert "camera-sweep" in base
-    from scanqa.characterize import tomllib
+    from scanqa.io.tomlfile import read_toml
     from scanqa.simulate.experiments import dump_toml
 
-    data = tomllib.loads(base)["config"]
+    data = read_toml(folder / "manifest.toml", "manifest")["config"]
     data.pop("name")
     cfg.write_text(dump_toml(data))
     code = main(["characterize", str(folder), "--config", str(cfg), "--out",

@@ -22,7 +22,7 @@ def synthetic_cloud(seed=0, step=0.25, sigma_um=SIGMA_UM, drop_block=None, tilt=
     """Points on the block tops and the base, with Gaussian noise along Z."""
     layout = load_layout(LAYOUT)
     rng = np.random.default_rng(seed)
-    pts, sig = [], []
+    pts = []
     for b in layout.blocks:
         if b.block_id == drop_block:
             continue
@@ -59,7 +59,7 @@ def test_fit_plane_exact_and_errors():
     np.testing.assert_allclose(fit.residuals, 0.0, atol=1e-9)
     with pytest.raises(InputError, match="at least 3 points, got 2"):
         fit_plane(pts[:2])
-    line = np.outer(np.arange(10.0), [1, 0, 0]) + [0, 0, 450]
+    line = np.outer(np.arange(10.0), [1, 0, 0]) + np.array([0.0, 0.0, 450.0])
     with pytest.raises(InputError, match="collinear"):
         fit_plane(line, "block 9")
 
@@ -125,7 +125,7 @@ def test_outside_volume_block_is_flagged():
 
 
 def test_auto_finds_the_layout_blocks():
-    xyz, attrs, layout = synthetic_cloud(step=0.3)
+    xyz, _attrs, layout = synthetic_cloud(step=0.3)
     found = detect_blocks(xyz, {b.block_id: b.nominal_height_mm for b in layout.blocks})
     assert [b.block_id for b in found.blocks] == [b.block_id for b in layout.blocks]
     for f, b in zip(found.blocks, layout.blocks, strict=True):
@@ -169,7 +169,7 @@ def test_qa_cli_writes_every_output(tmp_path, capsys):
     assert info["steps_inside_volume"] == 7 and info["fraction_within_U"] == 1.0
     html = (out / "report.html").read_text()
     assert html.count("<img") == 4
-    qxyz, qattrs = read_cloud(out / "cloud_qa.ply")
+    _, qattrs = read_cloud(out / "cloud_qa.ply")
     assert {"qa_block_id", "qa_residual_um", "qa_local_std_um"} <= set(qattrs)
     code = main(["qa", str(cloud), "--auto", "--layout", str(LAYOUT), "--out",
                  str(tmp_path / "qa2")])

@@ -187,18 +187,18 @@ def test_same_seed_gives_identical_bytes(paper_config, tmp_path):
 
 
 def test_repeats_differ_and_manifest_lists_them(paper_config, tmp_path):
-    from scanqa.characterize import tomllib
+    from scanqa.io.tomlfile import read_toml
 
     config = small(paper_config, 16)
     experiments.run_experiment("calibration-sweep", config, tmp_path, positions=[450.0],
                                repeats=2)
     a = (tmp_path / "p000_r0" / "p5_00.png").read_bytes()
     assert a != (tmp_path / "p000_r1" / "p5_00.png").read_bytes()
-    manifest = tomllib.loads((tmp_path / "manifest.toml").read_text())
+    manifest = read_toml(tmp_path / "manifest.toml", "manifest")
     assert manifest["experiment"] == "calibration-sweep"
     assert [e["repeat"] for e in manifest["acquisition"]] == [0, 1]
     assert manifest["config"]["camera"]["focal_mm"] == 100.0
-    sweep = tomllib.loads((tmp_path / "sweep.toml").read_text())
+    sweep = read_toml(tmp_path / "sweep.toml", "sweep")
     assert sweep["position"][0]["patterns"] == ["p000_r0", "p000_r1"]
     truth = np.load(tmp_path / "truth" / "p000.npz")
     np.testing.assert_allclose(truth["Z"], 450.0, atol=1e-9)

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import json
 import os
-import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -35,11 +34,7 @@ from scanqa import design, optics
 from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.atomic import atomic_path, write_text
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from scanqa.io.tomlfile import read_toml
 
 #: Attenuation levels whose depth of field is compared (Tables 1 and 2) [-].
 DOF_LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81)
@@ -116,13 +111,9 @@ class Characterization:
 def load_manifest(sweep_dir: str | os.PathLike) -> dict:
     """Read ``manifest.toml`` of a simulated experiment folder."""
     path = Path(sweep_dir) / "manifest.toml"
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(f"{path} does not exist (is {sweep_dir} a folder written by "
-                         "'scanqa simulate'?)") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"{path} is not valid TOML: {err}") from None
+    data = read_toml(path, "simulation manifest",
+                     missing=f"{path} does not exist (is {sweep_dir} a folder written by "
+                             "'scanqa simulate'?)")
     if data.get("format") != "scanqa-simulation/1" or "acquisition" not in data:
         raise InputError(f"{path} is not a scanqa-simulation/1 manifest")
     return data

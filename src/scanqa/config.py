@@ -21,7 +21,6 @@ from __future__ import annotations
 import copy
 import math
 import os
-import sys
 from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any, ClassVar
@@ -29,11 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from scanqa.errors import ConfigError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+from scanqa.io.tomlfile import read_toml
 
 #: The two readings of Eq. 17 (DESIGN.md section 3, reading (i)).
 FILTER_FLOORS = ("none", "one")
@@ -436,12 +431,5 @@ def load_config(path: str | os.PathLike, profile: str | None = None) -> ScannerC
     if "#" in text_path and profile is None:
         text_path, profile = text_path.rsplit("#", 1)
     p = Path(text_path)
-    try:
-        raw = p.read_bytes()
-    except OSError as err:
-        raise ConfigError(f"cannot read scanner config {p}: {err.strerror}") from None
-    try:
-        data = tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise ConfigError(f"{p} is not valid TOML: {err}") from None
+    data = read_toml(p, "scanner config", ConfigError)
     return config_from_dict(data, source=str(p), profile=profile)

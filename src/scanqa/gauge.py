@@ -23,18 +23,13 @@ from __future__ import annotations
 import itertools
 import math
 import os
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
 from scanqa.errors import InputError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from scanqa.io.tomlfile import read_toml
 
 LAYOUT_FORMAT = "scanqa-gauge-layout/1"
 #: Block status values, in the order they are checked.
@@ -73,12 +68,7 @@ def load_layout(path: str | os.PathLike) -> Layout:
     (top face seen along Z, scanner frame) and optional ``top_z_mm``.
     """
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise InputError(f"cannot read layout {path}: {err.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"{path} is not valid TOML: {err}") from None
+    data = read_toml(path, "gauge-block layout")
     if data.get("format") != LAYOUT_FORMAT:
         raise _err(path, f"format must be {LAYOUT_FORMAT!r}, got {data.get('format')!r}")
     known = {"format", "name", "frame", "base_z_mm", "base", "block"}

@@ -23,7 +23,6 @@ from __future__ import annotations
 import itertools
 import math
 import os
-import sys
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
@@ -34,11 +33,7 @@ import numpy as np
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.atomic import atomic_path, write_text
 from scanqa.io.images import read_image, read_stack, write_image
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover - Python 3.10
-    import tomli as tomllib
+from scanqa.io.tomlfile import read_toml
 
 #: Value of the ``format`` key this module reads and writes.
 FORMAT = "scanqa-patterns/1"
@@ -420,15 +415,9 @@ def load_patterns(path: str | os.PathLike) -> PatternDescription:
     p = Path(path)
     if p.is_dir():
         p = p / PATTERNS_FILE
-    try:
-        data = tomllib.loads(p.read_bytes().decode("utf-8"))
-    except FileNotFoundError:
-        raise ConfigError(f"no pattern description {p} (write a {PATTERNS_FILE}; see "
-                          "README.md, 'patterns.toml')") from None
-    except OSError as err:
-        raise ConfigError(f"cannot read pattern description {p}: {err.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise ConfigError(f"{p} is not valid TOML: {err}") from None
+    data = read_toml(p, "pattern description", ConfigError,
+                     missing=f"no pattern description {p} (write a {PATTERNS_FILE}; see "
+                             "README.md, 'patterns.toml')")
     return patterns_from_dict(data, source=str(p))
 
 

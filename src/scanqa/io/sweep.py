@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import math
 import os
-import sys
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -28,11 +27,7 @@ import numpy as np
 
 from scanqa.calibration import PlaneObservation
 from scanqa.errors import InputError
-
-if sys.version_info >= (3, 11):
-    import tomllib
-else:  # pragma: no cover
-    import tomli as tomllib
+from scanqa.io.tomlfile import read_toml
 
 FORMAT = "scanqa-sweep/1"
 _TOP = ("format", "description", "position")
@@ -84,12 +79,7 @@ def load_sweep(path: str | os.PathLike) -> Sweep:
     path = Path(path)
     if path.is_dir():
         path = path / "sweep.toml"
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as err:
-        raise InputError(f"cannot read sweep manifest {path}: {err.strerror}") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise InputError(f"{path} is not valid TOML: {err}") from None
+    data = read_toml(path, "sweep manifest")
     unknown = sorted(set(data) - set(_TOP))
     if unknown:
         raise _err(path, f"unknown key {unknown[0]!r} (known: {', '.join(_TOP)})")
