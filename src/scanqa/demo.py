@@ -37,8 +37,10 @@ LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
 SAMPLE_CONFIG = (SAMPLE_DIR / "sample_scanner.toml", "sample", "sample_roi64")
 FULL_CONFIG = (ROOT / "calib" / "paper_scanner.toml", "f11", "f11")
 #: Simulation plan of ``--full``: (experiment, profile key, positions, repeats, folder).
+#: About an hour on 2 cores: 14 sweep positions and 3 gauge scans at 2448 x 2048 (~3 min
+#: each), the camera sweep on the central 256 x 256 px.
 FULL_PLAN = (("camera-sweep", 2, "-30:30:2", 1, "camera_sweep"),
-             ("calibration-sweep", 1, "424:476:2", 1, "calibration_sweep"),
+             ("calibration-sweep", 1, "424:476:4", 1, "calibration_sweep"),
              ("gauge-blocks", 1, None, 3, "gauge_blocks"))
 
 

@@ -14,7 +14,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="characterise, calibrate, annotate and QA the sample data in one go",
         epilog="examples:\n  scanqa demo                   # sample data, ~1 min\n"
                "  scanqa demo --out /tmp/d --full   # simulate at 2448 x 2048 first "
-               "(hours)\n\nwrites the table, the annotated PLY, the QA report and tables")
+               "(~1 hour)\n\nwrites the table, the annotated PLY, the QA report and tables")
     p.add_argument("--out", default="scanqa-demo", help="output folder (default scanqa-demo)")
     p.add_argument("--full", action="store_true",
                    help="regenerate the data with the simulator at the paper's resolution "
