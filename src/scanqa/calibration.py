@@ -33,17 +33,16 @@ from __future__ import annotations
 
 import functools
 import json
-import os
 from collections.abc import Callable, Iterable
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa import __version__, optics
+from scanqa import __version__, lookup, optics
 from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import InputError
+from scanqa.lookup import TableLookup
 
 TABLE_FORMAT = "scanqa-table/1"
 WEIGHT_MODES = ("model", "modulation", "none")
@@ -100,21 +99,6 @@ class BuildReport:
 
 
 @dataclass(frozen=True)
-class TableLookup:
-    """Result of applying a table: arrays shaped like the query."""
-
-    xyz: np.ndarray          # (..., 3) [mm]
-    slope: np.ndarray        # (..., 3) dQ/dx_p [mm / projector px]
-    sigma_table: np.ndarray  # (...,) table's own std along the line of sight [mm]
-    in_volume: np.ndarray    # (...,) bool: phase inside the pixel's calibrated range
-
-    @property
-    def s_t(self) -> np.ndarray:
-        """Triangulation scale |dQ/dx_p| [mm / projector px]."""
-        return np.linalg.norm(self.slope, axis=-1)
-
-
-@dataclass(frozen=True)
 class CalibrationTable:
     """A built table. Arrays: nodes (n_v, n_u), s-grid (n_s,), values (n_v, n_u, n_s, 3)."""
 
@@ -134,9 +118,14 @@ class CalibrationTable:
     provenance: dict
 
     @functools.cached_property
-    def packed(self) -> tuple[np.ndarray, np.ndarray, float]:
-        """Hermite and lateral coefficients for fast lookups (computed once)."""
-        return _packed(self)
+    def packed(self) -> lookup.Packed:
+        """The table rearranged for fast lookups (computed once, :mod:`scanqa.lookup`)."""
+        return lookup.pack(self)
+
+    @functools.cached_property
+    def image_grid(self) -> lookup.ImageGrid:
+        """Per-row and per-column constants of whole-image lookups (computed once)."""
+        return lookup.image_grid(self)
 
     @property
     def cell_px(self) -> float:
@@ -172,17 +161,66 @@ class CalibrationTable:
         TableLookup
             X, Y, Z [mm], slope dQ/dx_p, the table's sigma and the in-volume flag.
         """
-        return _apply(self, *np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float),
-                                                 np.asarray(xp, float)), extrapolate)
+        u, v, xp = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float),
+                                       np.asarray(xp, float))
+        return lookup.apply_points(self, u, v, xp, extrapolate)
 
     def apply_image(self, xp: np.ndarray, extrapolate: bool = False) -> TableLookup:
-        """Apply the table to a whole (H, W) phase map of the calibrated camera."""
+        """Apply the table to a whole (H, W) phase map of the calibrated camera.
+
+        Parameters
+        ----------
+        xp : (H, W) array_like
+            Unwrapped projector coordinate, NaN where not decoded [projector px].
+        extrapolate : bool
+            As in :meth:`apply`.
+
+        Returns
+        -------
+        TableLookup
+            Arrays shaped (H, W, 3) and (H, W).
+        """
         xp = np.asarray(xp, dtype=float)
-        if xp.shape != (self.height_px, self.width_px):
-            raise InputError(f"phase map is {xp.shape[1]} x {xp.shape[0]} px but the table "
-                             f"was built for a {self.width_px} x {self.height_px} px camera")
-        v, u = np.indices(xp.shape, dtype=float)
-        return _apply(self, u, v, xp, extrapolate, image=True)
+        self._check_rows(xp, 0)
+        return lookup.apply_image(self, xp, extrapolate)
+
+    def apply_rows(self, xp_rows: np.ndarray, row0: int = 0, select: np.ndarray | None = None,
+                   extrapolate: bool = False) -> TableLookup:
+        """Apply the table to a band of rows of a phase map (for chunked pipelines).
+
+        Parameters
+        ----------
+        xp_rows : (n, W) float ndarray
+            Rows row0 .. row0 + n - 1 of a phase map [projector px].
+        row0 : int
+            Image row of the first [camera px].
+        select : (k,) int ndarray, optional
+            Flat indices into ``xp_rows`` of the pixels to look up; default all.
+        extrapolate : bool
+            As in :meth:`apply`.
+
+        Returns
+        -------
+        TableLookup
+            Arrays shaped (n, W, ...) or, with ``select``, (k, ...).
+        """
+        self._check_rows(xp_rows, row0)
+        return lookup.apply_rows(self, np.asarray(xp_rows, dtype=float), row0, select,
+                                 extrapolate)
+
+    def in_volume_rows(self, xp_rows: np.ndarray, row0: int = 0) -> np.ndarray:
+        """Whether each phase of a band of rows (as in :meth:`apply_rows`) lies inside its
+        pixel's calibrated range: (n, W) bool, False for NaN."""
+        self._check_rows(xp_rows, row0)
+        return lookup.in_volume_rows(self, np.asarray(xp_rows, dtype=float), row0)
+
+    def _check_rows(self, xp: np.ndarray, row0: int) -> None:
+        """Raise unless ``xp`` is rows row0.. of a phase map of the calibrated camera."""
+        if (xp.ndim != 2 or xp.shape[1] != self.width_px or row0 < 0
+                or row0 + xp.shape[0] > self.height_px):
+            shape = " x ".join(str(n) for n in xp.shape[::-1])
+            raise InputError(f"phase map is {shape} px but the table was built for a "
+                             f"{self.width_px} x {self.height_px} px camera")
 
 
 # --------------------------------------------------------------------------- building
@@ -601,145 +639,6 @@ def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
     kx = ((uu - cam.principal_point_px[0]) / f)[..., None]
     ky = ((vv - cam.principal_point_px[1]) / f)[..., None]
     return (np.zeros_like(kx), kx, np.zeros_like(ky), ky)
-
-
-# --------------------------------------------------------------------------- applying
-
-
-_CHUNK = 1 << 18  # points per block in _apply: keeps temporaries in cache-sized pieces
-
-
-def _packed(t: CalibrationTable) -> tuple[np.ndarray, np.ndarray, float]:
-    """Hermite coefficients of Z per (node, segment) and lateral ray coefficients per node.
-
-    Returns ``coef`` (n_v * n_u * n_s, 6) float32: a0 - z_off, a1..a3 of Z(t) on the
-    segment and the table sigma at its two ends; ``lat`` (n_v * n_u, 4): X0, kx, Y0, ky
-    with X = X0 + kx Z; and ``z_off`` [mm].
-    """
-    h = t.s_nodes[1] - t.s_nodes[0]
-    z, dz = t.xyz[..., 2], t.dxyz[..., 2] * h
-    p0, p1 = z, np.roll(z, -1, axis=-1)
-    m0, m1 = dz, np.roll(dz, -1, axis=-1)
-    sig = t.sigma_node
-    z_off = float(np.nanmean(z))
-    coef = np.stack([p0 - z_off, m0, -3 * p0 + 3 * p1 - 2 * m0 - m1,
-                     2 * p0 - 2 * p1 + m0 + m1, sig, np.roll(sig, -1, axis=-1) - sig], -1)
-    centre = t.s_nodes.size // 2
-    with np.errstate(invalid="ignore", divide="ignore"):
-        kx = t.dxyz[..., centre, 0] / t.dxyz[..., centre, 2]
-        ky = t.dxyz[..., centre, 1] / t.dxyz[..., centre, 2]
-    zc = t.xyz[..., centre, 2]
-    lat = np.stack([t.xyz[..., centre, 0] - kx * zc, kx, t.xyz[..., centre, 1] - ky * zc, ky],
-                   -1)
-    # float32 halves the memory traffic of the gathers; Z is stored relative to its mean
-    # so the rounding stays below 10 nm over a +-100 mm sweep
-    return coef.reshape(-1, 6).astype(np.float32), lat.reshape(-1, 4), z_off
-
-
-def _apply(t: CalibrationTable, u, v, xp, extrapolate: bool,
-           image: bool = False) -> TableLookup:
-    """Bilinear in (u, v), cubic Hermite in s; vectorised in chunks.
-
-    With ``image`` (u, v the full pixel grid, row-major) the lateral coefficients are
-    interpolated separably per row instead of gathered per pixel.
-    """
-    shape = xp.shape
-    u, v, xp = u.ravel(), v.ravel(), xp.ravel()
-    coef, lat, z_off = t.packed
-    lat_u = _lateral_columns(t, lat, shape[-1]) if image else None
-    xyz = np.empty((u.size, 3))
-    slope = np.empty((u.size, 3))
-    sig = np.empty(u.size)
-    inside = np.empty(u.size, dtype=bool)
-    step = _CHUNK if lat_u is None else max(1, _CHUNK // shape[-1]) * shape[-1]
-
-    def chunk(a: int) -> None:
-        b = min(a + step, u.size)
-        lc = _lateral_rows(t, lat_u, v[a:b], shape[-1]) if image else None
-        _apply_chunk(t, coef, lat, z_off, u[a:b], v[a:b], xp[a:b], lc,
-                     (xyz[a:b], slope[a:b], sig[a:b], inside[a:b]))
-
-    starts = range(0, u.size, step)
-    if len(starts) > 1:  # numpy releases the GIL in these loops: chunks run on all cores
-        with ThreadPoolExecutor(max_workers=os.cpu_count() or 1) as pool:
-            list(pool.map(chunk, starts))
-    else:
-        for a in starts:
-            chunk(a)
-    if not extrapolate:
-        xyz[~inside] = np.nan
-        slope[~inside] = np.nan
-        sig[~inside] = np.nan
-    return TableLookup(xyz.reshape(*shape, 3), slope.reshape(*shape, 3), sig.reshape(shape),
-                       inside.reshape(shape))
-
-
-def _node_index(t: CalibrationTable, coord: np.ndarray, axis: int):
-    """Lower node index and fraction along u (axis 1) or v (axis 0)."""
-    nodes = t.node_u if axis == 1 else t.node_v
-    f = (coord - nodes[0]) / t.cell_px
-    i = np.clip(np.floor(f), 0, max(nodes.size - 2, 0)).astype(np.intp)
-    return i, f - i
-
-
-def _lateral_columns(t: CalibrationTable, lat: np.ndarray, width: int) -> np.ndarray:
-    """Lateral coefficients interpolated along u for every node row: (n_v, W, 4)."""
-    lat = lat.reshape(t.node_v.size, t.node_u.size, 4)
-    iu, tu = _node_index(t, np.arange(width, dtype=float), 1)
-    return (1 - tu)[None, :, None] * lat[:, iu] + tu[None, :, None] * lat[:, iu + 1]
-
-
-def _lateral_rows(t: CalibrationTable, lat_u: np.ndarray, v: np.ndarray, width: int
-                  ) -> np.ndarray:
-    """Per-pixel lateral coefficients for whole rows: (n, 4)."""
-    rows = v[::width]
-    iv, tv = _node_index(t, rows, 0)
-    out = (1 - tv)[:, None, None] * lat_u[iv] + tv[:, None, None] * lat_u[iv + 1]
-    return out.reshape(-1, 4)
-
-
-def _apply_chunk(t, coef, lat, z_off, u, v, xp, lc, out) -> None:
-    """One chunk of :func:`_apply`, writing into the output slices ``out``."""
-    xyz, slope, sig, inside = out
-    n_u, n_s = t.node_u.size, t.s_nodes.size
-    iu, tu = _node_index(t, u, 1)
-    iv, tv = _node_index(t, v, 0)
-    base = iv * n_u + iu
-    offsets = (0, 1, n_u, n_u + 1)
-    weights = ((1 - tv) * (1 - tu), (1 - tv) * tu, tv * (1 - tu), tv * tu)
-    x_ref, s_lo, s_hi = t.x_ref.ravel(), t.s_lo.ravel(), t.s_hi.ravel()
-    s = xp - sum(w * np.take(x_ref, base + o) for o, w in zip(offsets, weights, strict=True))
-    h = t.s_nodes[1] - t.s_nodes[0]
-    fs = (s - t.s_nodes[0]) / h
-    ks = np.clip(np.floor(np.nan_to_num(fs)), 0, n_s - 2).astype(np.intp)
-    ts = fs - ks
-    c = np.zeros((u.size, 6), dtype=np.float32)
-    gc = np.empty((u.size, 6), dtype=np.float32)
-    gather_lat = lc is None
-    if gather_lat:
-        lc, gl = np.zeros((u.size, 4)), np.empty((u.size, 4))
-    ok = np.isfinite(s)
-    for o, w in zip(offsets, weights, strict=True):
-        node = base + o
-        # np.take is several times faster than fancy indexing for row gathers
-        np.take(coef, node * n_s + ks, axis=0, out=gc)
-        c += np.multiply(gc, w[:, None].astype(np.float32), out=gc)
-        if gather_lat:
-            np.take(lat, node, axis=0, out=gl)
-            lc += np.multiply(gl, w[:, None], out=gl)
-        with np.errstate(invalid="ignore"):
-            ok &= (s >= np.take(s_lo, node)) & (s <= np.take(s_hi, node))
-    c64 = c.astype(np.float64)
-    z = z_off + c64[:, 0] + ts * (c64[:, 1] + ts * (c64[:, 2] + ts * c64[:, 3]))
-    dz = (c64[:, 1] + ts * (2 * c64[:, 2] + 3 * ts * c64[:, 3])) / h
-    xyz[:, 0] = lc[:, 0] + lc[:, 1] * z
-    xyz[:, 1] = lc[:, 2] + lc[:, 3] * z
-    xyz[:, 2] = z
-    slope[:, 0] = lc[:, 1] * dz
-    slope[:, 1] = lc[:, 3] * dz
-    slope[:, 2] = dz
-    sig[:] = c64[:, 4] + ts * c64[:, 5]
-    inside[:] = ok
 
 
 # --------------------------------------------------------------------------- file
