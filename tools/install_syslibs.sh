@@ -12,6 +12,7 @@ if [ "${1:-}" = "test" ]; then
     command -v CloudCompare >/dev/null 2>&1 || missing="$missing cloudcompare"
     command -v xvfb-run >/dev/null 2>&1 || missing="$missing xvfb"
     command -v xauth >/dev/null 2>&1 || missing="$missing xauth"
+    command -v chromium >/dev/null 2>&1 || missing="$missing chromium"
 fi
 [ -z "$missing" ] && exit 0
 if command -v apt-get >/dev/null 2>&1; then
