@@ -1,0 +1,525 @@
+"""Closed loops through the simulator with known truth: acceptance of issues 5, 6 and 7.
+
+One camera throughout: profile ``sample`` of sample_data/sample_scanner.toml (the paper's
+scanner at f/11, sensor binned 8 x 8 to 306 x 256 px, 8-bit). Data:
+
+* committed sample data: the camera sweep (characterisation), the 27-position
+  calibration sweep 424..476 mm (past the depth of field) and 3 gauge-block scans;
+* simulated here, in memory, by session fixtures (~25 s on 2 cores): 9 more repeats of
+  the gauge-block scan (12 in all, the same noise streams as ``scanqa simulate
+  gauge-blocks --repeats 12``) and 4 repeats of 9 hold-out planes between the
+  calibrated positions, rendered in the central 128 x 128 px window of the sensor.
+
+Truth is the simulator's ray casting (:func:`scanqa.simulate.render.truth_for`): X, Y, Z
+and the true projector coordinate ``xp_true`` at every pixel centre. The simulator forms
+images; it never draws noise from the model's sigma.
+
+Systematic error with R repeats: the repeat-averaged error holds the systematic error
+plus noise of variance s^2 / R, so the noise floor is removed with each point's sample
+covariance S: sys^2 = mean |mean error|^2 - mean(trace S) / R (unbiased). Points within
+3 px of a depth step or of an unlit (shadowed) pixel are left out there: the camera blur
+mixes two surfaces or light and shadow, which is a property of the scene, not of the
+calibration (the gauge QA excludes them with its edge margin too).
+
+Tests marked ``xfail(strict=True)`` state an acceptance criterion that the current code
+does not meet, unweakened; the reason gives the measured numbers and the diagnosis. A
+strict xfail fails the suite as soon as the criterion holds, so the marker goes with the
+fix. Every measured number is printed (``pytest -s``) and stored in the pytest cache
+under ``scanqa/closed_loop`` (``.pytest_cache/v/scanqa/closed_loop``).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, replace
+
+import numpy as np
+import pytest
+from scipy.ndimage import binary_erosion, maximum_filter, minimum_filter
+
+from scanqa import optics
+from scanqa.calibration import build_table, load_table
+from scanqa.characterize import apply_fitted_model, load_manifest
+from scanqa.cli import main
+from scanqa.config import load_config
+from scanqa.gauge import load_layout, run_qa
+from scanqa.io.sweep import iter_observations, load_sweep
+from scanqa.phase import decode, decode_pattern_dir
+from scanqa.simulate import render
+from scanqa.simulate.devices import sensor_window
+from scanqa.simulate.experiments import acquisition, build_positions, pattern_description
+from scanqa.uncertainty import annotate
+
+from .conftest import ROOT
+
+SAMPLE_DATA = ROOT / "sample_data"
+SAMPLE_TOML = SAMPLE_DATA / "sample_scanner.toml"
+SAMPLE = f"{SAMPLE_TOML}#sample"
+SWEEP_DIR = SAMPLE_DATA / "calibration_sweep"
+GAUGE_DIR = SAMPLE_DATA / "gauge_blocks"
+CAMERA_SWEEP = SAMPLE_DATA / "camera_sweep"
+LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
+
+#: Hold-out planes for the table applied to the true phase: midway between positions.
+HOLDOUT_TRUE_Z = tuple(float(z) for z in np.arange(425.0, 476.0, 2.0))
+#: Hold-out planes scanned (decoded phase), spread over the calibrated range [mm].
+HOLDOUT_SCAN_Z = (425.0, 431.0, 437.0, 443.0, 449.0, 455.0, 461.0, 467.0, 475.0)
+HOLDOUT_REPEATS = 4
+HOLDOUT_WINDOW_PX = 128
+#: Noise streams of the hold-out scans: distinct from every sweep and gauge scan.
+HOLDOUT_KEY = 900
+GAUGE_REPEATS = 12
+#: Points this close to a depth step or to an unlit pixel are left out [px].
+EDGE_MARGIN_PX = 3
+CACHE_KEY = "scanqa/closed_loop"
+
+
+# ------------------------------------------------------------------------ helpers
+
+
+def _record(request: pytest.FixtureRequest, key: str, value: dict) -> None:
+    """Print a measurement and keep it in the pytest cache."""
+    print(f"\n[closed loop] {key}: {json.dumps(value)}")
+    cache = getattr(request.config, "cache", None)
+    if cache is not None:
+        data = cache.get(CACHE_KEY, {})
+        data[key] = value
+        cache.set(CACHE_KEY, data)
+
+
+def _parallel(fn, items: list) -> list:
+    """Map on both cores: rendering and decoding are numpy and Open3D, which release
+    the GIL (results are identical to a sequential run)."""
+    with ThreadPoolExecutor(max_workers=min(2, os.cpu_count() or 1)) as pool:
+        return list(pool.map(fn, items))
+
+
+def plane_truth(config, z_mm: float) -> render.Truth:
+    """Truth of the flat calibration target at world Z = z_mm."""
+    pos = build_positions("calibration-sweep", config, [z_mm])[0]
+    return render.truth_for(config, acquisition(config, pos, 0))
+
+
+def clean_pixels(valid: np.ndarray, z: np.ndarray, margin: int = EDGE_MARGIN_PX
+                 ) -> np.ndarray:
+    """Pixels at least ``margin`` px from a depth step (> 0.05 mm) and from unlit pixels."""
+    k = 2 * margin + 1
+    zz = np.where(np.isfinite(z), z, 0.0)
+    flat = (maximum_filter(zz, size=k) - minimum_filter(zz, size=k)) < 0.05
+    return flat & binary_erosion(valid, np.ones((k, k), bool), border_value=0)
+
+
+def line_of_sight(points: np.ndarray) -> np.ndarray:
+    """Unit vectors from the scanner origin to the points: (n, 3)."""
+    return points / np.linalg.norm(points, axis=-1, keepdims=True)
+
+
+@dataclass(frozen=True)
+class Systematic:
+    """Systematic error of repeat-averaged points [mm]."""
+
+    sys: float       # RMS with the noise floor removed
+    raw: float       # RMS of the repeat-averaged error
+    floor: float     # RMS noise left in the average
+    bias: float      # mean signed error along the line of sight
+    n: int
+
+
+def systematic(errors: np.ndarray, los: np.ndarray) -> Systematic:
+    """(R, n, 3) errors of R repeats at n points -> :class:`Systematic` [mm]."""
+    reps = errors.shape[0]
+    mean = errors.mean(axis=0)
+    raw2 = float(np.mean(np.sum(mean**2, axis=-1)))
+    floor2 = float(np.mean(errors.var(axis=0, ddof=1).sum(axis=-1))) / reps if reps > 1 \
+        else 0.0
+    bias = float(np.mean(np.einsum("ni,ni->n", mean, los)))
+    return Systematic(float(np.sqrt(max(raw2 - floor2, 0.0))), float(np.sqrt(raw2)),
+                      float(np.sqrt(floor2)), bias, int(errors.shape[1]))
+
+
+def pooled(parts: list[Systematic]) -> Systematic:
+    """Point-weighted pool of several :class:`Systematic` results."""
+    n = np.array([p.n for p in parts], float)
+
+    def avg(values):
+        return float(np.sum(n * np.square(values)) / n.sum())
+
+    raw2, floor2 = avg([p.raw for p in parts]), avg([p.floor for p in parts])
+    bias = float(np.sum(n * [p.bias for p in parts]) / n.sum())
+    return Systematic(float(np.sqrt(max(raw2 - floor2, 0.0))), float(np.sqrt(raw2)),
+                      float(np.sqrt(floor2)), bias, int(n.sum()))
+
+
+def trend(z: list[float], bias: list[float]) -> float:
+    """Change of the least-squares line through the biases across the z span [mm]."""
+    slope = np.polyfit(np.asarray(z), np.asarray(bias), 1)[0]
+    return float(abs(slope) * (max(z) - min(z)))
+
+
+def table_errors(table, u, v, xp_stack: np.ndarray, truth_xyz: np.ndarray) -> np.ndarray:
+    """(R, n, 3) errors of the table applied to R phase maps at pixels (u, v) [mm]."""
+    return np.stack([table.apply(u, v, xp).xyz - truth_xyz for xp in xp_stack])
+
+
+def um(value_mm: float) -> float:
+    """mm -> um, rounded for the record."""
+    return round(1e3 * float(value_mm), 3)
+
+
+# ----------------------------------------------------------------------- fixtures
+
+
+@pytest.fixture(scope="session")
+def sample_config():
+    return load_config(SAMPLE_TOML, profile="sample")
+
+
+@pytest.fixture(scope="session")
+def characterised(tmp_path_factory, sample_config):
+    """``scanqa characterize`` of the committed camera sweep: (summary.json, config with
+    the fitted sigma_p, gamma and reading)."""
+    out = tmp_path_factory.mktemp("characterise")
+    assert main(["characterize", str(CAMERA_SWEEP), "--config", SAMPLE, "--out",
+                 str(out)]) == 0
+    summary = out / "summary.json"
+    return summary, apply_fitted_model(sample_config, summary)
+
+
+@pytest.fixture(scope="session")
+def sweep_observations():
+    """The committed calibration sweep, decoded."""
+    return list(iter_observations(load_sweep(SWEEP_DIR)))
+
+
+@pytest.fixture(scope="session")
+def calibrated(tmp_path_factory, sample_config, sweep_observations):
+    """(table file of ``scanqa calibrate`` with model weights, {"model", "none"} tables)."""
+    path = tmp_path_factory.mktemp("calibrate") / "table.npz"
+    assert main(["calibrate", str(SWEEP_DIR / "sweep.toml"), "--config", SAMPLE, "--out",
+                 str(path)]) == 0
+    unweighted, _ = build_table(sweep_observations, sample_config, weights="none")
+    return path, {"model": load_table(path), "none": unweighted}
+
+
+@pytest.fixture(scope="session")
+def focus_sigma_mm(request, sample_config, sweep_observations, calibrated, characterised):
+    """Measured single-point std at focus [mm]: the decoded phase of the calibration plane
+    at the camera's focus against its true phase, times the table's slope |dQ/dx_p|.
+    (The characterised model's sigma there is recorded beside it.)"""
+    focus = sample_config.camera.focus_mm
+    obs = min(sweep_observations, key=lambda o: abs(o.z_mm - focus))
+    truth = plane_truth(sample_config, obs.z_mm)
+    d = obs.xp - truth.xp
+    half_period = 0.5 * sample_config.fringes.working_period_px
+    ok = np.isfinite(d) & truth.valid & (np.abs(d) < half_period)
+    v, u = np.nonzero(ok)
+    look = calibrated[1]["model"].apply(u, v, obs.xp[ok])
+    sigma = float(np.std(d[ok] * look.s_t))
+    model = optics.predict(look.xyz, characterised[1], s_t=look.s_t).sigma
+    _record(request, "in_focus_sigma", {"z_mm": obs.z_mm, "measured_um": um(sigma),
+                                        "model_um": um(np.sqrt(np.mean(model**2)))})
+    return sigma
+
+
+@pytest.fixture(scope="session")
+def holdout_scans(sample_config):
+    """Decoded repeats of hold-out planes in the central window: [(z, u, v, xp (R, n),
+    truth (n, 3))] with u, v in sensor pixels."""
+    config = sample_config.replace_simulator(roi_width_px=HOLDOUT_WINDOW_PX,
+                                             roi_height_px=HOLDOUT_WINDOW_PX)
+    win = sensor_window(config)
+    desc = pattern_description(config)
+    positions = build_positions("calibration-sweep", config, HOLDOUT_SCAN_Z)
+    acqs = [replace(acquisition(config, p, 0), key=(HOLDOUT_KEY + p.index, r))
+            for p in positions for r in range(HOLDOUT_REPEATS)]
+    maps = _parallel(lambda acq: decode(desc, render.render_images(config, acq, desc)).xp,
+                     acqs)
+    out = []
+    for k, pos in enumerate(positions):
+        truth = render.truth_for(config, acquisition(config, pos, 0))
+        xp = np.stack(maps[k * HOLDOUT_REPEATS:(k + 1) * HOLDOUT_REPEATS])
+        ok = np.isfinite(xp).all(axis=0) & clean_pixels(truth.valid, truth.z)
+        v, u = np.nonzero(ok)
+        xyz = np.stack([truth.x[ok], truth.y[ok], truth.z[ok]], axis=-1)
+        out.append((pos.stage_mm, u + float(win.u0), v + float(win.v0), xp[:, ok], xyz))
+    return out
+
+
+@pytest.fixture(scope="session")
+def gauge_scans(sample_config):
+    """(12 decoded gauge-block scans: the committed 3 + 9 rendered here, truth arrays)."""
+    committed = sorted(GAUGE_DIR.glob("p000_r*"), key=lambda p: int(p.name.split("_r")[1]))
+    scans = [decode_pattern_dir(p) for p in committed]
+    desc = pattern_description(sample_config)
+    pos = build_positions("gauge-blocks", sample_config, [0.0])[0]
+    render.truth_for(sample_config, acquisition(sample_config, pos, 0))  # build the scene
+    scans += _parallel(lambda rep: decode(desc, render.render_images(
+        sample_config, acquisition(sample_config, pos, rep), desc)),
+        list(range(len(scans), GAUGE_REPEATS)))
+    with np.load(GAUGE_DIR / "truth" / "p000.npz", allow_pickle=False) as data:
+        truth = {k: data[k] for k in data.files}
+    return scans, truth
+
+
+@pytest.fixture(scope="session")
+def gauge_cloud(gauge_scans, calibrated, characterised):
+    """Scan 0 annotated with the characterised model, the 11 other scans as repeats,
+    points outside the calibrated volume kept (flagged)."""
+    scans, _ = gauge_scans
+    return annotate(scans[0], calibrated[1]["model"], characterised[1], repeats=scans[1:],
+                    keep_invalid=True)
+
+
+# ------------------------------------------------------------------ issue 5: table
+
+
+def _holdout_true_phase(sample_config, table) -> tuple[list, list[float]]:
+    """Per hold-out plane: Systematic of the table applied to the true phase."""
+    parts = []
+    for z in HOLDOUT_TRUE_Z:
+        truth = plane_truth(sample_config, z)
+        v, u = np.nonzero(truth.valid)
+        xyz = np.stack([truth.x, truth.y, truth.z], axis=-1)[truth.valid]
+        err = table_errors(table, u, v, truth.xp[truth.valid][None], xyz)
+        parts.append(systematic(err, line_of_sight(xyz)))
+    return parts, list(HOLDOUT_TRUE_Z)
+
+
+def test_characterisation_is_of_the_same_camera(sample_config, characterised):
+    cam = load_manifest(CAMERA_SWEEP)["config"]["camera"]
+    mine = sample_config.to_dict()["camera"]
+    assert {k: cam[k] for k in mine} == mine
+    summary = json.loads(characterised[0].read_text())
+    assert summary["experiment"] == "camera-sweep"
+
+
+def test_sweep_extends_past_the_depth_of_field(sample_config, sweep_observations):
+    zs = [o.z_mm for o in sweep_observations]
+    ends = optics.predict(np.array([[0.0, 0.0, min(zs)], [0.0, 0.0, max(zs)]]),
+                          sample_config)
+    assert (ends.attenuation_camera < 0.49).all()
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "table applied to xp_true on 26 hold-out planes: RMS 0.95 um > 0.1 sigma_focus "
+    "(0.74 um), per-plane bias +0.58 -> -1.29 um over 425..475 mm. Three parts: (1) the "
+    "simulated decoded phase of a plane has a physical bias of -2.3..+1.6 mpx (-1.1..+0.8 "
+    "um), odd about focus (the projector blur varies across the camera's blur disc), "
+    "which the table absorbs from the sweep and which therefore shows only against "
+    "xp_true (see the decoded hold-out test); (2) a method floor of 0.45 um (a table "
+    "built from the exact phases; mean -0.38 um): calibration.py interpolates the shear "
+    "x_ref bilinearly over 4 px (1.15 mm) cells where x_p(u) is curved (~0.27 um) and "
+    "the cell plane fit is biased by 0.5 x_uu <du^2> (~0.1 um); (3) table noise 0.70 um "
+    "(one scan per position)."))
+def test_table_systematic_on_holdout_planes(request, sample_config, calibrated,
+                                            focus_sigma_mm):
+    parts, zs = _holdout_true_phase(sample_config, calibrated[1]["model"])
+    total = pooled(parts)
+    change = trend(zs, [p.bias for p in parts])
+    _record(request, "issue5_table_xp_true", {
+        "rms_um": um(total.raw), "limit_um": um(0.1 * focus_sigma_mm),
+        "trend_um": um(change), "per_plane_rms_um": [um(p.raw) for p in parts],
+        "per_plane_bias_um": [um(p.bias) for p in parts]})
+    assert total.raw <= 0.1 * focus_sigma_mm
+    assert change <= 0.1 * focus_sigma_mm
+
+
+@pytest.fixture(scope="session")
+def holdout_scan_errors(request, calibrated, holdout_scans, focus_sigma_mm):
+    """Systematic error of the hold-out scans per plane, pooled, and its trend [mm]."""
+    table = calibrated[1]["model"]
+    parts = [systematic(table_errors(table, u, v, xp, xyz), line_of_sight(xyz))
+             for _, u, v, xp, xyz in holdout_scans]
+    zs = [z for z, *_ in holdout_scans]
+    total, change = pooled(parts), trend(zs, [p.bias for p in parts])
+    _record(request, "issue5_holdout_scans", {
+        "repeats": HOLDOUT_REPEATS, "sys_um": um(total.sys), "raw_um": um(total.raw),
+        "noise_floor_um": um(total.floor), "limit_um": um(0.1 * focus_sigma_mm),
+        "trend_um": um(change), "z_mm": zs, "per_plane_sys_um": [um(p.sys) for p in parts],
+        "per_plane_bias_um": [um(p.bias) for p in parts]})
+    return total, change
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "repeat-averaged scans of 9 hold-out planes (4 repeats, noise floor removed): "
+    "systematic RMS 0.90 um > 0.1 sigma_focus (0.75 um); 0.49-0.78 um inside "
+    "431..461 mm, 0.93 um at 467, 1.50 and 1.42 um at 425 and 475 mm. It is the table's "
+    "own noise (0.70 um over the range, largest at the ends, from one scan per position "
+    "of the committed sweep) on top of the method floor of calibration.py (0.45 um, "
+    "the constant -0.4 um bias here: bilinear shear x_ref over 1.15 mm cells and the "
+    "cell-fit curvature bias). No trend (separate test)."))
+def test_scan_systematic_on_holdout_planes(holdout_scan_errors, focus_sigma_mm):
+    total, _ = holdout_scan_errors
+    assert total.sys <= 0.1 * focus_sigma_mm
+
+
+def test_scan_on_holdout_planes_has_no_trend(holdout_scan_errors, focus_sigma_mm):
+    _, change = holdout_scan_errors
+    assert change <= 0.1 * focus_sigma_mm
+
+
+def test_scan_systematic_on_gauge_blocks(request, gauge_scans, calibrated, focus_sigma_mm):
+    scans, truth = gauge_scans
+    table = calibrated[1]["model"]
+    xp = np.stack([s.xp for s in scans])
+    ok = np.isfinite(xp).all(axis=0) & clean_pixels(truth["valid"], truth["Z"])
+    v, u = np.nonzero(ok)
+    xyz = np.stack([truth["X"][ok], truth["Y"][ok], truth["Z"][ok]], axis=-1)
+    inside = table.apply(u, v, xp[:, ok].mean(axis=0)).in_volume
+    err = table_errors(table, u[inside], v[inside], xp[:, ok][:, inside], xyz[inside])
+    levels = np.round(xyz[inside, 2], 2)
+    parts, zs = [], []
+    for level in np.unique(levels):
+        sel = levels == level
+        if sel.sum() >= 100:  # block tops and the base plate, not side walls
+            parts.append(systematic(err[:, sel], line_of_sight(xyz[inside][sel])))
+            zs.append(float(level))
+    total = pooled(parts)
+    change = trend(zs, [p.bias for p in parts])
+    _record(request, "issue5_gauge_scan", {
+        "repeats": len(scans), "points": total.n, "sys_um": um(total.sys),
+        "raw_um": um(total.raw), "noise_floor_um": um(total.floor),
+        "limit_um": um(0.1 * focus_sigma_mm), "trend_um": um(change), "z_mm": zs,
+        "per_level_sys_um": [um(p.sys) for p in parts],
+        "per_level_bias_um": [um(p.bias) for p in parts]})
+    assert len(zs) == 8  # blocks 2-8 and the base plate; block 1 is outside the volume
+    assert total.sys <= 0.1 * focus_sigma_mm
+    assert change <= 0.1 * focus_sigma_mm
+
+
+@pytest.mark.xfail(strict=True, reason=(
+    "on the committed 424..476 mm sweep the model-weighted table is 2 % worse than the "
+    "unweighted one (0.95 vs 0.93 um against truth on 26 hold-out planes). (1) Most of "
+    "the error is common to both (method floor 0.45 um and the defocus phase bias, see "
+    "above); (2) the simulated noise grows only 2.1x from focus to the sweep's ends "
+    "(14.8 -> 30 mpx): the decoder fuses the 80 px period as the 5 px contrast fades and "
+    "the camera blur filters noise, so even weights from the measured noise (oracle) "
+    "gain 5.5 % on the noise part (0.70 -> 0.66 um); (3) 'scanqa calibrate' weights with "
+    "the config's [model] (power reading, sigma_p of the f/8 camera), which predicts a "
+    "5.5x growth where the data shows 2x and which the characterisation rejected: "
+    "weights with the fitted amplitude reading give 0.905 um (-3 %)."))
+def test_weighting_pays_past_the_depth_of_field(request, sample_config, calibrated):
+    tables = calibrated[1]
+    rms = {w: pooled(_holdout_true_phase(sample_config, tables[w])[0]).raw
+           for w in ("model", "none")}
+    _record(request, "issue5_weighting", {"model_rms_um": um(rms["model"]),
+                                          "none_rms_um": um(rms["none"]),
+                                          "reduction": round(1 - rms["model"] / rms["none"],
+                                                             4)})
+    assert rms["model"] <= 0.8 * rms["none"]
+
+
+def test_block1_outside_the_volume_is_flagged(request, gauge_scans, gauge_cloud):
+    _, truth = gauge_scans
+    layout = {b.block_id: b for b in load_layout(LAYOUT).blocks}
+    a = gauge_cloud.attributes
+    z_true = truth["Z"][a["pixel_v"].astype(int), a["pixel_u"].astype(int)]
+    flags = {}
+    for bid, spec in layout.items():
+        on_top = np.abs(z_true - spec.top_z_mm) < 1e-3
+        flags[bid] = (int(on_top.sum()), float(np.mean(a["in_volume"][on_top])))
+    _record(request, "issue5_in_volume_per_block", {str(k): v for k, v in flags.items()})
+    assert flags[1][0] > 1000 and flags[1][1] == 0.0  # kept with --keep-invalid, flagged
+    for bid in range(2, 9):
+        assert flags[bid][1] >= 0.99, (bid, flags[bid])
+
+
+# ------------------------------------------------------------ issue 6: honest sigma
+
+
+def _ratio_stats(ratio: np.ndarray) -> dict:
+    q = np.quantile(ratio, [0.05, 0.1, 0.25, 0.5, 0.75, 0.9, 0.95])
+    return {"n": int(ratio.size), "q05_q10_q25_q50_q75_q90_q95": [round(float(x), 3) for x in q],
+            "fraction_in_0.6_1.6": round(float(np.mean((ratio >= 0.6) & (ratio <= 1.6))), 4)}
+
+
+def test_measured_std_matches_the_characterised_sigma(request, gauge_cloud):
+    a = gauge_cloud.attributes
+    use = (a["model_valid"] == 1) & (a["in_volume"] == 1) & (a["n_repeats"] == GAUGE_REPEATS)
+    model = _ratio_stats(a["sigma_meas_um"][use] / a["sigma_model_um"][use])
+    phase = _ratio_stats(a["sigma_meas_um"][use] / a["sigma_phase_um"][use])
+    _record(request, "issue6_ratio_model", {**model, "model": gauge_cloud.model})
+    _record(request, "issue6_ratio_phase", phase)
+    assert model["n"] > 20000
+    assert 0.85 <= model["q05_q10_q25_q50_q75_q90_q95"][3] <= 1.15
+    assert model["fraction_in_0.6_1.6"] >= 0.90
+
+
+# ------------------------------------------------------------- issue 7: gauge QA
+
+
+@pytest.fixture(scope="session")
+def qa_cli(tmp_path_factory, calibrated, characterised):
+    """``scanqa annotate`` + ``scanqa qa`` (layout and --auto) on committed scan r0."""
+    out = tmp_path_factory.mktemp("qa")
+    cloud = out / "cloud.ply"
+    scans = [str(GAUGE_DIR / f"p000_r{r}") for r in range(3)]
+    assert main(["annotate", scans[0], "--table", str(calibrated[0]), "--config", SAMPLE,
+                 "--model", str(characterised[0]), "--out", str(cloud), "--repeats",
+                 *scans[1:], "--keep-invalid"]) == 0
+    summaries = {}
+    for name, extra in (("layout", []), ("auto", ["--auto"])):
+        assert main(["qa", str(cloud), "--layout", str(LAYOUT), *extra, "--config", SAMPLE,
+                     "--model", str(characterised[0]), "--out", str(out / name)]) == 0
+        summaries[name] = json.loads((out / name / "summary.json").read_text())
+    return summaries
+
+
+def test_qa_paper_setup_acceptance(request, qa_cli):
+    info = qa_cli["layout"]
+    blocks = {b["block_id"]: b for b in info["blocks"]}
+    _record(request, "issue7_cli_blocks", {str(k): [b["status"], b["measured_std_um"],
+                                                    b["predicted_std_um"], b["ratio"]]
+                                           for k, b in blocks.items()})
+    _record(request, "issue7_cli_steps", {
+        "within_U": info["steps_error_within_U"], "inside": info["steps_inside_volume"],
+        "steps": [[s["block_a"], s["block_b"], s["error_um"], s["U_um"]]
+                  for s in info["steps"]]})
+    assert blocks[1]["status"] == "outside_volume"
+    for bid in range(2, 9):
+        assert blocks[bid]["status"] == "ok", blocks[bid]
+        assert abs(blocks[bid]["ratio"] - 1.0) <= 0.20, blocks[bid]
+    assert info["steps_inside_volume"] == 6
+    assert info["fraction_within_U"] >= 0.90
+
+
+def test_qa_auto_finds_the_layout_blocks(request, qa_cli):
+    by_layout = {b["block_id"]: b for b in qa_cli["layout"]["blocks"]}
+    by_auto = {b["block_id"]: b for b in qa_cli["auto"]["blocks"]}
+    _record(request, "issue7_auto", {str(k): [b["status"], b["n_points"]]
+                                     for k, b in by_auto.items()})
+    assert set(by_auto) == {k for k, b in by_layout.items() if b["n_points"] > 0}
+    for bid, b in by_auto.items():
+        assert b["status"] == by_layout[bid]["status"]
+        # the auto region is the found patch's bounding box: its points are the layout's
+        assert b["n_points"] >= 0.8 * by_layout[bid]["n_points"]
+        assert abs(b["measured_std_um"] / by_layout[bid]["measured_std_um"] - 1) < 0.1
+
+
+def test_qa_over_twelve_scans(request, gauge_scans, calibrated, characterised):
+    """The same acceptance on each of the 12 scans (one scan each, no repeats)."""
+    scans, _ = gauge_scans
+    layout = load_layout(LAYOUT)
+    ratios, within, inside, z_scores = {b: [] for b in range(2, 9)}, 0, 0, []
+    for scan in scans:
+        cloud = annotate(scan, calibrated[1]["model"], characterised[1], keep_invalid=True)
+        result = run_qa(cloud.xyz, cloud.attributes, layout)
+        status = {b.block_id: b.status for b in result.blocks}
+        assert status[1] == "outside_volume"
+        for b in result.blocks[1:]:
+            assert b.status == "ok", (b.block_id, b.status)
+            ratios[b.block_id].append(b.ratio)
+        for s in result.steps:
+            if status[s.block_a] == status[s.block_b] == "ok":
+                inside += 1
+                within += abs(s.error_um) <= s.expanded_um
+                z_scores.append(s.error_um / s.u_um)
+    _record(request, "issue7_twelve_scans", {
+        "steps_within_U": within, "steps_inside": inside,
+        "rms_error_over_u": round(float(np.sqrt(np.mean(np.square(z_scores)))), 3),
+        "ratio_min_max": {str(k): [round(min(v), 3), round(max(v), 3)]
+                          for k, v in ratios.items()}})
+    assert all(abs(r - 1.0) <= 0.20 for v in ratios.values() for r in v)
+    assert inside == 6 * len(scans) and within / inside >= 0.90
