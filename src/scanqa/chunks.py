@@ -14,8 +14,9 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import TypeVar
 
-#: Pixels per band: ~30 k keeps a band's dozen float64 temporaries in a 2 MB L2 cache.
-CHUNK_PIXELS = 32768
+#: Pixels per band: measured fastest for annotate and apply on 2448 x 2048 (6 rows); a
+#: band's temporaries (~20 float64 arrays of 128 kB) stay in a 2 MB L2 cache.
+CHUNK_PIXELS = 16384
 
 T = TypeVar("T")
 

@@ -90,17 +90,41 @@ def pack(t: CalibrationTable) -> Packed:
         Coefficient row ``(i_v n_u + i_u) n_s + k`` holds segment k of node (i_v, i_u).
     """
     h = t.s_nodes[1] - t.s_nodes[0]
-    z, dz = t.xyz[..., 2], t.dxyz[..., 2] * h
-    p0, p1 = z, np.roll(z, -1, axis=-1)
-    m0, m1 = dz, np.roll(dz, -1, axis=-1)
-    sig = t.sigma_node
-    z_off = float(np.nanmean(z))
-    coef = np.stack([p0 - z_off, m0, -3 * p0 + 3 * p1 - 2 * m0 - m1,
-                     2 * p0 - 2 * p1 + m0 + m1, sig, np.roll(sig, -1, axis=-1) - sig], -1)
+    z_off = float(np.nanmean(t.xyz[..., 2]))
+    coef = np.empty((*t.sigma_node.shape, 6), dtype=np.float32)
+    for i in range(coef.shape[0]):  # per node row: temporaries stay in cache
+        coef[i] = _segments(t.xyz[i, ..., 2], t.dxyz[i, ..., 2] * h, t.sigma_node[i], z_off)
     n_u, n_s = t.node_u.size, t.s_nodes.size
     corners = (0, n_s, n_u * n_s, (n_u + 1) * n_s)
-    return Packed(coef.reshape(-1, 6).astype(np.float32), z_off, _lateral_rays(t), *_cell_range(t),
+    return Packed(coef.reshape(-1, 6), z_off, _lateral_rays(t), *_cell_range(t),
                   float(t.s_nodes[0]), float(h), n_s, corners)
+
+
+def _segments(z: np.ndarray, dz: np.ndarray, sig: np.ndarray, z_off: float) -> np.ndarray:
+    """Cubic Hermite coefficients of Z on every s segment, and the sigma at its ends.
+
+    Parameters
+    ----------
+    z : (..., n_s) float
+        Z at the s nodes [mm].
+    dz : (..., n_s) float
+        dZ/ds times the node spacing [mm].
+    sig : (..., n_s) float
+        Table sigma at the nodes [mm].
+    z_off : float
+        Offset subtracted from Z [mm].
+
+    Returns
+    -------
+    (..., n_s, 6) float32
+        Z(t) - z_off = c0 + c1 t + c2 t^2 + c3 t^3 and sigma(t) = c4 + c5 t on [0, 1]
+        (the last segment wraps around and is never used).
+    """
+    p0, p1 = z, np.roll(z, -1, axis=-1)
+    m0, m1 = dz, np.roll(dz, -1, axis=-1)
+    return np.stack([p0 - z_off, m0, -3 * p0 + 3 * p1 - 2 * m0 - m1,
+                     2 * p0 - 2 * p1 + m0 + m1, sig, np.roll(sig, -1, axis=-1) - sig],
+                    -1).astype(np.float32)
 
 
 def _lateral_rays(t: CalibrationTable) -> np.ndarray:
@@ -277,18 +301,23 @@ def image_grid(t: CalibrationTable) -> ImageGrid:
     return ImageGrid(iu * p.n_s, tu, iv * n_u * p.n_s, iv, tv, along, step, lo, hi)
 
 
-def _band_phase(g: ImageGrid, xp: np.ndarray, row0: int
-                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Sheared phase s [px], the in-volume flag and the other interpolated node quantities
-    (X0, kx, Y0, ky) of image rows row0.., each (rows, W)."""
-    iv = g.iv[row0:row0 + xp.shape[0]]
-    tv = g.tv[row0:row0 + xp.shape[0], None]
-    along = np.take(g.along_u, iv, axis=1)
-    along += tv * np.take(g.step_v, iv, axis=1)
-    s = xp - along[0]
+def _band_nodes(g: ImageGrid, which: slice, rows: slice) -> np.ndarray:
+    """Quantities ``which`` of ``g.along_u`` interpolated to image rows ``rows``:
+    (k, rows, W)."""
+    iv = g.iv[rows]
+    along = np.take(g.along_u[which], iv, axis=1)
+    along += g.tv[rows, None] * np.take(g.step_v[which], iv, axis=1)
+    return along
+
+
+def _band_phase(g: ImageGrid, xp: np.ndarray, rows: slice) -> tuple[np.ndarray, np.ndarray]:
+    """Sheared phase s = x_p - x_ref [projector px] and the in-volume flag of image rows
+    ``rows`` (``xp``), each (rows, W)."""
+    s = xp - _band_nodes(g, slice(0, 1), rows)[0]
+    iv = g.iv[rows]
     with np.errstate(invalid="ignore"):
         inside = (s >= np.take(g.lo, iv, axis=0)) & (s <= np.take(g.hi, iv, axis=0))
-    return s, inside, along[1:]
+    return s, inside
 
 
 def _band_weights(g: ImageGrid, rows: slice) -> list[np.ndarray]:
@@ -302,7 +331,7 @@ def _band_weights(g: ImageGrid, rows: slice) -> list[np.ndarray]:
 
 def in_volume_rows(t: CalibrationTable, xp: np.ndarray, row0: int) -> np.ndarray:
     """Whether each phase of image rows row0.. is inside its pixel's calibrated range."""
-    return _band_phase(t.image_grid, xp, row0)[1]
+    return _band_phase(t.image_grid, xp, slice(row0, row0 + xp.shape[0]))[1]
 
 
 def apply_rows(t: CalibrationTable, xp: np.ndarray, row0: int, select: np.ndarray | None,
@@ -313,7 +342,8 @@ def apply_rows(t: CalibrationTable, xp: np.ndarray, row0: int, select: np.ndarra
     """
     g = t.image_grid
     rows = slice(row0, row0 + xp.shape[0])
-    s, inside, lat = _band_phase(g, xp, row0)
+    s, inside = _band_phase(g, xp, rows)
+    lat = _band_nodes(g, slice(1, 5), rows)  # X0, kx, Y0, ky
     terms = [s, inside, g.row[rows, None] + g.col, *_band_weights(g, rows), *lat]
     if select is None:
         terms = [a.ravel() for a in terms]

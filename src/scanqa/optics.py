@@ -154,12 +154,14 @@ def attenuation(r: ArrayLike) -> np.ndarray:
     >>> round(float(attenuation(0.5)), 4)
     0.5209
     """
-    r = np.asarray(r, dtype=float)
-    x = np.pi * np.abs(r)
-    small = x < 1e-8
-    safe = np.where(small, 1.0, x)
-    ratio = np.where(small, 1.0 - x**2 / 8.0, 2.0 * j1(safe) / safe)
-    return ratio**2
+    x = np.abs(np.asarray(r, dtype=float))
+    x *= np.pi
+    ratio = j1(x, out=np.empty_like(x))
+    ratio *= 2.0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio /= x
+    ratio[x < 1e-8] = 1.0  # the limit; 1 - x^2 / 8 rounds to 1 there in float64
+    return np.square(ratio, out=ratio)
 
 
 def ratio_at_attenuation(level: float) -> float:
@@ -219,7 +221,7 @@ def camera_blur_area(c_image: ArrayLike, pixel: float) -> np.ndarray:
     """
     c_image = np.asarray(c_image, dtype=float)
     area = np.pi * (c_image / (2.0 * pixel)) ** 2
-    return np.where(np.isnan(area), np.nan, np.maximum(area, 1.0))
+    return np.maximum(area, 1.0)  # propagates NaN
 
 
 def airy_diameter(wavelength: float, f_number: float) -> float:
@@ -285,7 +287,7 @@ def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none"
     """
     f = np.sqrt(np.asarray(b_c, dtype=float) * b_d) / gamma
     if floor == "one":
-        return np.where(np.isnan(f), np.nan, np.maximum(f, 1.0))
+        return np.maximum(f, 1.0)  # propagates NaN
     if floor != "none":
         raise ValueError(f"floor must be 'none' or 'one', got {floor!r}")
     return f
@@ -346,8 +348,9 @@ def projector_depth(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     """Z of scanner-frame points in the projector frame, Z_p [mm]; shape (...)."""
     q = np.asarray(points, dtype=float)
     proj = config.projector
-    rz = proj.rotation[2]
-    return sum(rz[i] * (q[..., i] - proj.position_mm[i]) for i in range(3))
+    rz, pos = proj.rotation[2], proj.position_mm
+    depth = rz[0] * (q[..., 0] - pos[0]) + rz[1] * (q[..., 1] - pos[1])
+    return depth + rz[2] * (q[..., 2] - pos[2])
 
 
 def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
@@ -449,11 +452,12 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
     z_p = projector_depth(q, config)
     omega_o = fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3, proj.focus_mm,
                                       proj.focal_mm)
-    r_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm) / omega_o
+    coc_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm)
+    r_c = coc_c / omega_o
     r_p = circle_of_confusion(z_p, proj.focus_mm, proj.aperture_mm) / omega_o
     a_c, a_p = attenuation(r_c), attenuation(r_p)
-    b_c = camera_blur_area(image_blur_diameter(z_c, cam.focal_mm, cam.focus_mm,
-                                               cam.aperture_mm), cam.pixel_um * 1e-3)
+    c_image = cam.focal_mm / (z_c - cam.focal_mm) * coc_c  # Eq. 14 (image_blur_diameter)
+    b_c = camera_blur_area(c_image, cam.pixel_um * 1e-3)
     b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
                                 cam.pixel_um * 1e-3)
     f_gamma = filter_factor(b_c, b_d, model.gamma, floor)

@@ -40,9 +40,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa import optics
-from scanqa.calibration import CalibrationTable
+from scanqa.calibration import CalibrationTable, TableLookup
+from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
+from scanqa.io import ply
 from scanqa.phase import PhaseMap
 
 #: Attribute names in export order (repeat fields only when repeats are given).
@@ -114,48 +116,123 @@ def annotate(phase_map: PhaseMap, table: CalibrationTable, config: ScannerConfig
     Returns
     -------
     AnnotatedCloud
+        Points in row-major pixel order. ``xyz`` and the attributes are views of one
+        record array in the binary PLY layout (:func:`scanqa.io.ply.vertex_views`).
+
+    Notes
+    -----
+    Two passes over bands of image rows on every core: the first finds the points to keep
+    (decoded, and inside the calibrated volume unless ``keep_invalid``), the second looks
+    them up in the table, evaluates the model and writes every attribute straight into
+    the cloud; no full-size intermediate array is made.
     """
     check_compatible(table, config, phase_map, source)
-    if not np.isfinite(phase_map.xp).any():
+    xp = np.asarray(phase_map.xp, dtype=float)
+    bands = row_bands(*xp.shape)
+    keep, counts = _select(table, xp, bands, keep_invalid)
+    if counts["decoder_masked"] == xp.size:
         raise InputError(f"{source} has no valid phase at all (every pixel is NaN): check the "
                          "decoding mask or the pattern images")
-    look = table.apply_image(phase_map.xp, extrapolate=keep_invalid)
-    decoded = np.isfinite(phase_map.xp)
-    keep = decoded & (look.in_volume | keep_invalid)
-    rows, cols = np.nonzero(keep)
-    xyz = look.xyz[rows, cols]
-    slope = look.slope[rows, cols]
-    s_t = np.linalg.norm(slope, axis=-1)
-    pred = optics.predict(xyz, config, s_t=s_t)
+    names = ATTRIBUTES + (REPEAT_ATTRIBUTES if repeats else ())
+    records = np.empty(counts["written"], dtype=ply.vertex_dtype(names))
+    extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation}
+    if repeats:
+        extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
+    starts = np.cumsum([0] + [int(k.sum()) for k in keep])
+    index = {band: i for i, band in enumerate(bands)}
+
+    def band(r0: int, r1: int) -> int:
+        i = index[(r0, r1)]
+        return _annotate_band(table, config, xp, extra, keep[i], (r0, r1), keep_invalid,
+                              records[starts[i]:starts[i + 1]])
+
+    invalid = run_bands(band, bands)
+    counts["model_invalid"] = int(sum(invalid))
+    counts["kept_invalid"] = keep_invalid
+    model = {"sigma_p_px": config.model.sigma_p_px, "gamma": config.model.gamma,
+             "filter_floor": config.model.filter_floor,
+             "noise_reading": config.model.noise_reading}
+    return AnnotatedCloud(*ply.vertex_views(records), counts, model)
+
+
+def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarray,
+                   extra: dict, keep: np.ndarray, rows: tuple[int, int], keep_invalid: bool,
+                   out: np.ndarray) -> int:
+    """Look up, model and write the kept points of image rows ``rows`` into the records
+    ``out``; returns the number outside the model's validity."""
+    r0, r1 = rows
+    select = None if out.size == keep.size else np.flatnonzero(keep)
+    look = table.apply_rows(xp[r0:r1], r0, select, extrapolate=keep_invalid)
+    pixels = _pixels(select, r0, r1, xp.shape[1])
+    inputs = {k: _pick(v[r0:r1], select) for k, v in extra.items()}
+    return _annotate_points(look, pixels, inputs, config, out)
+
+
+def _select(table: CalibrationTable, xp: np.ndarray, bands: list, keep_invalid: bool
+            ) -> tuple[list[np.ndarray], dict]:
+    """Pixels to keep per band ((rows, W) bool each) and the pixel counts by fate."""
+    def band(r0: int, r1: int) -> tuple[np.ndarray, int, int]:
+        decoded = np.isfinite(xp[r0:r1])
+        inside = table.in_volume_rows(xp[r0:r1], r0)  # False where not decoded
+        return (decoded if keep_invalid else inside), int(decoded.sum()), int(inside.sum())
+
+    parts = run_bands(band, bands)
+    decoded = sum(p[1] for p in parts)
+    inside = sum(p[2] for p in parts)
+    keep = [p[0] for p in parts]
+    counts = {"written": sum(int(k.sum()) for k in keep), "decoder_masked": xp.size - decoded,
+              "out_of_volume": decoded - inside}
+    return keep, counts
+
+
+def _pick(values: np.ndarray, select: np.ndarray | None) -> np.ndarray:
+    """Per-pixel values of a band's kept pixels (all, or the flat indices ``select``)."""
+    return values.ravel() if select is None else np.take(values, select)
+
+
+def _pixels(select: np.ndarray | None, r0: int, r1: int, width: int
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel column and row of a band's kept pixels [camera px]."""
+    if select is None:
+        rows, cols = np.divmod(np.arange(r0 * width, r1 * width), width)
+        return cols, rows
+    rows, cols = np.divmod(select, width)
+    return cols, rows + r0
+
+
+def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: ScannerConfig,
+                     out: np.ndarray) -> int:
+    """Model and attributes of one band's points, written into ``out``, records in the
+    layout of :func:`scanqa.io.ply.vertex_dtype`; returns the number of points outside
+    the model's validity."""
+    points = look.xyz.reshape(-1, 3)
+    slope = look.slope.reshape(-1, 3)
+    s_t = np.sqrt(slope[:, 0] ** 2 + slope[:, 1] ** 2 + slope[:, 2] ** 2)  # |dQ/dx_p|
+    pred = optics.predict(points, config, s_t=s_t)
     sigma = np.where(pred.valid, pred.sigma, np.nan)
-    unit = slope / s_t[:, None]
-    sig_tab = look.sigma_table[rows, cols]
-    attrs = {
+    sig_tab = look.sigma_table.ravel()
+    ply.vertex_views(out)[0][...] = points
+    values = {
         "sigma_model_um": 1e3 * sigma,
-        "sx_um": 1e3 * sigma * np.abs(unit[:, 0]),
-        "sy_um": 1e3 * sigma * np.abs(unit[:, 1]),
-        "sz_um": 1e3 * sigma * np.abs(unit[:, 2]),
-        "sigma_phase_um": 1e3 * s_t * phase_map.sigma_xp[rows, cols],
+        "sigma_phase_um": 1e3 * s_t * inputs["sigma_xp"],
         "sigma_table_um": 1e3 * sig_tab,
         "sigma_total_um": 1e3 * np.hypot(sigma, sig_tab),
         "att_camera": pred.attenuation_camera, "att_projector": pred.attenuation_projector,
         "filter_factor": pred.filter_factor, "s_o": pred.s_o, "s_t_um_px": 1e3 * s_t,
-        "modulation_dn": phase_map.modulation[rows, cols],
-        "in_volume": look.in_volume[rows, cols], "model_valid": pred.valid,
-        "pixel_u": cols, "pixel_v": rows,
+        "modulation_dn": inputs["modulation"], "in_volume": look.in_volume.ravel(),
+        "model_valid": pred.valid, "pixel_u": pixels[0], "pixel_v": pixels[1],
     }
-    if repeats:
-        std, count = measured_std(table, [phase_map, *repeats])
-        attrs["sigma_meas_um"] = 1e3 * std[rows, cols]
-        attrs["n_repeats"] = count[rows, cols]
-    attrs = {k: np.asarray(v, dtype=np.float32) for k, v in attrs.items()}
-    counts = {"written": int(rows.size), "decoder_masked": int((~decoded).sum()),
-              "out_of_volume": int((decoded & ~look.in_volume).sum()),
-              "model_invalid": int((~pred.valid).sum()), "kept_invalid": keep_invalid}
-    model = {"sigma_p_px": config.model.sigma_p_px, "gamma": config.model.gamma,
-             "filter_floor": config.model.filter_floor,
-             "noise_reading": config.model.noise_reading}
-    return AnnotatedCloud(xyz, attrs, counts, model)
+    for i, name in enumerate(("sx_um", "sy_um", "sz_um")):
+        values[name] = 1e3 * sigma * np.abs(slope[:, i] / s_t)
+    if "std" in inputs:
+        values["sigma_meas_um"] = 1e3 * inputs["std"]
+        values["n_repeats"] = inputs["count"]
+    # attributes as rows of one block, then written record by record in one pass
+    block = np.empty((len(out.dtype.names) - 3, out.size), dtype=np.float32)
+    for row, name in zip(block, out.dtype.names[3:], strict=True):
+        row[...] = values[name[len(ply.PREFIX):]]
+    ply.attribute_block(out)[...] = block.T
+    return int((~pred.valid).sum())
 
 
 def measured_std(table: CalibrationTable, scans: Sequence[PhaseMap]
@@ -176,18 +253,36 @@ def measured_std(table: CalibrationTable, scans: Sequence[PhaseMap]
         than two scans are valid.
     count : (H, W) int
         Number of valid scans per pixel.
+
+    Notes
+    -----
+    Bands of rows on every core; each band goes through all scans before the next.
     """
     shape = (table.height_px, table.width_px)
-    total = np.zeros(shape)
-    total_sq = np.zeros(shape)
-    count = np.zeros(shape, dtype=int)
-    ref = np.zeros(shape)
     for k, scan in enumerate(scans):
         if scan.xp.shape != shape:
             raise InputError(f"repeat {k} is {scan.xp.shape[1]} x {scan.xp.shape[0]} px, the "
                              f"table's camera {shape[1]} x {shape[0]} px")
-        look = table.apply_image(scan.xp)
-        rng = np.linalg.norm(look.xyz, axis=-1)
+    std = np.empty(shape)
+    count = np.empty(shape, dtype=int)
+
+    def band(r0: int, r1: int) -> None:
+        std[r0:r1], count[r0:r1] = _band_std(table, [s.xp[r0:r1] for s in scans], r0)
+
+    run_bands(band, row_bands(*shape))
+    return std, count
+
+
+def _band_std(table: CalibrationTable, rows: list[np.ndarray], r0: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Std of the range over scans [mm] and the valid count, for one band of rows."""
+    shape = rows[0].shape
+    total = np.zeros(shape)
+    total_sq = np.zeros(shape)
+    count = np.zeros(shape, dtype=int)
+    ref = np.zeros(shape)
+    for xp in rows:
+        rng = np.linalg.norm(table.apply_rows(xp, r0).xyz, axis=-1)
         ok = np.isfinite(rng)
         # centre on the first valid value per pixel to keep the sums well conditioned
         ref = np.where(ok & (count == 0), rng, ref)

@@ -35,6 +35,72 @@ def check_attribute_name(name: str) -> None:
         raise InputError(f"attribute name {name!r} must be letters, digits and underscores")
 
 
+def vertex_dtype(names) -> np.dtype:
+    """Record layout of a vertex as :func:`write_ply` writes it.
+
+    Parameters
+    ----------
+    names : iterable of str
+        Attribute names, in file order.
+
+    Returns
+    -------
+    numpy.dtype
+        Packed little-endian ``x, y, z`` (float64, [mm]) and one float32 field
+        ``scalar_<name>`` per attribute.
+    """
+    return np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+                    + [(PREFIX + name, "<f4") for name in names])
+
+
+def vertex_views(records: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+    """Coordinates and attributes of a record array, as views that :func:`write_ply`
+    writes without a copy.
+
+    Parameters
+    ----------
+    records : (n,) ndarray
+        Records in the layout of :func:`vertex_dtype`.
+
+    Returns
+    -------
+    xyz : (n, 3) float64
+        Coordinates [mm] (a strided, unaligned view).
+    attributes : dict of str to (n,) float32
+        One view per ``scalar_<name>`` field, names without the prefix.
+
+    Notes
+    -----
+    A producer that fills records in place (``annotate``) hands these views on like any
+    arrays; :func:`write_ply` recognises them and writes the records as they are, with
+    one ``tofile`` and no second copy of the cloud.
+    """
+    names = [name[len(PREFIX):] for name in records.dtype.names[3:]]
+    if records.dtype != vertex_dtype(names):
+        raise ValueError(f"records must have the layout of vertex_dtype, got {records.dtype}")
+    xyz = np.ndarray((records.size, 3), dtype="<f8", buffer=records,
+                     strides=(records.itemsize, 8))
+    return xyz, {name: records[PREFIX + name] for name in names}
+
+
+def attribute_block(records: np.ndarray) -> np.ndarray:
+    """The attribute fields of contiguous records (:func:`vertex_dtype`) as one array.
+
+    Parameters
+    ----------
+    records : (n,) ndarray
+        C-contiguous records in the layout of :func:`vertex_dtype`.
+
+    Returns
+    -------
+    (n, k) float32 ndarray
+        A view: column j is attribute j. Assigning a whole block writes every record's
+        attributes in one sequential pass (cheaper than k strided field writes).
+    """
+    words = records.view(np.float32).reshape(records.size, records.itemsize // 4)
+    return words[:, 6:]
+
+
 def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray]
               ) -> Path:
     """Write points and attributes as a binary little-endian PLY, atomically.
@@ -52,27 +118,71 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
     -------
     Path
         The written file.
+
+    Notes
+    -----
+    Arrays from :func:`vertex_views` are written straight from their record array;
+    any others are packed into records one chunk at a time.
     """
     xyz = np.asarray(xyz, dtype="<f8")
     n = xyz.shape[0]
-    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    attributes = {name: np.asarray(values) for name, values in attributes.items()}
     for name, values in attributes.items():
         check_attribute_name(name)
-        if np.shape(values) != (n,):
-            raise InputError(f"attribute {name!r} has shape {np.shape(values)}, expected ({n},)")
-        fields.append((PREFIX + name, "<f4"))
-    rec = np.empty(n, dtype=fields)
-    rec["x"], rec["y"], rec["z"] = xyz[:, 0], xyz[:, 1], xyz[:, 2]
-    for name, values in attributes.items():
-        rec[PREFIX + name] = values
+        if values.shape != (n,):
+            raise InputError(f"attribute {name!r} has shape {values.shape}, expected ({n},)")
+    dtype = vertex_dtype(attributes)
     header = ["ply", "format binary_little_endian 1.0", "comment scanqa point cloud, mm",
               f"element vertex {n}"]
-    header += [f"property {'double' if t == '<f8' else 'float'} {f}" for f, t in fields]
+    header += [f"property {'double' if dtype[f] == np.dtype('<f8') else 'float'} {f}"
+               for f in dtype.names]
     header.append("end_header")
+    rec = _records_of(xyz, attributes, dtype)
     with atomic_path(path, suffix=".ply") as tmp, open(tmp, "wb") as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
-        rec.tofile(fh)
+        if rec is not None:
+            rec.tofile(fh)
+        else:
+            _write_records(fh, xyz, attributes, dtype)
     return Path(path)
+
+
+def _address(a: np.ndarray) -> int:
+    return a.__array_interface__["data"][0]
+
+
+def _records_of(xyz: np.ndarray, attributes: dict[str, np.ndarray], dtype: np.dtype
+                ) -> np.ndarray | None:
+    """The record array (layout ``dtype``) that ``xyz`` and every attribute are exactly
+    the fields of, as :func:`vertex_views` makes them; None for any other arrays."""
+    rec = xyz.base
+    if not (isinstance(rec, np.ndarray) and rec.dtype == dtype and rec.ndim == 1
+            and rec.flags.c_contiguous and xyz.shape == (rec.size, 3)
+            and xyz.strides == (dtype.itemsize, 8) and _address(xyz) == _address(rec)):
+        return None
+    for name, values in attributes.items():
+        offset = dtype.fields[PREFIX + name][1]
+        if (values.dtype != np.dtype("<f4") or values.strides != (dtype.itemsize,)
+                or _address(values) != _address(rec) + offset):
+            return None
+    return rec
+
+
+#: Records packed per write when the arrays are not one record array (~6 MB).
+_WRITE_CHUNK = 1 << 16
+
+
+def _write_records(fh, xyz: np.ndarray, attributes: dict[str, np.ndarray],
+                   dtype: np.dtype) -> None:
+    """Pack separate arrays into records and write them, one chunk at a time."""
+    buf = np.empty(min(len(xyz), _WRITE_CHUNK), dtype=dtype)
+    for a in range(0, len(xyz), _WRITE_CHUNK):
+        part = buf[:min(_WRITE_CHUNK, len(xyz) - a)]
+        b = a + part.size
+        part["x"], part["y"], part["z"] = xyz[a:b, 0], xyz[a:b, 1], xyz[a:b, 2]
+        for name, values in attributes.items():
+            part[PREFIX + name] = values[a:b]
+        part.tofile(fh)
 
 
 _PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int": "i4",
