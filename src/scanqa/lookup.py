@@ -240,6 +240,7 @@ def apply_points(t: CalibrationTable, u: np.ndarray, v: np.ndarray, xp: np.ndarr
     shape = xp.shape
     u, v, xp = u.ravel(), v.ravel(), xp.ravel()
     out = empty_lookup((u.size,))
+    t.packed  # noqa: B018 - computed once, before the threads share it
 
     def chunk(a: int, b: int) -> None:
         _points(t, u[a:b], v[a:b], xp[a:b], extrapolate, _flat(out, slice(a, b)))
@@ -361,6 +362,7 @@ def apply_rows(t: CalibrationTable, xp: np.ndarray, row0: int, select: np.ndarra
 def apply_image(t: CalibrationTable, xp: np.ndarray, extrapolate: bool) -> TableLookup:
     """Lookup of a whole (H, W) phase map, in bands of rows on every core."""
     out = empty_lookup(xp.shape)
+    t.image_grid  # noqa: B018 - computed once, before the threads share it
 
     def band(r0: int, r1: int) -> None:
         apply_rows(t, xp[r0:r1], r0, None, extrapolate, _flat(out, slice(r0, r1)))

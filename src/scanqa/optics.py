@@ -32,6 +32,7 @@ References
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -39,7 +40,7 @@ from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 from scipy.special import j1
 
-from scanqa.config import ScannerConfig
+from scanqa.config import ProjectorConfig, ScannerConfig
 from scanqa.errors import RangeError
 
 #: Validity limit of the disc-kernel model, r = C / omega_o (Sect. 3.1 of [1]) [-].
@@ -320,6 +321,22 @@ def optical_scale(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
         return 1.0 / (np.asarray(f_gamma, dtype=float) * a)
 
 
+@functools.lru_cache(maxsize=16)
+def _cached_rotation(projector: ProjectorConfig) -> np.ndarray:
+    rot = projector.rotation
+    rot.setflags(write=False)
+    return rot
+
+
+def _rotation(projector: ProjectorConfig) -> np.ndarray:
+    """The projector's rotation (:attr:`ProjectorConfig.rotation`), computed once per pose:
+    the model runs per band of a few thousand points."""
+    try:
+        return _cached_rotation(projector)
+    except TypeError:  # a config built with unhashable (list) fields
+        return projector.rotation
+
+
 def to_projector_frame(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     """Express scanner-frame points in the projector frame.
 
@@ -338,7 +355,7 @@ def to_projector_frame(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     q = np.asarray(points, dtype=float)
     proj = config.projector
     d = [q[..., i] - proj.position_mm[i] for i in range(3)]
-    rot = proj.rotation
+    rot = _rotation(proj)
     # explicit sums: a (n, 3) @ (3, 3) matmul is far slower for large n
     return np.stack([rot[j, 0] * d[0] + rot[j, 1] * d[1] + rot[j, 2] * d[2]
                      for j in range(3)], axis=-1)
@@ -348,7 +365,7 @@ def projector_depth(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     """Z of scanner-frame points in the projector frame, Z_p [mm]; shape (...)."""
     q = np.asarray(points, dtype=float)
     proj = config.projector
-    rz, pos = proj.rotation[2], proj.position_mm
+    rz, pos = _rotation(proj)[2], proj.position_mm
     depth = rz[0] * (q[..., 0] - pos[0]) + rz[1] * (q[..., 1] - pos[1])
     return depth + rz[2] * (q[..., 2] - pos[2])
 
@@ -376,7 +393,7 @@ def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     instead (DESIGN.md section 3).
     """
     q = np.asarray(points, dtype=float)
-    rot = config.projector.rotation
+    rot = _rotation(config.projector)
     with np.errstate(invalid="ignore", divide="ignore"):
         d = q / np.linalg.norm(q, axis=-1, keepdims=True)
         qp = to_projector_frame(q, config)

@@ -176,6 +176,7 @@ def _select(table: CalibrationTable, xp: np.ndarray, bands: list, keep_invalid: 
         inside = table.in_volume_rows(xp[r0:r1], r0)  # False where not decoded
         return (decoded if keep_invalid else inside), int(decoded.sum()), int(inside.sum())
 
+    table.image_grid  # noqa: B018 - computed once, before the threads share it
     parts = run_bands(band, bands)
     decoded = sum(p[1] for p in parts)
     inside = sum(p[2] for p in parts)
@@ -269,6 +270,7 @@ def measured_std(table: CalibrationTable, scans: Sequence[PhaseMap]
     def band(r0: int, r1: int) -> None:
         std[r0:r1], count[r0:r1] = _band_std(table, [s.xp[r0:r1] for s in scans], r0)
 
+    table.image_grid  # noqa: B018 - computed once, before the threads share it
     run_bands(band, row_bands(*shape))
     return std, count
 
