@@ -357,8 +357,9 @@ def _stage1_band(obs: PlaneObservation, cell: int, rows: tuple[int, int], n_u: i
     thr = np.minimum(jump_px, np.maximum(8.0 * sig, 0.02))[..., None]
     jump = ok & (np.abs(res) > thr)
     counts["unwrap_jump"] = int(jump.sum())
-    ok &= ~jump
-    a, res, n = _fit_cells(x, ok, cell)
+    if counts["unwrap_jump"]:  # refit without them (the same fit otherwise)
+        ok &= ~jump
+        a, res, n = _fit_cells(x, ok, cell)
     sparse = n < _MIN_CELL_SAMPLES
     counts["sparse_cell"] = int(n[sparse].sum())
     counts["used"] = int(n[~sparse].sum())
