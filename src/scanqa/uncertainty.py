@@ -56,7 +56,12 @@ REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
 
 @dataclass(frozen=True)
 class AnnotatedCloud:
-    """Points [mm] with per-point attributes, and counts of what was left out."""
+    """Points [mm] with per-point attributes, and counts of what was left out.
+
+    From :func:`annotate`, ``xyz`` (n, 3) float64 and the float32 attributes are views of
+    one record array in the binary PLY layout, which :func:`scanqa.io.ply.write_ply`
+    writes as it is.
+    """
 
     xyz: np.ndarray
     attributes: dict
@@ -129,7 +134,7 @@ def annotate(phase_map: PhaseMap, table: CalibrationTable, config: ScannerConfig
     check_compatible(table, config, phase_map, source)
     xp = np.asarray(phase_map.xp, dtype=float)
     bands = row_bands(*xp.shape)
-    keep, counts = _select(table, xp, bands, keep_invalid)
+    keep, kept, counts = _select(table, xp, bands, keep_invalid)
     if counts["decoder_masked"] == xp.size:
         raise InputError(f"{source} has no valid phase at all (every pixel is NaN): check the "
                          "decoding mask or the pattern images")
@@ -138,7 +143,7 @@ def annotate(phase_map: PhaseMap, table: CalibrationTable, config: ScannerConfig
     extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation}
     if repeats:
         extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
-    starts = np.cumsum([0] + [int(k.sum()) for k in keep])
+    starts = np.cumsum([0, *kept])
     index = {band: i for i, band in enumerate(bands)}
 
     def band(r0: int, r1: int) -> int:
@@ -169,21 +174,19 @@ def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarra
 
 
 def _select(table: CalibrationTable, xp: np.ndarray, bands: list, keep_invalid: bool
-            ) -> tuple[list[np.ndarray], dict]:
-    """Pixels to keep per band ((rows, W) bool each) and the pixel counts by fate."""
-    def band(r0: int, r1: int) -> tuple[np.ndarray, int, int]:
+            ) -> tuple[list[np.ndarray], list[int], dict]:
+    """Pixels to keep per band ((rows, W) bool each), how many, and the counts by fate."""
+    def band(r0: int, r1: int) -> tuple[np.ndarray, int, int, int]:
         decoded = np.isfinite(xp[r0:r1])
         inside = table.in_volume_rows(xp[r0:r1], r0)  # False where not decoded
-        return (decoded if keep_invalid else inside), int(decoded.sum()), int(inside.sum())
+        keep = decoded if keep_invalid else inside
+        return keep, int(keep.sum()), int(decoded.sum()), int(inside.sum())
 
     table.image_grid  # noqa: B018 - computed once, before the threads share it
-    parts = run_bands(band, bands)
-    decoded = sum(p[1] for p in parts)
-    inside = sum(p[2] for p in parts)
-    keep = [p[0] for p in parts]
-    counts = {"written": sum(int(k.sum()) for k in keep), "decoder_masked": xp.size - decoded,
-              "out_of_volume": decoded - inside}
-    return keep, counts
+    keep, kept, decoded, inside = zip(*run_bands(band, bands), strict=True)
+    counts = {"written": sum(kept), "decoder_masked": xp.size - sum(decoded),
+              "out_of_volume": sum(decoded) - sum(inside)}
+    return list(keep), list(kept), counts
 
 
 def _pick(values: np.ndarray, select: np.ndarray | None) -> np.ndarray:
