@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from scanqa.calibration import WEIGHT_MODES, build_table, save_table
-from scanqa.cli.common import add_config_argument, config_from_args
+from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.io.atomic import check_out_dir, write_text
 from scanqa.io.sweep import iter_observations, load_sweep
 from scanqa.report import calibration as report_calibration
@@ -23,6 +23,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                "writes table.npz and, beside it, table_report.html and table_report.json")
     p.add_argument("sweep", metavar="SWEEP", help="sweep manifest (sweep.toml) or its folder")
     add_config_argument(p)
+    add_model_argument(p)
     p.add_argument("--out", required=True, metavar="TABLE.npz", help="table file to write")
     p.add_argument("--weights", choices=WEIGHT_MODES, default="model",
                    help="sample weights: optics model (default), decoder sigma_xp, or none")
