@@ -181,7 +181,7 @@ class CalibrationTable:
             Arrays shaped (H, W, 3) and (H, W).
         """
         xp = np.asarray(xp, dtype=float)
-        self._check_rows(xp, 0)
+        self._check_rows(xp, 0, whole=True)
         return lookup.apply_image(self, xp, extrapolate)
 
     def apply_rows(self, xp_rows: np.ndarray, row0: int = 0, select: np.ndarray | None = None,
@@ -204,20 +204,26 @@ class CalibrationTable:
         TableLookup
             Arrays shaped (n, W, ...) or, with ``select``, (k, ...).
         """
+        xp_rows = np.asarray(xp_rows, dtype=float)
         self._check_rows(xp_rows, row0)
-        return lookup.apply_rows(self, np.asarray(xp_rows, dtype=float), row0, select,
-                                 extrapolate)
+        return lookup.apply_rows(self, xp_rows, row0, select, extrapolate)
 
     def in_volume_rows(self, xp_rows: np.ndarray, row0: int = 0) -> np.ndarray:
         """Whether each phase of a band of rows (as in :meth:`apply_rows`) lies inside its
         pixel's calibrated range: (n, W) bool, False for NaN."""
+        xp_rows = np.asarray(xp_rows, dtype=float)
         self._check_rows(xp_rows, row0)
-        return lookup.in_volume_rows(self, np.asarray(xp_rows, dtype=float), row0)
+        return lookup.in_volume_rows(self, xp_rows, row0)
 
-    def _check_rows(self, xp: np.ndarray, row0: int) -> None:
-        """Raise unless ``xp`` is rows row0.. of a phase map of the calibrated camera."""
-        if (xp.ndim != 2 or xp.shape[1] != self.width_px or row0 < 0
-                or row0 + xp.shape[0] > self.height_px):
+    def _check_rows(self, xp: np.ndarray, row0: int, whole: bool = False) -> None:
+        """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of a phase map of the
+        calibrated camera."""
+        if xp.ndim == 2 and xp.shape[1] == self.width_px and not whole:
+            if 0 <= row0 and row0 + xp.shape[0] <= self.height_px:
+                return
+            raise InputError(f"rows {row0} to {row0 + xp.shape[0] - 1} are outside the "
+                             f"{self.height_px} rows of the table's camera")
+        if xp.shape != (self.height_px, self.width_px):
             shape = " x ".join(str(n) for n in xp.shape[::-1])
             raise InputError(f"phase map is {shape} px but the table was built for a "
                              f"{self.width_px} x {self.height_px} px camera")
