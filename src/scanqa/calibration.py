@@ -43,8 +43,9 @@ from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import InputError
 from scanqa.lookup import TableLookup
+from scanqa.shear import eval_shear, fit_shear
 
-TABLE_FORMAT = "scanqa-table/1"
+TABLE_FORMAT = "scanqa-table/2"
 WEIGHT_MODES = ("model", "modulation", "none")
 #: Reasons a calibration sample is rejected, in report order.
 REJECT_REASONS = ("decoder_mask", "low_modulation", "unwrap_jump", "sparse_cell")
@@ -111,6 +112,7 @@ class CalibrationTable:
     sigma_node: np.ndarray
     s_lo: np.ndarray
     s_hi: np.ndarray
+    shear: np.ndarray
     width_px: int
     height_px: int
     weights: str
@@ -433,6 +435,75 @@ def _weights(st: _CellStats, mode: str, config: ScannerConfig, node_u: np.ndarra
     return np.where(np.isfinite(st.x) & np.isfinite(w) & (n > 0), w, 0.0)
 
 
+#: Half-width of the local quadratic that smooths each plane's cell phases [cells].
+SMOOTH_HALF_WIDTH = 2
+
+
+def _window_terms(half: int) -> tuple[np.ndarray, np.ndarray]:
+    """Offsets (di, dj) of a (2h+1)^2 window and the quadratic basis on them: (6, k, k)."""
+    d = np.arange(-half, half + 1, dtype=float)
+    di, dj = np.meshgrid(d, d, indexing="ij")
+    return np.stack([np.ones_like(di), di, dj, di * di, di * dj, dj * dj]), d
+
+
+def smooth_cells(x: np.ndarray, w: np.ndarray, cell: float, half: int = SMOOTH_HALF_WIDTH
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Weighted local quadratic regression of one plane's cell phases (2-D Savitzky-Golay).
+
+    The phase of a flat target varies smoothly over the image, so each cell's estimate is
+    replaced by the value at its centre of a weighted quadratic fitted over the
+    (2h+1)^2 neighbouring cells: this keeps any quadratic variation exactly and cuts the
+    noise about twofold. Its second-order terms also remove the bias of the cell's own
+    plane fit, 0.5 x_uu <du^2> + 0.5 x_vv <dv^2> (the curvature of x_p(u, v)).
+
+    Parameters
+    ----------
+    x : (n_v, n_u) float
+        Cell-centre phases of one plane, NaN where missing [projector px].
+    w : (n_v, n_u) float
+        Their weights 1 / variance [1/px^2], 0 where missing.
+    cell : float
+        Cell size [camera px].
+    half : int
+        Window half-width [cells]; 0 returns the input.
+
+    Returns
+    -------
+    (x_s, w_s) : (n_v, n_u) arrays
+        Smoothed phases and their weights 1 / var(x_s); where the window cannot hold a
+        quadratic (edges of the covered region), the input values.
+    """
+    from scipy.ndimage import correlate
+
+    if half <= 0:
+        return x, w
+    basis, _ = _window_terms(half)
+    ok = (w > 0) & np.isfinite(x)
+    wv = np.where(ok, w, 0.0)
+    xv = np.where(ok, x, 0.0)
+    k = basis.shape[0]
+    moments = np.empty((*x.shape, k, k))
+    rhs = np.empty((*x.shape, k))
+    for a in range(k):
+        rhs[..., a] = correlate(wv * xv, basis[a], mode="constant")
+        for b in range(a, k):
+            moments[..., a, b] = moments[..., b, a] = correlate(wv, basis[a] * basis[b],
+                                                                mode="constant")
+    count = correlate(ok.astype(float), np.ones_like(basis[0]), mode="constant")
+    good = ok & (count >= 3 * k)
+    moments[~good] = np.eye(k)
+    try:
+        inv = np.linalg.inv(moments)
+    except np.linalg.LinAlgError:  # pragma: no cover - guarded by the count
+        return x, w
+    coef = np.einsum("...ab,...b->...a", inv, rhs)
+    du2 = (cell * cell - 1.0) / 12.0 / (cell * cell)  # <du^2> of a cell, in cells^2
+    value = coef[..., 0] - (coef[..., 3] + coef[..., 5]) * du2
+    var = inv[..., 0, 0]
+    good &= np.isfinite(value) & (var > 0)
+    return np.where(good, value, x), np.where(good, 1.0 / np.where(good, var, 1.0), w)
+
+
 def default_cell_px(config: ScannerConfig, z_mm: float, spacing_mm: float = 0.45) -> int:
     """Node spacing [camera px] that puts nodes ~``spacing_mm`` apart on the object.
 
@@ -522,14 +593,19 @@ def _stage2(stats: list[_CellStats], config: ScannerConfig, weights: str,
     z = np.array([s.z_mm for s in stats])
     z0, half = 0.5 * (z.min() + z.max()), 0.5 * (z.max() - z.min())
     zeta = (z - z0) / half
-    x = np.stack([s.x for s in stats], -1)                     # (n_v, n_u, M)
-    w = np.stack([_weights(s, weights, config, node_u, node_v) for s in stats], -1)
-    x0 = np.where(w > 0, x, 0.0)
+    cell = node_u[1] - node_u[0] if node_u.size > 1 else 1.0
+    pairs = [smooth_cells(s.x, _weights(s, weights, config, node_u, node_v), cell)
+             for s in stats]
+    x = np.stack([p[0] for p in pairs], -1)                   # (n_v, n_u, M)
+    w = np.stack([p[1] for p in pairs], -1)
+    # centre each node's phases: the fit's columns 1, z, z^2, -x z stay well conditioned
+    centre = np.nansum(np.where(w > 0, x, 0.0), -1) / np.maximum((w > 0).sum(-1), 1)
+    x0 = np.where(w > 0, x - centre[..., None], 0.0)
     cols = np.stack(np.broadcast_arrays(np.ones_like(x0), zeta, zeta**2, -x0 * zeta), -1)
     theta, cov, n_obs = _wls(cols, x0, w)
     _position_residuals(stats, theta, zeta, x0, w, z, report)
-    return _sample_grid(theta, cov, n_obs, x0, w, z0, half, config, node_u, node_v, s_step,
-                        shape, weights, stats, provenance, report)
+    return _sample_grid(theta, cov, n_obs, x0, w, z0, half, centre, config, node_u, node_v,
+                        s_step, shape, weights, stats, provenance, report)
 
 
 def _wls(cols: np.ndarray, x: np.ndarray, w: np.ndarray
@@ -578,10 +654,18 @@ def _solve_zeta(theta: np.ndarray, xq: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return zeta, dzdx
 
 
-def _sample_grid(theta, cov, n_obs, x, w, z0, half, config, node_u, node_v, s_step, shape,
-                 weights, stats, provenance, report) -> CalibrationTable:
-    """Evaluate every node's model on the sheared s grid."""
-    x_ref = _solve_x(theta, 0.0)
+def _sample_grid(theta, cov, n_obs, x, w, z0, half, centre, config, node_u, node_v, s_step,
+                 shape, weights, stats, provenance, report) -> CalibrationTable:
+    """Evaluate every node's model on the sheared s grid.
+
+    ``x`` are the phases relative to each node's ``centre`` [projector px]; the s axis is
+    relative to the smooth shear (:mod:`scanqa.shear`) fitted to the mid-sweep phases.
+    """
+    uu, vv = np.meshgrid(node_u, node_v)
+    size = (int(shape[1]), int(shape[0]))
+    mid = np.where(n_obs >= 5, _solve_x(theta, 0.0), np.nan) + centre
+    coef = fit_shear(uu, vv, mid, size)
+    x_ref = eval_shear(coef, uu, vv, size) - centre  # node-centred like x
     has = w > 0
     xmin = np.where(has, x, np.inf).min(-1)
     xmax = np.where(has, x, -np.inf).max(-1)
@@ -606,8 +690,9 @@ def _sample_grid(theta, cov, n_obs, x, w, z0, half, config, node_u, node_v, s_st
     prov.setdefault("positions", [{"z_mm": float(s.z_mm)} for s in stats])
     prov["report"] = report.as_dict()
     prov["scanqa_version"] = __version__
-    return CalibrationTable(node_u, node_v, x_ref, s_nodes, xyz, dxyz, sig, s_lo, s_hi,
-                            int(shape[1]), int(shape[0]), weights, config.to_dict(), prov)
+    return CalibrationTable(node_u, node_v, x_ref + centre, s_nodes, xyz, dxyz, sig, s_lo,
+                            s_hi, coef, int(shape[1]), int(shape[0]), weights,
+                            config.to_dict(), prov)
 
 
 def _solve_x(theta: np.ndarray, zeta: float) -> np.ndarray:
@@ -651,7 +736,8 @@ def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
 # --------------------------------------------------------------------------- file
 
 
-_ARRAYS = ("node_u", "node_v", "x_ref", "s_nodes", "xyz", "dxyz", "sigma_node", "s_lo", "s_hi")
+_ARRAYS = ("node_u", "node_v", "x_ref", "s_nodes", "xyz", "dxyz", "sigma_node", "s_lo", "s_hi",
+           "shear")
 
 
 def save_table(path, table: CalibrationTable) -> None:

@@ -9,9 +9,10 @@ The table (:class:`scanqa.calibration.CalibrationTable`) is rearranged once for 
   four nodes were calibrated for.
 * :class:`ImageGrid` exploits the structure of a whole image: every pixel of a column
   shares its node column and u weight, every pixel of a row its node row and v weight, so
-  x_ref and the lateral coefficients are interpolated along u once per node row and then
-  only blended between two node rows per image row; no per-pixel gathers but the four
-  Hermite rows.
+  the lateral coefficients are interpolated along u once per node row and then only
+  blended between two node rows per image row, and the shear x_shear(u, v)
+  (:mod:`scanqa.shear`) is a product of per-row and per-column power tables; no
+  per-pixel gathers but the four Hermite rows.
 
 Images are processed in bands of rows on every core (:mod:`scanqa.chunks`);
 :func:`apply_rows` is the building block that chunked pipelines (``annotate``) call
@@ -26,6 +27,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from scanqa.chunks import row_bands, run_bands
+from scanqa.shear import DEGREE, eval_shear
 
 if TYPE_CHECKING:
     from scanqa.calibration import CalibrationTable
@@ -259,8 +261,7 @@ def _points(t: CalibrationTable, u, v, xp, extrapolate: bool, out: TableLookup) 
     node = iv * n_u + iu
     weights = ((1 - tv) * (1 - tu), (1 - tv) * tu, tv * (1 - tu), tv * tu)
     offsets = (0, 1, n_u, n_u + 1)
-    x_ref = t.x_ref.ravel()
-    s = xp - sum(w * np.take(x_ref, node + o) for o, w in zip(offsets, weights, strict=True))
+    s = xp - eval_shear(t.shear, u, v, (t.width_px, t.height_px))
     cell = iv * (n_u - 1) + iu
     with np.errstate(invalid="ignore"):
         inside = (s >= np.take(p.lo, cell)) & (s <= np.take(p.hi, cell))
@@ -286,6 +287,8 @@ class ImageGrid:
     step_v: np.ndarray   # (5, n_v - 1, W): their change to the next node row
     lo: np.ndarray       # (n_v - 1, W): cell's lowest calibrated s per column [px]
     hi: np.ndarray       # (n_v - 1, W): cell's highest calibrated s per column [px]
+    shear_u: np.ndarray  # (d + 1, W): powers of the normalised column coordinate
+    shear_c: np.ndarray  # (d + 1, d + 1): shear coefficients c[i, j] of u^i v^j
 
 
 def image_grid(t: CalibrationTable) -> ImageGrid:
@@ -299,7 +302,24 @@ def image_grid(t: CalibrationTable) -> ImageGrid:
     # C order: np.take copies a non-contiguous source whole on every call
     along, step, lo, hi = (np.ascontiguousarray(a) for a in
                            (along, np.diff(along, axis=1), p.lo[:, iu], p.hi[:, iu]))
-    return ImageGrid(iu * p.n_s, tu, iv * n_u * p.n_s, iv, tv, along, step, lo, hi)
+    un = 2.0 * np.arange(t.width_px) / max(t.width_px - 1, 1) - 1.0
+    coef = np.zeros((DEGREE + 1, DEGREE + 1))
+    k = 0
+    for i in range(DEGREE + 1):
+        for j in range(DEGREE + 1 - i):
+            coef[i, j] = t.shear[k]
+            k += 1
+    return ImageGrid(iu * p.n_s, tu, iv * n_u * p.n_s, iv, tv, along, step, lo, hi,
+                     np.ascontiguousarray(un[None, :] ** np.arange(DEGREE + 1)[:, None]),
+                     coef)
+
+
+def _band_shear(g: ImageGrid, rows: slice, height: int) -> np.ndarray:
+    """The shear polynomial on image rows ``rows``: (rows, W) [projector px]."""
+    r = np.arange(height)[rows]
+    vn = 2.0 * r / max(height - 1, 1) - 1.0
+    per_row = (vn[:, None] ** np.arange(DEGREE + 1)[None, :]) @ g.shear_c.T  # (rows, d+1)
+    return per_row @ g.shear_u
 
 
 def _band_nodes(g: ImageGrid, which: slice, rows: slice) -> np.ndarray:
@@ -314,7 +334,7 @@ def _band_nodes(g: ImageGrid, which: slice, rows: slice) -> np.ndarray:
 def _band_phase(g: ImageGrid, xp: np.ndarray, rows: slice) -> tuple[np.ndarray, np.ndarray]:
     """Sheared phase s = x_p - x_ref [projector px] and the in-volume flag of image rows
     ``rows`` (``xp``), each (rows, W)."""
-    s = xp - _band_nodes(g, slice(0, 1), rows)[0]
+    s = xp - _band_shear(g, rows, g.tv.size)
     iv = g.iv[rows]
     with np.errstate(invalid="ignore"):
         inside = (s >= np.take(g.lo, iv, axis=0)) & (s <= np.take(g.hi, iv, axis=0))
