@@ -11,8 +11,9 @@ Height difference between blocks a and b (a the reference, normally the taller):
 d = n_a . (c_a - c_b), the distance from block b's centroid c_b to the plane of block a,
 along block a's normal n_a (oriented towards the camera). Its uncertainty combines the
 plane's height uncertainty at c_b (from the per-point sigmas through the fit), the
-uncertainty of c_b along n_a, and the calibration table's sigma of both blocks, taken as
-fully correlated within a block and independent between blocks.
+uncertainty of c_b along n_a, and the calibration table's own errors: correlated over
+``table_corr_mm`` (the cell smoothing of the table), they shift each block and tilt
+block a's plane, and the tilt reaches c_b through the lever between the blocks.
 
 Decision (ISO 14253-1): conformance is proven when |error| <= T - U ("pass"),
 non-conformance when |error| > T + U ("fail"), otherwise "undecided".
@@ -165,6 +166,8 @@ class BlockResult:
     u_plane: np.ndarray | None = field(default=None, repr=False)  # (3, 3) covariance
     sigma_n: np.ndarray | None = field(default=None, repr=False)
     table_sigma_um: float = math.nan
+    table_corr_mm: float = math.nan  # correlation length of the table's errors [mm]
+    spread_mm: tuple = (math.nan, math.nan)  # std of the points along the plane axes [mm]
 
     @property
     def ratio(self) -> float:
@@ -298,6 +301,10 @@ def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarra
     res.mean_z_mm = float(pts[:, 2].mean())
     tab = _attr(attrs, "sigma_table_um", len(xyz), 0.0)[idx] * cos
     res.table_sigma_um = float(np.sqrt(np.nanmean(tab**2))) if np.isfinite(tab).any() else 0.0
+    corr = _attr(attrs, "table_corr_mm", len(xyz))[idx]
+    res.table_corr_mm = float(np.nanmedian(corr)) if np.isfinite(corr).any() else math.nan
+    d = pts - fit.centroid
+    res.spread_mm = (float(np.std(d @ fit.axes[0])), float(np.std(d @ fit.axes[1])))
     # per-point sigma along the normal: predicted where available, else measured
     res.sigma_n = np.where(np.isfinite(sig), sig, res.measured_std_um * 1e-3)
     res.u_plane = _plane_covariance(pts, fit, res.sigma_n)
@@ -322,10 +329,34 @@ def step_between(a: BlockResult, b: BlockResult, k: float, tolerance_um: float) 
     g = np.array([1.0, off @ fa.axes[0], off @ fa.axes[1]])
     var_plane = float(g @ a.u_plane @ g)
     var_centroid = float(np.sum(b.sigma_n**2)) / b.n_points**2
-    var_table = (a.table_sigma_um * 1e-3) ** 2 + (b.table_sigma_um * 1e-3) ** 2
-    u_um = 1e3 * math.sqrt(var_plane + var_centroid + var_table)
+    u_um = 1e3 * math.sqrt(var_plane + var_centroid + _table_variance(a, b, g[1:]))
     return StepResult(a.block_id, b.block_id, a.nominal_height_mm - b.nominal_height_mm,
                       measured, u_um, k, tolerance_um)
+
+
+def _independent_patches(block: BlockResult) -> float:
+    """How many independent table errors a block's plane averages over [-]: its area
+    (12 s_1 s_2 for a rectangle of axis stds s_1, s_2) over the correlation area."""
+    s1, s2 = block.spread_mm
+    return max(1.0, 12.0 * s1 * s2 / block.table_corr_mm**2)
+
+
+def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
+    """Variance of a step from the calibration table's own errors [mm^2].
+
+    The table's error field has std sigma_tab and is correlated over ``table_corr_mm``;
+    a block averages n_eff independent patches of it. It shifts each block by
+    sigma_tab^2 / n_eff and tilts block a's plane by sigma_tab^2 / (n_eff s_i^2) per
+    axis, which the lever from a's centroid to b's carries into the step. Without the
+    correlation length (a cloud from elsewhere) the table error is taken as fully
+    correlated within each block: no tilt, the whole sigma_tab as a shift.
+    """
+    sa, sb = a.table_sigma_um * 1e-3, b.table_sigma_um * 1e-3
+    if not (math.isfinite(a.table_corr_mm) and math.isfinite(b.table_corr_mm)):
+        return sa**2 + sb**2
+    na, nb = _independent_patches(a), _independent_patches(b)
+    tilt = sum((lv / s) ** 2 for lv, s in zip(lever, a.spread_mm, strict=True))
+    return sa**2 / na + sb**2 / nb + sa**2 * tilt / na
 
 
 def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k: int = 16

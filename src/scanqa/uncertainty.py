@@ -27,6 +27,7 @@ modulation_dn      DN    fringe modulation B
 in_volume          0/1   phase inside the pixel's calibrated range
 model_valid        0/1   both blur ratios <= 1/2
 pixel_u, pixel_v   px    camera pixel (column, row)
+table_corr_mm      mm    distance over which the table's errors are correlated here
 sigma_meas_um      um    with repeats: std over the repeats along the line of sight
 n_repeats          -     with repeats: number of scans valid at that pixel
 =================  ====  ==================================================================
@@ -50,7 +51,8 @@ from scanqa.phase import PhaseMap
 #: Attribute names in export order (repeat fields only when repeats are given).
 ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_phase_um", "sigma_table_um",
               "sigma_total_um", "att_camera", "att_projector", "filter_factor", "s_o",
-              "s_t_um_px", "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v")
+              "s_t_um_px", "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
+              "table_corr_mm")
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
 
 
@@ -170,7 +172,16 @@ def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarra
     look = table.apply_rows(xp[r0:r1], r0, select, extrapolate=keep_invalid)
     pixels = _pixels(select, r0, r1, xp.shape[1])
     inputs = {k: _pick(v[r0:r1], select) for k, v in extra.items()}
+    inputs["corr_px"] = table_correlation_px(table)
     return _annotate_points(look, pixels, inputs, config, out)
+
+
+def table_correlation_px(table: CalibrationTable) -> float:
+    """Distance over which the table's errors are correlated [camera px]: the window of
+    the cell smoothing, (2 h + 1) cells (:func:`scanqa.calibration.smooth_cells`)."""
+    from scanqa.calibration import SMOOTH_HALF_WIDTH
+
+    return (2 * SMOOTH_HALF_WIDTH + 1) * table.cell_px
 
 
 def _select(table: CalibrationTable, xp: np.ndarray, bands: list, keep_invalid: bool
@@ -225,6 +236,7 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
         "filter_factor": pred.filter_factor, "s_o": pred.s_o, "s_t_um_px": 1e3 * s_t,
         "modulation_dn": inputs["modulation"], "in_volume": look.in_volume.ravel(),
         "model_valid": pred.valid, "pixel_u": pixels[0], "pixel_v": pixels[1],
+        "table_corr_mm": inputs["corr_px"] * points[:, 2] / config.camera.principal_distance_px,
     }
     for i, name in enumerate(("sx_um", "sy_um", "sz_um")):
         values[name] = 1e3 * sigma * np.abs(slope[:, i] / s_t)
