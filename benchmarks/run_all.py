@@ -140,7 +140,9 @@ def _parse_json(text: str, script: str) -> Row | None:
         return None
     stage = f"{script.removeprefix('bench_')} {data['size']}" if "size" in data else script
     peak = data.get("peak_rss_mb")
-    return Row(stage, float(data["seconds"]), peak_mb=None if peak is None else float(peak))
+    row = Row(stage, float(data["seconds"]), peak_mb=None if peak is None else float(peak))
+    row.targets = _targets(str(data.get("target", "")))
+    return row
 
 
 @dataclass
