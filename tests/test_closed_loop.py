@@ -398,17 +398,13 @@ def test_scan_systematic_on_gauge_blocks(request, gauge_scans, calibrated, focus
 
 @pytest.mark.xfail(strict=True, reason=(
     "on the committed 424..476 mm sweep the model-weighted table is no better than the "
-    "unweighted one (0.609 vs 0.605 um against truth on 26 hold-out planes). (1) Much of "
-    "the error is common to both (the defocus phase bias, see above); (2) the simulated noise grows only 2.1x from focus to the sweep's ends "
-    "(14.8 -> 30 mpx) although the fringe amplitude drops 3.5x: at focus the noise is "
-    "mostly scene-side (the std is 2.4x the sensor noise alone), which the camera blur "
-    "filters away from focus (the W curve), so even weights from the measured noise "
-    "(oracle) gain 5.5 % on "
-    "the noise part (0.70 -> 0.66 um); (3) 'scanqa calibrate' weights with "
-    "the config's [model] (power reading, sigma_p of the f/8 camera), which predicts a "
-    "5.5x growth where the data shows 2x and which the characterisation rejected: "
-    "weights with the fitted amplitude reading give 0.905 um (-3 %). Weighting does pay "
-    "on a sweep reaching 414..490 mm, inside the DOF (next test)."))
+    "unweighted one (0.609 vs 0.605 um against truth on 26 hold-out planes): the "
+    "simulated noise grows only 2.1x from focus to the sweep's ends (14.8 -> 30 mpx) "
+    "although the fringe amplitude drops 3.5x - at focus the noise is mostly "
+    "scene-side, which the camera blur filters away from focus (the W curve) - so even "
+    "weights from the measured noise (oracle) gain 5.5 % on the noise part. Much of the "
+    "remaining error, the defocus phase bias seen against xp_true, is common to both "
+    "tables. Weighting does pay on a sweep reaching 414..490 mm (next test)."))
 def test_weighting_pays_past_the_depth_of_field(request, sample_config, calibrated):
     tables = calibrated[1]
     rms = {w: pooled(_holdout_true_phase(sample_config, tables[w])[0]).raw

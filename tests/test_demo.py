@@ -28,22 +28,28 @@ def test_demo_writes_every_output(demo_out):
 
 def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
     """Issue 7 acceptance on the sample data: block 1 flagged, blocks 2-8 measured vs
-    predicted within 20 %, >= 90 % of the steps inside the volume within U."""
+    predicted within 20 %, >= 90 % of the steps inside the volume within U - pooled over
+    the three scans (one scan has 6 steps, and an honest 95 % U misses one of six in a
+    quarter of all scans)."""
     info = json.loads((demo_out / "qa" / "summary.json").read_text())
     blocks = {b["block_id"]: b for b in info["blocks"]}
     assert blocks[1]["status"] in ("outside_volume", "model_invalid")
     for bid in range(2, 9):
         assert blocks[bid]["status"] == "ok", bid
         assert 0.8 <= blocks[bid]["ratio"] <= 1.2, (bid, blocks[bid]["ratio"])
-    assert info["steps_inside_volume"] >= 6
-    assert info["fraction_within_U"] >= 0.9
+    assert info["steps_inside_volume"] == 6
+    rows = (demo_out / "qa" / "steps_all_scans.csv").read_text().splitlines()[1:]
+    inside = [r.split(",") for r in rows if not r.split(",")[1] == "1"]  # block 1: outside
+    within = [r for r in inside if abs(float(r[5])) <= float(r[7])]  # error_um, U_um
+    assert len(inside) == 18
+    assert len(within) / len(inside) >= 0.9, (len(within), len(inside))
 
 
 def test_demo_prints_summary_and_report_path(capsys, tmp_path):
     assert main(["demo", "--out", str(tmp_path / "d")]) == 0
     out = capsys.readouterr().out
     assert "report: " in out and str(tmp_path / "d" / "qa" / "report.html") in out
-    assert "block  measured  predicted" in out and "steps between blocks" in out
+    assert "block  measured  predicted" in out and "over all 3 scans" in out
 
 
 BAD_INPUTS = {

@@ -28,6 +28,7 @@ import io
 import os
 import sys
 import zipfile
+import zlib
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -148,11 +149,17 @@ def build_positions(name: str, config: ScannerConfig, positions: Sequence[float]
     raise InputError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
 
 
-def acquisition(config: ScannerConfig, pos: Position, repeat: int) -> Acquisition:
-    """The acquisition of one position and repeat (poses and noise stream)."""
+def acquisition(config: ScannerConfig, pos: Position, repeat: int, experiment: str = ""
+                ) -> Acquisition:
+    """The acquisition of one position and repeat (poses and noise stream).
+
+    The noise stream is keyed by the experiment too, so that e.g. the first scan of a
+    calibration sweep and the first gauge-block scan do not share their noise.
+    """
+    keys = (pos.index, repeat) if not experiment else \
+        (zlib.crc32(experiment.encode()) & 0xFFFF, pos.index, repeat)
     return Acquisition(pos.scene, devices.camera_pose(pos.camera_offset_mm),
-                       devices.projector_pose(config, pos.projector_offset_mm),
-                       (pos.index, repeat))
+                       devices.projector_pose(config, pos.projector_offset_mm), keys)
 
 
 def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
@@ -206,7 +213,8 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
         for rep in range(repeats):
             folder = f"{pos.label}_r{rep}"
             hook = bar.tile_hook(len(entries)) if bar else None
-            images = render.render_images(config, acquisition(config, pos, rep), desc, hook)
+            images = render.render_images(config, acquisition(config, pos, rep, name), desc,
+                                          hook)
             write_pattern_set(out / folder, desc, images, "png")
             entries.append(_entry(pos, rep, folder))
     if bar:
