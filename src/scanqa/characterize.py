@@ -33,7 +33,7 @@ from scipy.optimize import least_squares
 from scanqa import design, optics
 from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig
 from scanqa.errors import InputError, ScanQAError
-from scanqa.io.atomic import atomic_path, write_text
+from scanqa.io.atomic import atomic_path, make_out_dir, write_text
 from scanqa.io.tomlfile import read_toml
 
 #: Attenuation levels whose depth of field is compared (Tables 1 and 2) [-].
@@ -357,8 +357,7 @@ def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionRe
 def write_characterization(result: Characterization, out_dir: str | os.PathLike,
                            config: ScannerConfig | None = None) -> Path:
     """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir``."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
+    out = make_out_dir(out_dir)
     summary = json.dumps(_json_safe(result.summary()), indent=1)
     write_text(out / "summary.json", summary + "\n")
     if config is not None:

@@ -21,7 +21,7 @@ from scanqa.characterize import apply_fitted_model, characterize_sweep, write_ch
 from scanqa.config import load_config
 from scanqa.errors import InputError
 from scanqa.gauge import QAResult, load_layout, run_qa
-from scanqa.io.atomic import write_text
+from scanqa.io.atomic import make_out_dir, write_text
 from scanqa.io.cloud import write_cloud
 from scanqa.io.sweep import iter_observations, load_sweep
 from scanqa.phase import decode_pattern_dir
@@ -125,11 +125,7 @@ def run_demo(out: str | Path, full: bool = False, say: Callable[[str], None] | N
         Receives progress lines (default: stderr).
     """
     say = say or (lambda msg: print(msg, file=sys.stderr, flush=True))
-    out = Path(out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create output folder {out}: {err.strerror}") from None
+    out = make_out_dir(out)
     stage = _Stages(7 if full else 6, say)
     if full:
         stage("simulating the data at the paper's resolution (long)")

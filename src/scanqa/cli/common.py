@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from pathlib import Path
 
 from scanqa.config import ScannerConfig, load_config
-from scanqa.errors import InputError
+from scanqa.io.atomic import check_out_dir
 
 
 def add_config_argument(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -97,9 +97,4 @@ def _fmt(value: object) -> str:
 
 def output_path(text: str | None) -> Path | None:
     """Check that an output file's folder exists; None passes through."""
-    if text is None:
-        return None
-    path = Path(text)
-    if path.parent and not path.parent.exists():
-        raise InputError(f"cannot write {path}: folder {path.parent} does not exist")
-    return path
+    return None if text is None else check_out_dir(text)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
 import numpy as np
 
@@ -11,6 +10,7 @@ from scanqa import design
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.errors import InputError
 from scanqa.gauge import detect_blocks, load_layout, run_qa
+from scanqa.io.atomic import make_out_dir
 from scanqa.io.cloud import read_cloud, write_cloud
 from scanqa.report import qa as qa_report
 
@@ -77,11 +77,7 @@ def _heights(args: argparse.Namespace) -> dict[int, float]:
 def run(args: argparse.Namespace) -> int:
     if not args.layout and not args.auto:
         raise InputError("give --layout FILE, or --auto to find the blocks")
-    out = Path(args.out)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as err:
-        raise InputError(f"cannot create output folder {out}: {err.strerror}") from None
+    out = make_out_dir(args.out)
     xyz, attrs, config = _load(args)
     layout = detect_blocks(xyz, _heights(args)) if args.auto else load_layout(args.layout)
     result = run_qa(xyz, attrs, layout, args.margin, args.outliers, args.tolerance, args.k)

@@ -36,6 +36,16 @@ def check_out_dir(path: str | os.PathLike) -> Path:
     return out
 
 
+def make_out_dir(path: str | os.PathLike) -> Path:
+    """Create an output folder (and its parents) or raise one clear InputError."""
+    out = Path(path)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as err:
+        raise InputError(f"cannot create output folder {out}: {err.strerror}") from None
+    return out
+
+
 @contextlib.contextmanager
 def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[Path]:
     """Yield a temporary path next to ``path``; rename it onto ``path`` on success.

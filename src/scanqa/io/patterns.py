@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 
 from scanqa.errors import ConfigError, InputError
-from scanqa.io.atomic import atomic_path, write_text
+from scanqa.io.atomic import atomic_path, make_out_dir, write_text
 from scanqa.io.images import read_image, read_stack, write_image
 from scanqa.io.tomlfile import read_toml
 
@@ -712,8 +712,7 @@ def write_pattern_set(directory: str | os.PathLike, desc: PatternDescription,
     PatternDescription
         The description as written (``source`` is the new patterns.toml).
     """
-    folder = Path(directory)
-    folder.mkdir(parents=True, exist_ok=True)
+    folder = make_out_dir(directory)
     _check_write_args(desc, images, image_format)
     if image_format == "npz":
         _write_npz(folder / "images.npz", {s.name: im for s, im in zip(desc.sets, images,

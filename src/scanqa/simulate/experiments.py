@@ -38,7 +38,7 @@ import numpy as np
 from scanqa import __version__
 from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
-from scanqa.io.atomic import atomic_path, write_text
+from scanqa.io.atomic import atomic_path, make_out_dir, write_text
 from scanqa.io.patterns import PatternDescription, PhaseSet, SensorModel, write_pattern_set
 from scanqa.simulate import devices, render, scene
 from scanqa.simulate.render import Acquisition
@@ -200,8 +200,8 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
         raise InputError("need at least one position and repeats >= 1")
     desc = pattern_description(config, periods)
     pos_list = build_positions(name, config, positions, mesh)
-    out = Path(out_dir)
-    (out / "truth").mkdir(parents=True, exist_ok=True)
+    out = make_out_dir(out_dir)
+    make_out_dir(out / "truth")
     bar = _Progress(name, len(pos_list) * repeats) if progress else None
     entries = []
     for pos in pos_list:
