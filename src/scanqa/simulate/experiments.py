@@ -321,13 +321,21 @@ def _toml_value(value: object) -> str:
 
 
 class _Progress:
-    """A one-line progress bar on stderr."""
+    """A one-line progress bar on stderr (a line per scan when stderr is not a terminal,
+    so that logs stay readable)."""
 
     def __init__(self, name: str, total: int) -> None:
         self.name, self.total = name, total
+        self.tty = sys.stderr.isatty()
 
     def tile_hook(self, done_scans: int):
         def hook(tiles_done: int, tiles_total: int) -> None:
+            if not self.tty:
+                if tiles_done == tiles_total:
+                    sys.stderr.write(f"simulate {self.name}: scan {done_scans + 1}/"
+                                     f"{self.total} done\n")
+                    sys.stderr.flush()
+                return
             frac = (done_scans + tiles_done / tiles_total) / self.total
             bar = "#" * int(30 * frac)
             sys.stderr.write(f"\rsimulate {self.name}: [{bar:<30}] {100 * frac:5.1f}% "
@@ -336,4 +344,5 @@ class _Progress:
         return hook
 
     def done(self) -> None:
-        sys.stderr.write("\n")
+        if self.tty:
+            sys.stderr.write("\n")
