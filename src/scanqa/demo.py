@@ -20,7 +20,7 @@ from scanqa.calibration import build_table, save_table
 from scanqa.characterize import apply_fitted_model, characterize_sweep, write_characterization
 from scanqa.config import load_config
 from scanqa.errors import InputError
-from scanqa.gauge import QAResult, load_layout, run_qa
+from scanqa.gauge import QAResult, load_layout, model_curve, run_qa
 from scanqa.io.atomic import make_out_dir, write_text
 from scanqa.io.cloud import write_cloud
 from scanqa.io.sweep import iter_observations, load_sweep
@@ -171,14 +171,8 @@ def run_demo(out: str | Path, full: bool = False, say: Callable[[str], None] | N
 
     stage("gauge-block QA")
     qa = run_qa(cloud.xyz, cloud.attributes, load_layout(LAYOUT))
-    zs = [b.mean_z_mm for b in qa.blocks if b.mean_z_mm == b.mean_z_mm]
-    curve = design.axis_curve(fitted, min(zs) - 5, max(zs) + 5, 0.25) if zs else None
-    (out / "qa").mkdir(exist_ok=True)
-    qa_report.write_outputs(qa, out / "qa", cloud.xyz)
-    write_text(out / "qa" / "report.html", qa_report.render(qa, cloud.xyz, curve))
-    extra = {"qa_block_id": qa.block_id, "qa_residual_um": qa.residual_um,
-             "qa_local_std_um": qa.local_std_um}
-    write_cloud(out / "qa" / "cloud_qa.ply", cloud.xyz, {**cloud.attributes, **extra})
+    qa_report.write_outputs(qa, make_out_dir(out / "qa"), cloud.xyz, model_curve(qa, fitted),
+                            cloud.attributes)
 
     # one scan has 6 steps: pool the steps of every repeat for the coverage of U
     repeat_qa = [run_qa(c.xyz, c.attributes, load_layout(LAYOUT))
@@ -193,14 +187,9 @@ def run_demo(out: str | Path, full: bool = False, say: Callable[[str], None] | N
 
 def _steps_csv(results: list[QAResult], scans: list[Path]) -> str:
     """Every scan's steps in one CSV (scan folder first)."""
-    lines = ["scan," + ",".join(qa_report.STEP_COLUMNS)]
-    for res, scan in zip(results, scans, strict=False):
-        for s in res.steps:
-            row = s.row()
-            lines.append(scan.name + "," + ",".join(f"{row[c]:.6g}" if isinstance(row[c], float)
-                                                    else str(row[c])
-                                                    for c in qa_report.STEP_COLUMNS))
-    return "\n".join(lines) + "\n"
+    rows = [{"scan": scan.name, **s.row()}
+            for res, scan in zip(results, scans, strict=False) for s in res.steps]
+    return qa_report.csv_text(rows, ("scan", *qa_report.STEP_COLUMNS))
 
 
 def pooled_steps(result: DemoResult) -> tuple[int, int]:

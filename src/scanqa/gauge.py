@@ -359,6 +359,15 @@ def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
     return sa**2 / na + sb**2 / nb + sa**2 * tilt / na
 
 
+def model_curve(result: QAResult, config) -> dict | None:
+    """The model's uncertainty curve on the camera axis over the blocks' depths, +- 5 mm
+    (:func:`scanqa.design.axis_curve`), or None when no block has points."""
+    from scanqa import design
+
+    zs = [b.mean_z_mm for b in result.blocks if math.isfinite(b.mean_z_mm)]
+    return design.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25) if zs else None
+
+
 def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k: int = 16
               ) -> np.ndarray:
     """Std of the residuals of each point's k nearest neighbours in its block [mm]."""

@@ -6,12 +6,11 @@ import argparse
 
 import numpy as np
 
-from scanqa import design
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.errors import InputError
-from scanqa.gauge import detect_blocks, load_layout, run_qa
+from scanqa.gauge import detect_blocks, load_layout, model_curve, run_qa
 from scanqa.io.atomic import make_out_dir
-from scanqa.io.cloud import read_cloud, write_cloud
+from scanqa.io.cloud import read_cloud
 from scanqa.report import qa as qa_report
 
 
@@ -81,19 +80,8 @@ def run(args: argparse.Namespace) -> int:
     xyz, attrs, config = _load(args)
     layout = detect_blocks(xyz, _heights(args)) if args.auto else load_layout(args.layout)
     result = run_qa(xyz, attrs, layout, args.margin, args.outliers, args.tolerance, args.k)
-    curve = None
-    if config is not None:
-        zs = [b.mean_z_mm for b in result.blocks if np.isfinite(b.mean_z_mm)]
-        if zs:
-            curve = design.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25)
-    info = qa_report.write_outputs(result, out, xyz)
-    if curve is not None:  # re-render with the model curve
-        from scanqa.io.atomic import write_text
-
-        write_text(out / "report.html", qa_report.render(result, xyz, curve))
-    extra = {"qa_block_id": result.block_id, "qa_residual_um": result.residual_um,
-             "qa_local_std_um": result.local_std_um}
-    write_cloud(out / "cloud_qa.ply", xyz, {**attrs, **extra})
+    curve = model_curve(result, config) if config is not None else None
+    info = qa_report.write_outputs(result, out, xyz, curve, attrs)
     for b in result.blocks:
         print(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
               f"predicted {b.predicted_std_um:.1f} um, {b.status}")

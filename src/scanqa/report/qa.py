@@ -14,6 +14,7 @@ import numpy as np
 
 from scanqa.gauge import QAResult
 from scanqa.io.atomic import write_text
+from scanqa.io.cloud import write_cloud
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 
@@ -28,7 +29,8 @@ STEP_COLUMNS = ("block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "er
                 "u_um", "U_um", "k", "tolerance_um", "pass")
 
 
-def _csv(rows: list[dict], columns: tuple) -> str:
+def csv_text(rows: list[dict], columns: tuple) -> str:
+    """Rows as CSV text with the given columns (NaN as an empty cell)."""
     def cell(v):
         if isinstance(v, float):
             return "" if not math.isfinite(v) else f"{v:.6g}"
@@ -64,15 +66,21 @@ def summary(result: QAResult) -> dict:
     }
 
 
-def write_outputs(result: QAResult, out_dir: str | os.PathLike, xyz: np.ndarray | None = None
-                  ) -> dict:
-    """Write report.html, blocks.csv, steps.csv and summary.json into ``out_dir``."""
+def write_outputs(result: QAResult, out_dir: str | os.PathLike, xyz: np.ndarray | None = None,
+                  curve: dict | None = None, attrs: dict | None = None) -> dict:
+    """Write report.html, blocks.csv, steps.csv, summary.json and, given the cloud's
+    ``xyz`` and ``attrs``, cloud_qa.ply (the cloud plus the per-point QA fields) into
+    ``out_dir``; ``curve`` is the model curve drawn in the report."""
     out = Path(out_dir)
     info = summary(result)
-    write_text(out / "blocks.csv", _csv([b.row() for b in result.blocks], BLOCK_COLUMNS))
-    write_text(out / "steps.csv", _csv([s.row() for s in result.steps], STEP_COLUMNS))
+    write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks], BLOCK_COLUMNS))
+    write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))
     write_text(out / "summary.json", json.dumps(info, indent=1))
-    write_text(out / "report.html", render(result, xyz))
+    write_text(out / "report.html", render(result, xyz, curve))
+    if xyz is not None and attrs is not None:
+        extra = {"qa_block_id": result.block_id, "qa_residual_um": result.residual_um,
+                 "qa_local_std_um": result.local_std_um}
+        write_cloud(out / "cloud_qa.ply", xyz, {**attrs, **extra})
     return info
 
 
