@@ -283,8 +283,8 @@ class ImageGrid:
     row: np.ndarray      # (H,) intp: i_v n_u n_s
     iv: np.ndarray       # (H,) intp: node row above each image row
     tv: np.ndarray       # (H,) fraction along v [-]
-    along_u: np.ndarray  # (5, n_v, W): x_ref, X0, kx, Y0, ky interpolated along u
-    step_v: np.ndarray   # (5, n_v - 1, W): their change to the next node row
+    along_u: np.ndarray  # (4, n_v, W): X0, kx, Y0, ky interpolated along u
+    step_v: np.ndarray   # (4, n_v - 1, W): their change to the next node row
     lo: np.ndarray       # (n_v - 1, W): cell's lowest calibrated s per column [px]
     hi: np.ndarray       # (n_v - 1, W): cell's highest calibrated s per column [px]
     shear_u: np.ndarray  # (d + 1, W): powers of the normalised column coordinate
@@ -297,7 +297,7 @@ def image_grid(t: CalibrationTable) -> ImageGrid:
     n_v, n_u = t.x_ref.shape
     iu, tu = node_index(t, np.arange(t.width_px, dtype=float), 1)
     iv, tv = node_index(t, np.arange(t.height_px, dtype=float), 0)
-    nodes = np.concatenate([t.x_ref[None], p.lat.reshape(n_v, n_u, 4).transpose(2, 0, 1)])
+    nodes = p.lat.reshape(n_v, n_u, 4).transpose(2, 0, 1)  # the shear is a polynomial
     along = (1 - tu) * nodes[..., iu] + tu * nodes[..., iu + 1]
     # C order: np.take copies a non-contiguous source whole on every call
     along, step, lo, hi = (np.ascontiguousarray(a) for a in
@@ -364,7 +364,7 @@ def apply_rows(t: CalibrationTable, xp: np.ndarray, row0: int, select: np.ndarra
     g = t.image_grid
     rows = slice(row0, row0 + xp.shape[0])
     s, inside = _band_phase(g, xp, rows)
-    lat = _band_nodes(g, slice(1, 5), rows)  # X0, kx, Y0, ky
+    lat = _band_nodes(g, slice(0, 4), rows)  # X0, kx, Y0, ky
     terms = [s, inside, g.row[rows, None] + g.col, *_band_weights(g, rows), *lat]
     if select is None:
         terms = [a.ravel() for a in terms]

@@ -99,24 +99,28 @@ def _emit(args: argparse.Namespace, rows: list[dict], extra: str = "") -> None:
         print(extra)
 
 
-def run_dof(args: argparse.Namespace) -> int:
+def _tabular(args: argparse.Namespace, compute, rows, draw) -> int:
+    """Load the config, compute, print the rows and (with --plot) draw the picture."""
     config = config_from_args(args)
     plot = output_path(args.plot)
-    rows = design.dof_table(config, args.levels, args.periods)
-    _emit(args, [r.as_row() for r in rows])
+    result = compute(config)
+    _emit(args, rows(result))
     if plot:
-        plots.plot_dof(rows, plot)
+        draw(result, plot, config)
     return 0
+
+
+def run_dof(args: argparse.Namespace) -> int:
+    return _tabular(args, lambda c: design.dof_table(c, args.levels, args.periods),
+                    lambda res: [r.as_row() for r in res],
+                    lambda res, path, c: plots.plot_dof(res, path))
 
 
 def run_curve(args: argparse.Namespace) -> int:
-    config = config_from_args(args)
-    plot = output_path(args.plot)
-    curve = design.axis_curve(config, *_range(args, config.camera.focus_mm), args.period)
-    _emit(args, _columns_to_rows(curve))
-    if plot:
-        plots.plot_curve(curve, plot, config.camera.focus_mm)
-    return 0
+    return _tabular(args, lambda c: design.axis_curve(c, *_range(args, c.camera.focus_mm),
+                                                      args.period),
+                    _columns_to_rows,
+                    lambda res, path, c: plots.plot_curve(res, path, c.camera.focus_mm))
 
 
 def run_volume(args: argparse.Namespace) -> int:
@@ -136,10 +140,6 @@ def run_volume(args: argparse.Namespace) -> int:
 
 
 def run_flatten(args: argparse.Namespace) -> int:
-    config = config_from_args(args)
-    plot = output_path(args.plot)
-    res = design.flatten_curve(config, *_range(args, config.camera.focus_mm), args.period)
-    _emit(args, _columns_to_rows(res))
-    if plot:
-        plots.plot_flatten(res, plot)
-    return 0
+    return _tabular(args, lambda c: design.flatten_curve(c, *_range(args, c.camera.focus_mm),
+                                                         args.period),
+                    _columns_to_rows, lambda res, path, c: plots.plot_flatten(res, path))
