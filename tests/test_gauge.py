@@ -18,8 +18,10 @@ LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
 SIGMA_UM = 10.0
 
 
-def synthetic_cloud(seed=0, step=0.25, sigma_um=SIGMA_UM, drop_block=None, tilt=0.0):
-    """Points on the block tops and the base, with Gaussian noise along Z."""
+def synthetic_cloud(seed=0, step=0.25, sigma_um=SIGMA_UM, drop_block=None, tilt=0.0,
+                    patch_mm=None):
+    """Points on the block tops and the base, with Gaussian noise along Z (one draw per
+    square patch of ``patch_mm`` when given: noise correlated over the patch)."""
     layout = load_layout(LAYOUT)
     rng = np.random.default_rng(seed)
     pts = []
@@ -39,7 +41,12 @@ def synthetic_cloud(seed=0, step=0.25, sigma_um=SIGMA_UM, drop_block=None, tilt=
             & (base[:, 1] <= y1 + 1)
     pts.append(base[~inside])
     xyz = np.concatenate(pts)
-    xyz[:, 2] += rng.normal(0, sigma_um * 1e-3, len(xyz))
+    if patch_mm is None:
+        xyz[:, 2] += rng.normal(0, sigma_um * 1e-3, len(xyz))
+    else:
+        key = np.floor(xyz[:, :2] / patch_mm + 1e-9).astype(np.int64)
+        _, patch = np.unique(key, axis=0, return_inverse=True)
+        xyz[:, 2] += rng.normal(0, sigma_um * 1e-3, patch.max() + 1)[patch.ravel()]
     n = len(xyz)
     attrs = {"sigma_model_um": np.full(n, sigma_um, np.float32),
              "sigma_table_um": np.full(n, 0.5, np.float32),
@@ -98,6 +105,39 @@ def test_step_uncertainty_is_honest_over_seeds():
         res = run_qa(xyz, attrs, layout)
         z += [s.error_um / s.u_um for s in res.steps]
     assert 0.7 < np.std(z) < 1.3, np.std(z)
+
+
+def test_noise_correlation_factor_counts_the_points_sharing_one_noise_draw():
+    xyz, attrs, layout = synthetic_cloud(patch_mm=0.75)  # 3 x 3 points of 0.25 mm
+    res = run_qa(xyz, attrs, layout)
+    # 9 points per draw; 2 mm tiles split a 0.75 mm patch now and then, which keeps a
+    # fraction (1 - 0.75 / (3 * 2))^2 = 0.77 of the correlated pairs: kappa ~ 6.9
+    kappa = np.array([b.noise_corr for b in res.blocks])
+    assert all(b.n_tiles >= 8 for b in res.blocks)
+    assert np.mean(kappa[:, 0]) == pytest.approx(6.9, rel=0.2), kappa
+    assert np.all((kappa > 3.5) & (kappa < 12)), kappa
+    xyz, attrs, layout = synthetic_cloud()
+    res = run_qa(xyz, attrs, layout)
+    assert all(b.noise_corr[0] < 1.4 for b in res.blocks), [b.noise_corr for b in res.blocks]
+    info = json.loads(json.dumps(res.blocks[0].row()))
+    assert info["n_tiles"] == res.blocks[0].n_tiles and "noise_corr_factor" in info
+
+
+def test_step_uncertainty_is_honest_with_correlated_noise():
+    """With noise shared by 2 x 2 points (patches of 0.5 mm, a quarter of a tile), errors / u
+    stay ~N(0, 1) because the plane's covariance is scaled by the measured correlation
+    factor; taking the points as independent (tiles smaller than the point spacing) makes
+    u ~2x too small."""
+    z, z_indep = [], []
+    for seed in range(12):
+        xyz, attrs, layout = synthetic_cloud(seed=seed, patch_mm=0.5)
+        attrs["sigma_table_um"][:] = 0.0
+        z += [s.error_um / s.u_um for s in run_qa(xyz, attrs, layout).steps]
+        res = run_qa(xyz, attrs, layout, tile_mm=0.1)
+        assert any("too few to measure the noise correlation" in n for n in res.notes)
+        z_indep += [s.error_um / s.u_um for s in res.steps]
+    assert 0.7 < np.std(z) < 1.3, np.std(z)
+    assert np.std(z_indep) > 1.6, np.std(z_indep)
 
 
 def test_missing_block_degenerate_region_and_no_sigma():

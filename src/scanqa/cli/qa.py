@@ -40,6 +40,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tolerance", type=float, default=20.0,
                    help="tolerance on each height difference [um] (default 20)")
     p.add_argument("--k", type=float, default=2.0, help="coverage factor (default 2)")
+    p.add_argument("--tile", type=float, default=2.0, metavar="MM",
+                   help="tile size [mm] over which the noise correlation of each block is "
+                        "measured; at least twice the noise's correlation length (default 2)")
     p.set_defaults(func=run)
 
 
@@ -79,7 +82,8 @@ def run(args: argparse.Namespace) -> int:
     out = make_out_dir(args.out)
     xyz, attrs, config = _load(args)
     layout = detect_blocks(xyz, _heights(args)) if args.auto else load_layout(args.layout)
-    result = run_qa(xyz, attrs, layout, args.margin, args.outliers, args.tolerance, args.k)
+    result = run_qa(xyz, attrs, layout, args.margin, args.outliers, args.tolerance, args.k,
+                    tile_mm=args.tile)
     curve = model_curve(result, config) if config is not None else None
     info = qa_report.write_outputs(result, out, xyz, curve, attrs)
     for b in result.blocks:
