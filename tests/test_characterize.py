@@ -7,7 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from scanqa.characterize import characterize_sweep, measured_dof, write_characterization
+from scanqa.characterize import (
+    JointCharacterization,
+    characterize_sweep,
+    characterize_sweeps,
+    measured_dof,
+    write_characterization,
+)
 from scanqa.cli import main
 from scanqa.errors import InputError
 from scanqa.simulate.experiments import run_experiment
@@ -33,6 +39,39 @@ def test_characterize_fits_w_curve_within_15_percent(camera_sweep):
     assert result.attenuation_max_abs_error < 0.02
     assert {(f.filter_floor, f.noise_reading) for f in result.fits} == {
         ("none", "power"), ("none", "amplitude"), ("one", "power"), ("one", "amplitude")}
+
+
+@pytest.fixture(scope="module")
+def projector_sweep(tmp_path_factory, paper_config):
+    out = tmp_path_factory.mktemp("projsweep")
+    config = paper_config.replace_simulator(roi_width_px=48, roi_height_px=48)
+    positions = [float(p) for p in np.arange(-27.0, 27.1, 3.0)]
+    run_experiment("projector-sweep", config, out, positions=positions)
+    return out, config
+
+
+def test_joint_characterization_fits_both_sweeps_with_one_sigma_p(camera_sweep,
+                                                                  projector_sweep, tmp_path):
+    (cam, config), (proj, _) = camera_sweep, projector_sweep
+    single = characterize_sweeps([cam], config)
+    assert not isinstance(single, JointCharacterization)  # one sweep: the single fit
+    joint = characterize_sweeps([cam, proj], config)
+    assert {(f.filter_floor, f.noise_reading) for f in joint.fits} == {
+        (fl, rd) for fl in ("none", "one") for rd in ("power", "amplitude", "mixed")}
+    # the simulator's scene-side noise is filtered by the camera blur and not by the
+    # projector's: only the mixed reading fits both sweeps with one sigma_p and gamma
+    by = {(f.filter_floor, f.noise_reading): f.rms_relative for f in joint.fits}
+    assert joint.best.noise_reading == "mixed", by
+    assert joint.best.rms_relative < 0.15, by
+    assert by[("one", "power")] > 1.2 * joint.best.rms_relative, by
+    summary = json.loads(write_characterization(joint, tmp_path, config).read_text())
+    assert summary["experiment"] == "camera-sweep+projector-sweep"
+    assert summary["best_variant"]["noise_reading"] == "mixed"
+    assert [s["experiment"] for s in summary["sweeps"]] == ["camera-sweep", "projector-sweep"]
+    assert (tmp_path / "std_projector-sweep.png").stat().st_size > 1000
+    # two camera sweeps cannot tell mixed from power: mixed is not offered
+    twice = characterize_sweeps([cam, cam], config)
+    assert {f.noise_reading for f in twice.fits} == {"power", "amplitude"}
 
 
 def test_characterize_dof_close_to_model(camera_sweep):

@@ -79,6 +79,12 @@ def test_filter_factor_readings():
 def test_optical_scale_readings():
     np.testing.assert_allclose(optics.optical_scale(2.0, 0.5, 0.5, "power"), 2.0)
     np.testing.assert_allclose(optics.optical_scale(2.0, 0.5, 0.5, "amplitude"), 1.0)
+    # mixed: 1 / (F sqrt(A_p) A_c) with A_p = 0.25, A_c = 0.5 -> 1 / (2 * 0.5 * 0.5) = 2
+    np.testing.assert_allclose(optics.optical_scale(2.0, 0.25, 0.5, "mixed"), 2.0)
+    np.testing.assert_allclose(optics.optical_scale(2.0, 0.5, 0.25, "mixed"),
+                               1.0 / (2.0 * np.sqrt(0.5) * 0.25))
+    with pytest.raises(ValueError, match="'mixed'"):
+        optics.optical_scale(1.0, 1.0, 1.0, "linear")
 
 
 def test_nan_in_nan_out(paper_config):

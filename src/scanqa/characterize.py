@@ -18,6 +18,11 @@ device's attenuation is at least ``min_attenuation``. With ``filter_floor = "non
 only the product sigma_p * gamma is identifiable, so gamma is held at the config's
 value there. The variant with the smallest RMS relative error is the one the data
 supports.
+
+One sweep moves one device: the other's attenuation is constant, so a single sweep
+cannot tell how the noise scales with the other device's defocus. Given a camera and a
+projector sweep, :func:`characterize_sweeps` fits one sigma_p and gamma to both at once
+for every reading including ``"mixed"`` (camera power, projector amplitude).
 """
 
 from __future__ import annotations
@@ -36,6 +41,9 @@ from scanqa.errors import InputError, ScanQAError
 from scanqa.io.atomic import atomic_path, make_out_dir, write_text
 from scanqa.io.tomlfile import read_toml
 
+#: Readings one sweep can tell apart ("mixed" equals "power" on a camera sweep and
+#: "amplitude" on a projector sweep, up to the fitted sigma_p).
+SINGLE_SWEEP_READINGS = ("power", "amplitude")
 #: Attenuation levels whose depth of field is compared (Tables 1 and 2) [-].
 DOF_LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81)
 
@@ -341,7 +349,7 @@ def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionRe
         raise InputError(f"only {int(sel.sum())} positions with attenuation >= "
                          f"{min_attenuation}; need at least 3 to fit sigma_p and gamma")
     fits = tuple(fit_variant(config, experiment, z_c[sel], z_p[sel], period, std[sel], fl, rd)
-                 for fl in FILTER_FLOORS for rd in NOISE_READINGS)
+                 for fl in FILTER_FLOORS for rd in SINGLE_SWEEP_READINGS)
     z = z_c if experiment == "camera-sweep" else z_p
     r_ok = a_model >= float(optics.attenuation(0.5))
     att_err = float(np.max(np.abs(att - a_model)[r_ok])) if r_ok.any() else float("nan")
@@ -352,16 +360,79 @@ def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionRe
                             att_err, is_w_shape(z, std, focus))
 
 
+@dataclass(frozen=True)
+class JointCharacterization:
+    """Result of :func:`characterize_sweeps` over several sweeps."""
+
+    sweeps: tuple[Characterization, ...]
+    fits: tuple[VariantFit, ...]
+
+    @property
+    def best(self) -> VariantFit:
+        return min(self.fits, key=lambda f: f.rms_relative)
+
+    @property
+    def experiment(self) -> str:
+        return "+".join(c.experiment for c in self.sweeps)
+
+    def summary(self) -> dict:
+        best = self.best
+        return {"experiment": self.experiment,
+                "best_variant": {"filter_floor": best.filter_floor,
+                                 "noise_reading": best.noise_reading,
+                                 "sigma_p_px": best.sigma_p_px, "gamma": best.gamma,
+                                 "rms_relative": best.rms_relative},
+                "fits": [asdict(f) for f in self.fits],
+                "sweeps": [c.summary() for c in self.sweeps]}
+
+
+def characterize_sweeps(sweep_dirs: list, config: ScannerConfig, min_attenuation: float = 0.49,
+                        roi_px: int = 256) -> Characterization | JointCharacterization:
+    """Characterise one sweep (:func:`characterize_sweep`) or fit several jointly.
+
+    With several sweeps every position where its swept device's attenuation is at least
+    ``min_attenuation`` enters one fit of sigma_p and gamma per reading; ``"mixed"`` is
+    among the readings when a camera and a projector sweep are both given.
+    """
+    chars = [characterize_sweep(d, config, min_attenuation, roi_px) for d in sweep_dirs]
+    if len(chars) == 1:
+        return chars[0]
+    periods = {c.period_px for c in chars}
+    if len(periods) != 1:
+        raise InputError(f"the sweeps use different working periods {sorted(periods)} px; "
+                         "characterise them separately")
+    kinds = {c.experiment for c in chars}
+    readings = NOISE_READINGS if kinds == {"camera-sweep", "projector-sweep"} \
+        else SINGLE_SWEEP_READINGS
+    z_c, z_p, std = [], [], []
+    for c in chars:
+        for p in c.positions:
+            if p.attenuation_model >= min_attenuation and np.isfinite(p.residual_std_px):
+                z_c.append(p.z_c_mm)
+                z_p.append(p.z_p_mm)
+                std.append(p.residual_std_px)
+    z_c, z_p, std = np.array(z_c), np.array(z_p), np.array(std)
+    fits = tuple(fit_variant(config, "joint", z_c, z_p, chars[0].period_px, std, fl, rd)
+                 for fl in FILTER_FLOORS for rd in readings)
+    return JointCharacterization(tuple(chars), fits)
+
+
 # ------------------------------------------------------------------------- output
 
-def write_characterization(result: Characterization, out_dir: str | os.PathLike,
+def write_characterization(result: Characterization | JointCharacterization,
+                           out_dir: str | os.PathLike,
                            config: ScannerConfig | None = None) -> Path:
-    """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir``."""
+    """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir`` (for a
+    joint fit, one pair per sweep: ``std_camera-sweep.png``, ...)."""
     out = make_out_dir(out_dir)
     summary = json.dumps(_json_safe(result.summary()), indent=1)
     write_text(out / "summary.json", summary + "\n")
     if config is not None:
-        _plot(result, config, out)
+        if isinstance(result, JointCharacterization):
+            for c in result.sweeps:
+                _plot(c, config, out, result.fits, f"_{c.experiment}")
+        else:
+            _plot(result, config, out)
     return out / "summary.json"
 
 
@@ -375,7 +446,8 @@ def _json_safe(value: object) -> object:
     return value
 
 
-def _plot(result: Characterization, config: ScannerConfig, out: Path) -> None:
+def _plot(result: Characterization, config: ScannerConfig, out: Path,
+          fits: tuple[VariantFit, ...] | None = None, suffix: str = "") -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -386,8 +458,10 @@ def _plot(result: Characterization, config: ScannerConfig, out: Path) -> None:
     std = np.array([p.residual_std_px for p in result.positions])
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(z, std, "o", ms=3, label="simulated (surface-fit residual)")
-    for fit in result.fits:
-        style = "-" if fit is result.best else ":"
+    fits = result.fits if fits is None else fits
+    best = min(fits, key=lambda f: f.rms_relative)
+    for fit in fits:
+        style = "-" if fit is best else ":"
         ax.plot(z, result.model_std(fit, config), style, label=(
             f"{fit.filter_floor}/{fit.noise_reading}: sigma_p={fit.sigma_p_px:.4f}, "
             f"gamma={fit.gamma:.2f}, rms={100 * fit.rms_relative:.1f}%"))
@@ -395,14 +469,14 @@ def _plot(result: Characterization, config: ScannerConfig, out: Path) -> None:
     ax.set_ylabel("std of x_p [projector px]")
     ax.set_ylim(0, np.nanmax(std) * 1.3)
     ax.legend(fontsize=6)
-    _save(fig, out / "std.png")
+    _save(fig, out / f"std{suffix}.png")
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(z, [p.attenuation for p in result.positions], "o", ms=3, label="simulated")
     ax.plot(z, [p.attenuation_model for p in result.positions], "-", label="A(C/omega_o)")
     ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
     ax.set_ylabel("attenuation [-]")
     ax.legend()
-    _save(fig, out / "attenuation.png")
+    _save(fig, out / f"attenuation{suffix}.png")
 
 
 def _save(fig, path: Path) -> None:

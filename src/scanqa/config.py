@@ -33,7 +33,7 @@ from scanqa.io.tomlfile import read_toml
 #: The two readings of Eq. 17 (DESIGN.md section 3, reading (i)).
 FILTER_FLOORS = ("none", "one")
 #: The two readings of how attenuation enters s_O (DESIGN.md section 3, reading (ii)).
-NOISE_READINGS = ("power", "amplitude")
+NOISE_READINGS = ("power", "amplitude", "mixed")
 
 
 def _spec(unit: str = "", gt: float | None = None, ge: float | None = None,
@@ -231,7 +231,8 @@ class ModelConfig(_Section):
     can be < 1 (filtering amplifies noise); "one" clamps F >= 1 as the paper's bound
     1 <= gamma <= sqrt(b_c b_d) implies. ``noise_reading``: "power" divides s_O by the
     attenuation A (squared magnitude ratio, Eq. 19 as printed); "amplitude" by sqrt(A)
-    (phase noise of additive intensity noise scales with 1 / magnitude).
+    (phase noise of additive intensity noise scales with 1 / magnitude); "mixed" by
+    A_c sqrt(A_p) (projector amplitude, camera power).
     """
 
     section: ClassVar[str] = "model"

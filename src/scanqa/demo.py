@@ -17,7 +17,7 @@ from pathlib import Path
 
 from scanqa import design
 from scanqa.calibration import build_table, save_table
-from scanqa.characterize import apply_fitted_model, characterize_sweep, write_characterization
+from scanqa.characterize import apply_fitted_model, characterize_sweeps, write_characterization
 from scanqa.config import load_config
 from scanqa.errors import InputError
 from scanqa.gauge import QAResult, load_layout, model_curve, run_qa
@@ -37,9 +37,10 @@ LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
 SAMPLE_CONFIG = (SAMPLE_DIR / "sample_scanner.toml", "sample", "sample_roi64")
 FULL_CONFIG = (ROOT / "calib" / "paper_scanner.toml", "f11", "f11")
 #: Simulation plan of ``--full``: (experiment, profile key, positions, repeats, folder).
-#: About an hour on 2 cores: 14 sweep positions and 3 gauge scans at 2448 x 2048 (~3 min
-#: each), the camera sweep on the central 256 x 256 px.
+#: About 40 min on 2 cores: 14 sweep positions and 3 gauge scans at 2448 x 2048 (~2 min
+#: each), the camera and projector sweeps on the central 256 x 256 px.
 FULL_PLAN = (("camera-sweep", 2, "-30:30:2", 1, "camera_sweep"),
+             ("projector-sweep", 2, "-30:30:2", 1, "projector_sweep"),
              ("calibration-sweep", 1, "424:476:4", 1, "calibration_sweep"),
              ("gauge-blocks", 1, None, 3, "gauge_blocks"))
 
@@ -95,7 +96,7 @@ def simulate_full(data: Path, say: Callable[[str], None]) -> Path:
     cfg_path, full, roi = FULL_CONFIG
     for experiment, which, positions, repeats, folder in FULL_PLAN:
         config = load_config(cfg_path, profile=full if which == 1 else roi)
-        if which == 2:  # the camera sweep needs only the central part of the sensor
+        if which == 2:  # the device sweeps need only the central part of the sensor
             config = config.replace_simulator(roi_width_px=256, roi_height_px=256)
         pos = None if positions is None else _positions(positions)
         say(f"  simulating {experiment} at {config.camera.width_px} x "
@@ -139,8 +140,11 @@ def run_demo(out: str | Path, full: bool = False, say: Callable[[str], None] | N
                              "the repository, or 'scanqa demo --full'")
     config = load_config(cfg_path, profile=prof)
 
-    stage("characterising the scanner from the camera sweep (Fig. 3 procedure)")
-    char = characterize_sweep(data / "camera_sweep", load_config(cfg_path, profile=prof_roi))
+    sweeps = [data / name for name in ("camera_sweep", "projector_sweep")
+              if (data / name / "manifest.toml").exists()]
+    stage(f"characterising the scanner from the {' and '.join(p.name for p in sweeps)} "
+          "(Figs. 3 and 4 procedure)")
+    char = characterize_sweeps(sweeps, load_config(cfg_path, profile=prof_roi))
     summary = write_characterization(char, out / "characterization",
                                      load_config(cfg_path, profile=prof_roi))
     fitted = apply_fitted_model(config, summary)

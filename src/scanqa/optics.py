@@ -16,8 +16,11 @@ Two readings of the paper are open (DESIGN.md section 3) and are explicit option
   (Fig. 3): with gamma = 3 and the paper's optics, sqrt(b_c b_d) / gamma < 1 near focus.
 * ``noise_reading``: "power" (default) divides by A, the squared magnitude ratio, as
   Eq. 19 is printed; "amplitude" divides by sqrt(A), which is what additive intensity
-  noise gives. The characterisation fit (``scanqa characterize``) reports which reading
-  the data supports.
+  noise gives; "mixed" divides by A_c sqrt(A_p): the projector's defocus lowers the
+  fringe amplitude before the noise enters (amplitude), the camera's blurs fringes and
+  scene-side noise together (power, as the camera sweep shows). The characterisation fit
+  (``scanqa characterize``) reports which reading the data supports; "mixed" needs a
+  camera and a projector sweep to be told apart from the other two.
 
 Validity: the paper calls the disc-kernel model valid for r = C / omega_o <= 1/2. Past
 the first zero of J1 (r = 1.2197) the fringe contrast inverts. :func:`predict` flags
@@ -304,19 +307,24 @@ def optical_scale(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
         Filter factor F_gamma [-].
     a_p, a_c : array_like
         Projector and camera attenuation A [-].
-    reading : {"power", "amplitude"}
-        "power": 1 / (F A_p A_c) as printed; "amplitude": 1 / (F sqrt(A_p A_c)).
+    reading : {"power", "amplitude", "mixed"}
+        "power": 1 / (F A_p A_c) as printed; "amplitude": 1 / (F sqrt(A_p A_c));
+        "mixed": 1 / (F sqrt(A_p) A_c).
 
     Returns
     -------
     ndarray
         s_O [-]; inf where an attenuation is 0.
     """
-    a = np.asarray(a_p, dtype=float) * np.asarray(a_c, dtype=float)
-    if reading == "amplitude":
-        a = np.sqrt(a)
-    elif reading != "power":
-        raise ValueError(f"reading must be 'power' or 'amplitude', got {reading!r}")
+    a_p, a_c = np.asarray(a_p, dtype=float), np.asarray(a_c, dtype=float)
+    if reading == "power":
+        a = a_p * a_c
+    elif reading == "amplitude":
+        a = np.sqrt(a_p * a_c)
+    elif reading == "mixed":
+        a = np.sqrt(a_p) * a_c
+    else:
+        raise ValueError(f"reading must be 'power', 'amplitude' or 'mixed', got {reading!r}")
     with np.errstate(divide="ignore"):
         return 1.0 / (np.asarray(f_gamma, dtype=float) * a)
 

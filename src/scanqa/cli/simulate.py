@@ -62,10 +62,16 @@ def register(sub: argparse._SubParsersAction) -> None:
         description="Decode a camera or projector sweep, fit a low-order surface to the "
                     "flat's x_p map per position, compare the residual std and the "
                     "attenuation with the model (Figs. 3/4), fit sigma_p and gamma for "
-                    "each reading of the model, and report the one the data supports.",
-        epilog="example:\n  scanqa characterize cam --config calib/paper_scanner.toml "
-               "--out cam/characterize")
-    p.add_argument("sweep", metavar="SWEEP_DIR", help="folder written by scanqa simulate")
+                    "each reading of the model, and report the one the data supports. "
+                    "Given a camera and a projector sweep, one sigma_p and gamma are "
+                    "fitted to both, and the 'mixed' reading (camera power, projector "
+                    "amplitude) is among the candidates.",
+        epilog="examples:\n  scanqa characterize cam --config calib/paper_scanner.toml "
+               "--out cam/characterize\n  scanqa characterize cam proj --config "
+               "calib/paper_scanner.toml --out both")
+    p.add_argument("sweep", metavar="SWEEP_DIR", nargs="+",
+                   help="folder(s) written by scanqa simulate (a camera and/or projector "
+                        "sweep)")
     add_config_argument(p)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="folder for summary.json and plots (default: SWEEP_DIR/characterize)")
@@ -90,11 +96,11 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.characterize import characterize_sweep, write_characterization
+    from scanqa.characterize import characterize_sweeps, write_characterization
 
     config = config_from_args(args)
-    result = characterize_sweep(args.sweep, config, min_attenuation=args.min_attenuation)
-    out = write_characterization(result, args.out or f"{args.sweep}/characterize", config)
+    result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
+    out = write_characterization(result, args.out or f"{args.sweep[0]}/characterize", config)
     print(json.dumps(result.summary(), indent=1))
     print(f"wrote {out}")
     return 0
