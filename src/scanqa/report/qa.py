@@ -122,7 +122,12 @@ def _table3_section(page: Page, result: QAResult) -> None:
         pp, pm = PAPER_TABLE3.get(b.block_id, (None, None))
         rows.append({**b.row(), "paper_predicted_um": pp if pp is not None else "large/-",
                      "paper_measured_um": pm if pm is not None else "-"})
-    page.table(rows, [*BLOCK_COLUMNS, "paper_predicted_um", "paper_measured_um"])
+    page.table(rows, [*BLOCK_COLUMNS, "noise_corr_factor", "paper_predicted_um",
+                      "paper_measured_um"])
+    tile = result.settings.get("tile_mm", 2.0)
+    page.paragraph("noise_corr_factor: how many points share one noise draw, measured on the "
+                   f"block over tiles of {tile:g} mm; the plane's uncertainty (and so each "
+                   "step's u) is scaled by it.", note=True)
     fig, ax = new_figure()
     ids = [b.block_id for b in result.blocks]
     x = np.arange(len(ids))
