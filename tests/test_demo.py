@@ -90,7 +90,8 @@ def test_bad_input_gives_one_line_and_exit_2(command, capsys, tmp_path, monkeypa
 def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     """--full: the plan's experiments are simulated into OUT/data and the pipeline reads
     them from there (the simulator is replaced by copies of the sample folders, which it
-    wrote: a real --full run takes about an hour)."""
+    wrote: a real --full run takes about 40 minutes). The sample data has no projector
+    sweep, so the characterisation falls back to the camera sweep alone."""
     import shutil
 
     from scanqa import demo
@@ -100,6 +101,8 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
 
     def fake_run(name, config, out_dir, positions=None, repeats=None, progress=False):
         calls.append((name, config.camera.width_px, len(positions or []), repeats))
+        if name == "projector-sweep":
+            return
         folder = {"camera-sweep": "camera_sweep", "calibration-sweep": "calibration_sweep",
                   "gauge-blocks": "gauge_blocks"}[name]
         shutil.copytree(demo.SAMPLE_DIR / folder, out_dir)
@@ -107,7 +110,8 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     monkeypatch.setattr(experiments, "run_experiment", fake_run)
     monkeypatch.setattr(demo, "FULL_CONFIG", demo.SAMPLE_CONFIG)
     result = demo.run_demo(tmp_path / "full", full=True, say=lambda msg: None)
-    assert [c[0] for c in calls] == ["camera-sweep", "calibration-sweep", "gauge-blocks"]
-    assert calls[1][2] == 14 and calls[2][3] == 3
+    assert [c[0] for c in calls] == ["camera-sweep", "projector-sweep", "calibration-sweep",
+                                     "gauge-blocks"]
+    assert calls[1][2] == 31 and calls[2][2] == 14 and calls[3][3] == 3
     assert (tmp_path / "full" / "data" / "gauge_blocks").is_dir()
     assert result.report.exists() and len(result.qa.steps) == 7
