@@ -174,6 +174,22 @@ def test_auto_finds_the_layout_blocks():
         np.testing.assert_allclose(centre_f / 2, centre_b / 2, atol=1.0)
 
 
+def test_auto_prefers_block_tops_over_wall_slivers():
+    """A side wall seen obliquely leaves thin ribbons of points at every height; one lying
+    exactly at a nominal height must not be taken for that block's top (the full-
+    resolution demo lost block 8 to such a ribbon of block 7's wall)."""
+    xyz, _attrs, layout = synthetic_cloud(step=0.3)
+    top8 = (np.abs(xyz[:, 2] - 466.51) < 0.1) & (xyz[:, 0] > 17) & (xyz[:, 0] < 31)
+    xyz[top8, 2] -= 0.05  # block 8 stands 50 um proud of nominal: the ribbon is nearer
+    y = np.arange(3.0, 21.0, 0.1)
+    ribbon = np.stack([np.full_like(y, 14.2), y, np.full_like(y, 469.05 - 2.54)], -1)
+    ribbon = np.concatenate([ribbon + np.array([dx, 0.0, 0.0]) for dx in (-0.1, 0.0, 0.1)])
+    found = detect_blocks(np.concatenate([xyz, ribbon]),
+                          {b.block_id: b.nominal_height_mm for b in layout.blocks})
+    block8 = next(b for b in found.blocks if b.block_id == 8)
+    assert block8.region_mm[1] - block8.region_mm[0] > 10.0, block8.region_mm
+
+
 def test_bad_layouts(tmp_path):
     text = LAYOUT.read_text()
     cases = [

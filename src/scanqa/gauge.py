@@ -504,8 +504,8 @@ def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 
     Open3D's RANSAC plane segmentation finds the base plate (the largest plane); every
     point gets its height above it. Peaks of the height histogram are the block tops
     (all parallel to the base), and Open3D's DBSCAN splits each height band into
-    connected patches. Each nominal height is matched to the nearest patch height within
-    ``match_tol_mm``.
+    connected patches. Each nominal height is matched to the largest patch whose height
+    is within ``match_tol_mm`` of it.
 
     Parameters
     ----------
@@ -548,9 +548,12 @@ def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 
                 patches.append((float(np.median(height[members])), arr[members]))
     blocks, used = [], set()
     for bid, h_nom in sorted(nominal.items()):
-        cands = [(abs(h - h_nom), i) for i, (h, _) in enumerate(patches) if i not in used]
-        if cands and min(cands)[0] <= match_tol_mm:
-            i = min(cands)[1]
+        # the largest patch within the tolerance: a block top, not a sliver of a side
+        # wall that happens to lie at that height
+        cands = [(-len(p), abs(h - h_nom), i) for i, (h, p) in enumerate(patches)
+                 if i not in used and abs(h - h_nom) <= match_tol_mm]
+        if cands:
+            i = min(cands)[2]
             used.add(i)
             p = patches[i][1]
             region = (float(p[:, 0].min()), float(p[:, 0].max()), float(p[:, 1].min()),
