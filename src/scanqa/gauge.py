@@ -252,9 +252,10 @@ class QAResult:
     settings: dict
 
 
-def _attr(attrs: dict, name: str, n: int, default: float = math.nan) -> np.ndarray:
+def _attr(attrs: dict, name: str, idx: np.ndarray, default: float = math.nan) -> np.ndarray:
+    """Attribute ``name`` at the points ``idx`` as float64 (``default`` when missing)."""
     v = attrs.get(name)
-    return np.full(n, default) if v is None else np.asarray(v, dtype=float)
+    return np.full(idx.size, default) if v is None else np.asarray(v[idx], dtype=float)
 
 
 def _select(xyz: np.ndarray, spec: BlockSpec, margin: float, z_window: float) -> np.ndarray:
@@ -306,21 +307,20 @@ def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarra
     pts = xyz[idx]
     los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(los @ fit.normal)
-    sig = _attr(attrs, "sigma_model_um", len(xyz))[idx] * 1e-3 * cos
+    sig = _attr(attrs, "sigma_model_um", idx) * 1e-3 * cos
     res.n_points, res.fit, res.index = n, fit, idx
     res.measured_std_um = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
     res.flatness_um = 1e3 * float(np.ptp(fit.residuals))
     res.predicted_std_um = 1e3 * float(np.sqrt(np.nanmean(sig**2))) if np.isfinite(sig).any() \
         else math.nan
-    att = _attr(attrs, "att_camera", len(xyz))[idx] * _attr(attrs, "att_projector",
-                                                            len(xyz))[idx]
+    att = _attr(attrs, "att_camera", idx) * _attr(attrs, "att_projector", idx)
     res.mean_attenuation = float(np.nanmean(att)) if np.isfinite(att).any() else math.nan
-    res.in_volume_fraction = float(np.mean(_attr(attrs, "in_volume", len(xyz), 1.0)[idx]))
-    res.model_valid_fraction = float(np.mean(_attr(attrs, "model_valid", len(xyz), 1.0)[idx]))
+    res.in_volume_fraction = float(np.mean(_attr(attrs, "in_volume", idx, 1.0)))
+    res.model_valid_fraction = float(np.mean(_attr(attrs, "model_valid", idx, 1.0)))
     res.mean_z_mm = float(pts[:, 2].mean())
-    tab = _attr(attrs, "sigma_table_um", len(xyz), 0.0)[idx] * cos
+    tab = _attr(attrs, "sigma_table_um", idx, 0.0) * cos
     res.table_sigma_um = float(np.sqrt(np.nanmean(tab**2))) if np.isfinite(tab).any() else 0.0
-    corr = _attr(attrs, "table_corr_mm", len(xyz))[idx]
+    corr = _attr(attrs, "table_corr_mm", idx)
     res.table_corr_mm = float(np.nanmedian(corr)) if np.isfinite(corr).any() else math.nan
     d = pts - fit.centroid
     res.spread_mm = (float(np.std(d @ fit.axes[0])), float(np.std(d @ fit.axes[1])))
@@ -351,8 +351,7 @@ def noise_correlation(pts: np.ndarray, fit: PlaneFit, tile_mm: float = TILE_MM
     a = _design(pts, fit)
     d = a[:, 1:]
     key = np.floor((d - d.min(axis=0)) / tile_mm).astype(np.int64)
-    _, tile = np.unique(key, axis=0, return_inverse=True)
-    tile = tile.ravel()
+    _, tile = np.unique(key[:, 0] * (key[:, 1].max() + 1) + key[:, 1], return_inverse=True)
     counts = np.bincount(tile)
     n_tiles = int(np.sum(counts >= 3))
     if n_tiles < MIN_TILES:
@@ -433,7 +432,7 @@ def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k:
         kk = min(k, idx.size)
         if kk < 3:
             continue
-        _, nn = cKDTree(xyz[idx, :2]).query(xyz[idx, :2], k=kk)
+        _, nn = cKDTree(xyz[idx, :2]).query(xyz[idx, :2], k=kk, workers=-1)
         out[idx] = np.std(residual_mm[idx][nn], axis=1, ddof=1)
     return out
 
