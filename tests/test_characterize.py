@@ -19,13 +19,18 @@ from scanqa.errors import InputError
 from scanqa.simulate.experiments import run_experiment
 
 
-@pytest.fixture(scope="module")
-def camera_sweep(tmp_path_factory, paper_config):
-    out = tmp_path_factory.mktemp("camsweep")
+def _sweep(tmp_path_factory, paper_config, experiment: str):
+    """A 48 x 48 px sweep of the paper scanner, -27..27 mm in 3 mm steps."""
+    out = tmp_path_factory.mktemp(experiment)
     config = paper_config.replace_simulator(roi_width_px=48, roi_height_px=48)
     positions = [float(p) for p in np.arange(-27.0, 27.1, 3.0)]
-    run_experiment("camera-sweep", config, out, positions=positions)
+    run_experiment(experiment, config, out, positions=positions)
     return out, config
+
+
+@pytest.fixture(scope="module")
+def camera_sweep(tmp_path_factory, paper_config):
+    return _sweep(tmp_path_factory, paper_config, "camera-sweep")
 
 
 def test_characterize_fits_w_curve_within_15_percent(camera_sweep):
@@ -43,11 +48,7 @@ def test_characterize_fits_w_curve_within_15_percent(camera_sweep):
 
 @pytest.fixture(scope="module")
 def projector_sweep(tmp_path_factory, paper_config):
-    out = tmp_path_factory.mktemp("projsweep")
-    config = paper_config.replace_simulator(roi_width_px=48, roi_height_px=48)
-    positions = [float(p) for p in np.arange(-27.0, 27.1, 3.0)]
-    run_experiment("projector-sweep", config, out, positions=positions)
-    return out, config
+    return _sweep(tmp_path_factory, paper_config, "projector-sweep")
 
 
 def test_joint_characterization_fits_both_sweeps_with_one_sigma_p(camera_sweep,
