@@ -75,6 +75,15 @@ def test_joint_characterization_fits_both_sweeps_with_one_sigma_p(camera_sweep,
     assert {f.noise_reading for f in twice.fits} == {"power", "amplitude"}
 
 
+def test_joint_characterization_refuses_different_periods(camera_sweep, tmp_path):
+    cam, config = camera_sweep
+    small = config.replace_simulator(roi_width_px=24, roi_height_px=24)
+    run_experiment("projector-sweep", small, tmp_path, positions=[-3.0, 0.0, 3.0, 6.0],
+                   periods=[7.0])
+    with pytest.raises(InputError, match="different working periods"):
+        characterize_sweeps([cam, tmp_path], config)
+
+
 def test_characterize_dof_close_to_model(camera_sweep):
     folder, config = camera_sweep
     result = characterize_sweep(folder, config)

@@ -74,6 +74,13 @@ class VariantFit:
     rms_relative: float
 
 
+def _variant_row(fit: VariantFit) -> dict:
+    """The ``best_variant`` entry of a summary (what :func:`load_fitted_model` reads)."""
+    return {"filter_floor": fit.filter_floor, "noise_reading": fit.noise_reading,
+            "sigma_p_px": fit.sigma_p_px, "gamma": fit.gamma,
+            "rms_relative": fit.rms_relative}
+
+
 @dataclass(frozen=True)
 class Characterization:
     """Result of :func:`characterize_sweep`."""
@@ -101,12 +108,8 @@ class Characterization:
 
     def summary(self) -> dict:
         """JSON-ready summary: best variant, every fit, DOF table, key numbers."""
-        best = self.best
         return {"experiment": self.experiment, "period_px": self.period_px,
-                "best_variant": {"filter_floor": best.filter_floor,
-                                 "noise_reading": best.noise_reading,
-                                 "sigma_p_px": best.sigma_p_px, "gamma": best.gamma,
-                                 "rms_relative": best.rms_relative},
+                "best_variant": _variant_row(self.best),
                 "fits": [asdict(f) for f in self.fits],
                 "min_attenuation": self.min_attenuation,
                 "attenuation_max_abs_error_r_le_0.5": self.attenuation_max_abs_error,
@@ -376,12 +379,7 @@ class JointCharacterization:
         return "+".join(c.experiment for c in self.sweeps)
 
     def summary(self) -> dict:
-        best = self.best
-        return {"experiment": self.experiment,
-                "best_variant": {"filter_floor": best.filter_floor,
-                                 "noise_reading": best.noise_reading,
-                                 "sigma_p_px": best.sigma_p_px, "gamma": best.gamma,
-                                 "rms_relative": best.rms_relative},
+        return {"experiment": self.experiment, "best_variant": _variant_row(self.best),
                 "fits": [asdict(f) for f in self.fits],
                 "sweeps": [c.summary() for c in self.sweeps]}
 

@@ -42,12 +42,12 @@ from scanqa.errors import InputError
 from scanqa.io.tomlfile import read_toml
 
 LAYOUT_FORMAT = "scanqa-gauge-layout/1"
-#: Block status values, in the order they are checked.
 #: Tile size of the noise-correlation estimate [mm]: at least twice the correlation length
 #: of the noise (~0.5-1 mm for the paper's scanner at 8 um pixels).
 TILE_MM = 2.0
 #: Fewest tiles (with 3 points or more) for a noise-correlation estimate.
 MIN_TILES = 8
+#: Block status values, in the order they are checked.
 STATUSES = ("no_points", "too_few_points", "degenerate", "outside_volume", "model_invalid",
             "ok")
 
