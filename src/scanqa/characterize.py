@@ -74,6 +74,11 @@ class VariantFit:
     rms_relative: float
 
 
+def _best(fits: tuple[VariantFit, ...]) -> VariantFit:
+    """The variant with the smallest RMS relative error."""
+    return min(fits, key=lambda f: f.rms_relative)
+
+
 def _variant_row(fit: VariantFit) -> dict:
     """The ``best_variant`` entry of a summary (what :func:`load_fitted_model` reads)."""
     return {"filter_floor": fit.filter_floor, "noise_reading": fit.noise_reading,
@@ -97,7 +102,7 @@ class Characterization:
     @property
     def best(self) -> VariantFit:
         """The variant with the smallest RMS relative error."""
-        return min(self.fits, key=lambda f: f.rms_relative)
+        return _best(self.fits)
 
     def model_std(self, fit: VariantFit, config: ScannerConfig) -> np.ndarray:
         """sigma_p * s_O of a fit at every position [projector px]."""
@@ -340,6 +345,16 @@ def _positions(config: ScannerConfig, experiment: str, entries: list[dict],
     return tuple(out)
 
 
+def _fitted(positions: tuple[PositionResult, ...], min_attenuation: float
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(Z_c, Z_p, std) of the positions the noise fit uses: the swept device's model
+    attenuation is at least ``min_attenuation`` and the std is finite."""
+    use = [p for p in positions
+           if p.attenuation_model >= min_attenuation and np.isfinite(p.residual_std_px)]
+    return (np.array([p.z_c_mm for p in use]), np.array([p.z_p_mm for p in use]),
+            np.array([p.residual_std_px for p in use]))
+
+
 def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionResult, ...],
              period: float, min_attenuation: float) -> Characterization:
     z_c = np.array([p.z_c_mm for p in positions])
@@ -347,11 +362,11 @@ def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionRe
     std = np.array([p.residual_std_px for p in positions])
     att = np.array([p.attenuation for p in positions])
     a_model = np.array([p.attenuation_model for p in positions])
-    sel = (a_model >= min_attenuation) & np.isfinite(std)
-    if sel.sum() < 3:
-        raise InputError(f"only {int(sel.sum())} positions with attenuation >= "
+    fz_c, fz_p, fstd = _fitted(positions, min_attenuation)
+    if fstd.size < 3:
+        raise InputError(f"only {fstd.size} positions with attenuation >= "
                          f"{min_attenuation}; need at least 3 to fit sigma_p and gamma")
-    fits = tuple(fit_variant(config, experiment, z_c[sel], z_p[sel], period, std[sel], fl, rd)
+    fits = tuple(fit_variant(config, experiment, fz_c, fz_p, period, fstd, fl, rd)
                  for fl in FILTER_FLOORS for rd in SINGLE_SWEEP_READINGS)
     z = z_c if experiment == "camera-sweep" else z_p
     r_ok = a_model >= float(optics.attenuation(0.5))
@@ -372,7 +387,7 @@ class JointCharacterization:
 
     @property
     def best(self) -> VariantFit:
-        return min(self.fits, key=lambda f: f.rms_relative)
+        return _best(self.fits)
 
     @property
     def experiment(self) -> str:
@@ -402,14 +417,8 @@ def characterize_sweeps(sweep_dirs: list, config: ScannerConfig, min_attenuation
     kinds = {c.experiment for c in chars}
     readings = NOISE_READINGS if kinds == {"camera-sweep", "projector-sweep"} \
         else SINGLE_SWEEP_READINGS
-    z_c, z_p, std = [], [], []
-    for c in chars:
-        for p in c.positions:
-            if p.attenuation_model >= min_attenuation and np.isfinite(p.residual_std_px):
-                z_c.append(p.z_c_mm)
-                z_p.append(p.z_p_mm)
-                std.append(p.residual_std_px)
-    z_c, z_p, std = np.array(z_c), np.array(z_p), np.array(std)
+    z_c, z_p, std = (np.concatenate(a) for a in zip(
+        *(_fitted(c.positions, min_attenuation) for c in chars), strict=True))
     fits = tuple(fit_variant(config, "joint", z_c, z_p, chars[0].period_px, std, fl, rd)
                  for fl in FILTER_FLOORS for rd in readings)
     return JointCharacterization(tuple(chars), fits)
@@ -457,7 +466,7 @@ def _plot(result: Characterization, config: ScannerConfig, out: Path,
     fig, ax = plt.subplots(figsize=(6, 4))
     ax.plot(z, std, "o", ms=3, label="simulated (surface-fit residual)")
     fits = result.fits if fits is None else fits
-    best = min(fits, key=lambda f: f.rms_relative)
+    best = _best(fits)
     for fit in fits:
         style = "-" if fit is best else ":"
         ax.plot(z, result.model_std(fit, config), style, label=(

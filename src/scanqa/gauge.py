@@ -326,29 +326,35 @@ def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarra
     res.spread_mm = (float(np.std(d @ fit.axes[0])), float(np.std(d @ fit.axes[1])))
     # per-point sigma along the normal: predicted where available, else measured
     res.sigma_n = np.where(np.isfinite(sig), sig, res.measured_std_um * 1e-3)
-    kappa, res.n_tiles = noise_correlation(pts, fit, tile_mm)
+    a = _design(pts, fit)
+    bread = np.linalg.inv(a.T @ a)
+    kappa, res.n_tiles = noise_correlation(a, bread, fit.residuals, tile_mm)
     res.noise_corr = tuple(float(v) for v in kappa)
     scale = np.sqrt(np.where(np.isfinite(kappa), kappa, 1.0))
-    res.u_plane = _plane_covariance(pts, fit, res.sigma_n) * np.outer(scale, scale)
+    # plane covariance from the per-point sigmas, scaled by the noise correlation
+    res.u_plane = bread @ (a.T * res.sigma_n**2) @ a @ bread * np.outer(scale, scale)
     res.status = ("outside_volume" if res.in_volume_fraction < 0.5 else
                   "model_invalid" if res.model_valid_fraction < 0.5 else "ok")
 
 
 def _design(pts: np.ndarray, fit: PlaneFit) -> np.ndarray:
+    """Columns 1, s_1, s_2 (in-plane coordinates about the centroid [mm]) of the plane's
+    (offset, slope_1, slope_2) parameters."""
     d = pts - fit.centroid
     return np.column_stack([np.ones(len(pts)), d @ fit.axes[0], d @ fit.axes[1]])
 
 
-def noise_correlation(pts: np.ndarray, fit: PlaneFit, tile_mm: float = TILE_MM
-                      ) -> tuple[np.ndarray, int]:
+def noise_correlation(a: np.ndarray, bread: np.ndarray, residuals: np.ndarray,
+                      tile_mm: float = TILE_MM) -> tuple[np.ndarray, int]:
     """Noise-correlation factor kappa of the plane's (offset, slope_1, slope_2) [-] and the
     number of tiles it was measured with (module notes).
 
     kappa_j = (sandwich variance of parameter j with the residuals summed per tile,
     small-sample corrected by K / (K - 3) for K tiles) / (the same with one point per
     tile), clipped at 1. NaN when fewer than ``MIN_TILES`` tiles hold 3 points or more.
+    ``a`` is the fit's design (:func:`_design`), ``bread`` inv(a^T a), ``residuals`` the
+    fit's residuals [mm].
     """
-    a = _design(pts, fit)
     d = a[:, 1:]
     key = np.floor((d - d.min(axis=0)) / tile_mm).astype(np.int64)
     _, tile = np.unique(key[:, 0] * (key[:, 1].max() + 1) + key[:, 1], return_inverse=True)
@@ -356,21 +362,13 @@ def noise_correlation(pts: np.ndarray, fit: PlaneFit, tile_mm: float = TILE_MM
     n_tiles = int(np.sum(counts >= 3))
     if n_tiles < MIN_TILES:
         return np.full(3, np.nan), n_tiles
-    score = a * fit.residuals[:, None]
+    score = a * residuals[:, None]
     per_tile = np.stack([np.bincount(tile, weights=score[:, j]) for j in range(3)], axis=1)
     meat_tiles = per_tile.T @ per_tile * counts.size / (counts.size - 3)
     meat_points = score.T @ score
-    bread = np.linalg.inv(a.T @ a)
     v_tiles = np.diag(bread @ meat_tiles @ bread)
     v_points = np.diag(bread @ meat_points @ bread)
     return np.maximum(1.0, v_tiles / v_points), n_tiles
-
-
-def _plane_covariance(pts: np.ndarray, fit: PlaneFit, sigma: np.ndarray) -> np.ndarray:
-    """Covariance of (offset, slope_1, slope_2) of the plane from per-point sigmas [mm^2]."""
-    a = _design(pts, fit)
-    ata_inv = np.linalg.inv(a.T @ a)
-    return ata_inv @ (a.T * sigma**2) @ a @ ata_inv
 
 
 def step_between(a: BlockResult, b: BlockResult, k: float, tolerance_um: float) -> StepResult:

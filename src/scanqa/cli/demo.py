@@ -12,9 +12,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "demo", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="characterise, calibrate, annotate and QA the sample data in one go",
-        epilog="examples:\n  scanqa demo                   # sample data, ~1 min\n"
+        epilog="examples:\n  scanqa demo                   # sample data, ~5 s\n"
                "  scanqa demo --out /tmp/d --full   # simulate at 2448 x 2048 first "
-               "(~1 hour)\n\nwrites the table, the annotated PLY, the QA report and tables")
+               "(~40 min)\n\nwrites the table, the annotated PLY, the QA report and tables")
     p.add_argument("--out", default="scanqa-demo", help="output folder (default scanqa-demo)")
     p.add_argument("--full", action="store_true",
                    help="regenerate the data with the simulator at the paper's resolution "
