@@ -25,11 +25,11 @@ sys.path.insert(0, str(ROOT))
 
 from tests.synth_sweep import plane_truth, small_camera, sweep  # noqa: E402
 
-from scanqa.calibration import build_table  # noqa: E402
+from scanqa.annotation import annotate  # noqa: E402
+from scanqa.calibration.build import build_table  # noqa: E402
 from scanqa.config import load_config  # noqa: E402
+from scanqa.decoding.phasemap import PhaseMap  # noqa: E402
 from scanqa.io.cloud import write_cloud  # noqa: E402
-from scanqa.phase import PhaseMap  # noqa: E402
-from scanqa.uncertainty import annotate  # noqa: E402
 
 
 def main() -> int:

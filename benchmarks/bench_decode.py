@@ -32,7 +32,7 @@ WIDTH = 1280
 
 
 def _description():
-    from scanqa.io.patterns import PatternDescription, PhaseSet, SensorModel
+    from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 
     sets = tuple(PhaseSet(f"p{p:g}", p, 4) for p in PERIODS)
     return PatternDescription(WIDTH, sets, sensor=SensorModel(bit_depth=12))
@@ -40,7 +40,7 @@ def _description():
 
 def make_images(rows: int, cols: int, seed: int = 0) -> np.ndarray:
     """(12, rows, cols) uint16 fringe images of a tilted plane, with noise [DN]."""
-    from scanqa.io.patterns import synthesize_images
+    from scanqa.decoding.patternset import synthesize_images
 
     rng = np.random.default_rng(seed)
     xp = np.linspace(0.0, WIDTH - 1.0, cols)[None, :] + np.linspace(0, 5, rows)[:, None]
@@ -77,7 +77,7 @@ def _maxrss_mb() -> float:
 def _run_scanqa(images: np.ndarray, repeat: int) -> dict:
     import tracemalloc
 
-    from scanqa.phase import decode
+    from scanqa.decoding.decoder import decode_images
 
     desc = _description()
     stacks = [images[4 * i:4 * i + 4] for i in range(len(PERIODS))]
@@ -86,12 +86,12 @@ def _run_scanqa(images: np.ndarray, repeat: int) -> dict:
     for _ in range(repeat):
         pm = None  # free the previous result: the peak is that of one decode
         t0 = time.perf_counter()
-        pm = decode(desc, stacks)
+        pm = decode_images(desc, stacks)
         times.append(time.perf_counter() - t0)
     valid = int(pm.valid.sum())
     pm = None
     tracemalloc.start()
-    decode(desc, stacks)
+    decode_images(desc, stacks)
     traced = tracemalloc.get_traced_memory()[1] / 1e6
     tracemalloc.stop()
     return {"times": times, "base_mb": base, "maxrss_mb": _maxrss_mb(),

@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from scanqa.gauge import detect_blocks, load_layout, run_qa  # noqa: E402
+from scanqa.qa.blocks import detect_blocks, load_layout, run_qa  # noqa: E402
 
 LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
 BASE_Z_MM = 469.05

@@ -39,7 +39,7 @@ def _config(width: int, height: int):
 
 def run_one(key: str) -> dict:
     """Simulate and write one gauge-block scan; return time and peak memory."""
-    from scanqa.simulate.experiments import run_experiment
+    from scanqa.simulator.experiments import run_experiment
 
     config = _config(*SIZES[key])
     with tempfile.TemporaryDirectory() as tmp:

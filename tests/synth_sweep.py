@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from scanqa import optics
-from scanqa.calibration import PlaneObservation
+from scanqa.calibration.build import PlaneObservation
 from scanqa.config import ScannerConfig
 
 

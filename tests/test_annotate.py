@@ -10,14 +10,14 @@ import numpy as np
 import pytest
 
 from scanqa import optics
-from scanqa.calibration import build_table, save_table
+from scanqa.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
+from scanqa.calibration.build import build_table
+from scanqa.calibration.table import save_table
 from scanqa.cli import main
+from scanqa.decoding.phasemap import PhaseMap, save_phase_map
 from scanqa.errors import InputError
 from scanqa.io.cloud import read_cloud, write_cloud
-from scanqa.io.phasemap import save_phase_map
 from scanqa.io.ply import RESERVED_SUBSTRINGS, check_attribute_name
-from scanqa.phase import PhaseMap
-from scanqa.uncertainty import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
 from .conftest import PAPER_CONFIG
 from .synth_sweep import plane_truth, small_camera, sweep

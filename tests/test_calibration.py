@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanqa.calibration import build_table, load_table, save_table
+from scanqa.calibration.build import build_table
+from scanqa.calibration.table import load_table, save_table
 from scanqa.errors import InputError
 
 from .synth_sweep import plane_truth, small_camera, sweep

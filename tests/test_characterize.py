@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from scanqa.characterize import (
+from scanqa.characterization import (
     JointCharacterization,
     characterize_sweep,
     characterize_sweeps,
@@ -16,7 +16,7 @@ from scanqa.characterize import (
 )
 from scanqa.cli import main
 from scanqa.errors import InputError
-from scanqa.simulate.experiments import run_experiment
+from scanqa.simulator.experiments import run_experiment
 
 
 def _sweep(tmp_path_factory, paper_config, experiment: str):
@@ -99,7 +99,7 @@ def test_characterize_cli_writes_summary_and_plots(camera_sweep, tmp_path):
     base = (folder / "manifest.toml").read_text()
     assert "camera-sweep" in base
     from scanqa.io.tomlfile import read_toml
-    from scanqa.simulate.experiments import dump_toml
+    from scanqa.simulator.experiments import dump_toml
 
     data = read_toml(folder / "manifest.toml", "manifest")["config"]
     data.pop("name")

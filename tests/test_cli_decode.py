@@ -6,14 +6,9 @@ import numpy as np
 import pytest
 
 from scanqa.cli import main
-from scanqa.io.patterns import (
-    PatternDescription,
-    PhaseSet,
-    SensorModel,
-    synthesize_images,
-    write_pattern_set,
-)
-from scanqa.io.phasemap import load_phase_map
+from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
+from scanqa.decoding.patternset import synthesize_images, write_pattern_set
+from scanqa.decoding.phasemap import load_phase_map
 
 
 def _scan(folder, fmt="png"):

@@ -11,7 +11,7 @@ scanner at f/11, sensor binned 8 x 8 to 306 x 256 px, 8-bit). Data:
   positions, rendered in the central 128 x 128 px window of the sensor, and a sweep far
   past the depth of field (414..490 mm) of the central 96 x 96 px.
 
-Truth is the simulator's ray casting (:func:`scanqa.simulate.render.truth_for`): X, Y, Z
+Truth is the simulator's ray casting (:func:`scanqa.simulator.render.truth_for`): X, Y, Z
 and the true projector coordinate ``xp_true`` at every pixel centre. The simulator forms
 images; it never draws noise from the model's sigma.
 
@@ -41,17 +41,19 @@ import pytest
 from scipy.ndimage import binary_erosion, maximum_filter, minimum_filter
 
 from scanqa import optics
-from scanqa.calibration import PlaneObservation, build_table, load_table
-from scanqa.characterize import apply_fitted_model, load_manifest
+from scanqa.annotation import annotate
+from scanqa.calibration.build import PlaneObservation, build_table
+from scanqa.calibration.sweep import iter_observations
+from scanqa.calibration.table import load_table
+from scanqa.characterization import apply_fitted_model, load_manifest
 from scanqa.cli import main
 from scanqa.config import load_config
-from scanqa.gauge import load_layout, run_qa
-from scanqa.io.sweep import iter_observations, load_sweep
-from scanqa.phase import decode, decode_pattern_dir
-from scanqa.simulate import render
-from scanqa.simulate.devices import sensor_window
-from scanqa.simulate.experiments import acquisition, build_positions, pattern_description
-from scanqa.uncertainty import annotate
+from scanqa.decoding.decoder import decode_images, decode_pattern_dir
+from scanqa.io.sweep import load_sweep
+from scanqa.qa.blocks import load_layout, run_qa
+from scanqa.simulator import render
+from scanqa.simulator.devices import sensor_window
+from scanqa.simulator.experiments import acquisition, build_positions, pattern_description
 
 from .conftest import ROOT
 from .synth_sweep import small_camera
@@ -240,7 +242,7 @@ def holdout_scans(sample_config):
     positions = build_positions("calibration-sweep", config, HOLDOUT_SCAN_Z)
     acqs = [replace(acquisition(config, p, 0), key=(HOLDOUT_KEY + p.index, r))
             for p in positions for r in range(HOLDOUT_REPEATS)]
-    maps = _parallel(lambda acq: decode(desc, render.render_images(config, acq, desc)).xp,
+    maps = _parallel(lambda acq: decode_images(desc, render.render_images(config, acq, desc)).xp,
                      acqs)
     out = []
     for k, pos in enumerate(positions):
@@ -262,7 +264,7 @@ def wide_sweep(sample_config):
     desc = pattern_description(config)
 
     def scan(pos):
-        pm = decode(desc, render.render_images(config, acquisition(config, pos, 0), desc))
+        pm = decode_images(desc, render.render_images(config, acquisition(config, pos, 0), desc))
         return PlaneObservation(pos.stage_mm, pm.xp, pm.mask, pm.modulation, pm.sigma_xp,
                                 source=f"z={pos.stage_mm}")
 
@@ -278,7 +280,7 @@ def gauge_scans(sample_config):
     desc = pattern_description(sample_config)
     pos = build_positions("gauge-blocks", sample_config, [0.0])[0]
     render.truth_for(sample_config, acquisition(sample_config, pos, 0))  # build the scene
-    scans += _parallel(lambda rep: decode(desc, render.render_images(
+    scans += _parallel(lambda rep: decode_images(desc, render.render_images(
         sample_config, acquisition(sample_config, pos, rep), desc)),
         list(range(len(scans), GAUGE_REPEATS)))
     with np.load(GAUGE_DIR / "truth" / "p000.npz", allow_pickle=False) as data:

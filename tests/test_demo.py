@@ -95,7 +95,7 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     import shutil
 
     from scanqa import demo
-    from scanqa.simulate import experiments
+    from scanqa.simulator import experiments
 
     calls = []
 

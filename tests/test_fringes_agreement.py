@@ -13,8 +13,10 @@ import logging
 import numpy as np
 import pytest
 
-from scanqa.io.patterns import PatternDescription, PhaseSet, SensorModel, synthesize_images
-from scanqa.phase import decode, demodulate
+from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
+from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.demodulate import demodulate
+from scanqa.decoding.patternset import synthesize_images
 
 fringes = pytest.importorskip("fringes")
 
@@ -42,7 +44,7 @@ def decoded():
 
 def test_wrapped_phase_agrees_within_1e4_rad(decoded):
     desc, _, images, theirs = decoded
-    ours = decode(desc, images)
+    ours = decode_images(desc, images)
     both = ours.valid & np.isfinite(theirs.x[0, :, :, 0])
     assert both.mean() > 0.9
     for i in range(len(PERIODS)):
@@ -53,7 +55,7 @@ def test_wrapped_phase_agrees_within_1e4_rad(decoded):
 
 def test_modulation_and_coordinate_agree(decoded):
     desc, xp, images, theirs = decoded
-    ours = decode(desc, images)
+    ours = decode_images(desc, images)
     both = ours.valid & np.isfinite(theirs.x[0, :, :, 0])
     b_fine = theirs.b[len(PERIODS) - 1, :, :, 0]
     np.testing.assert_allclose(ours.modulation[both], b_fine[both], rtol=1e-4)

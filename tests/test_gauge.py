@@ -9,8 +9,8 @@ import pytest
 
 from scanqa.cli import main
 from scanqa.errors import InputError
-from scanqa.gauge import detect_blocks, fit_plane, load_layout, run_qa
 from scanqa.io.cloud import read_cloud, write_cloud
+from scanqa.qa.blocks import detect_blocks, fit_plane, load_layout, run_qa
 
 from .conftest import ROOT
 

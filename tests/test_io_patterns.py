@@ -7,23 +7,25 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from scanqa.errors import ConfigError, InputError
-from scanqa.io.images import read_image, read_stack, write_image
-from scanqa.io.patterns import (
+from scanqa.decoding.coding import (
     GrayCodeSet,
     PatternDescription,
     PhaseSet,
     SensorModel,
-    dumps_patterns,
-    ideal_patterns,
     load_patterns,
     patterns_from_dict,
+)
+from scanqa.decoding.decoder import decode_pattern_dir
+from scanqa.decoding.patternset import (
+    ideal_patterns,
     projector_patterns,
     read_pattern_images,
     synthesize_images,
     write_pattern_set,
 )
-from scanqa.phase import decode_pattern_dir
+from scanqa.errors import ConfigError, InputError
+from scanqa.io.images import read_image, read_stack, write_image
+from scanqa.io.patterns import dumps_patterns
 
 WIDTH = 640
 
@@ -87,7 +89,7 @@ def test_dumps_is_the_inverse_of_parsing():
         description='say "hi"')
     import tomllib
 
-    again = patterns_from_dict(tomllib.loads(dumps_patterns(desc)))
+    again = patterns_from_dict(tomllib.loads(dumps_patterns(desc.to_dict())))
     assert again.sets == desc.sets and again.description == desc.description
     assert again.thresholds == desc.thresholds
 

@@ -8,9 +8,16 @@ import zipfile
 import numpy as np
 import pytest
 
+from scanqa.decoding.phasemap import (
+    MASK_LOW_MODULATION,
+    MASK_SATURATED,
+    MASK_VALID,
+    PhaseMap,
+    load_phase_map,
+    save_phase_map,
+)
 from scanqa.errors import InputError
-from scanqa.io.phasemap import FORMAT, PhaseMap, load_phase_map, save_phase_map
-from scanqa.phase import MASK_LOW_MODULATION, MASK_SATURATED, MASK_VALID
+from scanqa.io.phasemap import FORMAT
 
 
 def _phase_map() -> PhaseMap:

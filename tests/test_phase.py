@@ -11,26 +11,25 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanqa.errors import InputError
-from scanqa.io.patterns import (
+from scanqa.decoding.coding import (
     GrayCodeSet,
     PatternDescription,
     PhaseSet,
     SensorModel,
     Thresholds,
-    synthesize_images,
 )
-from scanqa.phase import (
+from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.demodulate import demodulate, sample_variance
+from scanqa.decoding.patternset import synthesize_images
+from scanqa.decoding.phasemap import (
     MASK_INCONSISTENT,
     MASK_LOW_MODULATION,
     MASK_OUT_OF_RANGE,
     MASK_SATURATED,
     MASK_VALID,
     PhaseMap,
-    decode,
-    demodulate,
-    sample_variance,
 )
+from scanqa.errors import InputError
 
 WIDTH = 1280
 SHAPE = (64, 256)  # 16384 pixels per image: std estimates good to ~0.6 %
@@ -110,7 +109,7 @@ def test_demodulate_rejects_too_few_frames_and_wrong_shifts():
 def test_noise_free_multi_period_is_exact(steps, shifts):
     desc = _three_periods(steps, shifts)
     xp = _random_xp(seed=steps, low=-0.45, high=WIDTH - 0.55)  # whole coded range
-    pm = decode(desc, synthesize_images(desc, xp, 1500.0, 1000.0))
+    pm = decode_images(desc, synthesize_images(desc, xp, 1500.0, 1000.0))
     assert pm.valid.all()
     np.testing.assert_allclose(pm.xp, xp, rtol=0, atol=1e-6)  # acceptance: 1e-6 px
     assert np.abs(pm.xp - xp).max() < 1e-9  # float64 throughout: far better in fact
@@ -128,7 +127,7 @@ def test_noise_free_decoding_is_exact_for_any_steps_and_periods(steps, ratio, co
     sets = (PhaseSet("c", coarse * width, steps), PhaseSet("f", coarse * width / ratio, steps))
     desc = PatternDescription(width, sets, sensor=_gaussian_sensor(1e-3))
     xp = np.random.default_rng(seed).uniform(-0.5, width - 0.5, (4, 64))
-    pm = decode(desc, synthesize_images(desc, xp, 500.0 * gain, 400.0 * gain))
+    pm = decode_images(desc, synthesize_images(desc, xp, 500.0 * gain, 400.0 * gain))
     assert pm.valid.all()
     np.testing.assert_allclose(pm.xp, xp, rtol=0, atol=1e-6)
 
@@ -138,7 +137,7 @@ def test_noise_free_gray_code_is_exact(inverse):
     sets = (PhaseSet("p16", 16.0, 4), GrayCodeSet("g", 8, orders="p16", inverse=inverse))
     desc = PatternDescription(WIDTH, sets)
     xp = _random_xp(seed=3, low=-0.45, high=WIDTH - 0.55)
-    pm = decode(desc, synthesize_images(desc, xp, 1500.0, 1000.0))
+    pm = decode_images(desc, synthesize_images(desc, xp, 1500.0, 1000.0))
     assert pm.valid.all()
     np.testing.assert_allclose(pm.xp, xp, rtol=0, atol=1e-6)
 
@@ -147,7 +146,7 @@ def test_gray_code_with_finer_sets_is_exact():
     sets = (PhaseSet("p64", 64.0, 4), PhaseSet("p8", 8.0, 4), GrayCodeSet("g", 6))
     desc = PatternDescription(WIDTH, sets)
     xp = _random_xp(seed=4)
-    pm = decode(desc, synthesize_images(desc, xp, 1500.0, 1000.0))
+    pm = decode_images(desc, synthesize_images(desc, xp, 1500.0, 1000.0))
     np.testing.assert_allclose(pm.xp, xp, rtol=0, atol=1e-6)
 
 
@@ -155,7 +154,7 @@ def test_horizontal_orientation_decodes_the_same_coordinate():
     sets = tuple(PhaseSet(f"p{p:g}", p, 4, orientation="horizontal") for p in (800.0, 20.0))
     desc = PatternDescription(800, sets, sensor=_gaussian_sensor(1.0))  # ratio 40 needs it
     xp = _random_xp(seed=5, high=799.0)
-    pm = decode(desc, synthesize_images(desc, xp, 900.0, 600.0))
+    pm = decode_images(desc, synthesize_images(desc, xp, 900.0, 600.0))
     assert pm.orientation == "horizontal"
     np.testing.assert_allclose(pm.xp, xp, rtol=0, atol=1e-6)
 
@@ -166,8 +165,8 @@ def test_chunking_does_not_change_the_result():
     rng = np.random.default_rng(6)
     images = [im + rng.normal(0, 5.0, im.shape) for im in synthesize_images(desc, xp, 1500.0,
                                                                             1000.0)]
-    whole = decode(desc, images, chunk_rows=1000)
-    split = decode(desc, images, chunk_rows=7)
+    whole = decode_images(desc, images, chunk_rows=1000)
+    split = decode_images(desc, images, chunk_rows=7)
     np.testing.assert_array_equal(whole.mask, split.mask)
     np.testing.assert_allclose(whole.xp, split.xp, rtol=0, atol=1e-12)
 
@@ -192,7 +191,7 @@ def test_gaussian_noise_std_matches_predicted_sigma(sigma_dn):
     rng = np.random.default_rng(int(sigma_dn * 10))
     images = [im + rng.normal(0.0, sigma_dn, im.shape)
               for im in synthesize_images(desc, xp, 1500.0, 1000.0)]
-    ratio = _check_noise(decode(desc, images), xp)
+    ratio = _check_noise(decode_images(desc, images), xp)
     assert ratio == pytest.approx(1.0, rel=0.10)  # acceptance: within 10 %
 
 
@@ -208,7 +207,7 @@ def test_shot_read_quantisation_noise_matches_predicted_sigma(steps, shifts):
     for im in synthesize_images(desc, xp, 1000.0, 900.0):
         noisy = im + rng.normal(0.0, 1.0, im.shape) * np.sqrt(4.0 + im / 4.0)
         images.append(np.clip(np.rint(noisy), 0, 4095).astype(np.uint16))
-    ratio = _check_noise(decode(desc, images), xp)
+    ratio = _check_noise(decode_images(desc, images), xp)
     assert ratio == pytest.approx(1.0, rel=0.10)
 
 
@@ -220,7 +219,7 @@ def test_gray_code_noise_matches_predicted_sigma():
     rng = np.random.default_rng(30)
     images = [im + rng.normal(0.0, 10.0, im.shape)
               for im in synthesize_images(desc, xp, 1500.0, 1000.0)]
-    assert _check_noise(decode(desc, images), xp) == pytest.approx(1.0, rel=0.10)
+    assert _check_noise(decode_images(desc, images), xp) == pytest.approx(1.0, rel=0.10)
 
 
 # -------------------------------------------------------------------------- masks
@@ -247,7 +246,7 @@ def _mask_scene() -> tuple[PatternDescription, np.ndarray, list[np.ndarray]]:
 
 def test_masks_carry_the_right_reason():
     desc, xp, images = _mask_scene()
-    pm = decode(desc, images)
+    pm = decode_images(desc, images)
     assert (pm.mask[:, :32] == MASK_SATURATED).all()
     assert (pm.mask[:, 32:64] == MASK_LOW_MODULATION).all()
     assert (pm.mask[:, 64:96] == MASK_INCONSISTENT).all()
@@ -268,7 +267,7 @@ def test_absolute_modulation_floor():
                           sensor=_gaussian_sensor(1.0))
     xp = _random_xp(seed=50)
     modulation = np.where(np.arange(SHAPE[1]) < 128, 100.0, 200.0) * np.ones(SHAPE)
-    pm = decode(desc, synthesize_images(desc, xp, 500.0, modulation))
+    pm = decode_images(desc, synthesize_images(desc, xp, 500.0, modulation))
     assert (pm.mask[:, :128] == MASK_LOW_MODULATION).all() and pm.valid[:, 128:].all()
 
 
@@ -279,7 +278,7 @@ def test_noise_too_large_to_unwrap_is_low_modulation():
     rng = np.random.default_rng(51)
     images = [im + rng.normal(0, 60.0, im.shape)
               for im in synthesize_images(desc, xp, 1500.0, 1000.0)]
-    pm = decode(desc, images)
+    pm = decode_images(desc, images)
     assert (pm.mask == MASK_LOW_MODULATION).all()
 
 
@@ -291,7 +290,7 @@ def test_gray_code_masks_inconsistent_and_undecidable_bits():
     images = synthesize_images(desc, xp, 1500.0, 1000.0)
     images[1][:, :, :64] = synthesize_images(desc, xp + 8.0, 1500.0, 1000.0)[1][:, :, :64]
     images[1][3, :, 128:192] = images[1][3 + 8, :, 128:192]  # bit 3 equals its inverse
-    pm = decode(desc, images)
+    pm = decode_images(desc, images)
     assert (pm.mask[:, :64] == MASK_INCONSISTENT).all()
     assert (pm.mask[:, 128:192] == MASK_LOW_MODULATION).all()
     assert pm.valid[:, 64:128].all() and pm.valid[:, 192:].all()
@@ -303,15 +302,15 @@ def test_decode_rejects_bad_stacks():
     desc = _three_periods()
     good = synthesize_images(desc, _random_xp(seed=70), 1500.0, 1000.0)
     with pytest.raises(InputError, match="got 2 image stacks for 3 sets"):
-        decode(desc, good[:2])
+        decode_images(desc, good[:2])
     with pytest.raises(InputError, match=r"set 'p80' needs a real \(4, H, W\) stack"):
-        decode(desc, [good[0], good[1][:3], good[2]])
+        decode_images(desc, [good[0], good[1][:3], good[2]])
     with pytest.raises(InputError, match="mismatched image sizes: set 'p16'"):
-        decode(desc, [good[0], good[1], good[2][:, :, :100]])
+        decode_images(desc, [good[0], good[1], good[2][:, :, :100]])
     bad = good[2].copy()
     bad[0, 0, 0] = np.nan
     with pytest.raises(InputError, match="set 'p16' contain NaN"):
-        decode(desc, [good[0], good[1], bad])
+        decode_images(desc, [good[0], good[1], bad])
 
 
 def test_phase_map_refuses_numbers_under_a_mask():

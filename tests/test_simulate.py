@@ -1,4 +1,4 @@
-"""Tests of the virtual scanner (scanqa.simulate): truth, attenuation, determinism, errors."""
+"""Tests of the virtual scanner (scanqa.simulator): truth, attenuation, determinism, errors."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from scanqa import optics
+from scanqa.decoding.patternset import ideal_patterns
 from scanqa.errors import InputError
-from scanqa.io.patterns import ideal_patterns
-from scanqa.simulate import devices, experiments, render, scene
-from scanqa.simulate.optics_kernels import DiscAverage, disc_quadrature
+from scanqa.simulator import devices, experiments, render, scene
+from scanqa.simulator.optics_kernels import DiscAverage, disc_quadrature
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -150,8 +150,8 @@ def test_projector_sweep_attenuation_follows_model(paper_config):
 # ---------------------------------------------------------------------- W shape
 
 def test_phase_noise_has_w_shape_over_camera_sweep(paper_config):
-    from scanqa.characterize import is_w_shape, surface_residual_std
-    from scanqa.phase import decode
+    from scanqa.characterization import is_w_shape, surface_residual_std
+    from scanqa.decoding.decoder import decode_images
 
     config = small(paper_config, 40)
     desc = experiments.pattern_description(config)
@@ -159,7 +159,7 @@ def test_phase_noise_has_w_shape_over_camera_sweep(paper_config):
     std = []
     for pos in experiments.build_positions("camera-sweep", config, offsets):
         images = render.render_images(config, experiments.acquisition(config, pos, 0), desc)
-        pm = decode(desc, images)
+        pm = decode_images(desc, images)
         std.append(surface_residual_std(pm.xp, pm.valid))
     std = np.array(std)
     z = 450.0 - np.array(offsets)

@@ -7,12 +7,11 @@ import json
 import numpy as np
 import pytest
 
-from scanqa.calibration import load_table
+from scanqa.calibration.table import load_table
 from scanqa.cli import main
+from scanqa.decoding.phasemap import PhaseMap, save_phase_map
 from scanqa.errors import InputError
-from scanqa.io.phasemap import save_phase_map
 from scanqa.io.sweep import load_sweep
-from scanqa.phase import PhaseMap
 
 from .conftest import PAPER_CONFIG
 from .synth_sweep import small_camera, sweep

@@ -16,19 +16,25 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from scanqa import design
-from scanqa.calibration import build_table, save_table
-from scanqa.characterize import apply_fitted_model, characterize_sweeps, write_characterization
+from scanqa.annotation import annotate
+from scanqa.calibration.build import build_table
+from scanqa.calibration.sweep import iter_observations
+from scanqa.calibration.table import save_table
+from scanqa.characterization import (
+    apply_fitted_model,
+    characterize_sweeps,
+    write_characterization,
+)
 from scanqa.config import load_config
+from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError
-from scanqa.gauge import QAResult, load_layout, model_curve, run_qa
 from scanqa.io.atomic import make_out_dir, write_text
 from scanqa.io.cloud import write_cloud
-from scanqa.io.sweep import iter_observations, load_sweep
-from scanqa.phase import decode_pattern_dir
+from scanqa.io.sweep import load_sweep
+from scanqa.qa.blocks import QAResult, load_layout, model_curve, run_qa
 from scanqa.report import calibration as calibration_report
 from scanqa.report import design as design_plots
 from scanqa.report import qa as qa_report
-from scanqa.uncertainty import annotate
 
 ROOT = Path(__file__).resolve().parents[2]
 SAMPLE_DIR = ROOT / "sample_data"
@@ -91,7 +97,7 @@ def _decode(path: Path):
 
 def simulate_full(data: Path, say: Callable[[str], None]) -> Path:
     """Simulate the demo's data at the paper's resolution into ``data``."""
-    from scanqa.simulate.experiments import run_experiment
+    from scanqa.simulator.experiments import run_experiment
 
     cfg_path, full, roi = FULL_CONFIG
     for experiment, which, positions, repeats, folder in FULL_PLAN:

@@ -6,13 +6,13 @@ import argparse
 import sys
 from pathlib import Path
 
-from scanqa.calibration import load_table
+from scanqa.annotation import annotate
+from scanqa.calibration.table import load_table
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
+from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
 from scanqa.io.cloud import WRITERS, write_cloud
-from scanqa.phase import PhaseMap
-from scanqa.uncertainty import annotate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -36,8 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def load_scan(path: str) -> PhaseMap:
     """A decoded phase file, or a pattern folder decoded on the fly."""
-    from scanqa.io.phasemap import load_phase_map
-    from scanqa.phase import decode_pattern_dir
+    from scanqa.decoding.decoder import decode_pattern_dir
+    from scanqa.decoding.phasemap import load_phase_map
 
     p = Path(path)
     if p.is_dir():

@@ -7,10 +7,12 @@ import json
 import sys
 from pathlib import Path
 
-from scanqa.calibration import WEIGHT_MODES, build_table, save_table
+from scanqa.calibration.build import WEIGHT_MODES, build_table
+from scanqa.calibration.sweep import iter_observations
+from scanqa.calibration.table import save_table
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.io.atomic import check_out_dir, write_text
-from scanqa.io.sweep import iter_observations, load_sweep
+from scanqa.io.sweep import load_sweep
 from scanqa.report import calibration as report_calibration
 
 

@@ -34,7 +34,7 @@ def config_from_args(args: argparse.Namespace) -> ScannerConfig:
     """Load the config named by ``--config``/``--profile`` (and ``--model`` if given)."""
     config = load_config(args.config, profile=args.profile)
     if getattr(args, "model", None):
-        from scanqa.characterize import apply_fitted_model
+        from scanqa.characterization import apply_fitted_model
 
         config = apply_fitted_model(config, args.model)
     return config

@@ -6,8 +6,8 @@ import argparse
 import sys
 
 from scanqa.cli.common import output_path
-from scanqa.io.phasemap import save_phase_map
-from scanqa.phase import decode_pattern_dir
+from scanqa.decoding.decoder import decode_pattern_dir
+from scanqa.decoding.phasemap import save_phase_map
 
 _EPILOG = """\
 PATTERN_DIR holds the camera images and a patterns.toml describing them

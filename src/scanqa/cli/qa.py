@@ -8,9 +8,9 @@ import numpy as np
 
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.errors import InputError
-from scanqa.gauge import detect_blocks, load_layout, model_curve, run_qa
 from scanqa.io.atomic import make_out_dir
 from scanqa.io.cloud import read_cloud
+from scanqa.qa.blocks import detect_blocks, load_layout, model_curve, run_qa
 from scanqa.report import qa as qa_report
 
 
@@ -50,9 +50,9 @@ def _load(args: argparse.Namespace) -> tuple[np.ndarray, dict, object]:
     if args.table:
         if not args.config:
             raise InputError("--table needs --config (the config the table was built with)")
-        from scanqa.calibration import load_table
+        from scanqa.annotation import annotate
+        from scanqa.calibration.table import load_table
         from scanqa.cli.annotate import load_scan
-        from scanqa.uncertainty import annotate
 
         config = config_from_args(args)
         cloud = annotate(load_scan(args.cloud), load_table(args.table), config,

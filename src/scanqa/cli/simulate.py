@@ -28,7 +28,7 @@ def _positions(text: str) -> list[float]:
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``simulate`` and ``characterize`` subcommands."""
-    from scanqa.simulate.experiments import EXPERIMENTS
+    from scanqa.simulator.experiments import EXPERIMENTS
 
     p = sub.add_parser(
         "simulate", formatter_class=_FMT,
@@ -81,7 +81,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run_simulate(args: argparse.Namespace) -> int:
-    from scanqa.simulate.experiments import run_experiment
+    from scanqa.simulator.experiments import run_experiment
 
     config = config_from_args(args)
     if args.seed is not None:
@@ -96,7 +96,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.characterize import characterize_sweeps, write_characterization
+    from scanqa.characterization import characterize_sweeps, write_characterization
 
     config = config_from_args(args)
     result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)

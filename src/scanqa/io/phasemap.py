@@ -10,7 +10,7 @@ xp              (H, W) f8    projector coordinate along the fringe direction [pr
                              NaN where masked
 modulation      (H, W) f4    modulation B of the working period [DN]
 offset          (H, W) f4    offset A [DN]
-mask            (H, W) u1    reason code, 0 = valid (``scanqa.phase.MASK_REASONS``)
+mask            (H, W) u1    reason code, 0 = valid (``scanqa.decoding.phasemap.MASK_REASONS``)
 sigma_xp        (H, W) f4    predicted standard deviation of xp [projector px], NaN if masked
 period_px       f8 scalar    working (finest) period [projector px]
 orientation     str scalar   "vertical" (xp is x_p) or "horizontal" (xp is y_p)
@@ -32,31 +32,33 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
-from scanqa.phase import (
-    MASK_INCONSISTENT,
-    MASK_LOW_MODULATION,
-    MASK_OUT_OF_RANGE,
-    MASK_REASONS,
-    MASK_SATURATED,
-    MASK_VALID,
-    PhaseMap,
-)
 
 #: Value of the ``format`` entry written and accepted.
 FORMAT = "scanqa-phasemap/1"
-_ARRAYS = ("xp", "modulation", "offset", "mask", "sigma_xp")
+#: The per-pixel arrays, in file order.
+ARRAYS = ("xp", "modulation", "offset", "mask", "sigma_xp")
 _SCALARS = ("period_px", "orientation", "projector_width_px", "provenance")
 
 
-def save_phase_map(path: str | os.PathLike, phase_map: PhaseMap) -> Path:
-    """Write a phase map to an ``.npz`` file atomically.
+def write_phase_file(path: str | os.PathLike, arrays: dict, *, period_px: float,
+                     orientation: str, projector_width_px: int, provenance: dict) -> Path:
+    """Write the arrays and scalars of a phase map to an ``.npz`` file atomically.
 
     Parameters
     ----------
     path : str or PathLike
-        Output file (conventionally ``phase.npz``); its folder must exist.
-    phase_map : PhaseMap
-        The map to store.
+        Output file; its folder must exist.
+    arrays : dict of str to (H, W) array
+        ``xp`` [projector px], ``modulation``, ``offset`` [DN], ``mask`` (reason codes)
+        and ``sigma_xp`` [projector px].
+    period_px : float
+        Working period [projector px].
+    orientation : str
+        "vertical" or "horizontal".
+    projector_width_px : int
+        Coded range [projector px].
+    provenance : dict
+        Plain-JSON description of how the map was made.
 
     Returns
     -------
@@ -69,37 +71,34 @@ def save_phase_map(path: str | os.PathLike, phase_map: PhaseMap) -> Path:
         When the folder does not exist or the provenance is not JSON-serialisable.
     """
     try:
-        provenance = json.dumps(phase_map.provenance, sort_keys=True, allow_nan=False)
+        text = json.dumps(provenance, sort_keys=True, allow_nan=False)
     except (TypeError, ValueError) as err:
         raise InputError(f"cannot write {path}: provenance is not plain JSON ({err})") from None
-    arrays = {name: getattr(phase_map, name) for name in _ARRAYS}
-    scalars = {"format": np.str_(FORMAT), "period_px": np.float64(phase_map.period_px),
-               "orientation": np.str_(phase_map.orientation),
-               "projector_width_px": np.int64(phase_map.projector_width_px),
-               "provenance": np.str_(provenance)}
+    scalars = {"format": np.str_(FORMAT), "period_px": np.float64(period_px),
+               "orientation": np.str_(orientation),
+               "projector_width_px": np.int64(projector_width_px),
+               "provenance": np.str_(text)}
     with atomic_path(path) as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, **arrays, **scalars)
+        np.savez(fh, **{k: arrays[k] for k in ARRAYS}, **scalars)
     return Path(path)
 
 
-def load_phase_map(path: str | os.PathLike) -> PhaseMap:
-    """Read a phase map written by :func:`save_phase_map`.
-
-    Parameters
-    ----------
-    path : str or PathLike
-        The ``.npz`` file.
+def read_phase_file(path: str | os.PathLike) -> tuple[dict, dict]:
+    """Read a phase map file written by :func:`write_phase_file`.
 
     Returns
     -------
-    PhaseMap
-        The map, with validated shapes, mask codes and NaN convention.
+    arrays : dict of str to (H, W) array
+        The per-pixel arrays of :data:`ARRAYS`, as stored.
+    scalars : dict
+        ``period_px`` (float), ``orientation`` (str), ``projector_width_px`` (int) and
+        ``provenance`` (dict).
 
     Raises
     ------
     InputError
-        When the file is missing or unreadable, of another format version, lacks an
-        entry, or its arrays are inconsistent.
+        When the file is missing or unreadable, of another format version or lacks an
+        entry.
     """
     p = Path(path)
     try:
@@ -110,31 +109,18 @@ def load_phase_map(path: str | os.PathLike) -> PhaseMap:
     except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
         raise InputError(f"cannot read phase map {p}: {err} (is it a scanqa phase.npz?)"
                          ) from None
-    return _from_arrays(p, data)
-
-
-def _from_arrays(path: Path, data: dict) -> PhaseMap:
     fmt = str(data.get("format", "(none)"))
     if fmt != FORMAT:
-        raise InputError(f"phase map {path} has format {fmt!r}; this scanqa reads {FORMAT!r} "
+        raise InputError(f"phase map {p} has format {fmt!r}; this scanqa reads {FORMAT!r} "
                          "(decode the images again with this version)")
-    missing = [k for k in (*_ARRAYS, *_SCALARS) if k not in data]
+    missing = [k for k in (*ARRAYS, *_SCALARS) if k not in data]
     if missing:
-        raise InputError(f"phase map {path} lacks {', '.join(missing)} (file truncated or "
+        raise InputError(f"phase map {p} lacks {', '.join(missing)} (file truncated or "
                          "not written by scanqa)")
     try:
         provenance = json.loads(str(data["provenance"]))
     except json.JSONDecodeError as err:
-        raise InputError(f"phase map {path}: provenance is not valid JSON ({err})") from None
-    try:
-        return PhaseMap(**{k: data[k] for k in _ARRAYS}, period_px=float(data["period_px"]),
-                        orientation=str(data["orientation"]),
-                        projector_width_px=int(data["projector_width_px"]),
-                        provenance=provenance)
-    except InputError as err:
-        raise InputError(f"phase map {path}: {err}") from None
-
-
-__all__ = ["FORMAT", "MASK_INCONSISTENT", "MASK_LOW_MODULATION", "MASK_OUT_OF_RANGE",
-           "MASK_REASONS", "MASK_SATURATED", "MASK_VALID", "PhaseMap", "load_phase_map",
-           "save_phase_map"]
+        raise InputError(f"phase map {p}: provenance is not valid JSON ({err})") from None
+    scalars = {"period_px": float(data["period_px"]), "orientation": str(data["orientation"]),
+               "projector_width_px": int(data["projector_width_px"]), "provenance": provenance}
+    return {k: data[k] for k in ARRAYS}, scalars

@@ -19,13 +19,11 @@ from __future__ import annotations
 
 import math
 import os
-from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from scanqa.calibration import PlaneObservation
 from scanqa.errors import InputError
 from scanqa.io.tomlfile import read_toml
 
@@ -132,25 +130,10 @@ def _check_order(path: Path, positions: tuple[SweepPosition, ...]) -> None:
                              f"(z_mm = {b}) follows z_mm = {a}")
 
 
-def _load_lateral(path: Path) -> tuple[np.ndarray, np.ndarray]:
+def read_lateral(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
+    """The lateral maps X, Y [mm] per pixel of a marked target (arrays ``X``, ``Y``)."""
     try:
         with np.load(path, allow_pickle=False) as data:
             return np.asarray(data["X"], float), np.asarray(data["Y"], float)
     except (OSError, KeyError, ValueError) as err:
         raise InputError(f"{path}: cannot read lateral arrays X, Y ({err})") from None
-
-
-def iter_observations(sweep: Sweep) -> Iterator[PlaneObservation]:
-    """Yield one PlaneObservation per scan, loading (or decoding) one at a time."""
-    from scanqa.io.phasemap import load_phase_map
-    from scanqa.phase import decode_pattern_dir
-
-    for pos in sweep.positions:
-        lat = _load_lateral(pos.lateral) if pos.lateral else (None, None)
-        for src in pos.sources:
-            pm = load_phase_map(src) if pos.decoded else decode_pattern_dir(src)
-            if lat[0] is not None and lat[0].shape != pm.xp.shape:
-                raise InputError(f"{pos.lateral}: lateral maps are {lat[0].shape[::-1]} px, "
-                                 f"the scan {src} is {pm.xp.shape[::-1]} px")
-            yield PlaneObservation(pos.z_mm, pm.xp, pm.mask, pm.modulation, pm.sigma_xp,
-                                   lat[0], lat[1], str(src))

@@ -1,7 +1,9 @@
-"""Reading TOML inputs with one kind of error message for every file scanqa reads."""
+"""TOML files: reading with one kind of error message for every file scanqa reads, and
+writing the plain tables scanqa writes (manifests, pattern descriptions)."""
 
 from __future__ import annotations
 
+import math
 import os
 import sys
 from pathlib import Path
@@ -40,3 +42,62 @@ def read_toml(path: str | os.PathLike, what: str, error: type[ScanQAError] = Inp
         return tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise error(f"{p} is not valid TOML: {err}") from None
+
+
+def dumps_toml(data: dict) -> str:
+    """TOML text of a dict of scalars, lists, tables and arrays of tables.
+
+    Scalars come first, then tables, then arrays of tables, each in insertion order.
+    Numbers may be numpy scalars; a non-finite float is written as ``nan``/``inf``.
+
+    Examples
+    --------
+    >>> print(dumps_toml({"format": "x/1", "set": [{"kind": "phase", "steps": 4}]}), end="")
+    format = "x/1"
+    <BLANKLINE>
+    [[set]]
+    kind = "phase"
+    steps = 4
+    """
+    lines: list[str] = []
+    _dump_table(data, "", lines)
+    return "\n".join(lines).lstrip("\n") + "\n"
+
+
+def _dump_table(data: dict, prefix: str, lines: list[str]) -> None:
+    for k, v in data.items():
+        if not isinstance(v, dict) and not _is_aot(v):
+            lines.append(f"{k} = {_toml_value(v)}")
+    for k, v in data.items():
+        if isinstance(v, dict):
+            lines += ["", f"[{prefix}{k}]"]
+            _dump_table(v, f"{prefix}{k}.", lines)
+    for k, v in data.items():
+        if _is_aot(v):
+            for item in v:
+                lines += ["", f"[[{prefix}{k}]]"]
+                _dump_table(item, f"{prefix}{k}.", lines)
+
+
+def _is_aot(value: object) -> bool:
+    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
+
+
+def _toml_value(value: object) -> str:
+    """A TOML literal for a bool, number, string or (nested) list."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if hasattr(value, "dtype") and getattr(value, "ndim", 1) == 0:  # numpy scalar
+        value = value.item()
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isfinite(value):
+            return repr(value)
+        return "nan" if math.isnan(value) else ("inf" if value > 0 else "-inf")
+    if isinstance(value, str):
+        escaped = value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+        return f'"{escaped}"'
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} to TOML")

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from scanqa.calibration import BuildReport, CalibrationTable
+from scanqa.calibration.build import BuildReport
+from scanqa.calibration.table import CalibrationTable
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.gauge import QAResult
 from scanqa.io.atomic import write_text
 from scanqa.io.cloud import write_cloud
+from scanqa.qa.blocks import QAResult
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 

@@ -21,17 +21,14 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanqa.io.patterns import GrayCodeSet, PatternDescription, SensorModel, Thresholds
-from scanqa.phase import (
-    _TWO_PI,
+from scanqa.decoding.coding import GrayCodeSet, PatternDescription, SensorModel, Thresholds
+from scanqa.decoding.demodulate import TWO_PI, ShiftFit, demodulate_flat, sample_variance
+from scanqa.decoding.phasemap import (
     MASK_INCONSISTENT,
     MASK_LOW_MODULATION,
     MASK_OUT_OF_RANGE,
     MASK_SATURATED,
     MASK_VALID,
-    _demodulate_flat,
-    _ShiftFit,
-    sample_variance,
 )
 
 #: Half-width of a Gray-code stripe in cycles of the ordered period (stripes are P / 2).
@@ -43,7 +40,7 @@ class _SetPlan:
     name: str
     period_px: float
     steps: int
-    fit: _ShiftFit
+    fit: ShiftFit
 
 
 @dataclass(frozen=True, eq=False)
@@ -77,7 +74,7 @@ class UnwrapPlan:
     def build(cls, desc: PatternDescription, sensor: SensorModel,
               quantised: bool) -> UnwrapPlan:
         """Plan for a description and a resolved sensor model."""
-        phase = tuple(_SetPlan(s.name, s.period_px, s.steps, _ShiftFit.from_shifts(s.shifts_rad))
+        phase = tuple(_SetPlan(s.name, s.period_px, s.steps, ShiftFit.from_shifts(s.shifts_rad))
                       for s in desc.phase_sets)
         return cls(phase, desc.gray_set, sensor, quantised, desc.thresholds,
                    desc.projector_width_px)
@@ -131,14 +128,14 @@ def _demodulate_set(plan: UnwrapPlan, sp: _SetPlan, frames: np.ndarray,
                     flags: _Flags) -> tuple[np.ndarray, ...]:
     """(A, B, f, var_x) of one set; flags saturation and per-set low modulation."""
     flags.saturated |= frames.max(axis=0) >= plan.sensor.saturation_dn
-    a, b, frac, var_phi = _demodulate_flat(sp.fit, frames, plan.sensor, plan.quantised)
+    a, b, frac, var_phi = demodulate_flat(sp.fit, frames, plan.sensor, plan.quantised)
     th = plan.thresholds
     if th.min_modulation_dn > 0:
         flags.low |= b < th.min_modulation_dn
     # the wrapped phase itself must be reliable to within the accepted residual
-    flags.low |= ~(var_phi * (th.unwrap_sigma_margin / _TWO_PI) ** 2
+    flags.low |= ~(var_phi * (th.unwrap_sigma_margin / TWO_PI) ** 2
                    <= th.unwrap_max_residual ** 2)
-    return a, b, frac, var_phi * (sp.period_px / _TWO_PI) ** 2
+    return a, b, frac, var_phi * (sp.period_px / TWO_PI) ** 2
 
 
 def _absolute_start(plan: UnwrapPlan, coarse: tuple, flat: dict[str, np.ndarray],

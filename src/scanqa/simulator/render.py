@@ -8,7 +8,7 @@ Per pattern, in this order (DESIGN.md section 5):
    by the chief ray); unlit points get only the ambient light;
 2. projector defocus: the pattern reaching a point is the panel pattern averaged over
    the point's blur disc on the panel, by a fixed disc quadrature
-   (:class:`~scanqa.simulate.optics_kernels.DiscAverage`), with Lambertian incidence;
+   (:class:`~scanqa.simulator.optics_kernels.DiscAverage`), with Lambertian incidence;
 3. scene/projector-side temporal noise, i.i.d. per pattern and object cell, added to
    the supersampled radiance before the camera blur (so the blur filters it);
 4. camera defocus: each sample spreads over its own disc (depth-dependent) - samples
@@ -33,17 +33,17 @@ import numpy as np
 from scipy.fft import irfft2, next_fast_len, rfft2
 
 from scanqa.config import ScannerConfig
+from scanqa.decoding.coding import PatternDescription, PhaseSet
 from scanqa.errors import InputError
-from scanqa.io.patterns import PatternDescription, PhaseSet
-from scanqa.simulate import devices
-from scanqa.simulate.devices import Pose, Window
-from scanqa.simulate.optics_kernels import (
+from scanqa.simulator import devices
+from scanqa.simulator.devices import Pose, Window
+from scanqa.simulator.optics_kernels import (
     DiscAverage,
     airy_kernel,
     camera_kernel,
     disc_average,
 )
-from scanqa.simulate.scene import Scene
+from scanqa.simulator.scene import Scene
 
 #: Tile size of the chunked renderer [camera px].
 TILE_PX = 128

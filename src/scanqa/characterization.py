@@ -137,7 +137,7 @@ def load_manifest(sweep_dir: str | os.PathLike) -> dict:
 
 def _device_distances(config: ScannerConfig, entry: dict) -> tuple[float, float]:
     """Z_c and Z_p of the flat's centre (the axes' crossing) at one position [mm]."""
-    from scanqa.simulate.experiments import axes_crossing
+    from scanqa.simulator.experiments import axes_crossing
 
     c = axes_crossing(config)
     z_c = float(c[2]) - float(entry["camera_offset_mm"])
@@ -173,7 +173,7 @@ def surface_residual_std(xp: np.ndarray, valid: np.ndarray) -> float:
 
 def _measure(sweep_dir: Path, entries: list[dict], roi_px: int) -> list[tuple]:
     """(residual std, median modulation, valid count) per acquisition."""
-    from scanqa.phase import decode_pattern_dir
+    from scanqa.decoding.decoder import decode_pattern_dir
 
     out = []
     for entry in entries:

@@ -17,7 +17,7 @@ Experiments:
 * ``projector-sweep`` (Sect. 4.2): the same flat; the projector moves along its axis.
 * ``calibration-sweep``: a flat perpendicular to the camera axis at world Z =
   ``positions`` [mm] (a translation stage), ``repeats`` scans per position.
-* ``gauge-blocks`` (Sect. 4.3): the artefact of :func:`~scanqa.simulate.scene.paper_gauge_layout`,
+* ``gauge-blocks`` (Sect. 4.3): the artefact of :func:`~scanqa.simulator.scene.paper_gauge_layout`,
   ``repeats`` scans.
 * ``mesh``: any STL/PLY/OBJ mesh (world frame, mm), ``repeats`` scans.
 """
@@ -37,11 +37,12 @@ import numpy as np
 
 from scanqa import __version__
 from scanqa.config import ScannerConfig
+from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
+from scanqa.decoding.patternset import write_pattern_set
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path, make_out_dir, write_text
-from scanqa.io.patterns import PatternDescription, PhaseSet, SensorModel, write_pattern_set
-from scanqa.simulate import devices, render, scene
-from scanqa.simulate.render import Acquisition
+from scanqa.simulator import devices, render, scene
+from scanqa.simulator.render import Acquisition
 
 #: Experiments :func:`run_experiment` knows, with their default repeats.
 EXPERIMENTS = {"camera-sweep": 1, "projector-sweep": 1, "calibration-sweep": 2,

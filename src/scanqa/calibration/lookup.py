@@ -1,6 +1,7 @@
 """Applying a calibration table: bilinear in (u, v), cubic Hermite in s (DESIGN.md section 4).
 
-The table (:class:`scanqa.calibration.CalibrationTable`) is rearranged once for lookups:
+The table (:class:`scanqa.calibration.table.CalibrationTable`, or anything with its arrays:
+:class:`TableGrid`) is rearranged once for lookups:
 
 * :class:`Packed` holds per (node, s segment) the Hermite coefficients of Z and the
   table's sigma as float32 rows (half the memory traffic of the gathers; Z is stored
@@ -22,15 +23,39 @@ directly, so that a scan never needs full-size intermediate arrays.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 
+from scanqa.calibration.shear import DEGREE, eval_shear
 from scanqa.chunks import row_bands, run_bands
-from scanqa.shear import DEGREE, eval_shear
 
-if TYPE_CHECKING:
-    from scanqa.calibration import CalibrationTable
+
+class TableGrid(Protocol):
+    """What a lookup needs of a table (:class:`~scanqa.calibration.table.CalibrationTable`
+    has it): the node grid, its values and the cached lookup constants."""
+
+    node_u: np.ndarray
+    node_v: np.ndarray
+    x_ref: np.ndarray
+    s_nodes: np.ndarray
+    xyz: np.ndarray
+    dxyz: np.ndarray
+    sigma_node: np.ndarray
+    s_lo: np.ndarray
+    s_hi: np.ndarray
+    shear: np.ndarray
+    width_px: int
+    height_px: int
+
+    @property
+    def cell_px(self) -> float: ...
+
+    @property
+    def packed(self) -> Packed: ...
+
+    @property
+    def image_grid(self) -> ImageGrid: ...
 
 
 @dataclass(frozen=True)
@@ -78,7 +103,7 @@ class Packed:
     corners: tuple     # coef row offsets of a cell's 4 nodes from its lower-left one
 
 
-def pack(t: CalibrationTable) -> Packed:
+def pack(t: TableGrid) -> Packed:
     """Hermite coefficients per (node, segment), lateral rays per node, phase range per cell.
 
     Parameters
@@ -129,7 +154,7 @@ def _segments(z: np.ndarray, dz: np.ndarray, sig: np.ndarray, z_off: float) -> n
                     -1).astype(np.float32)
 
 
-def _lateral_rays(t: CalibrationTable) -> np.ndarray:
+def _lateral_rays(t: TableGrid) -> np.ndarray:
     """X0, kx, Y0, ky per node from the centre of its s grid: (n_v n_u, 4)."""
     centre = t.s_nodes.size // 2
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -140,7 +165,7 @@ def _lateral_rays(t: CalibrationTable) -> np.ndarray:
                     -1).reshape(-1, 4)
 
 
-def _cell_range(t: CalibrationTable) -> tuple[np.ndarray, np.ndarray]:
+def _cell_range(t: TableGrid) -> tuple[np.ndarray, np.ndarray]:
     """The s range calibrated at all 4 nodes of each cell [px]; NaN if any node has none."""
     def corners(a: np.ndarray) -> list[np.ndarray]:
         return [a[:-1, :-1], a[:-1, 1:], a[1:, :-1], a[1:, 1:]]
@@ -148,7 +173,7 @@ def _cell_range(t: CalibrationTable) -> tuple[np.ndarray, np.ndarray]:
     return np.maximum.reduce(corners(t.s_lo)), np.minimum.reduce(corners(t.s_hi))
 
 
-def node_index(t: CalibrationTable, coord: np.ndarray, axis: int
+def node_index(t: TableGrid, coord: np.ndarray, axis: int
                ) -> tuple[np.ndarray, np.ndarray]:
     """Lower node index and fraction along u (axis 1) or v (axis 0).
 
@@ -236,7 +261,7 @@ def _store(z, dz, sigma, lat, inside, extrapolate: bool, out: TableLookup) -> No
 # --------------------------------------------------------------------------- points
 
 
-def apply_points(t: CalibrationTable, u: np.ndarray, v: np.ndarray, xp: np.ndarray,
+def apply_points(t: TableGrid, u: np.ndarray, v: np.ndarray, xp: np.ndarray,
                  extrapolate: bool) -> TableLookup:
     """Lookup of arbitrary (u, v, x_p) of one shape, in chunks on every core."""
     shape = xp.shape
@@ -252,7 +277,7 @@ def apply_points(t: CalibrationTable, u: np.ndarray, v: np.ndarray, xp: np.ndarr
                        out.sigma_table.reshape(shape), out.in_volume.reshape(shape))
 
 
-def _points(t: CalibrationTable, u, v, xp, extrapolate: bool, out: TableLookup) -> None:
+def _points(t: TableGrid, u, v, xp, extrapolate: bool, out: TableLookup) -> None:
     """One chunk of :func:`apply_points`: every node quantity gathered per point."""
     p = t.packed
     n_u = t.node_u.size
@@ -291,7 +316,7 @@ class ImageGrid:
     shear_c: np.ndarray  # (d + 1, d + 1): shear coefficients c[i, j] of u^i v^j
 
 
-def image_grid(t: CalibrationTable) -> ImageGrid:
+def image_grid(t: TableGrid) -> ImageGrid:
     """Per-column and per-row constants for whole-image lookups (module notes)."""
     p = t.packed
     n_v, n_u = t.x_ref.shape
@@ -350,12 +375,12 @@ def _band_weights(g: ImageGrid, rows: slice) -> list[np.ndarray]:
             for a, b in ((v0, u0), (v0, u1), (v1, u0), (v1, u1))]
 
 
-def in_volume_rows(t: CalibrationTable, xp: np.ndarray, row0: int) -> np.ndarray:
+def in_volume_rows(t: TableGrid, xp: np.ndarray, row0: int) -> np.ndarray:
     """Whether each phase of image rows row0.. is inside its pixel's calibrated range."""
     return _band_phase(t.image_grid, xp, slice(row0, row0 + xp.shape[0]))[1]
 
 
-def apply_rows(t: CalibrationTable, xp: np.ndarray, row0: int, select: np.ndarray | None,
+def apply_rows(t: TableGrid, xp: np.ndarray, row0: int, select: np.ndarray | None,
                extrapolate: bool, out: TableLookup | None = None) -> TableLookup:
     """Lookup of image rows row0.. (all pixels, or the flat indices ``select``).
 
@@ -379,7 +404,7 @@ def apply_rows(t: CalibrationTable, xp: np.ndarray, row0: int, select: np.ndarra
     return out
 
 
-def apply_image(t: CalibrationTable, xp: np.ndarray, extrapolate: bool) -> TableLookup:
+def apply_image(t: TableGrid, xp: np.ndarray, extrapolate: bool) -> TableLookup:
     """Lookup of a whole (H, W) phase map, in bands of rows on every core."""
     out = empty_lookup(xp.shape)
     t.image_grid  # noqa: B018 - computed once, before the threads share it

@@ -12,16 +12,16 @@ Main entry points: :func:`run_experiment` (write an experiment folder),
 
 from __future__ import annotations
 
-from scanqa.simulate.devices import Pose, camera_pose, projector_pose, sensor_window
-from scanqa.simulate.experiments import (
+from scanqa.simulator.devices import Pose, camera_pose, projector_pose, sensor_window
+from scanqa.simulator.experiments import (
     EXPERIMENTS,
     acquisition,
     build_positions,
     pattern_description,
     run_experiment,
 )
-from scanqa.simulate.render import Acquisition, Truth, render_images, truth_for
-from scanqa.simulate.scene import (
+from scanqa.simulator.render import Acquisition, Truth, render_images, truth_for
+from scanqa.simulator.scene import (
     GAUGE_HEIGHTS_MM,
     Scene,
     flat_target,

@@ -205,7 +205,7 @@ def gauge_layout_toml(layout: GaugeLayout) -> str:
         return "[" + ", ".join(f"{v:.3f}" for v in r) + "]"
 
     lines = [
-        "# Gauge-block artefact of Sect. 4.3 as simulated by scanqa.simulate",
+        "# Gauge-block artefact of Sect. 4.3 as simulated by scanqa.simulator",
         "# (paper_gauge_layout). Scanner frame: X right, Y down, Z along the camera",
         "# axis [mm]. Regions are rectangles [x_min, x_max, y_min, y_max] of the top",
         "# faces seen along Z; a block's top face lies at Z = base_z_mm - height.",

@@ -41,12 +41,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa import optics
-from scanqa.calibration import CalibrationTable, TableLookup
+from scanqa.calibration.lookup import TableLookup
+from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig
+from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io import ply
-from scanqa.phase import PhaseMap
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_phase_um", "sigma_table_um",
@@ -179,7 +180,7 @@ def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarra
 def table_correlation_px(table: CalibrationTable) -> float:
     """Distance over which the table's errors are correlated [camera px]: the window of
     the cell smoothing, (2 h + 1) cells (:func:`scanqa.calibration.smooth_cells`)."""
-    from scanqa.calibration import SMOOTH_HALF_WIDTH
+    from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 
     return (2 * SMOOTH_HALF_WIDTH + 1) * table.cell_px
 

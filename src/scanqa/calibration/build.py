@@ -28,24 +28,21 @@ Building a node is a weighted aggregation in two stages:
 The table's own uncertainty (per node, along the line of sight) is propagated from the
 parameter covariance of stage 2, scaled by the fit's reduced chi-square.
 """
-
 from __future__ import annotations
 
 import functools
-import json
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa import __version__, lookup, optics
+from scanqa import __version__, optics
+from scanqa.calibration.shear import eval_shear, fit_shear
+from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
-from scanqa.config import ScannerConfig, config_from_dict
+from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
-from scanqa.lookup import TableLookup
-from scanqa.shear import eval_shear, fit_shear
 
-TABLE_FORMAT = "scanqa-table/2"
 WEIGHT_MODES = ("model", "modulation", "none")
 #: Reasons a calibration sample is rejected, in report order.
 REJECT_REASONS = ("decoder_mask", "low_modulation", "unwrap_jump", "sparse_cell")
@@ -97,138 +94,6 @@ class BuildReport:
     def as_dict(self) -> dict:
         return {"rejected": dict(self.rejected), "used_samples": self.used_samples,
                 "positions": self.positions}
-
-
-@dataclass(frozen=True)
-class CalibrationTable:
-    """A built table. Arrays: nodes (n_v, n_u), s-grid (n_s,), values (n_v, n_u, n_s, 3)."""
-
-    node_u: np.ndarray
-    node_v: np.ndarray
-    x_ref: np.ndarray
-    s_nodes: np.ndarray
-    xyz: np.ndarray
-    dxyz: np.ndarray
-    sigma_node: np.ndarray
-    s_lo: np.ndarray
-    s_hi: np.ndarray
-    shear: np.ndarray
-    width_px: int
-    height_px: int
-    weights: str
-    config: dict
-    provenance: dict
-
-    @functools.cached_property
-    def packed(self) -> lookup.Packed:
-        """The table rearranged for fast lookups (computed once, :mod:`scanqa.lookup`)."""
-        return lookup.pack(self)
-
-    @functools.cached_property
-    def image_grid(self) -> lookup.ImageGrid:
-        """Per-row and per-column constants of whole-image lookups (computed once)."""
-        return lookup.image_grid(self)
-
-    @property
-    def cell_px(self) -> float:
-        """Node spacing in u and v [camera px]."""
-        return float(self.node_u[1] - self.node_u[0]) if self.node_u.size > 1 else 1.0
-
-    @property
-    def z_range_mm(self) -> tuple[float, float]:
-        """Calibrated stage range [mm]."""
-        zs = [p["z_mm"] for p in self.provenance.get("positions", [])]
-        return (min(zs), max(zs)) if zs else (float("nan"), float("nan"))
-
-    def scanner_config(self) -> ScannerConfig:
-        """The config the table was built with."""
-        return config_from_dict(self.config, source="calibration table")
-
-    def apply(self, u: np.ndarray, v: np.ndarray, xp: np.ndarray,
-              extrapolate: bool = False) -> TableLookup:
-        """Map pixel coordinates and phase to metric points.
-
-        Parameters
-        ----------
-        u, v : array_like
-            Pixel coordinates (column, row) [camera px].
-        xp : array_like
-            Unwrapped projector coordinate [projector px].
-        extrapolate : bool
-            Return points for phases outside a pixel's calibrated range (still flagged);
-            by default they are NaN.
-
-        Returns
-        -------
-        TableLookup
-            X, Y, Z [mm], slope dQ/dx_p, the table's sigma and the in-volume flag.
-        """
-        u, v, xp = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float),
-                                       np.asarray(xp, float))
-        return lookup.apply_points(self, u, v, xp, extrapolate)
-
-    def apply_image(self, xp: np.ndarray, extrapolate: bool = False) -> TableLookup:
-        """Apply the table to a whole (H, W) phase map of the calibrated camera.
-
-        Parameters
-        ----------
-        xp : (H, W) array_like
-            Unwrapped projector coordinate, NaN where not decoded [projector px].
-        extrapolate : bool
-            As in :meth:`apply`.
-
-        Returns
-        -------
-        TableLookup
-            Arrays shaped (H, W, 3) and (H, W).
-        """
-        xp = np.asarray(xp, dtype=float)
-        self._check_rows(xp, 0, whole=True)
-        return lookup.apply_image(self, xp, extrapolate)
-
-    def apply_rows(self, xp_rows: np.ndarray, row0: int = 0, select: np.ndarray | None = None,
-                   extrapolate: bool = False) -> TableLookup:
-        """Apply the table to a band of rows of a phase map (for chunked pipelines).
-
-        Parameters
-        ----------
-        xp_rows : (n, W) float ndarray
-            Rows row0 .. row0 + n - 1 of a phase map [projector px].
-        row0 : int
-            Image row of the first [camera px].
-        select : (k,) int ndarray, optional
-            Flat indices into ``xp_rows`` of the pixels to look up; default all.
-        extrapolate : bool
-            As in :meth:`apply`.
-
-        Returns
-        -------
-        TableLookup
-            Arrays shaped (n, W, ...) or, with ``select``, (k, ...).
-        """
-        xp_rows = np.asarray(xp_rows, dtype=float)
-        self._check_rows(xp_rows, row0)
-        return lookup.apply_rows(self, xp_rows, row0, select, extrapolate)
-
-    def in_volume_rows(self, xp_rows: np.ndarray, row0: int = 0) -> np.ndarray:
-        """Whether each phase of a band of rows (as in :meth:`apply_rows`) lies inside its
-        pixel's calibrated range: (n, W) bool, False for NaN."""
-        xp_rows = np.asarray(xp_rows, dtype=float)
-        self._check_rows(xp_rows, row0)
-        return lookup.in_volume_rows(self, xp_rows, row0)
-
-    def _check_rows(self, xp: np.ndarray, row0: int, whole: bool = False) -> None:
-        """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of a phase map of the
-        calibrated camera."""
-        if xp.ndim == 2 and xp.shape[1] == self.width_px and not whole:
-            if 0 <= row0 and row0 + xp.shape[0] <= self.height_px:
-                return
-            raise InputError(f"rows {row0} to {row0 + xp.shape[0] - 1} are outside the "
-                             f"{self.height_px} rows of the table's camera")
-        if xp.shape != (self.height_px, self.width_px):
-            shape = " x ".join(str(n) for n in xp.shape[::-1])
-            raise InputError(f"phase map is {shape} px but the table was built for a "
-                             f"{self.width_px} x {self.height_px} px camera")
 
 
 # --------------------------------------------------------------------------- building
@@ -731,40 +596,3 @@ def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
     kx = ((uu - cam.principal_point_px[0]) / f)[..., None]
     ky = ((vv - cam.principal_point_px[1]) / f)[..., None]
     return (np.zeros_like(kx), kx, np.zeros_like(ky), ky)
-
-
-# --------------------------------------------------------------------------- file
-
-
-_ARRAYS = ("node_u", "node_v", "x_ref", "s_nodes", "xyz", "dxyz", "sigma_node", "s_lo", "s_hi",
-           "shear")
-
-
-def save_table(path, table: CalibrationTable) -> None:
-    """Write a table as one npz file (no pickle), atomically."""
-    from scanqa.io.atomic import atomic_path
-
-    meta = {"format": TABLE_FORMAT, "width_px": table.width_px, "height_px": table.height_px,
-            "weights": table.weights, "config": table.config, "provenance": table.provenance}
-    arrays = {k: getattr(table, k) for k in _ARRAYS}
-    with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
-
-
-def load_table(path) -> CalibrationTable:
-    """Read a table written by :func:`save_table`, checking its format version."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"][()]))
-            if meta.get("format") != TABLE_FORMAT:
-                raise InputError(f"{path}: table format {meta.get('format')!r} is not "
-                                 f"supported by this scanqa (reads {TABLE_FORMAT!r}); rebuild "
-                                 "it with 'scanqa calibrate'")
-            arrays = {k: data[k] for k in _ARRAYS}
-    except FileNotFoundError:
-        raise InputError(f"calibration table {path} does not exist") from None
-    except (OSError, KeyError, ValueError) as err:
-        raise InputError(f"{path} is not a scanqa calibration table ({err})") from None
-    return CalibrationTable(**arrays, width_px=int(meta["width_px"]),
-                            height_px=int(meta["height_px"]), weights=meta["weights"],
-                            config=meta["config"], provenance=meta["provenance"])

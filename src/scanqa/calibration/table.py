@@ -1,0 +1,179 @@
+"""The calibration table: a nonparametric map from (u, v, x_p) to X, Y, Z, and its file.
+
+The table is a regular grid over raw sensor coordinates (u, v) and the phase relative
+to a smooth shear, s = x_p - x_shear(u, v) [projector px] (:mod:`scanqa.calibration.shear`);
+its nodes hold X, Y, Z [mm], the slope dQ/dx_p and the table's own std. It is built by
+:func:`scanqa.calibration.build.build_table` and applied by :mod:`scanqa.calibration.lookup`
+(bilinear in (u, v), cubic Hermite in s; phases outside a node's calibrated range are
+flagged, never silently extrapolated). :mod:`scanqa.io.table` is its file format.
+"""
+
+from __future__ import annotations
+
+import functools
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.calibration import lookup
+from scanqa.calibration.lookup import TableLookup
+from scanqa.config import ScannerConfig, config_from_dict
+from scanqa.errors import InputError
+from scanqa.io import table as table_file
+
+#: Version of the table file this scanqa writes and reads.
+TABLE_FORMAT = table_file.FORMAT
+
+
+@dataclass(frozen=True)
+class CalibrationTable:
+    """A built table. Arrays: nodes (n_v, n_u), s-grid (n_s,), values (n_v, n_u, n_s, 3)."""
+
+    node_u: np.ndarray
+    node_v: np.ndarray
+    x_ref: np.ndarray
+    s_nodes: np.ndarray
+    xyz: np.ndarray
+    dxyz: np.ndarray
+    sigma_node: np.ndarray
+    s_lo: np.ndarray
+    s_hi: np.ndarray
+    shear: np.ndarray
+    width_px: int
+    height_px: int
+    weights: str
+    config: dict
+    provenance: dict
+
+    @functools.cached_property
+    def packed(self) -> lookup.Packed:
+        """The table rearranged for fast lookups (computed once, :mod:`scanqa.lookup`)."""
+        return lookup.pack(self)
+
+    @functools.cached_property
+    def image_grid(self) -> lookup.ImageGrid:
+        """Per-row and per-column constants of whole-image lookups (computed once)."""
+        return lookup.image_grid(self)
+
+    @property
+    def cell_px(self) -> float:
+        """Node spacing in u and v [camera px]."""
+        return float(self.node_u[1] - self.node_u[0]) if self.node_u.size > 1 else 1.0
+
+    @property
+    def z_range_mm(self) -> tuple[float, float]:
+        """Calibrated stage range [mm]."""
+        zs = [p["z_mm"] for p in self.provenance.get("positions", [])]
+        return (min(zs), max(zs)) if zs else (float("nan"), float("nan"))
+
+    def scanner_config(self) -> ScannerConfig:
+        """The config the table was built with."""
+        return config_from_dict(self.config, source="calibration table")
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write the table to one ``.npz`` file (no pickle), atomically."""
+        return save_table(path, self)
+
+    def apply(self, u: np.ndarray, v: np.ndarray, xp: np.ndarray,
+              extrapolate: bool = False) -> TableLookup:
+        """Map pixel coordinates and phase to metric points.
+
+        Parameters
+        ----------
+        u, v : array_like
+            Pixel coordinates (column, row) [camera px].
+        xp : array_like
+            Unwrapped projector coordinate [projector px].
+        extrapolate : bool
+            Return points for phases outside a pixel's calibrated range (still flagged);
+            by default they are NaN.
+
+        Returns
+        -------
+        TableLookup
+            X, Y, Z [mm], slope dQ/dx_p, the table's sigma and the in-volume flag.
+        """
+        u, v, xp = np.broadcast_arrays(np.asarray(u, float), np.asarray(v, float),
+                                       np.asarray(xp, float))
+        return lookup.apply_points(self, u, v, xp, extrapolate)
+
+    def apply_image(self, xp: np.ndarray, extrapolate: bool = False) -> TableLookup:
+        """Apply the table to a whole (H, W) phase map of the calibrated camera.
+
+        Parameters
+        ----------
+        xp : (H, W) array_like
+            Unwrapped projector coordinate, NaN where not decoded [projector px].
+        extrapolate : bool
+            As in :meth:`apply`.
+
+        Returns
+        -------
+        TableLookup
+            Arrays shaped (H, W, 3) and (H, W).
+        """
+        xp = np.asarray(xp, dtype=float)
+        self._check_rows(xp, 0, whole=True)
+        return lookup.apply_image(self, xp, extrapolate)
+
+    def apply_rows(self, xp_rows: np.ndarray, row0: int = 0, select: np.ndarray | None = None,
+                   extrapolate: bool = False) -> TableLookup:
+        """Apply the table to a band of rows of a phase map (for chunked pipelines).
+
+        Parameters
+        ----------
+        xp_rows : (n, W) float ndarray
+            Rows row0 .. row0 + n - 1 of a phase map [projector px].
+        row0 : int
+            Image row of the first [camera px].
+        select : (k,) int ndarray, optional
+            Flat indices into ``xp_rows`` of the pixels to look up; default all.
+        extrapolate : bool
+            As in :meth:`apply`.
+
+        Returns
+        -------
+        TableLookup
+            Arrays shaped (n, W, ...) or, with ``select``, (k, ...).
+        """
+        xp_rows = np.asarray(xp_rows, dtype=float)
+        self._check_rows(xp_rows, row0)
+        return lookup.apply_rows(self, xp_rows, row0, select, extrapolate)
+
+    def in_volume_rows(self, xp_rows: np.ndarray, row0: int = 0) -> np.ndarray:
+        """Whether each phase of a band of rows (as in :meth:`apply_rows`) lies inside its
+        pixel's calibrated range: (n, W) bool, False for NaN."""
+        xp_rows = np.asarray(xp_rows, dtype=float)
+        self._check_rows(xp_rows, row0)
+        return lookup.in_volume_rows(self, xp_rows, row0)
+
+    def _check_rows(self, xp: np.ndarray, row0: int, whole: bool = False) -> None:
+        """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of a phase map of the
+        calibrated camera."""
+        if xp.ndim == 2 and xp.shape[1] == self.width_px and not whole:
+            if 0 <= row0 and row0 + xp.shape[0] <= self.height_px:
+                return
+            raise InputError(f"rows {row0} to {row0 + xp.shape[0] - 1} are outside the "
+                             f"{self.height_px} rows of the table's camera")
+        if xp.shape != (self.height_px, self.width_px):
+            shape = " x ".join(str(n) for n in xp.shape[::-1])
+            raise InputError(f"phase map is {shape} px but the table was built for a "
+                             f"{self.width_px} x {self.height_px} px camera")
+
+
+def save_table(path: str | os.PathLike, table: CalibrationTable) -> Path:
+    """Write a table as one npz file (no pickle), atomically (:mod:`scanqa.io.table`)."""
+    meta = {"width_px": table.width_px, "height_px": table.height_px,
+            "weights": table.weights, "config": table.config, "provenance": table.provenance}
+    return table_file.write_table_file(path, {k: getattr(table, k) for k in table_file.ARRAYS},
+                                       meta)
+
+
+def load_table(path: str | os.PathLike) -> CalibrationTable:
+    """Read a table written by :func:`save_table`, checking its format version."""
+    arrays, meta = table_file.read_table_file(path)
+    return CalibrationTable(**arrays, width_px=int(meta["width_px"]),
+                            height_px=int(meta["height_px"]), weights=meta["weights"],
+                            config=meta["config"], provenance=meta["provenance"])

@@ -1,0 +1,168 @@
+"""The decoded phase map of a scan: projector coordinate, modulation, mask and noise.
+
+:class:`PhaseMap` is what the decoder returns and what every later stage reads;
+:func:`load_phase_map` / :func:`save_phase_map` store it as a ``phase.npz``
+(:mod:`scanqa.io.phasemap` is the file format).
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.errors import InputError
+from scanqa.io import phasemap as phasemap_file
+
+#: Mask reason codes stored in ``PhaseMap.mask`` (uint8).
+MASK_VALID = 0
+#: A sample of a phase set reached the saturation level.
+MASK_SATURATED = 1
+#: Modulation too low for a reliable phase: below the floor, too noisy to unwrap, or an
+#: undecidable Gray-code bit (dark pixels land here).
+MASK_LOW_MODULATION = 2
+#: Sets (or the Gray code) disagree by more than the accepted unwrapping residual.
+MASK_INCONSISTENT = 3
+#: The unwrapped coordinate lies outside the coded range [-0.5, width - 0.5).
+MASK_OUT_OF_RANGE = 4
+#: Name of each reason code.
+MASK_REASONS = {MASK_VALID: "valid", MASK_SATURATED: "saturated",
+                MASK_LOW_MODULATION: "low_modulation", MASK_INCONSISTENT: "inconsistent",
+                MASK_OUT_OF_RANGE: "out_of_range"}
+
+
+@dataclass(frozen=True, eq=False)
+class PhaseMap:
+    """Decoded projector coordinate of every camera pixel, with mask and noise.
+
+    Attributes
+    ----------
+    xp : (H, W) float64
+        Unwrapped projector coordinate along the fringe direction (x_p for vertical
+        fringes, y_p for horizontal) [projector px]; NaN where masked.
+    modulation : (H, W) float32
+        Modulation B of the working (finest) phase set [DN].
+    offset : (H, W) float32
+        Offset A of the working phase set [DN].
+    mask : (H, W) uint8
+        Reason code, ``MASK_VALID`` (0) where xp is valid (see ``MASK_REASONS``).
+    sigma_xp : (H, W) float32
+        Predicted standard deviation of xp [projector px]; NaN where masked.
+    period_px : float
+        Working (finest) fringe period [projector px].
+    orientation : str
+        "vertical" (xp is x_p) or "horizontal" (xp is y_p).
+    projector_width_px : int
+        Coded range along the fringe direction [projector px].
+    provenance : dict
+        JSON-serialisable description of how the map was made.
+    """
+
+    xp: np.ndarray
+    modulation: np.ndarray
+    offset: np.ndarray
+    mask: np.ndarray
+    sigma_xp: np.ndarray
+    period_px: float
+    orientation: str = "vertical"
+    projector_width_px: int = 0
+    provenance: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        arrays = {"xp": np.float64, "modulation": np.float32, "offset": np.float32,
+                  "mask": np.uint8, "sigma_xp": np.float32}
+        shape = np.shape(self.xp)
+        for name, dtype in arrays.items():
+            arr = np.asarray(getattr(self, name), dtype=dtype).view()  # no copy
+            if arr.ndim != 2 or arr.shape != shape:
+                raise InputError(f"PhaseMap.{name} must be a 2-D array of the shape of xp "
+                                 f"{shape}, got {arr.shape}")
+            arr.flags.writeable = False  # on the view only: the caller's array is untouched
+            object.__setattr__(self, name, arr)
+        self._check_consistency()
+
+    def _check_consistency(self) -> None:
+        unknown = np.setdiff1d(np.unique(self.mask), list(MASK_REASONS))
+        if unknown.size:
+            raise InputError(f"PhaseMap.mask holds unknown reason codes {unknown.tolist()} "
+                             f"(known: {MASK_REASONS})")
+        finite, valid = np.isfinite(self.xp), self.mask == MASK_VALID
+        if (finite & ~valid).any():
+            raise InputError("PhaseMap.xp must be NaN where mask != 0 (masked pixels carry "
+                             "no coordinate)")
+        if (valid & ~finite).any():
+            raise InputError("PhaseMap.xp must be finite where mask == 0; mask the pixel")
+        if not (np.isfinite(self.period_px) and self.period_px > 0):
+            raise InputError(f"PhaseMap.period_px must be > 0 [px], got {self.period_px!r}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image size (H, W) [px]."""
+        return self.xp.shape  # type: ignore[return-value]
+
+    @property
+    def valid(self) -> np.ndarray:
+        """(H, W) bool, True where xp is valid."""
+        return self.mask == MASK_VALID
+
+    def counts(self) -> dict[str, int]:
+        """Number of pixels per mask reason, keyed by reason name."""
+        hist = np.bincount(self.mask.ravel(), minlength=len(MASK_REASONS))
+        return {MASK_REASONS[code]: int(hist[code]) for code in MASK_REASONS}
+
+    def summary(self) -> str:
+        """One line: valid pixel count and the count of each mask reason."""
+        counts = self.counts()
+        total = self.mask.size
+        why = ", ".join(f"{k} {v}" for k, v in counts.items() if k != "valid")
+        pct = 100.0 * counts["valid"] / total if total else 0.0
+        return f"{counts['valid']} of {total} pixels valid ({pct:.1f} %); masked: {why}"
+
+
+def save_phase_map(path: str | os.PathLike, phase_map: PhaseMap) -> Path:
+    """Write a phase map to an ``.npz`` file atomically (:mod:`scanqa.io.phasemap`).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Output file (conventionally ``phase.npz``); its folder must exist.
+    phase_map : PhaseMap
+        The map to store.
+
+    Returns
+    -------
+    Path
+        The written file.
+    """
+    arrays = {name: getattr(phase_map, name) for name in phasemap_file.ARRAYS}
+    return phasemap_file.write_phase_file(
+        path, arrays, period_px=phase_map.period_px, orientation=phase_map.orientation,
+        projector_width_px=phase_map.projector_width_px, provenance=phase_map.provenance)
+
+
+def load_phase_map(path: str | os.PathLike) -> PhaseMap:
+    """Read a phase map written by :func:`save_phase_map`.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The ``.npz`` file.
+
+    Returns
+    -------
+    PhaseMap
+        The map, with validated shapes, mask codes and NaN convention.
+
+    Raises
+    ------
+    InputError
+        When the file is missing or unreadable, of another format version, lacks an
+        entry, or its arrays are inconsistent.
+    """
+    arrays, scalars = phasemap_file.read_phase_file(path)
+    try:
+        return PhaseMap(**arrays, **scalars)
+    except InputError as err:
+        raise InputError(f"phase map {path}: {err}") from None
