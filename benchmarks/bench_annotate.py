@@ -29,7 +29,6 @@ from scanqa.annotation import annotate  # noqa: E402
 from scanqa.calibration.build import build_table  # noqa: E402
 from scanqa.config import load_config  # noqa: E402
 from scanqa.decoding.phasemap import PhaseMap  # noqa: E402
-from scanqa.io.cloud import write_cloud  # noqa: E402
 
 
 def main() -> int:
@@ -53,7 +52,7 @@ def main() -> int:
         t0 = time.perf_counter()
         cloud = annotate(scan, table, cfg)
         t1 = time.perf_counter()
-        write_cloud(out, cloud.xyz, cloud.attributes)
+        cloud.write(out)
         t2 = time.perf_counter()
         cpu1 = resource.getrusage(resource.RUSAGE_SELF)
         size = out.stat().st_size / 1e6

@@ -24,7 +24,10 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from scanqa.qa.blocks import detect_blocks, load_layout, run_qa  # noqa: E402
+from scanqa.cloud import AnnotatedCloud  # noqa: E402
+from scanqa.qa.blocks import run_qa  # noqa: E402
+from scanqa.qa.detect import detect_blocks  # noqa: E402
+from scanqa.qa.layout import load_layout  # noqa: E402
 
 LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
 BASE_Z_MM = 469.05
@@ -62,7 +65,7 @@ def main() -> int:
     args = ap.parse_args()
     xyz, attrs, layout = artefact_cloud(args.spacing)
     t0 = time.perf_counter()
-    result = run_qa(xyz, attrs, layout)
+    result = run_qa(AnnotatedCloud(xyz, attrs), layout)
     t1 = time.perf_counter()
     found = detect_blocks(xyz, {b.block_id: b.nominal_height_mm for b in layout.blocks})
     t2 = time.perf_counter()

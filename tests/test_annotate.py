@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import subprocess
@@ -16,7 +17,7 @@ from scanqa.calibration.table import save_table
 from scanqa.cli import main
 from scanqa.decoding.phasemap import PhaseMap, save_phase_map
 from scanqa.errors import InputError
-from scanqa.io.cloud import read_cloud, write_cloud
+from scanqa.io.cloud import read_cloud
 from scanqa.io.ply import RESERVED_SUBSTRINGS, check_attribute_name
 
 from .conftest import PAPER_CONFIG
@@ -97,8 +98,9 @@ def test_attribute_names_survive_cloudcompare():
 @pytest.mark.parametrize("suffix", [".ply", ".csv", ".las"])
 def test_round_trip_through_our_readers(cfg, table, tmp_path, suffix):
     cloud = annotate(scan(cfg)[0], table, cfg)
-    path = write_cloud(tmp_path / f"c{suffix}", cloud.xyz, cloud.attributes)
-    xyz, attrs = read_cloud(path)
+    path = cloud.write(tmp_path / f"c{suffix}")
+    xyz, attrs, meta = read_cloud(path)
+    assert meta == json.loads(json.dumps(cloud.metadata))  # the model travels with the file
     atol = 1e-4 if suffix == ".las" else 1e-9  # LAS stores 0.1 um integers
     np.testing.assert_allclose(xyz, cloud.xyz, atol=atol)
     for name, values in cloud.attributes.items():
@@ -108,7 +110,7 @@ def test_round_trip_through_our_readers(cfg, table, tmp_path, suffix):
 def test_open3d_tensor_reader_round_trip(cfg, table, tmp_path):
     o3d = pytest.importorskip("open3d")
     cloud = annotate(scan(cfg)[0], table, cfg)
-    path = write_cloud(tmp_path / "c.ply", cloud.xyz, cloud.attributes)
+    path = cloud.write(tmp_path / "c.ply")
     pcd = o3d.t.io.read_point_cloud(str(path))
     np.testing.assert_array_equal(pcd.point["positions"].numpy(), cloud.xyz)
     for name, values in cloud.attributes.items():
@@ -142,7 +144,7 @@ def _cloudcompare_asc(path, tmp_path):
 def test_cloudcompare_reads_every_attribute(cfg, table, tmp_path):
     scans = [scan(cfg, seed=s)[0] for s in range(3)]
     cloud = annotate(scans[0], table, cfg, repeats=scans[1:])
-    path = write_cloud(tmp_path / "cloud.ply", cloud.xyz, cloud.attributes)
+    path = cloud.write(tmp_path / "cloud.ply")
     header, data = _cloudcompare_asc(path, tmp_path)
     assert header[:3] == ["X", "Y", "Z"]
     assert header[3:] == list(cloud.attributes)  # every attribute, under its own name
@@ -170,8 +172,9 @@ def _read_las_by_spec(path):
     scale = struct.unpack_from("<3d", raw, 131)
     origin = struct.unpack_from("<3d", raw, 155)
     n_points, = struct.unpack_from("<Q", raw, 247)
-    assert fmt == 6
-    names, pos = [], header_size
+    global_encoding, = struct.unpack_from("<H", raw, 6)
+    assert fmt == 6 and global_encoding & 16  # bit 4: the CRS is OGC WKT
+    names, pos, wkt = [], header_size, b""
     for _ in range(n_vlr):
         user = raw[pos + 2:pos + 18].rstrip(b"\0")
         rec_id, length = struct.unpack_from("<HH", raw, pos + 18)
@@ -180,19 +183,23 @@ def _read_las_by_spec(path):
                 base = pos + 54 + 192 * d
                 assert raw[base + 2] == 9  # data type 9: float
                 names.append(raw[base + 4:base + 36].rstrip(b"\0").decode())
+        if user == b"LASF_Projection" and rec_id == 2112:
+            wkt = raw[pos + 54:pos + 54 + length].rstrip(b"\0")
         pos += 54 + length
     dtype = np.dtype([("xyz", "<i4", 3), ("base", "V18")] + [(n, "<f4") for n in names])
     assert dtype.itemsize == rec_len
     pts = np.frombuffer(raw, dtype=dtype, count=n_points, offset=offset_points)
     xyz = pts["xyz"] * np.array(scale) + np.array(origin)
-    return xyz, {n: pts[n] for n in names}
+    return xyz, {n: pts[n] for n in names}, wkt.decode()
 
 
 def test_las_extra_bytes_follow_the_spec(cfg, table, tmp_path):
     cloud = annotate(scan(cfg)[0], table, cfg)
-    path = write_cloud(tmp_path / "cloud.las", cloud.xyz, cloud.attributes)
-    xyz, attrs = _read_las_by_spec(path)
-    np.testing.assert_allclose(xyz, cloud.xyz, atol=1e-4)  # 0.1 um integer grid
+    path = cloud.write(tmp_path / "cloud.las")
+    xyz, attrs, wkt = _read_las_by_spec(path)
+    # LAS holds metres (GIS tools assume it), on a 0.1 um integer grid
+    np.testing.assert_allclose(xyz * 1e3, cloud.xyz, atol=1e-4)
+    assert 'UNIT["metre",1]' in wkt and wkt.startswith("LOCAL_CS[")
     assert list(attrs) == list(cloud.attributes)
     for name, values in cloud.attributes.items():
         np.testing.assert_array_equal(attrs[name], values, err_msg=name)
@@ -240,6 +247,6 @@ def test_bad_inputs(cfg, table, tmp_path, capsys):
                  "--config", str(cfg_file), "--out", str(tmp_path / "c.ply")])
     out = capsys.readouterr().out
     assert code == 0 and f"{W * H} points written" in out
-    xyz, attrs = read_cloud(tmp_path / "c.ply")
+    xyz, attrs, _ = read_cloud(tmp_path / "c.ply")
     assert xyz.shape == (W * H, 3) and "sigma_model_um" in attrs
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []

@@ -133,5 +133,5 @@ def test_too_few_positions_and_mixed_sizes(cfg):
     small = sweep(small_camera(cfg, 64, 64), [470.0])
     with pytest.raises(InputError, match="all scans must come from one camera"):
         build_table(obs + small, cfg)
-    with pytest.raises(InputError, match="--weights must be one of"):
+    with pytest.raises(InputError, match="weights must be one of"):
         build_table(obs, cfg, weights="magic")

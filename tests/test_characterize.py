@@ -1,4 +1,4 @@
-"""Tests of scanqa.characterize on small simulated sweeps (closed loop with known optics)."""
+"""Tests of scanqa.characterization on small simulated sweeps (closed loop with known optics)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from scanqa.characterization import (
     characterize_sweep,
     characterize_sweeps,
     measured_dof,
-    write_characterization,
 )
 from scanqa.cli import main
 from scanqa.errors import InputError
+from scanqa.report.characterization import write_characterization
 from scanqa.simulator.experiments import run_experiment
 
 
@@ -98,8 +98,8 @@ def test_characterize_cli_writes_summary_and_plots(camera_sweep, tmp_path):
     cfg = tmp_path / "cfg.toml"
     base = (folder / "manifest.toml").read_text()
     assert "camera-sweep" in base
+    from scanqa.io.tomlfile import dumps_toml as dump_toml
     from scanqa.io.tomlfile import read_toml
-    from scanqa.simulator.experiments import dump_toml
 
     data = read_toml(folder / "manifest.toml", "manifest")["config"]
     data.pop("name")

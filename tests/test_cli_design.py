@@ -68,7 +68,7 @@ def test_volume_and_flatten(capsys, tmp_path):
 @pytest.mark.parametrize(("argv", "message"), [
     (["dof", "--config", "missing.toml"], "cannot read scanner config missing.toml"),
     (["dof", "--config", CFG, "--levels", "1.5"], "attenuation level must be in (0, 1)"),
-    (["curve", "--config", CFG, "--z-min", "460", "--z-max", "440"], "--z-max must be >"),
+    (["curve", "--config", CFG, "--z-min", "460", "--z-max", "440"], "z_max must be > z_min"),
     (["curve", "--config", CFG, "--plot", "/nonexistent/dir/x.png"], "does not exist"),
     (["dof", "--config", CFG, "--profile", "f99"], "unknown profile 'f99'"),
 ])

@@ -45,12 +45,14 @@ from scanqa.annotation import annotate
 from scanqa.calibration.build import PlaneObservation, build_table
 from scanqa.calibration.sweep import iter_observations
 from scanqa.calibration.table import load_table
-from scanqa.characterization import apply_fitted_model, load_manifest
+from scanqa.characterization import apply_fitted_model
 from scanqa.cli import main
 from scanqa.config import load_config
 from scanqa.decoding.decoder import decode_images, decode_pattern_dir
+from scanqa.io.manifest import read_manifest
 from scanqa.io.sweep import load_sweep
-from scanqa.qa.blocks import load_layout, run_qa
+from scanqa.qa.blocks import run_qa
+from scanqa.qa.layout import load_layout
 from scanqa.simulator import render
 from scanqa.simulator.devices import sensor_window
 from scanqa.simulator.experiments import acquisition, build_positions, pattern_description
@@ -313,7 +315,7 @@ def _holdout_true_phase(sample_config, table) -> tuple[list, list[float]]:
 
 
 def test_characterisation_is_of_the_same_camera(sample_config, characterised):
-    cam = load_manifest(CAMERA_SWEEP)["config"]["camera"]
+    cam = read_manifest(CAMERA_SWEEP)["config"]["camera"]
     mine = sample_config.to_dict()["camera"]
     assert {k: cam[k] for k in mine} == mine
     summary = json.loads(characterised[0].read_text())
@@ -547,7 +549,7 @@ def test_qa_over_twelve_scans(request, gauge_scans, calibrated, characterised):
     ratios, within, inside, z_scores = {b: [] for b in range(2, 9)}, 0, 0, []
     for scan in scans:
         cloud = annotate(scan, calibrated[1]["model"], characterised[1], keep_invalid=True)
-        result = run_qa(cloud.xyz, cloud.attributes, layout)
+        result = run_qa(cloud, layout)
         status = {b.block_id: b.status for b in result.blocks}
         assert status[1] == "outside_volume"
         for b in result.blocks[1:]:

@@ -7,12 +7,15 @@ import json
 import pytest
 
 from scanqa.cli import build_parser, main
+from scanqa.config import load_config
+
+from .conftest import ROOT
 
 
 @pytest.fixture(scope="module")
 def demo_out(tmp_path_factory):
     out = tmp_path_factory.mktemp("demo")
-    assert main(["demo", "--out", str(out)]) == 0
+    assert main(["demo", "--out", str(out), "--data", str(ROOT / "sample_data")]) == 0
     return out
 
 
@@ -46,7 +49,7 @@ def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
 
 
 def test_demo_prints_summary_and_report_path(capsys, tmp_path):
-    assert main(["demo", "--out", str(tmp_path / "d")]) == 0
+    assert main(["demo", "--out", str(tmp_path / "d"), "--data", str(ROOT / "sample_data")]) == 0
     out = capsys.readouterr().out
     assert "report: " in out and str(tmp_path / "d" / "qa" / "report.html") in out
     assert "block  measured  predicted" in out and "over all 3 scans" in out
@@ -75,7 +78,6 @@ def test_every_subcommand_is_covered():
 
 @pytest.mark.parametrize("command", sorted(BAD_INPUTS))
 def test_bad_input_gives_one_line_and_exit_2(command, capsys, tmp_path, monkeypatch):
-    from .conftest import ROOT
 
     monkeypatch.chdir(ROOT)
     argv = [a if a != "qa_out" else str(tmp_path / "qa") for a in BAD_INPUTS[command]]
@@ -105,11 +107,11 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
             return
         folder = {"camera-sweep": "camera_sweep", "calibration-sweep": "calibration_sweep",
                   "gauge-blocks": "gauge_blocks"}[name]
-        shutil.copytree(demo.SAMPLE_DIR / folder, out_dir)
+        shutil.copytree(ROOT / "sample_data" / folder, out_dir)
 
     monkeypatch.setattr(experiments, "run_experiment", fake_run)
-    monkeypatch.setattr(demo, "FULL_CONFIG", demo.SAMPLE_CONFIG)
-    result = demo.run_demo(tmp_path / "full", full=True, say=lambda msg: None)
+    config = load_config(ROOT / "sample_data" / "sample_scanner.toml", profile="sample")
+    result = demo.run_demo(tmp_path / "full", full_config=config, say=lambda msg: None)
     assert [c[0] for c in calls] == ["camera-sweep", "projector-sweep", "calibration-sweep",
                                      "gauge-blocks"]
     assert calls[1][2] == 31 and calls[2][2] == 14 and calls[3][3] == 3

@@ -8,9 +8,13 @@ import numpy as np
 import pytest
 
 from scanqa.cli import main
+from scanqa.cloud import AnnotatedCloud
 from scanqa.errors import InputError
 from scanqa.io.cloud import read_cloud, write_cloud
-from scanqa.qa.blocks import detect_blocks, fit_plane, load_layout, run_qa
+from scanqa.qa.blocks import run_qa
+from scanqa.qa.detect import detect_blocks
+from scanqa.qa.layout import load_layout
+from scanqa.qa.planes import fit_plane
 
 from .conftest import ROOT
 
@@ -73,7 +77,7 @@ def test_fit_plane_exact_and_errors():
 
 def test_blocks_and_steps_recover_truth():
     xyz, attrs, layout = synthetic_cloud()
-    res = run_qa(xyz, attrs, layout, margin_mm=1.0)
+    res = run_qa(AnnotatedCloud(xyz, attrs), layout, margin_mm=1.0)
     assert [b.status for b in res.blocks] == ["ok"] * 8
     for b in res.blocks:
         # measured std of Gaussian noise along Z: within 5 % with > 2000 points per block
@@ -102,14 +106,14 @@ def test_step_uncertainty_is_honest_over_seeds():
     for seed in range(12):
         xyz, attrs, layout = synthetic_cloud(seed=seed, step=0.5)
         attrs["sigma_table_um"][:] = 0.0
-        res = run_qa(xyz, attrs, layout)
+        res = run_qa(AnnotatedCloud(xyz, attrs), layout)
         z += [s.error_um / s.u_um for s in res.steps]
     assert 0.7 < np.std(z) < 1.3, np.std(z)
 
 
 def test_noise_correlation_factor_counts_the_points_sharing_one_noise_draw():
     xyz, attrs, layout = synthetic_cloud(patch_mm=0.75)  # 3 x 3 points of 0.25 mm
-    res = run_qa(xyz, attrs, layout)
+    res = run_qa(AnnotatedCloud(xyz, attrs), layout)
     # 9 points per draw; 2 mm tiles split a 0.75 mm patch now and then, which keeps a
     # fraction (1 - 0.75 / (3 * 2))^2 = 0.77 of the correlated pairs: kappa ~ 6.9
     kappa = np.array([b.noise_corr for b in res.blocks])
@@ -117,7 +121,7 @@ def test_noise_correlation_factor_counts_the_points_sharing_one_noise_draw():
     assert np.mean(kappa[:, 0]) == pytest.approx(6.9, rel=0.2), kappa
     assert np.all((kappa > 3.5) & (kappa < 12)), kappa
     xyz, attrs, layout = synthetic_cloud()
-    res = run_qa(xyz, attrs, layout)
+    res = run_qa(AnnotatedCloud(xyz, attrs), layout)
     assert all(b.noise_corr[0] < 1.4 for b in res.blocks), [b.noise_corr for b in res.blocks]
     info = json.loads(json.dumps(res.blocks[0].row()))
     assert info["n_tiles"] == res.blocks[0].n_tiles and "noise_corr_factor" in info
@@ -132,8 +136,8 @@ def test_step_uncertainty_is_honest_with_correlated_noise():
     for seed in range(12):
         xyz, attrs, layout = synthetic_cloud(seed=seed, patch_mm=0.5)
         attrs["sigma_table_um"][:] = 0.0
-        z += [s.error_um / s.u_um for s in run_qa(xyz, attrs, layout).steps]
-        res = run_qa(xyz, attrs, layout, tile_mm=0.1)
+        z += [s.error_um / s.u_um for s in run_qa(AnnotatedCloud(xyz, attrs), layout).steps]
+        res = run_qa(AnnotatedCloud(xyz, attrs), layout, tile_mm=0.1)
         assert any("too few to measure the noise correlation" in n for n in res.notes)
         z_indep += [s.error_um / s.u_um for s in res.steps]
     assert 0.7 < np.std(z) < 1.3, np.std(z)
@@ -142,12 +146,12 @@ def test_step_uncertainty_is_honest_with_correlated_noise():
 
 def test_missing_block_degenerate_region_and_no_sigma():
     xyz, attrs, layout = synthetic_cloud(drop_block=5)
-    res = run_qa(xyz, attrs, layout)
+    res = run_qa(AnnotatedCloud(xyz, attrs), layout)
     b5 = next(b for b in res.blocks if b.block_id == 5)
     assert b5.status == "no_points" and "block 5: no points" in res.notes[0]
     assert len(res.steps) == 5  # 4-5 and 5-6 need block 5's plane
     bare = {k: v for k, v in attrs.items() if not k.startswith("sigma")}
-    res = run_qa(xyz, bare, layout)
+    res = run_qa(AnnotatedCloud(xyz, bare), layout)
     assert not res.has_prediction and "predicted-std column is missing" in res.notes[0]
     assert np.isnan(res.blocks[0].predicted_std_um)
     assert all(np.isfinite(s.u_um) for s in res.steps)
@@ -159,7 +163,7 @@ def test_outside_volume_block_is_flagged():
     x0, x1, y0, y1 = b1.region_mm
     sel = (xyz[:, 0] >= x0) & (xyz[:, 0] <= x1) & (xyz[:, 1] >= y0) & (xyz[:, 1] <= y1)
     attrs["in_volume"][sel] = 0
-    res = run_qa(xyz, attrs, layout)
+    res = run_qa(AnnotatedCloud(xyz, attrs), layout)
     assert res.blocks[0].status == "outside_volume"
     assert res.blocks[0].in_volume_fraction == 0.0
 
@@ -225,7 +229,7 @@ def test_qa_cli_writes_every_output(tmp_path, capsys):
     assert info["steps_inside_volume"] == 7 and info["fraction_within_U"] == 1.0
     html = (out / "report.html").read_text()
     assert html.count("<img") == 4
-    _, qattrs = read_cloud(out / "cloud_qa.ply")
+    _, qattrs, _ = read_cloud(out / "cloud_qa.ply")
     assert {"qa_block_id", "qa_residual_um", "qa_local_std_um"} <= set(qattrs)
     code = main(["qa", str(cloud), "--auto", "--layout", str(LAYOUT), "--out",
                  str(tmp_path / "qa2")])

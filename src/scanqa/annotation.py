@@ -36,14 +36,15 @@ n_repeats          -     with repeats: number of scans valid at that pixel
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa import optics
+from scanqa import __version__, optics
+from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
 from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
+from scanqa.cloud import AnnotatedCloud
 from scanqa.config import ScannerConfig
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
@@ -55,31 +56,6 @@ ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_phase_um", "si
               "s_t_um_px", "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
-
-
-@dataclass(frozen=True)
-class AnnotatedCloud:
-    """Points [mm] with per-point attributes, and counts of what was left out.
-
-    From :func:`annotate`, ``xyz`` (n, 3) float64 and the float32 attributes are views of
-    one record array in the binary PLY layout, which :func:`scanqa.io.ply.write_ply`
-    writes as it is.
-    """
-
-    xyz: np.ndarray
-    attributes: dict
-    counts: dict = field(default_factory=dict)
-    model: dict = field(default_factory=dict)
-
-    def summary(self) -> str:
-        """One line: points written, and how many pixels were left out and why."""
-        c = self.counts
-        parts = [f"{c.get('written', 0)} points written",
-                 f"{c.get('decoder_masked', 0)} pixels masked by the decoder",
-                 f"{c.get('out_of_volume', 0)} outside the calibrated volume"
-                 + (" (kept, flagged)" if c.get("kept_invalid") else " (left out)"),
-                 f"{c.get('model_invalid', 0)} outside the model's validity (kept, flagged)"]
-        return "; ".join(parts)
 
 
 def check_compatible(table: CalibrationTable, config: ScannerConfig, phase_map: PhaseMap,
@@ -157,10 +133,25 @@ def annotate(phase_map: PhaseMap, table: CalibrationTable, config: ScannerConfig
     invalid = run_bands(band, bands)
     counts["model_invalid"] = int(sum(invalid))
     counts["kept_invalid"] = keep_invalid
-    model = {"sigma_p_px": config.model.sigma_p_px, "gamma": config.model.gamma,
-             "filter_floor": config.model.filter_floor,
-             "noise_reading": config.model.noise_reading}
-    return AnnotatedCloud(*ply.vertex_views(records), counts, model)
+    xyz, attributes = ply.vertex_views(records)
+    return AnnotatedCloud(xyz, attributes, counts, cloud_metadata(config, table, source))
+
+
+def cloud_metadata(config: ScannerConfig, table: CalibrationTable, source: str) -> dict:
+    """What a cloud carries into its file: the model variant and parameters that gave its
+    sigmas, the whole scanner config, the table's build and the software version."""
+    model = config.model
+    return {"format": "scanqa-cloud/1", "software": {"name": "scanqa", "version": __version__},
+            "source": source,
+            "model": {"filter_floor": model.filter_floor, "noise_reading": model.noise_reading,
+                      "sigma_p_px": model.sigma_p_px, "gamma": model.gamma,
+                      "wavelength_nm": model.wavelength_nm,
+                      "working_period_px": config.fringes.working_period_px},
+            "config": config.to_dict(),
+            "config_source": config.source + (f"#{config.profile}" if config.profile else ""),
+            "table": {"weights": table.weights, "z_range_mm": list(table.z_range_mm),
+                      "cell_px": table.cell_px,
+                      "sweep": table.provenance.get("sweep", "")}}
 
 
 def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarray,
@@ -180,8 +171,6 @@ def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarra
 def table_correlation_px(table: CalibrationTable) -> float:
     """Distance over which the table's errors are correlated [camera px]: the window of
     the cell smoothing, (2 h + 1) cells (:func:`scanqa.calibration.smooth_cells`)."""
-    from scanqa.calibration.build import SMOOTH_HALF_WIDTH
-
     return (2 * SMOOTH_HALF_WIDTH + 1) * table.cell_px
 
 

@@ -3,7 +3,7 @@
 For every position of a sweep of an optical flat (``scanqa simulate camera-sweep`` or
 ``projector-sweep``, or measured data in the same folder layout):
 
-1. decode the scan (:func:`scanqa.phase.decode_pattern_dir`);
+1. decode the scan (:func:`scanqa.decoding.decoder.decode_pattern_dir`);
 2. fit a low-order (quadratic) surface to the flat's x_p map over a central region of
    the image, with one pass of 4-sigma rejection of unwrapping blunders; the residual
    std is the phase noise [projector px];
@@ -27,7 +27,6 @@ for every reading including ``"mixed"`` (camera power, projector amplitude).
 
 from __future__ import annotations
 
-import json
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -37,9 +36,10 @@ from scipy.optimize import least_squares
 
 from scanqa import design, optics
 from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig
+from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError, ScanQAError
-from scanqa.io.atomic import atomic_path, make_out_dir, write_text
-from scanqa.io.tomlfile import read_toml
+from scanqa.io.fitted_model import read_fitted_model
+from scanqa.io.manifest import read_manifest
 
 #: Readings one sweep can tell apart ("mixed" equals "power" on a camera sweep and
 #: "amplitude" on a projector sweep, up to the fitted sigma_p).
@@ -73,6 +73,15 @@ class VariantFit:
     gamma_fitted: bool
     rms_relative: float
 
+    def model_overrides(self) -> dict:
+        """The ``[model]`` values this fit supports."""
+        return {"filter_floor": self.filter_floor, "noise_reading": self.noise_reading,
+                "sigma_p_px": self.sigma_p_px, "gamma": self.gamma}
+
+    def apply_to(self, config: ScannerConfig) -> ScannerConfig:
+        """``config`` with this fit's model parameters and readings."""
+        return config.replace_model(**self.model_overrides())
+
 
 def _best(fits: tuple[VariantFit, ...]) -> VariantFit:
     """The variant with the smallest RMS relative error."""
@@ -104,12 +113,16 @@ class Characterization:
         """The variant with the smallest RMS relative error."""
         return _best(self.fits)
 
+    def apply_to(self, config: ScannerConfig) -> ScannerConfig:
+        """``config`` with the model the data supported (:attr:`best`)."""
+        return self.best.apply_to(config)
+
     def model_std(self, fit: VariantFit, config: ScannerConfig) -> np.ndarray:
         """sigma_p * s_O of a fit at every position [projector px]."""
         z_c = np.array([p.z_c_mm for p in self.positions])
         z_p = np.array([p.z_p_mm for p in self.positions])
-        return fit.sigma_p_px * _scale(config, self.experiment, z_c, z_p, self.period_px,
-                                       fit.gamma, fit.filter_floor, fit.noise_reading)
+        return fit.sigma_p_px * _scale(config, z_c, z_p, self.period_px, fit.gamma,
+                                       fit.filter_floor, fit.noise_reading)
 
     def summary(self) -> dict:
         """JSON-ready summary: best variant, every fit, DOF table, key numbers."""
@@ -124,22 +137,9 @@ class Characterization:
 
 # ------------------------------------------------------------------------- reading
 
-def load_manifest(sweep_dir: str | os.PathLike) -> dict:
-    """Read ``manifest.toml`` of a simulated experiment folder."""
-    path = Path(sweep_dir) / "manifest.toml"
-    data = read_toml(path, "simulation manifest",
-                     missing=f"{path} does not exist (is {sweep_dir} a folder written by "
-                             "'scanqa simulate'?)")
-    if data.get("format") != "scanqa-simulation/1" or "acquisition" not in data:
-        raise InputError(f"{path} is not a scanqa-simulation/1 manifest")
-    return data
-
-
 def _device_distances(config: ScannerConfig, entry: dict) -> tuple[float, float]:
     """Z_c and Z_p of the flat's centre (the axes' crossing) at one position [mm]."""
-    from scanqa.simulator.experiments import axes_crossing
-
-    c = axes_crossing(config)
+    c = config.axes_crossing_mm
     z_c = float(c[2]) - float(entry["camera_offset_mm"])
     z_p = float(np.linalg.norm(c - np.asarray(config.projector.position_mm))) \
         - float(entry["projector_offset_mm"])
@@ -173,8 +173,6 @@ def surface_residual_std(xp: np.ndarray, valid: np.ndarray) -> float:
 
 def _measure(sweep_dir: Path, entries: list[dict], roi_px: int) -> list[tuple]:
     """(residual std, median modulation, valid count) per acquisition."""
-    from scanqa.decoding.decoder import decode_pattern_dir
-
     out = []
     for entry in entries:
         pm = decode_pattern_dir(sweep_dir / entry["folder"])
@@ -187,41 +185,27 @@ def _measure(sweep_dir: Path, entries: list[dict], roi_px: int) -> list[tuple]:
 
 # -------------------------------------------------------------------------- model
 
-def _model_attenuation(config: ScannerConfig, experiment: str, z_c: np.ndarray,
-                       z_p: np.ndarray, period: float) -> tuple[np.ndarray, np.ndarray]:
+def _model_attenuation(config: ScannerConfig, z_c: np.ndarray, z_p: np.ndarray,
+                       period: float) -> tuple[np.ndarray, np.ndarray]:
     """(A_camera, A_projector) of the model at the given distances [-]."""
-    cam, proj = config.camera, config.projector
-    omega_o = optics.fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3,
-                                             proj.focus_mm, proj.focal_mm)
-    a_c = optics.attenuation(optics.circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm)
-                             / omega_o)
-    a_p = optics.attenuation(optics.circle_of_confusion(z_p, proj.focus_mm,
-                                                        proj.aperture_mm) / omega_o)
-    return a_c, a_p
+    t = optics.optical_terms(z_c, z_p, config, period)
+    return t.attenuation_camera, t.attenuation_projector
 
 
-def _scale(config: ScannerConfig, experiment: str, z_c: np.ndarray, z_p: np.ndarray,
-           period: float, gamma: float, floor: str, reading: str) -> np.ndarray:
+def _scale(config: ScannerConfig, z_c: np.ndarray, z_p: np.ndarray, period: float,
+           gamma: float, floor: str, reading: str) -> np.ndarray:
     """s_O (Eq. 19) at the given distances for one reading [-]."""
-    cam = config.camera
-    a_c, a_p = _model_attenuation(config, experiment, z_c, z_p, period)
-    b_c = optics.camera_blur_area(optics.image_blur_diameter(
-        z_c, cam.focal_mm, cam.focus_mm, cam.aperture_mm), cam.pixel_um * 1e-3)
-    b_d = optics.diffraction_blur_area(optics.airy_diameter(
-        config.model.wavelength_nm * 1e-6, cam.f_number), cam.pixel_um * 1e-3)
-    f_gamma = optics.filter_factor(b_c, b_d, gamma, floor)
-    return optics.optical_scale(f_gamma, a_p, a_c, reading)
+    return optics.optical_terms(z_c, z_p, config, period, gamma, floor, reading).s_o
 
 
-def fit_variant(config: ScannerConfig, experiment: str, z_c: np.ndarray, z_p: np.ndarray,
+def fit_variant(config: ScannerConfig, z_c: np.ndarray, z_p: np.ndarray,
                 period: float, std: np.ndarray, floor: str, reading: str) -> VariantFit:
     """Least-squares fit (relative residuals) of sigma_p and gamma >= 1 for one reading."""
     fit_gamma = floor == "one"
 
     def rel(params: np.ndarray) -> np.ndarray:
         gamma = float(np.exp(params[1])) + 1.0 if fit_gamma else config.model.gamma
-        model = np.exp(params[0]) * _scale(config, experiment, z_c, z_p, period, gamma,
-                                           floor, reading)
+        model = np.exp(params[0]) * _scale(config, z_c, z_p, period, gamma, floor, reading)
         return model / std - 1.0
 
     best = None
@@ -306,13 +290,13 @@ def characterize_sweep(sweep_dir: str | os.PathLike, config: ScannerConfig,
         Per-position measurements, the four fits, the DOF table.
     """
     sweep = Path(sweep_dir)
-    manifest = load_manifest(sweep)
+    manifest = read_manifest(sweep)
     experiment = manifest.get("experiment")
     if experiment not in ("camera-sweep", "projector-sweep"):
         raise InputError(f"characterize needs a camera-sweep or projector-sweep, got "
                          f"experiment {experiment!r} in {sweep / 'manifest.toml'}")
     if not 0.0 < min_attenuation < 1.0:
-        raise InputError(f"--min-attenuation must be in (0, 1), got {min_attenuation}")
+        raise InputError(f"min_attenuation must be in (0, 1), got {min_attenuation}")
     entries = manifest["acquisition"]
     period = float(manifest["working_period_px"])
     measured = _measure(sweep, entries, roi_px)
@@ -335,8 +319,7 @@ def _positions(config: ScannerConfig, experiment: str, entries: list[dict],
         group = [(e, m) for e, m in zip(entries, measured, strict=True)
                  if float(e["stage_mm"]) == s]
         z_c, z_p = _device_distances(config, group[0][0])
-        a_c, a_p = _model_attenuation(config, experiment, np.array(z_c), np.array(z_p),
-                                      period)
+        a_c, a_p = _model_attenuation(config, np.array(z_c), np.array(z_p), period)
         a_model = float(a_c if experiment == "camera-sweep" else a_p)
         std = float(np.sqrt(np.nanmean([m[0] ** 2 for _, m in group])))
         out.append(PositionResult(s, z_c, z_p, std, float(mods[s]),
@@ -366,7 +349,7 @@ def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionRe
     if fstd.size < 3:
         raise InputError(f"only {fstd.size} positions with attenuation >= "
                          f"{min_attenuation}; need at least 3 to fit sigma_p and gamma")
-    fits = tuple(fit_variant(config, experiment, fz_c, fz_p, period, fstd, fl, rd)
+    fits = tuple(fit_variant(config, fz_c, fz_p, period, fstd, fl, rd)
                  for fl in FILTER_FLOORS for rd in SINGLE_SWEEP_READINGS)
     z = z_c if experiment == "camera-sweep" else z_p
     r_ok = a_model >= float(optics.attenuation(0.5))
@@ -387,7 +370,12 @@ class JointCharacterization:
 
     @property
     def best(self) -> VariantFit:
+        """The variant with the smallest RMS relative error."""
         return _best(self.fits)
+
+    def apply_to(self, config: ScannerConfig) -> ScannerConfig:
+        """``config`` with the model the data supported (:attr:`best`)."""
+        return self.best.apply_to(config)
 
     @property
     def experiment(self) -> str:
@@ -419,101 +407,15 @@ def characterize_sweeps(sweep_dirs: list, config: ScannerConfig, min_attenuation
         else SINGLE_SWEEP_READINGS
     z_c, z_p, std = (np.concatenate(a) for a in zip(
         *(_fitted(c.positions, min_attenuation) for c in chars), strict=True))
-    fits = tuple(fit_variant(config, "joint", z_c, z_p, chars[0].period_px, std, fl, rd)
+    fits = tuple(fit_variant(config, z_c, z_p, chars[0].period_px, std, fl, rd)
                  for fl in FILTER_FLOORS for rd in readings)
     return JointCharacterization(tuple(chars), fits)
 
 
-# ------------------------------------------------------------------------- output
-
-def write_characterization(result: Characterization | JointCharacterization,
-                           out_dir: str | os.PathLike,
-                           config: ScannerConfig | None = None) -> Path:
-    """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir`` (for a
-    joint fit, one pair per sweep: ``std_camera-sweep.png``, ...)."""
-    out = make_out_dir(out_dir)
-    summary = json.dumps(_json_safe(result.summary()), indent=1)
-    write_text(out / "summary.json", summary + "\n")
-    if config is not None:
-        if isinstance(result, JointCharacterization):
-            for c in result.sweeps:
-                _plot(c, config, out, result.fits, f"_{c.experiment}")
-        else:
-            _plot(result, config, out)
-    return out / "summary.json"
-
-
-def _json_safe(value: object) -> object:
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
-
-
-def _plot(result: Characterization, config: ScannerConfig, out: Path,
-          fits: tuple[VariantFit, ...] | None = None, suffix: str = "") -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    cam = result.experiment == "camera-sweep"
-    z = np.array([p.z_c_mm if cam else p.z_p_mm for p in result.positions])
-    std = np.array([p.residual_std_px for p in result.positions])
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(z, std, "o", ms=3, label="simulated (surface-fit residual)")
-    fits = result.fits if fits is None else fits
-    best = _best(fits)
-    for fit in fits:
-        style = "-" if fit is best else ":"
-        ax.plot(z, result.model_std(fit, config), style, label=(
-            f"{fit.filter_floor}/{fit.noise_reading}: sigma_p={fit.sigma_p_px:.4f}, "
-            f"gamma={fit.gamma:.2f}, rms={100 * fit.rms_relative:.1f}%"))
-    ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
-    ax.set_ylabel("std of x_p [projector px]")
-    ax.set_ylim(0, np.nanmax(std) * 1.3)
-    ax.legend(fontsize=6)
-    _save(fig, out / f"std{suffix}.png")
-    fig, ax = plt.subplots(figsize=(6, 4))
-    ax.plot(z, [p.attenuation for p in result.positions], "o", ms=3, label="simulated")
-    ax.plot(z, [p.attenuation_model for p in result.positions], "-", label="A(C/omega_o)")
-    ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
-    ax.set_ylabel("attenuation [-]")
-    ax.legend()
-    _save(fig, out / f"attenuation{suffix}.png")
-
-
-def _save(fig, path: Path) -> None:
-    import matplotlib.pyplot as plt
-
-    with atomic_path(path) as tmp:
-        fig.savefig(tmp, dpi=110, bbox_inches="tight", format="png")
-    plt.close(fig)
-
-
 def load_fitted_model(path: str | os.PathLike) -> dict:
-    """The best variant of a characterisation ``summary.json`` as ``[model]`` overrides.
-
-    Returns
-    -------
-    dict
-        ``filter_floor``, ``noise_reading``, ``sigma_p_px`` and ``gamma``.
-    """
-    path = Path(path)
-    try:
-        data = json.loads(path.read_text(encoding="utf-8"))
-        best = data["best_variant"]
-        return {"filter_floor": str(best["filter_floor"]),
-                "noise_reading": str(best["noise_reading"]),
-                "sigma_p_px": float(best["sigma_p_px"]), "gamma": float(best["gamma"])}
-    except OSError as err:
-        raise InputError(f"cannot read characterisation {path}: {err.strerror}") from None
-    except (ValueError, KeyError, TypeError) as err:
-        raise InputError(f"{path} is not a characterisation summary (scanqa characterize "
-                         f"writes one; missing or bad {err})") from None
+    """The best variant of a characterisation ``summary.json`` as ``[model]`` overrides
+    (:func:`scanqa.io.fitted_model.read_fitted_model`)."""
+    return read_fitted_model(path)
 
 
 def apply_fitted_model(config: ScannerConfig, path: str | os.PathLike) -> ScannerConfig:

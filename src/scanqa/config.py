@@ -305,6 +305,17 @@ class ScannerConfig:
         out["name"] = self.name
         return out
 
+    @property
+    def axes_crossing_mm(self) -> np.ndarray:
+        """The point of the camera axis closest to the projector axis, (3,) [mm]: where
+        both devices look, the centre of the camera and projector sweeps."""
+        p = np.asarray(self.projector.position_mm, dtype=float)
+        a = self.projector.rotation[2]
+        b, d, f = a[2], -p[2], -(a @ p)
+        denom = 1.0 - b * b
+        t = (b * f - d) / denom if denom > 1e-12 else self.camera.focus_mm
+        return np.array([0.0, 0.0, t])
+
     def replace_model(self, **changes: Any) -> ScannerConfig:
         """Copy with some model parameters changed (validated again)."""
         model = ModelConfig(**{**asdict(self.model), **changes})

@@ -17,38 +17,29 @@ from pathlib import Path
 
 from scanqa import design
 from scanqa.annotation import annotate
-from scanqa.calibration.build import build_table
-from scanqa.calibration.sweep import iter_observations
-from scanqa.calibration.table import save_table
-from scanqa.characterization import (
-    apply_fitted_model,
-    characterize_sweeps,
-    write_characterization,
-)
-from scanqa.config import load_config
+from scanqa.calibration.sweep import calibrate
+from scanqa.characterization import characterize_sweeps
+from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir, write_text
-from scanqa.io.cloud import write_cloud
-from scanqa.io.sweep import load_sweep
-from scanqa.qa.blocks import QAResult, load_layout, model_curve, run_qa
+from scanqa.io.manifest import read_manifest
+from scanqa.qa.blocks import QAResult, run_qa
+from scanqa.qa.layout import load_layout
 from scanqa.report import calibration as calibration_report
 from scanqa.report import design as design_plots
 from scanqa.report import qa as qa_report
+from scanqa.report.characterization import write_characterization
 
-ROOT = Path(__file__).resolve().parents[2]
-SAMPLE_DIR = ROOT / "sample_data"
-LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
-#: (config file, profile for full frames, profile for the camera sweep) per data set.
-SAMPLE_CONFIG = (SAMPLE_DIR / "sample_scanner.toml", "sample", "sample_roi64")
-FULL_CONFIG = (ROOT / "calib" / "paper_scanner.toml", "f11", "f11")
-#: Simulation plan of ``--full``: (experiment, profile key, positions, repeats, folder).
+#: Simulation plan of ``--full``: (experiment, camera window, positions, repeats, folder).
 #: About 40 min on 2 cores: 14 sweep positions and 3 gauge scans at 2448 x 2048 (~2 min
 #: each), the camera and projector sweeps on the central 256 x 256 px.
-FULL_PLAN = (("camera-sweep", 2, "-30:30:2", 1, "camera_sweep"),
-             ("projector-sweep", 2, "-30:30:2", 1, "projector_sweep"),
-             ("calibration-sweep", 1, "424:476:4", 1, "calibration_sweep"),
-             ("gauge-blocks", 1, None, 3, "gauge_blocks"))
+FULL_PLAN = (("camera-sweep", 256, "-30:30:2", 1, "camera_sweep"),
+             ("projector-sweep", 256, "-30:30:2", 1, "projector_sweep"),
+             ("calibration-sweep", 0, "424:476:4", 1, "calibration_sweep"),
+             ("gauge-blocks", 0, None, 3, "gauge_blocks"))
+#: Folders a demo data set holds (the device sweeps: one or both).
+DATA_FOLDERS = ("calibration_sweep", "gauge_blocks")
 
 
 @dataclass
@@ -88,26 +79,18 @@ def _progress_line(say: Callable[[str], None], label: str) -> Callable[[int], No
     return report
 
 
-def _decode(path: Path):
-    if not path.is_dir():
-        raise InputError(f"sample scan {path} is missing: run 'sh sample_data/regenerate.sh' "
-                         "or 'scanqa demo --full'")
-    return decode_pattern_dir(path)
-
-
-def simulate_full(data: Path, say: Callable[[str], None]) -> Path:
-    """Simulate the demo's data at the paper's resolution into ``data``."""
+def simulate_full(config: ScannerConfig, data: Path, say: Callable[[str], None]) -> Path:
+    """Simulate the demo's data set with ``config`` (at its full resolution) into ``data``."""
     from scanqa.simulator.experiments import run_experiment
 
-    cfg_path, full, roi = FULL_CONFIG
-    for experiment, which, positions, repeats, folder in FULL_PLAN:
-        config = load_config(cfg_path, profile=full if which == 1 else roi)
-        if which == 2:  # the device sweeps need only the central part of the sensor
-            config = config.replace_simulator(roi_width_px=256, roi_height_px=256)
+    for experiment, window, positions, repeats, folder in FULL_PLAN:
+        cfg = config
+        if window:  # the device sweeps need only the central part of the sensor
+            cfg = config.replace_simulator(roi_width_px=window, roi_height_px=window)
         pos = None if positions is None else _positions(positions)
-        say(f"  simulating {experiment} at {config.camera.width_px} x "
-            f"{config.camera.height_px} px into {data / folder}")
-        run_experiment(experiment, config, data / folder, positions=pos, repeats=repeats,
+        say(f"  simulating {experiment} at {cfg.camera.width_px} x "
+            f"{cfg.camera.height_px} px into {data / folder}")
+        run_experiment(experiment, cfg, data / folder, positions=pos, repeats=repeats,
                        progress=True)
     return data
 
@@ -118,53 +101,73 @@ def _positions(text: str) -> list[float]:
     return [start + i * step for i in range(n)]
 
 
-def run_demo(out: str | Path, full: bool = False, say: Callable[[str], None] | None = None
-             ) -> DemoResult:
-    """Run every stage and write the outputs into ``out``.
+def manifest_config(folder: Path) -> ScannerConfig:
+    """The scanner config an experiment folder was simulated (or captured) with."""
+    manifest = read_manifest(folder)
+    if "config" not in manifest:
+        raise InputError(f"{folder / 'manifest.toml'} records no config; the demo needs "
+                         "the config its data were made with")
+    return config_from_dict(manifest["config"], source=str(folder / "manifest.toml"))
+
+
+def check_data(data: Path) -> list[Path]:
+    """The device sweeps of a demo data set; raises unless every folder is there."""
+    missing = [name for name in DATA_FOLDERS if not (data / name / "manifest.toml").exists()]
+    sweeps = [data / name for name in ("camera_sweep", "projector_sweep")
+              if (data / name / "manifest.toml").exists()]
+    if missing or not sweeps:
+        what = ", ".join(missing + ([] if sweeps else ["camera_sweep or projector_sweep"]))
+        raise InputError(f"demo data not found in {data}: missing {what} (run the demo from "
+                         "a clone of the repository, where sample_data/ holds them, or "
+                         "simulate them with 'scanqa demo --full')")
+    return sweeps
+
+
+def run_demo(out: str | Path, data: str | Path = "sample_data",
+             full_config: ScannerConfig | None = None,
+             say: Callable[[str], None] | None = None) -> DemoResult:
+    """Run every stage on a demo data set and write the outputs into ``out``.
 
     Parameters
     ----------
     out : str or Path
         Output folder (created).
-    full : bool
-        Simulate the data at the paper's resolution first instead of using sample_data/.
+    data : str or Path
+        The data set: ``calibration_sweep/``, ``gauge_blocks/`` (with its
+        ``layout.toml``) and a ``camera_sweep/`` and/or ``projector_sweep/``, each with
+        the manifest that records its scanner config (``sample_data/`` of the
+        repository is one).
+    full_config : ScannerConfig, optional
+        Simulate the data set with this config first (into ``out/data``; ``data`` is
+        then ignored).
     say : callable, optional
         Receives progress lines (default: stderr).
     """
     say = say or (lambda msg: print(msg, file=sys.stderr, flush=True))
     out = make_out_dir(out)
-    stage = _Stages(7 if full else 6, say)
-    if full:
-        stage("simulating the data at the paper's resolution (long)")
-        data = simulate_full(out / "data", say)
-        cfg_path, prof, prof_roi = FULL_CONFIG
-    else:
-        data = SAMPLE_DIR
-        cfg_path, prof, prof_roi = SAMPLE_CONFIG
-        if not (data / "calibration_sweep" / "sweep.toml").exists():
-            raise InputError(f"sample data not found in {data}: run the demo from a clone of "
-                             "the repository, or 'scanqa demo --full'")
-    config = load_config(cfg_path, profile=prof)
+    stage = _Stages(7 if full_config is not None else 6, say)
+    if full_config is not None:
+        stage("simulating the data at the config's full resolution (long)")
+        data = simulate_full(full_config, out / "data", say)
+    data = Path(data)
+    sweeps = check_data(data)
+    config = manifest_config(data / "gauge_blocks")
 
-    sweeps = [data / name for name in ("camera_sweep", "projector_sweep")
-              if (data / name / "manifest.toml").exists()]
     stage(f"characterising the scanner from the {' and '.join(p.name for p in sweeps)} "
           "(Figs. 3 and 4 procedure)")
-    char = characterize_sweeps(sweeps, load_config(cfg_path, profile=prof_roi))
-    summary = write_characterization(char, out / "characterization",
-                                     load_config(cfg_path, profile=prof_roi))
-    fitted = apply_fitted_model(config, summary)
+    sweep_config = manifest_config(sweeps[0])
+    char = characterize_sweeps(sweeps, sweep_config)
+    write_characterization(char, out / "characterization", sweep_config)
+    fitted = char.apply_to(config)
     variant = char.summary()["best_variant"]
     say(f"  supported reading: filter_floor={variant['filter_floor']}, noise_reading="
         f"{variant['noise_reading']}, sigma_p={variant['sigma_p_px']:.4g} px, gamma="
         f"{variant['gamma']:.3g} ({100 * variant['rms_relative']:.1f} % RMS)")
 
     stage("building the weighted calibration table")
-    sweep = load_sweep(data / "calibration_sweep" / "sweep.toml")
-    table, build = build_table(iter_observations(sweep), fitted, weights="model",
-                               provenance=sweep.provenance(),
-                               progress=_progress_line(say, "calibration"))
-    save_table(out / "table.npz", table)
+    table, build = calibrate(data / "calibration_sweep" / "sweep.toml", fitted,
+                             weights="model", progress=_progress_line(say, "calibration"))
+    table.save(out / "table.npz")
     write_text(out / "table_report.html", calibration_report.render(table, build))
     write_text(out / "table_report.json",
                json.dumps(calibration_report.summary(table, build), indent=1))
@@ -173,20 +176,20 @@ def run_demo(out: str | Path, full: bool = False, say: Callable[[str], None] | N
     scans = sorted((data / "gauge_blocks").glob("p000_r*"))
     if not scans:
         raise InputError(f"no gauge-block scans in {data / 'gauge_blocks'}")
-    maps = [_decode(p) for p in scans]
+    maps = [decode_pattern_dir(p) for p in scans]
     cloud = annotate(maps[0], table, fitted, maps[1:], keep_invalid=True,
                      source=str(scans[0]))
-    write_cloud(out / "gauge_cloud.ply", cloud.xyz, cloud.attributes)
+    cloud.write(out / "gauge_cloud.ply")
     say(f"  {cloud.summary()}")
 
     stage("gauge-block QA")
-    qa = run_qa(cloud.xyz, cloud.attributes, load_layout(LAYOUT))
-    qa_report.write_outputs(qa, make_out_dir(out / "qa"), cloud.xyz, model_curve(qa, fitted),
-                            cloud.attributes)
+    layout = load_layout(data / "gauge_blocks" / "layout.toml")
+    qa = run_qa(cloud, layout)
+    qa_report.write_outputs(qa, make_out_dir(out / "qa"))
 
     # one scan has 6 steps: pool the steps of every repeat for the coverage of U
-    repeat_qa = [run_qa(c.xyz, c.attributes, load_layout(LAYOUT))
-                 for c in (annotate(m, table, fitted, keep_invalid=True) for m in maps[1:])]
+    repeat_qa = [run_qa(annotate(m, table, fitted, keep_invalid=True), layout)
+                 for m in maps[1:]]
     write_text(out / "qa" / "steps_all_scans.csv", _steps_csv([qa, *repeat_qa], scans))
 
     stage("design tools on the same scanner (depth of field, W curve, volume)")
@@ -207,7 +210,7 @@ def pooled_steps(result: DemoResult) -> tuple[int, int]:
     them have |error| <= U."""
     inside = within = 0
     for res in (result.qa, *result.repeat_qa):
-        info = qa_report.summary(res)
+        info = res.summary()
         inside += info["steps_inside_volume"]
         within += info["steps_error_within_U"]
     return within, inside
@@ -235,7 +238,7 @@ def summary_lines(result: DemoResult) -> list[str]:
         lines.append(f"{s.block_a}-{s.block_b}    {s.error_um:+6.1f} um  {s.expanded_um:5.1f} um"
                      f"  {'within U' if abs(s.error_um) <= s.expanded_um else 'outside U'}, "
                      f"{s.decision}")
-    info = qa_report.summary(result.qa)
+    info = result.qa.summary()
     if info["fraction_within_U"] is not None:
         lines.append(f"{info['steps_error_within_U']} of {info['steps_inside_volume']} steps "
                      "between blocks inside the calibrated volume have |error| <= U")

@@ -155,9 +155,9 @@ def dof_table(config: ScannerConfig, levels=TABLE_LEVELS, periods=None) -> list[
 def _z_grid(z_min: float, z_max: float, step: float) -> np.ndarray:
     """Range samples from z_min to z_max inclusive [mm]."""
     if not (np.isfinite(z_min) and np.isfinite(z_max) and z_max > z_min):
-        raise InputError(f"--z-max must be > --z-min, got z_min={z_min}, z_max={z_max}")
+        raise InputError(f"z_max must be > z_min, got z_min={z_min}, z_max={z_max} [mm]")
     if not step > 0 or (z_max - z_min) / step > 1e6:
-        raise InputError(f"--step must be > 0 mm and give at most 1e6 samples, got {step}")
+        raise InputError(f"step must be > 0 mm and give at most 1e6 samples, got {step}")
     n = int(np.floor((z_max - z_min) / step + 1e-9)) + 1
     return z_min + step * np.arange(n)
 
@@ -260,7 +260,7 @@ def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | Non
         Volumes in mm^3 and an XZ slice at Y = 0 for the picture.
     """
     if not 0.0 < level < 1.0:
-        raise RangeError(f"--level must be in (0, 1), got {level!r}")
+        raise RangeError(f"level must be in (0, 1), got {level!r}")
     focus = config.camera.focus_mm
     z_min = 0.75 * focus if z_min is None else z_min
     z_max = 1.25 * focus if z_max is None else z_max
@@ -334,7 +334,7 @@ def flatten_curve(config: ScannerConfig, z_min: float, z_max: float, step: float
     ok = curve["model_valid"]
     if not ok.any():
         raise RangeError("the model is not valid anywhere in the requested range; "
-                         "widen or move --z-min/--z-max towards the focus")
+                         "widen or move z_min/z_max towards the focus")
     target = float(np.nanmin(np.where(ok, sigma, np.nan)))
     b_c = pred.blur_area_camera
     b_f = np.where(ok, b_c * ((sigma / target) ** 2 - 1.0), np.nan)

@@ -412,6 +412,84 @@ def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
 
 
 @dataclass(frozen=True)
+class OpticalTerms:
+    """The depth-dependent part of the model (Eqs. 1-4, 12-17, 19): arrays of one shape.
+
+    Lengths in mm, ratios and factors dimensionless. ``s_o`` is NaN past the first zero
+    of J1 (the fringe contrast inverts there).
+    """
+
+    z_c: np.ndarray
+    z_p: np.ndarray
+    omega_o: np.ndarray
+    ratio_camera: np.ndarray
+    ratio_projector: np.ndarray
+    attenuation_camera: np.ndarray
+    attenuation_projector: np.ndarray
+    blur_area_camera: np.ndarray
+    filter_factor: np.ndarray
+    s_o: np.ndarray
+    filter_floor: str
+    noise_reading: str
+
+    @property
+    def within_validity(self) -> np.ndarray:
+        """Both blur ratios within the paper's validity r <= 1/2."""
+        return (self.ratio_camera <= VALID_RATIO) & (self.ratio_projector <= VALID_RATIO)
+
+
+def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
+                  period_px: float | None = None, gamma: float | None = None,
+                  filter_floor: str | None = None, noise_reading: str | None = None
+                  ) -> OpticalTerms:
+    """The model chain from the distances to the camera and the projector to s_O.
+
+    This is the one implementation of Eqs. 1-4 and 12-19 (without s_T): prediction
+    (:func:`predict`), characterisation and the design tools all call it.
+
+    Parameters
+    ----------
+    z_c : array_like
+        Distance of the points along the camera axis, Z_c [mm].
+    z_p : array_like
+        Distance along the projector axis, Z_p [mm].
+    config : ScannerConfig
+        Optics and the model's parameters and readings.
+    period_px : float, optional
+        Fringe period [projector px]; default the config's working (finest) period.
+    gamma : float, optional
+        Noise correlation gamma [-]; default ``config.model.gamma``.
+    filter_floor, noise_reading : str, optional
+        Override the config's readings (module notes).
+
+    Returns
+    -------
+    OpticalTerms
+        Every intermediate quantity, broadcast to one shape.
+    """
+    cam, proj, model = config.camera, config.projector, config.model
+    z_c, z_p = np.broadcast_arrays(np.asarray(z_c, dtype=float), np.asarray(z_p, dtype=float))
+    period = config.fringes.working_period_px if period_px is None else period_px
+    floor = model.filter_floor if filter_floor is None else filter_floor
+    reading = model.noise_reading if noise_reading is None else noise_reading
+    omega_o = fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3, proj.focus_mm,
+                                      proj.focal_mm)
+    coc_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm)
+    r_c = coc_c / omega_o
+    r_p = circle_of_confusion(z_p, proj.focus_mm, proj.aperture_mm) / omega_o
+    a_c, a_p = attenuation(r_c), attenuation(r_p)
+    c_image = cam.focal_mm / (z_c - cam.focal_mm) * coc_c  # Eq. 14 (image_blur_diameter)
+    b_c = camera_blur_area(c_image, cam.pixel_um * 1e-3)
+    b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
+                                cam.pixel_um * 1e-3)
+    f_gamma = filter_factor(b_c, b_d, model.gamma if gamma is None else gamma, floor)
+    s_o = optical_scale(f_gamma, a_p, a_c, reading)
+    s_o = np.where((r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO), np.nan, s_o)
+    return OpticalTerms(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma, s_o, floor,
+                        reading)
+
+
+@dataclass(frozen=True)
 class Prediction:
     """Every intermediate quantity of the model for a set of points (arrays of one shape).
 
@@ -468,29 +546,14 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
     Prediction
         sigma along the line of sight [mm] and every intermediate quantity.
     """
-    cam, proj, model = config.camera, config.projector, config.model
     q = np.asarray(points, dtype=float)
-    period = config.fringes.working_period_px if period_px is None else period_px
-    floor = model.filter_floor if filter_floor is None else filter_floor
-    reading = model.noise_reading if noise_reading is None else noise_reading
-    z_c = q[..., 2]
-    z_p = projector_depth(q, config)
-    omega_o = fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3, proj.focus_mm,
-                                      proj.focal_mm)
-    coc_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm)
-    r_c = coc_c / omega_o
-    r_p = circle_of_confusion(z_p, proj.focus_mm, proj.aperture_mm) / omega_o
-    a_c, a_p = attenuation(r_c), attenuation(r_p)
-    c_image = cam.focal_mm / (z_c - cam.focal_mm) * coc_c  # Eq. 14 (image_blur_diameter)
-    b_c = camera_blur_area(c_image, cam.pixel_um * 1e-3)
-    b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
-                                cam.pixel_um * 1e-3)
-    f_gamma = filter_factor(b_c, b_d, model.gamma, floor)
-    s_o = optical_scale(f_gamma, a_p, a_c, reading)
-    s_o = np.where((r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO), np.nan, s_o)
+    t = optical_terms(q[..., 2], projector_depth(q, config), config, period_px,
+                      filter_floor=filter_floor, noise_reading=noise_reading)
     s_t = triangulation_scale(q, config) if s_t is None else np.asarray(s_t, dtype=float)
-    sp = model.sigma_p_px if sigma_p is None else sigma_p
-    sigma = s_t * s_o * sp
-    valid = (r_c <= VALID_RATIO) & (r_p <= VALID_RATIO) & np.isfinite(sigma)
-    return Prediction(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma, s_o,
-                      np.broadcast_to(s_t, np.shape(sigma)), sigma, valid, floor, reading)
+    sp = config.model.sigma_p_px if sigma_p is None else sigma_p
+    sigma = s_t * t.s_o * sp
+    valid = t.within_validity & np.isfinite(sigma)
+    return Prediction(t.z_c, t.z_p, t.omega_o, t.ratio_camera, t.ratio_projector,
+                      t.attenuation_camera, t.attenuation_projector, t.blur_area_camera,
+                      t.filter_factor, t.s_o, np.broadcast_to(s_t, np.shape(sigma)), sigma,
+                      valid, t.filter_floor, t.noise_reading)

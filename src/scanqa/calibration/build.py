@@ -294,8 +294,8 @@ def _weights(st: _CellStats, mode: str, config: ScannerConfig, node_u: np.ndarra
         w = n / sig_x**2
     else:
         if st.var is None:
-            raise InputError("--weights modulation needs the decoder's sigma_xp in every "
-                             "phase file of the sweep; use --weights model or none")
+            raise InputError("weights 'modulation' needs the decoder's sigma_xp in every "
+                             "phase file of the sweep; use weights 'model' or 'none'")
         w = n / st.var
     return np.where(np.isfinite(st.x) & np.isfinite(w) & (n > 0), w, 0.0)
 
@@ -424,7 +424,7 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     (CalibrationTable, BuildReport)
     """
     if weights not in WEIGHT_MODES:
-        raise InputError(f"--weights must be one of {', '.join(WEIGHT_MODES)}, got {weights!r}")
+        raise InputError(f"weights must be one of {', '.join(WEIGHT_MODES)}, got {weights!r}")
     report = BuildReport()
     stats, shape = [], None
     for i, obs in enumerate(observations):

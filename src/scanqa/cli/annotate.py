@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from scanqa.annotation import annotate
 from scanqa.calibration.table import load_table
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
-from scanqa.decoding.phasemap import PhaseMap
+from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
-from scanqa.io.cloud import WRITERS, write_cloud
+from scanqa.io.cloud import WRITERS
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,32 +33,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def load_scan(path: str) -> PhaseMap:
-    """A decoded phase file, or a pattern folder decoded on the fly."""
-    from scanqa.decoding.decoder import decode_pattern_dir
-    from scanqa.decoding.phasemap import load_phase_map
-
-    p = Path(path)
-    if p.is_dir():
-        return decode_pattern_dir(p)
-    if not p.exists():
-        raise InputError(f"scan {p} does not exist (give a phase .npz or a pattern folder)")
-    return load_phase_map(p)
-
-
 def run(args: argparse.Namespace) -> int:
     out = check_out_dir(args.out)
     if out.suffix.lower() not in WRITERS:
         raise InputError(f"--out {out}: unknown suffix (use one of {', '.join(WRITERS)})")
     config = config_from_args(args)
     table = load_table(args.table)
-    scan = load_scan(args.scan)
-    repeats = [load_scan(r) for r in args.repeats]
+    scan = decode(args.scan)
+    repeats = [decode(r) for r in args.repeats]
     cloud = annotate(scan, table, config, repeats, args.keep_invalid, source=args.scan)
     if not cloud.counts["written"]:
         raise InputError(f"{args.scan}: no point lies inside the calibrated volume; nothing "
                          "written (use --keep-invalid to extrapolate)")
     print(f"annotate: {cloud.summary()}", file=sys.stderr)
-    write_cloud(out, cloud.xyz, cloud.attributes)
+    cloud.write(out)
     print(f"{out}: {cloud.summary()}")
     return 0

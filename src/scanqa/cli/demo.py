@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from scanqa.config import load_config
 from scanqa.demo import run_demo, summary_lines
 
 
@@ -16,15 +17,21 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  scanqa demo --out /tmp/d --full   # simulate at 2448 x 2048 first "
                "(~40 min)\n\nwrites the table, the annotated PLY, the QA report and tables")
     p.add_argument("--out", default="scanqa-demo", help="output folder (default scanqa-demo)")
+    p.add_argument("--data", default="sample_data", metavar="DIR",
+                   help="the data set (default: sample_data, in a clone of the repository)")
     p.add_argument("--full", action="store_true",
-                   help="regenerate the data with the simulator at the paper's resolution "
-                        "first (chunked, bounded memory; slow)")
+                   help="simulate the data with --full-config at its full resolution first "
+                        "(chunked, bounded memory; slow)")
+    p.add_argument("--full-config", default="calib/paper_scanner.toml#f11", metavar="FILE",
+                   help="config of --full (default calib/paper_scanner.toml#f11, the paper's "
+                        "scanner at f/11)")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
-    result = run_demo(args.out, full=args.full)
+    full = load_config(args.full_config) if args.full else None
+    result = run_demo(args.out, data=args.data, full_config=full)
     v = result.variant
     print(f"scanner characterised: reading filter_floor={v['filter_floor']}, "
           f"noise_reading={v['noise_reading']}, sigma_p={v['sigma_p_px']:.4g} px, "

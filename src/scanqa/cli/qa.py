@@ -4,13 +4,17 @@ from __future__ import annotations
 
 import argparse
 
-import numpy as np
-
+from scanqa.annotation import annotate
+from scanqa.calibration.table import load_table
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
+from scanqa.cloud import AnnotatedCloud, read_cloud
+from scanqa.config import ScannerConfig
+from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir
-from scanqa.io.cloud import read_cloud
-from scanqa.qa.blocks import detect_blocks, load_layout, model_curve, run_qa
+from scanqa.qa.blocks import run_qa
+from scanqa.qa.detect import detect_blocks
+from scanqa.qa.layout import load_layout
 from scanqa.report import qa as qa_report
 
 
@@ -46,21 +50,16 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _load(args: argparse.Namespace) -> tuple[np.ndarray, dict, object]:
+def _load(args: argparse.Namespace) -> tuple[AnnotatedCloud, ScannerConfig | None]:
     if args.table:
         if not args.config:
             raise InputError("--table needs --config (the config the table was built with)")
-        from scanqa.annotation import annotate
-        from scanqa.calibration.table import load_table
-        from scanqa.cli.annotate import load_scan
-
         config = config_from_args(args)
-        cloud = annotate(load_scan(args.cloud), load_table(args.table), config,
+        cloud = annotate(decode(args.cloud), load_table(args.table), config,
                          keep_invalid=True, source=args.cloud)
-        return cloud.xyz, cloud.attributes, config
+        return cloud, config
     config = config_from_args(args) if args.config else None
-    xyz, attrs = read_cloud(args.cloud)
-    return xyz, attrs, config
+    return read_cloud(args.cloud), config
 
 
 def _heights(args: argparse.Namespace) -> dict[int, float]:
@@ -80,12 +79,12 @@ def run(args: argparse.Namespace) -> int:
     if not args.layout and not args.auto:
         raise InputError("give --layout FILE, or --auto to find the blocks")
     out = make_out_dir(args.out)
-    xyz, attrs, config = _load(args)
-    layout = detect_blocks(xyz, _heights(args)) if args.auto else load_layout(args.layout)
-    result = run_qa(xyz, attrs, layout, args.margin, args.outliers, args.tolerance, args.k,
+    cloud, config = _load(args)
+    layout = detect_blocks(cloud.xyz, _heights(args)) if args.auto else load_layout(args.layout)
+    result = run_qa(cloud, layout, config=config, margin_mm=args.margin,
+                    outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
                     tile_mm=args.tile)
-    curve = model_curve(result, config) if config is not None else None
-    info = qa_report.write_outputs(result, out, xyz, curve, attrs)
+    info = qa_report.write_outputs(result, out)
     for b in result.blocks:
         print(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
               f"predicted {b.predicted_std_um:.1f} um, {b.status}")

@@ -96,7 +96,8 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.characterization import characterize_sweeps, write_characterization
+    from scanqa.characterization import characterize_sweeps
+    from scanqa.report.characterization import write_characterization
 
     config = config_from_args(args)
     result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)

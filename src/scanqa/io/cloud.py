@@ -1,8 +1,14 @@
-"""Point-cloud files by suffix: ``.ply`` (binary), ``.las`` (1.4, extra bytes),
-``.csv`` and ``.parquet`` (pandas). One small registry, one module per format."""
+"""Point-cloud files by suffix: ``.ply`` (binary), ``.las`` (1.4, extra bytes, metres),
+``.csv`` and ``.parquet`` (pandas). One small registry, one module per format.
+
+Every format carries an optional metadata dict (plain JSON): a PLY header comment, a LAS
+variable-length record, a first CSV line ``# scanqa-meta {...}``, Parquet key-value
+metadata. Coordinates are millimetres in memory whatever the file stores.
+"""
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -12,29 +18,55 @@ from scanqa.errors import InputError
 from scanqa.io import las, ply
 from scanqa.io.atomic import atomic_path
 
+#: First-line prefix of a CSV point table that carries scanqa's metadata.
+CSV_META = "# scanqa-meta "
 
-def _write_table(path: Path, xyz: np.ndarray, attributes: dict) -> Path:
+
+def _frame(xyz: np.ndarray, attributes: dict):
     import pandas as pd
 
-    frame = pd.DataFrame({"x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2],
-                          **attributes})
-    with atomic_path(path) as tmp:
-        if path.suffix == ".csv":
-            frame.to_csv(tmp, index=False, float_format="%.9g")
-        else:
-            try:
-                frame.to_parquet(tmp, index=False)
-            except ImportError as err:
-                raise InputError(f"Parquet export needs pyarrow or fastparquet ({err}); "
-                                 "install one or write .csv") from None
+    return pd.DataFrame({"x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2],
+                         **attributes})
+
+
+def _write_csv(path: Path, xyz: np.ndarray, attributes: dict, metadata: dict | None) -> Path:
+    frame = _frame(xyz, attributes)
+    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
+        if metadata:
+            fh.write(CSV_META + json.dumps(metadata, allow_nan=False) + "\n")
+        frame.to_csv(fh, index=False, float_format="%.9g")
     return path
 
 
-def _read_table(path: Path) -> tuple[np.ndarray, dict]:
+def _write_parquet(path: Path, xyz: np.ndarray, attributes: dict,
+                   metadata: dict | None) -> Path:
+    frame = _frame(xyz, attributes)
+    frame.attrs["scanqa"] = metadata or {}
+    with atomic_path(path) as tmp:
+        try:
+            frame.to_parquet(tmp, index=False)
+        except ImportError as err:
+            raise InputError(f"Parquet export needs pyarrow or fastparquet ({err}); "
+                             "install one or write .csv") from None
+    return path
+
+
+def _read_table(path: Path) -> tuple[np.ndarray, dict, dict]:
     import pandas as pd
 
+    metadata = {}
     try:
-        frame = pd.read_csv(path) if path.suffix == ".csv" else pd.read_parquet(path)
+        if path.suffix.lower() == ".csv":
+            with open(path, encoding="utf-8") as fh:
+                first = fh.readline()
+                if first.startswith(CSV_META):
+                    metadata = json.loads(first[len(CSV_META):])
+                else:
+                    fh.seek(0)
+                frame = pd.read_csv(fh)
+        else:
+            frame = pd.read_parquet(path)
+            metadata = dict(frame.attrs.get("scanqa", {}))
     except (OSError, ValueError, ImportError) as err:
         raise InputError(f"cannot read point table {path}: {err}") from None
     missing = {"x_mm", "y_mm", "z_mm"} - set(frame.columns)
@@ -42,27 +74,41 @@ def _read_table(path: Path) -> tuple[np.ndarray, dict]:
         raise InputError(f"{path}: missing columns {sorted(missing)}")
     xyz = frame[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
     return xyz, {c: frame[c].to_numpy() for c in frame.columns if c not in
-                 ("x_mm", "y_mm", "z_mm")}
+                 ("x_mm", "y_mm", "z_mm")}, metadata
 
 
-WRITERS = {".ply": ply.write_ply, ".las": las.write_las, ".csv": _write_table,
-           ".parquet": _write_table}
+WRITERS = {".ply": ply.write_ply, ".las": las.write_las, ".csv": _write_csv,
+           ".parquet": _write_parquet}
 READERS = {".ply": ply.read_ply, ".las": las.read_las, ".csv": _read_table,
            ".parquet": _read_table}
 
 
-def write_cloud(path: str | os.PathLike, xyz: np.ndarray, attributes: dict) -> Path:
-    """Write a cloud in the format its suffix names."""
+def write_cloud(path: str | os.PathLike, xyz: np.ndarray, attributes: dict,
+                metadata: dict | None = None) -> Path:
+    """Write a cloud in the format its suffix names.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        ``.ply``, ``.las``, ``.csv`` or ``.parquet``.
+    xyz : (n, 3) float
+        Points [mm].
+    attributes : dict of str to (n,) array
+        Per-point values.
+    metadata : dict, optional
+        Plain JSON carried in the file.
+    """
     path = Path(path)
     writer = WRITERS.get(path.suffix.lower())
     if writer is None:
         raise InputError(f"cannot write {path}: unknown suffix {path.suffix!r} "
                          f"(use one of {', '.join(WRITERS)})")
-    return writer(path, xyz, attributes)
+    return writer(path, xyz, attributes, metadata)
 
 
-def read_cloud(path: str | os.PathLike) -> tuple[np.ndarray, dict]:
-    """Read a cloud written by :func:`write_cloud`: (xyz (n, 3) [mm], attributes)."""
+def read_cloud(path: str | os.PathLike) -> tuple[np.ndarray, dict, dict]:
+    """Read a cloud written by :func:`write_cloud`: (xyz (n, 3) [mm], attributes,
+    metadata)."""
     path = Path(path)
     reader = READERS.get(path.suffix.lower())
     if reader is None:

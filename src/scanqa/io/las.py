@@ -1,11 +1,19 @@
 """LAS 1.4 point clouds with float extra-byte dimensions (read by CloudCompare and PDAL).
 
-Coordinates are stored as scaled integers with a 0.1 um scale [mm]; every attribute is
-an extra-bytes dimension of type float32 named as in the PLY export.
+LAS coordinates are in metres (the LAS convention; GIS tools assume it), stored as scaled
+integers with a 0.1 um scale. The file declares its unit and frame in an OGC WKT
+coordinate system (a local engineering CRS, "scanqa scanner frame", unit metre), as LAS
+1.4 requires for point format 6. Every attribute is a float32 extra-bytes dimension named
+as in the PLY export (units in the names, e.g. ``sigma_model_um``). scanqa's metadata
+travels in a variable-length record (user id ``scanqa``, record 1, JSON).
+
+In memory and in the rest of scanqa lengths stay millimetres: :func:`write_las` takes mm
+and :func:`read_las` returns mm.
 """
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -14,8 +22,14 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
 
-#: Coordinate resolution of the LAS export [mm].
-LAS_SCALE_MM = 1e-4
+#: Coordinate resolution of the LAS export [m] (0.1 um).
+LAS_SCALE_M = 1e-7
+#: The coordinate system written into every file: the scanner frame, in metres.
+LOCAL_WKT = ('LOCAL_CS["scanqa scanner frame (camera: +X right, +Y down, +Z along the '
+             'optical axis)",LOCAL_DATUM["scanqa scanner",0],UNIT["metre",1],'
+             'AXIS["X",EAST],AXIS["Y",SOUTH],AXIS["Z",UP]]')
+#: User id of the variable-length record that carries scanqa's metadata.
+META_USER_ID = "scanqa"
 
 
 def _laspy():
@@ -26,8 +40,8 @@ def _laspy():
     return laspy
 
 
-def write_las(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray]
-              ) -> Path:
+def write_las(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray],
+              metadata: dict | None = None) -> Path:
     """Write a LAS 1.4 file (point format 6) with float32 extra bytes, atomically.
 
     Parameters
@@ -35,21 +49,30 @@ def write_las(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
     path : str or PathLike
         Output file.
     xyz : (n, 3) float
-        Coordinates [mm].
+        Coordinates [mm]; written in metres.
     attributes : dict of str to (n,) array
         Per-point values stored as float32 extra-byte dimensions.
+    metadata : dict, optional
+        Plain JSON stored in a variable-length record.
     """
     laspy = _laspy()
-    xyz = np.asarray(xyz, dtype=float)
+    xyz_m = np.asarray(xyz, dtype=float) * 1e-3
     header = laspy.LasHeader(point_format=6, version="1.4")
-    header.scales = np.full(3, LAS_SCALE_MM)
-    header.offsets = np.floor(np.nanmin(xyz, axis=0)) if len(xyz) else np.zeros(3)
+    header.scales = np.full(3, LAS_SCALE_M)
+    header.offsets = (np.floor(np.nanmin(xyz_m, axis=0) * 100) / 100 if len(xyz_m)
+                      else np.zeros(3))
+    header.global_encoding.wkt = True
+    header.vlrs.append(laspy.VLR("LASF_Projection", 2112, "OGC WKT coordinate system",
+                                 LOCAL_WKT.encode("ascii") + b"\0"))
+    if metadata:
+        header.vlrs.append(laspy.VLR(META_USER_ID, 1, "scanqa metadata (JSON)",
+                                     json.dumps(metadata, allow_nan=False).encode()))
     for name in attributes:
         if len(name) > 32:
             raise InputError(f"LAS extra-byte names are limited to 32 characters: {name!r}")
         header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.float32))
     las = laspy.LasData(header)
-    las.x, las.y, las.z = xyz[:, 0], xyz[:, 1], xyz[:, 2]
+    las.x, las.y, las.z = xyz_m[:, 0], xyz_m[:, 1], xyz_m[:, 2]
     for name, values in attributes.items():
         las[name] = np.asarray(values, dtype=np.float32)
     with atomic_path(path, suffix=".las") as tmp:
@@ -57,13 +80,24 @@ def write_las(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
     return Path(path)
 
 
-def read_las(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]]:
-    """Read coordinates and extra-byte dimensions of a LAS file."""
+def read_las(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
+    """Read coordinates [mm], extra-byte dimensions and scanqa metadata of a LAS file.
+
+    Coordinates are taken as metres (the LAS convention) and returned in mm.
+    """
     laspy = _laspy()
     try:
         las = laspy.read(str(path))
-    except (OSError, laspy.errors.LaspyException) as err:
+    except (OSError, ValueError, laspy.errors.LaspyException) as err:
         raise InputError(f"cannot read LAS file {path}: {err}") from None
-    xyz = np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], -1)
+    xyz = 1e3 * np.stack([np.asarray(las.x), np.asarray(las.y), np.asarray(las.z)], -1)
     extra = {d: np.asarray(las[d]) for d in las.point_format.extra_dimension_names}
-    return xyz, extra
+    metadata = {}
+    for vlr in las.header.vlrs:
+        if vlr.user_id == META_USER_ID and vlr.record_id == 1:
+            try:
+                metadata = json.loads(bytes(vlr.record_data).decode())
+            except (UnicodeDecodeError, json.JSONDecodeError) as err:
+                raise InputError(f"{path}: scanqa metadata record is not JSON ({err})"
+                                 ) from None
+    return xyz, extra, metadata

@@ -10,6 +10,7 @@ reader (``open3d.t.io.read_point_cloud``) loads the same properties under their 
 
 from __future__ import annotations
 
+import json
 import os
 import re
 from pathlib import Path
@@ -22,6 +23,11 @@ from scanqa.io.atomic import atomic_path
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
 RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
 PREFIX = "scalar_"
+#: Start of the header comments that carry scanqa's metadata as JSON, in pieces of at
+#: most :data:`META_CHUNK` characters: PLY readers (rply in Open3D and CloudCompare)
+#: abort on header lines longer than ~1 kB.
+META_COMMENT = "comment scanqa-meta"
+META_CHUNK = 160
 
 
 def check_attribute_name(name: str) -> None:
@@ -101,8 +107,8 @@ def attribute_block(records: np.ndarray) -> np.ndarray:
     return words[:, 6:]
 
 
-def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray]
-              ) -> Path:
+def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray],
+              metadata: dict | None = None) -> Path:
     """Write points and attributes as a binary little-endian PLY, atomically.
 
     Parameters
@@ -113,6 +119,10 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
         Coordinates [mm], written as double.
     attributes : dict of str to (n,) array
         Per-point values, written as float properties ``scalar_<name>``.
+    metadata : dict, optional
+        Plain JSON written as header lines ``comment scanqa-meta <piece>`` (the
+        pieces concatenate to the JSON text); readers that do not know it skip them as
+        comments.
 
     Returns
     -------
@@ -132,8 +142,12 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
         if values.shape != (n,):
             raise InputError(f"attribute {name!r} has shape {values.shape}, expected ({n},)")
     dtype = vertex_dtype(attributes)
-    header = ["ply", "format binary_little_endian 1.0", "comment scanqa point cloud, mm",
-              f"element vertex {n}"]
+    header = ["ply", "format binary_little_endian 1.0", "comment scanqa point cloud, mm"]
+    if metadata:
+        text = json.dumps(metadata, allow_nan=False, separators=(",", ":"))
+        header += [f"{META_COMMENT} {text[i:i + META_CHUNK]}"
+                   for i in range(0, len(text), META_CHUNK)]
+    header.append(f"element vertex {n}")
     header += [f"property {'double' if dtype[f] == np.dtype('<f8') else 'float'} {f}"
                for f in dtype.names]
     header.append("end_header")
@@ -191,7 +205,8 @@ _PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int":
               "float32": "f4", "float64": "f8"}
 
 
-def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+def read_ply(path: str | os.PathLike
+             ) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
     """Read a binary little-endian PLY vertex element (as written by :func:`write_ply`).
 
     Returns
@@ -200,11 +215,13 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]
         Coordinates [mm].
     attributes : dict
         Every other vertex property, ``scalar_`` prefix removed.
+    metadata : dict
+        The ``scanqa-meta`` header comment, or {} when there is none.
     """
     path = Path(path)
     try:
         with open(path, "rb") as fh:
-            fields, n = _read_header(fh, path)
+            fields, n, metadata = _read_header(fh, path)
             data = np.fromfile(fh, dtype=fields, count=n)
     except OSError as err:
         raise InputError(f"cannot read point cloud {path}: {err.strerror}") from None
@@ -216,18 +233,22 @@ def read_ply(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]
     xyz = np.stack([data["x"], data["y"], data["z"]], -1).astype(float)
     attrs = {(k[len(PREFIX):] if k.startswith(PREFIX) else k): np.asarray(data[k])
              for k in names if k not in ("x", "y", "z")}
-    return xyz, attrs
+    return xyz, attrs, metadata
 
 
-def _read_header(fh, path: Path) -> tuple[list, int]:
+def _read_header(fh, path: Path) -> tuple[list, int, dict]:
     if fh.readline().strip() != b"ply":
         raise InputError(f"{path} is not a PLY file")
-    fields, n, in_vertex = [], 0, False
+    fields, n, in_vertex, meta = [], 0, False, []
     while True:
         line = fh.readline()
         if not line:
             raise InputError(f"{path}: PLY header has no end_header")
-        parts = line.decode("ascii", "replace").split()
+        text = line.decode("ascii", "replace")
+        if text.startswith(META_COMMENT + " "):
+            meta.append(text[len(META_COMMENT) + 1:].rstrip("\r\n"))
+            continue
+        parts = text.split()
         if not parts or parts[0] in ("comment", "obj_info"):
             continue
         if parts[0] == "format" and parts[1] != "binary_little_endian":
@@ -244,4 +265,15 @@ def _read_header(fh, path: Path) -> tuple[list, int]:
                 raise InputError(f"{path}: unsupported vertex property {' '.join(parts[1:])}")
             fields.append((parts[2], "<" + _PLY_TYPES[parts[1]]))
         elif parts[0] == "end_header":
-            return fields, n
+            return fields, n, _metadata("".join(meta), path) if meta else {}
+
+
+def _metadata(text: str, path: Path) -> dict:
+    try:
+        meta = json.loads(text)
+    except json.JSONDecodeError as err:
+        raise InputError(f"{path}: the scanqa-meta header comment is not valid JSON ({err}); "
+                         "delete that header line or write the cloud again") from None
+    if not isinstance(meta, dict):
+        raise InputError(f"{path}: the scanqa-meta header comment must be a JSON object")
+    return meta

@@ -32,16 +32,17 @@ from __future__ import annotations
 
 import itertools
 import math
-import os
 from dataclasses import dataclass, field
-from pathlib import Path
 
 import numpy as np
 
-from scanqa.errors import InputError
-from scanqa.io.tomlfile import read_toml
+from scanqa import design
+from scanqa.cloud import AnnotatedCloud
+from scanqa.config import ScannerConfig, config_from_dict
+from scanqa.errors import ConfigError, InputError
+from scanqa.qa.layout import BlockSpec, Layout
+from scanqa.qa.planes import PlaneFit, fit_plane
 
-LAYOUT_FORMAT = "scanqa-gauge-layout/1"
 #: Tile size of the noise-correlation estimate [mm]: at least twice the correlation length
 #: of the noise (~0.5-1 mm for the paper's scanner at 8 um pixels).
 TILE_MM = 2.0
@@ -50,112 +51,6 @@ MIN_TILES = 8
 #: Block status values, in the order they are checked.
 STATUSES = ("no_points", "too_few_points", "degenerate", "outside_volume", "model_invalid",
             "ok")
-
-
-@dataclass(frozen=True)
-class BlockSpec:
-    """One block of a layout: id, nominal height [mm], top-face region [mm]."""
-
-    block_id: int
-    nominal_height_mm: float
-    region_mm: tuple[float, float, float, float]  # x_min, x_max, y_min, y_max
-    top_z_mm: float | None = None
-
-
-@dataclass(frozen=True)
-class Layout:
-    """A gauge-block artefact: blocks in the scanner frame."""
-
-    name: str
-    blocks: tuple[BlockSpec, ...]
-    source: str = ""
-
-
-def _err(path, msg: str) -> InputError:
-    return InputError(f"{path}: {msg}")
-
-
-def load_layout(path: str | os.PathLike) -> Layout:
-    """Read a layout TOML (``format = "scanqa-gauge-layout/1"``).
-
-    Keys: ``name``, optional ``frame``, ``base_z_mm`` and ``[base]``; per ``[[block]]``:
-    ``id`` (int), ``nominal_height_mm``, ``region_mm = [x_min, x_max, y_min, y_max]``
-    (top face seen along Z, scanner frame) and optional ``top_z_mm``.
-    """
-    path = Path(path)
-    data = read_toml(path, "gauge-block layout")
-    if data.get("format") != LAYOUT_FORMAT:
-        raise _err(path, f"format must be {LAYOUT_FORMAT!r}, got {data.get('format')!r}")
-    known = {"format", "name", "frame", "base_z_mm", "base", "block"}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        raise _err(path, f"unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
-    raw = data.get("block", [])
-    if not raw:
-        raise _err(path, "no [[block]] entries")
-    blocks = tuple(_block(path, i, b) for i, b in enumerate(raw))
-    ids = [b.block_id for b in blocks]
-    if len(set(ids)) != len(ids):
-        raise _err(path, f"block ids must be unique, got {ids}")
-    return Layout(str(data.get("name", path.stem)), blocks, str(path))
-
-
-def _block(path, i: int, table: dict) -> BlockSpec:
-    where = f"block {i + 1}"
-    unknown = sorted(set(table) - {"id", "nominal_height_mm", "region_mm", "top_z_mm"})
-    if unknown:
-        raise _err(path, f"{where}: unknown key {unknown[0]!r}")
-    bid, h, region = table.get("id"), table.get("nominal_height_mm"), table.get("region_mm")
-    if not isinstance(bid, int) or isinstance(bid, bool):
-        raise _err(path, f"{where}: id must be an integer, got {bid!r}")
-    if isinstance(h, bool) or not isinstance(h, (int, float)) or not h > 0:
-        raise _err(path, f"{where} (id {bid}): nominal_height_mm must be > 0 mm, got {h!r}")
-    if (not isinstance(region, list) or len(region) != 4
-            or not all(isinstance(v, (int, float)) for v in region)
-            or not (region[0] < region[1] and region[2] < region[3])):
-        raise _err(path, f"{where} (id {bid}): region_mm must be [x_min, x_max, y_min, y_max] "
-                         f"with min < max [mm], got {region!r}")
-    top = table.get("top_z_mm")
-    return BlockSpec(bid, float(h), tuple(float(v) for v in region),
-                     None if top is None else float(top))
-
-
-@dataclass(frozen=True)
-class PlaneFit:
-    """Orthogonal least-squares plane: centroid [mm], unit normal (towards the camera)."""
-
-    centroid: np.ndarray
-    normal: np.ndarray
-    residuals: np.ndarray  # signed orthogonal distances [mm]
-    axes: np.ndarray       # (2, 3) in-plane unit vectors
-
-
-def fit_plane(points: np.ndarray, where: str = "points") -> PlaneFit:
-    """Fit a plane by orthogonal least squares (SVD of the centred points).
-
-    Parameters
-    ----------
-    points : (n, 3) float
-        Points [mm], n >= 3 and not collinear.
-    where : str
-        Name used in error messages.
-
-    Returns
-    -------
-    PlaneFit
-        Normal oriented towards the camera (the scanner origin).
-    """
-    pts = np.asarray(points, dtype=float)
-    if pts.shape[0] < 3:
-        raise InputError(f"{where}: a plane needs at least 3 points, got {pts.shape[0]}")
-    c = pts.mean(axis=0)
-    _, s, vt = np.linalg.svd(pts - c, full_matrices=False)
-    if s[1] <= 1e-9 * max(s[0], 1e-300):
-        raise InputError(f"{where}: the points are collinear, no plane is defined")
-    n = vt[2]
-    if np.dot(n, -c) < 0:  # towards the camera at the origin
-        n = -n
-    return PlaneFit(c, n, (pts - c) @ n, vt[:2])
 
 
 @dataclass
@@ -240,7 +135,12 @@ class StepResult:
 
 @dataclass
 class QAResult:
-    """Everything the QA computed; the report layer only renders it."""
+    """Everything the QA computed; the report layer only renders it.
+
+    ``cloud`` is the cloud the QA ran on; ``curve`` the model's uncertainty curve on the
+    camera axis over the blocks' depths (:func:`scanqa.design.axis_curve`), from the model
+    that gave the cloud's sigmas, or None when that model is unknown.
+    """
 
     blocks: list[BlockResult]
     steps: list[StepResult]
@@ -250,6 +150,46 @@ class QAResult:
     has_prediction: bool
     notes: list[str]
     settings: dict
+    cloud: AnnotatedCloud | None = field(default=None, repr=False)
+    curve: dict | None = field(default=None, repr=False)
+
+    def steps_inside_volume(self) -> list[StepResult]:
+        """Steps between two blocks whose status is "ok"."""
+        ok = {b.block_id for b in self.blocks if b.status == "ok"}
+        return [s for s in self.steps if s.block_a in ok and s.block_b in ok]
+
+    def summary(self) -> dict:
+        """JSON-ready summary: settings, every block and step, and the counts."""
+        inside = self.steps_inside_volume()
+        within = [s for s in inside if abs(s.error_um) <= s.expanded_um]
+        ratios = [b.ratio for b in self.blocks if b.status == "ok" and math.isfinite(b.ratio)]
+        return {
+            "format": "scanqa-qa-summary/1",
+            "settings": self.settings,
+            "model": self.cloud.model if self.cloud is not None else {},
+            "has_prediction": self.has_prediction,
+            "blocks": [{k: _finite(v) for k, v in b.row().items()} for b in self.blocks],
+            "steps": [{k: _finite(v) for k, v in s.row().items()} for s in self.steps],
+            "steps_inside_volume": len(inside),
+            "steps_error_within_U": len(within),
+            "fraction_within_U": len(within) / len(inside) if inside else None,
+            "max_abs_ratio_deviation": max((abs(r - 1) for r in ratios), default=None),
+            "notes": list(self.notes),
+        }
+
+    def annotated_cloud(self) -> AnnotatedCloud | None:
+        """The cloud with the per-point QA fields ``qa_block_id``, ``qa_residual_um`` and
+        ``qa_local_std_um`` added (None when the result holds no cloud)."""
+        if self.cloud is None:
+            return None
+        return self.cloud.with_attributes(qa_block_id=self.block_id,
+                                          qa_residual_um=self.residual_um,
+                                          qa_local_std_um=self.local_std_um)
+
+
+def _finite(v):
+    """NaN and inf become None (JSON null)."""
+    return v if not isinstance(v, float) or math.isfinite(v) else None
 
 
 def _attr(attrs: dict, name: str, idx: np.ndarray, default: float = math.nan) -> np.ndarray:
@@ -410,13 +350,32 @@ def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
     return sa**2 / na + sb**2 / nb + sa**2 * tilt / na
 
 
-def model_curve(result: QAResult, config) -> dict | None:
+def model_curve(blocks: list[BlockResult], config: ScannerConfig) -> dict | None:
     """The model's uncertainty curve on the camera axis over the blocks' depths, +- 5 mm
     (:func:`scanqa.design.axis_curve`), or None when no block has points."""
-    from scanqa import design
-
-    zs = [b.mean_z_mm for b in result.blocks if math.isfinite(b.mean_z_mm)]
+    zs = [b.mean_z_mm for b in blocks if math.isfinite(b.mean_z_mm)]
     return design.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25) if zs else None
+
+
+def cloud_config(cloud: AnnotatedCloud, config: ScannerConfig | None, notes: list[str]
+                 ) -> ScannerConfig | None:
+    """The config whose model gave the cloud's sigmas: the one in the cloud's metadata
+    (written by :func:`scanqa.annotation.annotate`), else ``config``."""
+    stored = cloud.metadata.get("config")
+    if not stored:
+        return config
+    try:
+        carried = config_from_dict(stored, source="the cloud's metadata")
+    except ConfigError as err:
+        notes.append(f"the cloud's metadata holds an unreadable config ({err}); "
+                     "its model curve is not drawn")
+        return config
+    if config is not None and config.model != carried.model:
+        notes.append(f"the cloud's sigmas come from the model in its metadata "
+                     f"({carried.model.filter_floor}/{carried.model.noise_reading}, sigma_p "
+                     f"{carried.model.sigma_p_px:.4g} px, gamma {carried.model.gamma:.3g}); "
+                     "the model of the config given to the QA was not used")
+    return carried
 
 
 def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k: int = 16
@@ -435,29 +394,32 @@ def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k:
     return out
 
 
-def run_qa(xyz: np.ndarray, attrs: dict, layout: Layout, margin_mm: float = 1.0,
-           outlier_k: float | None = None, tolerance_um: float = 20.0, k: float = 2.0,
-           knn: int = 16, tile_mm: float = TILE_MM) -> QAResult:
+def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | None = None,
+           margin_mm: float = 1.0, outlier_k: float | None = None,
+           tolerance_um: float = 20.0, k: float = 2.0, knn: int = 16,
+           tile_mm: float = TILE_MM) -> QAResult:
     """Gauge-block QA of an annotated cloud.
 
     Parameters
     ----------
-    xyz : (n, 3) float
-        Points in the scanner frame [mm].
-    attrs : dict
-        Per-point attributes of :mod:`scanqa.uncertainty` (any may be missing).
+    cloud : AnnotatedCloud
+        Points in the scanner frame [mm] with the attributes of
+        :func:`scanqa.annotation.annotate` (any may be missing).
     layout : Layout
         Blocks with nominal heights and regions.
+    config : ScannerConfig, optional
+        For the model curve when the cloud does not carry the config its sigmas came
+        from (clouds written by scanqa carry it).
     margin_mm : float
         Edge margin removed from every region [mm].
     outlier_k : float, optional
-        Reject points beyond this many robust std from the first plane fit.
+        Reject points beyond this many robust std from the first plane fit [-].
     tolerance_um : float
         Tolerance T on each height difference [um].
     k : float
-        Coverage factor of the expanded uncertainty.
+        Coverage factor of the expanded uncertainty [-].
     knn : int
-        Neighbours for the per-point local std.
+        Neighbours for the per-point local std [-].
     tile_mm : float
         Tile size of the noise-correlation estimate [mm] (module notes).
 
@@ -465,7 +427,7 @@ def run_qa(xyz: np.ndarray, attrs: dict, layout: Layout, margin_mm: float = 1.0,
     -------
     QAResult
     """
-    xyz = np.asarray(xyz, dtype=float)
+    xyz, attrs = np.asarray(cloud.xyz, dtype=float), cloud.attributes
     notes = []
     has_pred = "sigma_model_um" in attrs
     if not has_pred:
@@ -490,90 +452,8 @@ def run_qa(xyz: np.ndarray, attrs: dict, layout: Layout, margin_mm: float = 1.0,
             residual[b.index] = b.fit.residuals
     settings = {"margin_mm": margin_mm, "outlier_k": outlier_k, "tolerance_um": tolerance_um,
                 "k": k, "knn": knn, "tile_mm": tile_mm, "layout": layout.source}
+    model_config = cloud_config(cloud, config, notes)
+    curve = model_curve(blocks, model_config) if model_config is not None else None
     return QAResult(blocks, steps, block_id, 1e3 * residual,
-                    1e3 * local_std(xyz, residual, block_id, knn), has_pred, notes, settings)
-
-
-def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 0.3,
-                  match_tol_mm: float = 0.5, min_points: int = 50) -> Layout:
-    """Find the blocks without a layout: planar patches at distinct heights above the base.
-
-    Open3D's RANSAC plane segmentation finds the base plate (the largest plane); every
-    point gets its height above it. Peaks of the height histogram are the block tops
-    (all parallel to the base), and Open3D's DBSCAN splits each height band into
-    connected patches. Each nominal height is matched to the largest patch whose height
-    is within ``match_tol_mm`` of it.
-
-    Parameters
-    ----------
-    xyz : (n, 3) float
-        Points [mm].
-    nominal : dict of int to float
-        Block id -> nominal height [mm].
-    voxel_mm : float
-        Voxel size of the down-sampling that keeps the search fast [mm].
-    match_tol_mm : float
-        Largest accepted |height - nominal| [mm].
-    min_points : int
-        Smallest patch (after down-sampling) accepted as a block top.
-
-    Returns
-    -------
-    Layout
-        The blocks found; regions are the bounding boxes of their patches [mm].
-    """
-    import open3d as o3d
-
-    o3d.utility.random.seed(0)  # RANSAC: the same scan finds the same blocks
-    pts = np.asarray(xyz, dtype=float)
-    pts = pts[np.isfinite(pts).all(axis=1)]
-    pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts)).voxel_down_sample(voxel_mm)
-    if len(pcd.points) < 3 * min_points:
-        raise InputError("--auto: too few points to find a base plate and blocks")
-    _, inliers = pcd.segment_plane(distance_threshold=0.1, ransac_n=3, num_iterations=2000)
-    base_fit = fit_plane(np.asarray(pcd.points)[inliers], "base plate")
-    arr = np.asarray(pcd.points)
-    height = (arr - base_fit.centroid) @ base_fit.normal
-    patches = []
-    for peak in _height_peaks(height[height > 0.5], min_points):
-        band = np.flatnonzero(np.abs(height - peak) <= 0.15)
-        sub = pcd.select_by_index(band)
-        labels = np.asarray(sub.cluster_dbscan(eps=3 * voxel_mm, min_points=5))
-        for lab in np.unique(labels[labels >= 0]):
-            members = band[labels == lab]
-            if members.size >= min_points:
-                patches.append((float(np.median(height[members])), arr[members]))
-    blocks, used = [], set()
-    for bid, h_nom in sorted(nominal.items()):
-        # the largest patch within the tolerance: a block top, not a sliver of a side
-        # wall that happens to lie at that height
-        cands = [(-len(p), abs(h - h_nom), i) for i, (h, p) in enumerate(patches)
-                 if i not in used and abs(h - h_nom) <= match_tol_mm]
-        if cands:
-            i = min(cands)[2]
-            used.add(i)
-            p = patches[i][1]
-            region = (float(p[:, 0].min()), float(p[:, 0].max()), float(p[:, 1].min()),
-                      float(p[:, 1].max()))
-            blocks.append(BlockSpec(bid, h_nom, region, float(np.median(p[:, 2]))))
-    if not blocks:
-        raise InputError("--auto matched no planar patch to a nominal height (within "
-                         f"{match_tol_mm} mm)")
-    return Layout("auto", tuple(blocks), "auto")
-
-
-def _height_peaks(h: np.ndarray, min_points: int, bin_mm: float = 0.02) -> list[float]:
-    """Heights where the histogram has a local maximum of at least min_points [mm]."""
-    if h.size == 0:
-        return []
-    edges = np.arange(h.min() - bin_mm, h.max() + 2 * bin_mm, bin_mm)
-    counts, _ = np.histogram(h, edges)
-    smooth = np.convolve(counts, np.ones(7), mode="same")  # +-0.06 mm window
-    peaks = []
-    for i in np.argsort(smooth)[::-1]:
-        if smooth[i] < min_points:
-            break
-        centre = 0.5 * (edges[i] + edges[i + 1])
-        if all(abs(centre - p) > 0.3 for p in peaks):
-            peaks.append(float(centre))
-    return peaks
+                    1e3 * local_std(xyz, residual, block_id, knn), has_pred, notes, settings,
+                    cloud, curve)

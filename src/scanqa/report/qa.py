@@ -1,6 +1,6 @@
 """The gauge-block QA report: HTML with embedded plots, CSV tables and a JSON summary.
 
-Rendering only: every number comes from :func:`scanqa.gauge.run_qa`.
+Rendering only: every number comes from :func:`scanqa.qa.blocks.run_qa`.
 """
 
 from __future__ import annotations
@@ -13,7 +13,6 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.io.atomic import write_text
-from scanqa.io.cloud import write_cloud
 from scanqa.qa.blocks import QAResult
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
@@ -41,58 +40,31 @@ def csv_text(rows: list[dict], columns: tuple) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _finite(v):
-    return v if not isinstance(v, float) or math.isfinite(v) else None
-
-
-def summary(result: QAResult) -> dict:
-    """JSON-ready summary."""
-    ok = [b for b in result.blocks if b.status == "ok"]
-    ok_ids = {b.block_id for b in ok}
-    inside = [s for s in result.steps if s.block_a in ok_ids and s.block_b in ok_ids]
-    within = [s for s in inside if abs(s.error_um) <= s.expanded_um]
-    ratios = [b.ratio for b in ok if math.isfinite(b.ratio)]
-    return {
-        "format": "scanqa-qa-summary/1",
-        "settings": result.settings,
-        "has_prediction": result.has_prediction,
-        "blocks": [{k: _finite(v) for k, v in b.row().items()} for b in result.blocks],
-        "steps": [{k: _finite(v) for k, v in s.row().items()} for s in result.steps],
-        "steps_inside_volume": len(inside),
-        "steps_error_within_U": len(within),
-        "fraction_within_U": len(within) / len(inside) if inside else None,
-        "max_abs_ratio_deviation": max((abs(r - 1) for r in ratios), default=None),
-        "notes": result.notes,
-    }
-
-
-def write_outputs(result: QAResult, out_dir: str | os.PathLike, xyz: np.ndarray | None = None,
-                  curve: dict | None = None, attrs: dict | None = None) -> dict:
-    """Write report.html, blocks.csv, steps.csv, summary.json and, given the cloud's
-    ``xyz`` and ``attrs``, cloud_qa.ply (the cloud plus the per-point QA fields) into
-    ``out_dir``; ``curve`` is the model curve drawn in the report."""
+def write_outputs(result: QAResult, out_dir: str | os.PathLike) -> dict:
+    """Write report.html, blocks.csv, steps.csv, summary.json and, when the result holds
+    its cloud, cloud_qa.ply (the cloud plus the per-point QA fields) into ``out_dir``;
+    returns the summary."""
     out = Path(out_dir)
-    info = summary(result)
+    info = result.summary()
     write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks], BLOCK_COLUMNS))
     write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))
     write_text(out / "summary.json", json.dumps(info, indent=1))
-    write_text(out / "report.html", render(result, xyz, curve))
-    if xyz is not None and attrs is not None:
-        extra = {"qa_block_id": result.block_id, "qa_residual_um": result.residual_um,
-                 "qa_local_std_um": result.local_std_um}
-        write_cloud(out / "cloud_qa.ply", xyz, {**attrs, **extra})
+    write_text(out / "report.html", render(result))
+    cloud = result.annotated_cloud()
+    if cloud is not None:
+        cloud.write(out / "cloud_qa.ply")
     return info
 
 
-def render(result: QAResult, xyz: np.ndarray | None = None, curve: dict | None = None) -> str:
+def render(result: QAResult) -> str:
     """The QA report as one self-contained HTML page."""
     page = Page("scanqa gauge-block QA report")
-    info = summary(result)
+    info = result.summary()
     _summary_section(page, result, info)
     _table3_section(page, result)
-    _range_section(page, result, curve)
-    if xyz is not None:
-        _residual_section(page, result, xyz)
+    _range_section(page, result, result.curve)
+    if result.cloud is not None:
+        _residual_section(page, result, result.cloud.xyz)
     _steps_section(page, result)
     if result.notes:
         page.heading("Notes", "notes")

@@ -3,6 +3,7 @@
 Each experiment is a list of acquisitions (position x repeat). Its folder holds::
 
     DIR/manifest.toml            experiment, seed, scanqa version, the config, positions
+    DIR/layout.toml              gauge-blocks only: the artefact's layout (scanqa qa)
     DIR/p000_r0/                 images + patterns.toml of position 0, repeat 0
     DIR/truth/p000.npz           ground truth of position 0 (X, Y, Z, xp_true, ...)
 
@@ -41,6 +42,7 @@ from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 from scanqa.decoding.patternset import write_pattern_set
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path, make_out_dir, write_text
+from scanqa.io.tomlfile import dumps_toml as dump_toml
 from scanqa.simulator import devices, render, scene
 from scanqa.simulator.render import Acquisition
 
@@ -91,15 +93,9 @@ def pattern_description(config: ScannerConfig, periods: Sequence[float] | None =
 
 
 def axes_crossing(config: ScannerConfig) -> np.ndarray:
-    """Point of the camera axis closest to the projector axis (world frame) [mm]."""
-    p = np.asarray(config.projector.position_mm, dtype=float)
-    a = config.projector.rotation[2]
-    e = np.array([0.0, 0.0, 1.0])
-    w = -p
-    b, d, f = e @ a, e @ w, a @ w
-    denom = 1.0 - b * b
-    t = (b * f - d) / denom if denom > 1e-12 else config.camera.focus_mm
-    return t * e
+    """Point of the camera axis closest to the projector axis (world frame) [mm]
+    (:attr:`ScannerConfig.axes_crossing_mm`)."""
+    return config.axes_crossing_mm
 
 
 def bisector_flat(config: ScannerConfig) -> scene.Scene:
@@ -144,7 +140,7 @@ def build_positions(name: str, config: ScannerConfig, positions: Sequence[float]
         return [Position(i, p, 0.0, 0.0, art) for i, p in enumerate(positions)]
     if name == "mesh":
         if mesh is None:
-            raise InputError("experiment 'mesh' needs a mesh file (--mesh FILE.stl)")
+            raise InputError("experiment 'mesh' needs a mesh file (mesh=FILE.stl)")
         obj = scene.load_mesh(mesh)
         return [Position(i, p, 0.0, 0.0, obj) for i, p in enumerate(positions)]
     raise InputError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
@@ -222,6 +218,9 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
         bar.done()
     if name == "calibration-sweep":
         write_text(out / "sweep.toml", dump_toml(_sweep(pos_list, entries)))
+    if name == "gauge-blocks":  # the artefact's layout, for 'scanqa qa --layout'
+        layout = scene.paper_gauge_layout(config.camera.focus_mm)
+        write_text(out / "layout.toml", scene.gauge_layout_toml(layout))
     manifest = _manifest(name, config, desc, pos_list, repeats, entries)
     return write_text(out / "manifest.toml", dump_toml(manifest))
 
@@ -279,46 +278,6 @@ def write_npz(path: Path, arrays: dict) -> Path:
             info.compress_type = zipfile.ZIP_DEFLATED
             zf.writestr(info, buf.getvalue())
     return path
-
-
-def dump_toml(data: dict) -> str:
-    """TOML text of a dict of scalars, lists, tables and arrays of tables."""
-    lines: list[str] = []
-    _dump_table(data, "", lines)
-    return "\n".join(lines).lstrip("\n") + "\n"
-
-
-def _dump_table(data: dict, prefix: str, lines: list[str]) -> None:
-    scalars = {k: v for k, v in data.items() if not isinstance(v, dict) and not _is_aot(v)}
-    for k, v in scalars.items():
-        lines.append(f"{k} = {_toml_value(v)}")
-    for k, v in data.items():
-        if isinstance(v, dict):
-            lines += ["", f"[{prefix}{k}]"]
-            _dump_table(v, f"{prefix}{k}.", lines)
-    for k, v in data.items():
-        if _is_aot(v):
-            for item in v:
-                lines += ["", f"[[{prefix}{k}]]"]
-                _dump_table(item, f"{prefix}{k}.", lines)
-
-
-def _is_aot(value: object) -> bool:
-    return isinstance(value, list) and bool(value) and all(isinstance(v, dict) for v in value)
-
-
-def _toml_value(value: object) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, (int, np.integer)):
-        return str(int(value))
-    if isinstance(value, (float, np.floating)):
-        return repr(float(value)) if np.isfinite(value) else "nan"
-    if isinstance(value, str):
-        return '"' + value.replace("\\", "\\\\").replace('"', '\\"') + '"'
-    if isinstance(value, (list, tuple)):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
-    raise TypeError(f"cannot write {type(value).__name__} to TOML")
 
 
 class _Progress:

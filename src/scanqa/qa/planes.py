@@ -1,0 +1,47 @@
+"""Orthogonal least-squares planes (the fit every QA quantity on a flat face rests on)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanqa.errors import InputError
+
+
+@dataclass(frozen=True)
+class PlaneFit:
+    """Orthogonal least-squares plane: centroid [mm], unit normal (towards the camera)."""
+
+    centroid: np.ndarray
+    normal: np.ndarray
+    residuals: np.ndarray  # signed orthogonal distances [mm]
+    axes: np.ndarray       # (2, 3) in-plane unit vectors
+
+
+def fit_plane(points: np.ndarray, where: str = "points") -> PlaneFit:
+    """Fit a plane by orthogonal least squares (SVD of the centred points).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Points [mm], n >= 3 and not collinear.
+    where : str
+        Name used in error messages.
+
+    Returns
+    -------
+    PlaneFit
+        Normal oriented towards the camera (the scanner origin).
+    """
+    pts = np.asarray(points, dtype=float)
+    if pts.shape[0] < 3:
+        raise InputError(f"{where}: a plane needs at least 3 points, got {pts.shape[0]}")
+    c = pts.mean(axis=0)
+    _, s, vt = np.linalg.svd(pts - c, full_matrices=False)
+    if s[1] <= 1e-9 * max(s[0], 1e-300):
+        raise InputError(f"{where}: the points are collinear, no plane is defined")
+    n = vt[2]
+    if np.dot(n, -c) < 0:  # towards the camera at the origin
+        n = -n
+    return PlaneFit(c, n, (pts - c) @ n, vt[:2])

@@ -1,0 +1,75 @@
+"""Rendering of a characterisation: its summary.json and plots of the noise and the
+attenuation over the sweep with every fitted reading (Figs. 3 and 4 of the paper).
+
+Rendering only: every number comes from :mod:`scanqa.characterization`.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.characterization import Characterization, JointCharacterization, VariantFit
+from scanqa.config import ScannerConfig
+from scanqa.io.atomic import make_out_dir, write_text
+from scanqa.report.plots import new_figure, save_png
+
+
+def write_characterization(result: Characterization | JointCharacterization,
+                           out_dir: str | os.PathLike,
+                           config: ScannerConfig | None = None) -> Path:
+    """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir`` (for a
+    joint fit, one pair per sweep: ``std_camera-sweep.png``, ...)."""
+    out = make_out_dir(out_dir)
+    summary = json.dumps(_json_safe(result.summary()), indent=1)
+    write_text(out / "summary.json", summary + "\n")
+    if config is not None:
+        if isinstance(result, JointCharacterization):
+            for c in result.sweeps:
+                _plot(c, config, out, result.fits, f"_{c.experiment}")
+        else:
+            _plot(result, config, out)
+    return out / "summary.json"
+
+
+def _json_safe(value: object) -> object:
+    if isinstance(value, dict):
+        return {k: _json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [_json_safe(v) for v in value]
+    if isinstance(value, float) and not np.isfinite(value):
+        return None
+    return value
+
+
+def _plot(result: Characterization, config: ScannerConfig, out: Path,
+          fits: tuple[VariantFit, ...] | None = None, suffix: str = "") -> None:
+    cam = result.experiment == "camera-sweep"
+    z = np.array([p.z_c_mm if cam else p.z_p_mm for p in result.positions])
+    std = np.array([p.residual_std_px for p in result.positions])
+    fig, axes = new_figure(width=6.0, height=4.0)
+    ax = axes[0][0]
+    ax.plot(z, std, "o", ms=3, label="sweep (surface-fit residual)")
+    fits = result.fits if fits is None else fits
+    best = min(fits, key=lambda f: f.rms_relative)
+    for fit in fits:
+        style = "-" if fit is best else ":"
+        ax.plot(z, result.model_std(fit, config), style, label=(
+            f"{fit.filter_floor}/{fit.noise_reading}: sigma_p={fit.sigma_p_px:.4f}, "
+            f"gamma={fit.gamma:.2f}, rms={100 * fit.rms_relative:.1f}%"))
+    ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
+    ax.set_ylabel("std of x_p [projector px]")
+    ax.set_ylim(0, np.nanmax(std) * 1.3)
+    ax.legend(fontsize=6)
+    save_png(fig, out / f"std{suffix}.png")
+    fig, axes = new_figure(width=6.0, height=4.0)
+    ax = axes[0][0]
+    ax.plot(z, [p.attenuation for p in result.positions], "o", ms=3, label="sweep")
+    ax.plot(z, [p.attenuation_model for p in result.positions], "-", label="A(C/omega_o)")
+    ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
+    ax.set_ylabel("attenuation [-]")
+    ax.legend()
+    save_png(fig, out / f"attenuation{suffix}.png")
