@@ -2,7 +2,7 @@
 
 For every decoded pixel the table gives X, Y, Z and the slope dQ/dx_p; the model gives
 s_O at that point (Eqs. 12-19) and sigma = s_T s_O sigma_p (Eq. 18) with s_T = |dQ/dx_p|
-from the table (DESIGN.md section 3). Alongside: the sigma implied by the decoder's own
+from the table (docs/model.rst). Alongside: the sigma implied by the decoder's own
 per-pixel phase noise (s_T sigma_xp), the table's sigma, the combined sigma
 sqrt(model^2 + table^2), and with repeated scans the measured per-point std.
 
@@ -39,7 +39,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from scanqa import __version__, optics
+from scanqa import optics
+from scanqa._version import __version__
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
 from scanqa.calibration.table import CalibrationTable

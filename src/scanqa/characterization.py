@@ -12,7 +12,7 @@ For every position of a sweep of an optical flat (``scanqa simulate camera-sweep
 
 The measured attenuation is compared with A(C/omega_o) (Eq. 12) and the depth of field
 per level with :mod:`scanqa.design`; the residual std is fitted by
-``sigma_p * s_O`` (Eqs. 17-19) for each of the model's readings (DESIGN.md section 3:
+``sigma_p * s_O`` (Eqs. 17-19) for each of the model's readings (docs/model.rst:
 ``filter_floor`` none/one x ``noise_reading`` power/amplitude), where the swept
 device's attenuation is at least ``min_attenuation``. With ``filter_floor = "none"``
 only the product sigma_p * gamma is identifiable, so gamma is held at the config's

@@ -1,4 +1,4 @@
-"""Bands of image rows, processed on every core (DESIGN.md section 8).
+"""Bands of image rows, processed on every core (docs/development.rst, "Performance").
 
 The per-pixel hot paths (building and applying the calibration table, annotating a scan)
 work on bands of whole image rows of about :data:`CHUNK_PIXELS` pixels: small enough that

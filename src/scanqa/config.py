@@ -30,9 +30,9 @@ import numpy as np
 from scanqa.errors import ConfigError
 from scanqa.io.tomlfile import read_toml
 
-#: The two readings of Eq. 17 (DESIGN.md section 3, reading (i)).
+#: The two readings of Eq. 17 (docs/model.rst, reading (i)).
 FILTER_FLOORS = ("none", "one")
-#: The two readings of how attenuation enters s_O (DESIGN.md section 3, reading (ii)).
+#: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)).
 NOISE_READINGS = ("power", "amplitude", "mixed")
 
 

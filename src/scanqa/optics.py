@@ -8,7 +8,7 @@ The model in one line (Eq. 18/19)::
     sigma(Q) = s_T(Q) * sigma_p
                / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
 
-Two readings of the paper are open (DESIGN.md section 3) and are explicit options:
+Two readings of the paper are open (docs/model.rst, "Readings") and are explicit options:
 
 * ``filter_floor``: "none" (default) applies Eq. 17 as printed; "one" clamps F >= 1, the
   bound 1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17. The default is "none" because
@@ -30,7 +30,7 @@ References
 ----------
 .. [1] M.-A. Drouin, F. Blais, G. Godin, "Characterizing the impact of optically induced
    blurring of a high-resolution phase-shift 3D scanner", Machine Vision and
-   Applications, 2017 (``shared/seed/000_b7b040f6e40e841e.txt``).
+   Applications 28, 2017.
 """
 
 from __future__ import annotations
@@ -398,7 +398,7 @@ def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     The point moves along its camera ray Q(t) = t d; its projector column is
     x_p = f_p X_p / Z_p + x_0, so dx_p/dt = f_p (X_p' Z_p - X_p Z_p') / Z_p^2 with
     X_p' = R_x . d and Z_p' = R_z . d. With a calibration table, use the table's slope
-    instead (DESIGN.md section 3).
+    instead (docs/model.rst).
     """
     q = np.asarray(points, dtype=float)
     rot = _rotation(config.projector)

@@ -1,4 +1,4 @@
-"""Weighted nonparametric calibration table (Bumbaca-Blais style, DESIGN.md section 4).
+"""Weighted nonparametric calibration table (Bumbaca-Blais style, docs/calibration.rst).
 
 No global lens model is fitted for range. A flat target is scanned at K known stage
 positions; the table maps raw sensor coordinates (u, v) and the unwrapped projector
@@ -36,7 +36,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa import __version__, optics
+from scanqa import optics
+from scanqa._version import __version__
 from scanqa.calibration.shear import eval_shear, fit_shear
 from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands

@@ -1,4 +1,4 @@
-"""Applying a calibration table: bilinear in (u, v), cubic Hermite in s (DESIGN.md section 4).
+"""Applying a calibration table: bilinear in (u, v), cubic Hermite in s (docs/calibration.rst).
 
 The table (:class:`scanqa.calibration.table.CalibrationTable`, or anything with its arrays:
 :class:`TableGrid`) is rearranged once for lookups:

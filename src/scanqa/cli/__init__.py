@@ -13,7 +13,7 @@ import importlib
 import sys
 from collections.abc import Sequence
 
-from scanqa import __version__
+from scanqa._version import __version__
 from scanqa.errors import ScanQAError
 
 #: Modules that register subcommands, in the order ``--help`` lists them.

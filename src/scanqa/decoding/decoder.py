@@ -102,7 +102,7 @@ def _checked_stacks(desc: PatternDescription, images: Sequence[np.ndarray]
 
 
 def _provenance(desc: PatternDescription, sensor: SensorModel, stack: np.ndarray) -> dict:
-    from scanqa import __version__
+    from scanqa._version import __version__
 
     return {"software": "scanqa", "version": __version__, "stage": "decode",
             "patterns_file": desc.source, "patterns": desc.to_dict(),

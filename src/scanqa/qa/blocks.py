@@ -1,4 +1,4 @@
-"""Gauge-block QA (Sect. 4.3, Tables 3 and 4 of the paper; DESIGN.md section 6).
+"""Gauge-block QA (Sect. 4.3, Tables 3 and 4 of the paper; docs/qa.rst).
 
 Vocabulary follows VDI/VDE 2634-2 and the GUM: per block a least-squares plane
 (orthogonal distances), its residuals, the measured standard deviation, the flatness

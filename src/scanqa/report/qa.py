@@ -8,11 +8,10 @@ from __future__ import annotations
 import json
 import math
 import os
-from pathlib import Path
 
 import numpy as np
 
-from scanqa.io.atomic import write_text
+from scanqa.io.atomic import make_out_dir, write_text
 from scanqa.qa.blocks import QAResult
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
@@ -43,8 +42,8 @@ def csv_text(rows: list[dict], columns: tuple) -> str:
 def write_outputs(result: QAResult, out_dir: str | os.PathLike) -> dict:
     """Write report.html, blocks.csv, steps.csv, summary.json and, when the result holds
     its cloud, cloud_qa.ply (the cloud plus the per-point QA fields) into ``out_dir``;
-    returns the summary."""
-    out = Path(out_dir)
+    returns the summary. The folder is created when missing."""
+    out = make_out_dir(out_dir)
     info = result.summary()
     write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks], BLOCK_COLUMNS))
     write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))

@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa import __version__
+from scanqa._version import __version__
 from scanqa.config import ScannerConfig
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 from scanqa.decoding.patternset import write_pattern_set

@@ -1,6 +1,6 @@
 """Image formation of the virtual scanner: from a scene and poses to fringe images.
 
-Per pattern, in this order (DESIGN.md section 5):
+Per pattern, in this order (docs/simulator.rst):
 
 1. geometry: camera rays through a supersampled pixel grid hit the scene (open3d, then
    float64 against the hit face); a point is lit when it faces the projector, lies on

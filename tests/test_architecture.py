@@ -1,0 +1,128 @@
+"""The package's layers, read from the source with ``ast``: no import cycle, and no import
+from a lower layer to a higher one (docs/development.rst draws the layers)."""
+
+from __future__ import annotations
+
+import ast
+import sys
+from pathlib import Path
+
+import pytest
+
+SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
+
+#: Layer of every module or subpackage, lowest first. A module may import from its own
+#: layer or lower ones. Longest prefix wins.
+LAYERS = {
+    "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.progress": 0, "scanqa._version": 0,
+    "scanqa.io": 1,
+    "scanqa.config": 2, "scanqa.cloud": 2,
+    "scanqa.optics": 3,
+    "scanqa.decoding": 4, "scanqa.design": 4,
+    "scanqa.calibration": 5,
+    "scanqa.annotation": 6, "scanqa.characterization": 6, "scanqa.qa": 6,
+    "scanqa.simulator": 6,
+    "scanqa.report": 7,
+    "scanqa.demo": 8, "scanqa.batch": 8, "scanqa": 8,
+    "scanqa.cli": 9, "scanqa.__main__": 9,
+}
+
+
+def module_name(path: Path) -> str:
+    parts = path.relative_to(SRC.parent).with_suffix("").parts
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def layer(name: str) -> int:
+    best = max((p for p in LAYERS if name == p or name.startswith(p + ".")), key=len)
+    return LAYERS[best]
+
+
+def imports(path: Path) -> list[tuple[str, int, tuple[str, ...]]]:
+    """(imported scanqa module, line, names) of every import statement, nested ones too."""
+    tree = ast.parse(path.read_text(encoding="utf-8"))
+    me = module_name(path)
+    package = me if path.name == "__init__.py" else me.rsplit(".", 1)[0]
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            out += [(a.name, node.lineno, ()) for a in node.names if a.name.startswith("scanqa")]
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:
+                base = ".".join(package.split(".")[:len(package.split(".")) - node.level + 1]
+                                + ([base] if base else []))
+            if base.startswith("scanqa"):
+                names = tuple(a.name for a in node.names)
+                # "from scanqa.x import y" may import the submodule scanqa.x.y
+                subs = [f"{base}.{n}" for n in names if (SRC.parent / f"{base}.{n}".replace(
+                    ".", "/")).with_suffix(".py").exists() or (SRC.parent / f"{base}.{n}"
+                                                            .replace(".", "/")).is_dir()]
+                out += [(s, node.lineno, ()) for s in subs]
+                if len(subs) < len(names):
+                    out.append((base, node.lineno, names))
+    return out
+
+
+def graph() -> dict[str, list[tuple[str, int, tuple[str, ...]]]]:
+    return {module_name(p): imports(p) for p in sorted(SRC.rglob("*.py"))}
+
+
+def test_every_module_has_a_layer():
+    for name in graph():
+        assert layer(name) >= 0, name
+
+
+def test_no_import_runs_upwards():
+    bad = []
+    for name, deps in graph().items():
+        for dep, line, _ in deps:
+            if layer(dep) > layer(name):
+                bad.append(f"{name}:{line} imports {dep} (layer {layer(name)} -> {layer(dep)})")
+    assert not bad, "\n".join(bad)
+
+
+def test_io_holds_formats_only():
+    for name, deps in graph().items():
+        if name.startswith("scanqa.io"):
+            for dep, line, _ in deps:
+                assert dep.startswith(("scanqa.io", "scanqa.errors")), f"{name}:{line}: {dep}"
+
+
+def test_no_import_cycle():
+    edges = {name: {d for d, _, _ in deps if d != name} for name, deps in graph().items()}
+    state: dict[str, int] = {}
+    stack: list[str] = []
+
+    def visit(node: str) -> None:
+        state[node] = 1
+        stack.append(node)
+        for nxt in sorted(edges.get(node, ())):
+            if state.get(nxt) == 1:
+                cycle = [*stack[stack.index(nxt):], nxt]
+                pytest.fail("import cycle: " + " -> ".join(cycle))
+            if nxt in edges and not state.get(nxt):
+                visit(nxt)
+        stack.pop()
+        state[node] = 2
+
+    for node in sorted(edges):
+        if not state.get(node):
+            visit(node)
+
+
+def test_the_test_can_see_a_cycle_and_an_upward_import(tmp_path, monkeypatch):
+    """The checks above must be able to fail: a planted cycle and upward import are found."""
+    pkg = tmp_path / "scanqa"
+    (pkg / "io").mkdir(parents=True)
+    (pkg / "__init__.py").write_text("")
+    (pkg / "io" / "__init__.py").write_text("")
+    (pkg / "io" / "a.py").write_text("from scanqa.optics import x\n")
+    (pkg / "optics.py").write_text("from scanqa.io import a\n")
+    monkeypatch.setattr(sys.modules[__name__], "SRC", pkg)
+    deps = graph()
+    assert ("scanqa.optics", 1, ("x",)) in deps["scanqa.io.a"]
+    with pytest.raises(AssertionError, match="layer 1 -> 3"):
+        test_no_import_runs_upwards()
+    with pytest.raises(pytest.fail.Exception, match="import cycle"):
+        test_no_import_cycle()
