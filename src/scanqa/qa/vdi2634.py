@@ -1,0 +1,498 @@
+"""VDI/VDE 2634 Part 2 acceptance quantities with their uncertainties and decisions.
+
+Quantities (test values E, all in mm here, um in reports):
+
+- PF, probing error form: the range (max - min) of the radial distances of the points
+  from the least-squares (Gaussian) sphere with free radius.
+- PS, probing error size: the least-squares diameter minus the sphere's calibrated
+  diameter (same fit, same points as PF).
+- SD, sphere-spacing error: the measured centre distance of a ball bar (least-squares
+  spheres with free radii) minus the calibrated distance, one value per bar position.
+- F, flatness measurement error: the range of the signed orthogonal distances of the
+  points from the least-squares plane.
+
+Point selection. The guideline lets up to 0.3 % of the points be removed before a form
+range is taken. Here that rule is on by default for PF, PS and F (``drop_fraction`` =
+0.003; 0 turns it off): the floor(0.003 n) points with the largest |residual| from the
+least-squares fit of all n points are removed and the fit is repeated on the rest, whose
+range is the test value; PS comes from that second fit. SD uses every point of both
+spheres by default (the rule is stated for the form quantities); ``drop_fraction`` lets
+the same rule be applied. The minimum-zone sphere and plane of the kept points are
+computed beside (never instead of) the least-squares ones.
+
+Per-point sigmas. A scan's sigma is along the line of sight (from the scanner's origin,
+the camera); the fits need it along the surface normal: sigma_n = sigma |l . n| with l
+the unit line of sight and n the normal (the radial direction of a sphere). Pass
+``view_origin=None`` when the sigmas are already along the normal. Missing sigmas (NaN)
+are replaced by the RMS residual.
+
+Standard uncertainty u (GUM, first order) and U = k u (k = 2 by default):
+
+- PS: u^2 = 4 u(R)^2 + (U_cert / k_cert)^2; u(R) from the sphere's covariance (per-point
+  sigmas, noise-correlation factor included; :mod:`scanqa.qa.sphere`); U_cert the
+  certificate's expanded uncertainty of the diameter at its coverage factor k_cert.
+- SD: u^2 = u(L)^2 + (U_cert / k_cert)^2 with u(L) from both centres' covariances
+  (:mod:`scanqa.qa.ballbar`).
+- PF, F: a range has no first-order propagation; u is the standard deviation of the test
+  value over repeated scans predicted from the per-point sigmas (sampling of the extreme
+  residuals, :func:`predicted_range`), its variance multiplied by the noise-correlation
+  factor (the largest of the sphere's), combined with the artefact's certified form
+  deviation f as a rectangular contribution of half-width f: u^2 = kappa u_s^2 + f^2 / 3.
+PS and SD also carry the predicted bias b of the least-squares spheres from noise along
+the line of sight (:func:`scanqa.qa.sphere.sight_noise_bias`; 2 b_R for PS, the centres'
+biases along the bar for SD). The test value is left as the guideline defines it
+(uncorrected), and the bias is added to the expanded uncertainty: U = k u + |b|
+(conservative; b is a fraction of u unless the points number tens of thousands).
+Not included anywhere: errors shared by all points of an artefact (a calibration table's
+own error field, thermal expansion), which belong to the caller's uncertainty budget.
+
+Predicted form error (PF and F) from the per-point sigmas. The residuals are Gaussian
+with standard deviations sigma_i (a mixture when they differ); S(q) = mean_i
+2 Phi_c(q / sigma_i) is the fraction of |residuals| above q and T(x) its inverse, the
+level exceeded by a fraction x. In the tail, the points ordered by decreasing |residual|
+arrive as a Poisson process in tau = N S(q) with unit rate, each on either side with
+probability 1/2. Dropping the k largest leaves the (k+1)-th, at tau ~ Gamma(k + 1), as
+one end of the kept range; the other end is the next arrival on the other side, a gap
+E ~ exponential of mean 2 later. Hence the kept range is
+
+    PF = T(tau / N) + T((tau + E) / N),   tau ~ Gamma(k + 1),  E ~ Exp(mean 2),
+
+whose mean (the prediction) and standard deviation (u_s) are computed by quadrature over
+tau and E. For equal sigmas and large N with k = 0.3 % of N this is the range of the
+central 99.7 % of a Gaussian, about 2 x 2.968 sigma; with k = 0 it is the sum of two
+independent extremes (the Gumbel case). The prediction covers noise only: the
+artefact's own form and any systematic error add to the measured range. The tests check
+it against Monte Carlo draws of the residuals.
+
+Decisions (ISO 14253-1) against an MPE: "pass" when |E| <= MPE - U, "fail" when
+|E| > MPE + U, otherwise "undecided"; "not evaluated" when E, U or the MPE is missing
+(the quantity could not be measured, or the spec gives no MPE or certificate for it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.special import gammaincinv, ndtr
+
+from scanqa.errors import InputError
+from scanqa.io.spec import Spec
+from scanqa.qa.ballbar import BallBarFit, centre_distance
+from scanqa.qa.flat import ZonePlane, minimum_zone_plane
+from scanqa.qa.planes import PlaneFit, fit_plane
+from scanqa.qa.sphere import (
+    MIN_COVERAGE,
+    Correlation,
+    MinimumZoneSphere,
+    SphereFit,
+    check_points,
+    fit_sphere,
+    minimum_zone_sphere,
+    sight_noise_bias,
+)
+
+#: Fraction of the points the guideline lets be removed before a form range [-].
+DROP_FRACTION = 0.003
+#: Decision values.
+DECISIONS = ("pass", "fail", "undecided", "not evaluated")
+#: The quantities and their names.
+#: Quadrature nodes per variable of the range prediction [-].
+_NODES = 64
+QUANTITIES = {"PF": "probing error form", "PS": "probing error size",
+              "SD": "sphere-spacing error", "F": "flatness measurement error"}
+
+
+@dataclass(frozen=True)
+class Quantity:
+    """One VDI/VDE 2634-2 test value with its uncertainty and decision (lengths in mm).
+
+    Attributes
+    ----------
+    name : str
+        "PF", "PS", "SD" or "F".
+    value : float
+        Test value E [mm]; NaN when not measured.
+    u : float
+        Standard uncertainty [mm] (module notes).
+    k : float
+        Coverage factor of U [-].
+    mpe : float
+        Maximum permissible error [mm]; NaN when the spec gives none.
+    decision : str
+        One of :data:`DECISIONS`.
+    predicted : float
+        Predicted value from the per-point sigmas [mm] (PF, F), else NaN.
+    length : float
+        Calibrated length the MPE was taken at (SD) [mm], else NaN.
+    n_points, n_dropped : int
+        Points measured and points removed by the 0.3 % rule [-].
+    bias : float
+        Predicted bias of the test value from noise along the line of sight, not
+        corrected, added to U [mm] (PS, SD; module notes).
+    note : str
+        Why the quantity is not evaluated, or what it rests on.
+    """
+
+    name: str
+    value: float
+    u: float
+    k: float
+    mpe: float
+    decision: str
+    predicted: float = math.nan
+    length: float = math.nan
+    n_points: int = 0
+    n_dropped: int = 0
+    bias: float = 0.0
+    note: str = ""
+
+    @property
+    def expanded(self) -> float:
+        """Expanded uncertainty U = k u + |bias| [mm]."""
+        return self.k * self.u + abs(self.bias)
+
+    def row(self) -> dict:
+        """The values for a report table, lengths in um."""
+        def um(v: float) -> float:
+            return round(1e3 * v, 3) if math.isfinite(v) else math.nan
+
+        return {"quantity": self.name, "name": QUANTITIES[self.name],
+                "value_um": um(self.value), "U_um": um(self.expanded), "k": self.k,
+                "mpe_um": um(self.mpe), "decision": self.decision,
+                "predicted_um": um(self.predicted), "bias_um": um(self.bias),
+                "length_mm": self.length,
+                "n_points": self.n_points, "n_dropped": self.n_dropped, "note": self.note}
+
+
+@dataclass(frozen=True)
+class SphereTest:
+    """PF and PS of one sphere: the fits on the kept points and the two quantities."""
+
+    fit: SphereFit
+    zone: MinimumZoneSphere
+    kept: np.ndarray  # (n,) bool over the input points
+    pf: Quantity
+    ps: Quantity
+
+
+@dataclass(frozen=True)
+class BallBarTest:
+    """SD at one ball-bar position."""
+
+    bar: BallBarFit
+    sd: Quantity
+
+
+@dataclass(frozen=True)
+class FlatTest:
+    """F of one flat: the least-squares plane and the minimum zone of the kept points."""
+
+    plane: PlaneFit
+    zone: ZonePlane
+    kept: np.ndarray  # (n,) bool over the input points
+    f: Quantity
+
+
+def decide(value: float, expanded: float, mpe: float) -> str:
+    """ISO 14253-1 decision of a test value against an MPE.
+
+    Parameters
+    ----------
+    value : float
+        Test value E [mm].
+    expanded : float
+        Its expanded uncertainty U [mm].
+    mpe : float
+        Maximum permissible error [mm].
+
+    Returns
+    -------
+    str
+        "pass" when |E| <= MPE - U, "fail" when |E| > MPE + U, "undecided" between,
+        "not evaluated" when any input is NaN.
+
+    Examples
+    --------
+    >>> decide(0.375, 0.125, 0.5), decide(0.625, 0.125, 0.5), decide(0.5, 0.125, 0.5)
+    ('pass', 'undecided', 'undecided')
+    """
+    if not (math.isfinite(value) and math.isfinite(expanded) and math.isfinite(mpe)):
+        return "not evaluated"
+    if abs(value) <= mpe - expanded:
+        return "pass"
+    return "fail" if abs(value) > mpe + expanded else "undecided"
+
+
+def quantity(name: str, value: float, u: float, mpe: float, k: float = 2.0,
+             bias: float = 0.0, note: str = "", **extra) -> Quantity:
+    """A :class:`Quantity` with its decision; ``note`` says what is missing when it is
+    not evaluated (lengths [mm])."""
+    decision = decide(value, k * u + abs(bias), mpe)
+    if decision == "not evaluated" and not note:
+        note = "no MPE for it in the spec" if math.isfinite(value) else "not measured"
+    return Quantity(name, float(value), float(u), float(k), float(mpe), decision,
+                    bias=float(bias), note=note, **extra)
+
+
+def predicted_range(sigma, n_dropped: int = 0) -> tuple[float, float]:
+    """Expected range of Gaussian residuals after dropping the largest |r|, and its std.
+
+    Parameters
+    ----------
+    sigma : (n,) float
+        Standard deviation of each residual, all n points before dropping [mm].
+    n_dropped : int
+        Points with the largest |residual| removed before the range [-].
+
+    Returns
+    -------
+    predicted : float
+        Expected range of the kept residuals [mm] (module notes).
+    u : float
+        Its standard deviation over repeated scans [mm].
+    """
+    s = np.asarray(sigma, dtype=float).ravel()
+    n, k = s.size, int(n_dropped)
+    if n < 2 or not np.all(np.isfinite(s) & (s > 0)) or not 0 <= k < n - 1:
+        return math.nan, math.nan
+    level = _tail_level(s)
+    p = (np.arange(_NODES) + 0.5) / _NODES  # equal-probability nodes of tau and E
+    tau = gammaincinv(k + 1, p)[:, None]
+    gap = -2.0 * np.log1p(-p)[None, :]
+    r = level(tau / n) + level((tau + gap) / n)
+    return float(r.mean()), float(r.std())
+
+
+def _tail_level(s: np.ndarray):
+    """The |residual| level q at which a fraction x of the points is expected above:
+    S(q) = mean_i 2 Phi_c(q / sigma_i) = x, as a vectorised function of x."""
+    reps = np.quantile(s, (np.arange(256) + 0.5) / 256) if s.size > 256 else s
+    q = np.linspace(0.0, 14.0 * float(s.max()), 4001)
+    tail = 2.0 * np.mean(ndtr(-q[:, None] / reps[None, :]), axis=1)
+    log_tail = np.log(np.maximum(tail, 1e-300))[::-1]
+    return lambda x: np.interp(np.log(x), log_tail, q[::-1])
+
+
+def normal_sigma(points, sigma, normals, view_origin=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """Per-point sigma along the surface normal.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Points [mm].
+    sigma : (n,) float or float
+        Standard deviation along the line of sight from ``view_origin`` [mm].
+    normals : (n, 3) or (3,) float
+        Unit surface normals [-].
+    view_origin : (3,) float or None
+        Where the lines of sight start (the camera: the scanner frame's origin) [mm];
+        None when ``sigma`` is already along the normal.
+
+    Returns
+    -------
+    (n,) float
+        sigma |l . n| [mm].
+    """
+    pts = np.asarray(points, dtype=float)
+    sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(pts),))
+    if view_origin is None:
+        return sig.copy()
+    los = pts - np.asarray(view_origin, dtype=float)
+    los /= np.linalg.norm(los, axis=1, keepdims=True)
+    return sig * np.abs(np.sum(los * normals, axis=1))
+
+
+def _kept(residuals: np.ndarray, drop_fraction: float) -> np.ndarray:
+    if not 0.0 <= drop_fraction < 0.5:
+        raise InputError(f"drop_fraction must be in [0, 0.5), got {drop_fraction!r}")
+    n_drop = math.floor(drop_fraction * residuals.size + 1e-9)
+    keep = np.ones(residuals.size, dtype=bool)
+    if n_drop:
+        keep[np.argsort(-np.abs(residuals), kind="stable")[:n_drop]] = False
+    return keep
+
+
+def _sigmas(pts, sigma, normals, view_origin, residuals) -> np.ndarray | None:
+    """Sigmas along the normals, NaN ones replaced by the RMS residual [mm]."""
+    if sigma is None:
+        return None
+    sig = normal_sigma(pts, sigma, normals, view_origin)
+    return np.where(np.isfinite(sig), sig, float(np.sqrt(np.mean(residuals**2))))
+
+
+def _fit_kept_sphere(points, sigma, drop_fraction, correlation, view_origin, min_coverage,
+                     where):
+    """The sphere of the points kept by the 0.3 % rule, the sigmas of all points along
+    the normals, and the fit's predicted bias from noise along the line of sight."""
+    pts = check_points(points, where, 5)
+    first = fit_sphere(pts, min_coverage=min_coverage, where=where)
+    keep = _kept(first.residuals, drop_fraction)
+    radial = (pts - first.centre) / np.linalg.norm(pts - first.centre, axis=1, keepdims=True)
+    sig = _sigmas(pts, sigma, radial, view_origin, first.residuals)
+    fit = fit_sphere(pts[keep], None if sig is None else sig[keep], correlation,
+                     min_coverage=min_coverage, where=where)
+    bias = np.zeros(4)
+    if sigma is not None and view_origin is not None:
+        los = np.broadcast_to(np.asarray(sigma, dtype=float), (len(pts),))[keep]
+        los = np.where(np.isfinite(los), los, 0.0)
+        bias = sight_noise_bias(pts[keep], fit.centre, fit.radius, los, view_origin)
+    return pts, keep, sig, fit, bias
+
+
+def _form(name, residuals, sig, keep, kappa, form_um, mpe, k) -> Quantity:
+    """PF or F: range of the kept residuals, its prediction and u (module notes)."""
+    n, n_drop = keep.size, int(keep.size - keep.sum())
+    rms = float(np.sqrt(np.mean(residuals**2)))
+    base = np.full(n, rms) if sig is None else sig
+    pred, u_s = predicted_range(base, n_drop)
+    u_form = 0.0 if form_um is None else 1e-3 * form_um / math.sqrt(3.0)
+    u = math.sqrt(kappa * u_s**2 + u_form**2)
+    note = "u from the per-point sigmas" if sig is not None else \
+        "no per-point sigma: u from the residuals' scatter, no prediction"
+    return quantity(name, float(np.ptp(residuals)), u, mpe, k,
+                    predicted=pred if sig is not None else math.nan,
+                    n_points=n, n_dropped=n_drop, note=note)
+
+
+def _mpe(spec: Spec | None, name: str, length_mm: float = 0.0) -> float:
+    if spec is None or name not in spec.mpe:
+        return math.nan
+    return spec.mpe[name].at(length_mm)
+
+
+def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
+                   drop_fraction: float = DROP_FRACTION,
+                   correlation: Correlation | None = None, view_origin=(0.0, 0.0, 0.0),
+                   min_coverage: float = MIN_COVERAGE) -> SphereTest:
+    """Probing errors form PF and size PS of one sphere (module notes).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Points on the test sphere [mm].
+    sigma : (n,) float, optional
+        Per-point standard deviation along the line of sight [mm].
+    spec : Spec, optional
+        MPEs and the sphere's certificate; without a certificate PS is not evaluated.
+    k : float
+        Coverage factor of U [-].
+    drop_fraction : float
+        Fraction of the points removed before the range (the guideline's 0.3 %) [-].
+    correlation : float, (4,) float or callable, optional
+        Noise-correlation factor of the sphere fit [-] (:func:`scanqa.qa.sphere.fit_sphere`).
+    view_origin : (3,) float or None
+        Origin of the lines of sight [mm] (:func:`normal_sigma`).
+    min_coverage : float
+        Least cap coverage, fraction of a hemisphere [-].
+
+    Returns
+    -------
+    SphereTest
+    """
+    pts, keep, sig, fit, bias = _fit_kept_sphere(points, sigma, drop_fraction, correlation,
+                                                 view_origin, min_coverage, "sphere")
+    cert = None if spec is None else spec.sphere
+    pf = _form("PF", fit.residuals, sig, keep, float(np.max(fit.correlation)),
+               None if cert is None else cert.form_um, _mpe(spec, "PF"), k)
+    if cert is None:
+        ps = quantity("PS", math.nan, math.nan, _mpe(spec, "PS"), k, n_points=keep.size,
+                      note="no sphere certificate (calibrated diameter) in the spec")
+    else:
+        u = math.hypot(2.0 * fit.u_radius, 1e-3 * cert.diameter_uncertainty_um / cert.k)
+        ps = quantity("PS", fit.diameter - cert.diameter_mm, u, _mpe(spec, "PS"), k,
+                      bias=2.0 * bias[3], length=cert.diameter_mm, n_points=keep.size,
+                      n_dropped=int(keep.size - keep.sum()))
+    zone = minimum_zone_sphere(pts[keep], start=fit.centre)
+    return SphereTest(fit, zone, keep, pf, ps)
+
+
+def sphere_spacing_error(points_a, points_b, sigma_a=None, sigma_b=None,
+                         spec: Spec | None = None, k: float = 2.0, drop_fraction: float = 0.0,
+                         correlation: Correlation | None = None,
+                         view_origin=(0.0, 0.0, 0.0),
+                         min_coverage: float = MIN_COVERAGE) -> BallBarTest:
+    """Sphere-spacing error SD at one ball-bar position (module notes).
+
+    Parameters
+    ----------
+    points_a, points_b : (n, 3) float
+        Points of each ball [mm].
+    sigma_a, sigma_b : (n,) float, optional
+        Per-point standard deviation along the line of sight [mm].
+    spec : Spec, optional
+        MPE of SD and the bar's certificate; without a certificate SD is not evaluated.
+    k : float
+        Coverage factor of U [-].
+    drop_fraction : float
+        Fraction of each ball's points removed (default 0: every point) [-].
+    correlation : float, (4,) float or callable, optional
+        Noise-correlation factor of the sphere fits [-].
+    view_origin : (3,) float or None
+        Origin of the lines of sight [mm].
+    min_coverage : float
+        Least cap coverage of each ball, fraction of a hemisphere [-].
+
+    Returns
+    -------
+    BallBarTest
+    """
+    both = sorted((_fit_kept_sphere(p, s, drop_fraction, correlation, view_origin,
+                                    min_coverage, f"ball bar sphere {w}")[3:]
+                   for p, s, w in ((points_a, sigma_a, "a"), (points_b, sigma_b, "b"))),
+                  key=lambda fb: fb[0].centre[0])
+    (fa, ba), (fb, bb) = both
+    bar = BallBarFit(fa, fb, *centre_distance(fa, fb))
+    n = fa.n_points + fb.n_points
+    cert = None if spec is None else spec.ball_bar
+    if cert is None:
+        sd = quantity("SD", math.nan, math.nan, _mpe(spec, "SD"), k, n_points=n,
+                      note="no ball-bar certificate (calibrated distance) in the spec")
+    else:
+        u = math.hypot(bar.u_distance, 1e-3 * cert.distance_uncertainty_um / cert.k)
+        bias = float(-bar.direction @ (ba[:3] - bb[:3]))  # L = |c_a - c_b|, dL = g.(dc_a - dc_b)
+        sd = quantity("SD", bar.distance - cert.distance_mm, u,
+                      _mpe(spec, "SD", cert.distance_mm), k, bias=bias, length=cert.distance_mm,
+                      n_points=n)
+    return BallBarTest(bar, sd)
+
+
+def flatness_error(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
+                   drop_fraction: float = DROP_FRACTION, correlation: float | None = None,
+                   view_origin=(0.0, 0.0, 0.0)) -> FlatTest:
+    """Flatness measurement error F of a flat (module notes).
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Points on the flat [mm].
+    sigma : (n,) float, optional
+        Per-point standard deviation along the line of sight [mm].
+    spec : Spec, optional
+        MPE of F and the flat's certificate (its flatness enters u).
+    k : float
+        Coverage factor of U [-].
+    drop_fraction : float
+        Fraction of the points removed before the range (the guideline's 0.3 %) [-].
+    correlation : float, optional
+        Noise-correlation factor kappa >= 1 of the flat's points [-].
+    view_origin : (3,) float or None
+        Origin of the lines of sight [mm].
+
+    Returns
+    -------
+    FlatTest
+    """
+    pts = check_points(points, "flat", 10)
+    first = fit_plane(pts, "flat")
+    keep = _kept(first.residuals, drop_fraction)
+    plane = fit_plane(pts[keep], "flat")
+    sig = _sigmas(pts, sigma, plane.normal, view_origin, first.residuals)
+    kappa = 1.0 if correlation is None else float(correlation)
+    if not (math.isfinite(kappa) and kappa > 0):
+        raise InputError(f"flat: the noise-correlation factor must be > 0, got {correlation!r}")
+    cert = None if spec is None else spec.flat
+    f = _form("F", plane.residuals, sig, keep, kappa,
+              None if cert is None else cert.flatness_um, _mpe(spec, "F"), k)
+    return FlatTest(plane, minimum_zone_plane(pts[keep], "flat"), keep, f)
