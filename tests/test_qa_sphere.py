@@ -150,6 +150,11 @@ def test_minimum_zone_never_exceeds_the_least_squares_range():
         assert mz.width <= np.ptp(ls.residuals) + 1e-12
         d = np.linalg.norm(q - mz.centre, axis=1)
         assert_allclose([d.min(), d.max()], [mz.r_inner, mz.r_outer], atol=1e-12)
+        # a local search on the exact width from the result finds nothing thinner
+        simplex = mz.centre + np.vstack([np.zeros(3), 1e-3 * np.eye(3)])
+        local = minimize(lambda c, q=q: np.ptp(np.linalg.norm(q - c, axis=1)), mz.centre,
+                         method="Nelder-Mead", options={"initial_simplex": simplex})
+        assert local.fun >= mz.width - 1e-9
 
 
 @pytest.mark.parametrize("seed", [10, 11])

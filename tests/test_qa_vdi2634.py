@@ -160,6 +160,14 @@ def test_without_certificate_or_mpe_nothing_is_decided():
     assert math.isnan(bare.pf.predicted) and "no per-point sigma" in bare.pf.note
 
 
+def test_missing_sigmas_are_replaced_by_the_rms_residual():
+    pts, sigma = sphere_scan(np.random.default_rng(9), n=800)
+    sigma[::10] = np.nan
+    t = probing_errors(pts, sigma, SPEC)
+    assert np.isfinite([t.pf.value, t.pf.u, t.pf.predicted, t.ps.u, t.ps.bias]).all()
+    assert t.fit.sigma_source == "points"
+
+
 def test_sphere_with_too_few_points_or_a_small_cap_is_refused():
     rng = np.random.default_rng(5)
     pts, sigma = sphere_scan(rng, n=15)

@@ -46,8 +46,8 @@ it; the fit does not correct it (the guideline's estimator is the least-squares 
 Minimum-zone (Chebyshev) form: the smallest radial width of two concentric spheres that
 enclose all points, min over c of (max_i |p_i - c| - min_i |p_i - c|). Solved by
 sequential linear programming with a trust region from the least-squares centre (each
-step an exact LP on the linearised distances, accepted only when the true width drops),
-so the result is never wider than the least-squares range.
+step an exact LP on the linearised distances, by constraint generation, accepted only
+when the true width drops), so the result is never wider than the least-squares range.
 """
 
 from __future__ import annotations
@@ -65,6 +65,9 @@ from scanqa.errors import InputError
 MIN_POINTS = 20
 #: Least accepted cap coverage, as a fraction of a hemisphere's solid angle [-].
 MIN_COVERAGE = 0.5
+
+#: Points of each side that start the minimum-zone LP's constraint generation [-].
+_ZONE_SEED = 64
 
 #: A noise-correlation factor: a number, one per parameter (cx, cy, cz, R), or a callable
 #: ``f(points, jacobian, residuals)`` returning either.
@@ -393,19 +396,32 @@ def sight_noise_bias(points, centre, radius: float, sigma, view_origin=(0.0, 0.0
 
 
 def _zone_step(d: np.ndarray, u: np.ndarray, delta: float) -> tuple[np.ndarray, float]:
-    """LP on the linearised distances d_i - u_i.s within |s|_inf <= delta: the step s and
-    the predicted width. Only points that can become extreme within the box enter."""
-    reach = 2.0 * math.sqrt(3.0) * delta
-    out = np.flatnonzero(d >= d.max() - reach)
-    inn = np.flatnonzero(d <= d.min() + reach)
-    a_ub = np.vstack([np.column_stack([-u[out], -np.ones(out.size), np.zeros(out.size)]),
-                      np.column_stack([u[inn], np.zeros(inn.size), np.ones(inn.size)])])
-    b_ub = np.concatenate([-d[out], d[inn]])
+    """Exact LP on the linearised distances d_i - u_i.s within |s|_inf <= delta: the step s
+    and the predicted width. Constraint generation: the LP starts with the most extreme
+    points and takes in the points its solution violates until none does."""
+    order = np.argsort(d)
+    outer, inner = order[-_ZONE_SEED:], order[:_ZONE_SEED]
     bounds = [(-delta, delta)] * 3 + [(None, None)] * 2
-    sol = linprog([0, 0, 0, 1.0, -1.0], A_ub=a_ub, b_ub=b_ub, bounds=bounds, method="highs")
-    if sol.status != 0:
-        return np.zeros(3), float(np.ptp(d))
-    return sol.x[:3], float(sol.x[3] - sol.x[4])
+    for _ in range(100):
+        a_ub = np.vstack([np.column_stack([-u[outer], -np.ones(outer.size),
+                                           np.zeros(outer.size)]),
+                          np.column_stack([u[inner], np.zeros(inner.size),
+                                           np.ones(inner.size)])])
+        sol = linprog([0, 0, 0, 1.0, -1.0], A_ub=a_ub,
+                      b_ub=np.concatenate([-d[outer], d[inner]]), bounds=bounds,
+                      method="highs")
+        if sol.status != 0:
+            return np.zeros(3), float(np.ptp(d))
+        step = sol.x[:3]
+        lin = d - u @ step
+        hi, lo = lin[outer].max(), lin[inner].min()
+        tol = 1e-12 * max(float(d.max()), 1.0)
+        over, under = np.flatnonzero(lin > hi + tol), np.flatnonzero(lin < lo - tol)
+        if over.size == 0 and under.size == 0:
+            return step, float(hi - lo)
+        outer = np.union1d(outer, over[np.argsort(-lin[over])][:4 * _ZONE_SEED])
+        inner = np.union1d(inner, under[np.argsort(lin[under])][:4 * _ZONE_SEED])
+    return np.zeros(3), float(np.ptp(d))
 
 
 def minimum_zone_sphere(points, start=None, where: str = "sphere",
