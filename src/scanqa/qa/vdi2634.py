@@ -26,7 +26,7 @@ the unit line of sight and n the normal (the radial direction of a sphere). Pass
 ``view_origin=None`` when the sigmas are already along the normal. Missing sigmas (NaN)
 are replaced by the RMS residual.
 
-Standard uncertainty u (GUM, first order) and U = k u (k = 2 by default):
+Standard uncertainty u (GUM, first order) and U = k u (k = 2 by default; plus |b| below):
 
 - PS: u^2 = 4 u(R)^2 + (U_cert / k_cert)^2; u(R) from the sphere's covariance (per-point
   sigmas, noise-correlation factor included; :mod:`scanqa.qa.sphere`); U_cert the
