@@ -8,29 +8,29 @@ sqrt(model^2 + table^2), and with repeated scans the measured per-point std.
 
 Attribute names (PLY ``scalar_<name>``, LAS extra bytes, CSV columns), all float32:
 
-=================  ====  ==================================================================
-name               unit  meaning
-=================  ====  ==================================================================
-sigma_model_um     um    model sigma along the line of sight; NaN where the model is not
-                         valid (a blur ratio > 1/2)
-sx_um, sy_um,      um    its X, Y, Z components (CloudCompare M3C2 precision maps pick
-sz_um                    fields containing "sx", "sy", "sz")
-sigma_phase_um     um    s_T x decoder sigma_xp (intensity noise and measured modulation)
-sigma_table_um     um    the calibration table's own std at that point
-sigma_total_um     um    sqrt(sigma_model^2 + sigma_table^2)
-att_camera         -     camera attenuation A_c
-att_projector      -     projector attenuation A_p
-filter_factor      -     F_gamma (Eq. 17)
-s_o                -     optical scale s_O (Eq. 19)
-s_t_um_px          um/px triangulation scale |dQ/dx_p|
-modulation_dn      DN    fringe modulation B
-in_volume          0/1   phase inside the pixel's calibrated range
-model_valid        0/1   both blur ratios <= 1/2
-pixel_u, pixel_v   px    camera pixel (column, row)
-table_corr_mm      mm    distance over which the table's errors are correlated here
-sigma_meas_um      um    with repeats: std over the repeats along the line of sight
-n_repeats          -     with repeats: number of scans valid at that pixel
-=================  ====  ==================================================================
+=================  =====  ==================================================================
+name               unit   meaning
+=================  =====  ==================================================================
+sigma_model_um     um     model sigma along the line of sight; NaN where the model is not
+                          valid (a blur ratio > 1/2)
+sx_um, sy_um,      um     its X, Y, Z components (CloudCompare M3C2 precision maps pick
+sz_um                     fields containing "sx", "sy", "sz")
+sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
+sigma_table_um     um     the calibration table's own std at that point
+sigma_total_um     um     sqrt(sigma_model^2 + sigma_table^2)
+att_camera         -      camera attenuation A_c
+att_projector      -      projector attenuation A_p
+filter_factor      -      F_gamma (Eq. 17)
+s_o                -      optical scale s_O (Eq. 19)
+s_t_um_px          um/px  triangulation scale |dQ/dx_p|
+modulation_dn      DN     fringe modulation B
+in_volume          0/1    phase inside the pixel's calibrated range
+model_valid        0/1    both blur ratios <= 1/2
+pixel_u, pixel_v   px     camera pixel (column, row)
+table_corr_mm      mm     distance over which the table's errors are correlated here
+sigma_meas_um      um     with repeats: std over the repeats along the line of sight
+n_repeats          -      with repeats: number of scans valid at that pixel
+=================  =====  ==================================================================
 """
 
 from __future__ import annotations
@@ -171,7 +171,7 @@ def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarra
 
 def table_correlation_px(table: CalibrationTable) -> float:
     """Distance over which the table's errors are correlated [camera px]: the window of
-    the cell smoothing, (2 h + 1) cells (:func:`scanqa.calibration.smooth_cells`)."""
+    the cell smoothing, (2 h + 1) cells (:func:`scanqa.calibration.build.smooth_cells`)."""
     return (2 * SMOOTH_HALF_WIDTH + 1) * table.cell_px
 
 

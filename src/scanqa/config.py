@@ -196,7 +196,7 @@ class ProjectorConfig(_Section):
 
         The projector's pinhole magnification at its focus distance equals the paper's
         m_p(Z_p') (Eq. 3), so that the fringe period on an object at focus is the model's
-        omega_o(Z_p') exactly; the pitch was inferred through Eq. 3 (calib/*.toml).
+        omega_o(Z_p') exactly; the pitch was inferred through Eq. 3 (``calib/*.toml``).
         Away from focus the pinhole period grows as Z_p, Eq. 4 as 1 / m_p(Z_p).
         """
         z = self.focus_mm

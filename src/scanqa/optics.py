@@ -1,4 +1,4 @@
-"""The defocus uncertainty model of a phase-shift scanner (Sect. 3, Eqs. 1-19 of [1]).
+"""The defocus uncertainty model of a phase-shift scanner (Sect. 3, Eqs. 1-19 of [1]_).
 
 Every function is vectorised over numpy arrays and propagates NaN. Lengths are in
 millimetres, fringe periods in projector pixels, phase noise in projector pixels.

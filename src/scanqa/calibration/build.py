@@ -525,7 +525,7 @@ def _sample_grid(theta, cov, n_obs, x, w, z0, half, centre, config, node_u, node
     """Evaluate every node's model on the sheared s grid.
 
     ``x`` are the phases relative to each node's ``centre`` [projector px]; the s axis is
-    relative to the smooth shear (:mod:`scanqa.shear`) fitted to the mid-sweep phases.
+    relative to the smooth shear (:mod:`scanqa.calibration.shear`) fitted to the mid-sweep phases.
     """
     uu, vv = np.meshgrid(node_u, node_v)
     size = (int(shape[1]), int(shape[0]))

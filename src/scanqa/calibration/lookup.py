@@ -12,7 +12,7 @@ The table (:class:`scanqa.calibration.table.CalibrationTable`, or anything with 
   shares its node column and u weight, every pixel of a row its node row and v weight, so
   the lateral coefficients are interpolated along u once per node row and then only
   blended between two node rows per image row, and the shear x_shear(u, v)
-  (:mod:`scanqa.shear`) is a product of per-row and per-column power tables; no
+  (:mod:`scanqa.calibration.shear`) is a product of per-row and per-column power tables; no
   per-pixel gathers but the four Hermite rows.
 
 Images are processed in bands of rows on every core (:mod:`scanqa.chunks`);

@@ -49,7 +49,8 @@ class CalibrationTable:
 
     @functools.cached_property
     def packed(self) -> lookup.Packed:
-        """The table rearranged for fast lookups (computed once, :mod:`scanqa.lookup`)."""
+        """The table rearranged for fast lookups, computed once
+        (:mod:`scanqa.calibration.lookup`)."""
         return lookup.pack(self)
 
     @functools.cached_property

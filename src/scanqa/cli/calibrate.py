@@ -20,8 +20,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="build a weighted nonparametric calibration table from a plane sweep",
-        epilog="example:\n  scanqa calibrate sample_data/calib_sweep/sweep.toml "
-               "--config calib/paper_scanner.toml --out table.npz\n\n"
+        epilog="example:\n  scanqa calibrate sample_data/calibration_sweep/sweep.toml "
+               "--config sample_data/sample_scanner.toml#sample --out table.npz\n\n"
                "writes table.npz and, beside it, table_report.html and table_report.json")
     p.add_argument("sweep", metavar="SWEEP", help="sweep manifest (sweep.toml) or its folder")
     add_config_argument(p)

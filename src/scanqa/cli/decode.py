@@ -11,7 +11,7 @@ from scanqa.decoding.phasemap import save_phase_map
 
 _EPILOG = """\
 PATTERN_DIR holds the camera images and a patterns.toml describing them
-(README.md, "### patterns.toml"). The output phase.npz holds xp [projector px],
+(docs/formats.rst, "patterns.toml"). The output phase.npz holds xp [projector px],
 modulation and offset [DN], mask (0 valid, 1 saturated, 2 low_modulation,
 3 inconsistent, 4 out_of_range) and sigma_xp [projector px].
 

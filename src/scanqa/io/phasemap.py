@@ -2,21 +2,22 @@
 
 An uncompressed numpy ``.npz`` read without pickle. Arrays:
 
-==============  ===========  ==============================================================
-name            dtype        content
-==============  ===========  ==============================================================
-format          str scalar   ``"scanqa-phasemap/1"``
-xp              (H, W) f8    projector coordinate along the fringe direction [projector px],
-                             NaN where masked
-modulation      (H, W) f4    modulation B of the working period [DN]
-offset          (H, W) f4    offset A [DN]
-mask            (H, W) u1    reason code, 0 = valid (``scanqa.decoding.phasemap.MASK_REASONS``)
-sigma_xp        (H, W) f4    predicted standard deviation of xp [projector px], NaN if masked
-period_px       f8 scalar    working (finest) period [projector px]
-orientation     str scalar   "vertical" (xp is x_p) or "horizontal" (xp is y_p)
-projector_...   i8 scalar    ``projector_width_px``, the coded range [projector px]
-provenance      str scalar   JSON: software version, pattern description, sensor model
-==============  ===========  ==============================================================
+====================  ===========  ==============================================================
+name                  dtype        content
+====================  ===========  ==============================================================
+format                str scalar   ``"scanqa-phasemap/1"``
+xp                    (H, W) f8    projector coordinate along the fringe direction [projector px],
+                                   NaN where masked
+modulation            (H, W) f4    modulation B of the working period [DN]
+offset                (H, W) f4    offset A [DN]
+mask                  (H, W) u1    reason code, 0 = valid
+                                   (``scanqa.decoding.phasemap.MASK_REASONS``)
+sigma_xp              (H, W) f4    predicted standard deviation of xp [projector px], NaN if masked
+period_px             f8 scalar    working (finest) period [projector px]
+orientation           str scalar   "vertical" (xp is x_p) or "horizontal" (xp is y_p)
+projector_width_px    i8 scalar    the coded range [projector px]
+provenance            str scalar   JSON: software version, pattern description, sensor model
+====================  ===========  ==============================================================
 
 Writes are atomic; a file of another ``format`` version is refused.
 """

@@ -7,7 +7,7 @@ and after the camera blur, sensor) and never draws noise from the closed-form si
 
 Main entry points: :func:`run_experiment` (write an experiment folder),
 :func:`render_images` and :func:`truth_for` (one acquisition in memory),
-:func:`load_manifest` (read a folder back).
+:func:`scanqa.io.manifest.read_manifest` (read a folder back).
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ Each experiment is a list of acquisitions (position x repeat). Its folder holds:
     DIR/p000_r0/                 images + patterns.toml of position 0, repeat 0
     DIR/truth/p000.npz           ground truth of position 0 (X, Y, Z, xp_true, ...)
 
-README.md, "### Simulated experiment folders", documents every key. The manifest is
+docs/formats.rst, "Experiment folders", documents every key. The manifest is
 written last, so a folder without one is an interrupted run.
 
 Experiments:

@@ -200,7 +200,7 @@ def gauge_block_artefact(layout: GaugeLayout | None = None) -> Scene:
 
 
 def gauge_layout_toml(layout: GaugeLayout) -> str:
-    """The layout file text (``calib/gauge_blocks_paper.toml``; README documents it)."""
+    """The layout file text (``calib/gauge_blocks_paper.toml``; docs/formats.rst documents it)."""
     def rect(r: tuple) -> str:
         return "[" + ", ".join(f"{v:.3f}" for v in r) + "]"
 
