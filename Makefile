@@ -1,12 +1,12 @@
 # scanqa: two commands do everything on a fresh Debian machine (as root).
 #   make demo   - set up .venv, install what is missing, run the demo
-#   make test   - same set-up, then the whole test suite
+#   make test   - same set-up, then the whole test suite and the docs build
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test bench lint setup syslibs syslibs-test clean
+.PHONY: demo test docs bench lint setup syslibs syslibs-test clean
 
 setup: $(STAMP)
 
@@ -29,6 +29,13 @@ demo: syslibs $(STAMP)
 # when the client is missing (make test installs it).
 test: syslibs-test $(STAMP)
 	@SCANQA_REQUIRE_CLIENTS=1 $(BIN)/python -m pytest -q $(PYTEST_ARGS)
+	@$(MAKE) --no-print-directory docs
+
+# The documentation site (docs/): warnings are errors, so a broken reference, a malformed
+# docstring or a module missing from docs/api.rst fails the build.
+docs: $(STAMP)
+	@$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "docs: docs/_build/html/index.html"
 
 lint: $(STAMP)
 	@$(BIN)/ruff check src tests benchmarks
@@ -37,4 +44,4 @@ bench: $(STAMP)
 	@$(BIN)/python benchmarks/run_all.py
 
 clean:
-	rm -rf $(VENV) build src/*.egg-info .pytest_cache .ruff_cache
+	rm -rf $(VENV) build src/*.egg-info .pytest_cache .ruff_cache docs/_build docs/api
