@@ -38,6 +38,7 @@ Standard uncertainty u (GUM, first order) and U = k u (k = 2 by default; plus |b
   residuals, :func:`predicted_range`), its variance multiplied by the noise-correlation
   factor (the largest of the sphere's), combined with the artefact's certified form
   deviation f as a rectangular contribution of half-width f: u^2 = kappa u_s^2 + f^2 / 3.
+
 PS and SD also carry the predicted bias b of the least-squares spheres from noise along
 the line of sight (:func:`scanqa.qa.sphere.sight_noise_bias`; 2 b_R for PS, the centres'
 biases along the bar for SD). The test value is left as the guideline defines it
