@@ -68,6 +68,7 @@ BAD_INPUTS = {
     "simulate": ["warp-drive", "--config", "calib/paper_scanner.toml", "--out", "sim"],
     "characterize": ["nope_dir", "--config", "calib/paper_scanner.toml"],
     "demo": ["--out", "/proc/forbidden/demo"],
+    "init": ["i.toml", "--calibration", "nope.xml"],
 }
 
 
@@ -81,7 +82,8 @@ def test_bad_input_gives_one_line_and_exit_2(command, capsys, tmp_path, monkeypa
 
     monkeypatch.chdir(ROOT)
     argv = [a if a != "qa_out" else str(tmp_path / "qa") for a in BAD_INPUTS[command]]
-    argv = [str(tmp_path / a) if a in ("x.npz", "t.npz", "c.ply", "sim") else a for a in argv]
+    argv = [str(tmp_path / a) if a in ("x.npz", "t.npz", "c.ply", "sim", "i.toml") else a
+            for a in argv]
     code = main([command, *argv])
     err = capsys.readouterr().err
     assert code == 2, err

@@ -1,8 +1,10 @@
 """Per-point uncertainty of a scan: the optics model through the calibration table.
 
-For every decoded pixel the table gives X, Y, Z and the slope dQ/dx_p; the model gives
-s_O at that point (Eqs. 12-19) and sigma = s_T s_O sigma_p (Eq. 18) with s_T = |dQ/dx_p|
-from the table (docs/model.rst). Alongside: the sigma implied by the decoder's own
+For every decoded pixel the calibration - a nonparametric table or a parametric
+camera-projector model (:class:`scanqa.calibration.base.Calibration`) - gives X, Y, Z and
+the slope dQ/dx_p; the model gives s_O at that point (Eqs. 12-19) and
+sigma = s_T s_O sigma_p (Eq. 18) with s_T = |dQ/dx_p| from the calibration
+(docs/model.rst). Alongside: the sigma implied by the decoder's own
 per-pixel phase noise (s_T sigma_xp), the table's sigma, the combined sigma
 sqrt(model^2 + table^2), and with repeated scans the measured per-point std.
 
@@ -16,7 +18,8 @@ sigma_model_um     um     model sigma along the line of sight; NaN where the mod
 sx_um, sy_um,      um     its X, Y, Z components (CloudCompare M3C2 precision maps pick
 sz_um                     fields containing "sx", "sy", "sz")
 sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
-sigma_table_um     um     the calibration table's own std at that point
+sigma_table_um     um     the calibration table's own std at that point (0 for a
+                          parametric calibration)
 sigma_total_um     um     sqrt(sigma_model^2 + sigma_table^2)
 att_camera         -      camera attenuation A_c
 att_projector      -      projector attenuation A_p
@@ -28,6 +31,7 @@ in_volume          0/1    phase inside the pixel's calibrated range
 model_valid        0/1    both blur ratios <= 1/2
 pixel_u, pixel_v   px     camera pixel (column, row)
 table_corr_mm      mm     distance over which the table's errors are correlated here
+                          (NaN for a parametric calibration)
 sigma_meas_um      um     with repeats: std over the repeats along the line of sight
 n_repeats          -      with repeats: number of scans valid at that pixel
 =================  =====  ==================================================================
@@ -41,9 +45,9 @@ import numpy as np
 
 from scanqa import optics
 from scanqa._version import __version__
+from scanqa.calibration.base import Calibration
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
-from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
 from scanqa.cloud import AnnotatedCloud
 from scanqa.config import ScannerConfig
@@ -59,25 +63,14 @@ ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_phase_um", "si
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
 
 
-def check_compatible(table: CalibrationTable, config: ScannerConfig, phase_map: PhaseMap,
+def check_compatible(table: Calibration, config: ScannerConfig, phase_map: PhaseMap,
                      source: str = "scan") -> None:
-    """Raise unless table, config and scan describe the same scanner and camera."""
-    h, w = phase_map.xp.shape
-    if (w, h) != (table.width_px, table.height_px):
-        raise InputError(f"{source} is {w} x {h} px but the calibration table was built for a "
-                         f"{table.width_px} x {table.height_px} px camera: use the table of "
-                         "this scanner")
-    built = table.config
-    for section in ("camera", "projector"):
-        mine = config.to_dict()[section]
-        for key, value in built.get(section, {}).items():
-            if not np.allclose(np.asarray(mine.get(key), float), np.asarray(value, float)):
-                raise InputError(f"config {config.source} does not match the table's: "
-                                 f"{section}.{key} is {mine.get(key)!r} here and {value!r} in "
-                                 "the table; pass the config the table was built with")
+    """Raise unless calibration, config and scan describe the same scanner and camera
+    (each calibration knows what to check: :meth:`Calibration.check_scan`)."""
+    table.check_scan(config, phase_map, source)
 
 
-def annotate(phase_map: PhaseMap, table: CalibrationTable, config: ScannerConfig,
+def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
              repeats: Sequence[PhaseMap] = (), keep_invalid: bool = False,
              source: str = "scan") -> AnnotatedCloud:
     """Annotate a decoded scan with per-point sigmas.
@@ -86,10 +79,13 @@ def annotate(phase_map: PhaseMap, table: CalibrationTable, config: ScannerConfig
     ----------
     phase_map : PhaseMap
         The decoded scan.
-    table : CalibrationTable
-        The scanner's calibration table.
+    table : Calibration
+        The scanner's calibration: a nonparametric table
+        (:class:`~scanqa.calibration.table.CalibrationTable`) or a parametric one
+        (:class:`~scanqa.calibration.parametric.ParametricCalibration`).
     config : ScannerConfig
-        The config the table was built with (its ``[model]`` gives sigma_p, gamma and
+        The config the table was built with, or that describes the parametrically
+        calibrated scanner (its ``[model]`` gives sigma_p, gamma and
         the readings; they may differ from the table's).
     repeats : sequence of PhaseMap
         Further scans of the same static scene for the measured per-point std.
@@ -138,7 +134,7 @@ def annotate(phase_map: PhaseMap, table: CalibrationTable, config: ScannerConfig
     return AnnotatedCloud(xyz, attributes, counts, cloud_metadata(config, table, source))
 
 
-def cloud_metadata(config: ScannerConfig, table: CalibrationTable, source: str) -> dict:
+def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> dict:
     """What a cloud carries into its file: the model variant and parameters that gave its
     sigmas, the whole scanner config, the table's build and the software version."""
     model = config.model
@@ -150,12 +146,19 @@ def cloud_metadata(config: ScannerConfig, table: CalibrationTable, source: str) 
                       "working_period_px": config.fringes.working_period_px},
             "config": config.to_dict(),
             "config_source": config.source + (f"#{config.profile}" if config.profile else ""),
-            "table": {"weights": table.weights, "z_range_mm": list(table.z_range_mm),
-                      "cell_px": table.cell_px,
-                      "sweep": table.provenance.get("sweep", "")}}
+            "table": {"kind": table.provenance.get("kind", "table"), "weights": table.weights,
+                      "z_range_mm": [_json_number(z) for z in table.z_range_mm],
+                      "cell_px": _json_number(table.cell_px),
+                      "sweep": table.provenance.get("sweep", ""),
+                      "calibration": table.provenance.get("calibration", "")}}
 
 
-def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarray,
+def _json_number(value: float) -> float | None:
+    """A float for JSON metadata: None where it is not finite (no range limit, no cells)."""
+    return float(value) if np.isfinite(value) else None
+
+
+def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
                    extra: dict, keep: np.ndarray, rows: tuple[int, int], keep_invalid: bool,
                    out: np.ndarray) -> int:
     """Look up, model and write the kept points of image rows ``rows`` into the records
@@ -169,13 +172,14 @@ def _annotate_band(table: CalibrationTable, config: ScannerConfig, xp: np.ndarra
     return _annotate_points(look, pixels, inputs, config, out)
 
 
-def table_correlation_px(table: CalibrationTable) -> float:
+def table_correlation_px(table: Calibration) -> float:
     """Distance over which the table's errors are correlated [camera px]: the window of
-    the cell smoothing, (2 h + 1) cells (:func:`scanqa.calibration.build.smooth_cells`)."""
+    the cell smoothing, (2 h + 1) cells (:func:`scanqa.calibration.build.smooth_cells`);
+    NaN for a parametric calibration, which has no cells and no errors of its own."""
     return (2 * SMOOTH_HALF_WIDTH + 1) * table.cell_px
 
 
-def _select(table: CalibrationTable, xp: np.ndarray, bands: list, keep_invalid: bool
+def _select(table: Calibration, xp: np.ndarray, bands: list, keep_invalid: bool
             ) -> tuple[list[np.ndarray], list[int], dict]:
     """Pixels to keep per band ((rows, W) bool each), how many, and the counts by fate."""
     def band(r0: int, r1: int) -> tuple[np.ndarray, int, int, int]:
@@ -242,14 +246,14 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
     return int((~pred.valid).sum())
 
 
-def measured_std(table: CalibrationTable, scans: Sequence[PhaseMap]
+def measured_std(table: Calibration, scans: Sequence[PhaseMap]
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Per-pixel std over repeated scans, along the line of sight.
 
     Parameters
     ----------
-    table : CalibrationTable
-        Calibration table.
+    table : Calibration
+        Calibration table or parametric calibration.
     scans : sequence of PhaseMap
         Two or more scans of one static scene.
 
@@ -281,7 +285,7 @@ def measured_std(table: CalibrationTable, scans: Sequence[PhaseMap]
     return std, count
 
 
-def _band_std(table: CalibrationTable, rows: list[np.ndarray], r0: int
+def _band_std(table: Calibration, rows: list[np.ndarray], r0: int
               ) -> tuple[np.ndarray, np.ndarray]:
     """Std of the range over scans [mm] and the valid count, for one band of rows."""
     shape = rows[0].shape

@@ -80,9 +80,17 @@ def _check_number(key: str, value: Any, meta: dict) -> float:
     return int(v) if kind == "int" else v
 
 
+#: Value ``scanqa init`` writes where the user must measure or look up a number.
+PLACEHOLDER = "MEASURE"
+
+
 def _check_value(key: str, value: Any, meta: dict) -> Any:
     """Validate a field of any kind (float, int, bool, str, vec3, list)."""
     kind = meta["kind"]
+    if isinstance(value, str) and value.startswith(PLACEHOLDER):
+        raise ConfigError(f"{key} is still the placeholder {value!r} that 'scanqa init' wrote: "
+                          f"replace it with the measured value ({_expected(meta)}; the "
+                          "comment above it says what to measure)")
     if kind == "bool":
         if not isinstance(value, bool):
             raise ConfigError(f"{key} must be true or false, got {value!r}")

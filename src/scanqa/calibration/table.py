@@ -20,6 +20,7 @@ import numpy as np
 from scanqa.calibration import lookup
 from scanqa.calibration.lookup import TableLookup
 from scanqa.config import ScannerConfig, config_from_dict
+from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io import table as table_file
 
@@ -149,6 +150,23 @@ class CalibrationTable:
         xp_rows = np.asarray(xp_rows, dtype=float)
         self._check_rows(xp_rows, row0)
         return lookup.in_volume_rows(self, xp_rows, row0)
+
+    def check_scan(self, config: ScannerConfig, phase_map: PhaseMap,
+                   source: str = "scan") -> None:
+        """Raise unless the scan has the table's image size and the config matches the
+        camera and projector settings the table was built with."""
+        h, w = phase_map.xp.shape
+        if (w, h) != (self.width_px, self.height_px):
+            raise InputError(f"{source} is {w} x {h} px but the calibration table was built "
+                             f"for a {self.width_px} x {self.height_px} px camera: use the "
+                             "table of this scanner")
+        for section in ("camera", "projector"):
+            mine = config.to_dict()[section]
+            for key, value in self.config.get(section, {}).items():
+                if not np.allclose(np.asarray(mine.get(key), float), np.asarray(value, float)):
+                    raise InputError(f"config {config.source} does not match the table's: "
+                                     f"{section}.{key} is {mine.get(key)!r} here and {value!r} "
+                                     "in the table; pass the config the table was built with")
 
     def _check_rows(self, xp: np.ndarray, row0: int, whole: bool = False) -> None:
         """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of a phase map of the

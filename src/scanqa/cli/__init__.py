@@ -18,6 +18,7 @@ from scanqa.errors import ScanQAError
 
 #: Modules that register subcommands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
+    "scanqa.cli.init",
     "scanqa.cli.design",
     "scanqa.cli.calibrate",
     "scanqa.cli.annotate",

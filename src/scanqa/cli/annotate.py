@@ -1,4 +1,5 @@
-"""``scanqa annotate``: a scan and a calibration table to an annotated point cloud."""
+"""``scanqa annotate``: a scan and a calibration (table or OpenCV) to an annotated point
+cloud."""
 
 from __future__ import annotations
 
@@ -6,8 +7,13 @@ import argparse
 import sys
 
 from scanqa.annotation import annotate
-from scanqa.calibration.table import load_table
-from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
+from scanqa.cli.common import (
+    add_calibration_argument,
+    add_config_argument,
+    add_model_argument,
+    calibration_from_args,
+    config_from_args,
+)
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
@@ -17,12 +23,14 @@ from scanqa.io.cloud import WRITERS
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "annotate", formatter_class=argparse.RawDescriptionHelpFormatter,
-        help="phase map + calibration table -> point cloud with per-point sigmas",
-        epilog="example:\n  scanqa annotate scan/phase.npz --table table.npz "
+        help="phase map + calibration -> point cloud with per-point sigmas",
+        epilog="examples:\n  scanqa annotate scan/phase.npz --calibration table.npz "
                "--config calib/paper_scanner.toml --out cloud.ply --repeats rep1.npz rep2.npz"
+               "\n  scanqa annotate scan/ --calibration calibration.xml --config scanner.toml "
+               "--out cloud.ply"
                "\n\nformats by suffix: " + ", ".join(WRITERS))
     p.add_argument("scan", metavar="SCAN", help="decoded phase file (.npz) or pattern folder")
-    p.add_argument("--table", required=True, help="calibration table (scanqa calibrate)")
+    add_calibration_argument(p)
     add_config_argument(p)
     add_model_argument(p)
     p.add_argument("--out", required=True, help="output cloud (.ply, .las, .csv, .parquet)")
@@ -38,10 +46,10 @@ def run(args: argparse.Namespace) -> int:
     if out.suffix.lower() not in WRITERS:
         raise InputError(f"--out {out}: unknown suffix (use one of {', '.join(WRITERS)})")
     config = config_from_args(args)
-    table = load_table(args.table)
     scan = decode(args.scan)
+    calibration = calibration_from_args(args, config, scan)
     repeats = [decode(r) for r in args.repeats]
-    cloud = annotate(scan, table, config, repeats, args.keep_invalid, source=args.scan)
+    cloud = annotate(scan, calibration, config, repeats, args.keep_invalid, source=args.scan)
     if not cloud.counts["written"]:
         raise InputError(f"{args.scan}: no point lies inside the calibrated volume; nothing "
                          "written (use --keep-invalid to extrapolate)")

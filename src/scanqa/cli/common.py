@@ -10,7 +10,10 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+from scanqa.calibration.base import Calibration, load_calibration
 from scanqa.config import ScannerConfig, load_config
+from scanqa.decoding.phasemap import PhaseMap
+from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
 
 
@@ -38,6 +41,29 @@ def config_from_args(args: argparse.Namespace) -> ScannerConfig:
 
         config = apply_fitted_model(config, args.model)
     return config
+
+
+def add_calibration_argument(parser: argparse.ArgumentParser, required: bool = True,
+                             when: str = "") -> None:
+    """``--calibration FILE`` (old spelling ``--table``) and ``--depth-range-mm NEAR,FAR``."""
+    parser.add_argument("--calibration", "--table", dest="calibration", required=required,
+                        metavar="FILE",
+                        help="calibration" + when + ": a table from 'scanqa calibrate' (.npz) "
+                             "or an OpenCV camera-projector calibration (.xml, .yml, .yaml, "
+                             ".json with Kc, kc, Kp, kp, Rp, Tp); --table is the old spelling")
+    parser.add_argument("--depth-range-mm", type=float_list, default=None, metavar="NEAR,FAR",
+                        help="with an OpenCV calibration: the Z range [mm] counted as in "
+                             "volume (default: everything in front of both devices)")
+
+
+def calibration_from_args(args: argparse.Namespace, config: ScannerConfig, scan: PhaseMap
+                          ) -> Calibration:
+    """Load ``--calibration`` for ``scan`` (its fringe orientation) and ``config`` (the sizes
+    an OpenCV file may lack)."""
+    depth = args.depth_range_mm or [0.0, math.inf]
+    if len(depth) != 2:
+        raise InputError(f"--depth-range-mm takes NEAR,FAR [mm], got {depth}")
+    return load_calibration(args.calibration, config, scan.orientation, tuple(depth))
 
 
 def float_list(text: str) -> list[float]:

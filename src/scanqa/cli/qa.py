@@ -1,12 +1,17 @@
-"""``scanqa qa``: gauge-block QA of an annotated cloud (or a scan + table)."""
+"""``scanqa qa``: gauge-block QA of an annotated cloud (or a scan + calibration)."""
 
 from __future__ import annotations
 
 import argparse
 
 from scanqa.annotation import annotate
-from scanqa.calibration.table import load_table
-from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
+from scanqa.cli.common import (
+    add_calibration_argument,
+    add_config_argument,
+    add_model_argument,
+    calibration_from_args,
+    config_from_args,
+)
 from scanqa.cloud import AnnotatedCloud, read_cloud
 from scanqa.config import ScannerConfig
 from scanqa.decoding.decoder import decode
@@ -23,18 +28,18 @@ def register(sub: argparse._SubParsersAction) -> None:
         "qa", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="gauge-block QA: plane fits, measured vs predicted std, steps with U",
         epilog="examples:\n  scanqa qa cloud.ply --layout calib/gauge_blocks_paper.toml "
-               "--out qa/\n  scanqa qa scan/phase.npz --table table.npz --config "
+               "--out qa/\n  scanqa qa scan/phase.npz --calibration table.npz --config "
                "calib/paper_scanner.toml --layout calib/gauge_blocks_paper.toml --out qa/\n\n"
                "writes report.html, blocks.csv, steps.csv, summary.json, cloud_qa.ply")
     p.add_argument("cloud", metavar="CLOUD",
-                   help="annotated cloud (.ply/.las/.csv) or, with --table, a scan")
+                   help="annotated cloud (.ply/.las/.csv) or, with --calibration, a scan")
     p.add_argument("--layout", help="block layout TOML (nominal heights and regions)")
     p.add_argument("--auto", action="store_true",
                    help="find the blocks by plane segmentation; match nominal heights from "
                         "--layout (regions ignored) or --heights")
     p.add_argument("--heights", default=None,
                    help="with --auto and no --layout: id=height_mm pairs, e.g. 1=50.8,2=25.4")
-    p.add_argument("--table", help="calibration table, when CLOUD is a scan")
+    add_calibration_argument(p, required=False, when=", when CLOUD is a scan")
     add_config_argument(p, required=False)
     add_model_argument(p)
     p.add_argument("--out", required=True, help="output folder (created)")
@@ -51,11 +56,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _load(args: argparse.Namespace) -> tuple[AnnotatedCloud, ScannerConfig | None]:
-    if args.table:
+    if args.calibration:
         if not args.config:
-            raise InputError("--table needs --config (the config the table was built with)")
+            raise InputError("--calibration needs --config (the config the table was built "
+                             "with, or that describes the calibrated scanner)")
         config = config_from_args(args)
-        cloud = annotate(decode(args.cloud), load_table(args.table), config,
+        scan = decode(args.cloud)
+        cloud = annotate(scan, calibration_from_args(args, config, scan), config,
                          keep_invalid=True, source=args.cloud)
         return cloud, config
     config = config_from_args(args) if args.config else None

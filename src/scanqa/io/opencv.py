@@ -1,0 +1,235 @@
+"""OpenCV camera-projector calibrations (FileStorage XML, YAML or JSON).
+
+The layout is the one structured-light tools built on OpenCV's stereo calibration write
+(SLStudio's ``calibration.xml`` is one). Keys read, all at the top level:
+
+=============================  ========  ===================================================
+key                            required  meaning
+=============================  ========  ===================================================
+``Kc``                         yes       camera matrix, 3 x 3 [camera px]
+``kc``                         yes       camera distortion k1 k2 p1 p2 [k3] (4 or 5 numbers,
+                                         a row or a column) [-]
+``Kp``                         yes       projector matrix, 3 x 3 [projector px]
+``kp``                         yes       projector distortion, as ``kc`` [-]
+``Rp``                         yes       rotation, 3 x 3 [-]
+``Tp``                         yes       translation, 3 numbers [mm]
+``frameWidth``, ``frameHeight``  no      camera image size [camera px]
+``screenResX``, ``screenResY``   no      projector panel size [projector px]
+``cam_error``, ``proj_error``,   no      RMS reprojection errors of the calibration [px]
+``stereo_error``
+=============================  ========  ===================================================
+
+Conventions (OpenCV's): ``Rp``, ``Tp`` map camera coordinates to projector coordinates,
+X_p = Rp X_c + Tp [mm], so the projector's centre in the camera frame is -Rp^T Tp. A
+point at normalised coordinates (x, y) = (X/Z, Y/Z) of a device is distorted by
+Brown-Conrady, r^2 = x^2 + y^2::
+
+    x' = x (1 + k1 r^2 + k2 r^4 + k3 r^6) + 2 p1 x y + p2 (r^2 + 2 x^2)
+    y' = y (1 + k1 r^2 + k2 r^4 + k3 r^6) + p1 (r^2 + 2 y^2) + 2 p2 x y
+
+and lands on pixel (u, v, 1) = K (x', y', 1). Longer OpenCV distortion vectors (8, 12
+or 14 numbers: rational, thin-prism and tilt terms) are accepted only when the terms
+past k3 are all zero. This module parses and checks shapes; what the numbers mean is
+:mod:`scanqa.calibration.parametric`'s business.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.errors import InputError
+
+#: Suffixes OpenCV's FileStorage reads (optionally gzip-compressed: ``.xml.gz``).
+SUFFIXES = (".xml", ".yml", ".yaml", ".json")
+#: Matrices every calibration must hold, with their shapes.
+MATRICES = {"Kc": (3, 3), "kc": "distortion", "Kp": (3, 3), "kp": "distortion",
+            "Rp": (3, 3), "Tp": (3,)}
+#: Optional integer sizes.
+SIZES = ("frameWidth", "frameHeight", "screenResX", "screenResY")
+#: Optional reprojection errors [px].
+ERRORS = ("cam_error", "proj_error", "stereo_error")
+#: Lengths OpenCV uses for distortion vectors.
+DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
+
+
+@dataclass(frozen=True)
+class OpenCVCalibration:
+    """The contents of an OpenCV camera-projector calibration file.
+
+    Attributes
+    ----------
+    Kc, Kp : (3, 3) float64
+        Camera and projector matrices [px].
+    kc, kp : (5,) float64
+        Distortion k1 k2 p1 p2 k3 [-] (k3 = 0 when the file gives 4 numbers).
+    Rp : (3, 3) float64
+        Rotation camera -> projector [-].
+    Tp : (3,) float64
+        Translation camera -> projector [mm].
+    sizes : dict of str to int
+        Those of ``frameWidth``, ``frameHeight``, ``screenResX``, ``screenResY`` the file
+        holds [px].
+    errors : dict of str to float
+        Those of ``cam_error``, ``proj_error``, ``stereo_error`` it holds [px].
+    source : str
+        The file.
+    """
+
+    Kc: np.ndarray
+    kc: np.ndarray
+    Kp: np.ndarray
+    kp: np.ndarray
+    Rp: np.ndarray
+    Tp: np.ndarray
+    sizes: dict = field(default_factory=dict)
+    errors: dict = field(default_factory=dict)
+    source: str = ""
+
+
+def is_opencv_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` has a FileStorage suffix (``.xml``, ``.yml``, ``.yaml``, ``.json``,
+    optionally followed by ``.gz``)."""
+    name = Path(path).name.lower().removesuffix(".gz")
+    return name.endswith(SUFFIXES)
+
+
+def read_opencv_calibration(path: str | os.PathLike) -> OpenCVCalibration:
+    """Read a camera-projector calibration from an OpenCV FileStorage file.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        ``.xml``, ``.yml``/``.yaml`` or ``.json`` file (module notes list the keys).
+
+    Returns
+    -------
+    OpenCVCalibration
+        Matrices as float64 arrays, sizes and reprojection errors.
+
+    Raises
+    ------
+    InputError
+        When the file is missing or not a FileStorage file, a required matrix is missing,
+        not a matrix, of the wrong shape or not finite, or a size is not a positive whole
+        number.
+    """
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"OpenCV calibration {p} does not exist")
+    if p.stat().st_size == 0:
+        raise InputError(f"OpenCV calibration {p} is empty")
+    import cv2  # deferred: loading OpenCV costs ~0.2 s that other commands need not pay
+
+    try:
+        fs = cv2.FileStorage(str(p), cv2.FILE_STORAGE_READ)
+        opened = fs.isOpened()
+    except (cv2.error, SystemError) as err:
+        raise InputError(f"{p} is not an OpenCV FileStorage file (XML, YAML or JSON as "
+                         f"written by cv::FileStorage): {_first_line(err)}") from None
+    if not opened:
+        raise InputError(f"cannot open {p} as an OpenCV FileStorage file")
+    try:
+        return _read_nodes(fs, p)
+    finally:
+        fs.release()
+
+
+def _first_line(err: Exception) -> str:
+    """The informative part of an OpenCV exception ("Parsing error: f.xml(3): ...")."""
+    text = str(err.__cause__ or err).strip().splitlines()
+    line = text[-1] if text else type(err).__name__
+    found = re.search(r"error: \(-?\d+:([^)]*)\) (.*)$", line)
+    if not found:
+        return line
+    detail = re.sub(r"^\w+ in function '(.*)'$", r"\1", found.group(2))
+    return f"{found.group(1)}: {detail}"
+
+
+def _read_nodes(fs, p: Path) -> OpenCVCalibration:
+    """Every key of the module notes from an open FileStorage."""
+    mats = {name: _matrix(fs, p, name, shape) for name, shape in MATRICES.items()}
+    sizes = {name: _size(fs, p, name) for name in SIZES}
+    errors = {name: _real(fs, p, name) for name in ERRORS}
+    return OpenCVCalibration(**mats, sizes={k: v for k, v in sizes.items() if v is not None},
+                             errors={k: v for k, v in errors.items() if v is not None},
+                             source=str(p))
+
+
+def _matrix(fs, p: Path, name: str, shape) -> np.ndarray:
+    """A required matrix node as float64 of ``shape`` (or a distortion vector)."""
+    import cv2
+
+    node = fs.getNode(name)
+    if node.empty():
+        raise InputError(f"{p}: matrix {name!r} is missing (a camera-projector calibration "
+                         f"needs {', '.join(MATRICES)})")
+    try:
+        mat = node.mat() if node.isMap() else None
+    except cv2.error as err:
+        raise InputError(f"{p}: {name!r} is not a readable OpenCV matrix "
+                         f"({_first_line(err)})") from None
+    if mat is None:
+        raise InputError(f"{p}: {name!r} is not an OpenCV matrix (expected a node of "
+                         "type opencv-matrix with rows, cols, dt and data)")
+    mat = np.asarray(mat, dtype=float)
+    if shape == "distortion":
+        return _distortion(p, name, mat)
+    if mat.size != int(np.prod(shape)) or (len(shape) == 2 and mat.shape != shape):
+        want = " x ".join(map(str, shape)) if len(shape) == 2 else f"{shape[0]} numbers"
+        raise InputError(f"{p}: {name!r} is {' x '.join(map(str, mat.shape))}, expected "
+                         f"{want}")
+    if not np.isfinite(mat).all():
+        raise InputError(f"{p}: {name!r} holds NaN or infinite values")
+    return mat.reshape(shape)
+
+
+def _distortion(p: Path, name: str, mat: np.ndarray) -> np.ndarray:
+    """A distortion vector (a row or a column) as k1 k2 p1 p2 k3."""
+    if (mat.ndim == 2 and min(mat.shape) != 1) or mat.size not in DISTORTION_LENGTHS:
+        raise InputError(f"{p}: {name!r} is {' x '.join(map(str, mat.shape))}, expected a "
+                         f"row or column of {', '.join(map(str, DISTORTION_LENGTHS))} "
+                         "distortion coefficients (k1 k2 p1 p2 [k3 ...])")
+    k = mat.ravel()
+    if not np.isfinite(k).all():
+        raise InputError(f"{p}: {name!r} holds NaN or infinite values")
+    if np.any(k[5:] != 0):
+        raise InputError(f"{p}: {name!r} has rational, thin-prism or tilt terms ({k[5:]}) "
+                         "that scanqa does not model: recalibrate with the 5-coefficient "
+                         "model k1 k2 p1 p2 k3")
+    return np.pad(k[:5], (0, 5 - min(k.size, 5)))
+
+
+def _size(fs, p: Path, name: str) -> int | None:
+    """An optional positive integer node, or None."""
+    node = fs.getNode(name)
+    if node.empty():
+        return None
+    value = node.real() if (node.isInt() or node.isReal()) else float("nan")
+    if not (np.isfinite(value) and value >= 1 and float(value).is_integer()):
+        raise InputError(f"{p}: {name} must be a positive whole number of pixels, got "
+                         f"{_show(node)}")
+    return int(value)
+
+
+def _real(fs, p: Path, name: str) -> float | None:
+    """An optional finite real node, or None."""
+    node = fs.getNode(name)
+    if node.empty():
+        return None
+    if not (node.isInt() or node.isReal()) or not np.isfinite(node.real()):
+        raise InputError(f"{p}: {name} must be a number [px], got {_show(node)}")
+    return float(node.real())
+
+
+def _show(node) -> str:
+    """A node's value for messages."""
+    if node.isString():
+        return repr(node.string())
+    if node.isInt() or node.isReal():
+        return f"{node.real():g}"
+    return "a map or sequence"
