@@ -141,6 +141,17 @@ def scanner_config_text(cal: ParametricCalibration | None = None,
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
+def placeholders(text: str) -> list[str]:
+    """Keys ("section.key") of a config text that still hold the placeholder."""
+    section, keys = "", []
+    for line in text.splitlines():
+        if line.startswith("["):
+            section = line.strip("[] ")
+        elif line.endswith(f'= "{PLACEHOLDER}"'):
+            keys.append(f"{section}.{line.split('=')[0].strip()}")
+    return keys
+
+
 def _value(value: object) -> str:
     """A TOML value: numbers with enough digits, lists, or the placeholder."""
     if value is None:

@@ -10,7 +10,7 @@ from scanqa.calibration.parametric import load_opencv_calibration
 from scanqa.cli.common import float_list
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, write_text
-from scanqa.onboarding import scanner_config_text
+from scanqa.onboarding import placeholders, scanner_config_text
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -58,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
                                args.projector_focus_mm, args.periods,
                                args.name or Path(out).stem)
     write_text(out, text)
-    left = text.count('"MEASURE"')
-    print(f"{out}: scanner config written" + (f"; replace the {left} \"MEASURE\" placeholders "
-                                              "before use" if left else ""))
+    left = placeholders(text)
+    print(f"{out}: scanner config written" + (
+        f"; replace the {len(left)} \"MEASURE\" placeholders before use: {', '.join(left)}"
+        if left else ""))
     return 0
