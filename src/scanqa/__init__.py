@@ -11,7 +11,9 @@ The three jobs, from Python
        table, build = scanqa.calibrate("sample_data/calibration_sweep/sweep.toml", config)
        table.save("table.npz")
 
-2. Annotated point cloud - a scan and a calibration to points with predicted sigmas::
+2. Annotated point cloud - a scan and a calibration (the table, or an OpenCV camera-projector
+   calibration: ``scanqa.load_calibration("calibration.xml", config)``) to points with
+   predicted sigmas::
 
        scan = scanqa.decode("sample_data/gauge_blocks/p000_r0")   # or a phase.npz
        cloud = scanqa.annotate(scan, table, config)
@@ -33,7 +35,9 @@ from __future__ import annotations
 
 from scanqa._version import __version__
 from scanqa.annotation import annotate
+from scanqa.calibration.base import Calibration, load_calibration
 from scanqa.calibration.build import BuildReport, build_table
+from scanqa.calibration.parametric import ParametricCalibration, load_opencv_calibration
 from scanqa.calibration.sweep import calibrate, load_sweep
 from scanqa.calibration.table import CalibrationTable, load_table, save_table
 from scanqa.characterization import characterize_sweeps as characterize
@@ -50,10 +54,11 @@ from scanqa.qa.layout import Layout, load_layout
 from scanqa.report.qa import write_outputs as write_report
 
 __all__ = [
-    "AnnotatedCloud", "BuildReport", "CalibrationTable", "ConfigError", "InputError", "Layout",
-    "PatternDescription", "PhaseMap", "QAResult", "RangeError", "ScanQAError",
-    "ScannerConfig", "__version__", "annotate", "build_table", "calibrate", "characterize",
-    "decode", "decode_images", "detect_blocks", "load_config", "load_layout",
+    "AnnotatedCloud", "BuildReport", "Calibration", "CalibrationTable", "ConfigError",
+    "InputError", "Layout", "ParametricCalibration", "PatternDescription", "PhaseMap",
+    "QAResult", "RangeError", "ScanQAError", "ScannerConfig", "__version__", "annotate",
+    "build_table", "calibrate", "characterize", "decode", "decode_images", "detect_blocks",
+    "load_calibration", "load_config", "load_layout", "load_opencv_calibration",
     "load_patterns", "load_phase_map", "load_sweep", "load_table", "predict", "read_cloud",
     "run_qa", "save_phase_map", "save_table", "write_cloud", "write_report",
 ]
