@@ -312,6 +312,7 @@ def test_sizes_from_file_or_caller():
     ({"translation": np.zeros(3)}, r"Tp must be a non-zero translation"),
     ({"orientation": "diagonal"}, r"orientation must be one of"),
     ({"depth_range_mm": (500.0, 400.0)}, r"0 <= near < far"),
+    ({"depth_range_mm": (500.0,)}, r"0 <= near < far"),
     ({"camera": Lens(np.eye(3) * -1, np.zeros(5), 4, 3)}, r"Kc must be a camera matrix"),
     ({"projector": Lens(np.eye(3), np.zeros(4), 4, 3)}, r"kp must be 5 finite numbers"),
 ])

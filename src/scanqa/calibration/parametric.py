@@ -90,6 +90,10 @@ class Lens:
     width_px: int
     height_px: int
 
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "matrix", np.asarray(self.matrix, dtype=float))
+        object.__setattr__(self, "distortion", np.asarray(self.distortion, dtype=float))
+
     def distort(self, x: np.ndarray, y: np.ndarray, jacobian: bool = False) -> tuple:
         """Distorted normalised coordinates (x', y') of (x, y) [-] (:mod:`scanqa.io.opencv`
         gives the formula); with ``jacobian`` also dx'/dx, dx'/dy (= dy'/dx), dy'/dy."""
@@ -187,6 +191,11 @@ class ParametricCalibration:
     source: str = ""
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=float))
+        object.__setattr__(self, "translation",
+                           np.asarray(self.translation, dtype=float).ravel())
+        object.__setattr__(self, "depth_range_mm", tuple(float(z) for z in
+                                                         self.depth_range_mm))
         check_calibration(self)
 
     # -- the interface of scanqa.calibration.base.Calibration ----------------------------
@@ -493,8 +502,8 @@ def check_calibration(cal: ParametricCalibration) -> None:
             raise InputError(f"{where}: the {name} size must be >= 1 px, got "
                              f"{lens.width_px} x {lens.height_px}")
     _check_pose(cal, where)
-    lo, hi = cal.depth_range_mm
-    if not (0 <= lo < hi):
+    lo, hi = (cal.depth_range_mm + (math.nan, math.nan))[:2]
+    if len(cal.depth_range_mm) != 2 or not (0 <= lo < hi):
         raise InputError(f"{where}: the depth range must satisfy 0 <= near < far [mm], got "
                          f"{lo!r}, {hi!r}")
 
