@@ -3,21 +3,21 @@
 The layout is the one structured-light tools built on OpenCV's stereo calibration write
 (SLStudio's ``calibration.xml`` is one). Keys read, all at the top level:
 
-=============================  ========  ===================================================
-key                            required  meaning
-=============================  ========  ===================================================
-``Kc``                         yes       camera matrix, 3 x 3 [camera px]
-``kc``                         yes       camera distortion k1 k2 p1 p2 [k3] (4 or 5 numbers,
-                                         a row or a column) [-]
-``Kp``                         yes       projector matrix, 3 x 3 [projector px]
-``kp``                         yes       projector distortion, as ``kc`` [-]
-``Rp``                         yes       rotation, 3 x 3 [-]
-``Tp``                         yes       translation, 3 numbers [mm]
-``frameWidth``, ``frameHeight``  no      camera image size [camera px]
-``screenResX``, ``screenResY``   no      projector panel size [projector px]
-``cam_error``, ``proj_error``,   no      RMS reprojection errors of the calibration [px]
-``stereo_error``
-=============================  ========  ===================================================
+=================================  ========  ===============================================
+key                                required  meaning
+=================================  ========  ===============================================
+``Kc``                             yes       camera matrix, 3 x 3 [camera px]
+``kc``                             yes       camera distortion k1 k2 p1 p2 [k3] (4 or 5
+                                             numbers, a row or a column) [-]
+``Kp``                             yes       projector matrix, 3 x 3 [projector px]
+``kp``                             yes       projector distortion, as ``kc`` [-]
+``Rp``                             yes       rotation, 3 x 3 [-]
+``Tp``                             yes       translation, 3 numbers [mm]
+``frameWidth``, ``frameHeight``    no        camera image size [camera px]
+``screenResX``, ``screenResY``     no        projector panel size [projector px]
+``cam_error``, ``proj_error``,     no        RMS reprojection errors of the calibration
+``stereo_error``                             [px]
+=================================  ========  ===============================================
 
 Conventions (OpenCV's): ``Rp``, ``Tp`` map camera coordinates to projector coordinates,
 X_p = Rp X_c + Tp [mm], so the projector's centre in the camera frame is -Rp^T Tp. A
