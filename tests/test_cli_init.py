@@ -94,6 +94,17 @@ def test_init_from_a_calibration_agrees_with_it(rig, tmp_path):
     assert_allclose(config.projector.focus_mm, np.linalg.norm(look - pos), rtol=1e-6)
 
 
+def test_init_writes_the_mode_the_umask_gives(tmp_path):
+    import os
+
+    mask = os.umask(0o027)
+    try:
+        assert main(["init", str(tmp_path / "s.toml")]) == 0
+    finally:
+        os.umask(mask)
+    assert (tmp_path / "s.toml").stat().st_mode & 0o777 == 0o640
+
+
 def test_init_refuses_to_overwrite_and_checks_its_inputs(rig, tmp_path, capsys):
     _, _, path = rig
     out = tmp_path / "s.toml"
