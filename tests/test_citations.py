@@ -4,6 +4,7 @@ the repository."""
 
 from __future__ import annotations
 
+import itertools
 import re
 
 from .conftest import ROOT
@@ -18,7 +19,7 @@ CITE = re.compile(r"docs/([A-Za-z_]+)\.rst(?:,? ?\(?[\"']([^\"']+)[\"']\)?)?")
 def _sections(rst: str) -> set[str]:
     """Section titles of a reStructuredText page (a line underlined by = - ~ ^)."""
     lines = rst.splitlines()
-    return {a.strip() for a, b in zip(lines, lines[1:], strict=False)
+    return {a.strip() for a, b in itertools.pairwise(lines)
             if a.strip() and re.fullmatch(r"([=\-~^\"'])\1{2,}", b.strip())}
 
 
