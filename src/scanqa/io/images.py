@@ -1,10 +1,12 @@
-"""Camera images: single-channel PNG/TIFF (8 or 16 bit) and .npy/.npz stacks.
+"""Camera images: any single-channel image file Pillow reads, and .npy/.npz stacks.
 
-Pillow (installed with matplotlib) reads and writes the image files, so no extra
-dependency is needed. Images are returned in their stored integer type (``uint8`` or
-``uint16``) so that the decoder knows they are quantised; stacks keep their dtype.
-Colour images are refused rather than silently averaged: a phase decoder must know
-which channel carries the fringes.
+Pillow (installed with matplotlib) reads the image files - PNG, TIFF, BMP, JPEG, PGM and
+whatever else it knows - so no extra dependency is needed. Images are returned in their
+stored integer type (``uint8`` or ``uint16``) so that the decoder knows they are
+quantised; stacks keep their dtype. Colour images are refused unless a channel is named:
+a phase decoder must know which channel carries the fringes (averaging the channels of a
+Bayer camera mixes three differently filtered signals). JPEG files are read, but
+:func:`is_lossy` says so: lossy compression biases the phase, and callers warn.
 """
 
 from __future__ import annotations
@@ -17,21 +19,30 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
 
-#: File suffixes read by :func:`read_image` (lower case).
-IMAGE_SUFFIXES = (".png", ".tif", ".tiff")
+#: File suffixes written by :func:`write_image` (lower case).
+IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp")
 #: File suffixes read by :func:`read_stack`.
 STACK_SUFFIXES = (".npy", ".npz")
+#: Channel names accepted by :func:`read_image` for colour images.
+CHANNELS = ("red", "green", "blue")
+#: Pillow formats whose compression loses information.
+LOSSY_FORMATS = ("JPEG", "MPO", "WEBP", "JPEG2000")
 
-_PIL_MODES = {"L": np.uint8, "I;16": np.uint16, "I;16B": np.uint16, "I;16L": np.uint16}
+_PIL_MODES = {"L": np.uint8, "I;16": np.uint16, "I;16B": np.uint16, "I;16L": np.uint16,
+              "I;16N": np.uint16}
+_COLOUR_MODES = ("RGB", "RGBA", "RGBX", "CMYK", "YCbCr", "LAB", "HSV", "P", "PA", "LA")
 
 
-def read_image(path: str | os.PathLike) -> np.ndarray:
-    """Read one single-channel 8- or 16-bit PNG or TIFF image.
+def read_image(path: str | os.PathLike, channel: str = "") -> np.ndarray:
+    """Read one 8- or 16-bit grey image (or one channel of a colour image).
 
     Parameters
     ----------
     path : str or PathLike
-        The image file.
+        The image file, in any format Pillow reads (PNG, TIFF, BMP, JPEG, ...).
+    channel : str
+        "red", "green" or "blue" to take one channel of a colour image; empty for grey
+        images (a colour image then raises).
 
     Returns
     -------
@@ -41,38 +52,78 @@ def read_image(path: str | os.PathLike) -> np.ndarray:
     Raises
     ------
     InputError
-        When the file is missing, unreadable, of another suffix, or not single-channel
-        8/16-bit.
+        When the file is missing or unreadable, is a stack, is a colour image and no
+        channel is named (or a grey image and one is), or holds more than 16 bits.
     """
     from PIL import Image, UnidentifiedImageError
 
     p = Path(path)
-    if p.suffix.lower() not in IMAGE_SUFFIXES:
-        raise InputError(f"cannot read image {p}: suffix {p.suffix!r} is not one of "
-                         f"{', '.join(IMAGE_SUFFIXES)} (use a .npy/.npz stack for other data)")
+    if p.suffix.lower() in STACK_SUFFIXES:
+        raise InputError(f"cannot read image {p}: {p.suffix} files are stacks (name them "
+                         "with stack = ... instead of files = [...])")
     try:
         with Image.open(p) as img:
             mode = img.mode
-            data = np.array(img) if mode in _PIL_MODES or mode in ("I", "1") else None
+            data = _pil_array(img, mode, channel, p)
     except FileNotFoundError:
         raise InputError(f"image file {p} does not exist (check the files list)") from None
-    except (OSError, UnidentifiedImageError, ValueError) as err:
-        raise InputError(f"cannot read image {p}: {err} (is it a valid PNG/TIFF?)") from None
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as err:
+        raise InputError(f"cannot read image {p}: {err} (is it an image file Pillow "
+                         "reads, e.g. PNG, TIFF, BMP?)") from None
     return _checked_image(p, mode, data)
+
+
+def is_lossy(path: str | os.PathLike) -> bool:
+    """True when the image file uses lossy compression (JPEG and the like).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        An image file that :func:`read_image` reads.
+    """
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        with Image.open(path) as img:
+            return img.format in LOSSY_FORMATS
+    except (OSError, UnidentifiedImageError, ValueError):
+        return False
+
+
+def _pil_array(img, mode: str, channel: str, path: Path) -> np.ndarray | None:
+    """Pixel array of a Pillow image: grey as stored, colour only by channel."""
+    if mode in _COLOUR_MODES:
+        if not channel:
+            raise InputError(
+                f"image {path} is a colour image (mode {mode!r}); name the channel that "
+                "carries the fringes with channel = \"red\", \"green\" or \"blue\" in the "
+                "[decode] table of patterns.toml (or convert the images to grey)")
+        if channel not in CHANNELS:
+            raise InputError(f"channel must be one of {', '.join(CHANNELS)}, got {channel!r}")
+        rgb = img.convert("RGB")
+        return np.array(rgb)[..., CHANNELS.index(channel)]
+    if channel:
+        raise InputError(f"image {path} is a grey image (mode {mode!r}) but channel = "
+                         f"{channel!r} is set; remove channel from the [decode] table")
+    if mode in _PIL_MODES or mode in ("I", "1", "F"):
+        return np.array(img)
+    return None
 
 
 def _checked_image(path: Path, mode: str, data: np.ndarray | None) -> np.ndarray:
     """Map a decoded Pillow image to uint8/uint16 or raise naming the mode."""
     if data is None or data.ndim != 2:
-        raise InputError(f"image {path} has mode {mode!r}; expected a single-channel 8- or "
-                         "16-bit grayscale image (convert colour images to grayscale first)")
+        raise InputError(f"image {path} has mode {mode!r}; expected a grey 8- or 16-bit "
+                         "image (or a colour image with a named channel)")
     if mode == "1":
         return data.astype(np.uint8)
-    if mode == "I":  # 32-bit integer container that Pillow uses for some 16-bit files
-        if data.min() < 0 or data.max() > 65535:
-            raise InputError(f"image {path} holds values outside 0..65535; expected 8/16 bit")
+    if mode in ("I", "F"):  # 32-bit containers Pillow uses for some 16-bit files
+        if not np.array_equal(data, np.rint(data)) or data.min() < 0 or data.max() > 65535:
+            raise InputError(f"image {path} holds values outside 0..65535 or fractions "
+                             f"(mode {mode!r}); expected 8 to 16 bit (use a .npy/.npz "
+                             "stack for float data)")
         return data.astype(np.uint16)
-    return data.astype(_PIL_MODES[mode], copy=False)
+    return data.astype(_PIL_MODES.get(mode, np.uint8), copy=False)
 
 
 def read_stack(path: str | os.PathLike, key: str = "") -> np.ndarray:
@@ -137,14 +188,14 @@ def _checked_stack(path: Path, key: str, data: np.ndarray) -> np.ndarray:
 
 
 def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
-    """Write a single-channel uint8/uint16 image as PNG or TIFF, atomically.
+    """Write a single-channel uint8/uint16 image as PNG, TIFF or BMP, atomically.
 
     Parameters
     ----------
     path : str or PathLike
-        Output file; the suffix (.png, .tif, .tiff) selects the format.
+        Output file; the suffix (.png, .tif, .tiff, .bmp) selects the format.
     image : (H, W) uint8 or uint16
-        Pixel values [DN].
+        Pixel values [DN]; BMP takes uint8 only.
 
     Returns
     -------
@@ -155,15 +206,17 @@ def write_image(path: str | os.PathLike, image: np.ndarray) -> Path:
 
     p = Path(path)
     arr = np.asarray(image)
-    if p.suffix.lower() not in IMAGE_SUFFIXES:
+    suffix = p.suffix.lower()
+    if suffix not in IMAGE_SUFFIXES:
         raise InputError(f"cannot write image {p}: suffix must be one of {IMAGE_SUFFIXES}")
-    if arr.ndim != 2 or arr.dtype not in (np.uint8, np.uint16):
-        raise InputError(f"cannot write image {p}: need a 2-D uint8 or uint16 array, got "
-                         f"shape {arr.shape} dtype {arr.dtype} (use a .npy/.npz stack for "
-                         "float data)")
+    if arr.ndim != 2 or arr.dtype not in (np.uint8, np.uint16) or (
+            suffix == ".bmp" and arr.dtype != np.uint8):
+        raise InputError(f"cannot write image {p}: need a 2-D uint8 (BMP) or uint8/uint16 "
+                         f"(PNG, TIFF) array, got shape {arr.shape} dtype {arr.dtype} (use "
+                         "a .npy/.npz stack for float data)")
     # zlib level 1: 5x faster than Pillow's default 6 for 3 % larger files (16-bit, 5 MP)
-    options = {"format": "PNG", "compress_level": 1} if p.suffix.lower() == ".png" \
-        else {"format": "TIFF"}
+    options = {".png": {"format": "PNG", "compress_level": 1}, ".bmp": {"format": "BMP"}
+               }.get(suffix, {"format": "TIFF"})
     with atomic_path(p) as tmp:
         Image.fromarray(np.ascontiguousarray(arr)).save(tmp, **options)
     return p
