@@ -29,9 +29,13 @@ def test_decode_writes_the_map_and_prints_a_summary(tmp_path, capsys):
     assert main(["decode", str(tmp_path / "scan"), "--out", str(out)]) == 0
     captured = capsys.readouterr()
     lines = captured.out.strip().splitlines()
-    assert len(lines) == 1
     assert lines[0].startswith("900 of 1000 pixels valid (90.0 %); masked: saturated 100, "
                                "low_modulation 0, inconsistent 0, out_of_range 0 -> ")
+    # the sensor gives no gain and read noise: the summary says where the noise came from
+    assert lines[1].startswith("noise: estimated from the images: residuals of the N-step "
+                               "fits (p800, p40)")
+    assert lines[2].startswith("x_p: finest set 'p40' alone (period 40 px)")
+    assert lines[3].startswith("period disagreement: 'p800' - x_p median")
     assert "scanqa decode: read 8 images of 50 x 20 px (uint16)" in captured.err
     pm = load_phase_map(out)
     np.testing.assert_allclose(pm.xp[:, 5:], xp[:, 5:], atol=0.01)

@@ -12,10 +12,9 @@ from scanqa.decoding.coding import (
     PatternDescription,
     PhaseSet,
     SensorModel,
-    load_patterns,
-    patterns_from_dict,
 )
 from scanqa.decoding.decoder import decode_pattern_dir
+from scanqa.decoding.parsing import load_patterns, patterns_from_dict
 from scanqa.decoding.patternset import (
     ideal_patterns,
     projector_patterns,
@@ -142,7 +141,8 @@ def test_projector_patterns_follow_the_orientation():
     (_HEADER + _SET + "perod_px = 5\n", r"unknown key set\[0\]\.perod_px .*patterns\.toml"),
     (_HEADER + "[sensor]\ngain = 2\n" + _SET, r"unknown key sensor\.gain "),
     (_HEADER + "[thresholds]\nmin_mod = 2\n" + _SET, r"unknown key thresholds\.min_mod "),
-    (_HEADER.replace("/1", "/2") + _SET, "format must be 'scanqa-patterns/1'"),
+    (_HEADER.replace("/1", "/3") + _SET,
+     "format must be one of 'scanqa-patterns/1', 'scanqa-patterns/2'"),
     (_HEADER + _SET.replace('"c.png"]', '"c.png", "d.png"]'),
      r"wrong count of files in set\[0\] \('phase0'\): got 4, need 3 \(steps = 3\)"),
     (_HEADER + _SET.replace("steps = 3", "steps = 2"), "steps must be a whole number >= 3"),
@@ -171,10 +171,15 @@ def test_bad_patterns_toml_gives_one_clear_error(tmp_path, text, match):
 
 
 def test_gray_bits_must_cover_the_range(tmp_path):
+    # 4 bits were captured (4 files): the fixes offered are the width and the cell, never
+    # "use bits = 6", which would need frames that do not exist
     text = (_HEADER + _SET.replace("640.0", "32.0")
             + '[[set]]\nkind = "gray"\nbits = 4\nfiles = ["1", "2", "3", "4"]\n')
-    with pytest.raises(ConfigError, match=r"bits = 4 codes 256 px .* use bits = 6"):
+    with pytest.raises(ConfigError, match=r"'gray1' codes 16 cells of 16 px = 256 px "
+                                          r"\(bits = 4, 4 frames\) < projector_width_px = "
+                                          r"640; check projector_width_px .* cell_px") as err:
         load_patterns(_toml(tmp_path, text))
+    assert "use bits" not in str(err.value)
 
 
 def test_gray_must_order_an_existing_coarsest_set(tmp_path):
@@ -244,11 +249,11 @@ def test_colour_image_is_refused(tmp_path):
     from PIL import Image
 
     Image.fromarray(np.zeros((4, 5, 3), np.uint8)).save(tmp_path / "rgb.png")
-    with pytest.raises(InputError, match=r"mode 'RGB'.*grayscale"):
+    with pytest.raises(InputError, match=r"colour image \(mode 'RGB'\); name the channel"):
         read_image(tmp_path / "rgb.png")
 
 
 def test_writer_rejects_float_png(tmp_path):
     desc = _desc()
-    with pytest.raises(InputError, match="need a 2-D uint8 or uint16 array"):
+    with pytest.raises(InputError, match=r"need a 2-D uint8 .* array"):
         write_pattern_set(tmp_path, desc, [im.astype(float) for im in _images(desc)])

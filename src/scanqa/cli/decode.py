@@ -4,19 +4,35 @@ from __future__ import annotations
 
 import argparse
 import sys
+from dataclasses import replace
 
 from scanqa.cli.common import output_path
-from scanqa.decoding.decoder import decode_pattern_dir
+from scanqa.decoding.decoder import (
+    decode_images,
+    load_pattern_dir,
+    measure_response,
+    named_response,
+)
+from scanqa.decoding.patternset import lossy_image_note
 from scanqa.decoding.phasemap import save_phase_map
+from scanqa.decoding.response import save_response
 
 _EPILOG = """\
 PATTERN_DIR holds the camera images and a patterns.toml describing them
-(docs/formats.rst, "patterns.toml"). The output phase.npz holds xp [projector px],
-modulation and offset [DN], mask (0 valid, 1 saturated, 2 low_modulation,
-3 inconsistent, 4 out_of_range) and sigma_xp [projector px].
+(docs/codings.rst; 'scanqa patterns' writes one). The output phase.npz holds xp
+[projector px], modulation and offset [DN], mask (0 valid, 1 saturated,
+2 low_modulation, 3 inconsistent, 4 out_of_range) and sigma_xp [projector px].
+The summary says where the noise model came from, how the periods disagree, and -
+when most pixels are masked - why, and which key would change it.
 
-example:
+Projector nonlinearity (gamma): scan a flat once with --measure-response FILE to
+write its phase-error tables; decode later scans with --response FILE (or name the
+file in patterns.toml, [decode] response = "FILE").
+
+examples:
   scanqa decode scans/plane_010 --out scans/plane_010/phase.npz
+  scanqa decode scans/flat --out flat.npz --measure-response projector_response.toml
+  scanqa decode scans/part --out part.npz --response projector_response.toml
 """
 
 
@@ -24,24 +40,54 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``decode`` subcommand."""
     p = sub.add_parser("decode", formatter_class=argparse.RawDescriptionHelpFormatter,
                        help="decode fringe images into x_p, modulation, mask and sigma_xp",
-                       description="Decode a phase-shift pattern set (N-step phase "
-                                   "shifting, multi-period or Gray-code unwrapping).",
+                       description="Decode a structured-light pattern set (N-step phase "
+                                   "shifting, multi-period, heterodyne or Gray-code "
+                                   "unwrapping, or a Gray code alone).",
                        epilog=_EPILOG)
     p.add_argument("pattern_dir", metavar="PATTERN_DIR",
                    help="folder with patterns.toml and the images (or the toml itself)")
     p.add_argument("--out", required=True, metavar="FILE.npz",
                    help="phase map file to write (atomically)")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--response", metavar="FILE.toml", default=None,
+                       help="projector response (phase-error tables) to correct with; "
+                            "overrides [decode] response of patterns.toml")
+    group.add_argument("--measure-response", metavar="FILE.toml", default=None,
+                       help="measure the projector response on this scan (a flat) and "
+                            "write it; the phase map is then decoded with it")
+    p.add_argument("--fuse-periods", action="store_true",
+                   help="fuse every period into x_p by inverse variance (default: the "
+                        "finest period alone; systematic differences bias a fusion)")
     p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     p.set_defaults(func=run)
 
 
 def run(args: argparse.Namespace) -> int:
-    """Load, decode, write, and print the one-line summary."""
+    """Load, (measure,) decode, write, and print the summary."""
     out = output_path(args.out)
+    measure_out = output_path(args.measure_response)
     progress = None if args.quiet else _progress
-    phase_map = decode_pattern_dir(args.pattern_dir, progress=progress)
+    desc, stacks = load_pattern_dir(args.pattern_dir, progress)
+    if args.fuse_periods:
+        desc = replace(desc, options=replace(desc.options, fuse_periods=True))
+    note = lossy_image_note(desc)
+    if measure_out is not None:
+        response, _ = measure_response(desc, stacks, f"measured by scanqa decode on "
+                                                     f"{desc.source}")
+        response = replace(response, source=str(measure_out))
+    else:
+        response = named_response(desc, args.response)
+    phase_map = decode_images(desc, stacks, progress=progress, notes=[note] if note else [],
+                              response=response)
+    if measure_out is not None:
+        save_response(measure_out, response)
+        for table in response.tables:
+            print(f"response: {table.period_px:g} px x {table.steps} steps: phase error "
+                  f"rms {table.rms_rad:.4f} rad = {table.rms_rad * table.period_px / 6.2832:.3f}"
+                  f" px -> {measure_out}")
     save_phase_map(out, phase_map)
-    print(f"{phase_map.summary()} -> {out}")
+    first, *rest = phase_map.summary().splitlines()
+    print("\n".join([f"{first} -> {out}", *rest]))
     return 0
 
 

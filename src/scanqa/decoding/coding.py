@@ -1,38 +1,47 @@
 """Pattern codings: what was projected, as described by a ``patterns.toml``.
 
 A pattern folder holds the camera images of one scan and a ``patterns.toml`` that says
-what was projected (docs/formats.rst documents every key). This module holds the
-decoder's own types - the coding (:class:`PatternDescription` with its
-:class:`PhaseSet` and :class:`GrayCodeSet` entries), the camera noise model
-(:class:`SensorModel`) and the decision thresholds (:class:`Thresholds`) - and
-validates a parsed file into them; :mod:`scanqa.io.patterns` reads and writes the file
-itself, :mod:`scanqa.decoding.patternset` the images.
+what was projected (docs/codings.rst shows every supported layout). This module holds
+the decoder's own types - the coding (:class:`PatternDescription` with its
+:class:`PhaseSet`, :class:`GrayCodeSet` and :class:`ReferenceSet` entries), the camera
+noise model (:class:`SensorModel`), the decision thresholds (:class:`Thresholds`) and
+the decoding options (:class:`DecodeOptions`) - and checks that a coding can be
+decoded; :mod:`scanqa.decoding.parsing` validates a parsed file into them,
+:mod:`scanqa.io.patterns` reads and writes the file itself.
 
-Gray code convention: a Gray-code set with ``bits`` bits orders the phase set named by
-``orders`` (by default the coarsest) of period P. It codes the half-period index
-``h = floor(2 x / P)`` (clipped to ``0 .. 2**bits - 1``) as the reflected binary code
-``g = h ^ (h >> 1)``; frame b (b = 0 is the most significant bit) is white (1) where
-bit ``bits - 1 - b`` of g is set. With ``inverse = true`` the files list the ``bits``
-patterns first and then their inverses in the same order. Stripes of half a period make
-the fringe order robust to a Gray-code error of one stripe at stripe edges.
+Gray code convention: a Gray-code set of ``bits`` bits and cells of ``cell_px``
+projector columns codes the cell index ``c = floor((x + 1/2) / cell_px)`` of the
+projector coordinate x (pixel centres at whole x, so projector column j belongs to
+cell ``floor(j / cell_px)``) as the reflected binary code ``g = c ^ (c >> 1)``; frame b
+(b = 0 is the most significant bit) is white where bit ``bits - 1 - b`` of g is set.
+Inverse frames follow all bits ("grouped") or each bit ("interleaved"). Without
+``cell_px`` the cells are half the period of the set the code orders (stripes of half a
+period make the fringe order robust to a Gray-code error of one stripe at its edges).
 """
 
 from __future__ import annotations
 
-import itertools
 import math
-import os
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from scanqa.decoding import chain
 from scanqa.errors import ConfigError
-from scanqa.io.patterns import FORMAT, read_patterns_file
+from scanqa.io.patterns import FORMAT
 
 #: Fringe orientations: "vertical" fringes code x_p (columns), "horizontal" y_p (rows).
 ORIENTATIONS = ("vertical", "horizontal")
+#: Layouts of a Gray code's inverse frames.
+INVERSE_LAYOUTS = ("none", "grouped", "interleaved")
+#: How a Gray code's bits are thresholded.
+GRAY_THRESHOLDS = ("auto", "inverse", "reference", "offset")
+#: Levels of a reference set's frames.
+REFERENCE_LEVELS = ("white", "black")
+#: Where the decoder takes the camera noise from.
+NOISE_SOURCES = ("auto", "sensor", "data")
 
 
 @dataclass(frozen=True)
@@ -44,10 +53,12 @@ class SensorModel:
     bit_depth : int or None
         Bits per sample [bit]; None takes it from the images (8 for 8-bit files, 16 for
         16-bit files and float stacks).
-    gain_e_per_dn : float
+    gain_e_per_dn : float or None
         Conversion gain [e-/DN]; shot-noise variance is (I - black) / gain [DN^2].
-    read_noise_e : float
-        Read (dark) noise [e-].
+        None (with ``read_noise_e`` None): the decoder estimates the noise from the
+        images (:mod:`scanqa.decoding.noise`).
+    read_noise_e : float or None
+        Read (dark) noise [e-]; None as for ``gain_e_per_dn``.
     saturation_dn : float or None
         Level at or above which a sample is saturated [DN]; None means
         ``2**bit_depth - 1``.
@@ -56,21 +67,31 @@ class SensorModel:
     """
 
     bit_depth: int | None = None
-    gain_e_per_dn: float = 4.0
-    read_noise_e: float = 8.0
+    gain_e_per_dn: float | None = None
+    read_noise_e: float | None = None
     saturation_dn: float | None = None
     black_level_dn: float = 0.0
 
     def __post_init__(self) -> None:
         _require(self.bit_depth is None or 1 <= self.bit_depth <= 32,
                  "sensor.bit_depth", self.bit_depth, "a whole number in 1..32 [bit]")
-        _require(self.gain_e_per_dn > 0, "sensor.gain_e_per_dn", self.gain_e_per_dn,
-                 "> 0 [e-/DN]")
-        _require(self.read_noise_e >= 0, "sensor.read_noise_e", self.read_noise_e, ">= 0 [e-]")
+        _require(self.gain_e_per_dn is None or self.gain_e_per_dn > 0,
+                 "sensor.gain_e_per_dn", self.gain_e_per_dn, "> 0 [e-/DN]")
+        _require(self.read_noise_e is None or self.read_noise_e >= 0, "sensor.read_noise_e",
+                 self.read_noise_e, ">= 0 [e-]")
+        _require((self.gain_e_per_dn is None) == (self.read_noise_e is None),
+                 "sensor.gain_e_per_dn and sensor.read_noise_e",
+                 (self.gain_e_per_dn, self.read_noise_e),
+                 "both given (the camera's noise) or both left out (noise from the data)")
         _require(self.saturation_dn is None or self.saturation_dn > 0,
                  "sensor.saturation_dn", self.saturation_dn, "> 0 [DN]")
         _require(self.black_level_dn >= 0, "sensor.black_level_dn", self.black_level_dn,
                  ">= 0 [DN]")
+
+    @property
+    def knows_noise(self) -> bool:
+        """True when gain and read noise are given."""
+        return self.gain_e_per_dn is not None
 
     def resolved(self, dtype: np.dtype) -> SensorModel:
         """Copy with ``bit_depth`` and ``saturation_dn`` filled in from an image dtype."""
@@ -81,6 +102,9 @@ class SensorModel:
     @property
     def read_noise_dn(self) -> float:
         """Read noise in image units [DN]."""
+        if not self.knows_noise:
+            raise ConfigError("the sensor noise is not known yet (estimate it from the data "
+                              "or give sensor.gain_e_per_dn and sensor.read_noise_e)")
         return self.read_noise_e / self.gain_e_per_dn
 
 
@@ -94,27 +118,37 @@ class Thresholds:
         Absolute modulation floor for every phase set [DN]; 0 leaves only the
         noise-based floor.
     unwrap_max_residual : float
-        Largest accepted disagreement between a set and the coarser estimate that
-        unwraps it [cycles of the finer period]; beyond it the pixel is inconsistent.
+        Largest accepted disagreement between a set and the estimate that unwraps it
+        [cycles of the set's period]; beyond it the pixel is inconsistent.
     unwrap_sigma_margin : float
-        A pixel has too low a modulation when its predicted unwrapping residual times
-        this margin exceeds the accepted residual [-].
-    gray_max_residual : float
-        Largest accepted disagreement between the Gray code and the phase it orders
-        [cycles]; the code's own quantisation is 0.25.
+        A pixel has too low a modulation when the predicted standard deviation of an
+        unwrapping residual times this margin exceeds the accepted residual [-]. A
+        fringe-order error then needs a noise excursion of ``margin * (1 -
+        unwrap_max_residual) / unwrap_max_residual`` standard deviations (6 for the
+        defaults, a probability of 2e-9).
+    gray_edge_cells : float
+        How far the phase may fall outside the Gray-code cell it was decoded in [cells]
+        (blur and noise at the cell edges); limited to ``(P - cell) / 2`` so that one
+        fringe order is accepted at most.
     gray_min_contrast_sigma : float
         A Gray-code bit whose contrast is below this many noise standard deviations
         is undecidable, and the pixel has too low a modulation [-].
     max_period_ratio : float
-        Largest ratio between successive periods that the hierarchy accepts [-].
+        Largest ratio between the period of an estimate (times its noise
+        amplification) and the period it unwraps [-].
+    coincidence_fraction : float
+        A set (or Gray code) whose share of inconsistent pixels reaches this fraction
+        of what unrelated patterns would give is taken as misstated, and every pixel
+        is masked [-].
     """
 
     min_modulation_dn: float = 0.0
     unwrap_max_residual: float = 0.25
-    unwrap_sigma_margin: float = 4.0
-    gray_max_residual: float = 0.375
+    unwrap_sigma_margin: float = 2.0
+    gray_edge_cells: float = 0.25
     gray_min_contrast_sigma: float = 3.0
     max_period_ratio: float = 64.0
+    coincidence_fraction: float = 0.7
 
     def __post_init__(self) -> None:
         _require(self.min_modulation_dn >= 0, "thresholds.min_modulation_dn",
@@ -123,12 +157,51 @@ class Thresholds:
                  self.unwrap_max_residual, "in (0, 0.5) [cycles]")
         _require(self.unwrap_sigma_margin >= 1, "thresholds.unwrap_sigma_margin",
                  self.unwrap_sigma_margin, ">= 1 [-]")
-        _require(0.25 < self.gray_max_residual < 0.5, "thresholds.gray_max_residual",
-                 self.gray_max_residual, "in (0.25, 0.5) [cycles]")
+        _require(0 <= self.gray_edge_cells < 8, "thresholds.gray_edge_cells",
+                 self.gray_edge_cells, "in [0, 8) [cells]")
         _require(self.gray_min_contrast_sigma >= 0, "thresholds.gray_min_contrast_sigma",
                  self.gray_min_contrast_sigma, ">= 0 [-]")
         _require(self.max_period_ratio > 1, "thresholds.max_period_ratio",
                  self.max_period_ratio, "> 1 [-]")
+        _require(0 < self.coincidence_fraction <= 1, "thresholds.coincidence_fraction",
+                 self.coincidence_fraction, "in (0, 1] [-]")
+
+
+@dataclass(frozen=True)
+class DecodeOptions:
+    """How to decode (the ``[decode]`` table).
+
+    Attributes
+    ----------
+    fuse_periods : bool
+        False (default): x_p comes from the finest phase set alone, coarser sets and
+        the Gray code decide its fringe order only. True: every phase set is fused by
+        inverse-variance weighting (systematic differences between periods then bias
+        x_p; the decode summary says so).
+    noise : str
+        "auto": the ``[sensor]`` noise model when it gives gain and read noise, else
+        the noise estimated from the images; "sensor" or "data" force one.
+    channel : str
+        "red", "green" or "blue": the channel of colour images that carries the
+        fringes; empty for grey images.
+    response : str
+        Projector response file (phase-error tables written by ``scanqa decode
+        --measure-response``) applied to every phase set; relative paths are relative
+        to the patterns.toml folder; empty for none.
+    """
+
+    fuse_periods: bool = False
+    noise: str = "auto"
+    channel: str = ""
+    response: str = ""
+
+    def __post_init__(self) -> None:
+        _require(isinstance(self.fuse_periods, bool), "decode.fuse_periods",
+                 self.fuse_periods, "true or false")
+        _require(self.noise in NOISE_SOURCES, "decode.noise", self.noise,
+                 "'auto', 'sensor' or 'data'")
+        _require(self.channel in ("", "red", "green", "blue"), "decode.channel",
+                 self.channel, "'red', 'green' or 'blue' (or left out for grey images)")
 
 
 @dataclass(frozen=True)
@@ -148,7 +221,7 @@ class PhaseSet:
     orientation : str
         "vertical" (codes x_p) or "horizontal" (codes y_p).
     files : tuple of str
-        Image files in frame order, relative to the patterns.toml folder.
+        Image files in frame order, relative to the patterns.toml folder (or absolute).
     stack : str
         Alternatively one .npy/.npz stack (N, H, W).
     stack_key : str
@@ -187,54 +260,126 @@ class PhaseSet:
 
 @dataclass(frozen=True)
 class GrayCodeSet:
-    """A Gray-code set (``kind = "gray"``) that gives the fringe order of a phase set.
+    """A Gray-code set (``kind = "gray"``): alone, or ordering a phase set.
 
     Attributes
     ----------
     name : str
         Label used in messages.
     bits : int
-        Number of Gray-code bits [-].
+        Number of Gray-code bits (bit planes), most significant first [-].
+    cell_px : float or None
+        Width of one code cell [projector px]; None: half the period of the ordered
+        phase set.
     orders : str
-        Name of the phase set it orders; empty means the coarsest phase set.
-    inverse : bool
-        True when every bit pattern is followed (after all bits) by its inverse.
+        Name of the phase set it orders; empty means the coarsest phase set (a scan
+        without phase sets is decoded from the Gray code alone).
+    inverse : str
+        "none", "grouped" (all bits, then all inverses) or "interleaved" (each bit
+        followed by its inverse); True and False are read as "grouped" and "none".
+    threshold : str
+        "inverse" (bit against its inverse frame), "reference" (against the mid level
+        of the white and black frames of the reference set), "offset" (against the
+        offset A of the ordered phase set) or "auto" (the first of these the scan has).
     orientation : str
-        Must equal the phase sets' orientation.
+        "vertical" (columns, x_p) or "horizontal" (rows, y_p).
     files, stack, stack_key
         As for :class:`PhaseSet`.
     """
 
     name: str
     bits: int
+    cell_px: float | None = None
     orders: str = ""
-    inverse: bool = False
+    inverse: Any = "none"
+    threshold: str = "auto"
     orientation: str = "vertical"
     files: tuple = ()
     stack: str = ""
     stack_key: str = ""
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.bits, int) and 1 <= self.bits <= 24,
-                 f"set {self.name!r}: bits", self.bits, "a whole number in 1..24")
-        _check_orientation(f"set {self.name!r}", self.orientation)
+        where = f"set {self.name!r}"
+        _require(isinstance(self.bits, int) and 1 <= self.bits <= 24, f"{where}: bits",
+                 self.bits, "a whole number in 1..24")
+        _require(self.cell_px is None or (math.isfinite(self.cell_px) and self.cell_px > 0),
+                 f"{where}: cell_px", self.cell_px, "> 0 [projector px]")
+        inverse = {True: "grouped", False: "none"}.get(self.inverse, self.inverse) \
+            if isinstance(self.inverse, bool) else self.inverse
+        _require(inverse in INVERSE_LAYOUTS, f"{where}: inverse", self.inverse,
+                 "'none', 'grouped' or 'interleaved'")
+        _require(self.threshold in GRAY_THRESHOLDS, f"{where}: threshold", self.threshold,
+                 "'auto', 'inverse', 'reference' or 'offset'")
+        _check_orientation(where, self.orientation)
+        object.__setattr__(self, "inverse", inverse)
         object.__setattr__(self, "files", tuple(self.files))
 
     @property
     def frames(self) -> int:
         """Number of images in the set [-]."""
-        return self.bits * (2 if self.inverse else 1)
+        return self.bits * (1 if self.inverse == "none" else 2)
+
+    def frame_order(self) -> tuple[np.ndarray, np.ndarray | None]:
+        """Frame indices of the bit patterns and of their inverses (or None)."""
+        bits = np.arange(self.bits)
+        if self.inverse == "none":
+            return bits, None
+        if self.inverse == "grouped":
+            return bits, bits + self.bits
+        return 2 * bits, 2 * bits + 1
+
+
+@dataclass(frozen=True)
+class ReferenceSet:
+    """Uniform white and black frames (``kind = "reference"``).
+
+    They give the Gray code a per-pixel threshold (the mid level of white and black)
+    and the noise estimate repeats of the same level.
+
+    Attributes
+    ----------
+    name : str
+        Label used in messages.
+    levels : tuple of str
+        "white" or "black" for each frame, in frame order (at least one of each).
+    files, stack, stack_key
+        As for :class:`PhaseSet`.
+    """
+
+    name: str
+    levels: tuple = ("white", "black")
+    files: tuple = ()
+    stack: str = ""
+    stack_key: str = ""
+
+    def __post_init__(self) -> None:
+        levels = tuple(self.levels)
+        _require(all(v in REFERENCE_LEVELS for v in levels) and "white" in levels
+                 and "black" in levels, f"set {self.name!r}: levels", list(levels),
+                 "a list of 'white' and 'black' with at least one of each")
+        object.__setattr__(self, "levels", levels)
+        object.__setattr__(self, "files", tuple(self.files))
+
+    @property
+    def frames(self) -> int:
+        """Number of images in the set [-]."""
+        return len(self.levels)
+
+    @property
+    def orientation(self) -> str:
+        """Uniform frames have no orientation; any set's is accepted."""
+        return ""
 
 
 @dataclass(frozen=True)
 class PatternDescription:
-    """A whole ``patterns.toml``: coded range, sensor, thresholds and sets.
+    """A whole ``patterns.toml``: coded range, sensor, thresholds, options and sets.
 
     Attributes
     ----------
     projector_width_px : int
-        Coded range along the fringe direction [projector px]: x_p in [0, width).
-    sets : tuple of PhaseSet and GrayCodeSet
+        Coded range along the fringe direction [projector px]: x_p in [-0.5, width - 0.5).
+    sets : tuple of PhaseSet, GrayCodeSet and ReferenceSet
         In file order.
     sensor : SensorModel
         Camera noise model.
@@ -244,6 +389,8 @@ class PatternDescription:
         Free text.
     source : str
         The patterns.toml path (file names are relative to its folder).
+    options : DecodeOptions
+        How to decode.
     """
 
     projector_width_px: int
@@ -252,6 +399,7 @@ class PatternDescription:
     thresholds: Thresholds = field(default_factory=Thresholds)
     description: str = ""
     source: str = ""
+    options: DecodeOptions = field(default_factory=DecodeOptions)
 
     def __post_init__(self) -> None:
         _require(isinstance(self.projector_width_px, int) and self.projector_width_px >= 1,
@@ -271,32 +419,66 @@ class PatternDescription:
         return next((s for s in self.sets if isinstance(s, GrayCodeSet)), None)
 
     @property
+    def reference_set(self) -> ReferenceSet | None:
+        """The white/black reference set, if any."""
+        return next((s for s in self.sets if isinstance(s, ReferenceSet)), None)
+
+    @property
+    def ordered_set(self) -> PhaseSet | None:
+        """The phase set the Gray code orders (None without Gray code or phase sets)."""
+        gray, phase = self.gray_set, self.phase_sets
+        if gray is None or not phase:
+            return None
+        return next(s for s in phase if s.name == (gray.orders or phase[0].name))
+
+    @property
+    def gray_cell_px(self) -> float:
+        """Width of a Gray-code cell [projector px] (0 without Gray code)."""
+        gray = self.gray_set
+        if gray is None:
+            return 0.0
+        return gray.cell_px if gray.cell_px is not None else self.ordered_set.period_px / 2
+
+    @property
+    def gray_threshold(self) -> str:
+        """The Gray code's threshold with "auto" resolved ("" without Gray code)."""
+        gray = self.gray_set
+        if gray is None:
+            return ""
+        return _resolve_threshold(self, gray)
+
+    @property
     def working_period_px(self) -> float:
-        """The finest period [projector px]."""
-        return self.phase_sets[-1].period_px
+        """The finest period (the Gray cell for a Gray code alone) [projector px]."""
+        phase = self.phase_sets
+        return phase[-1].period_px if phase else self.gray_cell_px
 
     @property
     def orientation(self) -> str:
         """The common fringe orientation."""
-        return self.sets[0].orientation
+        return next(s.orientation for s in self.sets if not isinstance(s, ReferenceSet))
 
     def to_dict(self) -> dict:
         """Plain dict in the patterns.toml layout (for provenance and writing)."""
         out: dict[str, Any] = {"format": FORMAT, "projector_width_px": self.projector_width_px}
         if self.description:
             out["description"] = self.description
-        out["sensor"] = {k: v for k, v in asdict(self.sensor).items() if v is not None}
+        sensor = {k: v for k, v in asdict(self.sensor).items() if v is not None}
+        if sensor != {"black_level_dn": 0.0}:
+            out["sensor"] = sensor
         out["thresholds"] = asdict(self.thresholds)
+        out["decode"] = asdict(self.options)
         out["set"] = [_set_dict(s) for s in self.sets]
         return out
 
 
-def _set_dict(pset: PhaseSet | GrayCodeSet) -> dict:
-    """One ``[[set]]`` table as a dict, leaving out empty storage keys."""
-    kind = "phase" if isinstance(pset, PhaseSet) else "gray"
+def _set_dict(pset: PhaseSet | GrayCodeSet | ReferenceSet) -> dict:
+    """One ``[[set]]`` table as a dict, leaving out empty and default-free keys."""
+    kind = {PhaseSet: "phase", GrayCodeSet: "gray", ReferenceSet: "reference"}[type(pset)]
     out: dict[str, Any] = {"kind": kind}
     for key, value in asdict(pset).items():
-        if value in ("", ()) and key in ("files", "stack", "stack_key", "orders"):
+        if value is None or (value in ("", ()) and key in ("files", "stack", "stack_key",
+                                                          "orders")):
             continue
         out[key] = list(value) if isinstance(value, tuple) else value
     return out
@@ -322,208 +504,82 @@ def _check_shifts(where: str, shifts: Sequence[float]) -> None:
 
 
 def _check_sets(desc: PatternDescription) -> None:
-    """Cross-set rules: names, orientation, one Gray set, a period chain that unwraps."""
+    """Cross-set rules: names, orientation, set counts, a chain that unwraps."""
     _require(len(desc.sets) > 0, "set", [], "at least one [[set]] table")
     names = [s.name for s in desc.sets]
     dup = sorted({n for n in names if names.count(n) > 1})
     _require(not dup, "set names", dup, "unique (set a distinct name = ...)")
-    orient = {s.orientation for s in desc.sets}
+    coded = [s for s in desc.sets if not isinstance(s, ReferenceSet)]
+    _require(len(coded) > 0, "set", names, "at least one set with kind = 'phase' or 'gray'")
+    orient = {s.orientation for s in coded}
     _require(len(orient) == 1, "orientation", sorted(orient),
              "the same for every set (decode x_p and y_p from separate pattern folders)")
+    for kind in (GrayCodeSet, ReferenceSet):
+        many = [s.name for s in desc.sets if isinstance(s, kind)]
+        _require(len(many) <= 1, "set", many, f"at most one set of kind "
+                 f"{'gray' if kind is GrayCodeSet else 'reference'}")
+    gray = desc.gray_set
+    if gray is not None:
+        _check_gray(desc, gray)
     phase = desc.phase_sets
-    _require(len(phase) > 0, "set", names, "at least one set with kind = 'phase'")
-    gray = [s for s in desc.sets if isinstance(s, GrayCodeSet)]
-    _require(len(gray) <= 1, "set", names, "at most one set with kind = 'gray'")
-    if gray:
-        _check_gray(desc, gray[0], phase)
-    elif phase[0].period_px < desc.projector_width_px:
-        raise ConfigError(
-            f"periods cannot be unwrapped: the coarsest period_px = {phase[0].period_px:g} "
-            f"(set {phase[0].name!r}) is shorter than projector_width_px = "
-            f"{desc.projector_width_px}, so x_p is ambiguous; add a phase set with "
-            f"period_px >= {desc.projector_width_px} or a Gray-code set")
-    _check_ratios(desc, phase)
+    if phase:
+        ordered = desc.ordered_set
+        chain.plan_chain([s.period_px for s in phase], [s.name for s in phase],
+                         desc.projector_width_px, desc.thresholds.max_period_ratio,
+                         start=None if ordered is None else phase.index(ordered))
 
 
-def _check_gray(desc: PatternDescription, gray: GrayCodeSet, phase: tuple) -> None:
-    """The Gray code must order the coarsest phase set and cover the coded range."""
-    target = gray.orders or phase[0].name
-    match = [s for s in phase if s.name == target]
-    _require(bool(match), f"set {gray.name!r}: orders", gray.orders,
-             f"the name of a phase set (one of {', '.join(s.name for s in phase)})")
-    _require(match[0] is phase[0], f"set {gray.name!r}: orders", target,
-             f"the coarsest phase set {phase[0].name!r} (finer sets unwrap from it)")
-    covered = 2 ** gray.bits * phase[0].period_px / 2
+def _check_gray(desc: PatternDescription, gray: GrayCodeSet) -> None:
+    """The Gray code must cover the coded range and be able to order its phase set."""
+    phase = desc.phase_sets
+    where = f"set {gray.name!r}"
+    if gray.orders:
+        _require(any(s.name == gray.orders for s in phase), f"{where}: orders", gray.orders,
+                 "the name of a phase set (one of "
+                 f"{', '.join(s.name for s in phase) or 'none: the scan has no phase set'})")
+    _require(bool(phase) or gray.cell_px is not None, f"{where}: cell_px", None,
+             "given when the scan has no phase set (the Gray code is then decoded alone)")
+    cell = desc.gray_cell_px
+    covered = 2 ** gray.bits * cell
     if covered < desc.projector_width_px:
-        need = math.ceil(math.log2(2 * desc.projector_width_px / phase[0].period_px))
+        cell_hint = "cell_px" if gray.cell_px is not None else \
+            f"cell_px (now half the period of set {desc.ordered_set.name!r})"
         raise ConfigError(
-            f"periods cannot be unwrapped: set {gray.name!r} with bits = {gray.bits} codes "
-            f"{covered:g} px (2**bits half-periods of {phase[0].period_px:g} px) < "
-            f"projector_width_px = {desc.projector_width_px}; use bits = {need}")
+            f"periods cannot be unwrapped: set {gray.name!r} codes {2 ** gray.bits} cells "
+            f"of {cell:g} px = {covered:g} px (bits = {gray.bits}, {gray.frames} frames) < "
+            f"projector_width_px = {desc.projector_width_px}; check projector_width_px "
+            f"(the coded width, at most {covered:g} px with these frames) and {cell_hint} "
+            f"(at least {desc.projector_width_px / 2 ** gray.bits:g} px for "
+            f"{2 ** gray.bits} cells)")
+    ordered = desc.ordered_set
+    if ordered is not None and cell > ordered.period_px * (1 + 1e-9):
+        raise ConfigError(
+            f"set {gray.name!r} cannot order set {ordered.name!r}: its cells of {cell:g} px "
+            f"are wider than the period {ordered.period_px:g} px; check cell_px and "
+            f"period_px, or order a coarser set with orders = ...")
+    _resolve_threshold(desc, gray)
 
 
-def _check_ratios(desc: PatternDescription, phase: tuple) -> None:
-    """Successive periods must be distinct and within max_period_ratio."""
-    limit = desc.thresholds.max_period_ratio
-    for coarse, fine in itertools.pairwise(phase):
-        ratio = coarse.period_px / fine.period_px
-        if ratio <= 1 + 1e-9 or ratio > limit:
-            raise ConfigError(
-                f"periods cannot be unwrapped: set {coarse.name!r} (period_px = "
-                f"{coarse.period_px:g}) cannot unwrap set {fine.name!r} (period_px = "
-                f"{fine.period_px:g}): the ratio {ratio:.4g} must be > 1 and <= "
-                f"thresholds.max_period_ratio = {limit:g}; add an intermediate period")
+def _resolve_threshold(desc: PatternDescription, gray: GrayCodeSet) -> str:
+    """The Gray threshold in use; raise when the scan lacks what it needs."""
+    has = {"inverse": gray.inverse != "none", "reference": desc.reference_set is not None,
+           "offset": desc.ordered_set is not None}
+    if gray.threshold == "auto":
+        for name in ("inverse", "reference", "offset"):
+            if has[name]:
+                return name
+        raise ConfigError(
+            f"set {gray.name!r}: a Gray code alone needs a threshold per pixel: list its "
+            "inverse frames (inverse = 'interleaved' or 'grouped') or add a set with "
+            "kind = 'reference' holding white and black frames")
+    need = {"inverse": "inverse frames (inverse = 'interleaved' or 'grouped')",
+            "reference": "a set with kind = 'reference' (white and black frames)",
+            "offset": "a phase set to order"}
+    _require(has[gray.threshold], f"set {gray.name!r}: threshold", gray.threshold,
+             f"a threshold the scan provides ({gray.threshold!r} needs "
+             f"{need[gray.threshold]})")
+    return gray.threshold
 
 
-# ---------------------------------------------------------------------------- parsing
-
-_TOP_KEYS = ("format", "projector_width_px", "description", "sensor", "thresholds", "set")
-_STORAGE_KEYS = ("name", "orientation", "files", "stack", "stack_key")
-_SET_KEYS = {
-    "phase": ("kind", "period_px", "steps", "shifts_rad", *_STORAGE_KEYS),
-    "gray": ("kind", "bits", "orders", "inverse", *_STORAGE_KEYS),
-}
-
-
-def load_patterns(path: str | os.PathLike) -> PatternDescription:
-    """Load and validate a ``patterns.toml`` (or the one inside a folder).
-
-    Parameters
-    ----------
-    path : str or PathLike
-        The patterns.toml file, or the pattern folder that contains it.
-
-    Returns
-    -------
-    PatternDescription
-        The validated description, with ``source`` set to the file path.
-
-    Raises
-    ------
-    ConfigError
-        On a missing/unreadable file, bad TOML, an unknown or missing key, a bad value,
-        a wrong count of files, or periods that cannot unwrap each other.
-    """
-    data, p = read_patterns_file(path)
-    return patterns_from_dict(data, source=str(p))
-
-
-def patterns_from_dict(data: dict, source: str = "<dict>") -> PatternDescription:
-    """Validate a parsed patterns.toml given as nested dicts.
-
-    Parameters
-    ----------
-    data : dict
-        The parsed TOML.
-    source : str
-        File name used in error messages and to resolve relative image paths.
-    """
-    try:
-        return _from_dict(data, source)
-    except ConfigError as err:
-        raise ConfigError(f"{err} (in {source})") from None
-    except TypeError as err:
-        raise ConfigError(f"bad value in pattern description: {err} (in {source})") from None
-
-
-def _from_dict(data: dict, source: str) -> PatternDescription:
-    _reject_unknown("", data, _TOP_KEYS)
-    fmt = data.get("format")
-    _require(fmt == FORMAT, "format", fmt, f"{FORMAT!r} (the only version this scanqa reads)")
-    _require("projector_width_px" in data, "projector_width_px", None,
-             "given (the coded range along the fringe direction [projector px])")
-    sensor = SensorModel(**_table("sensor", data.get("sensor", {}), SensorModel))
-    thresholds = Thresholds(**_table("thresholds", data.get("thresholds", {}), Thresholds))
-    raw_sets = data.get("set", [])
-    _require(isinstance(raw_sets, list) and len(raw_sets) > 0, "set", raw_sets,
-             "one or more [[set]] tables")
-    sets = tuple(_parse_set(i, t) for i, t in enumerate(raw_sets))
-    return PatternDescription(projector_width_px=_integer("projector_width_px",
-                                                          data["projector_width_px"]),
-                              sets=sets, sensor=sensor, thresholds=thresholds,
-                              description=str(data.get("description", "")), source=source)
-
-
-def _reject_unknown(prefix: str, table: dict, known: Sequence[str]) -> None:
-    for key in table:
-        if key not in known:
-            raise ConfigError(f"unknown key {prefix}{key} (known keys: {', '.join(known)})")
-
-
-def _table(name: str, table: Any, cls: type) -> dict:
-    """Keys of an optional table, checked against the dataclass fields and types."""
-    _require(isinstance(table, dict), f"[{name}]", table, "a table")
-    known = list(cls.__dataclass_fields__)
-    _reject_unknown(f"{name}.", table, known)
-    out = {}
-    for key, value in table.items():
-        whole = key == "bit_depth"
-        out[key] = _integer(f"{name}.{key}", value) if whole else _number(f"{name}.{key}",
-                                                                          value)
-    return out
-
-
-def _number(key: str, value: Any) -> float:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-    _require(ok and math.isfinite(value), key, value, "a finite number")
-    return float(value)
-
-
-def _integer(key: str, value: Any) -> int:
-    ok = isinstance(value, int) and not isinstance(value, bool)
-    _require(ok, key, value, "a whole number")
-    return int(value)
-
-
-def _parse_set(index: int, table: Any) -> PhaseSet | GrayCodeSet:
-    """One ``[[set]]`` table, with its storage (files or stack) checked."""
-    where = f"set[{index}]"
-    _require(isinstance(table, dict), where, table, "a table")
-    kind = table.get("kind")
-    _require(kind in _SET_KEYS, f"{where}.kind", kind, "'phase' or 'gray'")
-    _reject_unknown(f"{where}.", table, _SET_KEYS[kind])
-    args = {k: v for k, v in table.items() if k != "kind"}
-    args.setdefault("name", f"{kind}{index}")
-    for key in ("name", "orientation", "stack", "stack_key", "orders"):
-        if key in args:
-            _require(isinstance(args[key], str), f"{where}.{key}", args[key], "a string")
-    if kind == "phase":
-        _require("period_px" in args and "steps" in args, where, sorted(args),
-                 "a table with period_px and steps")
-        args["period_px"] = _number(f"{where}.period_px", args["period_px"])
-        args["steps"] = _integer(f"{where}.steps", args["steps"])
-        args["shifts_rad"] = tuple(_number(f"{where}.shifts_rad", v)
-                                   for v in _list(f"{where}.shifts_rad",
-                                                  args.get("shifts_rad", [])))
-        pset: PhaseSet | GrayCodeSet = PhaseSet(**args)
-    else:
-        _require("bits" in args, where, sorted(args), "a table with bits")
-        args["bits"] = _integer(f"{where}.bits", args["bits"])
-        _require(isinstance(args.get("inverse", False), bool), f"{where}.inverse",
-                 args.get("inverse"), "true or false")
-        pset = GrayCodeSet(**args)
-    _check_storage(where, pset, table)
-    return pset
-
-
-def _list(key: str, value: Any) -> list:
-    _require(isinstance(value, list), key, value, "a list")
-    return value
-
-
-def _check_storage(where: str, pset: PhaseSet | GrayCodeSet, table: dict) -> None:
-    """Exactly one of files (with the right count) and stack."""
-    has_files, has_stack = "files" in table, "stack" in table
-    _require(has_files != has_stack, where, sorted(table),
-             "a table with either files = [...] or stack = '...' (not both)")
-    if has_files:
-        files = _list(f"{where}.files", table["files"])
-        _require(all(isinstance(f, str) for f in files), f"{where}.files", files,
-                 "a list of file names")
-        if len(files) != pset.frames:
-            what = (f"steps = {pset.frames}" if isinstance(pset, PhaseSet) else
-                    f"bits = {pset.bits}{' x 2 (inverse = true)' if pset.inverse else ''}")
-            raise ConfigError(f"wrong count of files in {where} ({pset.name!r}): got "
-                              f"{len(files)}, need {pset.frames} ({what})")
-    elif "stack_key" in table and not pset.stack.lower().endswith(".npz"):
-        raise ConfigError(f"{where}.stack_key is only meaningful with a .npz stack")
+#: The noise model assumed where neither the camera nor the data tell it (4 e-/DN, 8 e-).
+DEFAULT_SENSOR = SensorModel(gain_e_per_dn=4.0, read_noise_e=8.0)

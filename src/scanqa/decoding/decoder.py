@@ -1,9 +1,13 @@
 """Decoding a scan: fringe images to the unwrapped projector coordinate of every pixel.
 
-Every phase set is demodulated (:mod:`scanqa.decoding.demodulate`); temporal unwrapping
-is hierarchical (coarse to fine periods, or a Gray code ordering the coarsest period;
-:mod:`scanqa.decoding.unwrap`), and every unwrapped set is fused by inverse-variance
-weighting. The work runs on chunks of rows that fit the CPU cache.
+Every phase set is demodulated (:mod:`scanqa.decoding.demodulate`) and, with a
+projector response, corrected for the projector's nonlinearity
+(:mod:`scanqa.decoding.response`); temporal unwrapping follows the planned chain
+(:mod:`scanqa.decoding.chain`, :mod:`scanqa.decoding.unwrap`). x_p is the finest set's
+coordinate; the coarser sets and the Gray code only decide its fringe order (unless
+``fuse_periods``), and their systematic disagreement with x_p is measured and reported.
+The camera noise comes from ``[sensor]`` or from the images
+(:mod:`scanqa.decoding.noise`). The work runs on chunks of rows that fit the CPU cache.
 """
 
 from __future__ import annotations
@@ -16,24 +20,30 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.decoding.coding import PatternDescription, SensorModel, load_patterns
-from scanqa.decoding.patternset import read_pattern_images
-from scanqa.decoding.phasemap import MASK_REASONS, PhaseMap, load_phase_map
-from scanqa.decoding.unwrap import UnwrapPlan, unwrap_rows
+from scanqa.decoding import diagnostics
+from scanqa.decoding.coding import PatternDescription
+from scanqa.decoding.noise import NoiseEstimate, resolve_noise
+from scanqa.decoding.parsing import load_patterns
+from scanqa.decoding.patternset import lossy_image_note, read_pattern_images
+from scanqa.decoding.phasemap import PhaseMap, count_reasons, load_phase_map
+from scanqa.decoding.response import ProjectorResponse, load_response, measure_tables
+from scanqa.decoding.unwrap import ChainStats, UnwrapPlan, unwrap_rows
 from scanqa.errors import InputError
 
 _CHUNK_PIXELS = 32768  # pixels per chunk: measured fastest on 2448 x 2048 (cache-sized)
 
 
 def decode_images(desc: PatternDescription, images: Sequence[np.ndarray], *,
-           chunk_rows: int | None = None, progress: Callable[[str], None] | None = None
-           ) -> PhaseMap:
+                  chunk_rows: int | None = None,
+                  progress: Callable[[str], None] | None = None,
+                  response: ProjectorResponse | None = None,
+                  notes: Sequence[str] = ()) -> PhaseMap:
     """Decode a pattern set into a :class:`PhaseMap`.
 
     Parameters
     ----------
     desc : PatternDescription
-        What was projected, the sensor noise model and the thresholds.
+        What was projected, the sensor noise model, the thresholds and options.
     images : sequence of (N, H, W) arrays
         One stack per set, in ``desc.sets`` order [DN]. Integer stacks are treated as
         quantised (the 1/12 DN^2 term enters the noise).
@@ -42,12 +52,17 @@ def decode_images(desc: PatternDescription, images: Sequence[np.ndarray], *,
         the temporaries in the CPU cache and bounds the working memory.
     progress : callable, optional
         Receives short progress messages.
+    response : ProjectorResponse, optional
+        Phase-error tables of the projector, applied to every phase set.
+    notes : sequence of str
+        Remarks for the summary (e.g. about the image files).
 
     Returns
     -------
     PhaseMap
         x_p (or y_p) [projector px], modulation and offset of the finest set [DN],
-        mask with reasons, predicted sigma_xp [projector px] and provenance.
+        mask with reasons, predicted sigma_xp [projector px] and provenance (with the
+        noise source, the period disagreement and hints, see ``summary()``).
 
     Raises
     ------
@@ -55,30 +70,88 @@ def decode_images(desc: PatternDescription, images: Sequence[np.ndarray], *,
         On a wrong number of stacks or frames, mismatched sizes, or NaN in the images.
     """
     t0 = time.perf_counter()
+    out, stats, noise = _decode(desc, images, chunk_rows, response, keep_sets=False)
+    if progress:
+        progress(f"decoded {out['xp'].shape[0]} x {out['xp'].shape[1]} px in "
+                 f"{time.perf_counter() - t0:.2f} s")
+    return _phase_map(desc, out, stats, noise, response, images, notes)
+
+
+def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: int | None,
+            response: ProjectorResponse | None, keep_sets: bool):
+    """Outputs (dict of arrays), counts and noise model of a decode."""
     stacks = _checked_stacks(desc, images)
-    sensor = desc.sensor.resolved(stacks[0].dtype)
-    plan = UnwrapPlan.build(desc, sensor, quantised=stacks[0].dtype.kind in "ui")
+    quantised = stacks[0].dtype.kind in "ui"
+    noise = resolve_noise(desc, stacks, desc.sensor.resolved(stacks[0].dtype), quantised)
+    plan = UnwrapPlan.build(desc, noise.sensor, quantised, response)
     height, width = stacks[0].shape[1:]
-    out = _allocate(height, width)
+    out = _allocate(height, width, [p.name for p in plan.phase] if keep_sets else [])
     by_name = {s.name: st for s, st in zip(desc.sets, stacks, strict=True)}
+    stats = ChainStats()
     step = max(int(chunk_rows or _CHUNK_PIXELS // max(width, 1)), 1)
     for r0 in range(0, height, step):
         rows = slice(r0, min(r0 + step, height))
         unwrap_rows(plan, {k: v[:, rows] for k, v in by_name.items()},
-                    {k: v[rows] for k, v in out.items()})
-    if progress:
-        progress(f"decoded {height} x {width} px in {time.perf_counter() - t0:.2f} s")
-    return PhaseMap(**out, period_px=desc.working_period_px, orientation=desc.orientation,
+                    {k: v[rows] for k, v in out.items()}, stats)
+    return out, stats, noise
+
+
+def _phase_map(desc: PatternDescription, out: dict, stats: ChainStats, noise: NoiseEstimate,
+               response: ProjectorResponse | None, images: Sequence[np.ndarray],
+               notes: Sequence[str]) -> PhaseMap:
+    """Apply the guard, gather the diagnostics and build the map."""
+    misstated = diagnostics.misstated_steps(desc, stats)
+    if misstated:
+        diagnostics.apply_guard(out)
+    arrays = {k: v for k, v in out.items() if not k.startswith("x:")}
+    info = _decode_info(desc, stats, noise, response, misstated, notes)
+    info["hint"] = diagnostics.mask_hint(desc, count_reasons(out["mask"]), stats,
+                                         noise.source)
+    return PhaseMap(**arrays, period_px=desc.working_period_px, orientation=desc.orientation,
                     projector_width_px=desc.projector_width_px,
-                    provenance=_provenance(desc, sensor, stacks[0]))
+                    provenance=_provenance(desc, noise, np.asarray(images[0]), info))
 
 
-def _allocate(height: int, width: int) -> dict[str, np.ndarray]:
-    return {"xp": np.empty((height, width), np.float64),
-            "modulation": np.empty((height, width), np.float32),
-            "offset": np.empty((height, width), np.float32),
-            "mask": np.empty((height, width), np.uint8),
-            "sigma_xp": np.empty((height, width), np.float32)}
+def _decode_info(desc: PatternDescription, stats: ChainStats, noise: NoiseEstimate,
+                 response: ProjectorResponse | None, misstated: list, notes: Sequence[str]
+                 ) -> dict:
+    phase = desc.phase_sets
+    if not phase:
+        working = (f"Gray-code cell centres (cells of {desc.gray_cell_px:g} px; sigma_xp is "
+                   "the quantisation, cell / sqrt(12))")
+    elif desc.options.fuse_periods:
+        working = ("inverse-variance fusion of every phase set (decode.fuse_periods = true): "
+                   "systematic differences between periods bias x_p")
+    else:
+        working = (f"finest set {phase[-1].name!r} alone (period {phase[-1].period_px:g} "
+                   "px); coarser sets and the Gray code decide its fringe order only")
+    notes = [*notes]
+    if response is not None:
+        done = [s.name for s in phase if response.table_for(s) is not None]
+        left = [s.name for s in phase if s.name not in done]
+        notes.append(f"projector response {response.source or '(given)'} corrects "
+                     f"{', '.join(done)}" + (f"; no table for {', '.join(left)} (they "
+                                             "only decide fringe orders)" if left else ""))
+    return {"noise": noise.as_dict(), "working": working,
+            "chain": [s.name for s in UnwrapPlan.build(desc, noise.sensor, False).steps],
+            "disagreement": diagnostics.disagreement(stats), "misstated": misstated,
+            "low_modulation_reasons": {diagnostics.LOW_REASONS[b]: int(n)
+                                       for b, n in stats.low.items() if n},
+            "steps": {k: {"checked": int(v), "rejected": int(stats.rejected[k]),
+                          "noisy": int(stats.noisy.get(k, 0))}
+                      for k, v in stats.checked.items()},
+            "notes": notes}
+
+
+def _allocate(height: int, width: int, set_names: Sequence[str]) -> dict[str, np.ndarray]:
+    out = {"xp": np.empty((height, width), np.float64),
+           "modulation": np.empty((height, width), np.float32),
+           "offset": np.empty((height, width), np.float32),
+           "mask": np.empty((height, width), np.uint8),
+           "sigma_xp": np.empty((height, width), np.float32)}
+    for name in set_names:
+        out[f"x:{name}"] = np.empty((height, width), np.float64)
+    return out
 
 
 def _checked_stacks(desc: PatternDescription, images: Sequence[np.ndarray]
@@ -101,18 +174,20 @@ def _checked_stacks(desc: PatternDescription, images: Sequence[np.ndarray]
     return stacks
 
 
-def _provenance(desc: PatternDescription, sensor: SensorModel, stack: np.ndarray) -> dict:
+def _provenance(desc: PatternDescription, noise: NoiseEstimate, stack: np.ndarray,
+                info: dict) -> dict:
     from scanqa._version import __version__
 
     return {"software": "scanqa", "version": __version__, "stage": "decode",
             "patterns_file": desc.source, "patterns": desc.to_dict(),
-            "sensor_resolved": asdict(sensor), "image_dtype": str(stack.dtype),
-            "image_shape": list(stack.shape[1:]),
-            "mask_reasons": {str(k): v for k, v in MASK_REASONS.items()}}
+            "sensor_resolved": asdict(noise.sensor), "image_dtype": str(stack.dtype),
+            "image_shape": list(stack.shape[1:]), "decode": info,
+            "mask_reasons": diagnostics.mask_reason_names()}
 
 
 def decode_pattern_dir(path: str | os.PathLike,
-                       progress: Callable[[str], None] | None = None) -> PhaseMap:
+                       progress: Callable[[str], None] | None = None,
+                       response: str | os.PathLike | None = None) -> PhaseMap:
     """Load ``patterns.toml`` and its images from a folder (or file) and decode them.
 
     Parameters
@@ -121,12 +196,23 @@ def decode_pattern_dir(path: str | os.PathLike,
         Pattern folder, or its patterns.toml.
     progress : callable, optional
         Receives short progress messages.
+    response : str or PathLike, optional
+        Projector response file; default the one ``[decode] response`` names, if any.
 
     Returns
     -------
     PhaseMap
         The decoded map.
     """
+    desc, stacks = load_pattern_dir(path, progress)
+    note = lossy_image_note(desc)
+    return decode_images(desc, stacks, progress=progress,
+                         response=named_response(desc, response), notes=[note] if note else [])
+
+
+def load_pattern_dir(path: str | os.PathLike, progress: Callable[[str], None] | None = None
+                     ) -> tuple[PatternDescription, list[np.ndarray]]:
+    """The description and image stacks of a pattern folder (or its patterns.toml)."""
     t0 = time.perf_counter()
     desc = load_patterns(path)
     stacks = read_pattern_images(desc)
@@ -135,7 +221,56 @@ def decode_pattern_dir(path: str | os.PathLike,
         h, w = stacks[0].shape[1:]
         progress(f"read {n} images of {w} x {h} px ({stacks[0].dtype}) from "
                  f"{desc.source} in {time.perf_counter() - t0:.2f} s")
-    return decode_images(desc, stacks, progress=progress)
+    return desc, stacks
+
+
+def named_response(desc: PatternDescription, given: str | os.PathLike | None = None
+                   ) -> ProjectorResponse | None:
+    """The projector response given (e.g. on the command line) or named by the coding.
+
+    Parameters
+    ----------
+    desc : PatternDescription
+        Its ``[decode] response`` is relative to the patterns.toml folder.
+    given : str or PathLike, optional
+        A response file that takes precedence.
+    """
+    if given:
+        return load_response(given)
+    if desc.options.response:
+        folder = Path(desc.source).parent if desc.source else Path(".")
+        return load_response(folder / desc.options.response)
+    return None
+
+
+def measure_response(desc: PatternDescription, images: Sequence[np.ndarray],
+                     description: str = "") -> tuple[ProjectorResponse, PhaseMap]:
+    """Phase-error tables of every phase set, from a decoded capture of a flat.
+
+    Parameters
+    ----------
+    desc : PatternDescription
+        The coding (decoded without a response).
+    images : sequence of (N, H, W) arrays
+        The capture [DN].
+    description : str
+        Stored in the response (where and how it was measured).
+
+    Returns
+    -------
+    response : ProjectorResponse
+        One table per phase set (see :func:`scanqa.decoding.response.measure_tables`).
+    phase_map : PhaseMap
+        The uncorrected decode it was measured on.
+    """
+    if not desc.phase_sets:
+        raise InputError("a projector response is measured on phase sets; this scan has "
+                         "none (a Gray code is not affected by the projector's gamma)")
+    out, stats, noise = _decode(desc, images, None, None, keep_sets=True)
+    pm = _phase_map(desc, out, stats, noise, None, images, ())
+    maps = [out[f"x:{s.name}"] for s in desc.phase_sets]
+    tables = measure_tables(desc.phase_sets, maps, pm.xp, pm.valid)
+    return ProjectorResponse(tables, description), pm
 
 
 def decode(source: str | os.PathLike,
@@ -162,4 +297,3 @@ def decode(source: str | os.PathLike,
         raise InputError(f"scan {path} does not exist (give a pattern folder with a "
                          "patterns.toml, or a phase.npz written by 'scanqa decode')")
     return decode_pattern_dir(path, progress)
-

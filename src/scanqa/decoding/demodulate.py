@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanqa.decoding.coding import SensorModel
+from scanqa.decoding.coding import DEFAULT_SENSOR, SensorModel
 from scanqa.errors import InputError
 
 TWO_PI = 2.0 * np.pi
@@ -59,26 +59,28 @@ class WrappedPhase:
 class ShiftFit:
     """Constants of the least-squares fit for one set of shifts.
 
-    ``rows`` maps the N samples to (A, C, S); the other fields are the coefficients of
-    the phase variance polynomial (see :func:`_phase_variance`).
+    ``rows`` maps the N samples to (A, C, S) and ``design`` back; the other fields are
+    the coefficients of the phase variance polynomial (see :func:`_phase_variance`).
     """
 
     rows: np.ndarray
     quad: tuple[float, float, float]
     cubic: tuple[float, float, float, float]
+    design: np.ndarray
 
     @classmethod
     def from_shifts(cls, shifts_rad: Sequence[float]) -> ShiftFit:
         d = np.asarray(shifts_rad, dtype=np.float64)
         c, s = np.cos(d), np.sin(d)
-        rows = np.linalg.pinv(np.column_stack([np.ones_like(d), c, s]))
+        design = np.column_stack([np.ones_like(d), c, s])
+        rows = np.linalg.pinv(design)
         p1, p2 = rows[1], rows[2]
         quad = (float(p1 @ p1), float(p1 @ p2), float(p2 @ p2))
         cubic = (float(p1 ** 2 @ s), float(p1 ** 2 @ c - 2 * (p1 * p2) @ s),
                  float(p2 ** 2 @ s - 2 * (p1 * p2) @ c), float(p2 ** 2 @ c))
         if max(abs(t) for t in cubic) < 1e-12:
             cubic = (0.0, 0.0, 0.0, 0.0)
-        return cls(rows, quad, cubic)
+        return cls(rows, quad, cubic, design)
 
 
 def sample_variance(intensity_dn: np.ndarray, sensor: SensorModel,
@@ -134,6 +136,17 @@ def _phase_variance(fit: ShiftFit, a: np.ndarray, c: np.ndarray, s: np.ndarray,
         return np.where(b2 > 0, var / (b2 * b2), np.inf)
 
 
+def fit_residual(fit: ShiftFit, frames: np.ndarray) -> np.ndarray:
+    """Sum of squared residuals of the least-squares fit of (N, M) samples [DN^2].
+
+    With N > 3 frames it is ``(N - 3) sigma_I^2`` on average for white noise (plus any
+    harmonic of the fringe that the N shifts do not alias into the fundamental).
+    """
+    f = frames.astype(np.float64)
+    model = fit.design @ _fit_rows(fit, f)
+    return ((f - model) ** 2).sum(axis=0)
+
+
 def demodulate_flat(fit: ShiftFit, frames: np.ndarray, sensor: SensorModel,
                      quantised: bool) -> tuple[np.ndarray, ...]:
     """Offset, modulation, phase fraction [cycles in [0, 1)] and phase variance."""
@@ -155,7 +168,8 @@ def demodulate(images: np.ndarray, shifts_rad: Sequence[float] | None = None,
     shifts_rad : sequence of float, optional
         Phase shift delta_k of each frame [rad]; default ``2 pi k / N``.
     sensor : SensorModel, optional
-        Noise model; default :class:`~scanqa.decoding.coding.SensorModel`.
+        Noise model; default (or without gain and read noise)
+        :data:`~scanqa.decoding.coding.DEFAULT_SENSOR`, 4 e-/DN and 8 e-.
 
     Returns
     -------
@@ -179,7 +193,7 @@ def demodulate(images: np.ndarray, shifts_rad: Sequence[float] | None = None,
         raise InputError(f"got {len(shifts)} shifts_rad for {n} images; give one per image")
     fit = ShiftFit.from_shifts(shifts)
     quantised = stack.dtype.kind in "ui"
-    sensor = SensorModel() if sensor is None else sensor
+    sensor = DEFAULT_SENSOR if sensor is None or not sensor.knows_noise else sensor
     with np.errstate(invalid="ignore"):
         a, b, frac, var = demodulate_flat(fit, stack.reshape(n, -1), sensor, quantised)
     shape = stack.shape[1:]

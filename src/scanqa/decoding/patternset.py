@@ -17,10 +17,10 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet
+from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, ReferenceSet
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path, make_out_dir, write_text
-from scanqa.io.images import read_image, read_stack, write_image
+from scanqa.io.images import is_lossy, read_image, read_stack, write_image
 from scanqa.io.patterns import PATTERNS_FILE, dumps_patterns
 
 # ----------------------------------------------------------------------------- images
@@ -44,7 +44,7 @@ def read_pattern_images(desc: PatternDescription) -> list[np.ndarray]:
         On a missing/unreadable file, a wrong frame count, mixed sizes or mixed dtypes.
     """
     folder = Path(desc.source).parent if desc.source else Path(".")
-    stacks = [_read_set(folder, s) for s in desc.sets]
+    stacks = [_read_set(folder, s, desc.options.channel) for s in desc.sets]
     shape, dtype = stacks[0].shape[1:], stacks[0].dtype
     for pset, stack in zip(desc.sets, stacks, strict=True):
         if stack.shape[1:] != shape:
@@ -58,7 +58,24 @@ def read_pattern_images(desc: PatternDescription) -> list[np.ndarray]:
     return stacks
 
 
-def _read_set(folder: Path, pset: PhaseSet | GrayCodeSet) -> np.ndarray:
+def lossy_image_note(desc: PatternDescription) -> str:
+    """A warning when the scan's image files use lossy compression (else empty).
+
+    Parameters
+    ----------
+    desc : PatternDescription
+        A description loaded from a file.
+    """
+    folder = Path(desc.source).parent if desc.source else Path(".")
+    lossy = [f for s in desc.sets for f in s.files[:1] if is_lossy(folder / f)]
+    if not lossy:
+        return ""
+    return (f"images are lossy-compressed ({lossy[0]}, ...): JPEG-like compression biases "
+            "the phase and its noise; capture to PNG, TIFF or BMP for measurements")
+
+
+def _read_set(folder: Path, pset: PhaseSet | GrayCodeSet | ReferenceSet,
+              channel: str = "") -> np.ndarray:
     """The (N, H, W) stack of one set from its files or its stack."""
     if pset.stack:
         stack = read_stack(folder / pset.stack, pset.stack_key)
@@ -68,7 +85,7 @@ def _read_set(folder: Path, pset: PhaseSet | GrayCodeSet) -> np.ndarray:
         return stack
     if not pset.files:
         raise InputError(f"set {pset.name!r} names no files and no stack")
-    images = [read_image(folder / f) for f in pset.files]
+    images = [read_image(folder / f, channel) for f in pset.files]
     for f, img in zip(pset.files, images, strict=True):
         if img.shape != images[0].shape or img.dtype != images[0].dtype:
             raise InputError(
@@ -97,7 +114,7 @@ def ideal_patterns(desc: PatternDescription, index: int,
     -------
     (N, ...) float64
         Relative intensity in [0, 1]: ``0.5 + 0.5 cos(2 pi x / P + delta_k)`` for a
-        phase set, 0 or 1 for a Gray-code set [-].
+        phase set, 0 or 1 for a Gray-code or reference set [-].
 
     Examples
     --------
@@ -110,15 +127,28 @@ def ideal_patterns(desc: PatternDescription, index: int,
     if isinstance(pset, PhaseSet):
         shifts = np.asarray(pset.shifts_rad).reshape((-1,) + (1,) * x.ndim)
         return 0.5 + 0.5 * np.cos(2 * np.pi * x / pset.period_px + shifts)
-    period = desc.phase_sets[0].period_px
-    half = np.clip(np.floor(2 * x / period), 0, 2 ** pset.bits - 1).astype(np.int64)
-    gray = half ^ (half >> 1)
-    bits = [(gray >> (pset.bits - 1 - b)) & 1 for b in range(pset.bits)]
-    frames = np.stack(bits).astype(np.float64)
-    return np.concatenate([frames, 1 - frames]) if pset.inverse else frames
+    if isinstance(pset, ReferenceSet):
+        levels = np.array([1.0 if v == "white" else 0.0 for v in pset.levels])
+        return np.broadcast_to(levels.reshape((-1,) + (1,) * x.ndim),
+                               (len(levels), *x.shape)).copy()
+    return _gray_frames(pset, desc.gray_cell_px, x)
 
 
-def projector_patterns(desc: PatternDescription, index: int, across_px: int) -> np.ndarray:
+def _gray_frames(gray: GrayCodeSet, cell_px: float, x: np.ndarray) -> np.ndarray:
+    """Bit frames (and inverses, in the set's layout) of a Gray code at coordinates x."""
+    cell = np.clip(np.floor((x + 0.5) / cell_px), 0, 2 ** gray.bits - 1).astype(np.int64)
+    code = cell ^ (cell >> 1)
+    bits = np.stack([(code >> (gray.bits - 1 - b)) & 1 for b in range(gray.bits)])
+    frames = np.empty((gray.frames, *x.shape))
+    plain, inverse = gray.frame_order()
+    frames[plain] = bits
+    if inverse is not None:
+        frames[inverse] = 1 - bits
+    return frames
+
+
+def projector_patterns(desc: PatternDescription, index: int, across_px: int,
+                       gamma: float = 1.0) -> np.ndarray:
     """Panel images of set ``index``, evaluated at projector pixel centres.
 
     Parameters
@@ -129,6 +159,9 @@ def projector_patterns(desc: PatternDescription, index: int, across_px: int) -> 
         Position of the set in ``desc.sets``.
     across_px : int
         Panel size across the fringe direction (rows for vertical fringes) [px].
+    gamma : float
+        Projector response exponent to pre-distort for: the panel gets ``p**(1/gamma)``
+        so that a projector emitting ``value**gamma`` shows the ideal pattern p [-].
 
     Returns
     -------
@@ -137,14 +170,16 @@ def projector_patterns(desc: PatternDescription, index: int, across_px: int) -> 
         ``rows = projector_width_px`` for horizontal ones [-].
     """
     coded = ideal_patterns(desc, index, np.arange(desc.projector_width_px, dtype=float))
-    if desc.sets[index].orientation == "vertical":
+    if gamma != 1.0:
+        coded = coded ** (1.0 / gamma)
+    if desc.sets[index].orientation != "horizontal":
         return np.repeat(coded[:, None, :], across_px, axis=1)
     return np.repeat(coded[:, :, None], across_px, axis=2)
 
 
 def synthesize_images(desc: PatternDescription, coordinate_px: np.ndarray,
-                      offset_dn: float | np.ndarray, modulation_dn: float | np.ndarray
-                      ) -> list[np.ndarray]:
+                      offset_dn: float | np.ndarray, modulation_dn: float | np.ndarray,
+                      gamma: float = 1.0) -> list[np.ndarray]:
     """Noise-free camera images of every set for a known projector coordinate map.
 
     Parameters
@@ -157,14 +192,18 @@ def synthesize_images(desc: PatternDescription, coordinate_px: np.ndarray,
         Offset A [DN].
     modulation_dn : float or (H, W) float
         Modulation B [DN].
+    gamma : float
+        Response exponent of the projector: it emits ``p**gamma`` for the pattern p
+        (1: linear) [-].
 
     Returns
     -------
     list of (N, H, W) float64
-        ``A - B + 2 B p`` with p from :func:`ideal_patterns`, one stack per set [DN].
+        ``A - B + 2 B p**gamma`` with p from :func:`ideal_patterns`, one stack per set
+        [DN].
     """
-    return [offset_dn - modulation_dn + 2 * modulation_dn * ideal_patterns(desc, i,
-                                                                          coordinate_px)
+    return [offset_dn - modulation_dn + 2 * modulation_dn
+            * ideal_patterns(desc, i, coordinate_px) ** gamma
             for i in range(len(desc.sets))]
 
 
@@ -184,9 +223,9 @@ def write_pattern_set(directory: str | os.PathLike, desc: PatternDescription,
     images : sequence of (N, H, W) arrays
         One stack per set, in ``desc.sets`` order [DN]. PNG and TIFF need uint8 or
         uint16; npy and npz take any real dtype (write integers for quantised data).
-    image_format : {"png", "tif", "npy", "npz"}
-        "png"/"tif": one file per frame; "npy": one stack per set; "npz": one file
-        ``images.npz`` holding one array per set, keyed by set name.
+    image_format : {"png", "tif", "bmp", "npy", "npz"}
+        "png"/"tif"/"bmp": one file per frame (BMP: uint8 only); "npy": one stack per
+        set; "npz": one file ``images.npz`` holding one array per set, keyed by name.
 
     Returns
     -------
@@ -207,8 +246,9 @@ def write_pattern_set(directory: str | os.PathLike, desc: PatternDescription,
 
 def _check_write_args(desc: PatternDescription, images: Sequence[np.ndarray],
                       image_format: str) -> None:
-    if image_format not in ("png", "tif", "tiff", "npy", "npz"):
-        raise InputError(f"image_format must be png, tif, npy or npz, got {image_format!r}")
+    if image_format not in ("png", "tif", "tiff", "bmp", "npy", "npz"):
+        raise InputError(f"image_format must be png, tif, bmp, npy or npz, got "
+                         f"{image_format!r}")
     if len(images) != len(desc.sets):
         raise InputError(f"need one image stack per set ({len(desc.sets)}), got {len(images)}")
     for pset, im in zip(desc.sets, images, strict=True):
@@ -222,8 +262,8 @@ def _write_npz(path: Path, arrays: dict) -> None:
         np.savez(fh, **{k: np.asarray(v) for k, v in arrays.items()})
 
 
-def _write_set(folder: Path, pset: PhaseSet | GrayCodeSet, stack: np.ndarray,
-               image_format: str) -> PhaseSet | GrayCodeSet:
+def _write_set(folder: Path, pset: PhaseSet | GrayCodeSet | ReferenceSet,
+               stack: np.ndarray, image_format: str) -> PhaseSet | GrayCodeSet | ReferenceSet:
     """Write one set's frames and return the set with its storage filled in."""
     if image_format == "npz":
         return replace(pset, files=(), stack="images.npz", stack_key=pset.name)

@@ -109,16 +109,59 @@ class PhaseMap:
 
     def counts(self) -> dict[str, int]:
         """Number of pixels per mask reason, keyed by reason name."""
-        hist = np.bincount(self.mask.ravel(), minlength=len(MASK_REASONS))
-        return {MASK_REASONS[code]: int(hist[code]) for code in MASK_REASONS}
+        return count_reasons(self.mask)
 
     def summary(self) -> str:
-        """One line: valid pixel count and the count of each mask reason."""
+        """The decode summary: counts, then what the decode found out.
+
+        The first line gives the valid pixel count and the count of each mask reason;
+        a freshly decoded map adds lines for the noise source, how x_p was formed, the
+        disagreement between periods, a misstated coding, notes, and - when most
+        pixels are masked - the dominant reason with the key that would change it.
+        """
         counts = self.counts()
         total = self.mask.size
         why = ", ".join(f"{k} {v}" for k, v in counts.items() if k != "valid")
         pct = 100.0 * counts["valid"] / total if total else 0.0
-        return f"{counts['valid']} of {total} pixels valid ({pct:.1f} %); masked: {why}"
+        first = f"{counts['valid']} of {total} pixels valid ({pct:.1f} %); masked: {why}"
+        info = self.provenance.get("decode") if isinstance(self.provenance, dict) else None
+        if not isinstance(info, dict) or "noise" not in info:
+            return first
+        return "\n".join([first, *_summary_lines(info)])
+
+
+def count_reasons(mask: np.ndarray) -> dict[str, int]:
+    """Number of pixels per mask reason, keyed by reason name.
+
+    Parameters
+    ----------
+    mask : (H, W) uint8
+        Reason codes (:data:`MASK_REASONS`).
+    """
+    hist = np.bincount(np.asarray(mask).ravel(), minlength=len(MASK_REASONS))
+    return {MASK_REASONS[code]: int(hist[code]) for code in MASK_REASONS}
+
+
+def _summary_lines(info: dict) -> list[str]:
+    """Lines after the first of a decode summary, from ``provenance["decode"]``."""
+    lines = [f"noise: {info['noise']['source']} (read noise "
+             f"{info['noise']['read_noise_dn']:.3g} DN, sigma_I "
+             f"{info['noise']['sigma_dn_at_100dn']:.3g} DN at 100 DN)",
+             f"x_p: {info['working']}"]
+    for row in info.get("disagreement", []):
+        lines.append(f"period disagreement: {row['set']!r} - x_p median "
+                     f"{row['median_px']:+.3g} px, spread {row['spread_px']:.3g} px "
+                     f"(robust std; 90 % within {row['p05_px']:+.3g}..{row['p95_px']:+.3g} "
+                     f"px, {row['samples']} samples)")
+    for row in info.get("misstated", []):
+        lines.append(f"misstated coding? step {row['step']!r} rejected "
+                     f"{100 * row['rejected_share']:.0f} % of {row['checked']} pixels, as "
+                     f"unrelated patterns would ({100 * row['uniform_share']:.0f} %): check "
+                     "period_px, cell_px and projector_width_px; every pixel is masked")
+    lines += [note for note in info.get("notes", []) if note]
+    if info.get("hint"):
+        lines.append(info["hint"])
+    return lines
 
 
 def save_phase_map(path: str | os.PathLike, phase_map: PhaseMap) -> Path:

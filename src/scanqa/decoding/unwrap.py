@@ -1,28 +1,36 @@
-"""Temporal unwrapping: coarse-to-fine periods or a Gray code, with reasons for masks.
+"""Temporal unwrapping along the planned chain, with a reason for every mask.
 
-The absolute start comes either from the coarsest phase set (its period covers the coded
-range) or from a Gray code that orders it. Each finer set is then unwrapped by the
-current estimate x: the fringe order is ``k = rint((x - f P) / P)`` with f the wrapped
-phase in cycles, the residual ``r - k`` measures the disagreement, and the new set is
-fused into x by inverse-variance weighting. A pixel is
+The absolute start is the Gray code (ordering its phase set), a phase whose period
+covers the coded range, or a synthetic (beat) period that does
+(:mod:`scanqa.decoding.chain`). Each further step is unwrapped by the previous step's
+estimate x: the fringe order is ``k = rint(x / P - f)`` with f the wrapped phase in
+cycles, and the residual ``x / P - f - k`` measures the disagreement. x_p is the
+finest phase set's own ``(f + k) P`` (every set fused by inverse variance with
+``fuse_periods``). A pixel is
 
 - *low modulation* when a set's modulation is below ``min_modulation_dn``, when its
   predicted phase noise (times the margin) exceeds the accepted residual, when the
-  predicted residual of an unwrapping step does, or when a Gray bit is undecidable;
-- *inconsistent* when an observed residual exceeds the accepted one;
+  predicted residual of an unwrapping step does, when a Gray bit is undecidable, or
+  when the phase lies too close to the edge of its Gray cell for its noise;
+- *inconsistent* when an observed residual exceeds the accepted one (or the phase
+  lies outside its Gray cell by more than ``gray_edge_cells``);
 - *out of range* when the result lies outside [-0.5, width - 0.5).
 
-Everything works on flat row chunks (no per-pixel Python loop).
+Everything works on flat row chunks (no per-pixel Python loop); counts for the decode
+summary (how many pixels each step checked and rejected, why pixels were dark, how the
+periods disagree) are gathered in a :class:`ChainStats`.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa.decoding.coding import GrayCodeSet, PatternDescription, SensorModel, Thresholds
+from scanqa.decoding import chain
+from scanqa.decoding.coding import GrayCodeSet, PatternDescription, ReferenceSet, SensorModel
 from scanqa.decoding.demodulate import TWO_PI, ShiftFit, demodulate_flat, sample_variance
+from scanqa.decoding.gray import decode_gray, reference_levels
 from scanqa.decoding.phasemap import (
     MASK_INCONSISTENT,
     MASK_LOW_MODULATION,
@@ -30,9 +38,16 @@ from scanqa.decoding.phasemap import (
     MASK_SATURATED,
     MASK_VALID,
 )
+from scanqa.decoding.response import PhaseErrorTable, ProjectorResponse
 
-#: Half-width of a Gray-code stripe in cycles of the ordered period (stripes are P / 2).
-GRAY_QUANTISATION = 0.25
+#: Reasons for low modulation (bits of a uint8), in the order the summary names them.
+LOW_FLOOR, LOW_PHASE, LOW_STEP, LOW_GRAY = 1, 2, 4, 8
+LOW_REASONS = {LOW_FLOOR: "modulation below thresholds.min_modulation_dn",
+               LOW_PHASE: "phase too noisy for its own period",
+               LOW_STEP: "predicted unwrapping residual too large",
+               LOW_GRAY: "Gray-code bit undecidable (dark, shadow or cell edge)"}
+#: Every this many valid pixels one enters the period-disagreement statistics.
+DISAGREEMENT_STRIDE = 7
 
 
 @dataclass(frozen=True, eq=False)
@@ -41,6 +56,7 @@ class _SetPlan:
     period_px: float
     steps: int
     fit: ShiftFit
+    correction: PhaseErrorTable | None
 
 
 @dataclass(frozen=True, eq=False)
@@ -51,33 +67,74 @@ class UnwrapPlan:
     ----------
     phase : tuple
         Phase sets, coarsest first, with their least-squares constants.
+    steps : tuple of chain.Step
+        The unwrapping chain (absolute start first).
     gray : GrayCodeSet or None
-        The Gray-code set ordering ``phase[0]``.
+        The Gray-code set.
+    reference : ReferenceSet or None
+        The white/black reference set.
+    gray_threshold : str
+        "inverse", "reference" or "offset" (empty without Gray code).
+    gray_cell_px : float
+        Gray cell width [projector px].
     sensor : SensorModel
-        Resolved noise model (bit depth and saturation filled in).
+        Resolved noise model (gain, read noise, bit depth and saturation).
     quantised : bool
         Integer images: add the quantisation variance.
-    thresholds : Thresholds
-        Decision thresholds.
-    width_px : int
-        Coded range [projector px].
+    desc : PatternDescription
+        The coding (thresholds, width, options).
     """
 
     phase: tuple
+    steps: tuple
     gray: GrayCodeSet | None
+    reference: ReferenceSet | None
+    gray_threshold: str
+    gray_cell_px: float
     sensor: SensorModel
     quantised: bool
-    thresholds: Thresholds
-    width_px: int
+    desc: PatternDescription
 
     @classmethod
-    def build(cls, desc: PatternDescription, sensor: SensorModel,
-              quantised: bool) -> UnwrapPlan:
-        """Plan for a description and a resolved sensor model."""
-        phase = tuple(_SetPlan(s.name, s.period_px, s.steps, ShiftFit.from_shifts(s.shifts_rad))
+    def build(cls, desc: PatternDescription, sensor: SensorModel, quantised: bool,
+              response: ProjectorResponse | None = None) -> UnwrapPlan:
+        """Plan for a description, a resolved sensor model and an optional response."""
+        if response is not None and desc.phase_sets:
+            response.check_covers(desc.phase_sets)
+        phase = tuple(_SetPlan(s.name, s.period_px, s.steps, ShiftFit.from_shifts(s.shifts_rad),
+                               response.table_for(s) if response else None)
                       for s in desc.phase_sets)
-        return cls(phase, desc.gray_set, sensor, quantised, desc.thresholds,
-                   desc.projector_width_px)
+        steps = ()
+        if phase:
+            ordered = desc.ordered_set
+            steps = chain.plan_chain(
+                [p.period_px for p in phase], [p.name for p in phase],
+                desc.projector_width_px, desc.thresholds.max_period_ratio,
+                start=None if ordered is None else [p.name for p in phase].index(ordered.name))
+        return cls(phase, steps, desc.gray_set, desc.reference_set, desc.gray_threshold,
+                   desc.gray_cell_px, sensor, quantised, desc)
+
+
+@dataclass(eq=False)
+class ChainStats:
+    """Counts gathered over all chunks for the decode summary.
+
+    ``checked[name]`` pixels reached the step (not yet low or saturated),
+    ``rejected[name]`` of them were inconsistent, ``uniform[name]`` is the share an
+    unrelated pattern would reject, ``noisy[name]`` were first marked low there;
+    ``low[bit]`` counts masked pixels by low-modulation reason; ``disagreement[name]``
+    holds samples of each set's coordinate minus x_p at valid pixels [projector px].
+    """
+
+    checked: dict = field(default_factory=dict)
+    rejected: dict = field(default_factory=dict)
+    uniform: dict = field(default_factory=dict)
+    noisy: dict = field(default_factory=dict)
+    low: dict = field(default_factory=dict)
+    disagreement: dict = field(default_factory=dict)
+
+    def count(self, table: str, key: str, n: int) -> None:
+        getattr(self, table)[key] = getattr(self, table).get(key, 0) + int(n)
 
 
 @dataclass(eq=False)
@@ -90,11 +147,15 @@ class _Flags:
 
     @classmethod
     def zeros(cls, size: int) -> _Flags:
-        return cls(*(np.zeros(size, bool) for _ in range(3)))
+        return cls(np.zeros(size, bool), np.zeros(size, np.uint8), np.zeros(size, bool))
+
+    def open(self) -> np.ndarray:
+        """Pixels neither saturated nor low so far."""
+        return (self.low == 0) & ~self.saturated
 
 
 def unwrap_rows(plan: UnwrapPlan, frames: dict[str, np.ndarray],
-                out: dict[str, np.ndarray]) -> None:
+                out: dict[str, np.ndarray], stats: ChainStats) -> None:
     """Decode one chunk of rows in place.
 
     Parameters
@@ -105,23 +166,30 @@ def unwrap_rows(plan: UnwrapPlan, frames: dict[str, np.ndarray],
         The chunk's frames of every set, keyed by set name [DN].
     out : dict of str to (h, W) arrays
         Views into the outputs ``xp``, ``modulation``, ``offset``, ``mask``,
-        ``sigma_xp``; written in place.
+        ``sigma_xp`` (and ``x:<set>`` for per-set coordinates); written in place.
+    stats : ChainStats
+        Updated with this chunk's counts.
     """
     shape = out["xp"].shape
     flat = {k: v.reshape(v.shape[0], -1) for k, v in frames.items()}
     flags = _Flags.zeros(int(np.prod(shape)))
     with np.errstate(divide="ignore", invalid="ignore", over="ignore"):
         sets = [_demodulate_set(plan, sp, flat[sp.name], flags) for sp in plan.phase]
-        x, var = _absolute_start(plan, sets[0], flat, flags)
-        for sp, measured in zip(plan.phase[1:], sets[1:], strict=True):
-            x, var = _unwrap_step(plan.thresholds, sp.period_px, x, var, measured, flags)
+        gray = _gray(plan, flat, sets, flags)
+        x, var, per_set = _run_chain(plan, sets, gray, flags, stats)
         mask = _mask(plan, x, flags)
         valid = mask == MASK_VALID
+        _gather(plan, per_set, gray, x, valid, mask, flags, stats)
         out["xp"][...] = np.where(valid, x, np.nan).reshape(shape)
         out["sigma_xp"][...] = np.where(valid, np.sqrt(var), np.nan).reshape(shape)
+        for name, (xs, _) in per_set.items():
+            if f"x:{name}" in out:
+                out[f"x:{name}"][...] = np.where(valid, xs, np.nan).reshape(shape)
     out["mask"][...] = mask.reshape(shape)
-    out["offset"][...] = sets[-1][0].reshape(shape)
-    out["modulation"][...] = sets[-1][1].reshape(shape)
+    offset, modulation = (sets[-1][0], sets[-1][1]) if sets else (gray[1].mid_dn,
+                                                                   gray[1].contrast_dn)
+    out["offset"][...] = offset.reshape(shape)
+    out["modulation"][...] = modulation.reshape(shape)
 
 
 def _demodulate_set(plan: UnwrapPlan, sp: _SetPlan, frames: np.ndarray,
@@ -129,79 +197,166 @@ def _demodulate_set(plan: UnwrapPlan, sp: _SetPlan, frames: np.ndarray,
     """(A, B, f, var_x) of one set; flags saturation and per-set low modulation."""
     flags.saturated |= frames.max(axis=0) >= plan.sensor.saturation_dn
     a, b, frac, var_phi = demodulate_flat(sp.fit, frames, plan.sensor, plan.quantised)
-    th = plan.thresholds
+    if sp.correction is not None:
+        frac = sp.correction.correct(frac)
+    th = plan.desc.thresholds
     if th.min_modulation_dn > 0:
-        flags.low |= b < th.min_modulation_dn
+        flags.low |= np.where(b < th.min_modulation_dn, LOW_FLOOR, 0).astype(np.uint8)
     # the wrapped phase itself must be reliable to within the accepted residual
-    flags.low |= ~(var_phi * (th.unwrap_sigma_margin / TWO_PI) ** 2
-                   <= th.unwrap_max_residual ** 2)
+    noisy = ~(var_phi * (th.unwrap_sigma_margin / TWO_PI) ** 2 <= th.unwrap_max_residual ** 2)
+    flags.low |= noisy.view(np.uint8) * np.uint8(LOW_PHASE)
     return a, b, frac, var_phi * (sp.period_px / TWO_PI) ** 2
 
 
-def _absolute_start(plan: UnwrapPlan, coarse: tuple, flat: dict[str, np.ndarray],
-                    flags: _Flags) -> tuple[np.ndarray, np.ndarray]:
-    """Absolute x and its variance from the coarsest set (and the Gray code)."""
-    a0, _, frac0, var0 = coarse
-    period = plan.phase[0].period_px
-    if plan.gray is None:
-        # centre the unused part of the period on the ends of the coded range
-        margin = 0.5 + 0.5 * (period - plan.width_px)
-        return np.mod(frac0 * period + margin, period) - margin, var0
-    half = _gray_half_period_index(plan, flat[plan.gray.name], a0, flags)
-    th = plan.thresholds
-    r = ((half + 0.5) * 0.5 - frac0)
-    k = np.rint(r)
-    flags.inconsistent |= np.abs(r - k) > th.gray_max_residual
-    slack = th.gray_max_residual - GRAY_QUANTISATION
-    flags.low |= ~(var0 * th.unwrap_sigma_margin ** 2 <= (slack * period) ** 2)
-    return (frac0 + k) * period, var0
-
-
-def _gray_half_period_index(plan: UnwrapPlan, frames: np.ndarray, offset: np.ndarray,
-                            flags: _Flags) -> np.ndarray:
-    """Decoded half-period index h of every pixel; flags undecidable bits."""
+def _gray(plan: UnwrapPlan, flat: dict, sets: list, flags: _Flags):
+    """(set name, GrayDecode) of the chunk, or None without Gray code."""
     gray = plan.gray
-    bits = gray.bits
-    f = frames.astype(np.float64)
-    if gray.inverse:
-        diff = f[:bits] - f[bits:]
-        var = (sample_variance(f[:bits], plan.sensor, plan.quantised)
-               + sample_variance(f[bits:], plan.sensor, plan.quantised))
+    if gray is None:
+        return None
+    threshold = None
+    if plan.gray_threshold == "reference":
+        threshold = reference_levels(plan.reference, flat[plan.reference.name], plan.sensor,
+                                     plan.quantised)
+    elif plan.gray_threshold == "offset":
+        index = [p.name for p in plan.phase].index(plan.steps[0].name)
+        a = sets[index][0]
+        threshold = (a, sample_variance(a, plan.sensor, plan.quantised)
+                     / plan.phase[index].steps)
+    th = plan.desc.thresholds
+    dec = decode_gray(gray, flat[gray.name], plan.sensor, plan.quantised,
+                      th.gray_min_contrast_sigma, threshold)
+    flags.low |= dec.undecidable.view(np.uint8) * np.uint8(LOW_GRAY)
+    return gray.name, dec
+
+
+def _step_phase(plan: UnwrapPlan, step: chain.Step, sets: list
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Wrapped phase [cycles] and coordinate variance [px^2] of a (synthetic) step."""
+    if step.is_set:
+        index = step.weights.index(1)
+        return sets[index][2], sets[index][3]
+    frac = np.zeros_like(sets[0][2])
+    var_cycles = np.zeros_like(frac)
+    for w, sp, s in zip(step.weights, plan.phase, sets, strict=True):
+        if w:
+            frac += w * s[2]
+            var_cycles += (w * w / sp.period_px ** 2) * s[3]
+    return frac - np.floor(frac), var_cycles * step.period_px ** 2
+
+
+def _run_chain(plan: UnwrapPlan, sets: list, gray, flags: _Flags, stats: ChainStats):
+    """x_p and its variance, and every phase set's own (x, var) by name."""
+    per_set: dict = {}
+    if not plan.steps:  # a Gray code alone: the cell centre, quantisation as noise
+        w = plan.gray_cell_px
+        x = gray[1].cell * w + 0.5 * (w - 1.0)
+        return x, np.full(x.shape, w * w / 12.0), per_set
+    first, rest = plan.steps[0], plan.steps[1:]
+    frac, var = _step_phase(plan, first, sets)
+    if gray is not None:
+        x = _gray_order(plan, first, gray[1].cell, frac, var, flags, stats)
     else:
-        diff = f - offset
-        steps = plan.phase[0].steps
-        var = (sample_variance(f, plan.sensor, plan.quantised)
-               + sample_variance(offset, plan.sensor, plan.quantised) / steps)
-    z = plan.thresholds.gray_min_contrast_sigma
-    flags.low |= (diff * diff < z * z * var).any(axis=0)
-    binary = np.zeros(f.shape[1], bool)
-    half = np.zeros(f.shape[1], np.int64)
-    for bit in diff > 0:  # most significant first: b_i = b_(i-1) xor g_i
-        binary ^= bit
-        half = (half << 1) | binary
-    return half
+        x = _absolute(plan, first, frac)
+    if first.is_set:
+        per_set[first.name] = (x, var)
+    period = first.period_px
+    for step in rest:  # a set coarser than the estimate is unwrapped, but not used on
+        frac_s, var_s = _step_phase(plan, step, sets)
+        x_s = _unwrap_step(plan, step, x, var, frac_s, var_s, flags, stats)
+        if step.period_px < period:
+            x, var, period = x_s, var_s, step.period_px
+        if step.is_set:
+            per_set[step.name] = (x_s, var_s)
+    if not plan.desc.options.fuse_periods:
+        return *per_set[plan.phase[-1].name], per_set
+    weight = sum(1.0 / v for _, v in per_set.values())
+    fused = sum(xs / v for xs, v in per_set.values()) / weight
+    return fused, 1.0 / weight, per_set
 
 
-def _unwrap_step(th: Thresholds, period: float, x: np.ndarray, var_x: np.ndarray,
-                 measured: tuple, flags: _Flags) -> tuple[np.ndarray, np.ndarray]:
-    """Unwrap one finer set with the current estimate and fuse it in."""
-    _, _, frac, var_i = measured
+def _absolute(plan: UnwrapPlan, step: chain.Step, frac: np.ndarray) -> np.ndarray:
+    """Coordinate from a phase whose period covers the coded range.
+
+    The unused part of the period is centred on the ends of the range, so that noise
+    at either end cannot wrap to the other.
+    """
+    period = step.period_px
+    margin = 0.5 + 0.5 * (period - plan.desc.projector_width_px)
+    return np.mod(frac * period + margin, period) - margin
+
+
+def _gray_order(plan: UnwrapPlan, step: chain.Step, cell: np.ndarray, frac: np.ndarray,
+                var: np.ndarray, flags: _Flags, stats: ChainStats) -> np.ndarray:
+    """Fringe order of the ordered set from the Gray cell (interval test)."""
+    period, w = step.period_px, plan.gray_cell_px
+    th = plan.desc.thresholds
+    edge = min(th.gray_edge_cells * w, 0.5 * max(period - w, 0.0))
+    centre = cell * w + 0.5 * (w - 1.0)
+    k = np.rint(centre / period - frac)
+    x = (frac + k) * period
+    dist = np.abs(x - centre)
+    accept = 0.5 * w + edge
+    bad = (dist > accept) | (period - dist <= accept)
+    # the phase must keep a noise margin from the decision boundary half a period away
+    clearance = 0.5 * period - dist
+    noisy = ~bad & ~(var * (3.0 * th.unwrap_sigma_margin) ** 2 <= clearance * clearance)
+    _check_step(stats, f"{plan.gray.name} -> {step.name}", flags, bad,
+                1.0 - min(1.0, 2.0 * accept / period), noisy)
+    return x
+
+
+def _unwrap_step(plan: UnwrapPlan, step: chain.Step, x: np.ndarray, var_x: np.ndarray,
+                 frac: np.ndarray, var_step: np.ndarray, flags: _Flags,
+                 stats: ChainStats) -> np.ndarray:
+    """Unwrap one step with the current estimate; its own coordinate."""
+    th = plan.desc.thresholds
+    period = step.period_px
     r = x / period - frac
     k = np.rint(r)
-    flags.inconsistent |= np.abs(r - k) > th.unwrap_max_residual
-    predicted = (var_x + var_i) * (th.unwrap_sigma_margin / period) ** 2
-    flags.low |= ~(predicted <= th.unwrap_max_residual ** 2)
-    w_x, w_i = 1.0 / var_x, 1.0 / var_i
-    fused = (x * w_x + (frac + k) * period * w_i) / (w_x + w_i)
-    return fused, 1.0 / (w_x + w_i)
+    bad = np.abs(r - k) > th.unwrap_max_residual
+    predicted = (var_x + var_step) * (th.unwrap_sigma_margin / period) ** 2
+    noisy = ~(predicted <= th.unwrap_max_residual ** 2)
+    _check_step(stats, step.name, flags, bad, 1.0 - 2.0 * th.unwrap_max_residual, noisy)
+    return (frac + k) * period
+
+
+def _check_step(stats: ChainStats, name: str, flags: _Flags, bad: np.ndarray,
+                uniform: float, noisy: np.ndarray) -> None:
+    """Record a step's rejections and noise flags."""
+    open_ = flags.open()
+    stats.count("noisy", name, np.count_nonzero(open_ & noisy))
+    flags.low |= noisy.view(np.uint8) * np.uint8(LOW_STEP)
+    open_ &= ~noisy
+    stats.count("checked", name, np.count_nonzero(open_))
+    stats.count("rejected", name, np.count_nonzero(open_ & bad))
+    stats.uniform[name] = uniform
+    flags.inconsistent |= bad
 
 
 def _mask(plan: UnwrapPlan, x: np.ndarray, flags: _Flags) -> np.ndarray:
     """Reason codes, the first reason that applies winning."""
-    outside = ~((x >= -0.5) & (x < plan.width_px - 0.5))
+    outside = ~((x >= -0.5) & (x < plan.desc.projector_width_px - 0.5))
     mask = np.full(x.shape, MASK_VALID, np.uint8)
     mask[outside] = MASK_OUT_OF_RANGE
     mask[flags.inconsistent] = MASK_INCONSISTENT
-    mask[flags.low | ~np.isfinite(x)] = MASK_LOW_MODULATION
+    mask[(flags.low != 0) | ~np.isfinite(x)] = MASK_LOW_MODULATION
     mask[flags.saturated] = MASK_SATURATED
     return mask
+
+
+def _gather(plan: UnwrapPlan, per_set: dict, gray, x: np.ndarray, valid: np.ndarray,
+            mask: np.ndarray, flags: _Flags, stats: ChainStats) -> None:
+    """Low-modulation reasons and samples of the disagreement of every set with x_p."""
+    low = flags.low[mask == MASK_LOW_MODULATION]
+    for bit in LOW_REASONS:
+        stats.count("low", bit, np.count_nonzero(low & bit))
+    pick = np.flatnonzero(valid)[::DISAGREEMENT_STRIDE]
+    if not pick.size:
+        return
+    for name, (xs, _) in per_set.items():
+        if plan.desc.options.fuse_periods or name != plan.phase[-1].name:
+            stats.disagreement.setdefault(name, []).append(xs[pick] - x[pick])
+    if gray is not None and plan.steps:
+        w = plan.gray_cell_px
+        centre = gray[1].cell[pick] * w + 0.5 * (w - 1.0)
+        stats.disagreement.setdefault(gray[0], []).append(centre - x[pick])

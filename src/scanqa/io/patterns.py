@@ -1,7 +1,9 @@
-"""The ``patterns.toml`` file: what was projected for one scan (docs/formats.rst).
+"""The ``patterns.toml`` file: what was projected for one scan (docs/codings.rst).
 
-This module reads and writes the file only; :mod:`scanqa.decoding.coding` validates
-its content into the decoder's types.
+This module reads and writes the file only; :mod:`scanqa.decoding.parsing` validates
+its content into the decoder's types. Version 2 added Gray codes of any cell width
+with white/black reference frames, the ``[decode]`` table and ``gray_edge_cells``;
+version 1 files are still read (with their meaning unchanged).
 """
 
 from __future__ import annotations
@@ -12,8 +14,10 @@ from pathlib import Path
 from scanqa.errors import ConfigError
 from scanqa.io.tomlfile import dumps_toml, read_toml
 
-#: Value of the ``format`` key this version reads and writes.
-FORMAT = "scanqa-patterns/1"
+#: Value of the ``format`` key this version writes.
+FORMAT = "scanqa-patterns/2"
+#: Values of the ``format`` key this version reads.
+READ_FORMATS = ("scanqa-patterns/1", FORMAT)
 #: File name looked up when a folder is given.
 PATTERNS_FILE = "patterns.toml"
 
@@ -38,7 +42,7 @@ def read_patterns_file(path: str | os.PathLike) -> tuple[dict, Path]:
         p = p / PATTERNS_FILE
     data = read_toml(p, "pattern description", ConfigError,
                      missing=f"no pattern description {p} (write a {PATTERNS_FILE}; see "
-                             "docs/formats.rst, 'patterns.toml')")
+                             "docs/codings.rst, or let 'scanqa patterns' write one)")
     return data, p
 
 
