@@ -264,7 +264,9 @@ class SimulatorConfig(_Section):
     added before the camera blur, which filters it. ``unwrap_periods_px`` are the
     coarser phase sets (``steps`` frames each, like the working period) that unwrap
     the working period. ``roi_width_px``/``roi_height_px`` render a centred window of
-    the sensor (0: the whole sensor) with unchanged optics.
+    the sensor (0: the whole sensor) with unchanged optics. ``projector_gamma`` is the
+    projector's response: it emits ``p**projector_gamma`` for a pattern value p in
+    [0, 1] (1: linear, the default).
     """
 
     section: ClassVar[str] = "simulator"
@@ -283,6 +285,7 @@ class SimulatorConfig(_Section):
     unwrap_periods_px: tuple = _spec("px", gt=0, kind="list", default=[80.0, 1280.0])
     roi_width_px: int = _spec("px", ge=0, kind="int", default=0)
     roi_height_px: int = _spec("px", ge=0, kind="int", default=0)
+    projector_gamma: float = _spec("", gt=0, le=10, default=1.0)
 
 
 _SECTIONS = {"camera": CameraConfig, "projector": ProjectorConfig, "fringes": FringeConfig,

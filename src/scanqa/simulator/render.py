@@ -404,10 +404,10 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
     r0, r1, c0, c1 = tile
     k_pattern = 0
     for set_index, pset in enumerate(desc.sets):
-        phasor = _phasor(pts, d_panel, pset.period_px, table)
+        fringe = _Fringe(pts, d_panel, pset.period_px, table, sim.projector_gamma)
         for k, delta in enumerate(pset.shifts_rad):
             key = _stream_key(config, (*acq.key, k_pattern))
-            lit_part = m * pts.shade * (1.0 + (phasor * np.exp(1j * delta)).real)
+            lit_part = m * pts.shade * fringe.relative(delta)
             radiance = sim.mean_signal_e * (ambient + lit_part)
             if sim.scene_noise_rel > 0:
                 radiance += sim.scene_noise_rel * mean_level * _scene_noise(key, ix, iy, scale)
@@ -421,9 +421,71 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
     return bool(pts.lit.any())
 
 
-def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage
-            ) -> np.ndarray:
-    """Disc-averaged complex fringe M(pi d / P) exp(i 2 pi x_p / P) of lit samples."""
+def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage,
+            harmonic: int = 1) -> np.ndarray:
+    """Disc-averaged complex fringe M(pi d h / P) exp(i h 2 pi x_p / P) of lit samples."""
     x_p = np.where(pts.lit, pts.x_p, 0.0)
-    contrast = table(np.pi * d_panel / period)
-    return np.where(pts.lit, contrast * np.exp(2j * np.pi * x_p / period), 0.0)
+    contrast = table(np.pi * d_panel * harmonic / period)
+    return np.where(pts.lit, contrast * np.exp(2j * np.pi * harmonic * x_p / period), 0.0)
+
+
+#: Harmonics of a gamma-distorted fringe that the renderer keeps.
+GAMMA_HARMONICS = 8
+
+
+def response_harmonics(gamma: float, harmonics: int = GAMMA_HARMONICS) -> np.ndarray:
+    """Cosine-series coefficients of ``(0.5 + 0.5 cos t) ** gamma``.
+
+    Parameters
+    ----------
+    gamma : float
+        Projector response exponent [-].
+    harmonics : int
+        Highest harmonic kept [-].
+
+    Returns
+    -------
+    (harmonics + 1,) float64
+        c_0 .. c_H with ``(0.5 + 0.5 cos t) ** gamma = sum_h c_h cos(h t)`` [-]; for
+        gamma = 1, (0.5, 0.5, 0, ...).
+
+    Examples
+    --------
+    >>> response_harmonics(2.0, 3).round(6).tolist()
+    [0.375, 0.5, 0.125, 0.0]
+    """
+    t = 2.0 * np.pi * np.arange(1024) / 1024
+    spectrum = np.fft.rfft((0.5 + 0.5 * np.cos(t)) ** gamma) / 1024
+    coef = 2.0 * spectrum.real[:harmonics + 1]
+    coef[0] /= 2.0
+    return coef
+
+
+class _Fringe:
+    """What a phase set's panel pattern puts on the scene, blurred by the projector.
+
+    A linear projector (gamma 1) shows ``1 + Re(M e^(i(theta + delta)))`` (relative to
+    the mean lit level); with a response ``p**gamma`` every harmonic h of the distorted
+    fringe is averaged over the blur disc at its own frequency, ``2 sum_h c_h Re(M_h
+    e^(i h (theta + delta)))``.
+    """
+
+    def __init__(self, pts: _Points, d_panel: np.ndarray, period: float,
+                 table: DiscAverage, gamma: float) -> None:
+        self.gamma = gamma
+        if gamma == 1.0:  # today's images, bit for bit
+            self.phasor = _phasor(pts, d_panel, period, table)
+            return
+        coef = response_harmonics(gamma)
+        self.coef = [(h, c) for h, c in enumerate(coef) if h and abs(c) > 1e-7]
+        self.mean = 2.0 * coef[0]
+        self.phasors = [_phasor(pts, d_panel, period, table, h) for h, _ in self.coef]
+
+    def relative(self, delta: float) -> np.ndarray:
+        """Lit level of frame shift ``delta`` relative to the linear mean lit level [-]."""
+        if self.gamma == 1.0:
+            return 1.0 + (self.phasor * np.exp(1j * delta)).real
+        out = np.full(self.phasors[0].shape, self.mean)
+        for (h, c), phasor in zip(self.coef, self.phasors, strict=True):
+            out += 2.0 * c * (phasor * np.exp(1j * h * delta)).real
+        return out
