@@ -24,6 +24,7 @@ COMMAND_MODULES = (
     "scanqa.cli.annotate",
     "scanqa.cli.qa",
     "scanqa.cli.demo",
+    "scanqa.cli.patterns",
     "scanqa.cli.decode",
     "scanqa.cli.simulate",
 )
