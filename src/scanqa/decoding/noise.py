@@ -30,8 +30,7 @@ import itertools
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import nnls
-from scipy.stats import chi2
+from scipy.special import gammainc, gammaincinv
 
 from scanqa.decoding.coding import (
     DEFAULT_SENSOR,
@@ -43,8 +42,9 @@ from scanqa.decoding.coding import (
 )
 from scanqa.decoding.demodulate import ShiftFit, fit_residual
 
-#: Pixels sampled (whole rows, evenly spaced) for the estimate.
-SAMPLE_PIXELS = 250000
+#: Pixels sampled (whole rows, evenly spaced) for the estimate: the variance is then
+#: known to about 1 % (chi-square with one degree of freedom per sample).
+SAMPLE_PIXELS = 60000
 #: Fewest usable samples for an estimate (the variance is then known to ~6 %).
 MIN_SAMPLES = 500
 
@@ -212,7 +212,7 @@ def _repeat_deviations(frames: np.ndarray) -> tuple:
 
 
 def fit_variance(s2: np.ndarray, dof: np.ndarray, level: np.ndarray,
-                 floor: float = 1e-6, iterations: int = 8) -> tuple[float, float]:
+                 floor: float = 1e-6, iterations: int = 5) -> tuple[float, float]:
     """Fit ``s2 ~ a + b level`` robustly (chi-square weights and trimming).
 
     Parameters
@@ -234,20 +234,38 @@ def fit_variance(s2: np.ndarray, dof: np.ndarray, level: np.ndarray,
     a, b : float
         Floor [DN^2] and shot slope [DN].
     """
-    x = np.column_stack([np.ones_like(level), np.maximum(level, 0.0)])
-    root = np.sqrt(dof)
-    coef = nnls(x * root[:, None], s2 * root)[0]
-    cut = chi2.ppf(0.999, dof) / dof
+    level = np.maximum(level, 0.0)
+    values, index = np.unique(dof, return_inverse=True)
+    quantile = 2.0 * gammaincinv(values / 2.0, 0.999)  # chi-square 99.9 % quantile
+    cut = (quantile / values)[index]
+    coef = _nnls2(level, s2, dof)
     keep = np.ones(s2.size, bool)
     for _ in range(iterations):
-        pred = np.maximum(x @ coef, floor)
+        pred = np.maximum(coef[0] + coef[1] * level, floor)
         keep = s2 <= cut * pred
-        w = np.sqrt(dof[keep]) / pred[keep]
-        coef = nnls(x[keep] * w[:, None], s2[keep] * w)[0]
+        coef = _nnls2(level[keep], s2[keep], dof[keep] / pred[keep] ** 2)
     # E[s2 | s2 <= c] = P(chi2_(nu+2) <= c nu) / P(chi2_nu <= c nu) E[s2]
-    kept = chi2.cdf(cut * dof, dof + 2) / chi2.cdf(cut * dof, dof)
-    coef /= float(np.mean(kept[keep]))
+    kept = (gammainc(values / 2.0 + 1.0, quantile / 2.0)
+            / gammainc(values / 2.0, quantile / 2.0))[index]
+    coef = coef / float(np.mean(kept[keep]))
     return float(max(coef[0], floor)), float(coef[1])
+
+
+def _nnls2(level: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted least squares ``y ~ a + b level`` with a, b >= 0 (normal equations)."""
+    wl = w * level
+    normal = np.array([[w.sum(), wl.sum()], [wl.sum(), wl @ level]])
+    rhs = np.array([w @ y, wl @ y])
+    try:
+        coef = np.linalg.solve(normal, rhs)
+    except np.linalg.LinAlgError:
+        coef = np.array([-1.0, -1.0])
+    if (coef >= 0).all():
+        return coef
+    # one coefficient at its bound 0: the better of the two one-term fits
+    only = [max(rhs[i] / normal[i, i], 0.0) if normal[i, i] > 0 else 0.0 for i in (0, 1)]
+    cost = [only[i] * (only[i] * normal[i, i] - 2 * rhs[i]) for i in (0, 1)]
+    return np.array([only[0], 0.0]) if cost[0] <= cost[1] else np.array([0.0, only[1]])
 
 
 def _to_sensor(sensor: SensorModel, a: float, b: float, quantised: bool) -> SensorModel:
