@@ -257,3 +257,81 @@ def test_writer_rejects_float_png(tmp_path):
     desc = _desc()
     with pytest.raises(InputError, match=r"need a 2-D uint8 .* array"):
         write_pattern_set(tmp_path, desc, [im.astype(float) for im in _images(desc)])
+
+
+# ------------------------------------------------------------- formats, versions
+
+def test_bmp_round_trip_decodes(tmp_path):
+    desc = _desc()
+    images = _images(desc, np.uint8)
+    write_pattern_set(tmp_path / "bmp", desc, images, image_format="bmp")
+    loaded = load_patterns(tmp_path / "bmp")
+    assert loaded.sets[0].files[0].endswith(".bmp")
+    for got, want in zip(read_pattern_images(loaded), images, strict=True):
+        np.testing.assert_array_equal(got, want)
+    assert decode_pattern_dir(tmp_path / "bmp").valid.all()
+
+
+def test_jpeg_is_read_with_a_warning(tmp_path):
+    from PIL import Image
+
+    desc = _desc()
+    written = write_pattern_set(tmp_path, desc, _images(desc, np.uint8), image_format="png")
+    for pset in written.sets:
+        for name in pset.files:
+            Image.open(tmp_path / name).save(tmp_path / name.replace(".png", ".jpg"),
+                                             quality=95)
+    toml = tmp_path / "patterns.toml"
+    toml.write_text(toml.read_text().replace(".png", ".jpg"))
+    summary = decode_pattern_dir(tmp_path).summary()
+    assert "images are lossy-compressed (coarse_00.jpg, ...): JPEG-like compression " \
+           "biases the phase" in summary
+
+
+def test_colour_images_need_a_channel_key(tmp_path):
+    from PIL import Image
+
+    desc = _desc()
+    images = _images(desc, np.uint8)
+    written = write_pattern_set(tmp_path, desc, images, image_format="png")
+    for pset, stack in zip(written.sets, images, strict=True):
+        for name, frame in zip(pset.files, stack, strict=True):
+            rgb = np.stack([frame // 2, frame, np.zeros_like(frame)], axis=-1)
+            Image.fromarray(rgb).save(tmp_path / name)  # fringes in the green channel
+    with pytest.raises(InputError, match=r"colour image \(mode 'RGB'\); name the channel "
+                                         r"that carries the fringes with channel = "):
+        read_pattern_images(load_patterns(tmp_path))
+    toml = tmp_path / "patterns.toml"
+    toml.write_text(toml.read_text().replace('channel = ""', 'channel = "green"'))
+    got = read_pattern_images(load_patterns(tmp_path))
+    np.testing.assert_array_equal(got[1], images[1])
+    assert read_image(tmp_path / written.sets[0].files[0], "red").max() < 128
+
+
+def test_version_1_files_keep_their_meaning(tmp_path):
+    text = ('format = "scanqa-patterns/1"\nprojector_width_px = 640\n'
+            '[thresholds]\ngray_max_residual = 0.4\n'
+            '[sensor]\ngain_e_per_dn = 2.0\n'
+            + _SET.replace("640.0", "32.0")
+            + '[[set]]\nkind = "gray"\nbits = 6\ninverse = true\n'
+              f'files = [{", ".join(f"{chr(34)}{i}{chr(34)}" for i in range(12))}]\n')
+    desc = load_patterns(_toml(tmp_path, text))
+    gray = desc.gray_set
+    assert gray.inverse == "grouped" and gray.cell_px is None
+    assert desc.gray_cell_px == 16.0  # half the ordered period, as version 1 defined it
+    # cycles of the ordered period beyond the 1/4 quantisation, in cells of half a period
+    assert desc.thresholds.gray_edge_cells == pytest.approx(0.3)
+    assert desc.thresholds.unwrap_sigma_margin == 4.0  # version 1's default
+    assert desc.sensor.read_noise_e == 8.0  # version 1 filled in the missing one
+    assert desc.to_dict()["format"] == "scanqa-patterns/2"
+    with pytest.raises(ConfigError, match=r"unknown key set\[1\]\.cell_px"):
+        load_patterns(_toml(tmp_path, text.replace("bits = 6", "bits = 6\ncell_px = 4.0")))
+
+
+def test_committed_sample_scans_still_load():
+    from tests.conftest import ROOT
+
+    files = sorted((ROOT / "sample_data").rglob("patterns.toml"))
+    assert files
+    desc = load_patterns(files[0])
+    assert desc.sensor.knows_noise and desc.thresholds.unwrap_sigma_margin == 4.0

@@ -105,8 +105,7 @@ def _phase_map(desc: PatternDescription, out: dict, stats: ChainStats, noise: No
         diagnostics.apply_guard(out)
     arrays = {k: v for k, v in out.items() if not k.startswith("x:")}
     info = _decode_info(desc, stats, noise, response, misstated, notes)
-    info["hint"] = diagnostics.mask_hint(desc, count_reasons(out["mask"]), stats,
-                                         noise.source)
+    info["hint"] = diagnostics.mask_hint(desc, count_reasons(out["mask"]), stats)
     return PhaseMap(**arrays, period_px=desc.working_period_px, orientation=desc.orientation,
                     projector_width_px=desc.projector_width_px,
                     provenance=_provenance(desc, noise, np.asarray(images[0]), info))

@@ -86,8 +86,7 @@ def disagreement(stats: ChainStats) -> list[dict]:
     return rows
 
 
-def mask_hint(desc: PatternDescription, counts: dict, stats: ChainStats,
-              noise_source: str) -> str:
+def mask_hint(desc: PatternDescription, counts: dict, stats: ChainStats) -> str:
     """When most pixels are masked: the dominant reason and the key that changes it."""
     total = sum(counts.values())
     masked = {k: v for k, v in counts.items() if k != "valid"}
@@ -96,10 +95,10 @@ def mask_hint(desc: PatternDescription, counts: dict, stats: ChainStats,
     reason = max(masked, key=masked.get)
     share = 100.0 * masked[reason] / total
     head = f"most pixels are masked: {reason} {share:.0f} % of the frame"
-    return f"{head}; {_fix(desc, reason, stats, noise_source)}"
+    return f"{head}; {_fix(desc, reason, stats)}"
 
 
-def _fix(desc: PatternDescription, reason: str, stats: ChainStats, noise_source: str) -> str:
+def _fix(desc: PatternDescription, reason: str, stats: ChainStats) -> str:
     th, sensor = desc.thresholds, desc.sensor
     if reason == "saturated":
         return ("lower the exposure (or set sensor.saturation_dn if the camera saturates "
@@ -112,11 +111,10 @@ def _fix(desc: PatternDescription, reason: str, stats: ChainStats, noise_source:
                 f"{th.unwrap_max_residual:g}) and thresholds.gray_edge_cells (now "
                 f"{th.gray_edge_cells:g}) set how much disagreement is accepted, and a "
                 "projector response (decode.response) removes gamma ripple")
-    return _low_fix(desc, stats, noise_source, sensor.knows_noise)
+    return _low_fix(desc, stats, sensor.knows_noise)
 
 
-def _low_fix(desc: PatternDescription, stats: ChainStats, noise_source: str,
-             given: bool) -> str:
+def _low_fix(desc: PatternDescription, stats: ChainStats, given: bool) -> str:
     th = desc.thresholds
     low = {bit: stats.low.get(bit, 0) for bit in LOW_REASONS}
     bit = max(low, key=low.get)
@@ -132,7 +130,7 @@ def _low_fix(desc: PatternDescription, stats: ChainStats, noise_source: str,
         key = f"lower thresholds.unwrap_sigma_margin (now {th.unwrap_sigma_margin:g})"
     else:
         key = f"lower thresholds.min_modulation_dn (now {th.min_modulation_dn:g})"
-    return f"mostly {what}: {key}, {noise} (noise now: {noise_source}), or add light"
+    return f"mostly {what}: {key}, {noise}, or add light"
 
 
 def mask_reason_names() -> dict:

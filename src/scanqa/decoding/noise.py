@@ -45,8 +45,8 @@ from scanqa.decoding.demodulate import ShiftFit, fit_residual
 #: Pixels sampled (whole rows, evenly spaced) for the estimate: the variance is then
 #: known to about 1 % (chi-square with one degree of freedom per sample).
 SAMPLE_PIXELS = 60000
-#: Fewest usable samples for an estimate (the variance is then known to ~6 %).
-MIN_SAMPLES = 500
+#: Fewest usable samples for an estimate (the variance is then known to ~10 %).
+MIN_SAMPLES = 200
 
 
 @dataclass(frozen=True)
