@@ -69,6 +69,7 @@ BAD_INPUTS = {
     "characterize": ["nope_dir", "--config", "calib/paper_scanner.toml"],
     "demo": ["--out", "/proc/forbidden/demo"],
     "init": ["i.toml", "--calibration", "nope.xml"],
+    "patterns": ["sim", "--config", "nope.toml"],
 }
 
 
