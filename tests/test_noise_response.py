@@ -170,9 +170,9 @@ def test_gamma_is_measured_on_one_flat_and_corrects_another(tmp_path):
     before, after = _ripple(raw, second, 32.0), _ripple(fixed, second, 32.0)
     assert before > 0.8  # px: the uncorrected ripple (measured 1.05 px)
     assert after < 0.1 * before  # acceptance: corrected error below 0.1 x
-    # what is left is the noise the decoder predicts (rms 0.088 px, sigma 0.08 px)
+    # what is left is mostly the noise the decoder predicts (rms 0.088 px)
     err = fixed.xp[fixed.valid] - second[fixed.valid]
-    assert np.sqrt(np.mean(err ** 2)) < 1.3 * np.median(fixed.sigma_xp[fixed.valid])
+    assert np.std(err / fixed.sigma_xp[fixed.valid]) < 1.2
     assert "projector response" in fixed.summary()
 
 

@@ -75,8 +75,10 @@ class PhaseErrorTable:
                               "must be >= 4 finite values of magnitude < pi/2 [rad]")
         n = err.size
         centres = (np.arange(n) + 0.5) / n
+        slope = (np.roll(err, -1) - np.roll(err, 1)) * (n / 2.0) / _TWO_PI  # d e / d phi
         grid = (np.concatenate([[centres[-1] - 1.0], centres, [centres[0] + 1.0]]),
-                np.concatenate([[err[-1]], err, [err[0]]]) / _TWO_PI)
+                np.concatenate([[err[-1]], err, [err[0]]]) / _TWO_PI,
+                np.concatenate([[slope[-1]], slope, [slope[0]]]))
         object.__setattr__(self, "error_rad", err)
         object.__setattr__(self, "shifts_rad", tuple(float(s) for s in self.shifts_rad))
         object.__setattr__(self, "_grid", grid)
@@ -87,10 +89,25 @@ class PhaseErrorTable:
                 and self.steps == pset.steps
                 and np.allclose(self.shifts_rad, pset.shifts_rad, atol=1e-6))
 
-    def correct(self, frac: np.ndarray) -> np.ndarray:
-        """Corrected wrapped phase [cycles in [0, 1)] of a measured one [cycles]."""
-        out = frac - np.interp(frac, *self._grid)
-        return out - np.floor(out)
+    def correct(self, frac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Corrected wrapped phase of a measured one, and how it scales the noise.
+
+        Parameters
+        ----------
+        frac : (...) float
+            Measured wrapped phase [cycles in [0, 1)].
+
+        Returns
+        -------
+        corrected : (...) float64
+            ``frac - e(frac)`` [cycles in [0, 1)].
+        gain : (...) float64
+            ``|1 - de/dphi|``: where the projector compresses the phase, the correction
+            stretches it back, and the noise with it [-].
+        """
+        centres, error, slope = self._grid
+        out = frac - np.interp(frac, centres, error)
+        return out - np.floor(out), np.abs(1.0 - np.interp(frac, centres, slope))
 
     @property
     def rms_rad(self) -> float:

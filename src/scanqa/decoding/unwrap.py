@@ -198,7 +198,8 @@ def _demodulate_set(plan: UnwrapPlan, sp: _SetPlan, frames: np.ndarray,
     flags.saturated |= frames.max(axis=0) >= plan.sensor.saturation_dn
     a, b, frac, var_phi = demodulate_flat(sp.fit, frames, plan.sensor, plan.quantised)
     if sp.correction is not None:
-        frac = sp.correction.correct(frac)
+        frac, gain = sp.correction.correct(frac)
+        var_phi = var_phi * gain * gain
     th = plan.desc.thresholds
     if th.min_modulation_dn > 0:
         flags.low |= np.where(b < th.min_modulation_dn, LOW_FLOOR, 0).astype(np.uint8)
