@@ -43,8 +43,9 @@ from scanqa.calibration.table import CalibrationTable, load_table, save_table
 from scanqa.characterization import characterize_sweeps as characterize
 from scanqa.cloud import AnnotatedCloud, read_cloud, write_cloud
 from scanqa.config import ScannerConfig, load_config
-from scanqa.decoding.coding import PatternDescription, load_patterns
+from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.decoder import decode, decode_images
+from scanqa.decoding.parsing import load_patterns
 from scanqa.decoding.phasemap import PhaseMap, load_phase_map, save_phase_map
 from scanqa.errors import ConfigError, InputError, RangeError, ScanQAError
 from scanqa.optics import predict
