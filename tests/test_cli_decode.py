@@ -79,3 +79,31 @@ def test_help_has_an_example(capsys):
     with pytest.raises(SystemExit):
         main(["decode", "--help"])
     assert "scanqa decode scans/plane_010 --out" in capsys.readouterr().out
+
+
+def test_measure_response_then_name_it_in_patterns_toml(tmp_path, capsys):
+    # a projector with gamma 2.2 on a flat: the response measured on one scan corrects
+    # the next one, named from patterns.toml
+    sets = (PhaseSet("p800", 800.0, 4), PhaseSet("p40", 40.0, 4))
+    desc = PatternDescription(800, sets, sensor=SensorModel(bit_depth=12, gain_e_per_dn=4.0,
+                                                            read_noise_e=8.0))
+    v, u = np.mgrid[0:40, 0:200]
+    for name, x in (("flat", 3.0 + 3.9 * u + 0.05 * v), ("scan", 9.0 + 3.8 * u + 0.1 * v)):
+        images = [np.clip(np.rint(im), 0, 4095).astype(np.uint16)
+                  for im in synthesize_images(desc, x, 1500.0, 1000.0, gamma=2.2)]
+        write_pattern_set(tmp_path / name, desc, images)
+    response = tmp_path / "projector.toml"
+    assert main(["decode", str(tmp_path / "flat"), "--out", str(tmp_path / "flat.npz"),
+                 "--measure-response", str(response), "--quiet"]) == 0
+    assert "response: 40 px x 4 steps: phase error rms" in capsys.readouterr().out
+    plain = tmp_path / "plain.npz"
+    assert main(["decode", str(tmp_path / "scan"), "--out", str(plain), "--quiet"]) == 0
+    toml = tmp_path / "scan" / "patterns.toml"
+    toml.write_text(toml.read_text().replace('response = ""', 'response = "../projector.toml"'))
+    fixed = tmp_path / "fixed.npz"
+    assert main(["decode", str(tmp_path / "scan"), "--out", str(fixed), "--quiet"]) == 0
+    assert "projector response" in capsys.readouterr().out
+    x = 9.0 + 3.8 * u + 0.1 * v
+    err_plain = np.abs(load_phase_map(plain).xp - x).max()
+    err_fixed = np.abs(load_phase_map(fixed).xp - x).max()
+    assert err_fixed < 0.1 * err_plain, (err_fixed, err_plain)

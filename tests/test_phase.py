@@ -324,3 +324,31 @@ def test_phase_map_refuses_numbers_under_a_mask():
         PhaseMap(xp, xp, xp, np.full((2, 2), 9, np.uint8), xp, period_px=16.0)
     with pytest.raises(InputError, match="shape of xp"):
         PhaseMap(xp, xp[:1], xp, np.zeros((2, 2), np.uint8), xp, period_px=16.0)
+
+
+def test_x_p_comes_from_the_finest_period_unless_fusion_is_asked_for():
+    from dataclasses import replace
+
+    from scanqa.decoding.coding import DecodeOptions
+
+    # the 80 px set is biased by +0.5 px (as a projector's nonlinearity biases a period):
+    # x_p from the finest set alone carries none of it, a fusion some, and both say so
+    desc = _three_periods(sensor=_gaussian_sensor(3.0))
+    xp = _random_xp(seed=80)
+    rng = np.random.default_rng(80)
+    images = synthesize_images(desc, xp, 1500.0, 1000.0)
+    images[1] = synthesize_images(desc, xp + 0.5, 1500.0, 1000.0)[1]
+    images = [im + rng.normal(0.0, 3.0, im.shape) for im in images]
+    finest = decode_images(desc, images)
+    fused = decode_images(replace(desc, options=DecodeOptions(fuse_periods=True)), images)
+    assert finest.valid.mean() > 0.99 and fused.valid.mean() > 0.99
+    bias_finest = np.nanmean(finest.xp - xp)
+    bias_fused = np.nanmean(fused.xp - xp)
+    assert abs(bias_finest) < 0.002  # px
+    # inverse-variance weight of the 80 px set: (16/80)^2 / (1 + (16/80)^2) = 0.0385
+    assert bias_fused == pytest.approx(0.5 * 0.0385, rel=0.1)
+    assert np.nanmedian(fused.sigma_xp) < np.nanmedian(finest.sigma_xp)
+    rows = {r["set"]: r for r in finest.provenance["decode"]["disagreement"]}
+    assert rows["p80"]["median_px"] == pytest.approx(0.5, abs=0.01)
+    assert "x_p: finest set 'p16' alone" in finest.summary()
+    assert "inverse-variance fusion of every phase set" in fused.summary()
