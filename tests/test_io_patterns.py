@@ -321,7 +321,7 @@ def test_version_1_files_keep_their_meaning(tmp_path):
     assert desc.gray_cell_px == 16.0  # half the ordered period, as version 1 defined it
     # cycles of the ordered period beyond the 1/4 quantisation, in cells of half a period
     assert desc.thresholds.gray_edge_cells == pytest.approx(0.3)
-    assert desc.thresholds.unwrap_sigma_margin == 4.0  # version 1's default
+    assert desc.thresholds.unwrap_sigma_margin == 2.0  # not stated: today's default
     assert desc.sensor.read_noise_e == 8.0  # version 1 filled in the missing one
     assert desc.to_dict()["format"] == "scanqa-patterns/2"
     with pytest.raises(ConfigError, match=r"unknown key set\[1\]\.cell_px"):

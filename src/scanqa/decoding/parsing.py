@@ -1,13 +1,14 @@
 """Validation of a parsed ``patterns.toml`` into a :class:`PatternDescription`.
 
-Both format versions are read. Version 1 files keep their meaning: their
-``thresholds.gray_max_residual`` (cycles of the ordered period, whose Gray cells were
-always half a period) becomes ``gray_edge_cells = 2 gray_max_residual - 1/2``, and keys
-they leave out take version 1's defaults (``unwrap_sigma_margin = 4``; a ``[sensor]``
-table with only one of gain and read noise gets 4 e-/DN or 8 e- for the other). One
-thing changed on purpose: a version 1 file without sensor gain and read noise is
-decoded with the noise estimated from its images, as version 2 files are, instead of
-the 4 e-/DN, 8 e- guess that masked real 8-bit cameras wholesale.
+Both format versions are read. Version 1 files keep the meaning of what they state:
+their ``thresholds.gray_max_residual`` (cycles of the ordered period, whose Gray cells
+were always half a period) becomes ``gray_edge_cells = 2 gray_max_residual - 1/2``, and
+a ``[sensor]`` table with only one of gain and read noise gets version 1's 4 e-/DN or
+8 e- for the other. What they leave out takes today's defaults, on purpose: without
+sensor gain and read noise the noise is estimated from the images (the 4 e-/DN, 8 e-
+guess masked real 8-bit cameras wholesale), and ``unwrap_sigma_margin`` is 2 (version
+1's 4 asked a 12 sigma excursion for a fringe-order error). Every file the simulator
+wrote states both, so it decodes as before.
 """
 
 from __future__ import annotations
@@ -127,7 +128,6 @@ def _thresholds(fmt: str, table: Any) -> Thresholds:
     gray = args.pop("gray_max_residual", 0.375)
     _require(0.25 < gray < 0.5, "thresholds.gray_max_residual", gray,
              "in (0.25, 0.5) [cycles]")
-    args.setdefault("unwrap_sigma_margin", 4.0)
     return Thresholds(**args, gray_edge_cells=2.0 * gray - 0.5)
 
 
