@@ -7,8 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from scanqa.calibration.build import WEIGHT_MODES, build_table
-from scanqa.calibration.sweep import iter_observations
+from scanqa.calibration.build import WEIGHT_MODES
+from scanqa.calibration.sweep import calibrate
 from scanqa.calibration.table import save_table
 from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
 from scanqa.io.atomic import check_out_dir, write_text
@@ -35,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-modulation", type=float, default=0.0, metavar="DN",
                    help="reject samples with modulation below this [DN] (default: decoder "
                         "mask only)")
+    p.add_argument("--no-markers", action="store_true",
+                   help="ignore the sweep's marker frames: lateral X, Y from 'lateral' maps "
+                        "or the config's pinhole (for comparison)")
     p.set_defaults(func=run)
 
 
@@ -48,10 +51,10 @@ def run(args: argparse.Namespace) -> int:
     out = check_out_dir(args.out)
     sweep = load_sweep(args.sweep)
     total = sweep.observation_count()
-    table, report = build_table(iter_observations(sweep), config, weights=args.weights,
-                                cell_px=args.cell, min_modulation=args.min_modulation,
-                                provenance=sweep.provenance(),
-                                progress=lambda done: _progress(done, total))
+    table, report = calibrate(sweep, config, weights=args.weights, cell_px=args.cell,
+                              min_modulation=args.min_modulation,
+                              progress=lambda done: _progress(done, total),
+                              use_markers=not args.no_markers)
     save_table(out, table)
     stem = out.with_suffix("")
     info = report_calibration.summary(table, report)
