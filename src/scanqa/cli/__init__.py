@@ -20,6 +20,7 @@ from scanqa.errors import ScanQAError
 COMMAND_MODULES = (
     "scanqa.cli.init",
     "scanqa.cli.design",
+    "scanqa.cli.sweep_manifest",
     "scanqa.cli.calibrate",
     "scanqa.cli.annotate",
     "scanqa.cli.qa",

@@ -200,3 +200,96 @@ def read_lateral(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             return np.asarray(data["X"], float), np.asarray(data["Y"], float)
     except (OSError, KeyError, ValueError) as err:
         raise InputError(f"{path}: cannot read lateral arrays X, Y ({err})") from None
+
+
+# ------------------------------------------------------------------- generating one
+
+
+def read_stage_readings(text: str, source: str = "stage readings") -> list[float]:
+    """Stage readings [mm] from a comma list (``"430,432.5"``) or a CSV file's text.
+
+    A CSV holds one reading per line, in its last column (so ``capture,z_mm`` rows
+    work); a first line that is not a number is a header; ``#`` starts a comment.
+
+    Raises
+    ------
+    InputError
+        A line whose reading is not a finite number (named by its line number).
+    """
+    lines = text.splitlines() if "\n" in text.strip() else [v for v in text.split(",")]
+    out = []
+    for n, line in enumerate(lines, 1):
+        cell = line.split("#", 1)[0].strip()
+        if not cell:
+            continue
+        last = cell.split(",")[-1].strip() if "\n" in text.strip() else cell
+        try:
+            value = float(last)
+        except ValueError:
+            if n == 1 and not out:
+                continue  # a header
+            raise InputError(f"{source}, line {n}: {line.strip()!r} is not a stage reading "
+                             "[mm] (one number per line, or in the last CSV column)") from None
+        if not math.isfinite(value):
+            raise InputError(f"{source}, line {n}: the stage reading must be finite [mm]")
+        out.append(value)
+    return out
+
+
+def sweep_manifest(captures: list[str], readings: list[float], markers: list[str] | None,
+                   square_mm: float | None, decoded: bool, scanner: dict | None = None,
+                   description: str = "") -> dict:
+    """The ``sweep.toml`` content for captures taken at stage readings.
+
+    Parameters
+    ----------
+    captures : list of str
+        Pattern folders (or phase files, ``decoded``), relative to the manifest, one per
+        scan in capture order.
+    readings : list of float
+        The stage reading of each capture [mm]; equal readings are repeats of one
+        position.
+    markers : list of str, optional
+        One marker frame per distinct reading, in increasing reading order.
+    square_mm : float, optional
+        The printed target's square [mm] (required with ``markers``).
+    decoded : bool
+        Captures are phase files (``phase``) rather than pattern folders (``patterns``).
+    scanner : dict, optional
+        The ``[scanner]`` table (:data:`SCANNER_KEYS`).
+    description : str
+        Free text.
+
+    Raises
+    ------
+    InputError
+        Counts that do not match, fewer than 3 positions, markers without a square size.
+    """
+    if len(captures) != len(readings):
+        raise InputError(f"{len(captures)} captures but {len(readings)} stage readings: give "
+                         "one reading per capture, in the captures' name order (repeats "
+                         "repeat the reading)")
+    zs = sorted(set(readings))
+    if len(zs) < 3:
+        raise InputError(f"a sweep needs at least 3 distinct stage readings, got {len(zs)}")
+    if markers is not None and len(markers) != len(zs):
+        raise InputError(f"{len(markers)} marker frames but {len(zs)} distinct stage "
+                         "readings: give one marker frame per position")
+    if markers is not None and not (square_mm and square_mm > 0):
+        raise InputError("marker frames need the printed target's square size (--square-mm, "
+                         "> 0 mm)")
+    key = "phase" if decoded else "patterns"
+    rows = []
+    for k, z in enumerate(zs):
+        row = {"z_mm": z, key: [c for c, r in zip(captures, readings, strict=True) if r == z]}
+        if markers is not None:
+            row["markers"] = markers[k]
+        rows.append(row)
+    out: dict = {"format": FORMAT, "description": description or
+                 f"{len(zs)} positions, {len(captures)} scans"}
+    if scanner:
+        out["scanner"] = dict(scanner)
+    if markers is not None:
+        out["target"] = {"kind": "chessboard", "square_mm": float(square_mm)}
+    out["position"] = rows
+    return out
