@@ -95,7 +95,7 @@ def _xp_at(xp: np.ndarray, uv: np.ndarray, half: int = 3) -> np.ndarray:
     out = np.full(len(uv), np.nan)
     dv, du = np.mgrid[-half:half + 1, -half:half + 1]
     for n, (u, v) in enumerate(uv):
-        iu, iv = int(round(u)), int(round(v))
+        iu, iv = round(float(u)), round(float(v))
         if not (half <= iu < xp.shape[1] - half and half <= iv < xp.shape[0] - half):
             continue
         patch = xp[iv - half:iv + half + 1, iu - half:iu + half + 1]

@@ -14,8 +14,12 @@ import numpy as np
 import pytest
 
 from scanqa.calibration.sweep import calibrate, check_scale, check_sweep
-from scanqa.calibration.target import ChessboardSpec, Detection, detect_chessboard, \
-    fit_sweep_geometry
+from scanqa.calibration.target import (
+    ChessboardSpec,
+    Detection,
+    detect_chessboard,
+    fit_sweep_geometry,
+)
 from scanqa.cli import main
 from scanqa.config import load_config
 from scanqa.errors import InputError
