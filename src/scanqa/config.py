@@ -268,8 +268,8 @@ class SimulatorConfig(_Section):
     projector's response: it emits ``p**projector_gamma`` for a pattern value p in
     [0, 1] (1: linear, the default).
 
-    Real-hardware realism (docs/simulator.rst, "Distortion, tilted stage, printed
-    target"), all off by default: ``camera_k1 .. camera_p2`` and ``projector_k1 ..
+    Real-hardware realism (see docs/simulator.rst,
+    "Distortion, tilted stage, printed target"), all off by default: ``camera_k1 .. camera_p2`` and ``projector_k1 ..
     projector_p2`` are Brown-Conrady (OpenCV) coefficients on normalised pinhole
     coordinates; ``stage_tilt_deg`` tilts the calibration stage's axis against the camera
     axis towards ``stage_tilt_azimuth_deg`` (0: +X, 90: +Y); ``target_tilt_deg`` turns the

@@ -160,8 +160,8 @@ def refine_corners(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, n
     within its pixel when the image is sharp (undersampled); smoothing by
     :data:`REFINE_SIGMA_PX` first and refining by gradient orthogonality over
     ``2 x REFINE_HALF_WINDOW_PX + 1`` px removes most of it (on simulated frames of the
-    sample camera, 0.08 -> 0.03 px RMS in focus; docs/calibration.rst, "The marked
-    target").
+    sample camera, 0.08 -> 0.03 px RMS in focus; see docs/calibration.rst,
+    "The marked target").
 
     Returns
     -------
