@@ -124,8 +124,8 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
     Parameters
     ----------
     out : str or Path
-        Output folder (created). Every output is staged and published together at the
-        end: a failed run leaves ``out`` as it was.
+        Output folder (created). The outputs are staged and published together at the
+        end: a failed run leaves them as they were.
     data : str or Path
         The data set: ``calibration_sweep/``, ``gauge_blocks/`` (with its
         ``layout.toml``) and a ``camera_sweep/`` and/or ``projector_sweep/``, each with
@@ -133,71 +133,72 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
         repository is one).
     full_config : ScannerConfig, optional
         Simulate the data set with this config first (into ``out/data``; ``data`` is
-        then ignored).
+        then ignored). Each simulated experiment is published as soon as it is complete
+        (it is the demo's input: an hour of simulation is kept if a later stage fails).
 
     Notes
     -----
     Progress goes to the ``scanqa`` logger (:mod:`scanqa.progress`).
     """
     target = Path(out)
-    with staged_dir(target) as stage:
-        result = _run_stages(stage, Path(data), full_config)
-    result.out = target
-    return result
-
-
-def _run_stages(out: Path, data: Path, full_config: ScannerConfig | None) -> DemoResult:
-    """The demo's stages, writing into ``out`` (the staging folder)."""
     stage = _Stages(7 if full_config is not None else 6)
     with stage.bar:
         if full_config is not None:
             stage("simulating the data at the config's full resolution (long)")
-            data = simulate_full(full_config, out / "data")
-        sweeps = check_data(data)
-        config = manifest_config(data / "gauge_blocks")
+            data = simulate_full(full_config, target / "data")
+        with staged_dir(target) as staged:
+            result = _run_stages(stage, staged, Path(data))
+    result.out = target
+    return result
 
-        stage(f"characterising the scanner from the {' and '.join(p.name for p in sweeps)} "
-              "(Figs. 3 and 4 procedure)")
-        sweep_config = manifest_config(sweeps[0])
-        char = characterize_sweeps(sweeps, sweep_config)
-        write_characterization(char, out / "characterization", sweep_config)
-        fitted = char.apply_to(config)
-        variant = char.summary()["best_variant"]
-        log.info(f"supported reading: filter_floor={variant['filter_floor']}, noise_reading="
-                 f"{variant['noise_reading']}, sigma_p={variant['sigma_p_px']:.4g} px, gamma="
-                 f"{variant['gamma']:.3g} ({100 * variant['rms_relative']:.1f} % RMS)")
 
-        stage("building the weighted calibration table")
-        table, build = calibrate(data / "calibration_sweep" / "sweep.toml", fitted,
-                                 weights="model")
-        table.save(out / "table.npz")
-        write_text(out / "table_report.html", calibration_report.render(table, build))
-        write_text(out / "table_report.json",
-                   json.dumps(calibration_report.summary(table, build), indent=1))
+def _run_stages(stage: _Stages, out: Path, data: Path) -> DemoResult:
+    """The demo's stages after the data exist, writing into ``out`` (a staging folder)."""
+    sweeps = check_data(data)
+    config = manifest_config(data / "gauge_blocks")
 
-        stage("annotating the gauge-block scan (3 repeats)")
-        scans = sorted((data / "gauge_blocks").glob("p000_r*"))
-        if not scans:
-            raise InputError(f"no gauge-block scans in {data / 'gauge_blocks'}")
-        maps = [decode_pattern_dir(p) for p in scans]
-        cloud = annotate(maps[0], table, fitted, maps[1:], keep_invalid=True,
-                         source=str(scans[0]))
-        cloud.write(out / "gauge_cloud.ply")
-        log.info(cloud.summary())
+    stage(f"characterising the scanner from the {' and '.join(p.name for p in sweeps)} "
+          "(Figs. 3 and 4 procedure)")
+    sweep_config = manifest_config(sweeps[0])
+    char = characterize_sweeps(sweeps, sweep_config)
+    write_characterization(char, out / "characterization", sweep_config)
+    fitted = char.apply_to(config)
+    variant = char.summary()["best_variant"]
+    log.info(f"supported reading: filter_floor={variant['filter_floor']}, noise_reading="
+             f"{variant['noise_reading']}, sigma_p={variant['sigma_p_px']:.4g} px, gamma="
+             f"{variant['gamma']:.3g} ({100 * variant['rms_relative']:.1f} % RMS)")
 
-        stage("gauge-block QA")
-        layout = load_layout(data / "gauge_blocks" / "layout.toml")
-        qa = run_qa(cloud, layout)
-        qa_report.write_outputs(qa, out / "qa")
+    stage("building the weighted calibration table")
+    table, build = calibrate(data / "calibration_sweep" / "sweep.toml", fitted,
+                             weights="model")
+    table.save(out / "table.npz")
+    write_text(out / "table_report.html", calibration_report.render(table, build))
+    write_text(out / "table_report.json",
+               json.dumps(calibration_report.summary(table, build), indent=1))
 
-        # one scan has 6 steps: pool the steps of every repeat for the coverage of U
-        repeat_qa = [run_qa(annotate(m, table, fitted, keep_invalid=True), layout)
-                     for m in maps[1:]]
-        write_text(out / "qa" / "steps_all_scans.csv", _steps_csv([qa, *repeat_qa], scans))
+    stage("annotating the gauge-block scan (3 repeats)")
+    scans = sorted((data / "gauge_blocks").glob("p000_r*"))
+    if not scans:
+        raise InputError(f"no gauge-block scans in {data / 'gauge_blocks'}")
+    maps = [decode_pattern_dir(p) for p in scans]
+    cloud = annotate(maps[0], table, fitted, maps[1:], keep_invalid=True,
+                     source=str(scans[0]))
+    cloud.write(out / "gauge_cloud.ply")
+    log.info(cloud.summary())
 
-        stage("design tools on the same scanner (depth of field, W curve, volume)")
-        _design(fitted, out / "design")
-        stage("done")
+    stage("gauge-block QA")
+    layout = load_layout(data / "gauge_blocks" / "layout.toml")
+    qa = run_qa(cloud, layout)
+    qa_report.write_outputs(qa, out / "qa")
+
+    # one scan has 6 steps: pool the steps of every repeat for the coverage of U
+    repeat_qa = [run_qa(annotate(m, table, fitted, keep_invalid=True), layout)
+                 for m in maps[1:]]
+    write_text(out / "qa" / "steps_all_scans.csv", _steps_csv([qa, *repeat_qa], scans))
+
+    stage("design tools on the same scanner (depth of field, W curve, volume)")
+    _design(fitted, out / "design")
+    stage("done")
     return DemoResult(out, variant, qa, stage.timings, repeat_qa)
 
 

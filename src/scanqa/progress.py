@@ -105,7 +105,7 @@ class Progress:
         self._shown = enabled and self.logger.isEnabledFor(logging.INFO)
         if self._shown and _is_terminal():
             self._bar = tqdm(total=total, desc=desc, unit=unit, file=sys.stderr,
-                             dynamic_ncols=True, leave=True)
+                             dynamic_ncols=True, leave=None)  # an inner bar is erased when done
 
     def update(self, n: float = 1, note: str = "") -> None:
         """Count ``n`` more steps (fractions allowed) [-]; ``note`` names what finished."""
