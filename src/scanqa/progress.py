@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import sys
 from types import TracebackType
 
@@ -135,7 +136,9 @@ class Progress:
 
 
 def _is_terminal() -> bool:
+    """stderr is a terminal with a width (a pseudo-terminal of zero columns, as some
+    runners give, would show no bar at all: it gets log lines)."""
     try:
-        return sys.stderr.isatty()
-    except (AttributeError, ValueError):  # a replaced or closed stderr
+        return sys.stderr.isatty() and os.get_terminal_size(sys.stderr.fileno()).columns > 0
+    except (AttributeError, ValueError, OSError):  # a replaced or closed stderr
         return False
