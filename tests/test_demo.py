@@ -114,7 +114,7 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
 
     monkeypatch.setattr(experiments, "run_experiment", fake_run)
     config = load_config(ROOT / "sample_data" / "sample_scanner.toml", profile="sample")
-    result = demo.run_demo(tmp_path / "full", full_config=config, say=lambda msg: None)
+    result = demo.run_demo(tmp_path / "full", full_config=config)
     assert [c[0] for c in calls] == ["camera-sweep", "projector-sweep", "calibration-sweep",
                                      "gauge-blocks"]
     assert calls[1][2] == 31 and calls[2][2] == 14 and calls[3][3] == 3

@@ -27,6 +27,7 @@ for every reading including ``"mixed"`` (camera power, projector amplitude).
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -35,11 +36,14 @@ import numpy as np
 from scipy.optimize import least_squares
 
 from scanqa import design, optics
-from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig
+from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig, config_from_dict
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.fitted_model import read_fitted_model
 from scanqa.io.manifest import read_manifest
+from scanqa.progress import Progress
+
+log = logging.getLogger(__name__)
 
 #: Readings one sweep can tell apart ("mixed" equals "power" on a camera sweep and
 #: "amplitude" on a projector sweep, up to the fitted sigma_p).
@@ -174,12 +178,14 @@ def surface_residual_std(xp: np.ndarray, valid: np.ndarray) -> float:
 def _measure(sweep_dir: Path, entries: list[dict], roi_px: int) -> list[tuple]:
     """(residual std, median modulation, valid count) per acquisition."""
     out = []
-    for entry in entries:
-        pm = decode_pattern_dir(sweep_dir / entry["folder"])
-        rows, cols = _central(pm.shape, roi_px)
-        xp, valid = pm.xp[rows, cols], pm.valid[rows, cols]
-        mod = float(np.median(pm.modulation[rows, cols][valid])) if valid.any() else np.nan
-        out.append((surface_residual_std(xp, valid), mod, int(valid.sum())))
+    with Progress("characterize: decoding", len(entries), "scan", log) as bar:
+        for entry in entries:
+            pm = decode_pattern_dir(sweep_dir / entry["folder"])
+            rows, cols = _central(pm.shape, roi_px)
+            xp, valid = pm.xp[rows, cols], pm.valid[rows, cols]
+            mod = float(np.median(pm.modulation[rows, cols][valid])) if valid.any() else np.nan
+            out.append((surface_residual_std(xp, valid), mod, int(valid.sum())))
+            bar.update(1, note=entry["folder"])
     return out
 
 
@@ -291,6 +297,7 @@ def characterize_sweep(sweep_dir: str | os.PathLike, config: ScannerConfig,
     """
     sweep = Path(sweep_dir)
     manifest = read_manifest(sweep)
+    check_sweep_config(config, manifest, sweep / "manifest.toml")
     experiment = manifest.get("experiment")
     if experiment not in ("camera-sweep", "projector-sweep"):
         raise InputError(f"characterize needs a camera-sweep or projector-sweep, got "
@@ -387,14 +394,49 @@ class JointCharacterization:
                 "sweeps": [c.summary() for c in self.sweeps]}
 
 
-def characterize_sweeps(sweep_dirs: list, config: ScannerConfig, min_attenuation: float = 0.49,
-                        roi_px: int = 256) -> Characterization | JointCharacterization:
+def check_sweep_config(config: ScannerConfig, manifest: dict, source: Path) -> None:
+    """Refuse a config whose camera or projector differs from the one a sweep's manifest
+    records (a fit through the wrong geometry gives a wrong sigma_p without a sign)."""
+    recorded = manifest.get("config")
+    if recorded is None:
+        return
+    try:
+        rec = config_from_dict(recorded, source=str(source))
+    except ScanQAError as err:
+        raise InputError(f"{source}: the recorded config is invalid ({err})") from None
+    for section in ("camera", "projector"):
+        mine, theirs = asdict(getattr(config, section)), asdict(getattr(rec, section))
+        diff = [k for k in mine if mine[k] != theirs[k]]
+        if diff:
+            k = diff[0]
+            raise InputError(f"config {config.source or config.name} does not match the sweep "
+                             f"{source.parent}: {section}.{k} = {mine[k]!r} but the sweep was "
+                             f"made with {theirs[k]!r}; give the sweep's config or leave "
+                             "--config out to use the one its manifest records")
+
+
+def sweep_config(sweep_dir: str | os.PathLike) -> ScannerConfig:
+    """The scanner config recorded in a sweep's manifest."""
+    path = Path(sweep_dir) / "manifest.toml"
+    recorded = read_manifest(Path(sweep_dir)).get("config")
+    if not isinstance(recorded, dict):
+        raise InputError(f"{path} records no scanner config: give the config the sweep was "
+                         "made with (--config)")
+    return config_from_dict(recorded, source=str(path))
+
+
+def characterize_sweeps(sweep_dirs: list, config: ScannerConfig | None = None,
+                        min_attenuation: float = 0.49, roi_px: int = 256
+                        ) -> Characterization | JointCharacterization:
     """Characterise one sweep (:func:`characterize_sweep`) or fit several jointly.
 
     With several sweeps every position where its swept device's attenuation is at least
     ``min_attenuation`` enters one fit of sigma_p and gamma per reading; ``"mixed"`` is
-    among the readings when a camera and a projector sweep are both given.
+    among the readings when a camera and a projector sweep are both given. ``config``
+    defaults to the one the first sweep's manifest records; a config whose camera or
+    projector differs from a sweep's recorded one is refused.
     """
+    config = config if config is not None else sweep_config(sweep_dirs[0])
     chars = [characterize_sweep(d, config, min_attenuation, roi_px) for d in sweep_dirs]
     if len(chars) == 1:
         return chars[0]

@@ -34,6 +34,11 @@ from scanqa.io.tomlfile import read_toml
 FILTER_FLOORS = ("none", "one")
 #: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)).
 NOISE_READINGS = ("power", "amplitude", "mixed")
+#: Largest sensor or panel side a config may declare [px] (bounds every image allocation).
+MAX_SIDE_PX = 100_000
+#: Range of the magnitude of any non-zero number in a config, in its unit: beyond it a
+#: value is a typo, and the model's products of powers would overflow.
+MIN_MAGNITUDE, MAX_MAGNITUDE = 1e-9, 1e9
 
 
 def _spec(unit: str = "", gt: float | None = None, ge: float | None = None,
@@ -71,6 +76,9 @@ def _check_number(key: str, value: Any, meta: dict) -> float:
     if kind == "int" and (not float(value).is_integer()):
         raise ConfigError(f"{key} must be a whole number ({_expected(meta)}), got {value!r}")
     v = float(value)
+    if math.isfinite(v) and v != 0 and not MIN_MAGNITUDE <= abs(v) <= MAX_MAGNITUDE:
+        raise ConfigError(f"{key} must be {_expected(meta)}, between {MIN_MAGNITUDE:g} and "
+                          f"{MAX_MAGNITUDE:g} in magnitude (or 0 where allowed), got {value!r}")
     bad = (not math.isfinite(v)
            or (meta["gt"] is not None and not v > meta["gt"])
            or (meta["ge"] is not None and not v >= meta["ge"])
@@ -132,8 +140,8 @@ class CameraConfig(_Section):
     focal_mm: float = _spec("mm", gt=0)
     f_number: float = _spec("", gt=0)
     pixel_um: float = _spec("um", gt=0)
-    width_px: int = _spec("px", ge=1, kind="int")
-    height_px: int = _spec("px", ge=1, kind="int")
+    width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
+    height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     focus_mm: float = _spec("mm", gt=0)
 
     def _check_cross(self) -> None:
@@ -171,8 +179,8 @@ class ProjectorConfig(_Section):
     focal_mm: float = _spec("mm", gt=0)
     aperture_mm: float = _spec("mm", gt=0)
     pitch_um: float = _spec("um", gt=0)
-    width_px: int = _spec("px", ge=1, kind="int")
-    height_px: int = _spec("px", ge=1, kind="int")
+    width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
+    height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     focus_mm: float = _spec("mm", gt=0)
     position_mm: tuple = _spec("mm", kind="vec3")
     look_at_mm: tuple = _spec("mm", kind="vec3")
@@ -280,7 +288,7 @@ class SimulatorConfig(_Section):
     scene_noise_cell_mm: float = _spec("mm", ge=0, default=0.06)
     mean_signal_e: float = _spec("e-", gt=0, default=20000.0)
     modulation_ratio: float = _spec("", gt=0, le=1, default=0.8)
-    projector_samples: int = _spec("", ge=16, kind="int", default=256)
+    projector_samples: int = _spec("", ge=16, le=65536, kind="int", default=256)
     steps: int = _spec("", ge=3, le=64, kind="int", default=4)
     unwrap_periods_px: tuple = _spec("px", gt=0, kind="list", default=[80.0, 1280.0])
     roi_width_px: int = _spec("px", ge=0, kind="int", default=0)
@@ -390,14 +398,16 @@ def config_from_dict(data: dict, source: str = "<dict>", profile: str | None = N
         return _config_from_dict(data, source, profile)
     except ConfigError as err:
         raise ConfigError(f"{err} (in {source})") from None
-    except TypeError as err:  # pragma: no cover - defensive: bad table shapes
-        raise ConfigError(f"{err} (in {source})") from None
 
 
 def _config_from_dict(data: dict, source: str, profile: str | None) -> ScannerConfig:
     data = dict(data)
     profiles = data.pop("profiles", {})
     name = data.pop("name", Path(source).stem)
+    if not isinstance(profiles, dict):
+        raise ConfigError(f"profiles must be [profiles.NAME] tables, got {profiles!r}")
+    for pname, ptable in profiles.items():  # every profile must be valid, used or not
+        _check_profile_keys(pname, ptable)
     if profile:
         if profile not in profiles:
             avail = ", ".join(sorted(profiles)) or "none"
@@ -411,16 +421,14 @@ def _config_from_dict(data: dict, source: str, profile: str | None) -> ScannerCo
         if sec not in data and sec not in _OPTIONAL:
             raise ConfigError(f"missing table [{sec}]")
     built = {sec: _build_section(sec, data.get(sec, {})) for sec in _SECTIONS}
-    for pname, ptable in profiles.items():  # profiles must be valid too
-        if profile != pname:
-            _check_profile_keys(pname, ptable)
     return ScannerConfig(**built, name=str(name), source=source, profile=profile or "")
 
 
 def _check_profile_keys(pname: str, ptable: Any) -> None:
     """Reject profile keys that do not exist in the schema."""
     if not isinstance(ptable, dict):
-        raise ConfigError(f"[profiles.{pname}] must be a table")
+        raise ConfigError(f"[profiles.{pname}] must be a table of overrides such as "
+                          f"camera.f_number = 11.0, got {ptable!r}")
     for sec, table in ptable.items():
         if sec not in _SECTIONS or not isinstance(table, dict):
             raise ConfigError(f"unknown table {sec!r} in [profiles.{pname}]")

@@ -9,9 +9,8 @@ Everything goes into one folder; :func:`run_demo` returns what a summary needs.
 from __future__ import annotations
 
 import json
-import sys
+import logging
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -22,8 +21,9 @@ from scanqa.characterization import characterize_sweeps
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError
-from scanqa.io.atomic import make_out_dir, write_text
+from scanqa.io.atomic import make_out_dir, staged_dir, write_text
 from scanqa.io.manifest import read_manifest
+from scanqa.progress import Progress
 from scanqa.qa.blocks import QAResult, run_qa
 from scanqa.qa.layout import load_layout
 from scanqa.report import calibration as calibration_report
@@ -40,6 +40,8 @@ FULL_PLAN = (("camera-sweep", 256, "-30:30:2", 1, "camera_sweep"),
              ("gauge-blocks", 0, None, 3, "gauge_blocks"))
 #: Folders a demo data set holds (the device sweeps: one or both).
 DATA_FOLDERS = ("calibration_sweep", "gauge_blocks")
+
+log = logging.getLogger(__name__)
 
 
 @dataclass
@@ -58,28 +60,20 @@ class DemoResult:
 
 
 class _Stages:
-    """Prints '[demo i/n] stage' lines with elapsed times."""
+    """The demo's stages as one progress display (:mod:`scanqa.progress`): a bar on a
+    terminal, a line 'demo: stage i/n (name)' per stage in logs; with their times."""
 
-    def __init__(self, total: int, say: Callable[[str], None]) -> None:
-        self.total, self.say, self.done = total, say, 0
+    def __init__(self, total: int) -> None:
+        self.bar = Progress("demo", total, "stage", log)
         self.t0 = time.perf_counter()
         self.timings: dict = {}
 
     def __call__(self, name: str) -> None:
-        now = time.perf_counter()
-        self.done += 1
-        self.say(f"[demo {self.done}/{self.total}] {name} (at {now - self.t0:.1f} s)")
-        self.timings[name] = now
+        self.bar.update(1, note=name)
+        self.timings[name] = time.perf_counter()
 
 
-def _progress_line(say: Callable[[str], None], label: str) -> Callable[[int], None]:
-    def report(done: int) -> None:
-        if done % 5 == 0:
-            say(f"  {label}: {done} scans")
-    return report
-
-
-def simulate_full(config: ScannerConfig, data: Path, say: Callable[[str], None]) -> Path:
+def simulate_full(config: ScannerConfig, data: Path) -> Path:
     """Simulate the demo's data set with ``config`` (at its full resolution) into ``data``."""
     from scanqa.simulator.experiments import run_experiment
 
@@ -88,8 +82,8 @@ def simulate_full(config: ScannerConfig, data: Path, say: Callable[[str], None])
         if window:  # the device sweeps need only the central part of the sensor
             cfg = config.replace_simulator(roi_width_px=window, roi_height_px=window)
         pos = None if positions is None else _positions(positions)
-        say(f"  simulating {experiment} at {cfg.camera.width_px} x "
-            f"{cfg.camera.height_px} px into {data / folder}")
+        log.info(f"simulating {experiment} at {cfg.camera.width_px} x "
+                 f"{cfg.camera.height_px} px into {folder}")
         run_experiment(experiment, cfg, data / folder, positions=pos, repeats=repeats,
                        progress=True)
     return data
@@ -124,14 +118,14 @@ def check_data(data: Path) -> list[Path]:
 
 
 def run_demo(out: str | Path, data: str | Path = "sample_data",
-             full_config: ScannerConfig | None = None,
-             say: Callable[[str], None] | None = None) -> DemoResult:
+             full_config: ScannerConfig | None = None) -> DemoResult:
     """Run every stage on a demo data set and write the outputs into ``out``.
 
     Parameters
     ----------
     out : str or Path
-        Output folder (created).
+        Output folder (created). The outputs are staged and published together at the
+        end: a failed run leaves them as they were.
     data : str or Path
         The data set: ``calibration_sweep/``, ``gauge_blocks/`` (with its
         ``layout.toml``) and a ``camera_sweep/`` and/or ``projector_sweep/``, each with
@@ -139,17 +133,27 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
         repository is one).
     full_config : ScannerConfig, optional
         Simulate the data set with this config first (into ``out/data``; ``data`` is
-        then ignored).
-    say : callable, optional
-        Receives progress lines (default: stderr).
+        then ignored). Each simulated experiment is published as soon as it is complete
+        (it is the demo's input: an hour of simulation is kept if a later stage fails).
+
+    Notes
+    -----
+    Progress goes to the ``scanqa`` logger (:mod:`scanqa.progress`).
     """
-    say = say or (lambda msg: print(msg, file=sys.stderr, flush=True))
-    out = make_out_dir(out)
-    stage = _Stages(7 if full_config is not None else 6, say)
-    if full_config is not None:
-        stage("simulating the data at the config's full resolution (long)")
-        data = simulate_full(full_config, out / "data", say)
-    data = Path(data)
+    target = Path(out)
+    stage = _Stages(7 if full_config is not None else 6)
+    with stage.bar:
+        if full_config is not None:
+            stage("simulating the data at the config's full resolution (long)")
+            data = simulate_full(full_config, target / "data")
+        with staged_dir(target) as staged:
+            result = _run_stages(stage, staged, Path(data))
+    result.out = target
+    return result
+
+
+def _run_stages(stage: _Stages, out: Path, data: Path) -> DemoResult:
+    """The demo's stages after the data exist, writing into ``out`` (a staging folder)."""
     sweeps = check_data(data)
     config = manifest_config(data / "gauge_blocks")
 
@@ -160,13 +164,13 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
     write_characterization(char, out / "characterization", sweep_config)
     fitted = char.apply_to(config)
     variant = char.summary()["best_variant"]
-    say(f"  supported reading: filter_floor={variant['filter_floor']}, noise_reading="
-        f"{variant['noise_reading']}, sigma_p={variant['sigma_p_px']:.4g} px, gamma="
-        f"{variant['gamma']:.3g} ({100 * variant['rms_relative']:.1f} % RMS)")
+    log.info(f"supported reading: filter_floor={variant['filter_floor']}, noise_reading="
+             f"{variant['noise_reading']}, sigma_p={variant['sigma_p_px']:.4g} px, gamma="
+             f"{variant['gamma']:.3g} ({100 * variant['rms_relative']:.1f} % RMS)")
 
     stage("building the weighted calibration table")
     table, build = calibrate(data / "calibration_sweep" / "sweep.toml", fitted,
-                             weights="model", progress=_progress_line(say, "calibration"))
+                             weights="model")
     table.save(out / "table.npz")
     write_text(out / "table_report.html", calibration_report.render(table, build))
     write_text(out / "table_report.json",
@@ -180,12 +184,12 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
     cloud = annotate(maps[0], table, fitted, maps[1:], keep_invalid=True,
                      source=str(scans[0]))
     cloud.write(out / "gauge_cloud.ply")
-    say(f"  {cloud.summary()}")
+    log.info(cloud.summary())
 
     stage("gauge-block QA")
     layout = load_layout(data / "gauge_blocks" / "layout.toml")
     qa = run_qa(cloud, layout)
-    qa_report.write_outputs(qa, make_out_dir(out / "qa"))
+    qa_report.write_outputs(qa, out / "qa")
 
     # one scan has 6 steps: pool the steps of every repeat for the coverage of U
     repeat_qa = [run_qa(annotate(m, table, fitted, keep_invalid=True), layout)
@@ -217,7 +221,7 @@ def pooled_steps(result: DemoResult) -> tuple[int, int]:
 
 
 def _design(config, out: Path) -> None:
-    out.mkdir(exist_ok=True)
+    make_out_dir(out)
     focus = config.camera.focus_mm
     rows = design.dof_table(config)
     write_text(out / "dof.json", json.dumps([r.as_row() for r in rows], indent=1))

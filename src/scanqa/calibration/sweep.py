@@ -5,7 +5,7 @@ and repeat, loaded (or decoded) one at a time (:mod:`scanqa.io.sweep` reads the 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 
 from scanqa.calibration.build import BuildReport, PlaneObservation, build_table
 from scanqa.calibration.table import CalibrationTable
@@ -32,8 +32,7 @@ def iter_observations(sweep: Sweep) -> Iterator[PlaneObservation]:
 
 def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
               weights: str = "model", cell_px: int | None = None,
-              progress: Callable[[int], None] | None = None
-              ) -> tuple[CalibrationTable, BuildReport]:
+              min_modulation: float = 0.0) -> tuple[CalibrationTable, BuildReport]:
     """Build the calibration table of a sweep (the weighted calibration run).
 
     Parameters
@@ -47,8 +46,8 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
         decoder's phase noise, or equal weights.
     cell_px : int, optional
         Node spacing [camera px]; default about 0.45 mm on the object.
-    progress : callable, optional
-        Called with the number of scans read so far.
+    min_modulation : float
+        Samples with modulation below this are rejected [DN]; 0 keeps the decoder's mask.
 
     Returns
     -------
@@ -59,4 +58,5 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
     """
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
     return build_table(iter_observations(sweep), config, weights=weights, cell_px=cell_px,
-                       provenance=sweep.provenance(), progress=progress)
+                       min_modulation=min_modulation, provenance=sweep.provenance(),
+                       total=sweep.observation_count())

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
+from scanqa.cli.common import emit
 from scanqa.config import load_config
 from scanqa.demo import run_demo, summary_lines
 
@@ -33,13 +34,13 @@ def run(args: argparse.Namespace) -> int:
     full = load_config(args.full_config) if args.full else None
     result = run_demo(args.out, data=args.data, full_config=full)
     v = result.variant
-    print(f"scanner characterised: reading filter_floor={v['filter_floor']}, "
-          f"noise_reading={v['noise_reading']}, sigma_p={v['sigma_p_px']:.4g} px, "
-          f"gamma={v['gamma']:.3g}")
+    emit(f"scanner characterised: reading filter_floor={v['filter_floor']}, "
+         f"noise_reading={v['noise_reading']}, sigma_p={v['sigma_p_px']:.4g} px, "
+         f"gamma={v['gamma']:.3g}")
     for line in summary_lines(result):
-        print(line)
-    print(f"outputs in {result.out.resolve()} (table.npz, table_report.html, gauge_cloud.ply, "
-          "qa/, design/, characterization/)")
-    print(f"report: {result.report.resolve()}")
-    print(f"demo finished in {time.perf_counter() - t0:.0f} s")
+        emit(line)
+    emit(f"outputs in {result.out.resolve()} (table.npz, table_report.html, gauge_cloud.ply, "
+         "qa/, design/, characterization/)")
+    emit(f"report: {result.report.resolve()}")
+    emit(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return 0

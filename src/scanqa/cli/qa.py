@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import math
+from pathlib import Path
 
 from scanqa.annotation import annotate
 from scanqa.cli.common import (
@@ -11,12 +13,14 @@ from scanqa.cli.common import (
     add_model_argument,
     calibration_from_args,
     config_from_args,
+    emit,
+    number,
 )
 from scanqa.cloud import AnnotatedCloud, read_cloud
 from scanqa.config import ScannerConfig
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
-from scanqa.io.atomic import make_out_dir
+from scanqa.io.atomic import staged_dir
 from scanqa.qa.blocks import run_qa
 from scanqa.qa.detect import detect_blocks
 from scanqa.qa.layout import load_layout
@@ -43,13 +47,15 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_argument(p, required=False)
     add_model_argument(p)
     p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--margin", type=float, default=1.0, help="edge margin [mm] (default 1)")
-    p.add_argument("--outliers", type=float, default=None, metavar="K",
-                   help="reject points beyond K robust std of the first plane fit")
-    p.add_argument("--tolerance", type=float, default=20.0,
+    p.add_argument("--margin", type=number(ge=0, unit="mm"), default=1.0,
+                   help="edge margin [mm] (default 1)")
+    p.add_argument("--outliers", type=number(gt=0), default=None, metavar="K",
+                   help="reject points beyond K robust std of the first plane fit "
+                        "(default: no rejection)")
+    p.add_argument("--tolerance", type=number(ge=0, unit="um"), default=20.0,
                    help="tolerance on each height difference [um] (default 20)")
-    p.add_argument("--k", type=float, default=2.0, help="coverage factor (default 2)")
-    p.add_argument("--tile", type=float, default=2.0, metavar="MM",
+    p.add_argument("--k", type=number(gt=0), default=2.0, help="coverage factor (default 2)")
+    p.add_argument("--tile", type=number(gt=0, unit="mm"), default=2.0, metavar="MM",
                    help="tile size [mm] over which the noise correlation of each block is "
                         "measured; at least twice the noise's correlation length (default 2)")
     p.set_defaults(func=run)
@@ -76,31 +82,37 @@ def _heights(args: argparse.Namespace) -> dict[int, float]:
         raise InputError("--auto needs nominal heights: give --layout or --heights")
     try:
         pairs = [item.split("=") for item in args.heights.split(",")]
-        return {int(k): float(v) for k, v in pairs}
+        heights = {int(k): float(v) for k, v in pairs}
     except ValueError:
-        raise InputError(f"--heights must look like 1=50.8,2=25.4, got {args.heights!r}"
-                         ) from None
+        heights = {}
+    if len(heights) != len(pairs) or not all(math.isfinite(h) and h > 0
+                                              for h in heights.values()):
+        raise InputError(f"--heights must look like 1=50.8,2=25.4 (distinct ids, heights "
+                         f"> 0 mm), got {args.heights!r}")
+    return heights
 
 
 def run(args: argparse.Namespace) -> int:
     if not args.layout and not args.auto:
         raise InputError("give --layout FILE, or --auto to find the blocks")
-    out = make_out_dir(args.out)
-    cloud, config = _load(args)
-    layout = detect_blocks(cloud.xyz, _heights(args)) if args.auto else load_layout(args.layout)
-    result = run_qa(cloud, layout, config=config, margin_mm=args.margin,
-                    outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
-                    tile_mm=args.tile)
-    info = qa_report.write_outputs(result, out)
+    with staged_dir(args.out) as stage:  # every output, or none
+        cloud, config = _load(args)
+        layout = (detect_blocks(cloud.xyz, _heights(args)) if args.auto
+                  else load_layout(args.layout))
+        result = run_qa(cloud, layout, config=config, margin_mm=args.margin,
+                        outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
+                        tile_mm=args.tile)
+        info = qa_report.write_outputs(result, stage)
     for b in result.blocks:
-        print(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
-              f"predicted {b.predicted_std_um:.1f} um, {b.status}")
+        emit(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
+             f"predicted {b.predicted_std_um:.1f} um, {b.status}")
     for s in result.steps:
-        print(f"step {s.block_a}-{s.block_b}: error {s.error_um:+.1f} um, U {s.expanded_um:.1f}"
-              f" um, {s.decision}")
+        emit(f"step {s.block_a}-{s.block_b}: error {s.error_um:+.1f} um, U {s.expanded_um:.1f}"
+             f" um, {s.decision}")
     for note in result.notes:
-        print(f"note: {note}")
+        emit(f"note: {note}")
     frac = info["fraction_within_U"]
-    print(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of steps inside the "
-                                              "volume within U)" if frac is not None else ""))
+    emit(f"report: {Path(args.out) / 'report.html'}" + (
+        f" ({100 * frac:.0f} % of steps inside the volume within U)" if frac is not None
+        else ""))
     return 0

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
-from scanqa.cli.common import add_config_argument, config_from_args, float_list
-from scanqa.errors import InputError
+from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list, number
 
 _FMT = argparse.RawDescriptionHelpFormatter
 
@@ -20,8 +20,10 @@ def _positions(text: str) -> list[float]:
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected START:STOP:STEP or a comma-separated list, got {text!r}") from None
-    if not step > 0 or stop < start or (stop - start) / step > 10000:
-        raise argparse.ArgumentTypeError(f"need STEP > 0 and STOP >= START, got {text!r}")
+    if not (math.isfinite(start) and math.isfinite(stop) and step > 0 and stop >= start
+            and (stop - start) / step <= 10000):
+        raise argparse.ArgumentTypeError(f"need finite numbers, STEP > 0, STOP >= START and "
+                                         f"at most 10000 positions, got {text!r}")
     n = int((stop - start) / step + 1e-9) + 1
     return [round(start + i * step, 9) for i in range(n)]
 
@@ -48,12 +50,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--positions", type=_positions, default=None, metavar="LIST",
                    help="stage positions or device offsets [mm]: START:STOP:STEP or a,b,c "
                         "(write --positions=-30:30:2 when it starts with -)")
-    p.add_argument("--repeats", type=int, default=None, help="scans per position")
+    p.add_argument("--repeats", type=number(int, ge=1), default=None,
+                   help="scans per position")
     p.add_argument("--periods", type=float_list, default=None,
                    help="fine fringe periods [projector px] (default: the working period)")
     p.add_argument("--mesh", default=None, metavar="FILE", help="STL/PLY/OBJ for 'mesh'")
-    p.add_argument("--seed", type=int, default=None, help="override simulator.seed")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--seed", type=number(int, ge=0), default=None,
+                   help="override simulator.seed")
     p.set_defaults(func=run_simulate)
 
     p = sub.add_parser(
@@ -66,16 +69,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "Given a camera and a projector sweep, one sigma_p and gamma are "
                     "fitted to both, and the 'mixed' reading (camera power, projector "
                     "amplitude) is among the candidates.",
-        epilog="examples:\n  scanqa characterize cam --config calib/paper_scanner.toml "
-               "--out cam/characterize\n  scanqa characterize cam proj --config "
-               "calib/paper_scanner.toml --out both")
+        epilog="The scanner config defaults to the one recorded in the sweep's manifest; a "
+               "--config given must have the same camera and projector.\n\n"
+               "examples:\n  scanqa characterize cam --out cam/characterize\n"
+               "  scanqa characterize cam proj --config calib/paper_scanner.toml --out both")
     p.add_argument("sweep", metavar="SWEEP_DIR", nargs="+",
                    help="folder(s) written by scanqa simulate (a camera and/or projector "
                         "sweep)")
-    add_config_argument(p)
+    add_config_argument(p, required=False)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="folder for summary.json and plots (default: SWEEP_DIR/characterize)")
-    p.add_argument("--min-attenuation", type=float, default=0.49,
+    p.add_argument("--min-attenuation", type=number(gt=0), default=0.49,
                    help="fit where the model attenuation is at least this [-] (default 0.49)")
     p.set_defaults(func=run_characterize)
 
@@ -85,23 +89,21 @@ def run_simulate(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     if args.seed is not None:
-        if args.seed < 0:
-            raise InputError(f"--seed must be >= 0, got {args.seed}")
         config = config.replace_simulator(seed=args.seed)
     manifest = run_experiment(args.experiment, config, args.out, positions=args.positions,
                               repeats=args.repeats, periods=args.periods, mesh=args.mesh,
-                              progress=not args.quiet)
-    print(f"wrote {manifest}")
+                              progress=True)
+    emit(f"wrote {manifest}")
     return 0
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.characterization import characterize_sweeps
+    from scanqa.characterization import characterize_sweeps, sweep_config
     from scanqa.report.characterization import write_characterization
 
-    config = config_from_args(args)
+    config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
     result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
     out = write_characterization(result, args.out or f"{args.sweep[0]}/characterize", config)
-    print(json.dumps(result.summary(), indent=1))
-    print(f"wrote {out}")
+    emit(json.dumps(result.summary(), indent=1))
+    emit(f"wrote {out}")
     return 0

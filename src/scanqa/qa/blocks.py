@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -83,7 +84,9 @@ class BlockResult:
 
     @property
     def ratio(self) -> float:
-        """Measured / predicted std [-]."""
+        """Measured / predicted std [-] (NaN without a positive prediction)."""
+        if not self.predicted_std_um > 0:
+            return math.nan
         return self.measured_std_um / self.predicted_std_um
 
     def row(self) -> dict:
@@ -200,7 +203,7 @@ def _attr(attrs: dict, name: str, idx: np.ndarray, default: float = math.nan) ->
 
 def _select(xyz: np.ndarray, spec: BlockSpec, margin: float, z_window: float) -> np.ndarray:
     x0, x1, y0, y1 = spec.region_mm
-    sel = ((xyz[:, 0] >= x0 + margin) & (xyz[:, 0] <= x1 - margin)
+    sel = (np.isfinite(xyz).all(axis=1) & (xyz[:, 0] >= x0 + margin) & (xyz[:, 0] <= x1 - margin)
            & (xyz[:, 1] >= y0 + margin) & (xyz[:, 1] <= y1 - margin))
     if spec.top_z_mm is not None:
         sel &= np.abs(xyz[:, 2] - spec.top_z_mm) <= z_window
@@ -248,6 +251,7 @@ def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarra
     los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(los @ fit.normal)
     sig = _attr(attrs, "sigma_model_um", idx) * 1e-3 * cos
+    sig[~(sig > 0)] = np.nan  # a zero, negative or NaN sigma predicts nothing
     res.n_points, res.fit, res.index = n, fit, idx
     res.measured_std_um = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
     res.flatness_um = 1e3 * float(np.ptp(fit.residuals))
@@ -343,7 +347,8 @@ def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
     correlated within each block: no tilt, the whole sigma_tab as a shift.
     """
     sa, sb = a.table_sigma_um * 1e-3, b.table_sigma_um * 1e-3
-    if not (math.isfinite(a.table_corr_mm) and math.isfinite(b.table_corr_mm)):
+    if not (a.table_corr_mm > 0 and b.table_corr_mm > 0
+            and math.isfinite(a.table_corr_mm) and math.isfinite(b.table_corr_mm)):
         return sa**2 + sb**2
     na, nb = _independent_patches(a), _independent_patches(b)
     tilt = sum((lv / s) ** 2 for lv, s in zip(lever, a.spread_mm, strict=True))
@@ -394,6 +399,40 @@ def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k:
     return out
 
 
+def _check_settings(margin_mm: float, outlier_k: float | None, tolerance_um: float,
+                    k: float, knn: int, tile_mm: float) -> None:
+    """Refuse settings that would give meaningless numbers."""
+    checks = (("edge margin", margin_mm, 0.0, "mm", True), ("tolerance", tolerance_um, 0.0,
+              "um", True), ("coverage factor k", k, 0.0, "", False),
+              ("tile size", tile_mm, 0.0, "mm", False), ("neighbour count", knn, 2, "", False))
+    for name, value, bound, unit, inclusive in checks:
+        ok = isinstance(value, numbers.Real) and math.isfinite(value) and (
+            value >= bound if inclusive else value > bound)
+        if not ok:
+            raise InputError(f"{name} must be {'>=' if inclusive else '>'} {bound:g} {unit}"
+                             f", got {value!r}".replace(" ,", ","))
+    if outlier_k is not None and not (math.isfinite(outlier_k) and outlier_k > 0):
+        raise InputError(f"outlier rejection K must be > 0 robust std (or not given), got "
+                         f"{outlier_k!r}")
+
+
+def _no_block_message(xyz: np.ndarray, layout: Layout, margin_mm: float) -> str:
+    """Why no block holds a point: the extents of the cloud and of the layout [mm]."""
+    pts = xyz[np.isfinite(xyz).all(axis=1)]
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    regions = np.array([b.region_mm for b in layout.blocks])
+    span_cloud = float(np.max(hi - lo))
+    span_layout = float(max(np.ptp(regions[:, :2]), np.ptp(regions[:, 2:])))
+    hint = (" The cloud is about 1000 times smaller than the layout: is it in metres? "
+            "scanqa reads millimetres." if 0 < span_cloud < span_layout / 100 else
+            " Check that cloud and layout share the scanner frame.")
+    return (f"no block of the layout holds a point of the cloud (after the {margin_mm:g} mm "
+            f"edge margin): the cloud spans X {lo[0]:.4g} to {hi[0]:.4g}, Y {lo[1]:.4g} to "
+            f"{hi[1]:.4g} mm; the blocks X {regions[:, 0].min():.4g} to "
+            f"{regions[:, 1].max():.4g}, Y {regions[:, 2].min():.4g} to "
+            f"{regions[:, 3].max():.4g} mm.{hint}")
+
+
 def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | None = None,
            margin_mm: float = 1.0, outlier_k: float | None = None,
            tolerance_um: float = 20.0, k: float = 2.0, knn: int = 16,
@@ -427,16 +466,20 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     -------
     QAResult
     """
+    _check_settings(margin_mm, outlier_k, tolerance_um, k, knn, tile_mm)
     xyz, attrs = np.asarray(cloud.xyz, dtype=float), cloud.attributes
+    if not np.isfinite(xyz).all(axis=1).any():
+        raise InputError(f"the cloud has no points with finite coordinates ({len(xyz)} "
+                         "points): nothing to measure")
     notes = []
     has_pred = "sigma_model_um" in attrs
     if not has_pred:
         notes.append("the cloud has no sigma attributes: the predicted-std column is missing "
                      "and step uncertainties use the measured residual std instead")
-    if not tile_mm > 0:
-        raise InputError(f"tile size must be > 0 mm, got {tile_mm!r}")
     blocks = [analyse_block(xyz, attrs, spec, margin_mm, outlier_k, tile_mm=tile_mm)
               for spec in layout.blocks]
+    if not any(b.n_points for b in blocks):
+        raise InputError(_no_block_message(xyz, layout, margin_mm))
     notes += [b.message for b in blocks if b.message]
     notes += [f"block {b.block_id}: only {b.n_tiles} tiles of {tile_mm:g} mm, too few to "
               "measure the noise correlation; its points are taken as independent"

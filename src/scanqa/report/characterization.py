@@ -14,7 +14,7 @@ import numpy as np
 
 from scanqa.characterization import Characterization, JointCharacterization, VariantFit
 from scanqa.config import ScannerConfig
-from scanqa.io.atomic import make_out_dir, write_text
+from scanqa.io.atomic import staged_dir, write_text
 from scanqa.report.plots import new_figure, save_png
 
 
@@ -23,16 +23,16 @@ def write_characterization(result: Characterization | JointCharacterization,
                            config: ScannerConfig | None = None) -> Path:
     """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir`` (for a
     joint fit, one pair per sweep: ``std_camera-sweep.png``, ...)."""
-    out = make_out_dir(out_dir)
     summary = json.dumps(_json_safe(result.summary()), indent=1)
-    write_text(out / "summary.json", summary + "\n")
-    if config is not None:
-        if isinstance(result, JointCharacterization):
-            for c in result.sweeps:
-                _plot(c, config, out, result.fits, f"_{c.experiment}")
-        else:
-            _plot(result, config, out)
-    return out / "summary.json"
+    with staged_dir(out_dir) as out:  # the summary and its plots together, or none
+        write_text(out / "summary.json", summary + "\n")
+        if config is not None:
+            if isinstance(result, JointCharacterization):
+                for c in result.sweeps:
+                    _plot(c, config, out, result.fits, f"_{c.experiment}")
+            else:
+                _plot(result, config, out)
+    return Path(out_dir) / "summary.json"
 
 
 def _json_safe(value: object) -> object:

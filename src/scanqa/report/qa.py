@@ -11,7 +11,7 @@ import os
 
 import numpy as np
 
-from scanqa.io.atomic import make_out_dir, write_text
+from scanqa.io.atomic import staged_dir, write_text
 from scanqa.qa.blocks import QAResult
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
@@ -42,16 +42,18 @@ def csv_text(rows: list[dict], columns: tuple) -> str:
 def write_outputs(result: QAResult, out_dir: str | os.PathLike) -> dict:
     """Write report.html, blocks.csv, steps.csv, summary.json and, when the result holds
     its cloud, cloud_qa.ply (the cloud plus the per-point QA fields) into ``out_dir``;
-    returns the summary. The folder is created when missing."""
-    out = make_out_dir(out_dir)
+    returns the summary. The folder is created when missing; the files are published
+    together or not at all (:func:`scanqa.io.atomic.staged_dir`)."""
     info = result.summary()
-    write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks], BLOCK_COLUMNS))
-    write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))
-    write_text(out / "summary.json", json.dumps(info, indent=1))
-    write_text(out / "report.html", render(result))
-    cloud = result.annotated_cloud()
-    if cloud is not None:
-        cloud.write(out / "cloud_qa.ply")
+    with staged_dir(out_dir) as out:
+        write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks],
+                                                BLOCK_COLUMNS))
+        write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))
+        write_text(out / "summary.json", json.dumps(info, indent=1))
+        write_text(out / "report.html", render(result))
+        cloud = result.annotated_cloud()
+        if cloud is not None:
+            cloud.write(out / "cloud_qa.ply")
     return info
 
 

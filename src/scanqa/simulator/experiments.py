@@ -7,8 +7,9 @@ Each experiment is a list of acquisitions (position x repeat). Its folder holds:
     DIR/p000_r0/                 images + patterns.toml of position 0, repeat 0
     DIR/truth/p000.npz           ground truth of position 0 (X, Y, Z, xp_true, ...)
 
-docs/formats.rst, "Experiment folders", documents every key. The manifest is
-written last, so a folder without one is an interrupted run.
+docs/formats.rst, "Experiment folders", documents every key. The folder is written in a
+hidden staging folder and published when complete, so an interrupted run leaves no
+partial experiment.
 
 Experiments:
 
@@ -26,8 +27,8 @@ Experiments:
 from __future__ import annotations
 
 import io
+import logging
 import os
-import sys
 import zipfile
 import zlib
 from collections.abc import Sequence
@@ -41,8 +42,9 @@ from scanqa.config import ScannerConfig
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 from scanqa.decoding.patternset import write_pattern_set
 from scanqa.errors import InputError
-from scanqa.io.atomic import atomic_path, make_out_dir, write_text
+from scanqa.io.atomic import atomic_path, make_out_dir, staged_dir, write_text
 from scanqa.io.tomlfile import dumps_toml as dump_toml
+from scanqa.progress import Progress
 from scanqa.simulator import devices, render, scene
 from scanqa.simulator.render import Acquisition
 
@@ -51,6 +53,8 @@ EXPERIMENTS = {"camera-sweep": 1, "projector-sweep": 1, "calibration-sweep": 2,
                "gauge-blocks": 3, "mesh": 1}
 #: Value of the manifest's ``format`` key.
 MANIFEST_FORMAT = "scanqa-simulation/1"
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -172,7 +176,9 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
     config : ScannerConfig
         Scanner config (optics and ``[simulator]``).
     out_dir : str or PathLike
-        Output folder (created; existing files of the same names are replaced).
+        Output folder (created; existing files of the same names are replaced). The
+        scans are staged and published together when all are written: a failed or
+        interrupted run leaves the folder as it was.
     positions : sequence of float, optional
         Stage positions or device offsets [mm]; default :func:`default_positions`.
     repeats : int, optional
@@ -182,7 +188,8 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
     mesh : path, optional
         Mesh file for the ``mesh`` experiment.
     progress : bool
-        Print a progress bar on stderr.
+        Show the progress (:mod:`scanqa.progress`: a bar on a terminal, a log line per
+        scan otherwise); False shows nothing.
 
     Returns
     -------
@@ -197,32 +204,39 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
         raise InputError("need at least one position and repeats >= 1")
     desc = pattern_description(config, periods)
     pos_list = build_positions(name, config, positions, mesh)
-    out = make_out_dir(out_dir)
+    target = Path(out_dir)
+    with staged_dir(target) as out:  # published together when every scan is written
+        _simulate(name, config, out, desc, pos_list, repeats, progress)
+    return target / "manifest.toml"
+
+
+def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescription,
+              pos_list: list[Position], repeats: int, progress: bool) -> None:
+    """Render every scan of an experiment and write its folder into ``out``."""
     make_out_dir(out / "truth")
-    bar = _Progress(name, len(pos_list) * repeats) if progress else None
     entries = []
-    for pos in pos_list:
-        truth = render.truth_for(config, acquisition(config, pos, 0))
-        if not truth.valid.any():
-            raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of "
-                             f"{name}: the scene is outside the camera or projector frustum")
-        write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
-        for rep in range(repeats):
-            folder = f"{pos.label}_r{rep}"
-            hook = bar.tile_hook(len(entries)) if bar else None
-            images = render.render_images(config, acquisition(config, pos, rep, name), desc,
-                                          hook)
-            write_pattern_set(out / folder, desc, images, "png")
-            entries.append(_entry(pos, rep, folder))
-    if bar:
-        bar.done()
+    with Progress(f"simulate {name}", len(pos_list) * repeats, "scan", log,
+                  enabled=progress) as bar:
+        for pos in pos_list:
+            truth = render.truth_for(config, acquisition(config, pos, 0))
+            if not truth.valid.any():
+                raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of "
+                                 f"{name}: the scene is outside the camera or projector "
+                                 "frustum")
+            write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
+            for rep in range(repeats):
+                folder = f"{pos.label}_r{rep}"
+                images = render.render_images(config, acquisition(config, pos, rep, name), desc,
+                                              lambda done, tiles: bar.update(1 / tiles))
+                write_pattern_set(out / folder, desc, images, "png")
+                entries.append(_entry(pos, rep, folder))
     if name == "calibration-sweep":
         write_text(out / "sweep.toml", dump_toml(_sweep(pos_list, entries)))
     if name == "gauge-blocks":  # the artefact's layout, for 'scanqa qa --layout'
         layout = scene.paper_gauge_layout(config.camera.focus_mm)
         write_text(out / "layout.toml", scene.gauge_layout_toml(layout))
     manifest = _manifest(name, config, desc, pos_list, repeats, entries)
-    return write_text(out / "manifest.toml", dump_toml(manifest))
+    write_text(out / "manifest.toml", dump_toml(manifest))
 
 
 def _sweep(pos_list: list[Position], entries: list[dict]) -> dict:
@@ -278,31 +292,3 @@ def write_npz(path: Path, arrays: dict) -> Path:
             info.compress_type = zipfile.ZIP_DEFLATED
             zf.writestr(info, buf.getvalue())
     return path
-
-
-class _Progress:
-    """A one-line progress bar on stderr (a line per scan when stderr is not a terminal,
-    so that logs stay readable)."""
-
-    def __init__(self, name: str, total: int) -> None:
-        self.name, self.total = name, total
-        self.tty = sys.stderr.isatty()
-
-    def tile_hook(self, done_scans: int):
-        def hook(tiles_done: int, tiles_total: int) -> None:
-            if not self.tty:
-                if tiles_done == tiles_total:
-                    sys.stderr.write(f"simulate {self.name}: scan {done_scans + 1}/"
-                                     f"{self.total} done\n")
-                    sys.stderr.flush()
-                return
-            frac = (done_scans + tiles_done / tiles_total) / self.total
-            bar = "#" * int(30 * frac)
-            sys.stderr.write(f"\rsimulate {self.name}: [{bar:<30}] {100 * frac:5.1f}% "
-                             f"(scan {done_scans + 1}/{self.total})")
-            sys.stderr.flush()
-        return hook
-
-    def done(self) -> None:
-        if self.tty:
-            sys.stderr.write("\n")

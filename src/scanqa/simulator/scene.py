@@ -12,6 +12,8 @@ STL/PLY/OBJ mesh (:func:`load_mesh`).
 from __future__ import annotations
 
 import os
+import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -226,6 +228,12 @@ def gauge_layout_toml(layout: GaugeLayout) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: What trimesh raises on a damaged or unsupported file (measured on truncated, bit-flipped
+#: and garbled STL, PLY and OBJ files); anything else is a bug and is not hidden.
+MESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, EOFError, OSError, struct.error,
+               zlib.error)
+
+
 def load_mesh(path: str | os.PathLike, translate_mm=(0.0, 0.0, 0.0)) -> Scene:
     """Load an STL/PLY/OBJ mesh as a scene (coordinates in mm, world frame).
 
@@ -239,9 +247,12 @@ def load_mesh(path: str | os.PathLike, translate_mm=(0.0, 0.0, 0.0)) -> Scene:
         raise InputError(f"mesh file {p} does not exist")
     try:
         mesh = trimesh.load(p, force="mesh")
-    except Exception as err:  # trimesh raises many types on corrupt files
-        raise InputError(f"cannot load mesh {p}: {err} (need a valid STL, PLY or OBJ)") from None
+    except MESH_ERRORS as err:
+        raise InputError(f"cannot load mesh {p}: {type(err).__name__}: {err} (need a valid "
+                         "STL, PLY or OBJ)") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError(f"mesh {p} holds no triangles (need a valid STL, PLY or OBJ)")
+    if not np.isfinite(mesh.vertices).all():
+        raise InputError(f"mesh {p} has vertices with NaN or infinite coordinates")
     mesh.apply_translation(np.asarray(translate_mm, dtype=float))
     return Scene(mesh, p.stem)
