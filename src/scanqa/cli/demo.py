@@ -39,7 +39,9 @@ def run(args: argparse.Namespace) -> int:
     for line in summary_lines(result):
         print(line)
     print(f"outputs in {result.out.resolve()} (table.npz, table_report.html, gauge_cloud.ply, "
-          "qa/, design/, characterization/)")
+          "qa/, sphere_test/, design/, characterization/)")
     print(f"report: {result.report.resolve()}")
+    if result.artefact is not None:
+        print(f"sphere test report: {result.artefact_report.resolve()}")
     print(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return 0
