@@ -346,13 +346,38 @@ def _ball_points(xyz: np.ndarray, centre, diameter: float, shell: float, what: s
 
 
 def _drop_grazing(xyz: np.ndarray, idx: np.ndarray, centre: np.ndarray, options: Options,
-                  counts: dict) -> np.ndarray:
-    """Drop the points of a ball seen at more than ``max_incidence_deg``."""
+                  counts: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the points of a ball seen at more than ``max_incidence_deg``; returns the kept
+    indices and the centre the incidences were taken from.
+
+    The normals come from a least-squares sphere, refitted once on the points kept by a
+    first cut (the mixed points at the silhouette pull a fit of all the points)."""
     pts = xyz[idx]
-    n = (pts - centre) / np.linalg.norm(pts - centre, axis=1, keepdims=True)
-    keep = _incidence_cos(pts, n) >= math.cos(math.radians(options.max_incidence_deg)) - 1e-12
+    limit = math.cos(math.radians(options.max_incidence_deg)) - 1e-12
+    c = np.asarray(centre, dtype=float)
+    for _ in range(2):
+        n = (pts - c) / np.linalg.norm(pts - c, axis=1, keepdims=True)
+        keep = _incidence_cos(pts, n) >= limit
+        if keep.sum() < MIN_POINTS:
+            break
+        c = _ls_centre(pts[keep], c)
     counts["grazing_removed"] = int(np.sum(~keep))
-    return idx[keep]
+    return idx[keep], c
+
+
+def _ls_centre(pts: np.ndarray, start: np.ndarray, iterations: int = 10) -> np.ndarray:
+    """Centre of the least-squares (orthogonal) sphere, by Gauss-Newton from ``start``."""
+    c = np.asarray(start, dtype=float)
+    r = float(np.mean(np.linalg.norm(pts - c, axis=1)))
+    for _ in range(iterations):
+        d = pts - c
+        dist = np.linalg.norm(d, axis=1)
+        jac = np.column_stack([-d / dist[:, None], -np.ones(len(d))])
+        step, *_ = np.linalg.lstsq(jac, -(dist - r), rcond=None)
+        c, r = c + step[:3], r + step[3]
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    return c
 
 
 def select_sphere(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selection:
@@ -364,7 +389,7 @@ def select_sphere(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selec
         centre = find_spheres(xyz, 1, art.diameter_mm / 2.0, what=what,
                               threshold_mm=shell)[0].centre
     idx, c, counts = _ball_points(xyz, centre, art.diameter_mm, shell, what)
-    idx = _drop_grazing(xyz, idx, c, options, counts)
+    idx, _ = _drop_grazing(xyz, idx, c, options, counts)
     counts["used"] = int(idx.size)
     return Selection(idx, counts)
 
@@ -382,9 +407,9 @@ def select_ball_bar(xyz: np.ndarray, art: ArtefactSpec, options: Options
              for c, w in zip(centres, "ab", strict=True)]
     bar = art.bar_diameter_mm if math.isfinite(art.bar_diameter_mm) else art.diameter_mm / 3
     cone = math.asin(min(bar / art.diameter_mm, 1.0)) + math.radians(options.mount_margin_deg)
+    cut = [_drop_grazing(xyz, idx, c, options, counts) for idx, c, counts in found]
     out = []
-    for (idx, c, counts), (_, other, _) in zip(found, found[::-1], strict=True):
-        idx = _drop_grazing(xyz, idx, c, options, counts)
+    for (idx, c), (_, other), (_, _, counts) in zip(cut, cut[::-1], found, strict=True):
         axis = (other - c) / np.linalg.norm(other - c)
         u = (xyz[idx] - c) / np.linalg.norm(xyz[idx] - c, axis=1, keepdims=True)
         mount = u @ axis > math.cos(cone)
