@@ -85,7 +85,7 @@ class Page:
                                                           "not evaluated"))
         cls = "v-" + word.lower().replace(" ", "-")
         self.parts.append(f'<div class="verdict {cls}" id="verdict"><span class="word">'
-                          f'{html.escape(word)}</span><span class="counts">'
+                          f'{html.escape(word)}</span> <span class="counts">'
                           f'{html.escape(what)}: {html.escape(counts)}</span></div>')
 
     def header_block(self, items: Sequence[tuple[str, str]]) -> None:
