@@ -258,7 +258,8 @@ class ArtefactQAResult:
                 "spec": None if self.spec is None else {"name": self.spec.name,
                                                         "source": self.spec.source},
                 "quantities": [{k: clean(v) for k, v in row.items()} for row in self.rows()],
-                "selections": [{"scan": r.scan, "artefact": r.spec.id, "sphere": i,
+                "selections": [{"scan": r.scan, "artefact": r.spec.id,
+                                "ball": "ab"[i] if len(r.selections) == 2 else "",
                                 **s.counts} for r in self.results
                                for i, s in enumerate(r.selections)],
                 "options": self.options.row(), "notes": list(self.notes)}

@@ -40,7 +40,7 @@ font-size:0.9em}
 @page{size:A4;margin:14mm 12mm 16mm;@bottom-right{content:"page " counter(page) " of "
 counter(pages);font-size:8pt;color:#555}}
 @media print{body{max-width:none;margin:0;padding:0;font-size:9pt}
-h2{break-after:avoid}figure,tr,.verdict,table.header{break-inside:avoid}
+h2,h2+p{break-after:avoid}figure,tr,.verdict,table.header{break-inside:avoid}
 img{max-height:120mm}details.more summary{display:none}
 table{font-size:8pt}td,th{padding:1px 4px}}
 """
