@@ -22,7 +22,9 @@ def demo_out(tmp_path_factory):
 def test_demo_writes_every_output(demo_out):
     for name in ("table.npz", "table_report.html", "table_report.json", "gauge_cloud.ply",
                  "qa/report.html", "qa/blocks.csv", "qa/steps.csv", "qa/summary.json",
-                 "qa/cloud_qa.ply", "characterization/summary.json", "design/dof.png"):
+                 "qa/cloud_qa.ply", "characterization/summary.json", "design/dof.png",
+                 "sphere_test/report.html", "sphere_test/quantities.csv",
+                 "sphere_test/summary.json"):
         assert (demo_out / name).stat().st_size > 0, name
     html = (demo_out / "qa" / "report.html").read_text()
     for section in ("Summary", "Table 3", "over range", "Residual maps", "Table 4"):
@@ -103,9 +105,12 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     from scanqa.simulator import experiments
 
     calls = []
+    real = experiments.run_experiment
 
     def fake_run(name, config, out_dir, positions=None, repeats=None, progress=False):
         calls.append((name, config.camera.width_px, len(positions or []), repeats))
+        if name == "sphere":  # the demo's sphere test: simulated for real (5 s)
+            return real(name, config, out_dir, positions=positions, repeats=repeats)
         if name == "projector-sweep":
             return
         folder = {"camera-sweep": "camera_sweep", "calibration-sweep": "calibration_sweep",
@@ -116,7 +121,21 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     config = load_config(ROOT / "sample_data" / "sample_scanner.toml", profile="sample")
     result = demo.run_demo(tmp_path / "full", full_config=config)
     assert [c[0] for c in calls] == ["camera-sweep", "projector-sweep", "calibration-sweep",
-                                     "gauge-blocks"]
+                                     "gauge-blocks", "sphere"]
     assert calls[1][2] == 31 and calls[2][2] == 14 and calls[3][3] == 3
     assert (tmp_path / "full" / "data" / "gauge_blocks").is_dir()
     assert result.report.exists() and len(result.qa.steps) == 7
+
+
+def test_demo_runs_a_sphere_test_beside_the_blocks(demo_out):
+    """The demo's VDI/VDE 2634-2 sphere (simulated on the fly, 12 mm, sample scanner):
+    PF predicted within 20 % of the measured, PS within its U of the true diameter (the
+    spec's certificate is the simulator's exact diameter), both decided against the
+    example MPEs."""
+    info = json.loads((demo_out / "sphere_test" / "summary.json").read_text())
+    rows = {r["quantity"]: r for r in info["quantities"]}
+    assert set(rows) == {"PF", "PS"}
+    assert abs(rows["PF"]["predicted_um"] / rows["PF"]["value_um"] - 1) <= 0.2, rows["PF"]
+    assert abs(rows["PS"]["value_um"]) <= rows["PS"]["U_um"], rows["PS"]
+    assert info["verdict"]["verdict"] == "PASS"
+    assert info["header"]["Operator"] == "scanqa demo"

@@ -2,8 +2,10 @@
 
 Stages: characterise the scanner from the camera sweep, build the weighted calibration
 table from the plane sweep, annotate the gauge-block scan (repeats give the measured
-per-point std), run the gauge-block QA, and run the design tools on the same scanner.
-Everything goes into one folder; :func:`run_demo` returns what a summary needs.
+per-point std), run the gauge-block QA, run a VDI/VDE 2634-2 sphere test (PF, PS) on a
+sphere simulated on the fly with the same scanner (about 5 s), and run the design tools
+on the same scanner. Everything goes into one folder; :func:`run_demo` returns what a
+summary needs.
 """
 
 from __future__ import annotations
@@ -11,7 +13,7 @@ from __future__ import annotations
 import json
 import logging
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from scanqa import design
@@ -23,9 +25,13 @@ from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir, staged_dir, write_text
 from scanqa.io.manifest import read_manifest
+from scanqa.io.spec import read_spec
 from scanqa.progress import Progress
+from scanqa.provenance import build_header, certificate_text
+from scanqa.qa.artefacts import ArtefactQAResult, load_artefact_layout, run_artefact_qa
 from scanqa.qa.blocks import QAResult, run_qa
 from scanqa.qa.layout import load_layout
+from scanqa.report import artefacts as artefact_report
 from scanqa.report import calibration as calibration_report
 from scanqa.report import design as design_plots
 from scanqa.report import qa as qa_report
@@ -53,6 +59,11 @@ class DemoResult:
     qa: QAResult
     timings: dict = field(default_factory=dict)
     repeat_qa: list = field(default_factory=list)  # QAResult of every further scan
+    artefact: ArtefactQAResult | None = None  # the sphere test
+
+    @property
+    def artefact_report(self) -> Path:
+        return self.out / "sphere_test" / "report.html"
 
     @property
     def report(self) -> Path:
@@ -141,19 +152,20 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
     Progress goes to the ``scanqa`` logger (:mod:`scanqa.progress`).
     """
     target = Path(out)
-    stage = _Stages(7 if full_config is not None else 6)
+    stage = _Stages(8 if full_config is not None else 7)
     with stage.bar:
         if full_config is not None:
             stage("simulating the data at the config's full resolution (long)")
             data = simulate_full(full_config, target / "data")
         with staged_dir(target) as staged:
-            result = _run_stages(stage, staged, Path(data))
+            result = _run_stages(stage, staged, Path(data), target)
     result.out = target
     return result
 
 
-def _run_stages(stage: _Stages, out: Path, data: Path) -> DemoResult:
-    """The demo's stages after the data exist, writing into ``out`` (a staging folder)."""
+def _run_stages(stage: _Stages, out: Path, data: Path, final: Path) -> DemoResult:
+    """The demo's stages after the data exist, writing into ``out`` (a staging folder
+    published as ``final``: the reports name the final paths)."""
     sweeps = check_data(data)
     config = manifest_config(data / "gauge_blocks")
 
@@ -189,17 +201,43 @@ def _run_stages(stage: _Stages, out: Path, data: Path) -> DemoResult:
     stage("gauge-block QA")
     layout = load_layout(data / "gauge_blocks" / "layout.toml")
     qa = run_qa(cloud, layout)
-    qa_report.write_outputs(qa, out / "qa")
+    header = build_header(fitted.to_dict(), f"{data / 'gauge_blocks'} manifest, model "
+                          "characterised by the demo", str(final / "table.npz"),
+                          data=str(scans[0]), operator="scanqa demo",
+                          notes="simulated data (the sample scanner)")
+    qa_report.write_outputs(qa, out / "qa", header)
 
     # one scan has 6 steps: pool the steps of every repeat for the coverage of U
     repeat_qa = [run_qa(annotate(m, table, fitted, keep_invalid=True), layout)
                  for m in maps[1:]]
     write_text(out / "qa" / "steps_all_scans.csv", _steps_csv([qa, *repeat_qa], scans))
 
+    stage("VDI/VDE 2634-2 sphere test on a sphere simulated now (PF, PS)")
+    artefact = sphere_test(config, fitted, table, out, header, final)
+
     stage("design tools on the same scanner (depth of field, W curve, volume)")
     _design(fitted, out / "design")
     stage("done")
-    return DemoResult(out, variant, qa, stage.timings, repeat_qa)
+    return DemoResult(out, variant, qa, stage.timings, repeat_qa, artefact)
+
+
+def sphere_test(config: ScannerConfig, fitted: ScannerConfig, table, out: Path, header,
+                final: Path | None = None) -> ArtefactQAResult:
+    """Simulate the test sphere with the demo's scanner, annotate it with the demo's table
+    and run PF and PS against the simulated spec; report into ``out/sphere_test``."""
+    from scanqa.simulator.experiments import run_experiment
+
+    folder = out / "data" / "sphere"
+    run_experiment("sphere", config, folder, repeats=1)
+    scans = sorted(folder.glob("p000_r*"))
+    clouds = [(p.name, annotate(decode_pattern_dir(p), table, fitted, keep_invalid=True,
+                                source=str(p))) for p in scans]
+    spec = read_spec(folder / "spec.toml")
+    result = run_artefact_qa(clouds, load_artefact_layout(folder / "artefacts.toml"), spec)
+    shown = (final or out) / "data" / "sphere" / scans[0].name
+    header = replace(header, certificate=certificate_text(spec), data=str(shown))
+    artefact_report.write_outputs(result, out / "sphere_test", header)
+    return result
 
 
 def _steps_csv(results: list[QAResult], scans: list[Path]) -> str:
@@ -251,4 +289,12 @@ def summary_lines(result: DemoResult) -> list[str]:
         lines.append(f"over all {1 + len(result.repeat_qa)} scans: {within} of {inside} "
                      f"such steps ({100 * within / inside:.0f} %) have |error| <= U "
                      "(qa/steps_all_scans.csv)")
+    if result.artefact is not None:
+        lines.append("sphere test (VDI/VDE 2634-2, simulated sphere of 12 mm):")
+        for row in result.artefact.rows():
+            pred = f", predicted {row['predicted_um']:.1f} um" \
+                if row["predicted_um"] == row["predicted_um"] else ""
+            lines.append(f"  {row['quantity']} = {row['value_um']:+.1f} um (U "
+                         f"{row['U_um']:.1f} um{pred}), MPE {row['mpe_um']:.0f} um: "
+                         f"{row['decision']}")
     return lines

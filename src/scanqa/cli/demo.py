@@ -40,7 +40,9 @@ def run(args: argparse.Namespace) -> int:
     for line in summary_lines(result):
         emit(line)
     emit(f"outputs in {result.out.resolve()} (table.npz, table_report.html, gauge_cloud.ply, "
-         "qa/, design/, characterization/)")
+         "qa/, sphere_test/, design/, characterization/)")
     emit(f"report: {result.report.resolve()}")
+    if result.artefact is not None:
+        emit(f"sphere test report: {result.artefact_report.resolve()}")
     emit(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return 0

@@ -41,6 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  scanqa simulate camera-sweep --config calib/paper_scanner.toml --out cam\n"
                "  scanqa simulate calibration-sweep --config calib/paper_scanner.toml "
                "--positions 420:480:2 --repeats 2 --out sweep\n"
+               "  scanqa simulate ball-bar --config sample_data/sample_scanner.toml#sample "
+               "--repeats 5 --out bar   # the 7 positions\n"
                "  scanqa simulate mesh --mesh part.stl --config calib/paper_scanner.toml "
                "--out part")
     p.add_argument("experiment", metavar="EXPERIMENT",
@@ -49,7 +51,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--positions", type=_positions, default=None, metavar="LIST",
                    help="stage positions or device offsets [mm]: START:STOP:STEP or a,b,c "
-                        "(write --positions=-30:30:2 when it starts with -)")
+                        "(write --positions=-30:30:2 when it starts with -); sphere and "
+                        "flat: Z of the centre [mm]; ball-bar: position numbers 1-7")
     p.add_argument("--repeats", type=number(int, ge=1), default=None,
                    help="scans per position")
     p.add_argument("--periods", type=float_list, default=None,

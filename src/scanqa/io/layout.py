@@ -1,6 +1,8 @@
 """Gauge-block layout files (TOML, ``format = "scanqa-gauge-layout/1"``).
 
-Keys: ``name``, optional ``frame``, ``base_z_mm`` and ``[base]``; per ``[[block]]``:
+Keys: ``name``, optional ``frame``, ``base_z_mm``, ``[base]`` and ``paper_comparison``
+(true: the report shows the paper's Tables 3 and 4 beside the results; for the paper's
+artefact only); per ``[[block]]``:
 ``id`` (int), ``nominal_height_mm``, ``region_mm = [x_min, x_max, y_min, y_max]`` (the
 top face seen along Z, scanner frame [mm]) and optional ``top_z_mm``. This module reads
 and checks the file; :mod:`scanqa.qa.layout` turns it into the QA's types.
@@ -18,7 +20,7 @@ from scanqa.io.tomlfile import read_toml
 
 #: Value of the ``format`` key this version reads.
 FORMAT = "scanqa-gauge-layout/1"
-_TOP = ("format", "name", "frame", "base_z_mm", "base", "block")
+_TOP = ("format", "name", "frame", "base_z_mm", "base", "block", "paper_comparison")
 _BLOCK = ("id", "nominal_height_mm", "region_mm", "top_z_mm")
 
 
@@ -32,7 +34,8 @@ def read_layout_file(path: str | os.PathLike) -> dict:
     Returns
     -------
     dict
-        ``name`` (str), ``source`` (str) and ``blocks``: a list of dicts with ``id``
+        ``name`` (str), ``source`` (str), ``paper_comparison`` (bool) and ``blocks``: a
+        list of dicts with ``id``
         (int), ``nominal_height_mm`` [mm], ``region_mm`` (4 floats [mm]) and
         ``top_z_mm`` [mm] or None.
 
@@ -56,7 +59,11 @@ def read_layout_file(path: str | os.PathLike) -> dict:
     if len(set(ids)) != len(ids):
         raise _err(path, f"block ids must be unique, got {ids}")
     _check_overlap(path, blocks)
-    return {"name": str(data.get("name", path.stem)), "source": str(path), "blocks": blocks}
+    paper = data.get("paper_comparison", False)
+    if not isinstance(paper, bool):
+        raise _err(path, f"paper_comparison must be true or false, got {paper!r}")
+    return {"name": str(data.get("name", path.stem)), "source": str(path), "blocks": blocks,
+            "paper_comparison": paper}
 
 
 def _number(value: object) -> bool:

@@ -494,7 +494,8 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
             block_id[b.index] = b.block_id
             residual[b.index] = b.fit.residuals
     settings = {"margin_mm": margin_mm, "outlier_k": outlier_k, "tolerance_um": tolerance_um,
-                "k": k, "knn": knn, "tile_mm": tile_mm, "layout": layout.source}
+                "k": k, "knn": knn, "tile_mm": tile_mm, "layout": layout.source,
+                "paper_comparison": layout.paper_comparison}
     model_config = cloud_config(cloud, config, notes)
     curve = model_curve(blocks, model_config) if model_config is not None else None
     return QAResult(blocks, steps, block_id, 1e3 * residual,

@@ -12,7 +12,9 @@ import os
 import numpy as np
 
 from scanqa.io.atomic import staged_dir, write_text
+from scanqa.provenance import ReportHeader
 from scanqa.qa.blocks import QAResult
+from scanqa.qa.verdict import verdict
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 
@@ -25,6 +27,20 @@ BLOCK_COLUMNS = ("block_id", "nominal_height_mm", "n_points", "measured_std_um",
                  "in_volume_fraction", "status")
 STEP_COLUMNS = ("block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "error_um",
                 "u_um", "U_um", "k", "tolerance_um", "pass")
+#: The block table of the report: main columns (fit a 1400 px screen and the page) and
+#: the folded details.
+BLOCK_MAIN = ("block_id", "nominal_height_mm", "n_points", "measured_std_um",
+              "predicted_std_um", "ratio", "status")
+BLOCK_DETAILS = ("flatness_um", "mean_attenuation", "in_volume_fraction", "noise_corr_factor")
+#: Short column headers with units (the CSV keeps the field names).
+LABELS = {"block_id": "block", "nominal_height_mm": "height [mm]", "n_points": "points",
+          "measured_std_um": "measured std [um]", "predicted_std_um": "predicted std [um]",
+          "paper_predicted_um": "paper pred. [um]", "paper_measured_um": "paper meas. [um]",
+          "flatness_um": "flatness [um]", "mean_attenuation": "attenuation",
+          "in_volume_fraction": "in volume", "noise_corr_factor": "kappa",
+          "block_a": "a", "block_b": "b", "nominal_diff_mm": "nominal [mm]",
+          "measured_diff_mm": "measured [mm]", "error_um": "error [um]", "u_um": "u [um]",
+          "U_um": "U [um]", "tolerance_um": "T [um]", "pass": "decision"}
 
 
 def csv_text(rows: list[dict], columns: tuple) -> str:
@@ -39,27 +55,46 @@ def csv_text(rows: list[dict], columns: tuple) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_outputs(result: QAResult, out_dir: str | os.PathLike) -> dict:
-    """Write report.html, blocks.csv, steps.csv, summary.json and, when the result holds
-    its cloud, cloud_qa.ply (the cloud plus the per-point QA fields) into ``out_dir``;
-    returns the summary. The folder is created when missing; the files are published
-    together or not at all (:func:`scanqa.io.atomic.staged_dir`)."""
+def write_outputs(result: QAResult, out_dir: str | os.PathLike,
+                  header: ReportHeader | None = None, pdf: bool = False) -> dict:
+    """Write report.html (and with ``pdf`` report.pdf), blocks.csv, steps.csv,
+    summary.json and, when the result holds its cloud, cloud_qa.ply (the cloud plus the
+    per-point QA fields) into ``out_dir``; returns the summary. The folder is created
+    when missing; the files are published together or not at all
+    (:func:`scanqa.io.atomic.staged_dir`)."""
     info = result.summary()
     with staged_dir(out_dir) as out:
         write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks],
                                                 BLOCK_COLUMNS))
         write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))
         write_text(out / "summary.json", json.dumps(info, indent=1))
-        write_text(out / "report.html", render(result))
+        page = render(result, header)
+        write_text(out / "report.html", page)
+        if pdf:
+            from scanqa.report.pdf import write_pdf
+
+            write_pdf(page, out / "report.pdf")
         cloud = result.annotated_cloud()
         if cloud is not None:
             cloud.write(out / "cloud_qa.ply")
     return info
 
 
-def render(result: QAResult) -> str:
-    """The QA report as one self-contained HTML page."""
+def step_verdict(result: QAResult) -> dict:
+    """The report's verdict: the decisions of the steps between blocks inside the
+    calibrated volume; the other steps are not evaluated."""
+    inside = {(s.block_a, s.block_b) for s in result.steps_inside_volume()}
+    return verdict([s.decision if (s.block_a, s.block_b) in inside else "not evaluated"
+                    for s in result.steps])
+
+
+def render(result: QAResult, header: ReportHeader | None = None) -> str:
+    """The QA report as one self-contained HTML page: the verdict first, then the header
+    block (when given) and the sections."""
     page = Page("scanqa gauge-block QA report")
+    page.banner(step_verdict(result), "height differences (ISO 14253-1)")
+    if header is not None:
+        page.header_block(header.items())
     info = result.summary()
     _summary_section(page, result, info)
     _table3_section(page, result)
@@ -89,14 +124,19 @@ def _summary_section(page: Page, result: QAResult, info: dict) -> None:
 
 
 def _table3_section(page: Page, result: QAResult) -> None:
-    page.heading("Per block: measured vs predicted std (paper Table 3)", "blocks")
+    paper = bool(result.settings.get("paper_comparison"))
+    page.heading("Per block: measured vs predicted std"
+                 + (" (paper Table 3)" if paper else ""), "blocks")
     rows = []
     for b in result.blocks:
-        pp, pm = PAPER_TABLE3.get(b.block_id, (None, None))
-        rows.append({**b.row(), "paper_predicted_um": pp if pp is not None else "large/-",
-                     "paper_measured_um": pm if pm is not None else "-"})
-    page.table(rows, [*BLOCK_COLUMNS, "noise_corr_factor", "paper_predicted_um",
-                      "paper_measured_um"])
+        row = b.row()
+        if paper:
+            pp, pm = PAPER_TABLE3.get(b.block_id, (None, None))
+            row.update(paper_predicted_um=pp if pp is not None else "large/-",
+                       paper_measured_um=pm if pm is not None else "-")
+        rows.append(row)
+    extra = ("paper_predicted_um", "paper_measured_um") if paper else ()
+    page.table(rows, [*BLOCK_MAIN, *extra], BLOCK_DETAILS, ("block_id",), LABELS)
     tile = result.settings.get("tile_mm", 2.0)
     page.paragraph("noise_corr_factor: how many points share one noise draw, measured on the "
                    f"block over tiles of {tile:g} mm; the plane's uncertainty (and so each "
@@ -106,16 +146,19 @@ def _table3_section(page: Page, result: QAResult) -> None:
     x = np.arange(len(ids))
     ax[0][0].bar(x - 0.2, [b.measured_std_um for b in result.blocks], 0.4, label="measured")
     ax[0][0].bar(x + 0.2, [b.predicted_std_um for b in result.blocks], 0.4, label="predicted")
-    paper_p = [PAPER_TABLE3.get(i, (None, None))[0] for i in ids]
-    ax[0][0].plot(x, [np.nan if v is None else v for v in paper_p], "k^", label="paper predicted")
-    paper_m = [PAPER_TABLE3.get(i, (None, None))[1] for i in ids]
-    ax[0][0].plot(x, [np.nan if v is None else v for v in paper_m], "kv", label="paper measured")
+    if paper:
+        paper_p = [PAPER_TABLE3.get(i, (None, None))[0] for i in ids]
+        ax[0][0].plot(x, [np.nan if v is None else v for v in paper_p], "k^",
+                      label="paper predicted")
+        paper_m = [PAPER_TABLE3.get(i, (None, None))[1] for i in ids]
+        ax[0][0].plot(x, [np.nan if v is None else v for v in paper_m], "kv",
+                      label="paper measured")
     ax[0][0].set_xticks(x, [str(i) for i in ids])
     ax[0][0].set(xlabel="block", ylabel="std of plane residuals [um]",
                  title="measured vs predicted std per block")
     ax[0][0].legend()
-    page.figure(fig, "scanqa's measured and predicted std per block, with the paper's Table 3",
-                "table3")
+    page.figure(fig, "scanqa's measured and predicted std per block"
+                + (", with the paper's Table 3" if paper else ""), "table3")
 
 
 def _range_section(page: Page, result: QAResult, curve: dict | None) -> None:
@@ -158,10 +201,14 @@ def _residual_section(page: Page, result: QAResult, xyz: np.ndarray) -> None:
 
 
 def _steps_section(page: Page, result: QAResult) -> None:
-    page.heading("Height differences between successive blocks (paper Table 4)", "steps")
-    page.table([s.row() for s in result.steps], list(STEP_COLUMNS))
-    page.paragraph("The paper's Table 4 values are not legible in its text; it reports that "
-                   "the biases stay below the single-point standard deviation.", note=True)
+    paper = bool(result.settings.get("paper_comparison"))
+    page.heading("Height differences between successive blocks"
+                 + (" (paper Table 4)" if paper else ""), "steps")
+    page.table([s.row() for s in result.steps], list(STEP_COLUMNS), labels=LABELS)
+    if paper:
+        page.paragraph("The paper's Table 4 values are not legible in its text; it reports "
+                       "that the biases stay below the single-point standard deviation.",
+                       note=True)
     fig, ax = new_figure()
     labels = [f"{s.block_a}-{s.block_b}" for s in result.steps]
     x = np.arange(len(labels))
