@@ -202,9 +202,10 @@ def _run_stages(stage: _Stages, out: Path, data: Path, final: Path) -> DemoResul
     layout = load_layout(data / "gauge_blocks" / "layout.toml")
     qa = run_qa(cloud, layout)
     header = build_header(fitted.to_dict(), f"{data / 'gauge_blocks'} manifest, model "
-                          "characterised by the demo", str(final / "table.npz"),
+                          "characterised by the demo", str(out / "table.npz"),
                           data=str(scans[0]), operator="scanqa demo",
                           notes="simulated data (the sample scanner)")
+    header = replace(header, table=str(final / "table.npz"))  # hashed staged, shown final
     qa_report.write_outputs(qa, out / "qa", header)
 
     # one scan has 6 steps: pool the steps of every repeat for the coverage of U
