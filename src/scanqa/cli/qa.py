@@ -13,6 +13,7 @@ from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir
 from scanqa.qa.blocks import run_qa
+from scanqa.qa.budget import load_budget
 from scanqa.qa.detect import detect_blocks
 from scanqa.qa.layout import load_layout
 from scanqa.report import qa as qa_report
@@ -25,7 +26,8 @@ def register(sub: argparse._SubParsersAction) -> None:
         epilog="examples:\n  scanqa qa cloud.ply --layout calib/gauge_blocks_paper.toml "
                "--out qa/\n  scanqa qa scan/phase.npz --table table.npz --config "
                "calib/paper_scanner.toml --layout calib/gauge_blocks_paper.toml --out qa/\n\n"
-               "writes report.html, blocks.csv, steps.csv, summary.json, cloud_qa.ply")
+               "writes report.html, blocks.csv, steps.csv, budget.csv, summary.json, "
+               "cloud_qa.ply")
     p.add_argument("cloud", metavar="CLOUD",
                    help="annotated cloud (.ply/.las/.csv) or, with --table, a scan")
     p.add_argument("--layout", help="block layout TOML (nominal heights and regions)")
@@ -43,11 +45,28 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="reject points beyond K robust std of the first plane fit")
     p.add_argument("--tolerance", type=float, default=20.0,
                    help="tolerance on each height difference [um] (default 20)")
-    p.add_argument("--k", type=float, default=2.0, help="coverage factor (default 2)")
+    p.add_argument("--k", type=_coverage, default=None,
+                   help="coverage factor: a number, or welch-satterthwaite for k from each "
+                        "step's effective degrees of freedom (default: the budget file's, "
+                        "else 2)")
+    p.add_argument("--budget", default=None, metavar="FILE",
+                   help="uncertainty budget TOML with the Type B inputs (certificates, "
+                        "temperature, stage scale, flatness of the calibration flat); "
+                        "without it the report says Type B is not included")
     p.add_argument("--tile", type=float, default=2.0, metavar="MM",
                    help="tile size [mm] over which the noise correlation of each block is "
                         "measured; at least twice the noise's correlation length (default 2)")
     p.set_defaults(func=run)
+
+
+def _coverage(text: str) -> float | str:
+    if text == "welch-satterthwaite":
+        return text
+    try:
+        return float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"must be a number or welch-satterthwaite, got {text!r}") from None
 
 
 def _load(args: argparse.Namespace) -> tuple[AnnotatedCloud, ScannerConfig | None]:
@@ -83,7 +102,8 @@ def run(args: argparse.Namespace) -> int:
     layout = detect_blocks(cloud.xyz, _heights(args)) if args.auto else load_layout(args.layout)
     result = run_qa(cloud, layout, config=config, margin_mm=args.margin,
                     outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
-                    tile_mm=args.tile)
+                    tile_mm=args.tile,
+                    budget=load_budget(args.budget) if args.budget else None)
     info = qa_report.write_outputs(result, out)
     for b in result.blocks:
         print(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
@@ -94,6 +114,6 @@ def run(args: argparse.Namespace) -> int:
     for note in result.notes:
         print(f"note: {note}")
     frac = info["fraction_within_U"]
-    print(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of steps inside the "
-                                              "volume within U)" if frac is not None else ""))
+    print(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of the evaluated steps "
+                                              "within U)" if frac is not None else ""))
     return 0
