@@ -2,36 +2,15 @@
 
 For every decoded pixel the table gives X, Y, Z and the slope dQ/dx_p; the model gives
 s_O at that point (Eqs. 12-19) and sigma = s_T s_O sigma_p (Eq. 18) with s_T = |dQ/dx_p|
-from the table (docs/model.rst). Alongside: the sigma implied by the decoder's own
-per-pixel phase noise (s_T sigma_xp), the table's sigma, the combined sigma
+from the table (docs/model.rst). With the two-source model (docs/noise_model.rst) sigma
+is the quadrature sum of a scene-side part, filtered by the camera blur, and a sensor
+part, which is not; both are attributes. Alongside: the sigma implied by the decoder's
+own per-pixel phase noise (s_T sigma_xp), the table's sigma, the combined sigma
 sqrt(model^2 + table^2), and with repeated scans the measured per-point std.
 
 Attribute names (PLY ``scalar_<name>``, LAS extra bytes, CSV columns), all float32:
 
-=================  =====  ==================================================================
-name               unit   meaning
-=================  =====  ==================================================================
-sigma_model_um     um     model sigma along the line of sight; NaN where the model is not
-                          valid (a blur ratio > 1/2)
-sx_um, sy_um,      um     its X, Y, Z components (CloudCompare M3C2 precision maps pick
-sz_um                     fields containing "sx", "sy", "sz")
-sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
-sigma_table_um     um     the calibration table's own std at that point
-sigma_total_um     um     sqrt(sigma_model^2 + sigma_table^2)
-att_camera         -      camera attenuation A_c
-att_projector      -      projector attenuation A_p
-filter_factor      -      F_gamma (Eq. 17)
-s_o                -      optical scale s_O (Eq. 19)
-s_t_um_px          um/px  triangulation scale |dQ/dx_p|
-modulation_dn      DN     fringe modulation B
-in_volume          0/1    phase inside the pixel's calibrated range
-model_valid        0/1    both blur ratios <= 1/2
-pixel_u, pixel_v   px     camera pixel (column, row)
-table_corr_mm      mm     distance over which the table's errors are correlated here
-sigma_meas_um      um     with repeats: std over the repeats along the line of sight
-n_repeats          -      with repeats: number of scans valid at that pixel
-=================  =====  ==================================================================
-"""
+=================  =====  ==========================================================="""
 
 from __future__ import annotations
 
@@ -52,9 +31,10 @@ from scanqa.errors import InputError
 from scanqa.io import ply
 
 #: Attribute names in export order (repeat fields only when repeats are given).
-ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_phase_um", "sigma_table_um",
-              "sigma_total_um", "att_camera", "att_projector", "filter_factor", "s_o",
-              "s_t_um_px", "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
+ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
+              "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_total_um",
+              "att_camera", "att_projector", "filter_factor", "s_o", "s_t_um_px",
+              "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
 
@@ -145,13 +125,15 @@ def cloud_metadata(config: ScannerConfig, table: CalibrationTable, source: str) 
     return {"format": "scanqa-cloud/1", "software": {"name": "scanqa", "version": __version__},
             "source": source,
             "model": {"filter_floor": model.filter_floor, "noise_reading": model.noise_reading,
-                      "sigma_p_px": model.sigma_p_px, "gamma": model.gamma,
+                      "filter_form": model.filter_form, "sigma_p_px": model.sigma_p_px,
+                      "sensor_sigma_p_px": model.sensor_sigma_p_px, "gamma": model.gamma,
                       "wavelength_nm": model.wavelength_nm,
                       "working_period_px": config.fringes.working_period_px},
             "config": config.to_dict(),
             "config_source": config.source + (f"#{config.profile}" if config.profile else ""),
             "table": {"weights": table.weights, "z_range_mm": list(table.z_range_mm),
                       "cell_px": table.cell_px,
+                      "n_planes": len(table.provenance.get("positions", [])) or None,
                       "sweep": table.provenance.get("sweep", "")}}
 
 
@@ -220,6 +202,8 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
     ply.vertex_views(out)[0][...] = points
     values = {
         "sigma_model_um": 1e3 * sigma,
+        "sigma_scene_um": 1e3 * np.where(pred.valid, pred.sigma_scene, np.nan),
+        "sigma_sensor_um": 1e3 * np.where(pred.valid, pred.sigma_sensor, np.nan),
         "sigma_phase_um": 1e3 * s_t * inputs["sigma_xp"],
         "sigma_table_um": 1e3 * sig_tab,
         "sigma_total_um": 1e3 * np.hypot(sigma, sig_tab),
