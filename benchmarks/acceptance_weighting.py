@@ -78,8 +78,10 @@ def holdout_rms(config: ScannerConfig, table, zs: np.ndarray) -> float:
         v, u = np.nonzero(truth.valid)
         xyz = np.stack([truth.x, truth.y, truth.z], axis=-1)[truth.valid]
         err = table.apply(u, v, truth.xp[truth.valid]).xyz - xyz
-        sq += float(np.nansum(err**2))
-        n += int(np.isfinite(err).all(axis=1).sum())
+        if not np.isfinite(err).all():
+            raise RuntimeError(f"plane {z} mm lies outside a table's range")
+        sq += float(np.sum(err**2))
+        n += len(err)
     return float(np.sqrt(sq / n))
 
 
@@ -92,8 +94,11 @@ def run_seed(config: ScannerConfig, fitted: ScannerConfig, seed: int) -> dict:
     cfg = config.replace_simulator(seed=seed)
     obs = simulate(cfg)
     zs = np.arange(SWEEP_Z[0] + 1.0, SWEEP_Z[-1], 2.0)
-    inside = zs[camera_attenuation(cfg, zs) >= LEVEL]
     keep = camera_attenuation(cfg, [o.z_mm for o in obs]) >= LEVEL
+    kept = [o.z_mm for o, k in zip(obs, keep, strict=True) if k]
+    # every table is scored on the same planes: inside the DOF and inside the range of
+    # the table from the DOF's planes alone
+    inside = zs[(camera_attenuation(cfg, zs) >= LEVEL) & (zs > min(kept)) & (zs < max(kept))]
     tables = {"model": build_table(obs, replace(cfg, model=fitted.model), weights="model"),
               "modulation": build_table(obs, cfg, weights="modulation"),
               "none": build_table(obs, cfg, weights="none"),
