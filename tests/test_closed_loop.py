@@ -386,16 +386,25 @@ def holdout_scan_errors(request, calibrated, holdout_scans, focus_sigma_mm):
         "noise_floor_um": um(total.floor), "limit_um": um(0.1 * focus_sigma_mm),
         "trend_um": um(change), "z_mm": zs, "per_plane_sys_um": [um(p.sys) for p in parts],
         "per_plane_bias_um": [um(p.bias) for p in parts]})
-    return total, change
+    return total, change, float(np.sqrt(np.nanmean(own**2)))
 
 
 def test_scan_systematic_on_holdout_planes(holdout_scan_errors, focus_sigma_mm):
-    total, _ = holdout_scan_errors
+    total, *_ = holdout_scan_errors
     assert total.sys <= 0.1 * focus_sigma_mm
 
 
+def test_table_term_of_the_budget_against_holdout_planes(holdout_scan_errors):
+    """The budget's table term is the table's own sigma (its node fits' covariance,
+    scaled by their reduced chi-square). On hold-out planes that were not used to build
+    the table it is measured to be 0.39 um against a systematic error of 0.47 um: about
+    20 % low, which the noise terms dominate in every step; it must not be far lower."""
+    total, _, own = holdout_scan_errors
+    assert 0.7 * total.sys <= own <= 2.0 * total.sys
+
+
 def test_scan_on_holdout_planes_has_no_trend(holdout_scan_errors, focus_sigma_mm):
-    _, change = holdout_scan_errors
+    _, change, _ = holdout_scan_errors
     assert change <= 0.1 * focus_sigma_mm
 
 
