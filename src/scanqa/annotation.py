@@ -10,7 +10,33 @@ sqrt(model^2 + table^2), and with repeated scans the measured per-point std.
 
 Attribute names (PLY ``scalar_<name>``, LAS extra bytes, CSV columns), all float32:
 
-=================  =====  ==========================================================="""
+=================  =====  ==================================================================
+name               unit   meaning
+=================  =====  ==================================================================
+sigma_model_um     um     model sigma along the line of sight; NaN where the model is not
+                          valid (a blur ratio > 1/2)
+sx_um, sy_um,      um     its X, Y, Z components (CloudCompare M3C2 precision maps pick
+sz_um                     fields containing "sx", "sy", "sz")
+sigma_scene_um     um     the model sigma's scene-side part (filtered by the camera blur;
+                          the whole model sigma for the paper's readings)
+sigma_sensor_um    um     the model sigma's sensor part (two-source model; 0 otherwise)
+sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
+sigma_table_um     um     the calibration table's own std at that point
+sigma_total_um     um     sqrt(sigma_model^2 + sigma_table^2)
+att_camera         -      camera attenuation A_c
+att_projector      -      projector attenuation A_p
+filter_factor      -      F_gamma (Eq. 17)
+s_o                -      optical scale s_O (Eq. 19)
+s_t_um_px          um/px  triangulation scale |dQ/dx_p|
+modulation_dn      DN     fringe modulation B
+in_volume          0/1    phase inside the pixel's calibrated range
+model_valid        0/1    both blur ratios <= 1/2
+pixel_u, pixel_v   px     camera pixel (column, row)
+table_corr_mm      mm     distance over which the table's errors are correlated here
+sigma_meas_um      um     with repeats: std over the repeats along the line of sight
+n_repeats          -      with repeats: number of scans valid at that pixel
+=================  =====  ==================================================================
+"""
 
 from __future__ import annotations
 
