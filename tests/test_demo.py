@@ -137,3 +137,15 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     assert calls[1][2] == 31 and calls[2][2] == 14 and calls[3][3] == 3
     assert (tmp_path / "full" / "data" / "gauge_blocks").is_dir()
     assert result.report.exists() and len(result.qa.steps) == 7
+
+
+def test_demo_characterises_the_calibration_sweep_without_device_sweeps(tmp_path):
+    """Issue 15: a rigid scanner's data set has no camera or projector sweep; the demo
+    then characterises from the sweep it calibrates with."""
+    from scanqa.demo import check_data
+
+    for name in ("calibration_sweep", "gauge_blocks"):
+        (tmp_path / name).symlink_to(ROOT / "sample_data" / name)
+    assert check_data(tmp_path) == [tmp_path / "calibration_sweep" / "sweep.toml"]
+    (tmp_path / "camera_sweep").symlink_to(ROOT / "sample_data" / "camera_sweep")
+    assert check_data(tmp_path) == [tmp_path / "camera_sweep"]
