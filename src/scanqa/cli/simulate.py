@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import json
 from pathlib import Path
 
 from scanqa.cli.common import add_config_argument, config_from_args, float_list
@@ -102,6 +101,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 def run_characterize(args: argparse.Namespace) -> int:
     from scanqa.characterization import characterize_sweeps
+    from scanqa.demo import characterization_lines
     from scanqa.report.characterization import write_characterization
 
     config = config_from_args(args)
@@ -109,6 +109,9 @@ def run_characterize(args: argparse.Namespace) -> int:
     first = Path(args.sweep[0])
     default = (first.parent if first.suffix == ".toml" else first) / "characterize"
     out = write_characterization(result, args.out or default, config)
-    print(json.dumps(result.summary(), indent=1))
+    summary = result.summary()
+    print(summary["verdict"])
+    for line in characterization_lines(summary):
+        print(f"  {line}")
     print(f"wrote {out}")
     return 0
