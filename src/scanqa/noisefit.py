@@ -66,10 +66,6 @@ class NoiseData:
     sensor_px: np.ndarray
     period_px: float
 
-    def subset(self, keep: np.ndarray) -> NoiseData:
-        return NoiseData(self.z_c[keep], self.z_p[keep], self.std_px[keep],
-                         self.sensor_px[keep], self.period_px)
-
     @property
     def n(self) -> int:
         return int(self.std_px.size)
