@@ -328,6 +328,38 @@ def test_characterisation_is_of_the_same_camera(sample_config, characterised):
     assert summary["better_than_constant"]
 
 
+def test_sample_camera_sweep_reports_only_what_it_identifies(request):
+    """Issue 16 acceptance on the sample camera sweep alone: no parameter is reported as
+    fitted that the fit did not move, every fitted one has its 95 % interval, and the
+    selected model beats a constant (which the paper's readings do not)."""
+    config = load_config(SAMPLE_TOML, profile="sample_roi64")
+    result = characterize_sweeps([CAMERA_SWEEP], config)
+    summary = result.summary()
+    rows = {f["filter_floor"] + "/" + f["filter_form"] + "/" + f["noise_reading"]: f
+            for f in summary["fits"]}
+    _record(request, "issue16_sample_camera_sweep", {
+        "verdict": summary["verdict"], "constant_cv": summary["constant"]["cv_rms_relative"],
+        **{k: [round(f["cv_rms_relative"], 4),
+               [(p["name"], p["status"], p["low"], p["high"]) for p in f["parameters"]]]
+           for k, f in rows.items()}})
+    for label, fit in rows.items():
+        for p in fit["parameters"]:
+            if p["status"] == "fitted":
+                assert p["low"] < p["value"] < p["high"], (label, p)
+            elif p["status"] == "not identifiable":
+                assert p["why"] and not np.isfinite(p["low"] or np.nan), (label, p)
+        if fit["filter_floor"] == "none":  # F ~ 1 / gamma: only sigma_p x gamma
+            assert fit["parameters"][1]["status"] == "not identifiable", label
+            assert any(c["name"] == "sigma_p_px * gamma" for c in fit["identifiable"])
+        if fit["filter_form"] == "product" and fit["filter_floor"] == "one":
+            # 64 um pixels: b_d = 0.03, so F = 1 everywhere and gamma has no effect
+            assert "F = 1 at every position" in fit["parameters"][1]["why"], label
+    assert summary["better_than_constant"]
+    constant = summary["constant"]["cv_rms_relative"]
+    paper = [f for k, f in rows.items() if "two_source" not in k]
+    assert all(f["cv_rms_relative"] > constant for f in paper)
+
+
 def test_characterisation_from_the_calibration_sweep_alone(request, sample_config,
                                                            characterised):
     """Issue 15 acceptance: a rigid scanner's calibration sweep (both devices defocus
