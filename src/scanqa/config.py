@@ -32,8 +32,13 @@ from scanqa.io.tomlfile import read_toml
 
 #: The two readings of Eq. 17 (docs/model.rst, reading (i)).
 FILTER_FLOORS = ("none", "one")
-#: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)).
-NOISE_READINGS = ("power", "amplitude", "mixed")
+#: How the camera blur's filter factor F is formed: "product" is Eq. 17 as printed,
+#: sqrt(b_c b_d) / gamma; "sum" adds the areas of pixel, defocus disc and Airy disc
+#: (docs/noise_model.rst).
+FILTER_FORMS = ("product", "sum")
+#: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)); the paper's
+#: readings first, then the two-source model (docs/noise_model.rst).
+NOISE_READINGS = ("power", "amplitude", "mixed", "two_source")
 #: Largest sensor or panel side a config may declare [px] (bounds every image allocation).
 MAX_SIDE_PX = 100_000
 #: Range of the magnitude of any non-zero number in a config, in its unit: beyond it a
@@ -241,22 +246,30 @@ class FringeConfig(_Section):
 
 @dataclass(frozen=True)
 class ModelConfig(_Section):
-    """Parameters and open readings of the defocus model (paper Sect. 3).
+    """Parameters and readings of the defocus model (paper Sect. 3; docs/noise_model.rst).
 
-    ``filter_floor``: "none" applies Eq. 17 as printed, F = sqrt(b_c b_d) / gamma, which
-    can be < 1 (filtering amplifies noise); "one" clamps F >= 1 as the paper's bound
-    1 <= gamma <= sqrt(b_c b_d) implies. ``noise_reading``: "power" divides s_O by the
-    attenuation A (squared magnitude ratio, Eq. 19 as printed); "amplitude" by sqrt(A)
-    (phase noise of additive intensity noise scales with 1 / magnitude); "mixed" by
-    A_c sqrt(A_p) (projector amplitude, camera power).
+    ``filter_floor``: "none" applies Eq. 17 as printed, F can be < 1 (filtering amplifies
+    noise); "one" clamps F >= 1 as the paper's bound 1 <= gamma <= sqrt(b_c b_d) implies.
+    ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
+    takes F^2 as the noise-equivalent area of pixel, defocus disc and Airy disc together,
+    (1 + b_disc + b_d) / gamma^2. ``noise_reading``: "power" divides s_O by the
+    attenuation A (squared magnitude ratio, Eq. 19 as printed); "amplitude" by sqrt(A);
+    "mixed" by A_c sqrt(A_p); "two_source" adds scene-side noise (sigma_p, filtered by
+    F) and sensor noise (``sensor_sigma_p_px``, not filtered), each divided by
+    sqrt(A_c A_p). The defaults are the model the simulated camera and projector sweeps
+    select on held-out positions (floor "one", form "sum", reading "two_source"); the
+    paper's config sets the paper's reading explicitly.
     """
 
     section: ClassVar[str] = "model"
     wavelength_nm: float = _spec("nm", gt=0)
     gamma: float = _spec("", ge=1)
     sigma_p_px: float = _spec("px", gt=0)
-    filter_floor: str = _spec(kind="str", choices=FILTER_FLOORS, default="none")
-    noise_reading: str = _spec(kind="str", choices=NOISE_READINGS, default="power")
+    filter_floor: str = _spec(kind="str", choices=FILTER_FLOORS, default="one")
+    noise_reading: str = _spec(kind="str", choices=NOISE_READINGS, default="two_source")
+    filter_form: str = _spec(kind="str", choices=FILTER_FORMS, default="sum")
+    #: phase noise of the sensor at focus (A_c = A_p = 1) [projector px]; two_source only
+    sensor_sigma_p_px: float = _spec("px", ge=0, default=0.0)
 
 
 @dataclass(frozen=True)

@@ -1,11 +1,12 @@
 """The whole pipeline on the committed sample data (or freshly simulated data).
 
-Stages: characterise the scanner from the camera sweep, build the weighted calibration
-table from the plane sweep, annotate the gauge-block scan (repeats give the measured
-per-point std), run the gauge-block QA, run a VDI/VDE 2634-2 sphere test (PF, PS) on a
-sphere simulated on the fly with the same scanner (about 5 s), and run the design tools
-on the same scanner. Everything goes into one folder; :func:`run_demo` returns what a
-summary needs.
+Stages: characterise the scanner's noise from its camera and projector sweeps (or, for a
+rigid scanner without them, from the calibration sweep itself), build the weighted
+calibration table from the plane sweep, annotate the gauge-block scans (repeats give the
+measured per-point std), run the gauge-block QA, run a VDI/VDE 2634-2 sphere test (PF,
+PS) on a sphere simulated on the fly with the same scanner (about 5 s), and run the
+design tools on the same scanner. Everything goes into one folder; :func:`run_demo`
+returns what a summary needs.
 """
 
 from __future__ import annotations
@@ -44,7 +45,8 @@ FULL_PLAN = (("camera-sweep", 256, "-30:30:2", 1, "camera_sweep"),
              ("projector-sweep", 256, "-30:30:2", 1, "projector_sweep"),
              ("calibration-sweep", 0, "424:476:4", 1, "calibration_sweep"),
              ("gauge-blocks", 0, None, 3, "gauge_blocks"))
-#: Folders a demo data set holds (the device sweeps: one or both).
+#: Folders a demo data set must hold (device sweeps, camera_sweep/ and projector_sweep/,
+#: are optional: without them the calibration sweep is characterised).
 DATA_FOLDERS = ("calibration_sweep", "gauge_blocks")
 
 log = logging.getLogger(__name__)
@@ -52,7 +54,7 @@ log = logging.getLogger(__name__)
 
 @dataclass
 class DemoResult:
-    """Paths and numbers of a demo run."""
+    """Paths and numbers of a demo run (``characterization`` is the summary.json)."""
 
     out: Path
     variant: dict
@@ -60,6 +62,7 @@ class DemoResult:
     timings: dict = field(default_factory=dict)
     repeat_qa: list = field(default_factory=list)  # QAResult of every further scan
     artefact: ArtefactQAResult | None = None  # the sphere test
+    characterization: dict = field(default_factory=dict)
 
     @property
     def artefact_report(self) -> Path:
@@ -116,16 +119,16 @@ def manifest_config(folder: Path) -> ScannerConfig:
 
 
 def check_data(data: Path) -> list[Path]:
-    """The device sweeps of a demo data set; raises unless every folder is there."""
+    """The sweeps to characterise: the device sweeps of a demo data set, or its
+    calibration sweep when it has none; raises unless the required folders are there."""
     missing = [name for name in DATA_FOLDERS if not (data / name / "manifest.toml").exists()]
+    if missing:
+        raise InputError(f"demo data not found in {data}: missing {', '.join(missing)} (run "
+                         "the demo from a clone of the repository, where sample_data/ holds "
+                         "them, or simulate them with 'scanqa demo --full')")
     sweeps = [data / name for name in ("camera_sweep", "projector_sweep")
               if (data / name / "manifest.toml").exists()]
-    if missing or not sweeps:
-        what = ", ".join(missing + ([] if sweeps else ["camera_sweep or projector_sweep"]))
-        raise InputError(f"demo data not found in {data}: missing {what} (run the demo from "
-                         "a clone of the repository, where sample_data/ holds them, or "
-                         "simulate them with 'scanqa demo --full')")
-    return sweeps
+    return sweeps or [data / "calibration_sweep" / "sweep.toml"]
 
 
 def run_demo(out: str | Path, data: str | Path = "sample_data",
@@ -169,16 +172,18 @@ def _run_stages(stage: _Stages, out: Path, data: Path, final: Path) -> DemoResul
     sweeps = check_data(data)
     config = manifest_config(data / "gauge_blocks")
 
-    stage(f"characterising the scanner from the {' and '.join(p.name for p in sweeps)} "
-          "(Figs. 3 and 4 procedure)")
-    sweep_config = manifest_config(sweeps[0])
+    names = [p.parent.name if p.name == "sweep.toml" else p.name for p in sweeps]
+    stage(f"characterising the scanner from the {' and '.join(names)} "
+          "(Figs. 3 and 4 procedure, model selected on held-out positions)")
+    sweep_config = manifest_config(sweeps[0].parent if sweeps[0].name == "sweep.toml"
+                                   else sweeps[0])
     char = characterize_sweeps(sweeps, sweep_config)
     write_characterization(char, out / "characterization", sweep_config)
     fitted = char.apply_to(config)
-    variant = char.summary()["best_variant"]
-    log.info(f"supported reading: filter_floor={variant['filter_floor']}, noise_reading="
-             f"{variant['noise_reading']}, sigma_p={variant['sigma_p_px']:.4g} px, gamma="
-             f"{variant['gamma']:.3g} ({100 * variant['rms_relative']:.1f} % RMS)")
+    char_summary = char.summary()
+    variant = char_summary["best_variant"]
+    for line in characterization_lines(char_summary):
+        log.info(f"  {line}")
 
     stage("building the weighted calibration table")
     table, build = calibrate(data / "calibration_sweep" / "sweep.toml", fitted,
@@ -188,10 +193,11 @@ def _run_stages(stage: _Stages, out: Path, data: Path, final: Path) -> DemoResul
     write_text(out / "table_report.json",
                json.dumps(calibration_report.summary(table, build), indent=1))
 
-    stage("annotating the gauge-block scan (3 repeats)")
-    scans = sorted((data / "gauge_blocks").glob("p000_r*"))
+    scans = sorted((data / "gauge_blocks").glob("p000_r*"),
+                   key=lambda p: int(p.name.split("_r")[-1]))
     if not scans:
         raise InputError(f"no gauge-block scans in {data / 'gauge_blocks'}")
+    stage(f"annotating the gauge-block scan ({len(scans)} repeats)")
     maps = [decode_pattern_dir(p) for p in scans]
     cloud = annotate(maps[0], table, fitted, maps[1:], keep_invalid=True,
                      source=str(scans[0]))
@@ -219,7 +225,7 @@ def _run_stages(stage: _Stages, out: Path, data: Path, final: Path) -> DemoResul
     stage("design tools on the same scanner (depth of field, W curve, volume)")
     _design(fitted, out / "design")
     stage("done")
-    return DemoResult(out, variant, qa, stage.timings, repeat_qa, artefact)
+    return DemoResult(out, variant, qa, stage.timings, repeat_qa, artefact, char_summary)
 
 
 def sphere_test(config: ScannerConfig, fitted: ScannerConfig, table, out: Path, header,
@@ -249,14 +255,14 @@ def _steps_csv(results: list[QAResult], scans: list[Path]) -> str:
 
 
 def pooled_steps(result: DemoResult) -> tuple[int, int]:
-    """Steps between blocks inside the calibrated volume over every scan, and how many of
-    them have |error| <= U."""
-    inside = within = 0
+    """Evaluated steps (both blocks inside the calibrated volume and the model's validity)
+    over every scan, and how many of them have |error| <= U."""
+    evaluated = within = 0
     for res in (result.qa, *result.repeat_qa):
         info = res.summary()
-        inside += info["steps_inside_volume"]
+        evaluated += info["steps_evaluated"]
         within += info["steps_error_within_U"]
-    return within, inside
+    return within, evaluated
 
 
 def _design(config, out: Path) -> None:
@@ -270,25 +276,56 @@ def _design(config, out: Path) -> None:
     design_plots.plot_volume(design.usable_volume(config, 0.49, step=2.0), out / "volume.png")
 
 
+def _interval(p: dict) -> str:
+    """A parameter with what the data say about it."""
+    if p["status"] == "fitted":
+        return f"{p['value']:.4g} [{p['low']:.4g}, {p['high']:.4g}] (95 %)"
+    if p["status"] == "bounded":
+        return f"{p['value']:.4g}, only bounded: [{p['low']:.4g}, {p['high']:.4g}] (95 %)"
+    return f"{p['value']:.4g}, not identifiable ({p['why']})"
+
+
+def characterization_lines(summary: dict) -> list[str]:
+    """What the characterisation found: the selected variant, each parameter with its
+    interval or why it is not identifiable, the identifiable quantities, the baseline."""
+    v = summary["best_variant"]
+    lines = [f"selected model: filter_floor={v['filter_floor']}, filter_form="
+             f"{v['filter_form']}, noise_reading={v['noise_reading']} (held-out RMS "
+             f"{100 * v['cv_rms_relative']:.1f} %, a constant "
+             f"{100 * summary['constant']['cv_rms_relative']:.1f} %)"]
+    lines += [f"{p['name']} = {_interval(p)}" for p in v["parameters"]]
+    lines += [f"identifiable: {c['name']} = {c['value']:.4g}"
+              + (f" [{c['low']:.4g}, {c['high']:.4g}]" if "low" in c else "")
+              for c in v["identifiable"]]
+    if not summary["better_than_constant"]:
+        lines.append(summary["verdict"])
+    return lines
+
+
 def summary_lines(result: DemoResult) -> list[str]:
     """The short summary printed at the end of the demo."""
     lines = ["block  measured  predicted  ratio  status"]
     for b in result.qa.blocks:
         lines.append(f"{b.block_id:5d}  {b.measured_std_um:6.1f} um  {b.predicted_std_um:6.1f} um"
                      f"  {b.ratio:5.2f}  {b.status}")
-    lines.append("step   error      U (k=2)  decision")
+    lines.append("step   error      U        decision")
     for s in result.qa.steps:
+        what = f"{s.decision} ({'within' if s.within_u else 'outside'} U)" if s.evaluated \
+            else s.note
         lines.append(f"{s.block_a}-{s.block_b}    {s.error_um:+6.1f} um  {s.expanded_um:5.1f} um"
-                     f"  {'within U' if abs(s.error_um) <= s.expanded_um else 'outside U'}, "
-                     f"{s.decision}")
+                     f"  {what}")
     info = result.qa.summary()
     if info["fraction_within_U"] is not None:
-        lines.append(f"{info['steps_error_within_U']} of {info['steps_inside_volume']} steps "
-                     "between blocks inside the calibrated volume have |error| <= U")
-    within, inside = pooled_steps(result)
-    if inside:
-        lines.append(f"over all {1 + len(result.repeat_qa)} scans: {within} of {inside} "
-                     f"such steps ({100 * within / inside:.0f} %) have |error| <= U "
+        lines.append(f"{info['steps_error_within_U']} of {info['steps_evaluated']} evaluated "
+                     f"steps have |error| <= U ({info['steps_not_evaluated']} not evaluated: "
+                     "a block outside the calibrated volume or the model's validity)")
+    if not info["type_b_included"]:
+        lines.append("U holds Type A terms only (noise, calibration table): Type B is not "
+                     "included, no budget file was given")
+    within, evaluated = pooled_steps(result)
+    if evaluated:
+        lines.append(f"over all {1 + len(result.repeat_qa)} scans: {within} of {evaluated} "
+                     f"evaluated steps ({100 * within / evaluated:.0f} %) have |error| <= U "
                      "(qa/steps_all_scans.csv)")
     if result.artefact is not None:
         lines.append("sphere test (VDI/VDE 2634-2, simulated sphere of 12 mm):")

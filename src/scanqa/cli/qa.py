@@ -27,6 +27,7 @@ from scanqa.io.spec import read_spec
 from scanqa.provenance import build_header, certificate_text, describe_paths
 from scanqa.qa.artefacts import Options, auto_layout, load_artefact_layout, run_artefact_qa
 from scanqa.qa.blocks import run_qa
+from scanqa.qa.budget import load_budget
 from scanqa.qa.detect import detect_blocks
 from scanqa.qa.layout import load_layout
 from scanqa.report import artefacts as artefact_report
@@ -83,7 +84,15 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "fit (default: no rejection)")
     p.add_argument("--tolerance", type=number(ge=0, unit="um"), default=20.0,
                    help="gauge blocks: tolerance on each height difference [um] (default 20)")
-    p.add_argument("--k", type=number(gt=0), default=2.0, help="coverage factor (default 2)")
+    p.add_argument("--k", type=_coverage, default=None,
+                   help="coverage factor: a number, or welch-satterthwaite for k from each "
+                        "step's effective degrees of freedom (default: the budget file's, "
+                        "else 2; artefacts: 2)")
+    p.add_argument("--budget", default=None, metavar="FILE",
+                   help="gauge blocks: uncertainty budget TOML with the Type B inputs "
+                        "(certificates, temperature, stage scale, flatness of the "
+                        "calibration flat); without it the report says Type B is not "
+                        "included")
     p.add_argument("--tile", type=number(gt=0, unit="mm"), default=2.0, metavar="MM",
                    help="tile size [mm] over which the noise correlation is measured; at "
                         "least twice the noise's correlation length (default 2)")
@@ -95,6 +104,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="artefacts: decide with the test uncertainty (artefact only, "
                         "default) or with U (adds the scanner's own spread)")
     p.set_defaults(func=run)
+
+
+def _coverage(text: str) -> float | str:
+    if text == "welch-satterthwaite":
+        return text
+    return number(gt=0)(text)
 
 
 def _load(args: argparse.Namespace) -> tuple[list[tuple[str, AnnotatedCloud]],
@@ -164,7 +179,10 @@ def run(args: argparse.Namespace) -> int:
 def _run_artefacts(args, clouds, spec, header, out) -> int:
     layout = auto_layout(args.artefact, spec, args.diameter, args.distance) if args.auto \
         else load_artefact_layout(args.layout)
-    options = Options(k=args.k, margin_mm=args.margin, tile_mm=args.tile,
+    if args.k == "welch-satterthwaite" or args.budget:
+        raise InputError("--k welch-satterthwaite and --budget apply to gauge blocks; the "
+                         "artefact tests take a number for --k (default 2)")
+    options = Options(k=2.0 if args.k is None else args.k, margin_mm=args.margin, tile_mm=args.tile,
                       max_incidence_deg=args.max_incidence, decide_with=args.decide_with)
     result = run_artefact_qa(clouds, layout, spec, options)
     artefact_report.write_outputs(result, out, header, pdf=args.pdf)
@@ -185,7 +203,8 @@ def _run_blocks(args, cloud, config, header, out) -> int:
     layout = detect_blocks(cloud.xyz, _heights(args)) if args.auto else load_layout(args.layout)
     result = run_qa(cloud, layout, config=config, margin_mm=args.margin,
                     outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
-                    tile_mm=args.tile)
+                    tile_mm=args.tile,
+                    budget=load_budget(args.budget) if args.budget else None)
     info = qa_report.write_outputs(result, out, header, pdf=args.pdf)
     for b in result.blocks:
         emit(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
@@ -196,7 +215,6 @@ def _run_blocks(args, cloud, config, header, out) -> int:
     for note in result.notes:
         emit(f"note: {note}")
     frac = info["fraction_within_U"]
-    emit(f"report: {Path(args.out) / 'report.html'}" + (
-        f" ({100 * frac:.0f} % of steps inside the volume within U)" if frac is not None
-        else ""))
+    emit(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of the evaluated steps "
+                                             "within U)" if frac is not None else ""))
     return 0

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import argparse
-import json
 import math
+from pathlib import Path
 
 from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list, number
 
@@ -64,26 +64,30 @@ def register(sub: argparse._SubParsersAction) -> None:
 
     p = sub.add_parser(
         "characterize", formatter_class=_FMT,
-        help="fit sigma_p, gamma and the model variant to a simulated or measured sweep",
-        description="Decode a camera or projector sweep, fit a low-order surface to the "
-                    "flat's x_p map per position, compare the residual std and the "
-                    "attenuation with the model (Figs. 3/4), fit sigma_p and gamma for "
-                    "each reading of the model, and report the one the data supports. "
-                    "Given a camera and a projector sweep, one sigma_p and gamma are "
-                    "fitted to both, and the 'mixed' reading (camera power, projector "
-                    "amplitude) is among the candidates.",
+        help="fit the noise model to a simulated or measured sweep and say what the data "
+             "identify",
+        description="Decode a camera, projector or calibration sweep, fit a low-order "
+                    "surface to the flat's x_p map per position, compare the residual std "
+                    "and the attenuation with the model (Figs. 3/4), and fit every variant "
+                    "of the model (the paper's readings and the two-source model). Each "
+                    "parameter is reported as fitted, bounded or not identifiable with its "
+                    "95 % profile-likelihood interval; the variant that predicts held-out "
+                    "positions best is selected and compared with a constant. Several "
+                    "sweeps are fitted together.",
         epilog="The scanner config defaults to the one recorded in the sweep's manifest; a "
                "--config given must have the same camera and projector.\n\n"
                "examples:\n  scanqa characterize cam --out cam/characterize\n"
-               "  scanqa characterize cam proj --config calib/paper_scanner.toml --out both")
-    p.add_argument("sweep", metavar="SWEEP_DIR", nargs="+",
-                   help="folder(s) written by scanqa simulate (a camera and/or projector "
-                        "sweep)")
+               "  scanqa characterize cam proj --config calib/paper_scanner.toml --out both\n"
+               "  scanqa characterize sweep/sweep.toml   # a rigid scanner's calibration sweep")
+    p.add_argument("sweep", metavar="SWEEP", nargs="+",
+                   help="folder(s) written by scanqa simulate camera-sweep/projector-sweep, "
+                        "or a calibration sweep's sweep.toml (both devices defocus)")
     add_config_argument(p, required=False)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="folder for summary.json and plots (default: SWEEP_DIR/characterize)")
     p.add_argument("--min-attenuation", type=number(gt=0), default=0.49,
-                   help="fit where the model attenuation is at least this [-] (default 0.49)")
+                   help="fit where the moving devices' model attenuation is at least this "
+                        "[-] (default 0.49)")
     p.set_defaults(func=run_characterize)
 
 
@@ -102,11 +106,17 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 def run_characterize(args: argparse.Namespace) -> int:
     from scanqa.characterization import characterize_sweeps, sweep_config
+    from scanqa.demo import characterization_lines
     from scanqa.report.characterization import write_characterization
 
     config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
     result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
-    out = write_characterization(result, args.out or f"{args.sweep[0]}/characterize", config)
-    emit(json.dumps(result.summary(), indent=1))
+    first = Path(args.sweep[0])
+    default = (first.parent if first.suffix == ".toml" else first) / "characterize"
+    out = write_characterization(result, args.out or default, config)
+    summary = result.summary()
+    emit(summary["verdict"])
+    for line in characterization_lines(summary):
+        emit(f"  {line}")
     emit(f"wrote {out}")
     return 0

@@ -15,6 +15,7 @@ import numpy as np
 from scanqa.characterization import Characterization, JointCharacterization, VariantFit
 from scanqa.config import ScannerConfig
 from scanqa.io.atomic import staged_dir, write_text
+from scanqa.noisefit import select
 from scanqa.report.plots import new_figure, save_png
 
 
@@ -54,12 +55,12 @@ def _plot(result: Characterization, config: ScannerConfig, out: Path,
     ax = axes[0][0]
     ax.plot(z, std, "o", ms=3, label="sweep (surface-fit residual)")
     fits = result.fits if fits is None else fits
-    best = min(fits, key=lambda f: f.rms_relative)
+    best = select(fits)
     for fit in fits:
         style = "-" if fit is best else ":"
         ax.plot(z, result.model_std(fit, config), style, label=(
-            f"{fit.filter_floor}/{fit.noise_reading}: sigma_p={fit.sigma_p_px:.4f}, "
-            f"gamma={fit.gamma:.2f}, rms={100 * fit.rms_relative:.1f}%"))
+            f"{fit.label}: sigma_p={fit.sigma_p_px:.4f}, gamma={fit.gamma:.2f}, "
+            f"held-out rms={100 * fit.cv_rms_relative:.1f}%"))
     ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
     ax.set_ylabel("std of x_p [projector px]")
     ax.set_ylim(0, np.nanmax(std) * 1.3)
