@@ -16,9 +16,9 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
 LAYERS = {
     "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.progress": 0, "scanqa._version": 0,
     "scanqa.io": 1,
-    "scanqa.config": 2, "scanqa.cloud": 2,
+    "scanqa.config": 2, "scanqa.cloud": 2, "scanqa.provenance": 2,
     "scanqa.optics": 3,
-    "scanqa.decoding": 4, "scanqa.design": 4,
+    "scanqa.decoding": 4, "scanqa.design": 4, "scanqa.noisefit": 4,
     "scanqa.calibration": 5,
     "scanqa.annotation": 6, "scanqa.characterization": 6, "scanqa.qa": 6,
     "scanqa.simulator": 6,

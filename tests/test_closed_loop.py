@@ -3,13 +3,15 @@
 One camera throughout: profile ``sample`` of sample_data/sample_scanner.toml (the paper's
 scanner at f/11, sensor binned 8 x 8 to 306 x 256 px, 8-bit). Data:
 
-* committed sample data: the camera sweep (characterisation), the 27-position
-  calibration sweep 424..476 mm (past the depth of field) and 3 gauge-block scans;
+* committed sample data: the camera and projector sweeps (characterisation), the
+  27-position calibration sweep 424..476 mm (past the depth of field) and 3 gauge-block
+  scans;
 * simulated here, in memory, by session fixtures (~35 s on 2 cores): 9 more repeats of
   the gauge-block scan (12 in all, the same noise streams as ``scanqa simulate
   gauge-blocks --repeats 12``), 4 repeats of 9 hold-out planes between the calibrated
   positions, rendered in the central 128 x 128 px window of the sensor, and a sweep far
-  past the depth of field (414..490 mm) of the central 96 x 96 px.
+  past the depth of field (414..490 mm) of the central 96 x 96 px, for three noise seeds
+  (the weighting comparison; seeds 1 and 2 only in the slow test).
 
 Truth is the simulator's ray casting (:func:`scanqa.simulator.render.truth_for`): X, Y, Z
 and the true projector coordinate ``xp_true`` at every pixel centre. The simulator forms
@@ -45,7 +47,7 @@ from scanqa.annotation import annotate
 from scanqa.calibration.build import PlaneObservation, build_table
 from scanqa.calibration.sweep import iter_observations
 from scanqa.calibration.table import load_table
-from scanqa.characterization import apply_fitted_model
+from scanqa.characterization import apply_fitted_model, characterize_sweeps
 from scanqa.cli import main
 from scanqa.config import load_config
 from scanqa.decoding.decoder import decode_images, decode_pattern_dir
@@ -66,6 +68,7 @@ SAMPLE = f"{SAMPLE_TOML}#sample"
 SWEEP_DIR = SAMPLE_DATA / "calibration_sweep"
 GAUGE_DIR = SAMPLE_DATA / "gauge_blocks"
 CAMERA_SWEEP = SAMPLE_DATA / "camera_sweep"
+PROJECTOR_SWEEP = SAMPLE_DATA / "projector_sweep"
 LAYOUT = ROOT / "calib" / "gauge_blocks_paper.toml"
 
 #: Hold-out planes for the table applied to the true phase: midway between positions.
@@ -188,11 +191,11 @@ def sample_config():
 
 @pytest.fixture(scope="session")
 def characterised(tmp_path_factory, sample_config):
-    """``scanqa characterize`` of the committed camera sweep: (summary.json, config with
-    the fitted sigma_p, gamma and reading)."""
+    """``scanqa characterize`` of the committed camera and projector sweeps: (summary.json,
+    config with the model they select)."""
     out = tmp_path_factory.mktemp("characterise")
-    assert main(["characterize", str(CAMERA_SWEEP), "--config", SAMPLE, "--out",
-                 str(out)]) == 0
+    assert main(["characterize", str(CAMERA_SWEEP), str(PROJECTOR_SWEEP), "--config", SAMPLE,
+                 "--out", str(out)]) == 0
     summary = out / "summary.json"
     return summary, apply_fitted_model(sample_config, summary)
 
@@ -257,12 +260,13 @@ def holdout_scans(sample_config):
     return out
 
 
-@pytest.fixture(scope="session")
-def wide_sweep(sample_config):
+def wide_sweep(sample_config, seed: int = 0):
     """(config, decoded observations) of a one-repeat sweep over WIDE_SWEEP_Z with the
-    sample camera's central 96 x 96 px: a camera with that sensor and the same optics
-    (its principal point is the window's centre, so the geometry is the window's)."""
+    sample camera's central 96 x 96 px and noise seed ``seed``: a camera with that
+    sensor and the same optics (its principal point is the window's centre, so the
+    geometry is the window's)."""
     config = small_camera(sample_config, WIDE_WINDOW_PX, WIDE_WINDOW_PX)
+    config = config.replace_simulator(seed=seed)
     desc = pattern_description(config)
 
     def scan(pos):
@@ -315,11 +319,64 @@ def _holdout_true_phase(sample_config, table) -> tuple[list, list[float]]:
 
 
 def test_characterisation_is_of_the_same_camera(sample_config, characterised):
-    cam = read_manifest(CAMERA_SWEEP)["config"]["camera"]
     mine = sample_config.to_dict()["camera"]
-    assert {k: cam[k] for k in mine} == mine
+    for folder in (CAMERA_SWEEP, PROJECTOR_SWEEP):
+        cam = read_manifest(folder)["config"]["camera"]
+        assert {k: cam[k] for k in mine} == mine
     summary = json.loads(characterised[0].read_text())
-    assert summary["experiment"] == "camera-sweep"
+    assert summary["experiment"] == "camera-sweep+projector-sweep"
+    assert summary["better_than_constant"]
+
+
+def test_sample_camera_sweep_reports_only_what_it_identifies(request):
+    """Issue 16 acceptance on the sample camera sweep alone: no parameter is reported as
+    fitted that the fit did not move, every fitted one has its 95 % interval, and the
+    selected model beats a constant (which the paper's readings do not)."""
+    config = load_config(SAMPLE_TOML, profile="sample_roi64")
+    result = characterize_sweeps([CAMERA_SWEEP], config)
+    summary = result.summary()
+    rows = {f["filter_floor"] + "/" + f["filter_form"] + "/" + f["noise_reading"]: f
+            for f in summary["fits"]}
+    _record(request, "issue16_sample_camera_sweep", {
+        "verdict": summary["verdict"], "constant_cv": summary["constant"]["cv_rms_relative"],
+        **{k: [round(f["cv_rms_relative"], 4),
+               [(p["name"], p["status"], p["low"], p["high"]) for p in f["parameters"]]]
+           for k, f in rows.items()}})
+    for label, fit in rows.items():
+        for p in fit["parameters"]:
+            if p["status"] == "fitted":
+                assert p["low"] < p["value"] < p["high"], (label, p)
+            elif p["status"] == "not identifiable":
+                assert p["why"] and not np.isfinite(p["low"] or np.nan), (label, p)
+        if fit["filter_floor"] == "none":  # F ~ 1 / gamma: only sigma_p x gamma
+            assert fit["parameters"][1]["status"] == "not identifiable", label
+            assert any(c["name"] == "sigma_p_px * gamma" for c in fit["identifiable"])
+        if fit["filter_form"] == "product" and fit["filter_floor"] == "one":
+            # 64 um pixels: b_d = 0.03, so F = 1 everywhere and gamma has no effect
+            assert "F = 1 at every position" in fit["parameters"][1]["why"], label
+    assert summary["better_than_constant"]
+    constant = summary["constant"]["cv_rms_relative"]
+    paper = [f for k, f in rows.items() if "two_source" not in k]
+    assert all(f["cv_rms_relative"] > constant for f in paper)
+
+
+def test_characterisation_from_the_calibration_sweep_alone(request, sample_config,
+                                                           characterised):
+    """Issue 15 acceptance: a rigid scanner's calibration sweep (both devices defocus
+    together) picks a reading and gives sigma_p within 20 % of the dedicated camera +
+    projector sweeps of the same simulated scanner."""
+    sweeps = json.loads(characterised[0].read_text())["best_variant"]
+    cal = characterize_sweeps([SWEEP_DIR / "sweep.toml"], sample_config)
+    label = f"{sweeps['filter_floor']}/{sweeps['filter_form']}/{sweeps['noise_reading']}"
+    same = next(f for f in cal.fits if f.label == label)
+    _record(request, "issue15_characterise_from_calibration_sweep", {
+        "selected": cal.best.label, "sigma_p_px": cal.best.sigma_p_px,
+        "sweeps_selected": label, "sweeps_sigma_p_px": sweeps["sigma_p_px"],
+        "same_variant_sigma_p_px": same.sigma_p_px,
+        "held_out_rms": cal.best.cv_rms_relative})
+    assert cal.summary()["better_than_constant"]
+    assert cal.best.label == label
+    assert cal.best.sigma_p_px == pytest.approx(sweeps["sigma_p_px"], rel=0.20)
 
 
 def test_sweep_extends_past_the_depth_of_field(sample_config, sweep_observations):
@@ -353,21 +410,33 @@ def holdout_scan_errors(request, calibrated, holdout_scans, focus_sigma_mm):
              for _, u, v, xp, xyz in holdout_scans]
     zs = [z for z, *_ in holdout_scans]
     total, change = pooled(parts), trend(zs, [p.bias for p in parts])
+    own = np.concatenate([table.apply(u, v, xp.mean(axis=0)).sigma_table
+                          for _, u, v, xp, _ in holdout_scans])
     _record(request, "issue5_holdout_scans", {
+        "table_own_sigma_rms_um": um(np.sqrt(np.nanmean(own**2))),
         "repeats": HOLDOUT_REPEATS, "sys_um": um(total.sys), "raw_um": um(total.raw),
         "noise_floor_um": um(total.floor), "limit_um": um(0.1 * focus_sigma_mm),
         "trend_um": um(change), "z_mm": zs, "per_plane_sys_um": [um(p.sys) for p in parts],
         "per_plane_bias_um": [um(p.bias) for p in parts]})
-    return total, change
+    return total, change, float(np.sqrt(np.nanmean(own**2)))
 
 
 def test_scan_systematic_on_holdout_planes(holdout_scan_errors, focus_sigma_mm):
-    total, _ = holdout_scan_errors
+    total, *_ = holdout_scan_errors
     assert total.sys <= 0.1 * focus_sigma_mm
 
 
+def test_table_term_of_the_budget_against_holdout_planes(holdout_scan_errors):
+    """The budget's table term is the table's own sigma (its node fits' covariance,
+    scaled by their reduced chi-square). On hold-out planes that were not used to build
+    the table it is measured to be 0.42 um against a systematic error of 0.47 um: about
+    10 % low, which the noise terms dominate in every step; it must not be far lower."""
+    total, _, own = holdout_scan_errors
+    assert 0.7 * total.sys <= own <= 2.0 * total.sys
+
+
 def test_scan_on_holdout_planes_has_no_trend(holdout_scan_errors, focus_sigma_mm):
-    _, change = holdout_scan_errors
+    _, change, _ = holdout_scan_errors
     assert change <= 0.1 * focus_sigma_mm
 
 
@@ -401,8 +470,8 @@ def test_scan_systematic_on_gauge_blocks(request, gauge_scans, calibrated, focus
 
 
 @pytest.mark.xfail(strict=True, reason=(
-    "on the committed 424..476 mm sweep the model-weighted table is no better than the "
-    "unweighted one (0.609 vs 0.605 um against truth on 26 hold-out planes): the "
+    "on the committed 424..476 mm sweep the model-weighted table is barely better than the "
+    "unweighted one (0.579 vs 0.609 um against truth on 26 hold-out planes): the "
     "simulated noise grows only 2.1x from focus to the sweep's ends (14.8 -> 30 mpx) "
     "although the fringe amplitude drops 3.5x - at focus the noise is mostly "
     "scene-side, which the camera blur filters away from focus (the W curve) - so even "
@@ -420,36 +489,61 @@ def test_weighting_pays_past_the_depth_of_field(request, sample_config, calibrat
     assert rms["model"] <= 0.8 * rms["none"]
 
 
-def test_weighting_pays_inside_the_dof_of_a_wide_sweep(request, wide_sweep, characterised):
-    """Where the noise far from focus grows enough (5.7x in std from focus to 414 mm),
-    weights from the model variant the characterisation supported keep the far planes
-    from degrading the table inside the depth of field (camera attenuation >= 0.49,
-    where scans are measured). Recorded beside it: the whole range, and the weights of
-    the config's own [model] (what ``scanqa calibrate --weights model`` uses)."""
-    config, observations = wide_sweep
+#: Noise seeds of the weighting comparison (benchmarks/acceptance_weighting.py runs 12).
+WEIGHTING_SEEDS = (0, 1, 2)
+
+
+def _weighting_errors(config, observations, fitted) -> dict:
+    """RMS error against truth [mm] inside the DOF (camera attenuation >= 0.49) of the
+    tables of the four weighting schemes built from one sweep."""
     zs = np.arange(WIDE_SWEEP_Z[0] + 1.0, WIDE_SWEEP_Z[-1], 2.0)
     att = optics.predict(np.stack([0 * zs, 0 * zs, zs], axis=-1), config).attenuation_camera
     assert att[[0, -1]].max() < 0.1 and np.any(att >= 0.49)  # far past the DOF
-    fitted = replace(config, model=characterised[1].model)
-    truths = [plane_truth(config, float(z)) for z in zs]
-    rms = {}
-    for name, cfg, weights in (("fitted", fitted, "model"), ("config", config, "model"),
-                               ("none", config, "none")):
-        table, _ = build_table(observations, cfg, weights=weights)
+    obs_att = optics.predict(np.array([[0.0, 0.0, o.z_mm] for o in observations]),
+                             config).attenuation_camera
+    in_dof = [o for o, a in zip(observations, obs_att, strict=True) if a >= 0.49]
+    # every table is scored on the same planes: inside the DOF and inside the range of
+    # the table from the DOF's planes alone
+    att = np.where((zs > in_dof[0].z_mm) & (zs < in_dof[-1].z_mm), att, 0.0)
+    builds = {"model": (observations, replace(config, model=fitted.model), "model"),
+              "modulation": (observations, config, "modulation"),
+              "none": (observations, config, "none"),
+              "none, in DOF": (in_dof, config, "none")}
+    truths = [plane_truth(config, float(z)) for z in zs[att >= 0.49]]
+    out = {}
+    for name, (obs, cfg, weights) in builds.items():
+        table, _ = build_table(obs, cfg, weights=weights)
         parts = []
         for truth in truths:
             v, u = np.nonzero(truth.valid)
             xyz = np.stack([truth.x, truth.y, truth.z], axis=-1)[truth.valid]
             err = table_errors(table, u, v, truth.xp[truth.valid][None], xyz)
             parts.append(systematic(err, line_of_sight(xyz)))
-        inside = [p for p, a in zip(parts, att, strict=True) if a >= 0.49]
-        rms[name] = (pooled(inside).raw, pooled(parts).raw)
-    _record(request, "issue5_weighting_wide_sweep", {
-        "sweep_mm": [WIDE_SWEEP_Z[0], WIDE_SWEEP_Z[-1]],
-        "inside_dof_mm": [float(zs[att >= 0.49].min()), float(zs[att >= 0.49].max())],
-        **{f"{k}_rms_in_dof_um": um(v[0]) for k, v in rms.items()},
-        **{f"{k}_rms_all_um": um(v[1]) for k, v in rms.items()}})
-    assert rms["fitted"][0] <= 0.8 * rms["none"][0]
+        out[name] = pooled(parts).raw
+    return out
+
+
+@pytest.mark.slow
+def test_weighting_against_every_baseline_over_seeds(request, sample_config, characterised):
+    """Issue 16: the weighting comparison with the strongest fair baseline. On a sweep
+    reaching far past the depth of field (the std grows 5.7x from focus to 414 mm), over
+    three noise seeds, the hold-out error inside the DOF of tables weighted by the model
+    the sweeps selected, by the decoder's per-pixel sigma_xp (no optics model), with
+    equal weights, and with equal weights over the planes inside the DOF only. Measured
+    (and asserted): the model's weights beat both unweighted tables, and the decoder's
+    sigma_xp does as well as the model - the optics model is not what makes weighting
+    pay here."""
+    runs = [_weighting_errors(*wide_sweep(sample_config, seed), characterised[1])
+            for seed in WEIGHTING_SEEDS]
+    mean = {k: float(np.mean([r[k] for r in runs])) for k in runs[0]}
+    spread = {k: float(np.std([r[k] for r in runs], ddof=1)) for k in runs[0]}
+    _record(request, "issue16_weighting_over_seeds", {
+        "seeds": list(WEIGHTING_SEEDS), "mean_um": {k: um(v) for k, v in mean.items()},
+        "std_um": {k: um(v) for k, v in spread.items()},
+        "per_seed_um": [{k: um(v) for k, v in r.items()} for r in runs]})
+    assert mean["model"] <= 0.8 * mean["none"]
+    assert mean["model"] <= 0.9 * mean["none, in DOF"]
+    assert abs(mean["model"] / mean["modulation"] - 1.0) <= 0.10
 
 
 def test_block1_outside_the_volume_is_flagged(request, gauge_scans, gauge_cloud):
@@ -515,14 +609,15 @@ def test_qa_paper_setup_acceptance(request, qa_cli):
                                                     b["predicted_std_um"], b["ratio"]]
                                            for k, b in blocks.items()})
     _record(request, "issue7_cli_steps", {
-        "within_U": info["steps_error_within_U"], "inside": info["steps_inside_volume"],
+        "within_U": info["steps_error_within_U"], "evaluated": info["steps_evaluated"],
         "steps": [[s["block_a"], s["block_b"], s["error_um"], s["U_um"]]
                   for s in info["steps"]]})
     assert blocks[1]["status"] == "outside_volume"
     for bid in range(2, 9):
         assert blocks[bid]["status"] == "ok", blocks[bid]
         assert abs(blocks[bid]["ratio"] - 1.0) <= 0.20, blocks[bid]
-    assert info["steps_inside_volume"] == 6
+    assert info["steps_evaluated"] == 6 and info["steps_not_evaluated"] == 1
+    assert info["decisions"]["not evaluated"] == 1  # step 1-2: block 1 is flagged
     # One scan has only 6 pairs: with an honest 95 % interval one of them lies outside U
     # in a quarter of all scans. The >= 90 % criterion is asserted over 72 pairs in
     # test_qa_over_twelve_scans; here at most one of six may miss.
@@ -543,10 +638,13 @@ def test_qa_auto_finds_the_layout_blocks(request, qa_cli):
 
 
 def test_qa_over_twelve_scans(request, gauge_scans, calibrated, characterised):
-    """The same acceptance on each of the 12 scans (one scan each, no repeats)."""
+    """Issue 16 acceptance on the sample camera (12 scans, one at a time): the model the
+    sweeps selected predicts blocks 2-8 within 15 % on average over the scans and no
+    block is off by more than 15 % in every scan; >= 90 % of the evaluated steps lie
+    within U and RMS(error / u) is in [0.7, 1.3]; step 1-2 is never evaluated."""
     scans, _ = gauge_scans
     layout = load_layout(LAYOUT)
-    ratios, within, inside, z_scores = {b: [] for b in range(2, 9)}, 0, 0, []
+    ratios, within, evaluated, z_scores = {b: [] for b in range(2, 9)}, 0, 0, []
     for scan in scans:
         cloud = annotate(scan, calibrated[1]["model"], characterised[1], keep_invalid=True)
         result = run_qa(cloud, layout)
@@ -556,14 +654,21 @@ def test_qa_over_twelve_scans(request, gauge_scans, calibrated, characterised):
             assert b.status == "ok", (b.block_id, b.status)
             ratios[b.block_id].append(b.ratio)
         for s in result.steps:
-            if status[s.block_a] == status[s.block_b] == "ok":
-                inside += 1
-                within += abs(s.error_um) <= s.expanded_um
+            assert s.evaluated == (status[s.block_a] == status[s.block_b] == "ok")
+            if s.evaluated:
+                evaluated += 1
+                within += s.within_u
                 z_scores.append(s.error_um / s.u_um)
-    _record(request, "issue7_twelve_scans", {
-        "steps_within_U": within, "steps_inside": inside,
-        "rms_error_over_u": round(float(np.sqrt(np.mean(np.square(z_scores)))), 3),
+            else:
+                assert s.decision == "not evaluated"
+    rms = float(np.sqrt(np.mean(np.square(z_scores))))
+    _record(request, "issue16_twelve_scans", {
+        "steps_within_U": within, "steps_evaluated": evaluated,
+        "rms_error_over_u": round(rms, 3),
+        "ratio_mean": {str(k): round(float(np.mean(v)), 3) for k, v in ratios.items()},
         "ratio_min_max": {str(k): [round(min(v), 3), round(max(v), 3)]
                           for k, v in ratios.items()}})
-    assert all(abs(r - 1.0) <= 0.20 for v in ratios.values() for r in v)
-    assert inside == 6 * len(scans) and within / inside >= 0.90
+    assert all(abs(np.mean(v) - 1.0) <= 0.15 for v in ratios.values())
+    assert not any(all(abs(r - 1.0) > 0.15 for r in v) for v in ratios.values())
+    assert evaluated == 6 * len(scans) and within / evaluated >= 0.90
+    assert 0.7 <= rms <= 1.3

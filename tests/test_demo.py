@@ -22,7 +22,9 @@ def demo_out(tmp_path_factory):
 def test_demo_writes_every_output(demo_out):
     for name in ("table.npz", "table_report.html", "table_report.json", "gauge_cloud.ply",
                  "qa/report.html", "qa/blocks.csv", "qa/steps.csv", "qa/summary.json",
-                 "qa/cloud_qa.ply", "characterization/summary.json", "design/dof.png"):
+                 "qa/cloud_qa.ply", "characterization/summary.json", "design/dof.png",
+                 "sphere_test/report.html", "sphere_test/quantities.csv",
+                 "sphere_test/summary.json"):
         assert (demo_out / name).stat().st_size > 0, name
     html = (demo_out / "qa" / "report.html").read_text()
     for section in ("Summary", "Table 3", "over range", "Residual maps", "Table 4"):
@@ -40,12 +42,33 @@ def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
     for bid in range(2, 9):
         assert blocks[bid]["status"] == "ok", bid
         assert 0.8 <= blocks[bid]["ratio"] <= 1.2, (bid, blocks[bid]["ratio"])
-    assert info["steps_inside_volume"] == 6
+    assert info["steps_evaluated"] == 6 and info["steps_not_evaluated"] == 1
+    # issue 16: block 1 lies outside the calibrated volume, so its step gets no decision
+    step12 = next(s for s in info["steps"] if (s["block_a"], s["block_b"]) == (1, 2))
+    assert step12["pass"] == "not evaluated" and not step12["evaluated"]
+    assert info["decisions"]["not evaluated"] == 1
     rows = (demo_out / "qa" / "steps_all_scans.csv").read_text().splitlines()[1:]
-    inside = [r.split(",") for r in rows if not r.split(",")[1] == "1"]  # block 1: outside
-    within = [r for r in inside if abs(float(r[5])) <= float(r[7])]  # error_um, U_um
-    assert len(inside) == 18
-    assert len(within) / len(inside) >= 0.9, (len(within), len(inside))
+    evaluated = [r.split(",") for r in rows if r.split(",")[-1] != "not evaluated"]
+    within = [r for r in evaluated if abs(float(r[5])) <= float(r[8])]  # error_um, U_um
+    assert len(evaluated) == 18 and len(rows) == 21
+    assert len(within) / len(evaluated) >= 0.9, (len(within), len(evaluated))
+
+
+def test_demo_reports_what_the_sweeps_identify(demo_out, capsys):
+    """Issue 16 acceptance: no parameter reported as fitted that the fit did not move,
+    intervals reported, and the identifiable quantity printed."""
+    info = json.loads((demo_out / "characterization" / "summary.json").read_text())
+    assert info["experiment"] == "camera-sweep+projector-sweep"
+    assert info["better_than_constant"]
+    for fit in info["fits"]:
+        for p in fit["parameters"]:
+            if p["status"] in ("fitted", "bounded"):
+                assert p["low"] <= p["value"] <= p["high"], p
+            else:
+                assert p["status"] == "not identifiable" and p["why"], p
+    best = info["best_variant"]
+    assert best["noise_reading"] == "two_source"
+    assert {c["name"] for c in best["identifiable"]} >= {"phase noise at focus [px]"}
 
 
 def test_demo_prints_summary_and_report_path(capsys, tmp_path):
@@ -53,6 +76,8 @@ def test_demo_prints_summary_and_report_path(capsys, tmp_path):
     out = capsys.readouterr().out
     assert "report: " in out and str(tmp_path / "d" / "qa" / "report.html") in out
     assert "block  measured  predicted" in out and "over all 3 scans" in out
+    assert "identifiable: phase noise at focus" in out and "(95 %)" in out
+    assert "Type B is not included" in out
 
 
 BAD_INPUTS = {
@@ -95,28 +120,54 @@ def test_bad_input_gives_one_line_and_exit_2(command, capsys, tmp_path, monkeypa
 def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     """--full: the plan's experiments are simulated into OUT/data and the pipeline reads
     them from there (the simulator is replaced by copies of the sample folders, which it
-    wrote: a real --full run takes about 40 minutes). The sample data has no projector
-    sweep, so the characterisation falls back to the camera sweep alone."""
+    wrote: a real --full run takes about 40 minutes)."""
     import shutil
 
     from scanqa import demo
     from scanqa.simulator import experiments
 
     calls = []
+    real = experiments.run_experiment
 
     def fake_run(name, config, out_dir, positions=None, repeats=None, progress=False):
         calls.append((name, config.camera.width_px, len(positions or []), repeats))
-        if name == "projector-sweep":
-            return
-        folder = {"camera-sweep": "camera_sweep", "calibration-sweep": "calibration_sweep",
-                  "gauge-blocks": "gauge_blocks"}[name]
+        if name == "sphere":  # the demo's sphere test: simulated for real (5 s)
+            return real(name, config, out_dir, positions=positions, repeats=repeats)
+        folder = {"camera-sweep": "camera_sweep", "projector-sweep": "projector_sweep",
+                  "calibration-sweep": "calibration_sweep", "gauge-blocks": "gauge_blocks"}[name]
         shutil.copytree(ROOT / "sample_data" / folder, out_dir)
 
     monkeypatch.setattr(experiments, "run_experiment", fake_run)
     config = load_config(ROOT / "sample_data" / "sample_scanner.toml", profile="sample")
-    result = demo.run_demo(tmp_path / "full", full_config=config, say=lambda msg: None)
+    result = demo.run_demo(tmp_path / "full", full_config=config)
     assert [c[0] for c in calls] == ["camera-sweep", "projector-sweep", "calibration-sweep",
-                                     "gauge-blocks"]
+                                     "gauge-blocks", "sphere"]
     assert calls[1][2] == 31 and calls[2][2] == 14 and calls[3][3] == 3
     assert (tmp_path / "full" / "data" / "gauge_blocks").is_dir()
     assert result.report.exists() and len(result.qa.steps) == 7
+
+
+def test_demo_runs_a_sphere_test_beside_the_blocks(demo_out):
+    """The demo's VDI/VDE 2634-2 sphere (simulated on the fly, 12 mm, sample scanner):
+    PF predicted within 20 % of the measured, PS within its U of the true diameter (the
+    spec's certificate is the simulator's exact diameter), both decided against the
+    example MPEs."""
+    info = json.loads((demo_out / "sphere_test" / "summary.json").read_text())
+    rows = {r["quantity"]: r for r in info["quantities"]}
+    assert set(rows) == {"PF", "PS"}
+    assert abs(rows["PF"]["predicted_um"] / rows["PF"]["value_um"] - 1) <= 0.2, rows["PF"]
+    assert abs(rows["PS"]["value_um"]) <= rows["PS"]["U_um"], rows["PS"]
+    assert info["verdict"]["verdict"] == "PASS"
+    assert info["header"]["Operator"] == "scanqa demo"
+
+
+def test_demo_characterises_the_calibration_sweep_without_device_sweeps(tmp_path):
+    """Issue 15: a rigid scanner's data set has no camera or projector sweep; the demo
+    then characterises from the sweep it calibrates with."""
+    from scanqa.demo import check_data
+
+    for name in ("calibration_sweep", "gauge_blocks"):
+        (tmp_path / name).symlink_to(ROOT / "sample_data" / name)
+    assert check_data(tmp_path) == [tmp_path / "calibration_sweep" / "sweep.toml"]
+    (tmp_path / "camera_sweep").symlink_to(ROOT / "sample_data" / "camera_sweep")
+    assert check_data(tmp_path) == [tmp_path / "camera_sweep"]

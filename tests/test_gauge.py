@@ -220,13 +220,17 @@ def test_qa_cli_writes_every_output(tmp_path, capsys):
     printed = capsys.readouterr().out
     assert code == 0 and "report:" in printed
     header = (out / "blocks.csv").read_text().splitlines()[0]
-    assert header == ("block_id,nominal_height_mm,n_points,measured_std_um,predicted_std_um,"
-                      "ratio,flatness_um,mean_attenuation,in_volume_fraction,status")
+    assert header == ("block_id,nominal_height_mm,n_points,measured_std_um,measured_std_u_um,"
+                      "predicted_std_um,ratio,flatness_um,mean_attenuation,in_volume_fraction,"
+                      "model_valid_fraction,status")
     header = (out / "steps.csv").read_text().splitlines()[0]
-    assert header == ("block_a,block_b,nominal_diff_mm,measured_diff_mm,error_um,u_um,U_um,k,"
-                      "tolerance_um,pass")
+    assert header == ("block_a,block_b,nominal_diff_mm,measured_diff_mm,error_um,u_um,nu_eff,"
+                      "U_um,k,tolerance_um,pass")
     info = json.loads((out / "summary.json").read_text())
-    assert info["steps_inside_volume"] == 7 and info["fraction_within_U"] == 1.0
+    assert info["steps_evaluated"] == 7 and info["fraction_within_U"] == 1.0
+    assert len((out / "budget.csv").read_text().splitlines()) == 1 + 7 * 3
+    assert not info["type_b_included"] and "Type B is not included" in \
+        (out / "report.html").read_text()
     html = (out / "report.html").read_text()
     assert html.count("<img") == 4
     _, qattrs, _ = read_cloud(out / "cloud_qa.ply")

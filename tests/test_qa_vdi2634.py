@@ -52,10 +52,26 @@ def test_decisions_at_the_boundaries(value, expanded, mpe, expected):
 def test_quantity_says_why_it_is_not_evaluated():
     assert quantity("PF", 0.01, 0.001, math.nan).note == "no MPE for it in the spec"
     assert quantity("PS", math.nan, math.nan, 0.01).note == "not measured"
-    q = quantity("SD", 0.3125, 0.0625, 0.5, bias=-0.0625)
+    q = quantity("SD", 0.3125, 0.0625, 0.5, bias=-0.0625, decide_with="total")
     assert q.expanded == 0.1875 and q.decision == "pass"  # U = k u + |bias| = 0.125 + 0.0625
-    assert quantity("SD", 0.3125, 0.0625, 0.5, bias=0.0625001).decision == "undecided"
+    assert quantity("SD", 0.3125, 0.0625, 0.5, bias=0.0625001,
+                    decide_with="total").decision == "undecided"
     assert q.row()["U_um"] == 187.5 and q.row()["name"] == "sphere-spacing error"
+
+
+def test_decision_uses_the_test_uncertainty_by_default():
+    """The scanner's own noise is what the test measures: the default decision takes
+    only the artefact's part U_test = k u_artefact (here 2 x 0.03125 = 0.0625 mm)."""
+    q = quantity("SD", 0.4375, 0.0625, 0.5, bias=0.01, u_artefact=0.03125)
+    assert q.expanded_test == 0.0625 and q.decision == "pass"   # 0.4375 <= 0.5 - 0.0625
+    assert q.expanded == 0.135                                    # U = 0.125 + 0.01
+    assert quantity("SD", 0.4375, 0.0625, 0.5, u_artefact=0.03125,
+                    decide_with="total").decision == "undecided"  # 0.4375 > 0.5 - 0.125
+    assert quantity("SD", 0.5625001, 0.0625, 0.5, u_artefact=0.03125).decision == "fail"
+    assert_allclose(q.u_points, math.sqrt(0.0625**2 - 0.03125**2))
+    assert q.row()["U_test_um"] == 62.5 and q.row()["decided_with"] == "test"
+    with pytest.raises(InputError, match="decide_with must be one of test, total"):
+        quantity("PF", 0.01, 0.001, 0.1, decide_with="both")
 
 
 def test_predicted_range_of_equal_sigmas_is_the_central_997_percent():

@@ -31,7 +31,7 @@ def test_readme_api_examples_run(tmp_path, monkeypatch):
     # what the examples made is real: a table, a cloud with its model, a QA report
     assert (tmp_path / "table.npz").stat().st_size > 0
     cloud = scanqa.read_cloud(tmp_path / "cloud.ply")
-    assert cloud.model["noise_reading"] in ("power", "amplitude", "mixed")
+    assert cloud.model["noise_reading"] == "two_source"  # the sample profile's model
     assert len(cloud) > 10000
     qa_dir = next(p for p in tmp_path.iterdir() if (p / "report.html").exists())
     assert (qa_dir / "summary.json").exists()

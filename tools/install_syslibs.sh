@@ -1,18 +1,25 @@
 #!/bin/sh
 # Installs the system packages scanqa needs when they are missing.
-#   install_syslibs.sh        libusb-1.0-0 (open3d's wheel links against libusb-1.0)
+#   install_syslibs.sh        libusb-1.0-0 (open3d's wheel links against libusb-1.0) and
+#                             pango (WeasyPrint prints the reports' PDF with it)
 #   install_syslibs.sh test   also the real clients the tests read our files with:
-#                             CloudCompare (command line, headless under xvfb-run)
+#                             CloudCompare (command line, headless under xvfb-run),
+#                             chromium (the HTML reports), poppler-utils (the PDF reports)
 set -e
 missing=""
-if ! ldconfig -p 2>/dev/null | grep -q 'libusb-1.0.so.0'; then
-    missing="$missing libusb-1.0-0"
-fi
+lib() {  # lib SONAME PACKAGE: add PACKAGE when the shared library SONAME is missing
+    ldconfig -p 2>/dev/null | grep -q "$1" || missing="$missing $2"
+}
+lib 'libusb-1.0.so.0' libusb-1.0-0
+lib 'libpango-1.0.so.0' libpango-1.0-0
+lib 'libpangoft2-1.0.so.0' libpangoft2-1.0-0
+lib 'libharfbuzz-subset.so.0' libharfbuzz-subset0
 if [ "${1:-}" = "test" ]; then
     command -v CloudCompare >/dev/null 2>&1 || missing="$missing cloudcompare"
     command -v xvfb-run >/dev/null 2>&1 || missing="$missing xvfb"
     command -v xauth >/dev/null 2>&1 || missing="$missing xauth"
     command -v chromium >/dev/null 2>&1 || missing="$missing chromium"
+    command -v pdftoppm >/dev/null 2>&1 || missing="$missing poppler-utils"
 fi
 [ -z "$missing" ] && exit 0
 if command -v apt-get >/dev/null 2>&1; then
@@ -24,6 +31,7 @@ if command -v apt-get >/dev/null 2>&1; then
         $missing >/dev/null
 else
     echo "scanqa setup: please install these system packages with your package manager:$missing" >&2
-    echo "  (open3d needs libusb-1.0; the tests read exported clouds with CloudCompare under xvfb)" >&2
+    echo "  (open3d needs libusb-1.0, the PDF reports pango; the tests read exported clouds" >&2
+    echo "  with CloudCompare under xvfb, reports with chromium and poppler-utils)" >&2
     exit 1
 fi

@@ -28,7 +28,8 @@ The three jobs, from Python
 Characterise a scanner (fit sigma_p, gamma and the model's reading to a sweep) with
 :func:`characterize` and apply the result with ``result.apply_to(config)``; predict the
 std of any point with :func:`predict`. Every error a user can cause is a
-:class:`ScanQAError`.
+:class:`ScanQAError`. Progress and notes go to the ``scanqa`` logger (shown after
+``logging.basicConfig(level=logging.INFO)``; :mod:`scanqa.progress`).
 """
 
 from __future__ import annotations
@@ -47,7 +48,7 @@ from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.decoder import decode, decode_images
 from scanqa.decoding.parsing import load_patterns
 from scanqa.decoding.phasemap import PhaseMap, load_phase_map, save_phase_map
-from scanqa.errors import ConfigError, InputError, RangeError, ScanQAError
+from scanqa.errors import ConfigError, InputError, OutputError, RangeError, ScanQAError
 from scanqa.optics import predict
 from scanqa.qa.blocks import QAResult, run_qa
 from scanqa.qa.detect import detect_blocks
@@ -56,8 +57,9 @@ from scanqa.report.qa import write_outputs as write_report
 
 __all__ = [
     "AnnotatedCloud", "BuildReport", "Calibration", "CalibrationTable", "ConfigError",
-    "InputError", "Layout", "ParametricCalibration", "PatternDescription", "PhaseMap",
-    "QAResult", "RangeError", "ScanQAError", "ScannerConfig", "__version__", "annotate",
+    "InputError", "Layout", "OutputError", "ParametricCalibration", "PatternDescription",
+    "PhaseMap", "QAResult", "RangeError", "ScanQAError", "ScannerConfig", "__version__",
+    "annotate",
     "build_table", "calibrate", "characterize", "decode", "decode_images", "detect_blocks",
     "load_calibration", "load_config", "load_layout", "load_opencv_calibration",
     "load_patterns", "load_phase_map", "load_sweep", "load_table", "predict", "read_cloud",

@@ -4,7 +4,9 @@ For every decoded pixel the calibration - a nonparametric table or a parametric
 camera-projector model (:class:`scanqa.calibration.base.Calibration`) - gives X, Y, Z and
 the slope dQ/dx_p; the model gives s_O at that point (Eqs. 12-19) and
 sigma = s_T s_O sigma_p (Eq. 18) with s_T = |dQ/dx_p| from the calibration
-(docs/model.rst). Alongside: the sigma implied by the decoder's own
+(docs/model.rst). With the two-source model (docs/noise_model.rst) sigma is the
+quadrature sum of a scene-side part, filtered by the camera blur, and a sensor part,
+which is not; both are attributes. Alongside: the sigma implied by the decoder's own
 per-pixel phase noise (s_T sigma_xp), the table's sigma, the combined sigma
 sqrt(model^2 + table^2), and with repeated scans the measured per-point std.
 
@@ -17,6 +19,9 @@ sigma_model_um     um     model sigma along the line of sight; NaN where the mod
                           valid (a blur ratio > 1/2)
 sx_um, sy_um,      um     its X, Y, Z components (CloudCompare M3C2 precision maps pick
 sz_um                     fields containing "sx", "sy", "sz")
+sigma_scene_um     um     the model sigma's scene-side part (filtered by the camera blur;
+                          the whole model sigma for the paper's readings)
+sigma_sensor_um    um     the model sigma's sensor part (two-source model; 0 otherwise)
 sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
 sigma_table_um     um     the calibration table's own std at that point (0 for a
                           parametric calibration)
@@ -56,9 +61,10 @@ from scanqa.errors import InputError
 from scanqa.io import ply
 
 #: Attribute names in export order (repeat fields only when repeats are given).
-ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_phase_um", "sigma_table_um",
-              "sigma_total_um", "att_camera", "att_projector", "filter_factor", "s_o",
-              "s_t_um_px", "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
+ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
+              "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_total_um",
+              "att_camera", "att_projector", "filter_factor", "s_o", "s_t_um_px",
+              "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
 
@@ -141,7 +147,8 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
     return {"format": "scanqa-cloud/1", "software": {"name": "scanqa", "version": __version__},
             "source": source,
             "model": {"filter_floor": model.filter_floor, "noise_reading": model.noise_reading,
-                      "sigma_p_px": model.sigma_p_px, "gamma": model.gamma,
+                      "filter_form": model.filter_form, "sigma_p_px": model.sigma_p_px,
+                      "sensor_sigma_p_px": model.sensor_sigma_p_px, "gamma": model.gamma,
                       "wavelength_nm": model.wavelength_nm,
                       "working_period_px": config.fringes.working_period_px},
             "config": config.to_dict(),
@@ -149,6 +156,7 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
             "table": {"kind": table.provenance.get("kind", "table"), "weights": table.weights,
                       "z_range_mm": [_json_number(z) for z in table.z_range_mm],
                       "cell_px": _json_number(table.cell_px),
+                      "n_planes": len(table.provenance.get("positions", [])) or None,
                       "sweep": table.provenance.get("sweep", ""),
                       "calibration": table.provenance.get("calibration", "")}}
 
@@ -224,6 +232,8 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
     ply.vertex_views(out)[0][...] = points
     values = {
         "sigma_model_um": 1e3 * sigma,
+        "sigma_scene_um": 1e3 * np.where(pred.valid, pred.sigma_scene, np.nan),
+        "sigma_sensor_um": 1e3 * np.where(pred.valid, pred.sigma_sensor, np.nan),
         "sigma_phase_um": 1e3 * s_t * inputs["sigma_xp"],
         "sigma_table_um": 1e3 * sig_tab,
         "sigma_total_um": 1e3 * np.hypot(sigma, sig_tab),

@@ -1,56 +1,77 @@
-"""Characterisation of a camera or projector sweep (the procedure of Figs. 3 and 4).
+"""Characterisation of the scanner's noise from sweeps of a flat (Figs. 3 and 4).
 
-For every position of a sweep of an optical flat (``scanqa simulate camera-sweep`` or
-``projector-sweep``, or measured data in the same folder layout):
+For every position of a sweep - a camera sweep or a projector sweep (``scanqa simulate
+camera-sweep``/``projector-sweep``, one device moving), or the calibration plane sweep
+of a rigid scanner (its ``sweep.toml``: both devices defocus together):
 
-1. decode the scan (:func:`scanqa.decoding.decoder.decode_pattern_dir`);
+1. decode the scan (:func:`scanqa.decoding.decoder.decode`);
 2. fit a low-order (quadratic) surface to the flat's x_p map over a central region of
    the image, with one pass of 4-sigma rejection of unwrapping blunders; the residual
-   std is the phase noise [projector px];
+   std is the phase noise [projector px]; beside it, the decoder's own sensor-noise
+   estimate (RMS of its sigma_xp) [projector px];
 3. measure the attenuation as the squared median modulation relative to the position
    nearest to focus.
 
 The measured attenuation is compared with A(C/omega_o) (Eq. 12) and the depth of field
-per level with :mod:`scanqa.design`; the residual std is fitted by
-``sigma_p * s_O`` (Eqs. 17-19) for each of the model's readings (docs/model.rst:
-``filter_floor`` none/one x ``noise_reading`` power/amplitude), where the swept
-device's attenuation is at least ``min_attenuation``. With ``filter_floor = "none"``
-only the product sigma_p * gamma is identifiable, so gamma is held at the config's
-value there. The variant with the smallest RMS relative error is the one the data
-supports.
-
-One sweep moves one device: the other's attenuation is constant, so a single sweep
-cannot tell how the noise scales with the other device's defocus. Given a camera and a
-projector sweep, :func:`characterize_sweeps` fits one sigma_p and gamma to both at once
-for every reading including ``"mixed"`` (camera power, projector amplitude).
+per level with :mod:`scanqa.design`. The phase noise is fitted by every variant of the
+model where the moving devices' attenuation is at least ``min_attenuation``
+(:mod:`scanqa.noisefit`): each parameter is reported as fitted, bounded or not
+identifiable with its 95 % profile-likelihood interval, the variant that predicts
+held-out positions best is selected, and it is compared with a constant. One sweep
+moves one device: the other's attenuation is constant, so the "mixed" reading is only
+offered when both devices move (a camera and a projector sweep together, or a
+calibration sweep).
 """
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.optimize import least_squares
 
 from scanqa import design, optics
-from scanqa.config import FILTER_FLOORS, NOISE_READINGS, ScannerConfig
-from scanqa.decoding.decoder import decode_pattern_dir
+from scanqa.config import ScannerConfig, config_from_dict
+from scanqa.decoding.decoder import decode, decode_pattern_dir
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.fitted_model import read_fitted_model
 from scanqa.io.manifest import read_manifest
+from scanqa.io.sweep import load_sweep
+from scanqa.noisefit import (
+    JOINT_VARIANTS,
+    SINGLE_SWEEP_VARIANTS,
+    ConstantFit,
+    NoiseData,
+    VariantFit,
+    fit_all,
+    fit_constant,
+    model_std,
+    select,
+)
+from scanqa.progress import Progress
 
-#: Readings one sweep can tell apart ("mixed" equals "power" on a camera sweep and
-#: "amplitude" on a projector sweep, up to the fitted sigma_p).
-SINGLE_SWEEP_READINGS = ("power", "amplitude")
+__all__ = ["Characterization", "JointCharacterization", "PositionResult", "VariantFit",
+           "apply_fitted_model", "characterize_sweep", "characterize_sweeps",
+           "load_fitted_model", "measured_dof", "surface_residual_std"]
+
+log = logging.getLogger(__name__)
+
 #: Attenuation levels whose depth of field is compared (Tables 1 and 2) [-].
 DOF_LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81)
+#: Side of the central region analysed on a calibration sweep's plane, on the object [mm]
+#: (about that of a device sweep's 64 x 64 px window of the sample camera).
+CALIBRATION_FIELD_MM = 15.0
 
 
 @dataclass(frozen=True)
 class PositionResult:
-    """Measurements at one position of a sweep (lengths in mm, std in projector px)."""
+    """Measurements at one position of a sweep (lengths in mm, std in projector px).
+
+    ``attenuation_model`` is the model attenuation of the moving devices (A_c, A_p or
+    A_c A_p); ``sensor_std_px`` the decoder's sensor-noise estimate.
+    """
 
     stage_mm: float
     z_c_mm: float
@@ -60,39 +81,37 @@ class PositionResult:
     attenuation: float
     attenuation_model: float
     valid_pixels: int
-
-
-@dataclass(frozen=True)
-class VariantFit:
-    """Fit of sigma_p (and gamma) for one reading of the model."""
-
-    filter_floor: str
-    noise_reading: str
-    sigma_p_px: float
-    gamma: float
-    gamma_fitted: bool
-    rms_relative: float
-
-    def model_overrides(self) -> dict:
-        """The ``[model]`` values this fit supports."""
-        return {"filter_floor": self.filter_floor, "noise_reading": self.noise_reading,
-                "sigma_p_px": self.sigma_p_px, "gamma": self.gamma}
-
-    def apply_to(self, config: ScannerConfig) -> ScannerConfig:
-        """``config`` with this fit's model parameters and readings."""
-        return config.replace_model(**self.model_overrides())
-
-
-def _best(fits: tuple[VariantFit, ...]) -> VariantFit:
-    """The variant with the smallest RMS relative error."""
-    return min(fits, key=lambda f: f.rms_relative)
+    sensor_std_px: float = float("nan")
+    attenuation_camera_model: float = float("nan")
+    attenuation_projector_model: float = float("nan")
 
 
 def _variant_row(fit: VariantFit) -> dict:
     """The ``best_variant`` entry of a summary (what :func:`load_fitted_model` reads)."""
-    return {"filter_floor": fit.filter_floor, "noise_reading": fit.noise_reading,
-            "sigma_p_px": fit.sigma_p_px, "gamma": fit.gamma,
-            "rms_relative": fit.rms_relative}
+    return {**fit.model_overrides(), "rms_relative": fit.rms_relative,
+            "cv_rms_relative": fit.cv_rms_relative,
+            "parameters": [asdict(p) for p in fit.parameters],
+            "identifiable": list(fit.identifiable)}
+
+
+def _verdict(best: VariantFit, constant: ConstantFit) -> str:
+    """One sentence: what the selection found, against the constant baseline."""
+    if best.cv_rms_relative < constant.cv_rms_relative:
+        return (f"{best.label} predicts held-out positions to {100 * best.cv_rms_relative:.1f} "
+                f"% RMS, better than a constant ({100 * constant.cv_rms_relative:.1f} %)")
+    return (f"no variant predicts held-out positions better than a constant "
+            f"({100 * best.cv_rms_relative:.1f} % for {best.label} against "
+            f"{100 * constant.cv_rms_relative:.1f} %): these data do not show the defocus "
+            "dependence, and the fitted parameters are not supported by them")
+
+
+def _summary_core(fits: tuple[VariantFit, ...], constant: ConstantFit) -> dict:
+    best = select(fits)
+    return {"best_variant": _variant_row(best), "fits": [_variant_row(f) for f in fits],
+            "selection": "smallest leave-one-position-out RMS relative error",
+            "constant": asdict(constant),
+            "better_than_constant": best.cv_rms_relative < constant.cv_rms_relative,
+            "verdict": _verdict(best, constant)}
 
 
 @dataclass(frozen=True)
@@ -107,11 +126,12 @@ class Characterization:
     min_attenuation: float
     attenuation_max_abs_error: float
     w_shape: bool
+    constant: ConstantFit | None = None
 
     @property
     def best(self) -> VariantFit:
-        """The variant with the smallest RMS relative error."""
-        return _best(self.fits)
+        """The variant that predicts held-out positions best."""
+        return select(self.fits)
 
     def apply_to(self, config: ScannerConfig) -> ScannerConfig:
         """``config`` with the model the data supported (:attr:`best`)."""
@@ -119,16 +139,15 @@ class Characterization:
 
     def model_std(self, fit: VariantFit, config: ScannerConfig) -> np.ndarray:
         """sigma_p * s_O of a fit at every position [projector px]."""
-        z_c = np.array([p.z_c_mm for p in self.positions])
-        z_p = np.array([p.z_p_mm for p in self.positions])
-        return fit.sigma_p_px * _scale(config, z_c, z_p, self.period_px, fit.gamma,
-                                       fit.filter_floor, fit.noise_reading)
+        return model_std(config, _noise_data(self.positions, self.period_px), fit.filter_floor,
+                         fit.filter_form, fit.noise_reading, fit.sigma_p_px, fit.gamma,
+                         fit.sensor_sigma_p_px)
 
     def summary(self) -> dict:
-        """JSON-ready summary: best variant, every fit, DOF table, key numbers."""
+        """JSON-ready summary: best variant, every fit, the baseline, DOF table."""
         return {"experiment": self.experiment, "period_px": self.period_px,
-                "best_variant": _variant_row(self.best),
-                "fits": [asdict(f) for f in self.fits],
+                **_summary_core(self.fits, self.constant or fit_constant(
+                    _fit_data(self.positions, self.period_px, self.min_attenuation))),
                 "min_attenuation": self.min_attenuation,
                 "attenuation_max_abs_error_r_le_0.5": self.attenuation_max_abs_error,
                 "w_shape": self.w_shape, "dof": list(self.dof),
@@ -171,52 +190,37 @@ def surface_residual_std(xp: np.ndarray, valid: np.ndarray) -> float:
     return float(np.std(res[keep]))
 
 
-def _measure(sweep_dir: Path, entries: list[dict], roi_px: int) -> list[tuple]:
-    """(residual std, median modulation, valid count) per acquisition."""
-    out = []
-    for entry in entries:
-        pm = decode_pattern_dir(sweep_dir / entry["folder"])
-        rows, cols = _central(pm.shape, roi_px)
-        xp, valid = pm.xp[rows, cols], pm.valid[rows, cols]
-        mod = float(np.median(pm.modulation[rows, cols][valid])) if valid.any() else np.nan
-        out.append((surface_residual_std(xp, valid), mod, int(valid.sum())))
-    return out
+def _measure_map(pm, roi_px: int) -> tuple[float, float, int, float]:
+    """(residual std, median modulation, valid count, RMS decoder sigma_xp) of one scan's
+    central ``roi_px`` square."""
+    rows, cols = _central(pm.shape, roi_px)
+    xp, valid = pm.xp[rows, cols], pm.valid[rows, cols]
+    if not valid.any():
+        return np.nan, np.nan, 0, np.nan
+    mod = float(np.median(pm.modulation[rows, cols][valid]))
+    sensor = float(np.sqrt(np.mean(np.square(pm.sigma_xp[rows, cols][valid]))))
+    return surface_residual_std(xp, valid), mod, int(valid.sum()), sensor
 
 
 # -------------------------------------------------------------------------- model
 
-def _model_attenuation(config: ScannerConfig, z_c: np.ndarray, z_p: np.ndarray,
-                       period: float) -> tuple[np.ndarray, np.ndarray]:
-    """(A_camera, A_projector) of the model at the given distances [-]."""
-    t = optics.optical_terms(z_c, z_p, config, period)
-    return t.attenuation_camera, t.attenuation_projector
+def _noise_data(positions: tuple[PositionResult, ...], period: float) -> NoiseData:
+    return NoiseData(np.array([p.z_c_mm for p in positions]),
+                     np.array([p.z_p_mm for p in positions]),
+                     np.array([p.residual_std_px for p in positions]),
+                     np.array([p.sensor_std_px for p in positions]), period)
 
 
-def _scale(config: ScannerConfig, z_c: np.ndarray, z_p: np.ndarray, period: float,
-           gamma: float, floor: str, reading: str) -> np.ndarray:
-    """s_O (Eq. 19) at the given distances for one reading [-]."""
-    return optics.optical_terms(z_c, z_p, config, period, gamma, floor, reading).s_o
-
-
-def fit_variant(config: ScannerConfig, z_c: np.ndarray, z_p: np.ndarray,
-                period: float, std: np.ndarray, floor: str, reading: str) -> VariantFit:
-    """Least-squares fit (relative residuals) of sigma_p and gamma >= 1 for one reading."""
-    fit_gamma = floor == "one"
-
-    def rel(params: np.ndarray) -> np.ndarray:
-        gamma = float(np.exp(params[1])) + 1.0 if fit_gamma else config.model.gamma
-        model = np.exp(params[0]) * _scale(config, z_c, z_p, period, gamma, floor, reading)
-        return model / std - 1.0
-
-    best = None
-    for g0 in ((0.1, 1.0, 3.0, 10.0) if fit_gamma else (0.0,)):
-        x0 = [np.log(np.median(std)), np.log(g0)] if fit_gamma else [np.log(np.median(std))]
-        res = least_squares(rel, x0)
-        if best is None or res.cost < best.cost:
-            best = res
-    gamma = float(np.exp(best.x[1])) + 1.0 if fit_gamma else config.model.gamma
-    rms = float(np.sqrt(np.mean(rel(best.x) ** 2)))
-    return VariantFit(floor, reading, float(np.exp(best.x[0])), gamma, fit_gamma, rms)
+def _fit_data(positions: tuple[PositionResult, ...], period: float, min_attenuation: float
+              ) -> NoiseData:
+    """The positions a noise fit uses: both devices' model attenuation is at least
+    ``min_attenuation`` (the moving one's, as the other stays in focus) and the std is
+    finite."""
+    use = tuple(p for p in positions
+                if min(p.attenuation_camera_model, p.attenuation_projector_model)
+                >= min_attenuation and np.isfinite(p.residual_std_px)
+                and p.residual_std_px > 0)
+    return _noise_data(use, period)
 
 
 # ---------------------------------------------------------------------- analysis
@@ -243,6 +247,8 @@ def measured_dof(z: np.ndarray, attenuation: np.ndarray, level: float) -> float:
 
 def _dof_rows(config: ScannerConfig, experiment: str, z: np.ndarray, att: np.ndarray,
               period: float) -> tuple[dict, ...]:
+    if experiment not in ("camera-sweep", "projector-sweep"):
+        return ()  # both devices move: no single device's depth of field
     rows = []
     for level in DOF_LEVELS:
         if experiment == "camera-sweep":
@@ -271,71 +277,114 @@ def is_w_shape(z: np.ndarray, std: np.ndarray, focus: float) -> bool:
 
 def characterize_sweep(sweep_dir: str | os.PathLike, config: ScannerConfig,
                        min_attenuation: float = 0.49, roi_px: int = 256) -> Characterization:
-    """Decode a camera/projector sweep and fit the model to it (Figs. 3, 4).
+    """Decode a sweep and fit the model to it (Figs. 3, 4).
 
     Parameters
     ----------
     sweep_dir : str or PathLike
-        Folder written by ``scanqa simulate camera-sweep`` or ``projector-sweep``.
+        Folder written by ``scanqa simulate camera-sweep`` or ``projector-sweep``, or a
+        calibration sweep: its ``sweep.toml`` or a folder holding one.
     config : ScannerConfig
         The scanner config the model uses (its geometry gives Z_c, Z_p per position).
     min_attenuation : float
-        Fit where the swept device's model attenuation is at least this [-].
+        Fit where the moving devices' model attenuation is at least this [-].
     roi_px : int
-        Side of the central square analysed [px].
+        Side of the central square analysed [px] (on a calibration sweep at most
+        :data:`CALIBRATION_FIELD_MM` on the object).
 
     Returns
     -------
     Characterization
-        Per-position measurements, the four fits, the DOF table.
+        Per-position measurements, every variant's fit, the baseline, the DOF table.
     """
-    sweep = Path(sweep_dir)
-    manifest = read_manifest(sweep)
-    experiment = manifest.get("experiment")
-    if experiment not in ("camera-sweep", "projector-sweep"):
-        raise InputError(f"characterize needs a camera-sweep or projector-sweep, got "
-                         f"experiment {experiment!r} in {sweep / 'manifest.toml'}")
     if not 0.0 < min_attenuation < 1.0:
         raise InputError(f"min_attenuation must be in (0, 1), got {min_attenuation}")
+    sweep = Path(sweep_dir)
+    if sweep.name == "sweep.toml" or (sweep / "sweep.toml").exists():
+        return _characterize_plane_sweep(sweep, config, min_attenuation, roi_px)
+    manifest = read_manifest(sweep)
+    check_sweep_config(config, manifest, sweep / "manifest.toml")
+    experiment = manifest.get("experiment")
+    if experiment not in ("camera-sweep", "projector-sweep"):
+        raise InputError(f"characterize needs a camera-sweep, a projector-sweep or a "
+                         f"calibration sweep (sweep.toml), got experiment {experiment!r} in "
+                         f"{sweep / 'manifest.toml'}")
+    groups: dict[float, list] = {}
     entries = manifest["acquisition"]
+    with Progress("characterize: decoding", len(entries), "scan", log) as bar:
+        for entry in entries:
+            meas = _measure_map(decode_pattern_dir(sweep / entry["folder"]), roi_px)
+            key = float(entry["stage_mm"])
+            groups.setdefault(key, [*_device_distances(config, entry), []])[2].append(meas)
+            bar.update(1, note=entry["folder"])
     period = float(manifest["working_period_px"])
-    measured = _measure(sweep, entries, roi_px)
-    positions = _positions(config, experiment, entries, measured, period)
+    positions = _positions(config, experiment, groups, period)
     return _analyse(config, experiment, positions, period, min_attenuation)
 
 
-def _positions(config: ScannerConfig, experiment: str, entries: list[dict],
-               measured: list[tuple], period: float) -> tuple[PositionResult, ...]:
-    """Average repeats per stage position and attach model attenuation."""
-    stages = sorted({float(e["stage_mm"]) for e in entries})
-    ref = min(stages, key=abs)
-    mods = {s: np.nanmean([m[1] for e, m in zip(entries, measured, strict=True)
-                           if float(e["stage_mm"]) == s]) for s in stages}
+def _characterize_plane_sweep(path: Path, config: ScannerConfig, min_attenuation: float,
+                              roi_px: int) -> Characterization:
+    """A rigid scanner's calibration sweep: the flat at known Z, both devices defocus."""
+    sweep = load_sweep(path)
+    groups: dict[float, list] = {}
+    period = None
+    with Progress("characterize: decoding", len(sweep.positions), "position", log) as bar:
+        for pos in sweep.positions:
+            z_p = float(optics.projector_depth(np.array([0.0, 0.0, pos.z_mm]), config))
+            roi = min(roi_px, int(CALIBRATION_FIELD_MM * config.camera.principal_distance_px
+                                  / pos.z_mm))
+            for src in pos.sources:
+                pm = decode(src)
+                period = pm.period_px
+                groups.setdefault(pos.z_mm, [pos.z_mm, z_p, []])[2].append(
+                    _measure_map(pm, roi))
+            bar.update(1, note=f"z = {pos.z_mm:g} mm")
+    positions = _positions(config, "calibration-sweep", groups, float(period))
+    return _analyse(config, "calibration-sweep", positions, float(period), min_attenuation)
+
+
+def _positions(config: ScannerConfig, experiment: str, groups: dict, period: float
+               ) -> tuple[PositionResult, ...]:
+    """Average repeats per stage position and attach the model attenuation.
+
+    ``groups`` maps stage position -> [Z_c, Z_p, [measurements of each repeat]].
+    """
+    stages = sorted(groups)
+    mods = {s: np.nanmean([m[1] for m in groups[s][2]]) for s in stages}
+    ref = min(stages, key=lambda s: abs(groups[s][0] - config.camera.focus_mm)
+              + abs(groups[s][1] - config.projector.focus_mm))
     if not np.isfinite(mods[ref]) or mods[ref] <= 0:
         raise InputError("zero valid pixels at the position nearest to focus; cannot "
                          "normalise the modulation")
     out = []
     for s in stages:
-        group = [(e, m) for e, m in zip(entries, measured, strict=True)
-                 if float(e["stage_mm"]) == s]
-        z_c, z_p = _device_distances(config, group[0][0])
-        a_c, a_p = _model_attenuation(config, np.array(z_c), np.array(z_p), period)
-        a_model = float(a_c if experiment == "camera-sweep" else a_p)
-        std = float(np.sqrt(np.nanmean([m[0] ** 2 for _, m in group])))
+        z_c, z_p, meas = groups[s]
+        t = optics.optical_terms(np.array(z_c), np.array(z_p), config, period)
+        a_c, a_p = float(t.attenuation_camera), float(t.attenuation_projector)
+        a_model = {"camera-sweep": a_c, "projector-sweep": a_p}.get(experiment, a_c * a_p)
+        std = float(np.sqrt(np.nanmean([m[0] ** 2 for m in meas])))
+        sensor = float(np.sqrt(np.nanmean([m[3] ** 2 for m in meas])))
         out.append(PositionResult(s, z_c, z_p, std, float(mods[s]),
                                   float((mods[s] / mods[ref]) ** 2), a_model,
-                                  int(sum(m[2] for _, m in group))))
+                                  int(sum(m[2] for m in meas)), sensor, a_c, a_p))
     return tuple(out)
 
 
-def _fitted(positions: tuple[PositionResult, ...], min_attenuation: float
-            ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(Z_c, Z_p, std) of the positions the noise fit uses: the swept device's model
-    attenuation is at least ``min_attenuation`` and the std is finite."""
-    use = [p for p in positions
-           if p.attenuation_model >= min_attenuation and np.isfinite(p.residual_std_px)]
-    return (np.array([p.z_c_mm for p in use]), np.array([p.z_p_mm for p in use]),
-            np.array([p.residual_std_px for p in use]))
+def _variants(experiments: set[str]) -> tuple:
+    """The variants the sweeps can tell apart: "mixed" needs both devices to move."""
+    both = experiments >= {"camera-sweep", "projector-sweep"} \
+        or "calibration-sweep" in experiments
+    return JOINT_VARIANTS if both else SINGLE_SWEEP_VARIANTS
+
+
+def _checked_fit_data(positions: tuple[PositionResult, ...], period: float,
+                      min_attenuation: float) -> NoiseData:
+    data = _fit_data(positions, period, min_attenuation)
+    if data.n < 4:
+        raise InputError(f"only {data.n} positions with attenuation >= {min_attenuation}; "
+                         "need at least 4 to fit sigma_p and gamma and to check the fit on "
+                         "held-out positions")
+    return data
 
 
 def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionResult, ...],
@@ -345,20 +394,17 @@ def _analyse(config: ScannerConfig, experiment: str, positions: tuple[PositionRe
     std = np.array([p.residual_std_px for p in positions])
     att = np.array([p.attenuation for p in positions])
     a_model = np.array([p.attenuation_model for p in positions])
-    fz_c, fz_p, fstd = _fitted(positions, min_attenuation)
-    if fstd.size < 3:
-        raise InputError(f"only {fstd.size} positions with attenuation >= "
-                         f"{min_attenuation}; need at least 3 to fit sigma_p and gamma")
-    fits = tuple(fit_variant(config, fz_c, fz_p, period, fstd, fl, rd)
-                 for fl in FILTER_FLOORS for rd in SINGLE_SWEEP_READINGS)
-    z = z_c if experiment == "camera-sweep" else z_p
-    r_ok = a_model >= float(optics.attenuation(0.5))
+    data = _checked_fit_data(positions, period, min_attenuation)
+    fits = fit_all(config, data, _variants({experiment}))
+    z = z_p if experiment == "projector-sweep" else z_c
+    r_ok = np.array([min(p.attenuation_camera_model, p.attenuation_projector_model)
+                     for p in positions]) >= float(optics.attenuation(0.5))
     att_err = float(np.max(np.abs(att - a_model)[r_ok])) if r_ok.any() else float("nan")
-    focus = config.camera.focus_mm if experiment == "camera-sweep" else \
-        config.projector.focus_mm
+    focus = config.projector.focus_mm if experiment == "projector-sweep" else \
+        config.camera.focus_mm
     return Characterization(experiment, period, positions, fits,
                             _dof_rows(config, experiment, z, att, period), min_attenuation,
-                            att_err, is_w_shape(z, std, focus))
+                            att_err, is_w_shape(z, std, focus), fit_constant(data))
 
 
 @dataclass(frozen=True)
@@ -367,11 +413,12 @@ class JointCharacterization:
 
     sweeps: tuple[Characterization, ...]
     fits: tuple[VariantFit, ...]
+    constant: ConstantFit | None = None
 
     @property
     def best(self) -> VariantFit:
-        """The variant with the smallest RMS relative error."""
-        return _best(self.fits)
+        """The variant that predicts held-out positions best."""
+        return select(self.fits)
 
     def apply_to(self, config: ScannerConfig) -> ScannerConfig:
         """``config`` with the model the data supported (:attr:`best`)."""
@@ -382,19 +429,56 @@ class JointCharacterization:
         return "+".join(c.experiment for c in self.sweeps)
 
     def summary(self) -> dict:
-        return {"experiment": self.experiment, "best_variant": _variant_row(self.best),
-                "fits": [asdict(f) for f in self.fits],
+        return {"experiment": self.experiment, **_summary_core(self.fits, self.constant),
                 "sweeps": [c.summary() for c in self.sweeps]}
 
 
-def characterize_sweeps(sweep_dirs: list, config: ScannerConfig, min_attenuation: float = 0.49,
-                        roi_px: int = 256) -> Characterization | JointCharacterization:
+def check_sweep_config(config: ScannerConfig, manifest: dict, source: Path) -> None:
+    """Refuse a config whose camera or projector differs from the one a sweep's manifest
+    records (a fit through the wrong geometry gives a wrong sigma_p without a sign)."""
+    recorded = manifest.get("config")
+    if recorded is None:
+        return
+    try:
+        rec = config_from_dict(recorded, source=str(source))
+    except ScanQAError as err:
+        raise InputError(f"{source}: the recorded config is invalid ({err})") from None
+    for section in ("camera", "projector"):
+        mine, theirs = asdict(getattr(config, section)), asdict(getattr(rec, section))
+        diff = [k for k in mine if mine[k] != theirs[k]]
+        if diff:
+            k = diff[0]
+            raise InputError(f"config {config.source or config.name} does not match the sweep "
+                             f"{source.parent}: {section}.{k} = {mine[k]!r} but the sweep was "
+                             f"made with {theirs[k]!r}; give the sweep's config or leave "
+                             "--config out to use the one its manifest records")
+
+
+def sweep_config(sweep_dir: str | os.PathLike) -> ScannerConfig:
+    """The scanner config recorded in a sweep's manifest (a device sweep's folder, or a
+    calibration sweep's ``sweep.toml`` with the manifest beside it)."""
+    folder = Path(sweep_dir)
+    folder = folder.parent if folder.suffix == ".toml" else folder
+    path = folder / "manifest.toml"
+    recorded = read_manifest(folder).get("config")
+    if not isinstance(recorded, dict):
+        raise InputError(f"{path} records no scanner config: give the config the sweep was "
+                         "made with (--config)")
+    return config_from_dict(recorded, source=str(path))
+
+
+def characterize_sweeps(sweep_dirs: list, config: ScannerConfig | None = None,
+                        min_attenuation: float = 0.49, roi_px: int = 256
+                        ) -> Characterization | JointCharacterization:
     """Characterise one sweep (:func:`characterize_sweep`) or fit several jointly.
 
-    With several sweeps every position where its swept device's attenuation is at least
-    ``min_attenuation`` enters one fit of sigma_p and gamma per reading; ``"mixed"`` is
-    among the readings when a camera and a projector sweep are both given.
+    With several sweeps every position where both devices' attenuation is at least
+    ``min_attenuation`` enters one fit per variant; ``"mixed"`` is among the readings
+    when both devices move. ``config`` defaults to the one the first sweep's manifest
+    records; a config whose camera or projector differs from a sweep's recorded one is
+    refused.
     """
+    config = config if config is not None else sweep_config(sweep_dirs[0])
     chars = [characterize_sweep(d, config, min_attenuation, roi_px) for d in sweep_dirs]
     if len(chars) == 1:
         return chars[0]
@@ -402,14 +486,11 @@ def characterize_sweeps(sweep_dirs: list, config: ScannerConfig, min_attenuation
     if len(periods) != 1:
         raise InputError(f"the sweeps use different working periods {sorted(periods)} px; "
                          "characterise them separately")
-    kinds = {c.experiment for c in chars}
-    readings = NOISE_READINGS if kinds == {"camera-sweep", "projector-sweep"} \
-        else SINGLE_SWEEP_READINGS
-    z_c, z_p, std = (np.concatenate(a) for a in zip(
-        *(_fitted(c.positions, min_attenuation) for c in chars), strict=True))
-    fits = tuple(fit_variant(config, z_c, z_p, chars[0].period_px, std, fl, rd)
-                 for fl in FILTER_FLOORS for rd in readings)
-    return JointCharacterization(tuple(chars), fits)
+    parts = [_fit_data(c.positions, c.period_px, min_attenuation) for c in chars]
+    data = NoiseData(*(np.concatenate([getattr(d, f) for d in parts])
+                       for f in ("z_c", "z_p", "std_px", "sensor_px")), chars[0].period_px)
+    fits = fit_all(config, data, _variants({c.experiment for c in chars}))
+    return JointCharacterization(tuple(chars), fits, fit_constant(data))
 
 
 def load_fitted_model(path: str | os.PathLike) -> dict:

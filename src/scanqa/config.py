@@ -32,8 +32,18 @@ from scanqa.io.tomlfile import read_toml
 
 #: The two readings of Eq. 17 (docs/model.rst, reading (i)).
 FILTER_FLOORS = ("none", "one")
-#: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)).
-NOISE_READINGS = ("power", "amplitude", "mixed")
+#: How the camera blur's filter factor F is formed: "product" is Eq. 17 as printed,
+#: sqrt(b_c b_d) / gamma; "sum" adds the areas of pixel, defocus disc and Airy disc
+#: (docs/noise_model.rst).
+FILTER_FORMS = ("product", "sum")
+#: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)); the paper's
+#: readings first, then the two-source model (docs/noise_model.rst).
+NOISE_READINGS = ("power", "amplitude", "mixed", "two_source")
+#: Largest sensor or panel side a config may declare [px] (bounds every image allocation).
+MAX_SIDE_PX = 100_000
+#: Range of the magnitude of any non-zero number in a config, in its unit: beyond it a
+#: value is a typo, and the model's products of powers would overflow.
+MIN_MAGNITUDE, MAX_MAGNITUDE = 1e-9, 1e9
 
 
 def _spec(unit: str = "", gt: float | None = None, ge: float | None = None,
@@ -71,6 +81,9 @@ def _check_number(key: str, value: Any, meta: dict) -> float:
     if kind == "int" and (not float(value).is_integer()):
         raise ConfigError(f"{key} must be a whole number ({_expected(meta)}), got {value!r}")
     v = float(value)
+    if math.isfinite(v) and v != 0 and not MIN_MAGNITUDE <= abs(v) <= MAX_MAGNITUDE:
+        raise ConfigError(f"{key} must be {_expected(meta)}, between {MIN_MAGNITUDE:g} and "
+                          f"{MAX_MAGNITUDE:g} in magnitude (or 0 where allowed), got {value!r}")
     bad = (not math.isfinite(v)
            or (meta["gt"] is not None and not v > meta["gt"])
            or (meta["ge"] is not None and not v >= meta["ge"])
@@ -132,8 +145,8 @@ class CameraConfig(_Section):
     focal_mm: float = _spec("mm", gt=0)
     f_number: float = _spec("", gt=0)
     pixel_um: float = _spec("um", gt=0)
-    width_px: int = _spec("px", ge=1, kind="int")
-    height_px: int = _spec("px", ge=1, kind="int")
+    width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
+    height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     focus_mm: float = _spec("mm", gt=0)
 
     def _check_cross(self) -> None:
@@ -171,8 +184,8 @@ class ProjectorConfig(_Section):
     focal_mm: float = _spec("mm", gt=0)
     aperture_mm: float = _spec("mm", gt=0)
     pitch_um: float = _spec("um", gt=0)
-    width_px: int = _spec("px", ge=1, kind="int")
-    height_px: int = _spec("px", ge=1, kind="int")
+    width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
+    height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     focus_mm: float = _spec("mm", gt=0)
     position_mm: tuple = _spec("mm", kind="vec3")
     look_at_mm: tuple = _spec("mm", kind="vec3")
@@ -233,22 +246,30 @@ class FringeConfig(_Section):
 
 @dataclass(frozen=True)
 class ModelConfig(_Section):
-    """Parameters and open readings of the defocus model (paper Sect. 3).
+    """Parameters and readings of the defocus model (paper Sect. 3; docs/noise_model.rst).
 
-    ``filter_floor``: "none" applies Eq. 17 as printed, F = sqrt(b_c b_d) / gamma, which
-    can be < 1 (filtering amplifies noise); "one" clamps F >= 1 as the paper's bound
-    1 <= gamma <= sqrt(b_c b_d) implies. ``noise_reading``: "power" divides s_O by the
-    attenuation A (squared magnitude ratio, Eq. 19 as printed); "amplitude" by sqrt(A)
-    (phase noise of additive intensity noise scales with 1 / magnitude); "mixed" by
-    A_c sqrt(A_p) (projector amplitude, camera power).
+    ``filter_floor``: "none" applies Eq. 17 as printed, F can be < 1 (filtering amplifies
+    noise); "one" clamps F >= 1 as the paper's bound 1 <= gamma <= sqrt(b_c b_d) implies.
+    ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
+    takes F^2 as the noise-equivalent area of pixel, defocus disc and Airy disc together,
+    (1 + b_disc + b_d) / gamma^2. ``noise_reading``: "power" divides s_O by the
+    attenuation A (squared magnitude ratio, Eq. 19 as printed); "amplitude" by sqrt(A);
+    "mixed" by A_c sqrt(A_p); "two_source" adds scene-side noise (sigma_p, filtered by
+    F) and sensor noise (``sensor_sigma_p_px``, not filtered), each divided by
+    sqrt(A_c A_p). The defaults are the model the simulated camera and projector sweeps
+    select on held-out positions (floor "one", form "sum", reading "two_source"); the
+    paper's config sets the paper's reading explicitly.
     """
 
     section: ClassVar[str] = "model"
     wavelength_nm: float = _spec("nm", gt=0)
     gamma: float = _spec("", ge=1)
     sigma_p_px: float = _spec("px", gt=0)
-    filter_floor: str = _spec(kind="str", choices=FILTER_FLOORS, default="none")
-    noise_reading: str = _spec(kind="str", choices=NOISE_READINGS, default="power")
+    filter_floor: str = _spec(kind="str", choices=FILTER_FLOORS, default="one")
+    noise_reading: str = _spec(kind="str", choices=NOISE_READINGS, default="two_source")
+    filter_form: str = _spec(kind="str", choices=FILTER_FORMS, default="sum")
+    #: phase noise of the sensor at focus (A_c = A_p = 1) [projector px]; two_source only
+    sensor_sigma_p_px: float = _spec("px", ge=0, default=0.0)
 
 
 @dataclass(frozen=True)
@@ -269,8 +290,9 @@ class SimulatorConfig(_Section):
     [0, 1] (1: linear, the default).
 
     Real-hardware realism (see docs/simulator.rst,
-    "Distortion, tilted stage, printed target"), all off by default: ``camera_k1 .. camera_p2`` and ``projector_k1 ..
-    projector_p2`` are Brown-Conrady (OpenCV) coefficients on normalised pinhole
+    "Distortion, tilted stage, printed target"), all off by default:
+    ``camera_k1 .. camera_p2`` and ``projector_k1 .. projector_p2`` are Brown-Conrady
+    (OpenCV) coefficients on normalised pinhole
     coordinates; ``stage_tilt_deg`` tilts the calibration stage's axis against the camera
     axis towards ``stage_tilt_azimuth_deg`` (0: +X, 90: +Y); ``target_tilt_deg`` turns the
     flat about the X axis; ``target = "chessboard"`` prints a marked chessboard of
@@ -289,7 +311,7 @@ class SimulatorConfig(_Section):
     scene_noise_cell_mm: float = _spec("mm", ge=0, default=0.06)
     mean_signal_e: float = _spec("e-", gt=0, default=20000.0)
     modulation_ratio: float = _spec("", gt=0, le=1, default=0.8)
-    projector_samples: int = _spec("", ge=16, kind="int", default=256)
+    projector_samples: int = _spec("", ge=16, le=65536, kind="int", default=256)
     steps: int = _spec("", ge=3, le=64, kind="int", default=4)
     unwrap_periods_px: tuple = _spec("px", gt=0, kind="list", default=[80.0, 1280.0])
     roi_width_px: int = _spec("px", ge=0, kind="int", default=0)
@@ -414,14 +436,16 @@ def config_from_dict(data: dict, source: str = "<dict>", profile: str | None = N
         return _config_from_dict(data, source, profile)
     except ConfigError as err:
         raise ConfigError(f"{err} (in {source})") from None
-    except TypeError as err:  # pragma: no cover - defensive: bad table shapes
-        raise ConfigError(f"{err} (in {source})") from None
 
 
 def _config_from_dict(data: dict, source: str, profile: str | None) -> ScannerConfig:
     data = dict(data)
     profiles = data.pop("profiles", {})
     name = data.pop("name", Path(source).stem)
+    if not isinstance(profiles, dict):
+        raise ConfigError(f"profiles must be [profiles.NAME] tables, got {profiles!r}")
+    for pname, ptable in profiles.items():  # every profile must be valid, used or not
+        _check_profile_keys(pname, ptable)
     if profile:
         if profile not in profiles:
             avail = ", ".join(sorted(profiles)) or "none"
@@ -435,16 +459,14 @@ def _config_from_dict(data: dict, source: str, profile: str | None) -> ScannerCo
         if sec not in data and sec not in _OPTIONAL:
             raise ConfigError(f"missing table [{sec}]")
     built = {sec: _build_section(sec, data.get(sec, {})) for sec in _SECTIONS}
-    for pname, ptable in profiles.items():  # profiles must be valid too
-        if profile != pname:
-            _check_profile_keys(pname, ptable)
     return ScannerConfig(**built, name=str(name), source=source, profile=profile or "")
 
 
 def _check_profile_keys(pname: str, ptable: Any) -> None:
     """Reject profile keys that do not exist in the schema."""
     if not isinstance(ptable, dict):
-        raise ConfigError(f"[profiles.{pname}] must be a table")
+        raise ConfigError(f"[profiles.{pname}] must be a table of overrides such as "
+                          f"camera.f_number = 11.0, got {ptable!r}")
     for sec, table in ptable.items():
         if sec not in _SECTIONS or not isinstance(table, dict):
             raise ConfigError(f"unknown table {sec!r} in [profiles.{pname}]")

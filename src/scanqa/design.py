@@ -266,6 +266,7 @@ def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | Non
     z_max = 1.25 * focus if z_max is None else z_max
     zs = _z_grid(z_min, z_max, step)
     half_w = _half_extent(config, z_max)
+    _check_voxels(half_w, zs.size, step)
     xs = np.arange(-half_w[0], half_w[0] + step, step)
     ys = np.arange(-half_w[1], half_w[1] + step, step)
     total = usable = 0
@@ -280,6 +281,23 @@ def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | Non
     inside = _in_frusta(pts, config)
     return UsableVolume(level, z_min, z_max, step, total * step**3, usable * step**3,
                         xs, zs, inside, inside & _usable(pts, config, level, period_px))
+
+
+#: Largest XY slice and whole grid :func:`usable_volume` evaluates [voxels]: ~100 MB of
+#: temporaries per slice, a few minutes in all.
+MAX_SLICE_VOXELS, MAX_VOXELS = 4_000_000, 200_000_000
+
+
+def _check_voxels(half_w: tuple[float, float], n_z: int, step: float) -> None:
+    """Refuse, before allocating, a grid too large for memory or time."""
+    n_x, n_y = (int(2 * h / step) + 2 for h in half_w)
+    total = n_x * n_y * n_z
+    if n_x * n_y <= MAX_SLICE_VOXELS and total <= MAX_VOXELS:
+        return
+    need = step * max((n_x * n_y / MAX_SLICE_VOXELS) ** 0.5, (total / MAX_VOXELS) ** (1 / 3))
+    raise InputError(f"a voxel size of {step:g} mm gives {n_x} x {n_y} x {n_z} = {total:.3g} "
+                     f"voxels (at most {MAX_SLICE_VOXELS:.0e} per slice and {MAX_VOXELS:.0e} "
+                     f"in all): use a step of at least {need * 1.01:.3g} mm")
 
 
 def _usable(points: np.ndarray, config: ScannerConfig, level: float,

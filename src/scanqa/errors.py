@@ -22,3 +22,7 @@ class InputError(ScanQAError):
 
 class RangeError(ScanQAError):
     """A request lies outside the range a model or table covers."""
+
+
+class OutputError(ScanQAError):
+    """An output cannot be written: a folder in the way, a read-only or full disk."""

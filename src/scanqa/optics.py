@@ -8,19 +8,26 @@ The model in one line (Eq. 18/19)::
     sigma(Q) = s_T(Q) * sigma_p
                / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
 
-Two readings of the paper are open (docs/model.rst, "Readings") and are explicit options:
+The paper leaves readings open (docs/model.rst, "Readings"); they are explicit options,
+and the two-source noise model (docs/noise_model.rst) is a third:
 
-* ``filter_floor``: "none" (default) applies Eq. 17 as printed; "one" clamps F >= 1, the
-  bound 1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17. The default is "none" because
-  only that reading gives the local maximum of sigma at focus that the paper reports
-  (Fig. 3): with gamma = 3 and the paper's optics, sqrt(b_c b_d) / gamma < 1 near focus.
-* ``noise_reading``: "power" (default) divides by A, the squared magnitude ratio, as
-  Eq. 19 is printed; "amplitude" divides by sqrt(A), which is what additive intensity
-  noise gives; "mixed" divides by A_c sqrt(A_p): the projector's defocus lowers the
-  fringe amplitude before the noise enters (amplitude), the camera's blurs fringes and
-  scene-side noise together (power, as the camera sweep shows). The characterisation fit
-  (``scanqa characterize``) reports which reading the data supports; "mixed" needs a
-  camera and a projector sweep to be told apart from the other two.
+* ``filter_floor``: "none" applies Eq. 17 as printed; "one" clamps F >= 1, the bound
+  1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17 (filtering never amplifies noise).
+* ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
+  takes F^2 as the noise-equivalent area of the camera's whole kernel - pixel, defocus
+  disc and Airy disc, whose second moments add under convolution - over the noise's own
+  correlation area gamma^2: F = sqrt(1 + b_disc + b_d) / gamma
+  (:func:`camera_noise_area`). The two agree in shape once the disc dominates; "sum"
+  stays right for pixels larger than the Airy disc (b_d << 1), where the product
+  collapses.
+* ``noise_reading``: "power" divides by A, the squared magnitude ratio, as Eq. 19 is
+  printed; "amplitude" divides by sqrt(A), which is what additive intensity noise gives;
+  "mixed" divides by A_c sqrt(A_p). "two_source" is the physical model: scene-side
+  noise (sigma_p at focus), filtered by the camera blur, plus sensor noise
+  (``sensor_sigma_p_px`` at focus), which the blur does not filter, both additive in
+  intensity and therefore both divided by the fringe amplitude sqrt(A_c A_p):
+  sigma_x^2 = (sigma_p^2 / F^2 + sigma_s^2) / (A_c A_p). The characterisation fit
+  (``scanqa characterize``) selects among them on held-out sweep positions.
 
 Validity: the paper calls the disc-kernel model valid for r = C / omega_o <= 1/2. Past
 the first zero of J1 (r = 1.2197) the fringe contrast inverts. :func:`predict` flags
@@ -269,27 +276,64 @@ def diffraction_blur_area(airy: float, pixel: float) -> float:
     return float(np.pi * (airy / (2.0 * pixel)) ** 2)
 
 
-def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none"
-                  ) -> np.ndarray:
+def camera_noise_area(c_image: ArrayLike, pixel: float, b_d: float) -> np.ndarray:
+    """Noise-equivalent area of the camera's kernel: pixel, defocus disc and Airy disc.
+
+    Parameters
+    ----------
+    c_image : array_like
+        Image-side blur diameter c_c (Eq. 14) [mm].
+    pixel : float
+        Camera pixel size s_c [mm].
+    b_d : float
+        Diffraction blur area (Eq. 16) [px^2].
+
+    Returns
+    -------
+    ndarray
+        1 + pi (c_c / (2 s_c))^2 + b_d [px^2]: the areas add because the second moments
+        of convolved kernels do (docs/noise_model.rst); the pixel counts as its area, 1.
+
+    Examples
+    --------
+    >>> float(camera_noise_area(0.0, 0.008, 1.0))
+    2.0
+    """
+    c_image = np.asarray(c_image, dtype=float)
+    return 1.0 + np.pi * (c_image / (2.0 * pixel)) ** 2 + b_d
+
+
+def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none",
+                  form: str = "product") -> np.ndarray:
     """Noise reduction by camera blur and diffraction, F_gamma (Eq. 17).
 
     Parameters
     ----------
     b_c : array_like
-        Camera blur area [px^2].
+        "product": camera blur area b_c (Eq. 13); "sum": the kernel's noise-equivalent
+        area (:func:`camera_noise_area`, which already holds b_d) [px^2].
     b_d : float
         Diffraction blur area [px^2].
     gamma : float
         Spatial correlation of the noise, >= 1 [-].
     floor : {"none", "one"}
         "none": Eq. 17 as printed (F may be < 1); "one": F clamped to >= 1.
+    form : {"product", "sum"}
+        "product": F = sqrt(b_c b_d) / gamma, Eq. 17 as printed; "sum":
+        F = sqrt(b_c) / gamma with b_c the noise-equivalent area.
 
     Returns
     -------
     ndarray
-        F_gamma = sqrt(b_c b_d) / gamma [-].
+        F_gamma [-].
     """
-    f = np.sqrt(np.asarray(b_c, dtype=float) * b_d) / gamma
+    b_c = np.asarray(b_c, dtype=float)
+    if form == "product":
+        f = np.sqrt(b_c * b_d) / gamma
+    elif form == "sum":
+        f = np.sqrt(b_c) / gamma
+    else:
+        raise ValueError(f"form must be 'product' or 'sum', got {form!r}")
     if floor == "one":
         return np.maximum(f, 1.0)  # propagates NaN
     if floor != "none":
@@ -298,7 +342,7 @@ def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none"
 
 
 def optical_scale(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
-                  reading: str = "power") -> np.ndarray:
+                  reading: str = "power", sensor_ratio: float = 0.0) -> np.ndarray:
     """The optically induced blurring scale factor, s_O (Eq. 19).
 
     Parameters
@@ -307,26 +351,51 @@ def optical_scale(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
         Filter factor F_gamma [-].
     a_p, a_c : array_like
         Projector and camera attenuation A [-].
-    reading : {"power", "amplitude", "mixed"}
+    reading : {"power", "amplitude", "mixed", "two_source"}
         "power": 1 / (F A_p A_c) as printed; "amplitude": 1 / (F sqrt(A_p A_c));
-        "mixed": 1 / (F sqrt(A_p) A_c).
+        "mixed": 1 / (F sqrt(A_p) A_c); "two_source":
+        sqrt(1 / F^2 + rho^2) / sqrt(A_p A_c) (docs/noise_model.rst).
+    sensor_ratio : float
+        rho, the sensor's phase noise over the scene-side one at focus
+        (``sensor_sigma_p_px / sigma_p_px``); "two_source" only [-].
 
     Returns
     -------
     ndarray
         s_O [-]; inf where an attenuation is 0.
     """
+    scene, sensor = noise_scales(f_gamma, a_p, a_c, reading, sensor_ratio)
+    return np.sqrt(scene**2 + sensor**2) if reading == "two_source" else scene
+
+
+def noise_scales(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
+                 reading: str = "power", sensor_ratio: float = 0.0
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """The scene-side and sensor parts of s_O, relative to sigma_p [-].
+
+    Parameters are those of :func:`optical_scale`. The paper's readings have no sensor
+    part (zeros); for "two_source" s_O = sqrt(scene^2 + sensor^2).
+
+    Returns
+    -------
+    scene, sensor : ndarray
+        1 / (F a) with a the reading's attenuation, and rho / sqrt(A_p A_c) [-].
+    """
     a_p, a_c = np.asarray(a_p, dtype=float), np.asarray(a_c, dtype=float)
     if reading == "power":
         a = a_p * a_c
-    elif reading == "amplitude":
+    elif reading in ("amplitude", "two_source"):
         a = np.sqrt(a_p * a_c)
     elif reading == "mixed":
         a = np.sqrt(a_p) * a_c
     else:
-        raise ValueError(f"reading must be 'power', 'amplitude' or 'mixed', got {reading!r}")
+        raise ValueError("reading must be 'power', 'amplitude', 'mixed' or 'two_source', "
+                         f"got {reading!r}")
     with np.errstate(divide="ignore"):
-        return 1.0 / (np.asarray(f_gamma, dtype=float) * a)
+        scene = 1.0 / (np.asarray(f_gamma, dtype=float) * a)
+        sensor = sensor_ratio / a if reading == "two_source" and sensor_ratio > 0 \
+            else np.zeros_like(scene)
+    return scene, sensor
 
 
 @functools.lru_cache(maxsize=16)
@@ -416,7 +485,9 @@ class OpticalTerms:
     """The depth-dependent part of the model (Eqs. 1-4, 12-17, 19): arrays of one shape.
 
     Lengths in mm, ratios and factors dimensionless. ``s_o`` is NaN past the first zero
-    of J1 (the fringe contrast inverts there).
+    of J1 (the fringe contrast inverts there). ``s_o_scene`` and ``s_o_sensor`` are its
+    scene-side and sensor parts (:func:`noise_scales`; the sensor part is 0 but for
+    the two-source reading), s_o^2 = s_o_scene^2 + s_o_sensor^2 for "two_source".
     """
 
     z_c: np.ndarray
@@ -431,16 +502,37 @@ class OpticalTerms:
     s_o: np.ndarray
     filter_floor: str
     noise_reading: str
+    filter_form: str = "product"
+    s_o_scene: np.ndarray | None = None
+    s_o_sensor: np.ndarray | None = None
+    filter_base: np.ndarray | None = None
 
     @property
     def within_validity(self) -> np.ndarray:
         """Both blur ratios within the paper's validity r <= 1/2."""
         return (self.ratio_camera <= VALID_RATIO) & (self.ratio_projector <= VALID_RATIO)
 
+    def s_o_with(self, gamma: float, filter_floor: str, noise_reading: str,
+                 sensor_ratio: float = 0.0) -> np.ndarray:
+        """s_O at the same points for another gamma, floor or reading [-].
+
+        F_gamma = F_1 / gamma in both forms of Eq. 17 (``filter_base`` is F_1, the factor
+        for gamma = 1 without the floor), so a fit over gamma need not re-run the optics.
+        """
+        f = self.filter_base / gamma
+        if filter_floor == "one":
+            f = np.maximum(f, 1.0)
+        s_o = optical_scale(f, self.attenuation_projector, self.attenuation_camera,
+                            noise_reading, sensor_ratio)
+        beyond = (self.ratio_camera >= FIRST_ZERO_RATIO) | \
+            (self.ratio_projector >= FIRST_ZERO_RATIO)
+        return np.where(beyond, np.nan, s_o)
+
 
 def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
                   period_px: float | None = None, gamma: float | None = None,
-                  filter_floor: str | None = None, noise_reading: str | None = None
+                  filter_floor: str | None = None, noise_reading: str | None = None,
+                  filter_form: str | None = None, sensor_ratio: float | None = None
                   ) -> OpticalTerms:
     """The model chain from the distances to the camera and the projector to s_O.
 
@@ -459,8 +551,11 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
         Fringe period [projector px]; default the config's working (finest) period.
     gamma : float, optional
         Noise correlation gamma [-]; default ``config.model.gamma``.
-    filter_floor, noise_reading : str, optional
+    filter_floor, noise_reading, filter_form : str, optional
         Override the config's readings (module notes).
+    sensor_ratio : float, optional
+        Sensor over scene-side phase noise at focus [-]; default
+        ``sensor_sigma_p_px / sigma_p_px`` of the config (two-source reading only).
 
     Returns
     -------
@@ -472,6 +567,8 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
     period = config.fringes.working_period_px if period_px is None else period_px
     floor = model.filter_floor if filter_floor is None else filter_floor
     reading = model.noise_reading if noise_reading is None else noise_reading
+    form = model.filter_form if filter_form is None else filter_form
+    rho = model.sensor_sigma_p_px / model.sigma_p_px if sensor_ratio is None else sensor_ratio
     omega_o = fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3, proj.focus_mm,
                                       proj.focal_mm)
     coc_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm)
@@ -482,11 +579,15 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
     b_c = camera_blur_area(c_image, cam.pixel_um * 1e-3)
     b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
                                 cam.pixel_um * 1e-3)
-    f_gamma = filter_factor(b_c, b_d, model.gamma if gamma is None else gamma, floor)
-    s_o = optical_scale(f_gamma, a_p, a_c, reading)
-    s_o = np.where((r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO), np.nan, s_o)
+    area = b_c if form == "product" else camera_noise_area(c_image, cam.pixel_um * 1e-3, b_d)
+    base = filter_factor(area, b_d, 1.0, "none", form)
+    f_gamma = filter_factor(area, b_d, model.gamma if gamma is None else gamma, floor, form)
+    scene, sensor = noise_scales(f_gamma, a_p, a_c, reading, rho)
+    beyond = (r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO)
+    scene, sensor = np.where(beyond, np.nan, scene), np.where(beyond, np.nan, sensor)
+    s_o = np.hypot(scene, sensor) if reading == "two_source" else scene
     return OpticalTerms(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma, s_o, floor,
-                        reading)
+                        reading, form, scene, sensor, base)
 
 
 @dataclass(frozen=True)
@@ -495,7 +596,8 @@ class Prediction:
 
     Lengths in mm, ratios and factors dimensionless, ``sigma`` in mm. ``valid`` is False
     where a blur ratio exceeds 1/2 (outside the paper's validity); ``sigma`` is NaN past
-    the first zero of J1 and for NaN input.
+    the first zero of J1 and for NaN input. ``sigma_scene`` and ``sigma_sensor`` are its
+    scene-side and sensor parts [mm] (the sensor part is 0 but for "two_source").
     """
 
     z_c: np.ndarray
@@ -513,6 +615,9 @@ class Prediction:
     valid: np.ndarray
     filter_floor: str
     noise_reading: str
+    filter_form: str = "product"
+    sigma_scene: np.ndarray | None = None
+    sigma_sensor: np.ndarray | None = None
 
     @property
     def sigma_trusted(self) -> np.ndarray:
@@ -537,7 +642,8 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
         Triangulation scale |dQ/dx_p| [mm / px], e.g. from a calibration table's slope;
         default from the config geometry (:func:`triangulation_scale`).
     sigma_p : float, optional
-        Phase noise [projector px]; default ``config.model.sigma_p_px``.
+        Scene-side phase noise at focus [projector px]; default
+        ``config.model.sigma_p_px`` (the sensor's, ``sensor_sigma_p_px``, is kept).
     filter_floor, noise_reading : str, optional
         Override the config's readings (see module notes).
 
@@ -547,13 +653,15 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
         sigma along the line of sight [mm] and every intermediate quantity.
     """
     q = np.asarray(points, dtype=float)
-    t = optical_terms(q[..., 2], projector_depth(q, config), config, period_px,
-                      filter_floor=filter_floor, noise_reading=noise_reading)
-    s_t = triangulation_scale(q, config) if s_t is None else np.asarray(s_t, dtype=float)
     sp = config.model.sigma_p_px if sigma_p is None else sigma_p
+    t = optical_terms(q[..., 2], projector_depth(q, config), config, period_px,
+                      filter_floor=filter_floor, noise_reading=noise_reading,
+                      sensor_ratio=config.model.sensor_sigma_p_px / sp)
+    s_t = triangulation_scale(q, config) if s_t is None else np.asarray(s_t, dtype=float)
     sigma = s_t * t.s_o * sp
     valid = t.within_validity & np.isfinite(sigma)
     return Prediction(t.z_c, t.z_p, t.omega_o, t.ratio_camera, t.ratio_projector,
                       t.attenuation_camera, t.attenuation_projector, t.blur_area_camera,
                       t.filter_factor, t.s_o, np.broadcast_to(s_t, np.shape(sigma)), sigma,
-                      valid, t.filter_floor, t.noise_reading)
+                      valid, t.filter_floor, t.noise_reading, t.filter_form,
+                      s_t * t.s_o_scene * sp, s_t * t.s_o_sensor * sp)

@@ -31,7 +31,8 @@ parameter covariance of stage 2, scaled by the fit's reduced chi-square.
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable, Iterable
+import logging
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -43,6 +44,9 @@ from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
+from scanqa.progress import Progress
+
+log = logging.getLogger(__name__)
 
 WEIGHT_MODES = ("model", "modulation", "none")
 #: Reasons a calibration sample is rejected, in report order.
@@ -95,10 +99,12 @@ class BuildReport:
     rejected: dict = field(default_factory=lambda: dict.fromkeys(REJECT_REASONS, 0))
     used_samples: int = 0
     positions: list = field(default_factory=list)
+    #: cells whose smoothing window was singular (cells in a line): kept unsmoothed
+    unsmoothed_cells: int = 0
 
     def as_dict(self) -> dict:
         return {"rejected": dict(self.rejected), "used_samples": self.used_samples,
-                "positions": self.positions}
+                "unsmoothed_cells": self.unsmoothed_cells, "positions": self.positions}
 
 
 # --------------------------------------------------------------------------- building
@@ -319,7 +325,7 @@ def _window_terms(half: int) -> tuple[np.ndarray, np.ndarray]:
 
 
 def smooth_cells(x: np.ndarray, w: np.ndarray, cell: float, half: int = SMOOTH_HALF_WIDTH
-                 ) -> tuple[np.ndarray, np.ndarray]:
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
     """Weighted local quadratic regression of one plane's cell phases (2-D Savitzky-Golay).
 
     The phase of a flat target varies smoothly over the image, so each cell's estimate is
@@ -344,11 +350,14 @@ def smooth_cells(x: np.ndarray, w: np.ndarray, cell: float, half: int = SMOOTH_H
     (x_s, w_s) : (n_v, n_u) arrays
         Smoothed phases and their weights 1 / var(x_s); where the window cannot hold a
         quadratic (edges of the covered region), the input values.
+    singular : int
+        Cells whose window held enough samples but no quadratic (its normal matrix is
+        singular: the samples lie on a line); they keep their input values [-].
     """
     from scipy.ndimage import correlate
 
     if half <= 0:
-        return x, w
+        return x, w, 0
     basis, _ = _window_terms(half)
     ok = (w > 0) & np.isfinite(x)
     wv = np.where(ok, w, 0.0)
@@ -364,16 +373,19 @@ def smooth_cells(x: np.ndarray, w: np.ndarray, cell: float, half: int = SMOOTH_H
     count = correlate(ok.astype(float), np.ones_like(basis[0]), mode="constant")
     good = ok & (count >= 3 * k)
     moments[~good] = np.eye(k)
-    try:
-        inv = np.linalg.inv(moments)
-    except np.linalg.LinAlgError:  # pragma: no cover - guarded by the count
-        return x, w
+    # a window whose samples lie on a line has a singular normal matrix: that cell keeps
+    # its own value (counted), the others are smoothed
+    singular = good & ~(np.linalg.cond(moments) < 1e12)
+    good &= ~singular
+    moments[singular] = np.eye(k)
+    inv = np.linalg.inv(moments)
     coef = np.einsum("...ab,...b->...a", inv, rhs)
     du2 = (cell * cell - 1.0) / 12.0 / (cell * cell)  # <du^2> of a cell, in cells^2
     value = coef[..., 0] - (coef[..., 3] + coef[..., 5]) * du2
     var = inv[..., 0, 0]
     good &= np.isfinite(value) & (var > 0)
-    return np.where(good, value, x), np.where(good, 1.0 / np.where(good, var, 1.0), w)
+    return (np.where(good, value, x), np.where(good, 1.0 / np.where(good, var, 1.0), w),
+            int(singular.sum()))
 
 
 def default_cell_px(config: ScannerConfig, z_mm: float, spacing_mm: float = 0.45) -> int:
@@ -398,22 +410,22 @@ def _cell_count(n_px: int, cell: int) -> int:
 def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
                 weights: str = "model", cell_px: int | None = None, s_step_px: float = 1.0,
                 min_modulation: float = 0.0, jump_fraction: float = 0.25,
-                provenance: dict | None = None,
-                progress: Callable[[int], None] | None = None
+                provenance: dict | None = None, total: int | None = None
                 ) -> tuple[CalibrationTable, BuildReport]:
     """Build a calibration table from decoded scans of a flat target on a stage.
 
     Parameters
     ----------
     observations : iterable of PlaneObservation
-        Scans at three or more distinct stage positions (repeats allowed), all of one
-        camera size. Consumed one at a time: memory holds one image.
+        Scans at three or more distinct stage positions (repeats allowed), all of the
+        config's camera size. Consumed one at a time: memory holds one image.
     config : ScannerConfig
         Scanner config (intrinsics for lateral X, Y and the model weights).
     weights : {"model", "modulation", "none"}
         How samples are weighted (module notes).
     cell_px : int, optional
-        Node spacing in u and v [camera px]; default :func:`default_cell_px`.
+        Node spacing in u and v [camera px], 3 to the image's smaller side; default
+        :func:`default_cell_px`.
     s_step_px : float
         Node spacing along the sheared phase axis [projector px].
     min_modulation : float
@@ -423,8 +435,9 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
         jumps (also any beyond 6 robust std of the cell) [-].
     provenance : dict, optional
         Sweep description stored in the table.
-    progress : callable, optional
-        Called as progress(done) after each observation.
+    total : int, optional
+        Number of observations, for the progress display (:mod:`scanqa.progress`);
+        default ``len(observations)`` when it has one.
 
     Returns
     -------
@@ -432,21 +445,24 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     """
     if weights not in WEIGHT_MODES:
         raise InputError(f"weights must be one of {', '.join(WEIGHT_MODES)}, got {weights!r}")
+    if not (np.isfinite(min_modulation) and min_modulation >= 0):
+        raise InputError(f"min_modulation must be >= 0 DN, got {min_modulation!r}")
     report = BuildReport()
     stats, shape = [], None
-    for i, obs in enumerate(observations):
-        if shape is None:
-            shape = obs.xp.shape
-            cell_px = cell_px or default_cell_px(config, obs.z_mm)
-            n_v, n_u = _cell_count(shape[0], cell_px), _cell_count(shape[1], cell_px)
-        elif obs.xp.shape != shape:
-            raise InputError(f"{obs.source or 'observation'}: image is {obs.xp.shape[1]} x "
-                             f"{obs.xp.shape[0]} px, the sweep's first is {shape[1]} x "
-                             f"{shape[0]} px: all scans must come from one camera")
-        jump = jump_fraction * config.fringes.working_period_px
-        stats.append(_stage1(obs, cell_px, n_v, n_u, jump, min_modulation, report))
-        if progress:
-            progress(i + 1)
+    total = total if total is not None else getattr(observations, "__len__", lambda: None)()
+    with Progress("calibrate", total, "scan", log) as bar:
+        for obs in observations:
+            if shape is None:
+                shape = _check_first(obs, config)
+                cell_px = _cell_size(cell_px, config, obs)
+                n_v, n_u = _cell_count(shape[0], cell_px), _cell_count(shape[1], cell_px)
+            elif obs.xp.shape != shape:
+                raise InputError(f"{obs.source or 'observation'}: image is {obs.xp.shape[1]} "
+                                 f"x {obs.xp.shape[0]} px, the sweep's first is {shape[1]} x "
+                                 f"{shape[0]} px: all scans must come from one camera")
+            jump = jump_fraction * config.fringes.working_period_px
+            stats.append(_stage1(obs, cell_px, n_v, n_u, jump, min_modulation, report))
+            bar.update(1, note=f"z = {obs.z_mm:g} mm")
     zs = sorted({s.z_mm for s in stats})
     if len(zs) < 3:
         raise InputError(f"a calibration sweep needs at least 3 distinct positions, got "
@@ -456,6 +472,30 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     table = _stage2(stats, config, weights, node_u, node_v, s_step_px, shape, provenance,
                     report)
     return table, report
+
+
+def _check_first(obs: PlaneObservation, config: ScannerConfig) -> tuple[int, int]:
+    """The image size of the sweep, which must be the config's camera."""
+    shape = tuple(int(n) for n in np.shape(obs.xp))
+    cam = config.camera
+    if shape != (cam.height_px, cam.width_px):
+        got = " x ".join(str(n) for n in shape[::-1])
+        raise InputError(f"{obs.source or 'the first scan'} is {got} px but the camera of "
+                         f"config {config.source or config.name} is {cam.width_px} x "
+                         f"{cam.height_px} px: give the config the sweep was captured with "
+                         "(a table built with another camera's intrinsics is wrong)")
+    return shape
+
+
+def _cell_size(cell_px: int | None, config: ScannerConfig, obs: PlaneObservation) -> int:
+    """The node spacing: ``cell_px`` checked against the image, or the default [px]."""
+    if cell_px is None:
+        return default_cell_px(config, obs.z_mm)
+    side = min(obs.xp.shape)
+    if isinstance(cell_px, bool) or not float(cell_px).is_integer() or not 3 <= cell_px <= side:
+        raise InputError(f"cell size must be a whole number of camera px from 3 (9 samples "
+                         f"per cell) to the image's smaller side ({side} px), got {cell_px!r}")
+    return int(cell_px)
 
 
 def _stage2(stats: list[_CellStats], config: ScannerConfig, weights: str,
@@ -468,6 +508,10 @@ def _stage2(stats: list[_CellStats], config: ScannerConfig, weights: str,
     cell = node_u[1] - node_u[0] if node_u.size > 1 else 1.0
     pairs = [smooth_cells(s.x, _weights(s, weights, config, node_u, node_v), cell)
              for s in stats]
+    report.unsmoothed_cells = sum(p[2] for p in pairs)
+    if report.unsmoothed_cells:
+        log.warning(f"{report.unsmoothed_cells} cell estimates kept unsmoothed: their "
+                    "neighbourhood's samples lie on a line (a narrow strip of valid pixels)")
     x = np.stack([p[0] for p in pairs], -1)                   # (n_v, n_u, M)
     w = np.stack([p[1] for p in pairs], -1)
     # centre each node's phases: the fit's columns 1, z, z^2, -x z stay well conditioned

@@ -22,6 +22,10 @@ def _terms(degree: int) -> list[tuple[int, int]]:
     return [(i, j) for i in range(degree + 1) for j in range(degree + 1 - i)]
 
 
+#: Number of coefficients of a shear (monomials of total degree <= DEGREE).
+N_TERMS = len(_terms(DEGREE))
+
+
 def _normalised(u: np.ndarray, v: np.ndarray, size: tuple[int, int]
                 ) -> tuple[np.ndarray, np.ndarray]:
     width, height = size

@@ -16,7 +16,7 @@ and ``camera.focal_mm``. Each mismatch is one error naming the file, the key and
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -208,8 +208,8 @@ def _checked(observations: Iterator[PlaneObservation], config: ScannerConfig
 
 def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
               weights: str = "model", cell_px: int | None = None,
-              progress: Callable[[int], None] | None = None, min_modulation: float = 0.0,
-              use_markers: bool = True) -> tuple[CalibrationTable, BuildReport]:
+              min_modulation: float = 0.0, use_markers: bool = True
+              ) -> tuple[CalibrationTable, BuildReport]:
     """Build the calibration table of a sweep (the weighted calibration run).
 
     Parameters
@@ -223,10 +223,8 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
         decoder's phase noise, or equal weights.
     cell_px : int, optional
         Node spacing [camera px]; default about 0.45 mm on the object.
-    progress : callable, optional
-        Called with the number of scans read so far.
     min_modulation : float
-        Samples with modulation below this are rejected [DN].
+        Samples with modulation below this are rejected [DN]; 0 keeps the decoder's mask.
     use_markers : bool
         Take the lateral geometry from the marker frames when the sweep has them
         (otherwise from ``lateral`` maps or the config's pinhole).
@@ -247,4 +245,4 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
         prov["target_geometry"] = geometry.summary()
     return build_table(_checked(iter_observations(sweep, geometry), config), config,
                        weights=weights, cell_px=cell_px, min_modulation=min_modulation,
-                       provenance=prov, progress=progress)
+                       provenance=prov, total=sweep.observation_count())

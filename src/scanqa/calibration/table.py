@@ -19,6 +19,7 @@ import numpy as np
 
 from scanqa.calibration import lookup
 from scanqa.calibration.lookup import TableLookup
+from scanqa.calibration.shear import N_TERMS as SHEAR_TERMS
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
@@ -193,6 +194,9 @@ def save_table(path: str | os.PathLike, table: CalibrationTable) -> Path:
 def load_table(path: str | os.PathLike) -> CalibrationTable:
     """Read a table written by :func:`save_table`, checking its format version."""
     arrays, meta = table_file.read_table_file(path)
+    if arrays["shear"].shape != (SHEAR_TERMS,):
+        raise InputError(f"{path}: table array shear has shape {arrays['shear'].shape}, "
+                         f"expected ({SHEAR_TERMS},) (damaged); rebuild it")
     return CalibrationTable(**arrays, width_px=int(meta["width_px"]),
                             height_px=int(meta["height_px"]), weights=meta["weights"],
                             config=meta["config"], provenance=meta["provenance"])

@@ -1,20 +1,28 @@
 """The ``scanqa`` command line: argument parsing only (load, call the library, write).
 
 Each job has its own module here with ``register(subparsers)``; the module list below
-is the one place that adds a subcommand. Every error a user can cause is a
+is the one place that adds a subcommand, and every subcommand gets ``-v``/``-q``
+(:func:`scanqa.cli.common.verbosity_parent`). Every error a user can cause is a
 :class:`~scanqa.errors.ScanQAError`, printed as ``scanqa: <message>`` with exit code 2
-and no traceback.
+and no traceback; SIGTERM cleans up like Ctrl-C (temporaries and staged outputs are
+removed) and exits 143.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import importlib
+import logging
+import signal
 import sys
-from collections.abc import Sequence
+import threading
+from collections.abc import Iterator, Sequence
 
 from scanqa._version import __version__
+from scanqa.cli.common import StdoutClosed, silence_stdout, verbosity_parent
 from scanqa.errors import ScanQAError
+from scanqa.progress import NORMAL, QUIET, VERBOSE, configure_logging
 
 #: Modules that register subcommands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
@@ -30,6 +38,12 @@ COMMAND_MODULES = (
     "scanqa.cli.simulate",
 )
 
+log = logging.getLogger(__name__)
+
+
+class Terminated(BaseException):
+    """SIGTERM arrived: unwind like Ctrl-C so that every ``finally`` cleans up."""
+
 
 class _Parser(argparse.ArgumentParser):
     """ArgumentParser whose errors are one line, like every other scanqa error."""
@@ -40,15 +54,47 @@ class _Parser(argparse.ArgumentParser):
                   if " " in self.prog else f"scanqa: {message}\n")
 
 
+class _SubParsers(argparse._SubParsersAction):
+    """Adds the shared ``-v``/``-q`` options to every subcommand."""
+
+    def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
+        kwargs["parents"] = [*kwargs.get("parents", ()), verbosity_parent()]
+        kwargs.setdefault("conflict_handler", "resolve")  # a subcommand may refine -q
+        return super().add_parser(name, **kwargs)
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The top-level parser with every subcommand registered."""
     parser = _Parser(prog="scanqa", description=(
         "Calibration-aware uncertainty toolkit for phase-shift 3D scanners."))
+    parser.register("action", "parsers", _SubParsers)
     parser.add_argument("--version", action="version", version=f"scanqa {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     for name in COMMAND_MODULES:
         importlib.import_module(name).register(sub)
     return parser
+
+
+@contextlib.contextmanager
+def _sigterm_raises() -> Iterator[None]:
+    """Turn SIGTERM into :class:`Terminated` while a command runs (main thread only)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def handler(signum: int, frame: object) -> None:
+        raise Terminated
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def _fail(message: str) -> None:
+    sys.stderr.write(f"scanqa: {message}\n")
+    sys.stderr.flush()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -58,14 +104,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "func", None):
         parser.print_help()
         return 2
+    configure_logging(QUIET if args.quiet else VERBOSE if args.verbose else NORMAL)
     try:
-        return int(args.func(args) or 0)
+        with _sigterm_raises():
+            return int(args.func(args) or 0)
     except ScanQAError as err:
-        print(f"scanqa: {err}", file=sys.stderr)
+        _fail(str(err))
+        return 2
+    except StdoutClosed:  # 'scanqa curve | head -1': stop quietly, like any Unix filter
+        silence_stdout()
+        return 141
+    except OSError as err:  # the environment, not the input: say which file and why
+        log.debug("OSError", exc_info=True)
+        where = f"{err.filename}: " if err.filename else ""
+        _fail(f"{where}{err.strerror or err}")
         return 2
     except KeyboardInterrupt:
-        print("scanqa: interrupted", file=sys.stderr)
+        _fail("interrupted")
         return 130
+    except Terminated:
+        _fail("terminated")
+        return 143
 
 
 if __name__ == "__main__":

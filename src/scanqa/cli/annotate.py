@@ -4,7 +4,6 @@ cloud."""
 from __future__ import annotations
 
 import argparse
-import sys
 
 from scanqa.annotation import annotate
 from scanqa.cli.common import (
@@ -13,11 +12,12 @@ from scanqa.cli.common import (
     add_model_argument,
     calibration_from_args,
     config_from_args,
+    emit,
 )
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
-from scanqa.io.cloud import WRITERS
+from scanqa.io.cloud import WRITERS, check_format
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -42,9 +42,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    out = check_out_dir(args.out)
-    if out.suffix.lower() not in WRITERS:
-        raise InputError(f"--out {out}: unknown suffix (use one of {', '.join(WRITERS)})")
+    out = check_format(check_out_dir(args.out))  # before any work: suffix, Parquet engine
     config = config_from_args(args)
     scan = decode(args.scan)
     calibration = calibration_from_args(args, config, scan)
@@ -53,7 +51,6 @@ def run(args: argparse.Namespace) -> int:
     if not cloud.counts["written"]:
         raise InputError(f"{args.scan}: no point lies inside the calibrated volume; nothing "
                          "written (use --keep-invalid to extrapolate)")
-    print(f"annotate: {cloud.summary()}", file=sys.stderr)
     cloud.write(out)
-    print(f"{out}: {cloud.summary()}")
+    emit(f"{out}: {cloud.summary()}")
     return 0

@@ -4,14 +4,18 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
-from pathlib import Path
 
 from scanqa.calibration.build import WEIGHT_MODES
 from scanqa.calibration.sweep import calibrate
 from scanqa.calibration.table import save_table
-from scanqa.cli.common import add_config_argument, add_model_argument, config_from_args
-from scanqa.io.atomic import check_out_dir, write_text
+from scanqa.cli.common import (
+    add_config_argument,
+    add_model_argument,
+    config_from_args,
+    emit,
+    number,
+)
+from scanqa.io.atomic import check_out_dir, staged_dir, write_text
 from scanqa.io.sweep import load_sweep
 from scanqa.report import calibration as report_calibration
 
@@ -29,10 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="TABLE.npz", help="table file to write")
     p.add_argument("--weights", choices=WEIGHT_MODES, default="model",
                    help="sample weights: optics model (default), decoder sigma_xp, or none")
-    p.add_argument("--cell", type=int, default=None, metavar="PX",
+    p.add_argument("--cell", type=number(int, ge=1, unit="px"), default=None, metavar="PX",
                    help="node spacing in u and v [camera px] (default: ~0.45 mm on the "
                         "object, at least 4 px)")
-    p.add_argument("--min-modulation", type=float, default=0.0, metavar="DN",
+    p.add_argument("--min-modulation", type=number(ge=0, unit="DN"), default=0.0, metavar="DN",
                    help="reject samples with modulation below this [DN] (default: decoder "
                         "mask only)")
     p.add_argument("--no-markers", action="store_true",
@@ -41,27 +45,24 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _progress(done: int, total: int) -> None:
-    print(f"\rcalibrate: scan {done}/{total}", end="" if done < total else "\n",
-          file=sys.stderr, flush=True)
-
-
 def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     out = check_out_dir(args.out)
     sweep = load_sweep(args.sweep)
-    total = sweep.observation_count()
-    table, report = calibrate(sweep, config, weights=args.weights, cell_px=args.cell,
-                              min_modulation=args.min_modulation,
-                              progress=lambda done: _progress(done, total),
-                              use_markers=not args.no_markers)
-    save_table(out, table)
-    stem = out.with_suffix("")
-    info = report_calibration.summary(table, report)
-    write_text(Path(f"{stem}_report.json"), json.dumps(info, indent=1))
-    write_text(Path(f"{stem}_report.html"), report_calibration.render(table, report))
+    stem = out.with_suffix("").name
+    with staged_dir(out.parent) as stage:  # the table and its reports, together or none
+        table, report = calibrate(sweep, config, weights=args.weights, cell_px=args.cell,
+                                  min_modulation=args.min_modulation,
+                                  use_markers=not args.no_markers)
+        save_table(stage / out.name, table)
+        info = report_calibration.summary(table, report)
+        write_text(stage / f"{stem}_report.json", json.dumps(info, indent=1))
+        write_text(stage / f"{stem}_report.html", report_calibration.render(table, report))
     rej = ", ".join(f"{k} {v}" for k, v in report.rejected.items() if v) or "none"
-    print(f"table {out}: {sweep.observation_count()} scans at {len(sweep.positions)} positions, "
-          f"{report.used_samples} samples used, rejected: {rej}; table sigma median "
-          f"{info['table_sigma_um_median']:.3g} um; report {stem}_report.html")
+    report_html = out.with_name(f"{stem}_report.html")
+    median = info["table_sigma_um_median"]
+    emit(f"table {out}: {sweep.observation_count()} scans at {len(sweep.positions)} positions, "
+         f"{report.used_samples} samples used, rejected: {rej}; table sigma median "
+         + (f"{median:.3g} um" if median is not None else "unknown")
+         + f"; report {report_html}")
     return 0

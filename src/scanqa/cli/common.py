@@ -3,18 +3,87 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import io
 import json
 import math
-from collections.abc import Sequence
+import os
+import sys
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from scanqa.calibration.base import Calibration, load_calibration
 from scanqa.config import ScannerConfig, load_config
 from scanqa.decoding.phasemap import PhaseMap
-from scanqa.errors import InputError
+from scanqa.errors import InputError, OutputError
 from scanqa.io.atomic import check_out_dir
+
+
+def verbosity_parent() -> argparse.ArgumentParser:
+    """The ``-v``/``-q`` options every subcommand takes (added by :mod:`scanqa.cli`)."""
+    parent = argparse.ArgumentParser(add_help=False)
+    group = parent.add_argument_group("messages")
+    group.add_argument("-v", "--verbose", action="store_true",
+                       help="also print debug details on stderr")
+    group.add_argument("-q", "--quiet", action="store_true",
+                       help="no progress and notes on stderr, only warnings and errors")
+    return parent
+
+
+class StdoutClosed(Exception):
+    """The reader of stdout went away (``scanqa curve | head -1``)."""
+
+
+def silence_stdout() -> None:
+    """Point the process's stdout at /dev/null, so that the interpreter's last flush of
+    output nobody can take does not fail again at exit."""
+    if sys.stdout is not sys.__stdout__ or sys.stdout is None:
+        return
+    with contextlib.suppress(OSError, ValueError):
+        null = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(null, sys.stdout.fileno())
+        os.close(null)
+
+
+def emit(text: str = "") -> None:
+    """Print one result line (or block) on stdout, flushed.
+
+    Raises
+    ------
+    StdoutClosed
+        When the reader of a pipe went away.
+    OutputError
+        When stdout cannot be written (a full disk, /dev/full).
+    """
+    try:
+        sys.stdout.write(text + "\n")
+        sys.stdout.flush()
+    except BrokenPipeError:
+        silence_stdout()
+        raise StdoutClosed from None
+    except OSError as err:
+        silence_stdout()
+        raise OutputError(f"cannot write to standard output: {err.strerror or err}") from None
+
+
+def number(kind: type = float, *, gt: float | None = None, ge: float | None = None,
+           unit: str = "") -> Callable[[str], float]:
+    """argparse type: a finite number (``kind`` float or int) with an optional bound."""
+    def parse(text: str) -> float:
+        try:
+            value = kind(text)
+        except ValueError:
+            raise argparse.ArgumentTypeError(
+                f"expected {'an integer' if kind is int else 'a number'}, got {text!r}") from None
+        bound = (f"> {gt:g}" if gt is not None else f">= {ge:g}" if ge is not None else "")
+        ok = math.isfinite(value) and (gt is None or value > gt) and (ge is None or value >= ge)
+        if not ok:
+            what = f"a finite number {bound}".rstrip() + (f" {unit}" if unit and bound else "")
+            raise argparse.ArgumentTypeError(f"must be {what}, got {text!r}")
+        return value
+    parse.__name__ = kind.__name__  # argparse names the type in its messages
+    return parse
 
 
 def add_config_argument(parser: argparse.ArgumentParser, required: bool = True) -> None:
@@ -75,6 +144,8 @@ def float_list(text: str) -> list[float]:
             f"expected comma-separated numbers, got {text!r}") from None
     if not values:
         raise argparse.ArgumentTypeError("expected at least one number")
+    if not all(math.isfinite(v) for v in values):
+        raise argparse.ArgumentTypeError(f"expected finite numbers, got {text!r}")
     return values
 
 

@@ -5,8 +5,9 @@ from __future__ import annotations
 import argparse
 import time
 
+from scanqa.cli.common import emit
 from scanqa.config import load_config
-from scanqa.demo import run_demo, summary_lines
+from scanqa.demo import characterization_lines, run_demo, summary_lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -32,14 +33,15 @@ def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     full = load_config(args.full_config) if args.full else None
     result = run_demo(args.out, data=args.data, full_config=full)
-    v = result.variant
-    print(f"scanner characterised: reading filter_floor={v['filter_floor']}, "
-          f"noise_reading={v['noise_reading']}, sigma_p={v['sigma_p_px']:.4g} px, "
-          f"gamma={v['gamma']:.3g}")
+    emit("scanner characterised:")
+    for line in characterization_lines(result.characterization):
+        emit(f"  {line}")
     for line in summary_lines(result):
-        print(line)
-    print(f"outputs in {result.out.resolve()} (table.npz, table_report.html, gauge_cloud.ply, "
-          "qa/, design/, characterization/)")
-    print(f"report: {result.report.resolve()}")
-    print(f"demo finished in {time.perf_counter() - t0:.0f} s")
+        emit(line)
+    emit(f"outputs in {result.out.resolve()} (table.npz, table_report.html, gauge_cloud.ply, "
+         "qa/, sphere_test/, design/, characterization/)")
+    emit(f"report: {result.report.resolve()}")
+    if result.artefact is not None:
+        emit(f"sphere test report: {result.artefact_report.resolve()}")
+    emit(f"demo finished in {time.perf_counter() - t0:.0f} s")
     return 0

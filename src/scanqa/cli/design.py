@@ -12,8 +12,10 @@ from scanqa.cli.common import (
     add_config_argument,
     add_output_arguments,
     config_from_args,
+    emit,
     float_list,
     format_rows,
+    number,
     output_path,
 )
 from scanqa.report import design as plots
@@ -47,11 +49,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                        epilog="example:\n  scanqa volume --config calib/paper_scanner.toml "
                               "--level 0.49 --plot volume.png")
     add_config_argument(p)
-    p.add_argument("--level", type=float, default=0.49,
+    p.add_argument("--level", type=number(), default=0.49,
                    help="combined attenuation threshold A_c*A_p [-] (default 0.49)")
-    p.add_argument("--z-min", type=float, default=None, help="near plane [mm]")
-    p.add_argument("--z-max", type=float, default=None, help="far plane [mm]")
-    p.add_argument("--step", type=float, default=1.0, help="voxel size [mm] (default 1)")
+    p.add_argument("--z-min", type=number(), default=None, help="near plane [mm]")
+    p.add_argument("--z-max", type=number(), default=None, help="far plane [mm]")
+    p.add_argument("--step", type=number(gt=0, unit="mm"), default=1.0,
+                   help="voxel size [mm] (default 1)")
     add_output_arguments(p)
     p.set_defaults(func=run_volume)
 
@@ -65,12 +68,13 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def _add_range(p: argparse.ArgumentParser) -> None:
     add_config_argument(p)
-    p.add_argument("--z-min", type=float, default=None,
+    p.add_argument("--z-min", type=number(), default=None,
                    help="first range [mm] (default: camera focus - 10 %%)")
-    p.add_argument("--z-max", type=float, default=None,
+    p.add_argument("--z-max", type=number(), default=None,
                    help="last range [mm] (default: camera focus + 10 %%)")
-    p.add_argument("--step", type=float, default=0.5, help="range step [mm] (default 0.5)")
-    p.add_argument("--period", type=float, default=None,
+    p.add_argument("--step", type=number(gt=0, unit="mm"), default=0.5,
+                   help="range step [mm] (default 0.5)")
+    p.add_argument("--period", type=number(gt=0, unit="px"), default=None,
                    help="fringe period [projector px] (default: the finest of the config)")
     add_output_arguments(p)
 
@@ -94,9 +98,9 @@ def _py(value: object) -> object:
 
 
 def _emit(args: argparse.Namespace, rows: list[dict], extra: str = "") -> None:
-    print(format_rows(rows, args.json, args.csv))
+    emit(format_rows(rows, args.json, args.csv))
     if extra and not (args.json or args.csv):
-        print(extra)
+        emit(extra)
 
 
 def _tabular(args: argparse.Namespace, compute, rows, draw) -> int:
@@ -104,9 +108,9 @@ def _tabular(args: argparse.Namespace, compute, rows, draw) -> int:
     config = config_from_args(args)
     plot = output_path(args.plot)
     result = compute(config)
-    _emit(args, rows(result))
-    if plot:
+    if plot:  # the file first: a failed write leaves no printed result behind it
         draw(result, plot, config)
+    _emit(args, rows(result))
     return 0
 
 
@@ -130,12 +134,12 @@ def run_volume(args: argparse.Namespace) -> int:
     row = {"level": vol.level, "z_min_mm": vol.z_min_mm, "z_max_mm": vol.z_max_mm,
            "step_mm": vol.step_mm, "total_mm3": vol.total_mm3, "usable_mm3": vol.usable_mm3,
            "fraction": vol.fraction}
-    if args.json:
-        print(json.dumps(row, indent=1))
-    else:
-        print(format_rows([row], False, args.csv))
     if plot:
         plots.plot_volume(vol, plot)
+    if args.json:
+        emit(json.dumps(row, indent=1))
+    else:
+        emit(format_rows([row], False, args.csv))
     return 0
 
 

@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from scanqa.calibration.parametric import load_opencv_calibration
-from scanqa.cli.common import float_list
+from scanqa.cli.common import emit, float_list
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, write_text
 from scanqa.onboarding import placeholders, scanner_config_text
@@ -59,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
                                args.name or Path(out).stem)
     write_text(out, text)
     left = placeholders(text)
-    print(f"{out}: scanner config written" + (
+    emit(f"{out}: scanner config written" + (
         f"; replace the {len(left)} \"MEASURE\" placeholders before use: {', '.join(left)}"
         if left else ""))
     return 0

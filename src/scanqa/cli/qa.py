@@ -1,8 +1,11 @@
-"""``scanqa qa``: gauge-block QA of an annotated cloud (or a scan + calibration)."""
+"""``scanqa qa``: gauge-block QA or VDI/VDE 2634-2 acceptance tests of annotated clouds
+(or scans + a calibration); the layout's format says which."""
 
 from __future__ import annotations
 
 import argparse
+import math
+from pathlib import Path
 
 from scanqa.annotation import annotate
 from scanqa.cli.common import (
@@ -11,62 +14,118 @@ from scanqa.cli.common import (
     add_model_argument,
     calibration_from_args,
     config_from_args,
+    emit,
+    number,
 )
 from scanqa.cloud import AnnotatedCloud, read_cloud
 from scanqa.config import ScannerConfig
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
-from scanqa.io.atomic import make_out_dir
+from scanqa.io.artefacts import FORMAT as ARTEFACT_FORMAT
+from scanqa.io.artefacts import layout_format
+from scanqa.io.spec import read_spec
+from scanqa.provenance import build_header, certificate_text, describe_paths
+from scanqa.qa.artefacts import Options, auto_layout, load_artefact_layout, run_artefact_qa
 from scanqa.qa.blocks import run_qa
+from scanqa.qa.budget import load_budget
 from scanqa.qa.detect import detect_blocks
 from scanqa.qa.layout import load_layout
+from scanqa.report import artefacts as artefact_report
 from scanqa.report import qa as qa_report
+
+_EPILOG = """examples:
+  scanqa qa cloud.ply --layout calib/gauge_blocks_paper.toml --out qa/
+  scanqa qa scan/phase.npz --calibration table.npz --config calib/paper_scanner.toml \\
+      --layout calib/gauge_blocks_paper.toml --out qa/
+  scanqa qa bar/p00*_r0 --calibration table.npz --config CFG --layout bar/artefacts.toml \\
+      --spec bar/spec.toml --operator "A. Smith" --pdf --out qa/
+  scanqa qa sphere.ply --auto --artefact sphere --spec spec.toml --out qa/
+
+a gauge-block layout (scanqa-gauge-layout/1) runs the gauge-block QA: report.html,
+blocks.csv, steps.csv, summary.json, cloud_qa.ply; an artefact layout
+(scanqa-artefact-layout/1) or --artefact runs the VDI/VDE 2634-2 tests (PF, PS, SD, F):
+report.html, quantities.csv, budget.csv, selection.csv, summary.json; --pdf adds
+report.pdf"""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
-        "qa", formatter_class=argparse.RawDescriptionHelpFormatter,
-        help="gauge-block QA: plane fits, measured vs predicted std, steps with U",
-        epilog="examples:\n  scanqa qa cloud.ply --layout calib/gauge_blocks_paper.toml "
-               "--out qa/\n  scanqa qa scan/phase.npz --calibration table.npz --config "
-               "calib/paper_scanner.toml --layout calib/gauge_blocks_paper.toml --out qa/\n\n"
-               "writes report.html, blocks.csv, steps.csv, summary.json, cloud_qa.ply")
-    p.add_argument("cloud", metavar="CLOUD",
-                   help="annotated cloud (.ply/.las/.csv) or, with --calibration, a scan")
-    p.add_argument("--layout", help="block layout TOML (nominal heights and regions)")
+        "qa", formatter_class=argparse.RawDescriptionHelpFormatter, epilog=_EPILOG,
+        help="gauge-block QA, or VDI/VDE 2634-2 tests on spheres, ball bars and flats")
+    p.add_argument("cloud", metavar="CLOUD", nargs="+",
+                   help="annotated cloud(s) (.ply/.las/.csv) or, with --calibration, "
+                        "scan(s); an artefact layout's 'scan' keys match their names")
+    p.add_argument("--layout", help="gauge-block or artefact layout TOML")
     p.add_argument("--auto", action="store_true",
-                   help="find the blocks by plane segmentation; match nominal heights from "
-                        "--layout (regions ignored) or --heights")
+                   help="find the blocks by plane segmentation (nominal heights from "
+                        "--layout or --heights), or with --artefact the artefact by RANSAC")
+    p.add_argument("--artefact", choices=("sphere", "ball-bar", "flat"), default=None,
+                   help="with --auto: the VDI/VDE 2634-2 artefact in the scan(s)")
+    p.add_argument("--diameter", type=number(gt=0, unit="mm"), default=None, metavar="MM",
+                   help="with --artefact: nominal ball diameter (default: the spec's)")
+    p.add_argument("--distance", type=number(gt=0, unit="mm"), default=None, metavar="MM",
+                   help="with --artefact ball-bar: nominal centre distance (default: the "
+                        "spec's)")
     p.add_argument("--heights", default=None,
                    help="with --auto and no --layout: id=height_mm pairs, e.g. 1=50.8,2=25.4")
+    p.add_argument("--spec", metavar="FILE",
+                   help="acceptance spec (scanqa-spec/1: MPEs and artefact certificates)")
     add_calibration_argument(p, required=False, when=", when CLOUD is a scan")
     add_config_argument(p, required=False)
     add_model_argument(p)
     p.add_argument("--out", required=True, help="output folder (created)")
-    p.add_argument("--margin", type=float, default=1.0, help="edge margin [mm] (default 1)")
-    p.add_argument("--outliers", type=float, default=None, metavar="K",
-                   help="reject points beyond K robust std of the first plane fit")
-    p.add_argument("--tolerance", type=float, default=20.0,
-                   help="tolerance on each height difference [um] (default 20)")
-    p.add_argument("--k", type=float, default=2.0, help="coverage factor (default 2)")
-    p.add_argument("--tile", type=float, default=2.0, metavar="MM",
-                   help="tile size [mm] over which the noise correlation of each block is "
-                        "measured; at least twice the noise's correlation length (default 2)")
+    p.add_argument("--operator", default=None, help="operator's name for the report header")
+    p.add_argument("--notes", default=None, help="notes for the report header")
+    p.add_argument("--pdf", action="store_true", help="also write report.pdf")
+    p.add_argument("--margin", type=number(ge=0, unit="mm"), default=1.0,
+                   help="edge margin of blocks and flats [mm] (default 1)")
+    p.add_argument("--outliers", type=number(gt=0), default=None, metavar="K",
+                   help="gauge blocks: reject points beyond K robust std of the first plane "
+                        "fit (default: no rejection)")
+    p.add_argument("--tolerance", type=number(ge=0, unit="um"), default=20.0,
+                   help="gauge blocks: tolerance on each height difference [um] (default 20)")
+    p.add_argument("--k", type=_coverage, default=None,
+                   help="coverage factor: a number, or welch-satterthwaite for k from each "
+                        "step's effective degrees of freedom (default: the budget file's, "
+                        "else 2; artefacts: 2)")
+    p.add_argument("--budget", default=None, metavar="FILE",
+                   help="gauge blocks: uncertainty budget TOML with the Type B inputs "
+                        "(certificates, temperature, stage scale, flatness of the "
+                        "calibration flat); without it the report says Type B is not "
+                        "included")
+    p.add_argument("--tile", type=number(gt=0, unit="mm"), default=2.0, metavar="MM",
+                   help="tile size [mm] over which the noise correlation is measured; at "
+                        "least twice the noise's correlation length (default 2)")
+    p.add_argument("--max-incidence", type=number(gt=0, unit="deg"), default=70.0,
+                   metavar="DEG",
+                   help="artefacts: drop points seen at more than DEG from their normal "
+                        "(default 70; 90 keeps all)")
+    p.add_argument("--decide-with", choices=("test", "total"), default="test",
+                   help="artefacts: decide with the test uncertainty (artefact only, "
+                        "default) or with U (adds the scanner's own spread)")
     p.set_defaults(func=run)
 
 
-def _load(args: argparse.Namespace) -> tuple[AnnotatedCloud, ScannerConfig | None]:
+def _coverage(text: str) -> float | str:
+    if text == "welch-satterthwaite":
+        return text
+    return number(gt=0)(text)
+
+
+def _load(args: argparse.Namespace) -> tuple[list[tuple[str, AnnotatedCloud]],
+                                             ScannerConfig | None]:
+    config = config_from_args(args) if args.config else None
     if args.calibration:
-        if not args.config:
+        if config is None:
             raise InputError("--calibration needs --config (the config the table was built "
                              "with, or that describes the calibrated scanner)")
-        config = config_from_args(args)
-        scan = decode(args.cloud)
-        cloud = annotate(scan, calibration_from_args(args, config, scan), config,
-                         keep_invalid=True, source=args.cloud)
-        return cloud, config
-    config = config_from_args(args) if args.config else None
-    return read_cloud(args.cloud), config
+        out = []
+        for c in args.cloud:
+            scan = decode(c)
+            out.append((Path(c).name, annotate(scan, calibration_from_args(args, config, scan),
+                                               config, keep_invalid=True, source=c)))
+        return out, config
+    return [(Path(c).stem, read_cloud(c)) for c in args.cloud], config
 
 
 def _heights(args: argparse.Namespace) -> dict[int, float]:
@@ -76,31 +135,86 @@ def _heights(args: argparse.Namespace) -> dict[int, float]:
         raise InputError("--auto needs nominal heights: give --layout or --heights")
     try:
         pairs = [item.split("=") for item in args.heights.split(",")]
-        return {int(k): float(v) for k, v in pairs}
+        heights = {int(k): float(v) for k, v in pairs}
     except ValueError:
-        raise InputError(f"--heights must look like 1=50.8,2=25.4, got {args.heights!r}"
-                         ) from None
+        heights = {}
+    if len(heights) != len(pairs) or not all(math.isfinite(h) and h > 0
+                                              for h in heights.values()):
+        raise InputError(f"--heights must look like 1=50.8,2=25.4 (distinct ids, heights "
+                         f"> 0 mm), got {args.heights!r}")
+    return heights
+
+
+def _header(args, clouds, config, spec):
+    meta = clouds[0][1].metadata
+    cfg = config.to_dict() if config is not None else meta.get("config")
+    source = (args.config + (f"#{args.profile}" if args.profile else "")) if config \
+        else meta.get("config_source", "the cloud's metadata")
+    return build_header(cfg, source, args.calibration, meta.get("table"),
+                        certificate_text(spec),
+                        args.spec, describe_paths(args.cloud), args.operator, args.notes)
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.artefact and not args.auto:
+        raise InputError("--artefact finds the artefact by RANSAC: add --auto, or give an "
+                         "artefact layout with --layout instead")
     if not args.layout and not args.auto:
-        raise InputError("give --layout FILE, or --auto to find the blocks")
-    out = make_out_dir(args.out)
-    cloud, config = _load(args)
+        raise InputError("give --layout FILE, or --auto to find the blocks (or, with "
+                         "--artefact, the artefact)")
+    spec = read_spec(args.spec) if args.spec else None
+    artefacts = bool(args.artefact) or (
+        bool(args.layout) and not args.auto and layout_format(args.layout) == ARTEFACT_FORMAT)
+    out = Path(args.out)
+    clouds, config = _load(args)
+    header = _header(args, clouds, config, spec)
+    if artefacts:
+        return _run_artefacts(args, clouds, spec, header, out)
+    if len(clouds) > 1:
+        raise InputError(f"gauge-block QA takes one cloud, got {len(clouds)}; run it once "
+                         "per scan")
+    return _run_blocks(args, clouds[0][1], config, header, out)
+
+
+def _run_artefacts(args, clouds, spec, header, out) -> int:
+    layout = auto_layout(args.artefact, spec, args.diameter, args.distance) if args.auto \
+        else load_artefact_layout(args.layout)
+    if args.k == "welch-satterthwaite" or args.budget:
+        raise InputError("--k welch-satterthwaite and --budget apply to gauge blocks; the "
+                         "artefact tests take a number for --k (default 2)")
+    options = Options(k=2.0 if args.k is None else args.k, margin_mm=args.margin, tile_mm=args.tile,
+                      max_incidence_deg=args.max_incidence, decide_with=args.decide_with)
+    result = run_artefact_qa(clouds, layout, spec, options)
+    artefact_report.write_outputs(result, out, header, pdf=args.pdf)
+    for row in result.rows():
+        emit(f"{row['scan']} {row['artefact']} {row['quantity']}: E {row['value_um']:+.1f} "
+             f"um, U test {row['U_test_um']:.1f} um, MPE {row['mpe_um']:.1f} um, "
+             f"{row['decision']} (U {row['U_um']:.1f} um)")
+    for note in result.notes:
+        emit(f"note: {note}")
+    v = result.verdict()
+    emit(f"verdict: {v['verdict']} ({v['pass']} pass, {v['fail']} fail, {v['undecided']} "
+         f"undecided, {v['not evaluated']} not evaluated)")
+    emit(f"report: {out / 'report.html'}" + (f" and {out / 'report.pdf'}" if args.pdf else ""))
+    return 0
+
+
+def _run_blocks(args, cloud, config, header, out) -> int:
     layout = detect_blocks(cloud.xyz, _heights(args)) if args.auto else load_layout(args.layout)
     result = run_qa(cloud, layout, config=config, margin_mm=args.margin,
                     outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
-                    tile_mm=args.tile)
-    info = qa_report.write_outputs(result, out)
+                    tile_mm=args.tile,
+                    budget=load_budget(args.budget) if args.budget else None)
+    info = qa_report.write_outputs(result, out, header, pdf=args.pdf)
     for b in result.blocks:
-        print(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
-              f"predicted {b.predicted_std_um:.1f} um, {b.status}")
+        emit(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
+             f"predicted {b.predicted_std_um:.1f} um, {b.status}")
     for s in result.steps:
-        print(f"step {s.block_a}-{s.block_b}: error {s.error_um:+.1f} um, U {s.expanded_um:.1f}"
-              f" um, {s.decision}")
+        emit(f"step {s.block_a}-{s.block_b}: error {s.error_um:+.1f} um, U {s.expanded_um:.1f}"
+             f" um, {s.decision}")
     for note in result.notes:
-        print(f"note: {note}")
+        emit(f"note: {note}")
     frac = info["fraction_within_U"]
-    print(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of steps inside the "
-                                              "volume within U)" if frac is not None else ""))
+    emit(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of the evaluated steps "
+                                             "within U)" if frac is not None else ""))
     return 0

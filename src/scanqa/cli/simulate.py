@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import json
+import math
+from pathlib import Path
 
-from scanqa.cli.common import add_config_argument, config_from_args, float_list
-from scanqa.errors import InputError
+from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list, number
 
 _FMT = argparse.RawDescriptionHelpFormatter
 
@@ -20,8 +20,10 @@ def _positions(text: str) -> list[float]:
     except ValueError:
         raise argparse.ArgumentTypeError(
             f"expected START:STOP:STEP or a comma-separated list, got {text!r}") from None
-    if not step > 0 or stop < start or (stop - start) / step > 10000:
-        raise argparse.ArgumentTypeError(f"need STEP > 0 and STOP >= START, got {text!r}")
+    if not (math.isfinite(start) and math.isfinite(stop) and step > 0 and stop >= start
+            and (stop - start) / step <= 10000):
+        raise argparse.ArgumentTypeError(f"need finite numbers, STEP > 0, STOP >= START and "
+                                         f"at most 10000 positions, got {text!r}")
     n = int((stop - start) / step + 1e-9) + 1
     return [round(start + i * step, 9) for i in range(n)]
 
@@ -39,6 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  scanqa simulate camera-sweep --config calib/paper_scanner.toml --out cam\n"
                "  scanqa simulate calibration-sweep --config calib/paper_scanner.toml "
                "--positions 420:480:2 --repeats 2 --out sweep\n"
+               "  scanqa simulate ball-bar --config sample_data/sample_scanner.toml#sample "
+               "--repeats 5 --out bar   # the 7 positions\n"
                "  scanqa simulate mesh --mesh part.stl --config calib/paper_scanner.toml "
                "--out part")
     p.add_argument("experiment", metavar="EXPERIMENT",
@@ -47,36 +51,43 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", required=True, metavar="DIR", help="output folder")
     p.add_argument("--positions", type=_positions, default=None, metavar="LIST",
                    help="stage positions or device offsets [mm]: START:STOP:STEP or a,b,c "
-                        "(write --positions=-30:30:2 when it starts with -)")
-    p.add_argument("--repeats", type=int, default=None, help="scans per position")
+                        "(write --positions=-30:30:2 when it starts with -); sphere and "
+                        "flat: Z of the centre [mm]; ball-bar: position numbers 1-7")
+    p.add_argument("--repeats", type=number(int, ge=1), default=None,
+                   help="scans per position")
     p.add_argument("--periods", type=float_list, default=None,
                    help="fine fringe periods [projector px] (default: the working period)")
     p.add_argument("--mesh", default=None, metavar="FILE", help="STL/PLY/OBJ for 'mesh'")
-    p.add_argument("--seed", type=int, default=None, help="override simulator.seed")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--seed", type=number(int, ge=0), default=None,
+                   help="override simulator.seed")
     p.set_defaults(func=run_simulate)
 
     p = sub.add_parser(
         "characterize", formatter_class=_FMT,
-        help="fit sigma_p, gamma and the model variant to a simulated or measured sweep",
-        description="Decode a camera or projector sweep, fit a low-order surface to the "
-                    "flat's x_p map per position, compare the residual std and the "
-                    "attenuation with the model (Figs. 3/4), fit sigma_p and gamma for "
-                    "each reading of the model, and report the one the data supports. "
-                    "Given a camera and a projector sweep, one sigma_p and gamma are "
-                    "fitted to both, and the 'mixed' reading (camera power, projector "
-                    "amplitude) is among the candidates.",
-        epilog="examples:\n  scanqa characterize cam --config calib/paper_scanner.toml "
-               "--out cam/characterize\n  scanqa characterize cam proj --config "
-               "calib/paper_scanner.toml --out both")
-    p.add_argument("sweep", metavar="SWEEP_DIR", nargs="+",
-                   help="folder(s) written by scanqa simulate (a camera and/or projector "
-                        "sweep)")
-    add_config_argument(p)
+        help="fit the noise model to a simulated or measured sweep and say what the data "
+             "identify",
+        description="Decode a camera, projector or calibration sweep, fit a low-order "
+                    "surface to the flat's x_p map per position, compare the residual std "
+                    "and the attenuation with the model (Figs. 3/4), and fit every variant "
+                    "of the model (the paper's readings and the two-source model). Each "
+                    "parameter is reported as fitted, bounded or not identifiable with its "
+                    "95 % profile-likelihood interval; the variant that predicts held-out "
+                    "positions best is selected and compared with a constant. Several "
+                    "sweeps are fitted together.",
+        epilog="The scanner config defaults to the one recorded in the sweep's manifest; a "
+               "--config given must have the same camera and projector.\n\n"
+               "examples:\n  scanqa characterize cam --out cam/characterize\n"
+               "  scanqa characterize cam proj --config calib/paper_scanner.toml --out both\n"
+               "  scanqa characterize sweep/sweep.toml   # a rigid scanner's calibration sweep")
+    p.add_argument("sweep", metavar="SWEEP", nargs="+",
+                   help="folder(s) written by scanqa simulate camera-sweep/projector-sweep, "
+                        "or a calibration sweep's sweep.toml (both devices defocus)")
+    add_config_argument(p, required=False)
     p.add_argument("--out", default=None, metavar="DIR",
                    help="folder for summary.json and plots (default: SWEEP_DIR/characterize)")
-    p.add_argument("--min-attenuation", type=float, default=0.49,
-                   help="fit where the model attenuation is at least this [-] (default 0.49)")
+    p.add_argument("--min-attenuation", type=number(gt=0), default=0.49,
+                   help="fit where the moving devices' model attenuation is at least this "
+                        "[-] (default 0.49)")
     p.set_defaults(func=run_characterize)
 
 
@@ -85,23 +96,27 @@ def run_simulate(args: argparse.Namespace) -> int:
 
     config = config_from_args(args)
     if args.seed is not None:
-        if args.seed < 0:
-            raise InputError(f"--seed must be >= 0, got {args.seed}")
         config = config.replace_simulator(seed=args.seed)
     manifest = run_experiment(args.experiment, config, args.out, positions=args.positions,
                               repeats=args.repeats, periods=args.periods, mesh=args.mesh,
-                              progress=not args.quiet)
-    print(f"wrote {manifest}")
+                              progress=True)
+    emit(f"wrote {manifest}")
     return 0
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.characterization import characterize_sweeps
+    from scanqa.characterization import characterize_sweeps, sweep_config
+    from scanqa.demo import characterization_lines
     from scanqa.report.characterization import write_characterization
 
-    config = config_from_args(args)
+    config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
     result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
-    out = write_characterization(result, args.out or f"{args.sweep[0]}/characterize", config)
-    print(json.dumps(result.summary(), indent=1))
-    print(f"wrote {out}")
+    first = Path(args.sweep[0])
+    default = (first.parent if first.suffix == ".toml" else first) / "characterize"
+    out = write_characterization(result, args.out or default, config)
+    summary = result.summary()
+    emit(summary["verdict"])
+    for line in characterization_lines(summary):
+        emit(f"  {line}")
+    emit(f"wrote {out}")
     return 0

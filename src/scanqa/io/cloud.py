@@ -8,7 +8,9 @@ metadata. Coordinates are millimetres in memory whatever the file stores.
 
 from __future__ import annotations
 
+import importlib.util
 import json
+import logging
 import os
 from pathlib import Path
 
@@ -20,6 +22,8 @@ from scanqa.io.atomic import atomic_path
 
 #: First-line prefix of a CSV point table that carries scanqa's metadata.
 CSV_META = "# scanqa-meta "
+
+log = logging.getLogger(__name__)
 
 
 def _frame(xyz: np.ndarray, attributes: dict):
@@ -38,16 +42,41 @@ def _write_csv(path: Path, xyz: np.ndarray, attributes: dict, metadata: dict | N
     return path
 
 
+#: Parquet engines pandas can use; scanqa does not depend on one (the ``parquet`` extra
+#: installs pyarrow).
+PARQUET_ENGINES = ("pyarrow", "fastparquet")
+
+
+def parquet_engine() -> str | None:
+    """The first installed Parquet engine, or None."""
+    return next((e for e in PARQUET_ENGINES if importlib.util.find_spec(e) is not None), None)
+
+
+def check_format(path: str | os.PathLike, write: bool = True) -> Path:
+    """Refuse, before any work, a cloud file scanqa cannot write (or read).
+
+    Raises
+    ------
+    InputError
+        An unknown suffix, or ``.parquet`` without a Parquet engine installed.
+    """
+    path = Path(path)
+    known = WRITERS if write else READERS
+    if path.suffix.lower() not in known:
+        raise InputError(f"cannot {'write' if write else 'read'} {path}: unknown suffix "
+                         f"{path.suffix!r} (use one of {', '.join(known)})")
+    if path.suffix.lower() == ".parquet" and parquet_engine() is None:
+        raise InputError(f"cannot {'write' if write else 'read'} {path}: Parquet needs pyarrow "
+                         "(pip install 'scanqa[parquet]'); or use .csv, .ply or .las")
+    return path
+
+
 def _write_parquet(path: Path, xyz: np.ndarray, attributes: dict,
                    metadata: dict | None) -> Path:
     frame = _frame(xyz, attributes)
     frame.attrs["scanqa"] = metadata or {}
     with atomic_path(path) as tmp:
-        try:
-            frame.to_parquet(tmp, index=False)
-        except ImportError as err:
-            raise InputError(f"Parquet export needs pyarrow or fastparquet ({err}); "
-                             "install one or write .csv") from None
+        frame.to_parquet(tmp, index=False, engine=parquet_engine())
     return path
 
 
@@ -69,12 +98,21 @@ def _read_table(path: Path) -> tuple[np.ndarray, dict, dict]:
             metadata = dict(frame.attrs.get("scanqa", {}))
     except (OSError, ValueError, ImportError) as err:
         raise InputError(f"cannot read point table {path}: {err}") from None
+    if not isinstance(metadata, dict):
+        raise InputError(f"{path}: the '{CSV_META.strip()}' line must hold a JSON object")
     missing = {"x_mm", "y_mm", "z_mm"} - set(frame.columns)
     if missing:
         raise InputError(f"{path}: missing columns {sorted(missing)}")
-    xyz = frame[["x_mm", "y_mm", "z_mm"]].to_numpy(float)
-    return xyz, {c: frame[c].to_numpy() for c in frame.columns if c not in
-                 ("x_mm", "y_mm", "z_mm")}, metadata
+    columns = {}
+    for c in frame.columns:
+        values = pd.to_numeric(frame[c], errors="coerce").to_numpy(float)
+        if c in ("x_mm", "y_mm", "z_mm") or np.isfinite(values).any() \
+                or not frame[c].notna().any():
+            columns[str(c)] = values
+        else:
+            log.info(f"{path}: column {c!r} is not numeric; left out")
+    xyz = np.stack([columns.pop(c) for c in ("x_mm", "y_mm", "z_mm")], -1)
+    return xyz, columns, metadata
 
 
 WRITERS = {".ply": ply.write_ply, ".las": las.write_las, ".csv": _write_csv,
@@ -98,22 +136,15 @@ def write_cloud(path: str | os.PathLike, xyz: np.ndarray, attributes: dict,
     metadata : dict, optional
         Plain JSON carried in the file.
     """
-    path = Path(path)
-    writer = WRITERS.get(path.suffix.lower())
-    if writer is None:
-        raise InputError(f"cannot write {path}: unknown suffix {path.suffix!r} "
-                         f"(use one of {', '.join(WRITERS)})")
-    return writer(path, xyz, attributes, metadata)
+    path = check_format(path)
+    return WRITERS[path.suffix.lower()](path, xyz, attributes, metadata)
 
 
 def read_cloud(path: str | os.PathLike) -> tuple[np.ndarray, dict, dict]:
     """Read a cloud written by :func:`write_cloud`: (xyz (n, 3) [mm], attributes,
     metadata)."""
-    path = Path(path)
-    reader = READERS.get(path.suffix.lower())
-    if reader is None:
-        raise InputError(f"cannot read {path}: unknown suffix {path.suffix!r} "
-                         f"(use one of {', '.join(READERS)})")
-    if not path.exists():
-        raise InputError(f"point cloud {path} does not exist")
-    return reader(path)
+    path = check_format(path, write=False)
+    if not path.is_file():
+        raise InputError(f"point cloud {path} does not exist" if not path.exists() else
+                         f"point cloud {path} is a folder, not a file")
+    return READERS[path.suffix.lower()](path)

@@ -100,4 +100,6 @@ def read_las(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]
             except (UnicodeDecodeError, json.JSONDecodeError) as err:
                 raise InputError(f"{path}: scanqa metadata record is not JSON ({err})"
                                  ) from None
+    if not isinstance(metadata, dict):
+        raise InputError(f"{path}: scanqa metadata record must be a JSON object")
     return xyz, extra, metadata

@@ -25,14 +25,15 @@ Writes are atomic; a file of another ``format`` version is refused.
 from __future__ import annotations
 
 import json
+import math
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
+from scanqa.io.npzfile import load_npz
 
 #: Value of the ``format`` entry written and accepted.
 FORMAT = "scanqa-phasemap/1"
@@ -102,15 +103,10 @@ def read_phase_file(path: str | os.PathLike) -> tuple[dict, dict]:
         entry.
     """
     p = Path(path)
-    try:
-        with np.load(p, allow_pickle=False) as npz:
-            data = {name: npz[name] for name in npz.files}
-    except FileNotFoundError:
-        raise InputError(f"phase map {p} does not exist (run 'scanqa decode' first)") from None
-    except (OSError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise InputError(f"cannot read phase map {p}: {err} (is it a scanqa phase.npz?)"
-                         ) from None
-    fmt = str(data.get("format", "(none)"))
+    if not p.exists():
+        raise InputError(f"phase map {p} does not exist (run 'scanqa decode' first)")
+    data = load_npz(p, "phase map")
+    fmt = str(data["format"]) if "format" in data and data["format"].ndim == 0 else "(none)"
     if fmt != FORMAT:
         raise InputError(f"phase map {p} has format {fmt!r}; this scanqa reads {FORMAT!r} "
                          "(decode the images again with this version)")
@@ -118,10 +114,39 @@ def read_phase_file(path: str | os.PathLike) -> tuple[dict, dict]:
     if missing:
         raise InputError(f"phase map {p} lacks {', '.join(missing)} (file truncated or "
                          "not written by scanqa)")
+    return _checked_arrays(data, p), _checked_scalars(data, p)
+
+
+def _checked_arrays(data: dict, p: Path) -> dict:
+    """The per-pixel arrays: 2-D, numeric, all of one shape."""
+    shape = data["xp"].shape
+    for k in ARRAYS:
+        a = data[k]
+        if a.ndim != 2 or a.shape != shape or a.dtype.kind not in "buif":
+            raise InputError(f"phase map {p}: {k} must be a 2-D array of the shape of xp "
+                             f"{shape} holding numbers, got {a.dtype} {a.shape} (damaged "
+                             "file)")
+    return {k: data[k] for k in ARRAYS}
+
+
+def _checked_scalars(data: dict, p: Path) -> dict:
+    """period_px, orientation, projector_width_px and provenance, checked."""
+    def scalar(key: str, kinds: str):
+        a = data[key]
+        if a.ndim != 0 or a.dtype.kind not in kinds:
+            raise InputError(f"phase map {p}: {key} must be a scalar of kind {kinds!r}, got "
+                             f"{a.dtype} {a.shape} (damaged file)")
+        return a[()]
+
+    period, width = float(scalar("period_px", "iuf")), scalar("projector_width_px", "iuf")
+    if not math.isfinite(period) or not float(width).is_integer() or width < 0:
+        raise InputError(f"phase map {p}: period_px {period!r} or projector_width_px "
+                         f"{width!r} is not a valid value (damaged file)")
     try:
-        provenance = json.loads(str(data["provenance"]))
+        provenance = json.loads(str(scalar("provenance", "U")))
     except json.JSONDecodeError as err:
         raise InputError(f"phase map {p}: provenance is not valid JSON ({err})") from None
-    scalars = {"period_px": float(data["period_px"]), "orientation": str(data["orientation"]),
-               "projector_width_px": int(data["projector_width_px"]), "provenance": provenance}
-    return {k: data[k] for k in ARRAYS}, scalars
+    if not isinstance(provenance, dict):
+        raise InputError(f"phase map {p}: provenance must be a JSON object")
+    return {"period_px": period, "orientation": str(scalar("orientation", "U")),
+            "projector_width_px": int(width), "provenance": provenance}

@@ -11,8 +11,10 @@ reader (``open3d.t.io.read_point_cloud``) loads the same properties under their 
 from __future__ import annotations
 
 import json
+import logging
 import os
 import re
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -23,6 +25,11 @@ from scanqa.io.atomic import atomic_path
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
 RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
 PREFIX = "scalar_"
+#: Normals and colours of clouds from Open3D, CloudCompare and others: read and written
+#: under their own names (and types), so that those tools show them as such.
+STANDARD_PROPERTIES = ("nx", "ny", "nz", "red", "green", "blue", "alpha")
+
+log = logging.getLogger(__name__)
 #: Start of the header comments that carry scanqa's metadata as JSON, in pieces of at
 #: most :data:`META_CHUNK` characters: PLY readers (rply in Open3D and CloudCompare)
 #: abort on header lines longer than ~1 kB.
@@ -31,7 +38,10 @@ META_CHUNK = 160
 
 
 def check_attribute_name(name: str) -> None:
-    """Raise if ``name`` would not survive CloudCompare's PLY loader as itself."""
+    """Raise if ``name`` would not survive CloudCompare's PLY loader as itself (the
+    normals and colours of :data:`STANDARD_PROPERTIES` are what they claim to be)."""
+    if name in STANDARD_PROPERTIES:
+        return
     low = f"{PREFIX}{name}".lower()
     for bad in RESERVED_SUBSTRINGS:
         if bad in low:
@@ -118,7 +128,8 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
     xyz : (n, 3) float
         Coordinates [mm], written as double.
     attributes : dict of str to (n,) array
-        Per-point values, written as float properties ``scalar_<name>``.
+        Per-point values, written as float properties ``scalar_<name>``; normals and
+        colours (:data:`STANDARD_PROPERTIES`) under their own names and types.
     metadata : dict, optional
         Plain JSON written as header lines ``comment scanqa-meta <piece>`` (the
         pieces concatenate to the JSON text); readers that do not know it skip them as
@@ -141,15 +152,14 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
         check_attribute_name(name)
         if values.shape != (n,):
             raise InputError(f"attribute {name!r} has shape {values.shape}, expected ({n},)")
-    dtype = vertex_dtype(attributes)
+    dtype = _file_dtype(attributes)
     header = ["ply", "format binary_little_endian 1.0", "comment scanqa point cloud, mm"]
     if metadata:
         text = json.dumps(metadata, allow_nan=False, separators=(",", ":"))
         header += [f"{META_COMMENT} {text[i:i + META_CHUNK]}"
                    for i in range(0, len(text), META_CHUNK)]
     header.append(f"element vertex {n}")
-    header += [f"property {'double' if dtype[f] == np.dtype('<f8') else 'float'} {f}"
-               for f in dtype.names]
+    header += [f"property {_TYPE_NAMES[dtype[f].str[1:]]} {f}" for f in dtype.names]
     header.append("end_header")
     rec = _records_of(xyz, attributes, dtype)
     with atomic_path(path, suffix=".ply") as tmp, open(tmp, "wb") as fh:
@@ -159,6 +169,27 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
         else:
             _write_records(fh, xyz, attributes, dtype)
     return Path(path)
+
+
+#: PLY type name of each numpy type code written.
+_TYPE_NAMES = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4": "int",
+               "u4": "uint", "f4": "float", "f8": "double"}
+
+
+def _field(name: str) -> str:
+    """The PLY property of an attribute: ``scalar_<name>``, or a standard name as is."""
+    return name if name in STANDARD_PROPERTIES else PREFIX + name
+
+
+def _file_dtype(attributes: dict[str, np.ndarray]) -> np.dtype:
+    """Records as written: :func:`vertex_dtype`, with normals and colours in their own
+    type (float32 when theirs is not a PLY type)."""
+    fields = [("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
+    for name, values in attributes.items():
+        code = values.dtype.str[1:] if values.dtype.kind in "uif" else ""
+        keep = name in STANDARD_PROPERTIES and code in _TYPE_NAMES
+        fields.append((_field(name), "<" + code if keep else "<f4"))
+    return np.dtype(fields)
 
 
 def _address(a: np.ndarray) -> int:
@@ -175,7 +206,7 @@ def _records_of(xyz: np.ndarray, attributes: dict[str, np.ndarray], dtype: np.dt
             and xyz.strides == (dtype.itemsize, 8) and _address(xyz) == _address(rec)):
         return None
     for name, values in attributes.items():
-        offset = dtype.fields[PREFIX + name][1]
+        offset = dtype.fields[_field(name)][1]
         if (values.dtype != np.dtype("<f4") or values.strides != (dtype.itemsize,)
                 or _address(values) != _address(rec) + offset):
             return None
@@ -195,7 +226,7 @@ def _write_records(fh, xyz: np.ndarray, attributes: dict[str, np.ndarray],
         b = a + part.size
         part["x"], part["y"], part["z"] = xyz[a:b, 0], xyz[a:b, 1], xyz[a:b, 2]
         for name, values in attributes.items():
-            part[PREFIX + name] = values[a:b]
+            part[_field(name)] = values[a:b]
         part.tofile(fh)
 
 
@@ -203,69 +234,208 @@ _PLY_TYPES = {"char": "i1", "uchar": "u1", "short": "i2", "ushort": "u2", "int":
               "uint": "u4", "float": "f4", "double": "f8", "int8": "i1", "uint8": "u1",
               "int16": "i2", "uint16": "u2", "int32": "i4", "uint32": "u4",
               "float32": "f4", "float64": "f8"}
+_FORMATS = {"binary_little_endian": "<", "binary_big_endian": ">", "ascii": "ascii"}
+#: Longest header line and whole header read before giving up (a binary file without
+#: newlines would otherwise be read whole) [bytes].
+MAX_HEADER_LINE, MAX_HEADER = 4096, 1 << 20
+
+
+@dataclass
+class _Element:
+    name: str
+    count: int
+    props: list = field(default_factory=list)  # (name, numpy code or None for a list)
 
 
 def read_ply(path: str | os.PathLike
              ) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
-    """Read a binary little-endian PLY vertex element (as written by :func:`write_ply`).
+    """Read the vertices of a PLY file (binary either endianness, or ascii).
+
+    Other elements (faces of a mesh) are skipped. Properties other than x, y, z are
+    returned as attributes: ``scalar_<name>`` as ``<name>``; normals and colours
+    (:data:`STANDARD_PROPERTIES`) under their own names, so that they are written back
+    as such; names that would not survive CloudCompare as themselves are left out (and
+    logged).
 
     Returns
     -------
     xyz : (n, 3) float64
         Coordinates [mm].
     attributes : dict
-        Every other vertex property, ``scalar_`` prefix removed.
+        Per-point attributes, as described above.
     metadata : dict
         The ``scanqa-meta`` header comment, or {} when there is none.
+
+    Raises
+    ------
+    InputError
+        When the file is unreadable, not a PLY, has a malformed header, declares more
+        vertices than it holds, or has no x, y, z.
     """
     path = Path(path)
     try:
+        size = path.stat().st_size
         with open(path, "rb") as fh:
-            fields, n, metadata = _read_header(fh, path)
-            data = np.fromfile(fh, dtype=fields, count=n)
+            fmt, elements, metadata = _read_header(fh, path)
+            data = _read_vertices(fh, fmt, elements, size - fh.tell(), path)
     except OSError as err:
-        raise InputError(f"cannot read point cloud {path}: {err.strerror}") from None
-    if data.size != n:
-        raise InputError(f"{path}: truncated PLY ({data.size} of {n} vertices)")
+        raise InputError(f"cannot read point cloud {path}: {err.strerror or err}") from None
     names = data.dtype.names or ()
     if not {"x", "y", "z"} <= set(names):
-        raise InputError(f"{path}: PLY has no x, y, z vertex properties")
+        raise InputError(f"{path}: PLY vertices have no x, y, z properties (found "
+                         f"{', '.join(names) or 'none'})")
     xyz = np.stack([data["x"], data["y"], data["z"]], -1).astype(float)
-    attrs = {(k[len(PREFIX):] if k.startswith(PREFIX) else k): np.asarray(data[k])
-             for k in names if k not in ("x", "y", "z")}
-    return xyz, attrs, metadata
+    return xyz, _attributes(data, path), metadata
 
 
-def _read_header(fh, path: Path) -> tuple[list, int, dict]:
-    if fh.readline().strip() != b"ply":
-        raise InputError(f"{path} is not a PLY file")
-    fields, n, in_vertex, meta = [], 0, False, []
-    while True:
-        line = fh.readline()
+def _attributes(data: np.ndarray, path: Path) -> dict[str, np.ndarray]:
+    """The vertex properties other than x, y, z under the names scanqa gives them."""
+    attrs, left_out = {}, []
+    for prop in data.dtype.names:
+        if prop in ("x", "y", "z"):
+            continue
+        name = prop[len(PREFIX):] if prop.startswith(PREFIX) else prop
+        try:
+            check_attribute_name(name)
+        except InputError:
+            left_out.append(prop)
+            continue
+        if name in attrs:
+            left_out.append(prop)
+            continue
+        values = data[prop]
+        attrs[name] = values.astype(values.dtype.newbyteorder("="), copy=False)
+    if left_out:
+        log.info(f"{path}: vertex properties {', '.join(left_out)} left out (names that "
+                 "CloudCompare would read as something else, or repeated)")
+    return attrs
+
+
+def _read_header(fh, path: Path) -> tuple[str, list[_Element], dict]:
+    """(format, elements, metadata) of a PLY header; the file is left at the data."""
+    if fh.readline(MAX_HEADER_LINE).rstrip(b"\r\n") != b"ply":
+        raise InputError(f"{path} is not a PLY file (no 'ply' first line)")
+    fmt, elements, meta = None, [], []
+    while fh.tell() < MAX_HEADER:
+        line = fh.readline(MAX_HEADER_LINE)
         if not line:
             raise InputError(f"{path}: PLY header has no end_header")
-        text = line.decode("ascii", "replace")
+        if not line.endswith(b"\n") and len(line) == MAX_HEADER_LINE:
+            raise InputError(f"{path}: PLY header line longer than {MAX_HEADER_LINE} bytes")
+        text = line.decode("ascii", "replace").rstrip("\r\n")
         if text.startswith(META_COMMENT + " "):
-            meta.append(text[len(META_COMMENT) + 1:].rstrip("\r\n"))
+            meta.append(text[len(META_COMMENT) + 1:])
             continue
         parts = text.split()
         if not parts or parts[0] in ("comment", "obj_info"):
             continue
-        if parts[0] == "format" and parts[1] != "binary_little_endian":
-            raise InputError(f"{path}: only binary_little_endian PLY is supported, got "
-                             f"{parts[1]}")
-        if parts[0] == "element":
-            in_vertex = parts[1] == "vertex"
-            if in_vertex:
-                n = int(parts[2])
-            elif n:
-                raise InputError(f"{path}: elements after 'vertex' are not supported")
-        elif parts[0] == "property" and in_vertex:
-            if parts[1] == "list" or parts[1] not in _PLY_TYPES:
-                raise InputError(f"{path}: unsupported vertex property {' '.join(parts[1:])}")
-            fields.append((parts[2], "<" + _PLY_TYPES[parts[1]]))
-        elif parts[0] == "end_header":
-            return fields, n, _metadata("".join(meta), path) if meta else {}
+        if parts[0] == "end_header":
+            if fmt is None:
+                raise InputError(f"{path}: PLY header has no format line")
+            return fmt, elements, _metadata("".join(meta), path) if meta else {}
+        fmt = _header_line(parts, fmt, elements, path)
+    raise InputError(f"{path}: PLY header longer than {MAX_HEADER} bytes")
+
+
+def _header_line(parts: list[str], fmt: str | None, elements: list[_Element],
+                 path: Path) -> str | None:
+    """Apply one format/element/property line; returns the format."""
+    where = f"{path}: PLY header line '{' '.join(parts)}'"
+    if parts[0] == "format":
+        if len(parts) != 3 or parts[1] not in _FORMATS:
+            raise InputError(f"{where}: expected 'format FORMAT 1.0' with FORMAT one of "
+                             f"{', '.join(_FORMATS)}")
+        return _FORMATS[parts[1]]
+    if parts[0] == "element":
+        if len(parts) != 3 or not parts[2].isdigit():
+            raise InputError(f"{where}: expected 'element NAME COUNT' with a whole "
+                             "number COUNT")
+        elements.append(_Element(parts[1], int(parts[2])))
+    elif parts[0] == "property":
+        _property(parts, elements, where)
+    else:
+        raise InputError(f"{where}: unknown keyword {parts[0]!r}")
+    return fmt
+
+
+def _property(parts: list[str], elements: list[_Element], where: str) -> None:
+    if not elements:
+        raise InputError(f"{where}: a property before any element")
+    if len(parts) == 5 and parts[1] == "list" and parts[2] in _PLY_TYPES \
+            and parts[3] in _PLY_TYPES:
+        name, code = parts[4], None
+    elif len(parts) == 3 and parts[1] in _PLY_TYPES:
+        name, code = parts[2], _PLY_TYPES[parts[1]]
+    else:
+        raise InputError(f"{where}: expected 'property TYPE NAME' or 'property list "
+                         f"COUNT_TYPE ITEM_TYPE NAME' with TYPE one of "
+                         f"{', '.join(sorted(set(_PLY_TYPES)))}")
+    element = elements[-1]
+    if any(name == p[0] for p in element.props):
+        raise InputError(f"{where}: property {name!r} appears twice in element "
+                         f"{element.name!r}")
+    element.props.append((name, code))
+
+
+def _read_vertices(fh, fmt: str, elements: list[_Element], remaining: int,
+                   path: Path) -> np.ndarray:
+    """The vertex records; earlier elements are skipped."""
+    for element in elements:
+        fixed = all(code is not None for _, code in element.props)
+        if element.name == "vertex":
+            if not fixed:
+                raise InputError(f"{path}: list properties in the vertex element are not "
+                                 "supported")
+            if fmt == "ascii":
+                return _read_ascii(fh, element, remaining, path)
+            dtype = np.dtype([(name, fmt + code) for name, code in element.props])
+            need = element.count * dtype.itemsize
+            if need > remaining:
+                raise InputError(f"{path}: truncated PLY: the header declares "
+                                 f"{element.count} vertices of {dtype.itemsize} bytes "
+                                 f"({need} bytes) but {remaining} bytes follow it")
+            return np.fromfile(fh, dtype=dtype, count=element.count)
+        if not fixed:
+            raise InputError(f"{path}: element {element.name!r} with list properties "
+                             "before the vertices is not supported")
+        remaining -= _skip(fh, fmt, element, remaining, path)
+    raise InputError(f"{path}: PLY has no vertex element")
+
+
+def _skip(fh, fmt: str, element: _Element, remaining: int, path: Path) -> int:
+    """Skip the records of an element before the vertices; returns the bytes skipped."""
+    if fmt == "ascii":
+        start = fh.tell()
+        for _ in range(element.count):
+            if not fh.readline():
+                raise InputError(f"{path}: truncated PLY in element {element.name!r}")
+        return fh.tell() - start
+    size = element.count * sum(np.dtype(code).itemsize for _, code in element.props)
+    if size > remaining:
+        raise InputError(f"{path}: truncated PLY in element {element.name!r}")
+    fh.seek(size, os.SEEK_CUR)
+    return size
+
+
+def _read_ascii(fh, element: _Element, remaining: int, path: Path) -> np.ndarray:
+    """Vertices of an ascii PLY as float64 records."""
+    width = len(element.props)
+    if element.count * 2 * width > remaining:  # each value takes 2 bytes at least
+        raise InputError(f"{path}: truncated PLY: the header declares {element.count} "
+                         f"vertices of {width} values but only {remaining} bytes follow it")
+    try:
+        values = np.loadtxt(fh, dtype=float, max_rows=element.count, ndmin=2)
+    except ValueError as err:
+        raise InputError(f"{path}: ascii PLY vertices are not numbers ({err})") from None
+    if values.shape != (element.count, width) and element.count:
+        raise InputError(f"{path}: ascii PLY holds {values.shape[0]} vertices of "
+                         f"{values.shape[1]} values, the header declares {element.count} "
+                         f"of {width}")
+    dtype = np.dtype([(name, "f8") for name, _ in element.props])
+    out = np.empty(element.count, dtype)
+    for k, (name, _) in enumerate(element.props):
+        out[name] = values[:, k] if element.count else []
+    return out
 
 
 def _metadata(text: str, path: Path) -> dict:

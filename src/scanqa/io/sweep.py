@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.errors import InputError
+from scanqa.io.npzfile import load_npz
 from scanqa.io.tomlfile import read_toml
 
 FORMAT = "scanqa-sweep/1"
@@ -153,6 +154,8 @@ def _target(path: Path, table, positions: tuple[SweepPosition, ...]) -> dict | N
 
 def _position(path: Path, i: int, table: dict) -> SweepPosition:
     where = f"position {i + 1}"
+    if not isinstance(table, dict):
+        raise _err(path, f"{where} must be a [[position]] table, got {table!r}")
     unknown = sorted(set(table) - set(_POS))
     if unknown:
         raise _err(path, f"{where}: unknown key {unknown[0]!r} (known: {', '.join(_POS)})")
@@ -195,11 +198,12 @@ def _check_order(path: Path, positions: tuple[SweepPosition, ...]) -> None:
 
 def read_lateral(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
     """The lateral maps X, Y [mm] per pixel of a marked target (arrays ``X``, ``Y``)."""
-    try:
-        with np.load(path, allow_pickle=False) as data:
-            return np.asarray(data["X"], float), np.asarray(data["Y"], float)
-    except (OSError, KeyError, ValueError) as err:
-        raise InputError(f"{path}: cannot read lateral arrays X, Y ({err})") from None
+    data = load_npz(path, "lateral map", keys=("X", "Y"))
+    x, y = data.get("X"), data.get("Y")
+    if x is None or y is None or x.ndim != 2 or x.shape != y.shape \
+            or x.dtype.kind not in "iuf" or y.dtype.kind not in "iuf":
+        raise InputError(f"{path}: needs 2-D numeric arrays X and Y of one shape [mm]")
+    return np.asarray(x, float), np.asarray(y, float)
 
 
 # ------------------------------------------------------------------- generating one

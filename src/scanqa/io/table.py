@@ -9,13 +9,13 @@ from __future__ import annotations
 
 import json
 import os
-import zipfile
 from pathlib import Path
 
 import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
+from scanqa.io.npzfile import load_npz
 
 #: Value of the ``format`` key this version writes and reads.
 FORMAT = "scanqa-table/2"
@@ -52,21 +52,57 @@ def read_table_file(path: str | os.PathLike) -> tuple[dict, dict]:
     InputError
         When the file is missing, unreadable, of another format version or incomplete.
     """
+    path = Path(path)
+    if not path.exists():
+        raise InputError(f"calibration table {path} does not exist")
+    data = load_npz(path, "calibration table")
     try:
-        with np.load(path, allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"][()]))
-            if not isinstance(meta, dict) or meta.get("format") != FORMAT:
-                found = meta.get("format") if isinstance(meta, dict) else None
-                raise InputError(f"{path}: table format {found!r} is not supported by this "
-                                 f"scanqa (reads {FORMAT!r}); rebuild it with 'scanqa "
-                                 "calibrate'")
-            arrays = {k: data[k] for k in ARRAYS}
-    except FileNotFoundError:
-        raise InputError(f"calibration table {path} does not exist") from None
-    except (OSError, KeyError, ValueError, EOFError, zipfile.BadZipFile) as err:
-        raise InputError(f"{path} is not a scanqa calibration table ({err})") from None
-    missing = [k for k in _META if k not in meta]
+        meta = json.loads(str(data["meta"][()])) if data.get("meta") is not None else None
+    except (json.JSONDecodeError, IndexError) as err:
+        raise InputError(f"{path}: table metadata is not JSON ({err}); rebuild it") from None
+    if not isinstance(meta, dict) or meta.get("format") != FORMAT:
+        found = meta.get("format") if isinstance(meta, dict) else None
+        raise InputError(f"{path}: table format {found!r} is not supported by this "
+                         f"scanqa (reads {FORMAT!r}); rebuild it with 'scanqa calibrate'")
+    missing = [k for k in _META if k not in meta] + [k for k in ARRAYS if k not in data]
     if missing:
-        raise InputError(f"{path}: table metadata lacks {', '.join(missing)} (file not "
-                         "written by scanqa calibrate, or damaged); rebuild it")
+        raise InputError(f"{path}: table lacks {', '.join(missing)} (file not written by "
+                         "scanqa calibrate, or damaged); rebuild it")
+    _check_meta(meta, path)
+    arrays = {k: data[k] for k in ARRAYS}
+    _check_arrays(arrays, meta, path)
     return arrays, meta
+
+
+#: Largest camera side a table may declare [px].
+MAX_SIDE_PX = 100_000
+
+
+def _check_meta(meta: dict, path: Path) -> None:
+    for key in ("width_px", "height_px"):
+        v = meta[key]
+        if isinstance(v, bool) or not isinstance(v, int) or not 1 <= v <= MAX_SIDE_PX:
+            raise InputError(f"{path}: table metadata {key} must be a whole number of px "
+                             f"from 1 to {MAX_SIDE_PX}, got {v!r} (damaged); rebuild it")
+    for key, kind in (("weights", str), ("config", dict), ("provenance", dict)):
+        if not isinstance(meta[key], kind):
+            raise InputError(f"{path}: table metadata {key} must be a {kind.__name__}, got "
+                             f"{meta[key]!r} (damaged); rebuild it")
+
+
+def _check_arrays(a: dict, meta: dict, path: Path) -> None:
+    """Shapes and values that the lookups rely on."""
+    n_u, n_v, n_s = a["node_u"].shape, a["node_v"].shape, a["s_nodes"].shape
+    grid, full = (*n_v, *n_u), (*n_v, *n_u, *n_s)
+    expect = {"node_u": n_u, "node_v": n_v, "s_nodes": n_s, "x_ref": grid, "s_lo": grid,
+              "s_hi": grid, "sigma_node": full, "xyz": (*full, 3), "dxyz": (*full, 3),
+              "shear": a["shear"].shape}
+    for k, shape in expect.items():
+        if a[k].dtype.kind != "f" or a[k].shape != shape or a[k].ndim != len(shape) \
+                or a[k].ndim == 0:
+            raise InputError(f"{path}: table array {k} is {a[k].dtype} {a[k].shape}, expected "
+                             f"floats of shape {shape} (damaged); rebuild it")
+    for k, fewest in (("node_u", 1), ("node_v", 1), ("s_nodes", 2)):
+        if a[k].size < fewest or not np.isfinite(a[k]).all() or not (np.diff(a[k]) > 0).all():
+            raise InputError(f"{path}: table nodes {k} must be at least {fewest}, finite and "
+                             "increasing (damaged); rebuild it")

@@ -24,6 +24,16 @@ ratio of the cluster-robust (sandwich) covariance of the fit, with square tiles 
 the number of pixels that share one noise event (1 for independent points); it also takes
 up any residual structure of the block (flatness, table errors) below the tile size.
 
+The step's standard uncertainty u and expanded uncertainty U come from a GUM budget
+(:mod:`scanqa.qa.budget`): the Type A terms above and, from a budget file, the Type B
+terms (certificates, temperature, stage scale, flatness of the calibration flat); k is
+stated or follows from the effective degrees of freedom.
+
+Statuses: a block is flagged "outside_volume" or "model_invalid" when more than
+:data:`MAX_FLAGGED_FRACTION` of its points lie outside the calibrated volume or outside
+the model's validity (a blur ratio > 1/2). A step involving a flagged block, or a block
+without a plane, is "not evaluated": it gets no decision.
+
 Decision (ISO 14253-1): conformance is proven when |error| <= T - U ("pass"),
 non-conformance when |error| > T + U ("fail"), otherwise "undecided".
 """
@@ -32,6 +42,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -40,6 +51,8 @@ from scanqa import design
 from scanqa.cloud import AnnotatedCloud
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import ConfigError, InputError
+from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
+from scanqa.qa.budget import Budget, Component, type_b
 from scanqa.qa.layout import BlockSpec, Layout
 from scanqa.qa.planes import PlaneFit, fit_plane
 
@@ -51,6 +64,11 @@ MIN_TILES = 8
 #: Block status values, in the order they are checked.
 STATUSES = ("no_points", "too_few_points", "degenerate", "outside_volume", "model_invalid",
             "ok")
+#: A block is flagged when more than this fraction of its points lie outside the
+#: calibrated volume or the model's validity [-].
+MAX_FLAGGED_FRACTION = 0.05
+#: Decisions of a step: ISO 14253-1's three, and none for a step not evaluated.
+DECISIONS = ("pass", "fail", "undecided", "not evaluated")
 
 
 @dataclass
@@ -83,21 +101,46 @@ class BlockResult:
 
     @property
     def ratio(self) -> float:
-        """Measured / predicted std [-]."""
+        """Measured / predicted std [-] (NaN without a positive prediction)."""
+        if not self.predicted_std_um > 0:
+            return math.nan
         return self.measured_std_um / self.predicted_std_um
+
+    @property
+    def noise_dof(self) -> float:
+        """Degrees of freedom of the block's noise terms: K - 3 for K tiles, or n - 3 for
+        n independent points when the correlation factor could not be measured [-]."""
+        n = self.n_tiles if math.isfinite(self.noise_corr[0]) else self.n_points
+        return float(max(n - 3, 1))
+
+    @property
+    def std_u_um(self) -> float:
+        """Standard uncertainty of the measured std (Type A): s / sqrt(2 nu) with nu the
+        effective count of independent points n / kappa, less 3 for the plane [um]."""
+        kappa = self.noise_corr[0] if math.isfinite(self.noise_corr[0]) else 1.0
+        nu = max(self.n_points / kappa - 3.0, 1.0)
+        return self.measured_std_um / math.sqrt(2.0 * nu)
 
     def row(self) -> dict:
         return {"block_id": self.block_id, "nominal_height_mm": self.nominal_height_mm,
                 "n_points": self.n_points, "measured_std_um": self.measured_std_um,
+                "measured_std_u_um": self.std_u_um,
                 "predicted_std_um": self.predicted_std_um, "ratio": self.ratio,
                 "flatness_um": self.flatness_um, "mean_attenuation": self.mean_attenuation,
-                "in_volume_fraction": self.in_volume_fraction, "status": self.status,
+                "in_volume_fraction": self.in_volume_fraction,
+                "model_valid_fraction": self.model_valid_fraction, "status": self.status,
                 "noise_corr_factor": self.noise_corr[0], "n_tiles": self.n_tiles}
 
 
 @dataclass(frozen=True)
 class StepResult:
-    """Height difference between two blocks (mm and um as named)."""
+    """Height difference between two blocks (mm and um as named).
+
+    ``u_um`` and ``k`` are the budget's (:mod:`scanqa.qa.budget`); ``evaluated`` is False
+    when a block of the pair is flagged (``note`` says which), and then the step gets no
+    decision. The error is measured - reference, the reference being the nominal
+    difference with the budget's thermal correction.
+    """
 
     block_a: int
     block_b: int
@@ -106,18 +149,30 @@ class StepResult:
     u_um: float
     k: float
     tolerance_um: float
+    budget: Budget | None = field(default=None, repr=False, compare=False)
+    evaluated: bool = True
+    note: str = ""
 
     @property
     def error_um(self) -> float:
-        return 1e3 * (self.measured_diff_mm - self.nominal_diff_mm)
+        correction = self.budget.correction_um if self.budget is not None else 0.0
+        return 1e3 * (self.measured_diff_mm - self.nominal_diff_mm) - correction
 
     @property
     def expanded_um(self) -> float:
         return self.k * self.u_um
 
     @property
+    def within_u(self) -> bool:
+        """|error| <= U (only meaningful for an evaluated step)."""
+        return abs(self.error_um) <= self.expanded_um
+
+    @property
     def decision(self) -> str:
-        """ISO 14253-1: "pass", "fail" or "undecided"."""
+        """ISO 14253-1: "pass", "fail" or "undecided"; "not evaluated" for a step with a
+        flagged block."""
+        if not self.evaluated:
+            return "not evaluated"
         e, big_u, t = abs(self.error_um), self.expanded_um, self.tolerance_um
         if not (math.isfinite(e) and math.isfinite(big_u)):
             return "undecided"
@@ -126,11 +181,13 @@ class StepResult:
         return "fail" if e > t + big_u else "undecided"
 
     def row(self) -> dict:
+        nu = self.budget.nu_eff if self.budget is not None else math.nan
         return {"block_a": self.block_a, "block_b": self.block_b,
                 "nominal_diff_mm": self.nominal_diff_mm,
                 "measured_diff_mm": self.measured_diff_mm, "error_um": self.error_um,
-                "u_um": self.u_um, "U_um": self.expanded_um, "k": self.k,
-                "tolerance_um": self.tolerance_um, "pass": self.decision}
+                "u_um": self.u_um, "nu_eff": nu, "U_um": self.expanded_um, "k": self.k,
+                "tolerance_um": self.tolerance_um, "pass": self.decision,
+                "evaluated": self.evaluated}
 
 
 @dataclass
@@ -153,29 +210,47 @@ class QAResult:
     cloud: AnnotatedCloud | None = field(default=None, repr=False)
     curve: dict | None = field(default=None, repr=False)
 
-    def steps_inside_volume(self) -> list[StepResult]:
-        """Steps between two blocks whose status is "ok"."""
-        ok = {b.block_id for b in self.blocks if b.status == "ok"}
-        return [s for s in self.steps if s.block_a in ok and s.block_b in ok]
+    def steps_evaluated(self) -> list[StepResult]:
+        """Steps between two blocks whose status is "ok" (the others get no decision)."""
+        return [s for s in self.steps if s.evaluated]
 
     def summary(self) -> dict:
-        """JSON-ready summary: settings, every block and step, and the counts."""
-        inside = self.steps_inside_volume()
-        within = [s for s in inside if abs(s.error_um) <= s.expanded_um]
+        """JSON-ready summary: settings, every block and step with its budget, the counts.
+
+        Every count is over the tables it sits beside: ``steps_evaluated`` +
+        ``steps_not_evaluated`` = the number of steps, ``decisions`` counts the steps'
+        ``pass`` column, ``steps_error_within_U`` the evaluated steps with |error| <= U.
+        """
+        evaluated = self.steps_evaluated()
+        within = [s for s in evaluated if s.within_u]
         ratios = [b.ratio for b in self.blocks if b.status == "ok" and math.isfinite(b.ratio)]
+        decisions = {d: sum(s.decision == d for s in self.steps) for d in DECISIONS}
         return {
-            "format": "scanqa-qa-summary/1",
+            "format": "scanqa-qa-summary/2",
             "settings": self.settings,
             "model": self.cloud.model if self.cloud is not None else {},
             "has_prediction": self.has_prediction,
             "blocks": [{k: _finite(v) for k, v in b.row().items()} for b in self.blocks],
+            "blocks_ok": sum(b.status == "ok" for b in self.blocks),
+            "blocks_flagged": sum(b.status != "ok" for b in self.blocks),
             "steps": [{k: _finite(v) for k, v in s.row().items()} for s in self.steps],
-            "steps_inside_volume": len(inside),
+            "budgets": [{"block_a": s.block_a, "block_b": s.block_b,
+                         **_json(s.budget.summary())}
+                        for s in self.steps if s.budget is not None],
+            "type_b_included": self.type_b_included,
+            "steps_evaluated": len(evaluated),
+            "steps_not_evaluated": len(self.steps) - len(evaluated),
             "steps_error_within_U": len(within),
-            "fraction_within_U": len(within) / len(inside) if inside else None,
+            "fraction_within_U": len(within) / len(evaluated) if evaluated else None,
+            "decisions": decisions,
             "max_abs_ratio_deviation": max((abs(r - 1) for r in ratios), default=None),
             "notes": list(self.notes),
         }
+
+    @property
+    def type_b_included(self) -> bool:
+        return bool(self.steps) and all(s.budget is not None and s.budget.type_b_included
+                                        for s in self.steps)
 
     def annotated_cloud(self) -> AnnotatedCloud | None:
         """The cloud with the per-point QA fields ``qa_block_id``, ``qa_residual_um`` and
@@ -192,6 +267,15 @@ def _finite(v):
     return v if not isinstance(v, float) or math.isfinite(v) else None
 
 
+def _json(value):
+    """``_finite`` applied through dicts and lists."""
+    if isinstance(value, dict):
+        return {k: _json(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_json(v) for v in value]
+    return _finite(value)
+
+
 def _attr(attrs: dict, name: str, idx: np.ndarray, default: float = math.nan) -> np.ndarray:
     """Attribute ``name`` at the points ``idx`` as float64 (``default`` when missing)."""
     v = attrs.get(name)
@@ -200,7 +284,7 @@ def _attr(attrs: dict, name: str, idx: np.ndarray, default: float = math.nan) ->
 
 def _select(xyz: np.ndarray, spec: BlockSpec, margin: float, z_window: float) -> np.ndarray:
     x0, x1, y0, y1 = spec.region_mm
-    sel = ((xyz[:, 0] >= x0 + margin) & (xyz[:, 0] <= x1 - margin)
+    sel = (np.isfinite(xyz).all(axis=1) & (xyz[:, 0] >= x0 + margin) & (xyz[:, 0] <= x1 - margin)
            & (xyz[:, 1] >= y0 + margin) & (xyz[:, 1] <= y1 - margin))
     if spec.top_z_mm is not None:
         sel &= np.abs(xyz[:, 2] - spec.top_z_mm) <= z_window
@@ -248,6 +332,7 @@ def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarra
     los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(los @ fit.normal)
     sig = _attr(attrs, "sigma_model_um", idx) * 1e-3 * cos
+    sig[~(sig > 0)] = np.nan  # a zero, negative or NaN sigma predicts nothing
     res.n_points, res.fit, res.index = n, fit, idx
     res.measured_std_um = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
     res.flatness_um = 1e3 * float(np.ptp(fit.residuals))
@@ -273,8 +358,17 @@ def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarra
     scale = np.sqrt(np.where(np.isfinite(kappa), kappa, 1.0))
     # plane covariance from the per-point sigmas, scaled by the noise correlation
     res.u_plane = bread @ (a.T * res.sigma_n**2) @ a @ bread * np.outer(scale, scale)
-    res.status = ("outside_volume" if res.in_volume_fraction < 0.5 else
-                  "model_invalid" if res.model_valid_fraction < 0.5 else "ok")
+    res.status = ("outside_volume" if res.in_volume_fraction < 1.0 - MAX_FLAGGED_FRACTION
+                  else "model_invalid" if res.model_valid_fraction < 1.0 - MAX_FLAGGED_FRACTION
+                  else "ok")
+    if res.status != "ok":
+        what = "the calibrated volume" if res.status == "outside_volume" else \
+            "the model's validity (a blur ratio > 1/2)"
+        frac = res.in_volume_fraction if res.status == "outside_volume" else \
+            res.model_valid_fraction
+        res.message = (f"block {res.block_id}: {100 * (1 - frac):.0f} % of its points lie "
+                       f"outside {what} (more than {100 * MAX_FLAGGED_FRACTION:g} %): "
+                       "flagged, its steps are not evaluated")
 
 
 def _design(pts: np.ndarray, fit: PlaneFit) -> np.ndarray:
@@ -311,18 +405,39 @@ def noise_correlation(a: np.ndarray, bread: np.ndarray, residuals: np.ndarray,
     return np.maximum(1.0, v_tiles / v_points), n_tiles
 
 
-def step_between(a: BlockResult, b: BlockResult, k: float, tolerance_um: float) -> StepResult:
-    """Height difference of block b relative to block a (module notes)."""
+def step_between(a: BlockResult, b: BlockResult, k: float | str | None, tolerance_um: float,
+                 inputs: BudgetInputs | None = None, n_planes: int | None = None
+                 ) -> StepResult:
+    """Height difference of block b relative to block a with its budget (module notes).
+
+    ``k`` is a stated coverage factor or "welch-satterthwaite" (None: the budget file's
+    ``[coverage] k``, else 2); ``inputs`` the budget file's Type B inputs; ``n_planes``
+    the number of planes the calibration table was built from (its degrees of freedom).
+    """
     fa, fb = a.fit, b.fit
-    d_ab = fa.centroid - fb.centroid
-    measured = float(fa.normal @ d_ab)
+    measured = float(fa.normal @ (fa.centroid - fb.centroid))
     off = fb.centroid - fa.centroid
     g = np.array([1.0, off @ fa.axes[0], off @ fa.axes[1]])
-    var_plane = float(g @ a.u_plane @ g)
-    var_centroid = float(b.u_plane[0, 0])  # b's offset: the mean of its points' heights
-    u_um = 1e3 * math.sqrt(var_plane + var_centroid + _table_variance(a, b, g[1:]))
+    table_dof = float(n_planes - 4) if n_planes and n_planes > 4 else math.inf
+    components = [
+        Component(f"noise, plane of block {a.block_id} at block {b.block_id}", "A",
+                  f"model sigma x measured correlation ({a.n_tiles} tiles)",
+                  1e3 * math.sqrt(float(g @ a.u_plane @ g)), "um", 1.0, a.noise_dof),
+        Component(f"noise, mean height of block {b.block_id}", "A",
+                  f"model sigma x measured correlation ({b.n_tiles} tiles)",
+                  1e3 * math.sqrt(float(b.u_plane[0, 0])), "um", 1.0, b.noise_dof),
+        Component("calibration table", "A", "node fits over the calibration planes, "
+                  "scaled by their reduced chi-square",
+                  1e3 * math.sqrt(_table_variance(a, b, g[1:])), "um", 1.0, table_dof)]
+    extra, correction = type_b(inputs, a.nominal_height_mm, b.nominal_height_mm)
+    budget = Budget(tuple(components + extra), coverage_rule(k, inputs), inputs is not None,
+                    correction)
+    evaluated = a.status == "ok" and b.status == "ok"
+    flagged = [x.block_id for x in (a, b) if x.status != "ok"]
+    note = "" if evaluated else (f"not evaluated: block {' and '.join(map(str, flagged))} "
+                                 "flagged")
     return StepResult(a.block_id, b.block_id, a.nominal_height_mm - b.nominal_height_mm,
-                      measured, u_um, k, tolerance_um)
+                      measured, budget.u_um, budget.k, tolerance_um, budget, evaluated, note)
 
 
 def _independent_patches(block: BlockResult) -> float:
@@ -343,7 +458,8 @@ def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
     correlated within each block: no tilt, the whole sigma_tab as a shift.
     """
     sa, sb = a.table_sigma_um * 1e-3, b.table_sigma_um * 1e-3
-    if not (math.isfinite(a.table_corr_mm) and math.isfinite(b.table_corr_mm)):
+    if not (a.table_corr_mm > 0 and b.table_corr_mm > 0
+            and math.isfinite(a.table_corr_mm) and math.isfinite(b.table_corr_mm)):
         return sa**2 + sb**2
     na, nb = _independent_patches(a), _independent_patches(b)
     tilt = sum((lv / s) ** 2 for lv, s in zip(lever, a.spread_mm, strict=True))
@@ -394,10 +510,56 @@ def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k:
     return out
 
 
+def _check_settings(margin_mm: float, outlier_k: float | None, tolerance_um: float,
+                    knn: int, tile_mm: float) -> None:
+    """Refuse settings that would give meaningless numbers (k: :func:`coverage_rule`)."""
+    checks = (("edge margin", margin_mm, 0.0, "mm", True), ("tolerance", tolerance_um, 0.0,
+              "um", True), ("tile size", tile_mm, 0.0, "mm", False),
+              ("neighbour count", knn, 2, "", False))
+    for name, value, bound, unit, inclusive in checks:
+        ok = isinstance(value, numbers.Real) and math.isfinite(value) and (
+            value >= bound if inclusive else value > bound)
+        if not ok:
+            raise InputError(f"{name} must be {'>=' if inclusive else '>'} {bound:g} {unit}"
+                             f", got {value!r}".replace(" ,", ","))
+    if outlier_k is not None and not (math.isfinite(outlier_k) and outlier_k > 0):
+        raise InputError(f"outlier rejection K must be > 0 robust std (or not given), got "
+                         f"{outlier_k!r}")
+
+
+def _no_block_message(xyz: np.ndarray, layout: Layout, margin_mm: float) -> str:
+    """Why no block holds a point: the extents of the cloud and of the layout [mm]."""
+    pts = xyz[np.isfinite(xyz).all(axis=1)]
+    lo, hi = pts[:, :2].min(axis=0), pts[:, :2].max(axis=0)
+    regions = np.array([b.region_mm for b in layout.blocks])
+    span_cloud = float(np.max(hi - lo))
+    span_layout = float(max(np.ptp(regions[:, :2]), np.ptp(regions[:, 2:])))
+    hint = (" The cloud is about 1000 times smaller than the layout: is it in metres? "
+            "scanqa reads millimetres." if 0 < span_cloud < span_layout / 100 else
+            " Check that cloud and layout share the scanner frame.")
+    return (f"no block of the layout holds a point of the cloud (after the {margin_mm:g} mm "
+            f"edge margin): the cloud spans X {lo[0]:.4g} to {hi[0]:.4g}, Y {lo[1]:.4g} to "
+            f"{hi[1]:.4g} mm; the blocks X {regions[:, 0].min():.4g} to "
+            f"{regions[:, 1].max():.4g}, Y {regions[:, 2].min():.4g} to "
+            f"{regions[:, 3].max():.4g} mm.{hint}")
+
+
+def coverage_rule(k: float | str | None, budget: BudgetInputs | None) -> float | str:
+    """The coverage factor to use: ``k`` when given (a number > 0 or
+    "welch-satterthwaite"), else the budget file's, else 2."""
+    if k is None:
+        return budget.coverage_k if budget is not None and budget.coverage_k is not None \
+            else 2.0
+    if k != WELCH_SATTERTHWAITE and (isinstance(k, bool) or not isinstance(k, (int, float))
+                                     or not math.isfinite(k) or not k > 0):
+        raise InputError(f"k must be a number > 0 or {WELCH_SATTERTHWAITE!r}, got {k!r}")
+    return k
+
+
 def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | None = None,
            margin_mm: float = 1.0, outlier_k: float | None = None,
-           tolerance_um: float = 20.0, k: float = 2.0, knn: int = 16,
-           tile_mm: float = TILE_MM) -> QAResult:
+           tolerance_um: float = 20.0, k: float | str | None = None, knn: int = 16,
+           tile_mm: float = TILE_MM, budget: BudgetInputs | None = None) -> QAResult:
     """Gauge-block QA of an annotated cloud.
 
     Parameters
@@ -416,34 +578,48 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
         Reject points beyond this many robust std from the first plane fit [-].
     tolerance_um : float
         Tolerance T on each height difference [um].
-    k : float
-        Coverage factor of the expanded uncertainty [-].
+    k : float or "welch-satterthwaite", optional
+        Coverage factor of the expanded uncertainty [-], stated, or from each step's
+        effective degrees of freedom; default the budget file's ``[coverage] k``, else 2.
     knn : int
         Neighbours for the per-point local std [-].
     tile_mm : float
         Tile size of the noise-correlation estimate [mm] (module notes).
+    budget : BudgetInputs, optional
+        Type B inputs of a budget file (:func:`scanqa.qa.budget.load_budget`); without
+        one the budgets hold the Type A terms only, and the notes say so.
 
     Returns
     -------
     QAResult
     """
+    _check_settings(margin_mm, outlier_k, tolerance_um, knn, tile_mm)
+    k = coverage_rule(k, budget)
     xyz, attrs = np.asarray(cloud.xyz, dtype=float), cloud.attributes
+    if not np.isfinite(xyz).all(axis=1).any():
+        raise InputError(f"the cloud has no points with finite coordinates ({len(xyz)} "
+                         "points): nothing to measure")
     notes = []
     has_pred = "sigma_model_um" in attrs
     if not has_pred:
         notes.append("the cloud has no sigma attributes: the predicted-std column is missing "
                      "and step uncertainties use the measured residual std instead")
-    if not tile_mm > 0:
-        raise InputError(f"tile size must be > 0 mm, got {tile_mm!r}")
     blocks = [analyse_block(xyz, attrs, spec, margin_mm, outlier_k, tile_mm=tile_mm)
               for spec in layout.blocks]
+    if not any(b.n_points for b in blocks):
+        raise InputError(_no_block_message(xyz, layout, margin_mm))
     notes += [b.message for b in blocks if b.message]
     notes += [f"block {b.block_id}: only {b.n_tiles} tiles of {tile_mm:g} mm, too few to "
               "measure the noise correlation; its points are taken as independent"
               for b in blocks if b.fit is not None and not np.isfinite(b.noise_corr[0])]
     ordered = sorted((b for b in blocks), key=lambda b: -b.nominal_height_mm)
-    steps = [step_between(a, b, k, tolerance_um) for a, b in itertools.pairwise(ordered)
-             if a.fit is not None and b.fit is not None]
+    n_planes = (cloud.metadata.get("table") or {}).get("n_planes")
+    steps = [step_between(a, b, k, tolerance_um, budget, n_planes)
+             for a, b in itertools.pairwise(ordered) if a.fit is not None and b.fit is not None]
+    if budget is None:
+        notes.append("Type B inputs (gauge-block certificates, temperature, stage scale, "
+                     "flatness of the calibration flat) are not included: no budget file "
+                     "was given; U holds the noise and calibration-table terms only")
     block_id = np.full(len(xyz), -1)
     residual = np.full(len(xyz), np.nan)
     for b in blocks:
@@ -451,7 +627,9 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
             block_id[b.index] = b.block_id
             residual[b.index] = b.fit.residuals
     settings = {"margin_mm": margin_mm, "outlier_k": outlier_k, "tolerance_um": tolerance_um,
-                "k": k, "knn": knn, "tile_mm": tile_mm, "layout": layout.source}
+                "k": k, "budget": budget.source if budget is not None else None,
+                "max_flagged_fraction": MAX_FLAGGED_FRACTION, "knn": knn, "tile_mm": tile_mm,
+                "layout": layout.source, "paper_comparison": layout.paper_comparison}
     model_config = cloud_config(cloud, config, notes)
     curve = model_curve(blocks, model_config) if model_config is not None else None
     return QAResult(blocks, steps, block_id, 1e3 * residual,

@@ -79,6 +79,7 @@ def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 
 
 def _height_peaks(h: np.ndarray, min_points: int, bin_mm: float = 0.02) -> list[float]:
     """Heights where the histogram has a local maximum of at least min_points [mm]."""
+    h = h[h < 2000.0]  # a block top lies within 2 m of its base (bounds the histogram)
     if h.size == 0:
         return []
     edges = np.arange(h.min() - bin_mm, h.max() + 2 * bin_mm, bin_mm)

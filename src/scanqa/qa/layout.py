@@ -32,6 +32,7 @@ class Layout:
     name: str
     blocks: tuple[BlockSpec, ...]
     source: str = ""
+    paper_comparison: bool = False  # the report shows the paper's Tables 3 and 4
 
 
 def load_layout(path: str | os.PathLike) -> Layout:
@@ -50,4 +51,4 @@ def load_layout(path: str | os.PathLike) -> Layout:
     data = read_layout_file(path)
     blocks = tuple(BlockSpec(b["id"], b["nominal_height_mm"], b["region_mm"], b["top_z_mm"])
                    for b in data["blocks"])
-    return Layout(data["name"], blocks, data["source"])
+    return Layout(data["name"], blocks, data["source"], data["paper_comparison"])

@@ -35,8 +35,10 @@ def fit_plane(points: np.ndarray, where: str = "points") -> PlaneFit:
         Normal oriented towards the camera (the scanner origin).
     """
     pts = np.asarray(points, dtype=float)
-    if pts.shape[0] < 3:
+    if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 3:
         raise InputError(f"{where}: a plane needs at least 3 points, got {pts.shape[0]}")
+    if not np.isfinite(pts).all():
+        raise InputError(f"{where}: points with NaN or infinite coordinates")
     c = pts.mean(axis=0)
     _, s, vt = np.linalg.svd(pts - c, full_matrices=False)
     if s[1] <= 1e-9 * max(s[0], 1e-300):

@@ -44,8 +44,9 @@ the line of sight (:func:`scanqa.qa.sphere.sight_noise_bias`; 2 b_R for PS, the 
 biases along the bar for SD). The test value is left as the guideline defines it
 (uncorrected), and the bias is added to the expanded uncertainty: U = k u + |b|
 (conservative; b is a fraction of u unless the points number tens of thousands).
-Not included anywhere: errors shared by all points of an artefact (a calibration table's
-own error field, thermal expansion), which belong to the caller's uncertainty budget.
+Errors shared by the points of an artefact (a calibration table's own error field) enter
+PS and SD when the caller gives their size (``u_table``); thermal expansion and other
+Type B terms belong to the caller's uncertainty budget.
 
 Predicted form error (PF and F) from the per-point sigmas. The residuals are Gaussian
 with standard deviations sigma_i (a mixture when they differ); S(q) = mean_i
@@ -65,9 +66,25 @@ independent extremes (the Gumbel case). The prediction covers noise only: the
 artefact's own form and any systematic error add to the measured range. The tests check
 it against Monte Carlo draws of the residuals.
 
-Decisions (ISO 14253-1) against an MPE: "pass" when |E| <= MPE - U, "fail" when
-|E| > MPE + U, otherwise "undecided"; "not evaluated" when E, U or the MPE is missing
-(the quantity could not be measured, or the spec gives no MPE or certificate for it).
+Two uncertainties, two uses. U above is the uncertainty of the test value as a
+measurement of the scanner's characteristic: how far this scan's PF, PS, SD or F may lie
+from the value the scanner gives on average (its own noise, predicted from the points)
+and from the artefact's true value (certificate, form). It is what the closed loops
+against simulator truth check. An acceptance decision is different: the scanner's noise
+is part of what is tested - a noisy scan that exceeds the MPE is a failed test, not an
+uncertain one - so the uncertainty of the *test* holds only what does not belong to the
+scanner, the artefact's calibration and form (VDI/VDE 2634-2 names the calibration of
+the test artefact as the main contribution; ISO/TS 23165 likewise leaves the
+instrument's own errors out of the test uncertainty):
+
+    U_test = k u_artefact,   u_artefact = (U_cert / k_cert) for PS and SD,
+                             f / sqrt(3) for PF and F (certified form f).
+
+Decisions (ISO 14253-1) against an MPE use U_test by default ("pass" when
+|E| <= MPE - U_test, "fail" when |E| > MPE + U_test, otherwise "undecided");
+``decide_with="total"`` uses U instead (a lab's guard band that also covers the
+scan-to-scan spread). "not evaluated" when E or the MPE is missing (the quantity could
+not be measured, or the spec gives no MPE or certificate for it).
 """
 
 from __future__ import annotations
@@ -98,6 +115,8 @@ from scanqa.qa.sphere import (
 DROP_FRACTION = 0.003
 #: Decision values.
 DECISIONS = ("pass", "fail", "undecided", "not evaluated")
+#: Which expanded uncertainty the decisions use (module notes).
+DECIDE_WITH = ("test", "total")
 #: The quantities and their names.
 #: Quadrature nodes per variable of the range prediction [-].
 _NODES = 64
@@ -134,6 +153,10 @@ class Quantity:
         corrected, added to U [mm] (PS, SD; module notes).
     note : str
         Why the quantity is not evaluated, or what it rests on.
+    u_artefact : float
+        The artefact's part of u (certificate, form): the test uncertainty [mm].
+    decided_with : str
+        "test" (the decision used U_test) or "total" (it used U).
     """
 
     name: str
@@ -148,11 +171,23 @@ class Quantity:
     n_dropped: int = 0
     bias: float = 0.0
     note: str = ""
+    u_artefact: float = 0.0
+    decided_with: str = "test"
 
     @property
     def expanded(self) -> float:
-        """Expanded uncertainty U = k u + |bias| [mm]."""
+        """Expanded uncertainty U = k u + |bias| of the test value [mm] (module notes)."""
         return self.k * self.u + abs(self.bias)
+
+    @property
+    def expanded_test(self) -> float:
+        """Test uncertainty U_test = k u_artefact, used by the decision [mm]."""
+        return self.k * self.u_artefact
+
+    @property
+    def u_points(self) -> float:
+        """The points' part of u: the predicted scan-to-scan std [mm]."""
+        return math.sqrt(max(self.u**2 - self.u_artefact**2, 0.0))
 
     def row(self) -> dict:
         """The values for a report table, lengths in um."""
@@ -160,8 +195,10 @@ class Quantity:
             return round(1e3 * v, 3) if math.isfinite(v) else math.nan
 
         return {"quantity": self.name, "name": QUANTITIES[self.name],
-                "value_um": um(self.value), "U_um": um(self.expanded), "k": self.k,
-                "mpe_um": um(self.mpe), "decision": self.decision,
+                "value_um": um(self.value), "U_um": um(self.expanded),
+                "U_test_um": um(self.expanded_test), "u_points_um": um(self.u_points),
+                "k": self.k, "mpe_um": um(self.mpe), "decision": self.decision,
+                "decided_with": self.decided_with,
                 "predicted_um": um(self.predicted), "bias_um": um(self.bias),
                 "length_mm": self.length,
                 "n_points": self.n_points, "n_dropped": self.n_dropped, "note": self.note}
@@ -227,14 +264,24 @@ def decide(value: float, expanded: float, mpe: float) -> str:
 
 
 def quantity(name: str, value: float, u: float, mpe: float, k: float = 2.0,
-             bias: float = 0.0, note: str = "", **extra) -> Quantity:
-    """A :class:`Quantity` with its decision; ``note`` says what is missing when it is
-    not evaluated (lengths [mm])."""
-    decision = decide(value, k * u + abs(bias), mpe)
+             bias: float = 0.0, note: str = "", u_artefact: float = 0.0,
+             decide_with: str = "test", **extra) -> Quantity:
+    """A :class:`Quantity` with its decision (lengths [mm]).
+
+    ``u`` is the combined standard uncertainty (points and artefact), ``u_artefact``
+    the artefact's part; the decision uses k u_artefact (``decide_with="test"``) or
+    k u + |bias| ("total"). ``note`` says what is missing when it is not evaluated.
+    """
+    if decide_with not in DECIDE_WITH:
+        raise InputError(f"decide_with must be one of {', '.join(DECIDE_WITH)}, "
+                         f"got {decide_with!r}")
+    used = k * u_artefact if decide_with == "test" else k * u + abs(bias)
+    decision = decide(value, used if math.isfinite(u) else math.nan, mpe)
     if decision == "not evaluated" and not note:
         note = "no MPE for it in the spec" if math.isfinite(value) else "not measured"
     return Quantity(name, float(value), float(u), float(k), float(mpe), decision,
-                    bias=float(bias), note=note, **extra)
+                    bias=float(bias), note=note, u_artefact=float(u_artefact),
+                    decided_with=decide_with, **extra)
 
 
 def predicted_range(sigma, n_dropped: int = 0) -> tuple[float, float]:
@@ -342,7 +389,7 @@ def _fit_kept_sphere(points, sigma, drop_fraction, correlation, view_origin, min
     return pts, keep, sig, fit, bias
 
 
-def _form(name, residuals, sig, keep, kappa, form_um, mpe, k) -> Quantity:
+def _form(name, residuals, sig, keep, kappa, form_um, mpe, k, decide_with) -> Quantity:
     """PF or F: range of the kept residuals, its prediction and u (module notes)."""
     n, n_drop = keep.size, int(keep.size - keep.sum())
     rms = float(np.sqrt(np.mean(residuals**2)))
@@ -354,7 +401,8 @@ def _form(name, residuals, sig, keep, kappa, form_um, mpe, k) -> Quantity:
         "no per-point sigma: u from the residuals' scatter, no prediction"
     return quantity(name, float(np.ptp(residuals)), u, mpe, k,
                     predicted=pred if sig is not None else math.nan,
-                    n_points=n, n_dropped=n_drop, note=note)
+                    n_points=n, n_dropped=n_drop, note=note, u_artefact=u_form,
+                    decide_with=decide_with)
 
 
 def _mpe(spec: Spec | None, name: str, length_mm: float = 0.0) -> float:
@@ -366,7 +414,8 @@ def _mpe(spec: Spec | None, name: str, length_mm: float = 0.0) -> float:
 def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
                    drop_fraction: float = DROP_FRACTION,
                    correlation: Correlation | None = None, view_origin=(0.0, 0.0, 0.0),
-                   min_coverage: float = MIN_COVERAGE) -> SphereTest:
+                   min_coverage: float = MIN_COVERAGE, decide_with: str = "test",
+                   u_table: float = 0.0, where: str = "sphere") -> SphereTest:
     """Probing errors form PF and size PS of one sphere (module notes).
 
     Parameters
@@ -387,25 +436,36 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
         Origin of the lines of sight [mm] (:func:`normal_sigma`).
     min_coverage : float
         Least cap coverage, fraction of a hemisphere [-].
+    decide_with : {"test", "total"}
+        The expanded uncertainty the decisions use (module notes).
+    u_table : float
+        Standard uncertainty of the radius from errors the points share (the
+        calibration table's own), added to u(R) in quadrature [mm].
+    where : str
+        Name of the sphere in messages.
 
     Returns
     -------
     SphereTest
     """
     pts, keep, sig, fit, bias = _fit_kept_sphere(points, sigma, drop_fraction, correlation,
-                                                 view_origin, min_coverage, "sphere")
+                                                 view_origin, min_coverage, where)
     cert = None if spec is None else spec.sphere
     pf = _form("PF", fit.residuals, sig, keep, float(np.max(fit.correlation)),
-               None if cert is None else cert.form_um, _mpe(spec, "PF"), k)
+               None if cert is None else cert.form_um, _mpe(spec, "PF"), k, decide_with)
     if cert is None:
         ps = quantity("PS", math.nan, math.nan, _mpe(spec, "PS"), k, n_points=keep.size,
-                      note="no sphere certificate (calibrated diameter) in the spec")
+                      note="no sphere certificate (calibrated diameter) in the spec",
+                      decide_with=decide_with)
     else:
-        u = math.hypot(2.0 * fit.u_radius, 1e-3 * cert.diameter_uncertainty_um / cert.k)
-        ps = quantity("PS", fit.diameter - cert.diameter_mm, u, _mpe(spec, "PS"), k,
+        u_cert = 1e-3 * cert.diameter_uncertainty_um / cert.k
+        ps = quantity("PS", fit.diameter - cert.diameter_mm,
+                      math.hypot(2.0 * math.hypot(fit.u_radius, u_table), u_cert),
+                      _mpe(spec, "PS"), k,
                       bias=2.0 * bias[3], length=cert.diameter_mm, n_points=keep.size,
-                      n_dropped=int(keep.size - keep.sum()))
-    zone = minimum_zone_sphere(pts[keep], start=fit.centre)
+                      n_dropped=int(keep.size - keep.sum()), u_artefact=u_cert,
+                      decide_with=decide_with)
+    zone = minimum_zone_sphere(pts[keep], start=fit.centre, where=where)
     return SphereTest(fit, zone, keep, pf, ps)
 
 
@@ -413,7 +473,8 @@ def sphere_spacing_error(points_a, points_b, sigma_a=None, sigma_b=None,
                          spec: Spec | None = None, k: float = 2.0, drop_fraction: float = 0.0,
                          correlation: Correlation | None = None,
                          view_origin=(0.0, 0.0, 0.0),
-                         min_coverage: float = MIN_COVERAGE) -> BallBarTest:
+                         min_coverage: float = MIN_COVERAGE, decide_with: str = "test",
+                         u_table: float = 0.0, where: str = "ball bar") -> BallBarTest:
     """Sphere-spacing error SD at one ball-bar position (module notes).
 
     Parameters
@@ -434,13 +495,20 @@ def sphere_spacing_error(points_a, points_b, sigma_a=None, sigma_b=None,
         Origin of the lines of sight [mm].
     min_coverage : float
         Least cap coverage of each ball, fraction of a hemisphere [-].
+    decide_with : {"test", "total"}
+        The expanded uncertainty the decision uses (module notes).
+    u_table : float
+        Standard uncertainty of each ball's centre along any direction from errors its
+        points share (the calibration table's own; independent between the balls) [mm].
+    where : str
+        Name of the bar in messages.
 
     Returns
     -------
     BallBarTest
     """
     both = sorted((_fit_kept_sphere(p, s, drop_fraction, correlation, view_origin,
-                                    min_coverage, f"ball bar sphere {w}")[3:]
+                                    min_coverage, f"{where}, ball {w}")[3:]
                    for p, s, w in ((points_a, sigma_a, "a"), (points_b, sigma_b, "b"))),
                   key=lambda fb: fb[0].centre[0])
     (fa, ba), (fb, bb) = both
@@ -449,19 +517,21 @@ def sphere_spacing_error(points_a, points_b, sigma_a=None, sigma_b=None,
     cert = None if spec is None else spec.ball_bar
     if cert is None:
         sd = quantity("SD", math.nan, math.nan, _mpe(spec, "SD"), k, n_points=n,
-                      note="no ball-bar certificate (calibrated distance) in the spec")
+                      note="no ball-bar certificate (calibrated distance) in the spec",
+                      decide_with=decide_with)
     else:
-        u = math.hypot(bar.u_distance, 1e-3 * cert.distance_uncertainty_um / cert.k)
+        u_cert = 1e-3 * cert.distance_uncertainty_um / cert.k
         bias = float(-bar.direction @ (ba[:3] - bb[:3]))  # L = |c_a - c_b|, dL = g.(dc_a - dc_b)
-        sd = quantity("SD", bar.distance - cert.distance_mm, u,
+        u_l = math.sqrt(bar.u_distance**2 + 2.0 * u_table**2 + u_cert**2)
+        sd = quantity("SD", bar.distance - cert.distance_mm, u_l,
                       _mpe(spec, "SD", cert.distance_mm), k, bias=bias, length=cert.distance_mm,
-                      n_points=n)
+                      n_points=n, u_artefact=u_cert, decide_with=decide_with)
     return BallBarTest(bar, sd)
 
 
 def flatness_error(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
                    drop_fraction: float = DROP_FRACTION, correlation: float | None = None,
-                   view_origin=(0.0, 0.0, 0.0)) -> FlatTest:
+                   view_origin=(0.0, 0.0, 0.0), decide_with: str = "test") -> FlatTest:
     """Flatness measurement error F of a flat (module notes).
 
     Parameters
@@ -480,6 +550,8 @@ def flatness_error(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
         Noise-correlation factor kappa >= 1 of the flat's points [-].
     view_origin : (3,) float or None
         Origin of the lines of sight [mm].
+    decide_with : {"test", "total"}
+        The expanded uncertainty the decision uses (module notes).
 
     Returns
     -------
@@ -495,5 +567,5 @@ def flatness_error(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
         raise InputError(f"flat: the noise-correlation factor must be > 0, got {correlation!r}")
     cert = None if spec is None else spec.flat
     f = _form("F", plane.residuals, sig, keep, kappa,
-              None if cert is None else cert.flatness_um, _mpe(spec, "F"), k)
+              None if cert is None else cert.flatness_um, _mpe(spec, "F"), k, decide_with)
     return FlatTest(plane, minimum_zone_plane(pts[keep], "flat"), keep, f)

@@ -14,7 +14,8 @@ import numpy as np
 
 from scanqa.characterization import Characterization, JointCharacterization, VariantFit
 from scanqa.config import ScannerConfig
-from scanqa.io.atomic import make_out_dir, write_text
+from scanqa.io.atomic import staged_dir, write_text
+from scanqa.noisefit import select
 from scanqa.report.plots import new_figure, save_png
 
 
@@ -23,16 +24,16 @@ def write_characterization(result: Characterization | JointCharacterization,
                            config: ScannerConfig | None = None) -> Path:
     """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir`` (for a
     joint fit, one pair per sweep: ``std_camera-sweep.png``, ...)."""
-    out = make_out_dir(out_dir)
     summary = json.dumps(_json_safe(result.summary()), indent=1)
-    write_text(out / "summary.json", summary + "\n")
-    if config is not None:
-        if isinstance(result, JointCharacterization):
-            for c in result.sweeps:
-                _plot(c, config, out, result.fits, f"_{c.experiment}")
-        else:
-            _plot(result, config, out)
-    return out / "summary.json"
+    with staged_dir(out_dir) as out:  # the summary and its plots together, or none
+        write_text(out / "summary.json", summary + "\n")
+        if config is not None:
+            if isinstance(result, JointCharacterization):
+                for c in result.sweeps:
+                    _plot(c, config, out, result.fits, f"_{c.experiment}")
+            else:
+                _plot(result, config, out)
+    return Path(out_dir) / "summary.json"
 
 
 def _json_safe(value: object) -> object:
@@ -54,12 +55,12 @@ def _plot(result: Characterization, config: ScannerConfig, out: Path,
     ax = axes[0][0]
     ax.plot(z, std, "o", ms=3, label="sweep (surface-fit residual)")
     fits = result.fits if fits is None else fits
-    best = min(fits, key=lambda f: f.rms_relative)
+    best = select(fits)
     for fit in fits:
         style = "-" if fit is best else ":"
         ax.plot(z, result.model_std(fit, config), style, label=(
-            f"{fit.filter_floor}/{fit.noise_reading}: sigma_p={fit.sigma_p_px:.4f}, "
-            f"gamma={fit.gamma:.2f}, rms={100 * fit.rms_relative:.1f}%"))
+            f"{fit.label}: sigma_p={fit.sigma_p_px:.4f}, gamma={fit.gamma:.2f}, "
+            f"held-out rms={100 * fit.cv_rms_relative:.1f}%"))
     ax.set_xlabel("Z_c [mm]" if cam else "Z_p [mm]")
     ax.set_ylabel("std of x_p [projector px]")
     ax.set_ylim(0, np.nanmax(std) * 1.3)

@@ -11,8 +11,10 @@ import os
 
 import numpy as np
 
-from scanqa.io.atomic import make_out_dir, write_text
+from scanqa.io.atomic import staged_dir, write_text
+from scanqa.provenance import ReportHeader
 from scanqa.qa.blocks import QAResult
+from scanqa.qa.verdict import verdict
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 
@@ -21,10 +23,26 @@ from scanqa.report.plots import new_figure
 PAPER_TABLE3 = {1: (None, 22), 2: (13, 12), 3: (13, 14), 4: (15, 16), 5: (16, 16),
                 6: (17, None), 7: (21, 18), 8: (22, 20)}
 BLOCK_COLUMNS = ("block_id", "nominal_height_mm", "n_points", "measured_std_um",
-                 "predicted_std_um", "ratio", "flatness_um", "mean_attenuation",
-                 "in_volume_fraction", "status")
+                 "measured_std_u_um", "predicted_std_um", "ratio", "flatness_um",
+                 "mean_attenuation", "in_volume_fraction", "model_valid_fraction", "status")
 STEP_COLUMNS = ("block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "error_um",
-                "u_um", "U_um", "k", "tolerance_um", "pass")
+                "u_um", "nu_eff", "U_um", "k", "tolerance_um", "pass")
+BUDGET_COLUMNS = ("component", "type", "source", "u", "unit", "c_um_per_unit",
+                  "contribution_um", "dof")
+#: The block table of the report: main columns (fit a 1400 px screen and the page) and
+#: the folded details.
+BLOCK_MAIN = ("block_id", "nominal_height_mm", "n_points", "measured_std_um",
+              "predicted_std_um", "ratio", "status")
+BLOCK_DETAILS = ("flatness_um", "mean_attenuation", "in_volume_fraction", "noise_corr_factor")
+#: Short column headers with units (the CSV keeps the field names).
+LABELS = {"block_id": "block", "nominal_height_mm": "height [mm]", "n_points": "points",
+          "measured_std_um": "measured std [um]", "predicted_std_um": "predicted std [um]",
+          "paper_predicted_um": "paper pred. [um]", "paper_measured_um": "paper meas. [um]",
+          "flatness_um": "flatness [um]", "mean_attenuation": "attenuation",
+          "in_volume_fraction": "in volume", "noise_corr_factor": "kappa",
+          "block_a": "a", "block_b": "b", "nominal_diff_mm": "nominal [mm]",
+          "measured_diff_mm": "measured [mm]", "error_um": "error [um]", "u_um": "u [um]",
+          "U_um": "U [um]", "tolerance_um": "T [um]", "pass": "decision"}
 
 
 def csv_text(rows: list[dict], columns: tuple) -> str:
@@ -39,25 +57,48 @@ def csv_text(rows: list[dict], columns: tuple) -> str:
     return "\n".join(lines) + "\n"
 
 
-def write_outputs(result: QAResult, out_dir: str | os.PathLike) -> dict:
-    """Write report.html, blocks.csv, steps.csv, summary.json and, when the result holds
-    its cloud, cloud_qa.ply (the cloud plus the per-point QA fields) into ``out_dir``;
-    returns the summary. The folder is created when missing."""
-    out = make_out_dir(out_dir)
+def write_outputs(result: QAResult, out_dir: str | os.PathLike,
+                  header: ReportHeader | None = None, pdf: bool = False) -> dict:
+    """Write report.html (and with ``pdf`` report.pdf), blocks.csv, steps.csv, budget.csv,
+    summary.json and, when the result holds its cloud, cloud_qa.ply (the cloud plus the
+    per-point QA fields) into ``out_dir``; returns the summary. The folder is created
+    when missing; the files are published together or not at all
+    (:func:`scanqa.io.atomic.staged_dir`)."""
     info = result.summary()
-    write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks], BLOCK_COLUMNS))
-    write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))
-    write_text(out / "summary.json", json.dumps(info, indent=1))
-    write_text(out / "report.html", render(result))
-    cloud = result.annotated_cloud()
-    if cloud is not None:
-        cloud.write(out / "cloud_qa.ply")
+    with staged_dir(out_dir) as out:
+        write_text(out / "blocks.csv", csv_text([b.row() for b in result.blocks],
+                                                BLOCK_COLUMNS))
+        write_text(out / "steps.csv", csv_text([s.row() for s in result.steps], STEP_COLUMNS))
+        write_text(out / "budget.csv", csv_text(
+            [{"block_a": s.block_a, "block_b": s.block_b, **c.row()}
+             for s in result.steps if s.budget is not None for c in s.budget.components],
+            ("block_a", "block_b", *BUDGET_COLUMNS)))
+        write_text(out / "summary.json", json.dumps(info, indent=1))
+        page = render(result, header)
+        write_text(out / "report.html", page)
+        if pdf:
+            from scanqa.report.pdf import write_pdf
+
+            write_pdf(page, out / "report.pdf")
+        cloud = result.annotated_cloud()
+        if cloud is not None:
+            cloud.write(out / "cloud_qa.ply")
     return info
 
 
-def render(result: QAResult) -> str:
-    """The QA report as one self-contained HTML page."""
+def step_verdict(result: QAResult) -> dict:
+    """The report's verdict: the decisions of the evaluated steps (a step with a flagged
+    block is "not evaluated" and decides nothing)."""
+    return verdict([s.decision for s in result.steps])
+
+
+def render(result: QAResult, header: ReportHeader | None = None) -> str:
+    """The QA report as one self-contained HTML page: the verdict first, then the header
+    block (when given) and the sections."""
     page = Page("scanqa gauge-block QA report")
+    page.banner(step_verdict(result), "height differences (ISO 14253-1)")
+    if header is not None:
+        page.header_block(header.items())
     info = result.summary()
     _summary_section(page, result, info)
     _table3_section(page, result)
@@ -65,6 +106,7 @@ def render(result: QAResult) -> str:
     if result.cloud is not None:
         _residual_section(page, result, result.cloud.xyz)
     _steps_section(page, result)
+    _budget_section(page, result, info)
     if result.notes:
         page.heading("Notes", "notes")
         for note in result.notes:
@@ -72,29 +114,52 @@ def render(result: QAResult) -> str:
     return page.render()
 
 
+def _k_text(k) -> str:
+    return "k from each step's effective degrees of freedom (Welch-Satterthwaite, 95 %)" \
+        if isinstance(k, str) else f"k = {k:g} (stated)"
+
+
 def _summary_section(page: Page, result: QAResult, info: dict) -> None:
     page.heading("Summary", "summary")
     frac = info["fraction_within_U"]
+    flagged = [f"{b.block_id} ({b.status})" for b in result.blocks if b.status != "ok"]
+    dec = info["decisions"]
     page.paragraph(
-        f"{len(result.blocks)} blocks, {sum(b.status == 'ok' for b in result.blocks)} inside "
-        f"the calibrated volume and the model's validity; {info['steps_error_within_U']} of "
-        f"{info['steps_inside_volume']} height differences between such blocks have "
-        f"|error| <= U (k = {result.settings['k']:g})"
-        + (f" ({100 * frac:.0f} %)." if frac is not None else "."))
+        f"{len(result.blocks)} blocks: {info['blocks_ok']} inside the calibrated volume and "
+        f"the model's validity, {info['blocks_flagged']} flagged"
+        + (f" ({', '.join(flagged)})" if flagged else "") + f". {len(result.steps)} height "
+        f"differences: {info['steps_evaluated']} evaluated, {info['steps_not_evaluated']} not "
+        f"evaluated (a flagged block); {info['steps_error_within_U']} of the "
+        f"{info['steps_evaluated']} evaluated have |error| <= U"
+        + (f" ({100 * frac:.0f} %)" if frac is not None else "")
+        + f". Decisions: {dec['pass']} pass, {dec['fail']} fail, {dec['undecided']} "
+        f"undecided, {dec['not evaluated']} not evaluated.")
     page.paragraph(f"Edge margin {result.settings['margin_mm']:g} mm; tolerance "
-                   f"{result.settings['tolerance_um']:g} um; decision rule ISO 14253-1 "
-                   "(pass when |error| <= T - U, fail when |error| > T + U).", note=True)
+                   f"{result.settings['tolerance_um']:g} um; {_k_text(result.settings['k'])}; "
+                   "decision rule ISO 14253-1 (pass when |error| <= T - U, fail when "
+                   "|error| > T + U); a block is flagged when more than "
+                   f"{100 * result.settings['max_flagged_fraction']:g} % of its points lie "
+                   "outside the calibrated volume or the model's validity.", note=True)
+    if not info["type_b_included"]:
+        page.paragraph("Type B is not included: no budget file was given, so U holds the "
+                       "noise and calibration-table terms only (no gauge-block certificate, "
+                       "temperature, stage scale or flatness of the calibration flat).")
 
 
 def _table3_section(page: Page, result: QAResult) -> None:
-    page.heading("Per block: measured vs predicted std (paper Table 3)", "blocks")
+    paper = bool(result.settings.get("paper_comparison"))
+    page.heading("Per block: measured vs predicted std"
+                 + (" (paper Table 3)" if paper else ""), "blocks")
     rows = []
     for b in result.blocks:
-        pp, pm = PAPER_TABLE3.get(b.block_id, (None, None))
-        rows.append({**b.row(), "paper_predicted_um": pp if pp is not None else "large/-",
-                     "paper_measured_um": pm if pm is not None else "-"})
-    page.table(rows, [*BLOCK_COLUMNS, "noise_corr_factor", "paper_predicted_um",
-                      "paper_measured_um"])
+        row = b.row()
+        if paper:
+            pp, pm = PAPER_TABLE3.get(b.block_id, (None, None))
+            row.update(paper_predicted_um=pp if pp is not None else "large/-",
+                       paper_measured_um=pm if pm is not None else "-")
+        rows.append(row)
+    extra = ("paper_predicted_um", "paper_measured_um") if paper else ()
+    page.table(rows, [*BLOCK_MAIN, *extra], BLOCK_DETAILS, ("block_id",), LABELS)
     tile = result.settings.get("tile_mm", 2.0)
     page.paragraph("noise_corr_factor: how many points share one noise draw, measured on the "
                    f"block over tiles of {tile:g} mm; the plane's uncertainty (and so each "
@@ -104,16 +169,19 @@ def _table3_section(page: Page, result: QAResult) -> None:
     x = np.arange(len(ids))
     ax[0][0].bar(x - 0.2, [b.measured_std_um for b in result.blocks], 0.4, label="measured")
     ax[0][0].bar(x + 0.2, [b.predicted_std_um for b in result.blocks], 0.4, label="predicted")
-    paper_p = [PAPER_TABLE3.get(i, (None, None))[0] for i in ids]
-    ax[0][0].plot(x, [np.nan if v is None else v for v in paper_p], "k^", label="paper predicted")
-    paper_m = [PAPER_TABLE3.get(i, (None, None))[1] for i in ids]
-    ax[0][0].plot(x, [np.nan if v is None else v for v in paper_m], "kv", label="paper measured")
+    if paper:
+        paper_p = [PAPER_TABLE3.get(i, (None, None))[0] for i in ids]
+        ax[0][0].plot(x, [np.nan if v is None else v for v in paper_p], "k^",
+                      label="paper predicted")
+        paper_m = [PAPER_TABLE3.get(i, (None, None))[1] for i in ids]
+        ax[0][0].plot(x, [np.nan if v is None else v for v in paper_m], "kv",
+                      label="paper measured")
     ax[0][0].set_xticks(x, [str(i) for i in ids])
     ax[0][0].set(xlabel="block", ylabel="std of plane residuals [um]",
                  title="measured vs predicted std per block")
     ax[0][0].legend()
-    page.figure(fig, "scanqa's measured and predicted std per block, with the paper's Table 3",
-                "table3")
+    page.figure(fig, "scanqa's measured and predicted std per block"
+                + (", with the paper's Table 3" if paper else ""), "table3")
 
 
 def _range_section(page: Page, result: QAResult, curve: dict | None) -> None:
@@ -155,17 +223,47 @@ def _residual_section(page: Page, result: QAResult, xyz: np.ndarray) -> None:
     page.figure(fig, "residuals of every block's orthogonal plane fit", "residuals")
 
 
+def _budget_section(page: Page, result: QAResult, info: dict) -> None:
+    page.heading("Uncertainty budget per step (GUM)", "budget")
+    page.paragraph("Each contribution is |c| u: the input's standard uncertainty u (in its "
+                   "unit) times its sensitivity coefficient c (um per unit). Type A terms are "
+                   "evaluated from the data with their degrees of freedom; Type B terms come "
+                   "from the budget file (infinite degrees of freedom).", note=True)
+    if not info["type_b_included"]:
+        page.paragraph("Type B is not included (no budget file).", note=True)
+    for s in result.steps:
+        if s.budget is None:
+            continue
+        b = s.budget.summary()
+        nu = b["nu_eff"]
+        page.paragraph(f"Step {s.block_a}-{s.block_b}: u = {b['u_um']:.3g} um, nu_eff = "
+                       + (f"{nu:.3g}" if nu is not None else "inf")
+                       + f", k = {b['k']:.3g} ({b['k_rule']}), U = {b['U_um']:.3g} um"
+                       + (f", reference corrected by {b['reference_correction_um']:+.3g} um"
+                          if b["reference_correction_um"] else "")
+                       + ("" if s.evaluated else f" - {s.note}") + ".")
+        page.table(b["components"], list(BUDGET_COLUMNS))
+
+
 def _steps_section(page: Page, result: QAResult) -> None:
-    page.heading("Height differences between successive blocks (paper Table 4)", "steps")
-    page.table([s.row() for s in result.steps], list(STEP_COLUMNS))
-    page.paragraph("The paper's Table 4 values are not legible in its text; it reports that "
-                   "the biases stay below the single-point standard deviation.", note=True)
+    paper = bool(result.settings.get("paper_comparison"))
+    page.heading("Height differences between successive blocks"
+                 + (" (paper Table 4)" if paper else ""), "steps")
+    page.table([s.row() for s in result.steps], list(STEP_COLUMNS), labels=LABELS)
+    if paper:
+        page.paragraph("The paper's Table 4 values are not legible in its text; it reports "
+                       "that the biases stay below the single-point standard deviation.",
+                       note=True)
     fig, ax = new_figure()
     labels = [f"{s.block_a}-{s.block_b}" for s in result.steps]
     x = np.arange(len(labels))
-    ax[0][0].errorbar(x, [s.error_um for s in result.steps],
-                      yerr=[s.expanded_um for s in result.steps], fmt="o", capsize=4,
-                      label="error with U (k = 2)")
+    for evaluated, style, label in ((True, "o", "error with U"),
+                                    (False, "x", "not evaluated (flagged block)")):
+        idx = [i for i, s in enumerate(result.steps) if s.evaluated == evaluated]
+        if idx:
+            ax[0][0].errorbar(x[idx], [result.steps[i].error_um for i in idx],
+                              yerr=[result.steps[i].expanded_um for i in idx], fmt=style,
+                              capsize=4, color="C0" if evaluated else "0.6", label=label)
     ax[0][0].axhline(0, color="0.5", lw=0.8)
     if result.steps:
         t = result.steps[0].tolerance_um

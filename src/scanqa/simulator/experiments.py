@@ -7,8 +7,9 @@ Each experiment is a list of acquisitions (position x repeat). Its folder holds:
     DIR/p000_r0/                 images + patterns.toml of position 0, repeat 0
     DIR/truth/p000.npz           ground truth of position 0 (X, Y, Z, xp_true, ...)
 
-docs/formats.rst, "Experiment folders", documents every key. The manifest is
-written last, so a folder without one is an interrupted run.
+docs/formats.rst, "Experiment folders", documents every key. The folder is written in a
+hidden staging folder and published when complete, so an interrupted run leaves no
+partial experiment.
 
 Experiments:
 
@@ -20,14 +21,23 @@ Experiments:
   ``positions`` [mm] (a translation stage), ``repeats`` scans per position.
 * ``gauge-blocks`` (Sect. 4.3): the artefact of :func:`~scanqa.simulator.scene.paper_gauge_layout`,
   ``repeats`` scans.
+* ``sphere``, ``ball-bar``, ``flat``: the VDI/VDE 2634-2 artefacts in the measuring
+  volume of :func:`~scanqa.simulator.scene.measuring_volume` (docs/artefacts.rst). The
+  sphere's positions are the Z of its centre on the camera axis, the ball bar's are the
+  numbers 1-7 of :data:`~scanqa.simulator.scene.BALL_BAR_POSITIONS` (default all seven),
+  the flat's the Z of its centre. Their folders also hold ``artefacts.toml`` (the
+  layout for ``scanqa qa --layout``: approximate positions, rounded to the mm),
+  ``truth.toml`` (exact centres, sizes and planes, and the meshes' departure from the
+  ideal spheres) and ``spec.toml`` (the exact values as the artefacts' certificates,
+  with example MPEs: not a maker's data sheet).
 * ``mesh``: any STL/PLY/OBJ mesh (world frame, mm), ``repeats`` scans.
 """
 
 from __future__ import annotations
 
 import io
+import logging
 import os
-import sys
 import zipfile
 import zlib
 from collections.abc import Sequence
@@ -41,17 +51,28 @@ from scanqa.config import ScannerConfig
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 from scanqa.decoding.patternset import write_pattern_set
 from scanqa.errors import InputError
-from scanqa.io.atomic import atomic_path, make_out_dir, write_text
+from scanqa.io.atomic import atomic_path, make_out_dir, staged_dir, write_text
 from scanqa.io.images import write_image
 from scanqa.io.tomlfile import dumps_toml as dump_toml
+from scanqa.progress import Progress
 from scanqa.simulator import devices, render, scene, texture
 from scanqa.simulator.render import Acquisition
 
 #: Experiments :func:`run_experiment` knows, with their default repeats.
 EXPERIMENTS = {"camera-sweep": 1, "projector-sweep": 1, "calibration-sweep": 2,
-               "gauge-blocks": 3, "mesh": 1}
+               "gauge-blocks": 3, "sphere": 1, "ball-bar": 1, "flat": 1, "mesh": 1}
+#: The VDI/VDE 2634-2 artefact experiments.
+ARTEFACT_EXPERIMENTS = ("sphere", "ball-bar", "flat")
 #: Value of the manifest's ``format`` key.
 MANIFEST_FORMAT = "scanqa-simulation/1"
+#: Value of the ``format`` key of an artefact experiment's truth.toml.
+ARTEFACT_TRUTH_FORMAT = "scanqa-artefact-truth/1"
+#: Example MPEs of the sample scanner written into an artefact experiment's spec.toml
+#: [um] (simulated values; not a maker's data sheet).
+EXAMPLE_MPE_UM = {"mpe_pf_um": 60.0, "mpe_ps_um": 10.0, "mpe_sd_um": {"a": 15.0, "b": 1000.0},
+                  "mpe_f_um": 60.0}
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -122,6 +143,10 @@ def default_positions(name: str, config: ScannerConfig) -> list[float]:
         return _range(-45.0, 45.0, 1.5)
     if name == "calibration-sweep":
         return _range(focus - 30.0, focus + 30.0, 2.0)
+    if name == "ball-bar":
+        return [float(i) for i in range(1, len(scene.BALL_BAR_POSITIONS) + 1)]
+    if name in ("sphere", "flat"):
+        return [float(focus)]
     return [0.0]
 
 
@@ -140,12 +165,52 @@ def build_positions(name: str, config: ScannerConfig, positions: Sequence[float]
     if name == "gauge-blocks":
         art = scene.gauge_block_artefact(scene.paper_gauge_layout(config.camera.focus_mm))
         return [Position(i, p, 0.0, 0.0, art) for i, p in enumerate(positions)]
+    if name in ARTEFACT_EXPERIMENTS:
+        return [Position(i, p, 0.0, 0.0, artefact_scene(name, config, p))
+                for i, p in enumerate(positions)]
     if name == "mesh":
         if mesh is None:
             raise InputError("experiment 'mesh' needs a mesh file (mesh=FILE.stl)")
         obj = scene.load_mesh(mesh)
         return [Position(i, p, 0.0, 0.0, obj) for i, p in enumerate(positions)]
     raise InputError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
+
+
+def artefact_geometry(name: str, config: ScannerConfig, position: float) -> dict:
+    """The exact geometry of a VDI/VDE 2634-2 artefact at one position [mm] (module notes).
+
+    Returns a dict with ``kind`` and, for spheres and ball bars, ``diameter_mm`` and the
+    centre(s); for ball bars also ``distance_mm``, ``bar_diameter_mm`` and ``label``; for
+    flats ``centre_mm``, ``normal`` and ``size_mm``.
+    """
+    volume = scene.measuring_volume(config)
+    d = scene.BALL_DIAMETER_MM
+    if name == "sphere":
+        return {"kind": "sphere", "diameter_mm": d, "centre_mm": [0.0, 0.0, float(position)]}
+    if name == "flat":
+        return {"kind": "flat", "centre_mm": [0.0, 0.0, float(position)],
+                "normal": [float(v) for v in scene.tilted_normal(*scene.FLAT_TILT_DEG)],
+                "size_mm": list(scene.FLAT_SIZE_MM)}
+    spots = scene.ball_bar_positions(volume, scene.ball_bar_distance(volume, d))
+    i = round(position)
+    if not (1 <= i <= len(spots) and abs(position - i) < 1e-9):
+        raise InputError(f"ball-bar positions are the numbers 1-{len(spots)} of the standard "
+                         f"positions, got {position:g}")
+    label, a, b = spots[i - 1]
+    return {"kind": "ball_bar", "label": label, "diameter_mm": d,
+            "distance_mm": float(np.linalg.norm(b - a)), "bar_diameter_mm": scene.BAR_DIAMETER_MM,
+            "centre_a_mm": [float(v) for v in a], "centre_b_mm": [float(v) for v in b]}
+
+
+def artefact_scene(name: str, config: ScannerConfig, position: float) -> scene.Scene:
+    """The scene of a VDI/VDE 2634-2 artefact at one position (:func:`artefact_geometry`)."""
+    g = artefact_geometry(name, config, position)
+    if g["kind"] == "sphere":
+        return scene.sphere_artefact(g["centre_mm"], g["diameter_mm"])
+    if g["kind"] == "flat":
+        return scene.flat_artefact(g["centre_mm"], g["normal"], tuple(g["size_mm"]))
+    return scene.ball_bar_artefact(g["centre_a_mm"], g["centre_b_mm"], g["diameter_mm"],
+                                   g["bar_diameter_mm"])
 
 
 def acquisition(config: ScannerConfig, pos: Position, repeat: int, experiment: str = ""
@@ -174,7 +239,9 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
     config : ScannerConfig
         Scanner config (optics and ``[simulator]``).
     out_dir : str or PathLike
-        Output folder (created; existing files of the same names are replaced).
+        Output folder (created; existing files of the same names are replaced). The
+        scans are staged and published together when all are written: a failed or
+        interrupted run leaves the folder as it was.
     positions : sequence of float, optional
         Stage positions or device offsets [mm]; default :func:`default_positions`.
     repeats : int, optional
@@ -184,7 +251,8 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
     mesh : path, optional
         Mesh file for the ``mesh`` experiment.
     progress : bool
-        Print a progress bar on stderr.
+        Show the progress (:mod:`scanqa.progress`: a bar on a terminal, a log line per
+        scan otherwise); False shows nothing.
 
     Returns
     -------
@@ -199,36 +267,117 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
         raise InputError("need at least one position and repeats >= 1")
     desc = pattern_description(config, periods)
     pos_list = build_positions(name, config, positions, mesh)
-    out = make_out_dir(out_dir)
+    target = Path(out_dir)
+    with staged_dir(target) as out:  # published together when every scan is written
+        _simulate(name, config, out, desc, pos_list, repeats, progress)
+    return target / "manifest.toml"
+
+
+def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescription,
+              pos_list: list[Position], repeats: int, progress: bool) -> None:
+    """Render every scan of an experiment and write its folder into ``out``."""
     make_out_dir(out / "truth")
-    bar = _Progress(name, len(pos_list) * repeats) if progress else None
     entries = []
-    for pos in pos_list:
-        truth = render.truth_for(config, acquisition(config, pos, 0))
-        if not truth.valid.any():
-            raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of "
-                             f"{name}: the scene is outside the camera or projector frustum")
-        write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
-        if pos.scene.texture is not None:
-            make_out_dir(out / "markers")
-            frame = render.render_marker_frame(config, acquisition(config, pos, 0, name))
-            write_image(out / "markers" / f"{pos.label}.png", frame)
-        for rep in range(repeats):
-            folder = f"{pos.label}_r{rep}"
-            hook = bar.tile_hook(len(entries)) if bar else None
-            images = render.render_images(config, acquisition(config, pos, rep, name), desc,
-                                          hook)
-            write_pattern_set(out / folder, desc, images, "png")
-            entries.append(_entry(pos, rep, folder))
-    if bar:
-        bar.done()
+    with Progress(f"simulate {name}", len(pos_list) * repeats, "scan", log,
+                  enabled=progress) as bar:
+        for pos in pos_list:
+            truth = render.truth_for(config, acquisition(config, pos, 0))
+            if not truth.valid.any():
+                raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of "
+                                 f"{name}: the scene is outside the camera or projector "
+                                 "frustum")
+            write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
+            if pos.scene.texture is not None:
+                make_out_dir(out / "markers")
+                frame = render.render_marker_frame(config, acquisition(config, pos, 0, name))
+                write_image(out / "markers" / f"{pos.label}.png", frame)
+            for rep in range(repeats):
+                folder = f"{pos.label}_r{rep}"
+                images = render.render_images(config, acquisition(config, pos, rep, name), desc,
+                                              lambda done, tiles: bar.update(1 / tiles))
+                write_pattern_set(out / folder, desc, images, "png")
+                entries.append(_entry(pos, rep, folder))
     if name == "calibration-sweep":
         write_text(out / "sweep.toml", dump_toml(_sweep(config, pos_list, entries)))
     if name == "gauge-blocks":  # the artefact's layout, for 'scanqa qa --layout'
         layout = scene.paper_gauge_layout(config.camera.focus_mm)
         write_text(out / "layout.toml", scene.gauge_layout_toml(layout))
+    if name in ARTEFACT_EXPERIMENTS:
+        _write_artefact_files(name, config, pos_list, out)
     manifest = _manifest(name, config, desc, pos_list, repeats, entries)
-    return write_text(out / "manifest.toml", dump_toml(manifest))
+    write_text(out / "manifest.toml", dump_toml(manifest))
+
+
+def _write_artefact_files(name: str, config: ScannerConfig, pos_list: list[Position],
+                          out: Path) -> None:
+    """artefacts.toml, truth.toml and spec.toml of an artefact experiment (module notes)."""
+    geoms = [(pos, artefact_geometry(name, config, pos.stage_mm)) for pos in pos_list]
+    truth = []
+    for pos, g in geoms:
+        entry = {"scan": pos.label, **g}
+        if g["kind"] != "flat":
+            entry["mesh_deviation_mm"] = _mesh_deviation(pos.scene, g)
+        truth.append(entry)
+    write_text(out / "truth.toml", dump_toml({
+        "format": ARTEFACT_TRUTH_FORMAT, "experiment": name,
+        "frame": "scanner (the camera frame) [mm]", "artefact": truth}))
+    write_text(out / "artefacts.toml", dump_toml(artefact_layout(name, geoms)))
+    write_text(out / "spec.toml", dump_toml(example_spec(geoms[0][1])))
+
+
+def _mesh_deviation(obj: scene.Scene, g: dict) -> float:
+    """Largest departure of the scene's ball meshes from the ideal spheres [mm]."""
+    centres = [g[k] for k in ("centre_mm", "centre_a_mm", "centre_b_mm") if k in g]
+    r = g["diameter_mm"] / 2.0
+    dev = 0.0
+    for c in centres:
+        ball = scene.sphere_mesh(c, g["diameter_mm"])
+        dev = max(dev, scene.sphere_mesh_deviation(ball, c, r))
+    return dev
+
+
+def artefact_layout(name: str, geoms: list) -> dict:
+    """The ``scanqa-artefact-layout/1`` table of an artefact experiment: one entry per
+    position, approximate positions rounded to the mm."""
+    def approx(v):
+        return [float(round(x)) for x in v]
+
+    kind = geoms[0][1]["kind"]
+    entries = []
+    for pos, g in geoms:
+        e = {"id": g.get("label", f"{kind} {pos.index + 1}").replace(" ", "_"),
+             "scan": pos.label}
+        if kind == "sphere":
+            e.update(diameter_mm=g["diameter_mm"], centre_mm=approx(g["centre_mm"]))
+        elif kind == "ball_bar":
+            e.update(id=f"P{pos.index + 1}", diameter_mm=g["diameter_mm"],
+                     distance_mm=round(g["distance_mm"]),
+                     centre_a_mm=approx(g["centre_a_mm"]), centre_b_mm=approx(g["centre_b_mm"]),
+                     bar_diameter_mm=g["bar_diameter_mm"])
+        else:
+            e.update(centre_mm=approx(g["centre_mm"]), normal=[round(v, 2) for v in g["normal"]],
+                     size_mm=g["size_mm"])
+        entries.append(e)
+    return {"format": "scanqa-artefact-layout/1", "name": f"simulated {name}",
+            "frame": "scanner", kind: entries}
+
+
+def example_spec(g: dict) -> dict:
+    """A ``scanqa-spec/1`` table: the artefact's exact size as its certificate and the
+    sample scanner's example MPEs (simulated; not a maker's data sheet)."""
+    spec = {"format": "scanqa-spec/1",
+            "name": "simulated artefacts: exact sizes as certificates, example MPEs",
+            **EXAMPLE_MPE_UM}
+    if g["kind"] == "sphere":
+        spec["sphere"] = {"diameter_mm": g["diameter_mm"], "diameter_uncertainty_um": 0.5,
+                          "k": 2.0, "form_um": 0.0}
+    elif g["kind"] == "ball_bar":
+        spec["ball_bar"] = {"distance_mm": round(g["distance_mm"], 6),
+                            "distance_uncertainty_um": 1.0, "k": 2.0,
+                            "diameter_mm": g["diameter_mm"]}
+    else:
+        spec["flat"] = {"flatness_um": 0.0}
+    return spec
 
 
 def _sweep(config: ScannerConfig, pos_list: list[Position], entries: list[dict]) -> dict:
@@ -277,7 +426,10 @@ def _manifest(name: str, config: ScannerConfig, desc: PatternDescription,
                "projector-sweep": "projector offset along its axis, + towards the flat [mm]",
                "calibration-sweep": "world Z of the flat target (perpendicular to the "
                                     "camera axis) [mm]",
-               "gauge-blocks": "none (fixed artefact) [mm]", "mesh": "none [mm]"}[name]
+               "gauge-blocks": "none (fixed artefact) [mm]", "mesh": "none [mm]",
+               "sphere": "Z of the sphere's centre on the camera axis [mm]",
+               "ball-bar": "number of the ball-bar position (1-7, truth.toml) [-]",
+               "flat": "Z of the flat's centre on the camera axis [mm]"}[name]
     return {
         "format": MANIFEST_FORMAT, "experiment": name, "scanqa_version": __version__,
         "seed": config.simulator.seed, "scene": pos_list[0].scene.name,
@@ -303,31 +455,3 @@ def write_npz(path: Path, arrays: dict) -> Path:
             info.compress_type = zipfile.ZIP_DEFLATED
             zf.writestr(info, buf.getvalue())
     return path
-
-
-class _Progress:
-    """A one-line progress bar on stderr (a line per scan when stderr is not a terminal,
-    so that logs stay readable)."""
-
-    def __init__(self, name: str, total: int) -> None:
-        self.name, self.total = name, total
-        self.tty = sys.stderr.isatty()
-
-    def tile_hook(self, done_scans: int):
-        def hook(tiles_done: int, tiles_total: int) -> None:
-            if not self.tty:
-                if tiles_done == tiles_total:
-                    sys.stderr.write(f"simulate {self.name}: scan {done_scans + 1}/"
-                                     f"{self.total} done\n")
-                    sys.stderr.flush()
-                return
-            frac = (done_scans + tiles_done / tiles_total) / self.total
-            bar = "#" * int(30 * frac)
-            sys.stderr.write(f"\rsimulate {self.name}: [{bar:<30}] {100 * frac:5.1f}% "
-                             f"(scan {done_scans + 1}/{self.total})")
-            sys.stderr.flush()
-        return hook
-
-    def done(self) -> None:
-        if self.tty:
-            sys.stderr.write("\n")

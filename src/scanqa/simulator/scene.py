@@ -5,13 +5,24 @@ then recomputes the hit distance in float64 against that triangle's plane, so th
 ground truth of a planar face is exact to rounding (about 1e-13 mm), not to float32.
 
 Built-in scenes: a flat target (:func:`flat_target`), the gauge-block artefact of
-Sect. 4.3 (:func:`gauge_block_artefact`, layout in :func:`paper_gauge_layout`), and any
-STL/PLY/OBJ mesh (:func:`load_mesh`).
+Sect. 4.3 (:func:`gauge_block_artefact`, layout in :func:`paper_gauge_layout`), the
+VDI/VDE 2634-2 artefacts (:func:`sphere_artefact`, :func:`ball_bar_artefact`,
+:func:`flat_artefact`; :func:`measuring_volume` and :func:`ball_bar_positions` place
+them), and any STL/PLY/OBJ mesh (:func:`load_mesh`).
+
+Spheres are icospheres (trimesh) whose subdivision is chosen so that the mesh departs
+from the ideal sphere by at most ``tolerance_mm`` (the flat faces lie inside it, the
+vertices on it): :func:`sphere_mesh_deviation` measures it and the truth files record it.
+Ray hits on a sphere are exact on its mesh, so the ideal sphere's truth is off by at
+most that deviation (0.13 um for a 12 mm ball at the default 0.2 um tolerance, against
+a single-point noise of several um).
 """
 
 from __future__ import annotations
 
 import os
+import struct
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -22,6 +33,27 @@ from scanqa.errors import InputError
 
 #: Gauge-block heights of Table 3, block 1 (tallest) first [mm].
 GAUGE_HEIGHTS_MM = (50.80, 25.40, 12.70, 7.62, 6.35, 5.08, 3.18, 2.54)
+#: Largest accepted departure of a sphere's mesh from the ideal sphere [mm].
+SPHERE_TOLERANCE_MM = 2e-4
+#: Ball diameter of the simulated test sphere and ball bar [mm] (0.14 of the sample
+#: scanner's measuring-volume diagonal).
+BALL_DIAMETER_MM = 12.0
+#: Diameter of the simulated ball bar's bar [mm].
+BAR_DIAMETER_MM = 4.0
+#: Depth of the simulated measuring volume [mm]: where the sample scanner's model is
+#: valid on the camera axis (432-468 mm at f/11).
+VOLUME_DEPTH_MM = 36.0
+#: Tilts of the simulated flat about X and Y [deg] (not parallel to the calibration
+#: planes) and its size [mm].
+FLAT_TILT_DEG = (10.0, 15.0)
+FLAT_SIZE_MM = (50.0, 40.0)
+#: The seven ball-bar positions (:func:`ball_bar_positions`): label and direction of
+#: the bar in the measuring volume's half-extents (x, y, z) [-].
+BALL_BAR_POSITIONS = (
+    ("diagonal +x+y+z", (1, 1, 1)), ("diagonal -x+y+z", (-1, 1, 1)),
+    ("diagonal +x-y+z", (1, -1, 1)), ("diagonal -x-y+z", (-1, -1, 1)),
+    ("face diagonal xy", (1, 1, 0)), ("face diagonal xz", (1, 0, 1)),
+    ("face diagonal yz", (0, 1, 1)))
 
 
 @dataclass(frozen=True)
@@ -214,6 +246,7 @@ def gauge_layout_toml(layout: GaugeLayout) -> str:
         'format = "scanqa-gauge-layout/1"',
         'name = "paper_gauge_blocks"',
         'frame = "scanner"',
+        "paper_comparison = true   # the paper's artefact: its Tables 3 and 4 in the report",
         f"base_z_mm = {layout.base_z_mm:.3f}",
         "",
         "[base]",
@@ -226,6 +259,12 @@ def gauge_layout_toml(layout: GaugeLayout) -> str:
                   f"top_z_mm = {layout.base_z_mm - b.height_mm:.3f}",
                   f"region_mm = {rect(b.region_mm)}"]
     return "\n".join(lines) + "\n"
+
+
+#: What trimesh raises on a damaged or unsupported file (measured on truncated, bit-flipped
+#: and garbled STL, PLY and OBJ files); anything else is a bug and is not hidden.
+MESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, EOFError, OSError, struct.error,
+               zlib.error)
 
 
 def load_mesh(path: str | os.PathLike, translate_mm=(0.0, 0.0, 0.0)) -> Scene:
@@ -241,9 +280,169 @@ def load_mesh(path: str | os.PathLike, translate_mm=(0.0, 0.0, 0.0)) -> Scene:
         raise InputError(f"mesh file {p} does not exist")
     try:
         mesh = trimesh.load(p, force="mesh")
-    except Exception as err:  # trimesh raises many types on corrupt files
-        raise InputError(f"cannot load mesh {p}: {err} (need a valid STL, PLY or OBJ)") from None
+    except MESH_ERRORS as err:
+        raise InputError(f"cannot load mesh {p}: {type(err).__name__}: {err} (need a valid "
+                         "STL, PLY or OBJ)") from None
     if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
         raise InputError(f"mesh {p} holds no triangles (need a valid STL, PLY or OBJ)")
+    if not np.isfinite(mesh.vertices).all():
+        raise InputError(f"mesh {p} has vertices with NaN or infinite coordinates")
     mesh.apply_translation(np.asarray(translate_mm, dtype=float))
     return Scene(mesh, p.stem)
+
+
+# ------------------------------------------------------------- VDI/VDE 2634-2 artefacts
+
+@dataclass(frozen=True)
+class MeasuringVolume:
+    """An axis-aligned box of the scanner frame: centre and full extents [mm]."""
+
+    centre_mm: tuple[float, float, float]
+    size_mm: tuple[float, float, float]
+
+    @property
+    def diagonal_mm(self) -> float:
+        """Length of the space diagonal, L0 of VDI/VDE 2634-2 [mm]."""
+        return float(np.linalg.norm(self.size_mm))
+
+
+def measuring_volume(config, depth_mm: float = VOLUME_DEPTH_MM, fill: float = 0.9
+                     ) -> MeasuringVolume:
+    """The box the artefacts are placed in: centred on the camera axis at its focus.
+
+    Parameters
+    ----------
+    config : ScannerConfig
+        Camera intrinsics and focus.
+    depth_mm : float
+        Extent along Z [mm].
+    fill : float
+        Fraction of the camera's field of view at the box's near face that the box
+        spans in X and Y [-].
+    """
+    cam = config.camera
+    near = cam.focus_mm - depth_mm / 2.0
+    scale = fill * near / cam.principal_distance_px  # object mm per pixel at the near face
+    return MeasuringVolume((0.0, 0.0, float(cam.focus_mm)),
+                           (cam.width_px * scale, cam.height_px * scale, float(depth_mm)))
+
+
+def ball_bar_positions(volume: MeasuringVolume, distance_mm: float
+                       ) -> list[tuple[str, np.ndarray, np.ndarray]]:
+    """The seven ball-bar positions: label and the two ball centres [mm].
+
+    Four along the space diagonals of the measuring volume and three along the
+    diagonals of its mid-planes (xy, xz, yz), every bar centred in the volume. VDI/VDE
+    2634-2 asks for the bar in seven positions spread over the volume, the space
+    diagonals among them; for the other three, a bar along the Z axis (the line of
+    sight) would hide its far ball behind the near one, and a bar of at least 2/3 of
+    the volume's diagonal does not fit along its shortest edge, so the mid-plane
+    diagonals take their place.
+
+    Parameters
+    ----------
+    volume : MeasuringVolume
+        The box [mm].
+    distance_mm : float
+        Centre distance of the bar [mm].
+    """
+    half = np.asarray(volume.size_mm, dtype=float) / 2.0
+    centre = np.asarray(volume.centre_mm, dtype=float)
+    out = []
+    for label, signs in BALL_BAR_POSITIONS:
+        d = np.asarray(signs, dtype=float) * half
+        d /= np.linalg.norm(d)
+        out.append((label, centre - d * distance_mm / 2.0, centre + d * distance_mm / 2.0))
+    return out
+
+
+def ball_bar_distance(volume: MeasuringVolume, diameter_mm: float, step_mm: float = 1.0
+                      ) -> float:
+    """The longest centre distance (a multiple of ``step_mm``) that keeps both balls
+    inside the measuring volume in all seven positions [mm]."""
+    half = np.asarray(volume.size_mm, dtype=float) / 2.0 - diameter_mm / 2.0
+    if np.any(half <= 0):
+        raise InputError(f"balls of {diameter_mm:g} mm do not fit the measuring volume "
+                         f"{volume.size_mm} mm")
+    longest = np.inf
+    for _, signs in BALL_BAR_POSITIONS:
+        d = np.asarray(signs, dtype=float) * np.asarray(volume.size_mm) / 2.0
+        d = np.abs(d / np.linalg.norm(d))
+        longest = min(longest, 2.0 * float(np.min(half[d > 0] / d[d > 0])))
+    return float(np.floor(longest / step_mm) * step_mm)
+
+
+def sphere_mesh(centre_mm, diameter_mm: float, tolerance_mm: float = SPHERE_TOLERANCE_MM
+                ) -> trimesh.Trimesh:
+    """An icosphere of the coarsest subdivision within ``tolerance_mm`` of the sphere.
+
+    Parameters
+    ----------
+    centre_mm : (3,) float
+        Centre [mm].
+    diameter_mm : float
+        Diameter [mm].
+    tolerance_mm : float
+        Largest accepted departure of the faces from the ideal sphere [mm].
+    """
+    if not diameter_mm > 0:
+        raise InputError(f"sphere diameter must be > 0 mm, got {diameter_mm!r}")
+    for sub in range(3, 9):
+        mesh = trimesh.creation.icosphere(subdivisions=sub, radius=diameter_mm / 2.0)
+        if sphere_mesh_deviation(mesh, (0.0, 0.0, 0.0), diameter_mm / 2.0) <= tolerance_mm:
+            break
+    mesh.apply_translation(np.asarray(centre_mm, dtype=float))
+    return mesh
+
+
+def sphere_mesh_deviation(mesh: trimesh.Trimesh, centre_mm, radius_mm: float) -> float:
+    """Largest radial departure of a sphere mesh's faces and vertices from the ideal
+    sphere: the deepest face (its plane's distance from the centre) or the farthest
+    vertex [mm]."""
+    c = np.asarray(centre_mm, dtype=float)
+    v = np.asarray(mesh.vertices, dtype=float) - c
+    f = np.asarray(mesh.faces)
+    n = np.cross(v[f[:, 1]] - v[f[:, 0]], v[f[:, 2]] - v[f[:, 0]])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    depth = np.abs(np.einsum("ij,ij->i", n, v[f[:, 0]]))
+    return float(max(radius_mm - depth.min(), np.abs(np.linalg.norm(v, axis=1)
+                                                     - radius_mm).max()))
+
+
+def sphere_artefact(centre_mm, diameter_mm: float, name: str = "sphere") -> Scene:
+    """A free-standing test sphere (its stem, hidden behind it, is left out) [mm]."""
+    return Scene(sphere_mesh(centre_mm, diameter_mm), name)
+
+
+def ball_bar_artefact(centre_a_mm, centre_b_mm, diameter_mm: float,
+                      bar_diameter_mm: float = 4.0, name: str = "ball_bar") -> Scene:
+    """Two spheres joined by a cylindrical bar along the line of their centres [mm].
+
+    The bar runs from ball to ball (its ends inside the balls); ``bar_diameter_mm`` 0
+    leaves it out.
+    """
+    a, b = np.asarray(centre_a_mm, dtype=float), np.asarray(centre_b_mm, dtype=float)
+    if not 0 <= bar_diameter_mm < diameter_mm:
+        raise InputError(f"ball bar: bar_diameter_mm must be in [0, {diameter_mm:g}) mm "
+                         f"(less than the balls), got {bar_diameter_mm!r}")
+    parts = [sphere_mesh(a, diameter_mm), sphere_mesh(b, diameter_mm)]
+    if bar_diameter_mm > 0:
+        parts.append(trimesh.creation.cylinder(radius=bar_diameter_mm / 2.0,
+                                               segment=np.stack([a, b]), sections=48))
+    return Scene(trimesh.util.concatenate(parts), name)
+
+
+def flat_artefact(centre_mm, normal, size_mm: tuple[float, float], name: str = "flat"
+                  ) -> Scene:
+    """A rectangular optical flat, its face towards the scanner (exact: two triangles)."""
+    return flat_target(centre_mm, normal, size_mm, name=name)
+
+
+def tilted_normal(tilt_x_deg: float, tilt_y_deg: float) -> np.ndarray:
+    """Unit normal facing the camera (-Z) rotated by ``tilt_x_deg`` about X, then by
+    ``tilt_y_deg`` about Y [-]."""
+    ax, ay = np.radians(tilt_x_deg), np.radians(tilt_y_deg)
+    n = np.array([0.0, np.sin(ax), -np.cos(ax)])
+    rot = np.array([[np.cos(ay), 0.0, np.sin(ay)], [0.0, 1.0, 0.0],
+                    [-np.sin(ay), 0.0, np.cos(ay)]])
+    return rot @ n

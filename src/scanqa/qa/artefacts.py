@@ -1,0 +1,688 @@
+"""VDI/VDE 2634-2 tests on an annotated cloud: find each artefact, select its points and
+compute PF, PS (sphere), SD (ball bar) and F (flat) with :mod:`scanqa.qa.vdi2634`.
+
+Artefacts come from a layout file (:func:`load_artefact_layout`, format in
+:mod:`scanqa.io.artefacts`: nominal sizes and approximate positions) or are found by
+RANSAC (:func:`auto_layout`: spheres of a nominal diameter, a ball bar of a nominal
+distance, the largest plane).
+
+Point selection, in this order (every count is reported):
+
+1. *Search.* A sphere's points lie within 2 R of its approximate centre (R the nominal
+   radius); RANSAC with the radius prior then finds the ball among them (a stem, the
+   bar or a neighbour does not pull it). A flat's points lie in its rectangle (or the
+   RANSAC plane's inliers) within ``shell_mm`` of its plane.
+2. *Segmentation.* Points within ``shell_mm`` (default 5 % of the diameter) of the
+   surface found. The shell only separates the artefact from other surfaces; points of
+   the artefact with large errors stay (they are what PF and F measure).
+3. *Grazing view* (scanqa's rule, not the guideline's). Points seen at an incidence
+   above ``max_incidence_deg`` (default 70 deg: angle between the surface normal and the
+   line of sight) are removed. At the silhouette of a sphere the camera blur mixes the
+   ball with what lies behind it: simulated, the points at 70-75 deg are 5-25 um off the
+   sphere on average and those beyond 75 deg up to 90 um, against a noise of ~6 um.
+   A flat's edges are removed by an edge margin (``margin_mm``) instead.
+4. *Mounting* (ball bars). The part of each ball within a cone around the bar's axis
+   is removed: half-opening asin(d / D) + ``mount_margin_deg`` (d the bar's diameter,
+   D/3 when the layout does not give it).
+5. *The guideline's rule.* Up to 0.3 % of the points (PF, PS, F; :mod:`scanqa.qa.vdi2634`).
+
+Per-point sigma (what U and the predicted form rest on). The optics model gives each
+point's sigma along its line of sight for a surface facing the scanner (the paper's
+Eqs. 18-19). On a curved artefact the fringe signal drops where the surface turns away
+from the scanner (fringes foreshortened, light at an angle), and the phase noise rises:
+simulated, the noise along the line of sight at 55-70 deg incidence is about 1.8 times
+the model's, and the projection on the normal (sigma |cos|) then under-predicts the
+sphere's radial noise by 45 %. The decoder knows how its phase noise follows the
+measured modulation and signal level (its sensor noise model, ``sigma_phase_um``), so
+each point's model sigma is scaled by the ratio of the decoder's sigma there to its
+median over the points seen within 20 deg of their normal (the part of the artefact
+that faces the scanner, as the model assumes), both with the model's defocus
+attenuation divided out (sigma_xp sqrt(A_c A_p)), which the model already holds.
+Simulated, this predicts the radial noise within 5-13 % at every incidence up to 70 deg.
+``oblique="modulation"`` scales by the modulation alone (1 / B: phase noise as for
+additive noise; an upper bound, 30 % high at 55-70 deg), ``"none"`` keeps the model's
+sigma.
+
+Shared errors. The calibration table's own error (``sigma_table_um``, correlated over
+``table_corr_mm``) shifts a ball as a whole: its standard uncertainty on a radius or a
+centre coordinate is taken as the RMS sigma_table over sqrt(n_eff), n_eff the number of
+correlation cells the ball's seen area covers (at least 1).
+
+Noise correlation. Neighbouring points share noise (blur); the fits' covariances from
+the per-point sigmas are scaled per parameter by a factor kappa >= 1 measured on the
+artefact itself, as for gauge blocks (:func:`scanqa.qa.blocks.noise_correlation`): the
+cluster-robust covariance with cubes of ``tile_mm`` as clusters over the one with every
+point its own cluster.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scanqa.cloud import AnnotatedCloud
+from scanqa.errors import InputError
+from scanqa.io.artefacts import read_artefact_layout
+from scanqa.io.spec import Spec
+from scanqa.qa.ballbar import find_ball_bar
+from scanqa.qa.blocks import noise_correlation
+from scanqa.qa.planes import fit_plane
+from scanqa.qa.ransac import find_spheres, ransac_plane, ransac_sphere
+from scanqa.qa.sphere import MIN_COVERAGE, MIN_POINTS, algebraic_sphere
+from scanqa.qa.vdi2634 import (
+    DROP_FRACTION,
+    BallBarTest,
+    FlatTest,
+    Quantity,
+    SphereTest,
+    flatness_error,
+    probing_errors,
+    sphere_spacing_error,
+)
+from scanqa.qa.verdict import verdict
+
+#: Kinds of artefact, as in layouts and ``--artefact``.
+KINDS = ("sphere", "ball_bar", "flat")
+#: How per-point sigmas are scaled for oblique views (module notes).
+OBLIQUE = ("decoder", "modulation", "none")
+#: Incidence within which a point counts as facing the scanner (oblique-sigma reference) [deg].
+FRONTAL_DEG = 20.0
+#: Fewest tiles with 3 points or more for a noise-correlation estimate [-].
+MIN_TILES = 8
+#: How far a flat may lie from its approximate plane and rectangle [mm].
+FLAT_SEARCH_MM = 5.0
+
+
+@dataclass(frozen=True)
+class ArtefactSpec:
+    """One artefact of a layout (lengths [mm]; vectors None when not given)."""
+
+    kind: str
+    id: str
+    diameter_mm: float = math.nan
+    distance_mm: float = math.nan
+    centre_mm: tuple | None = None
+    centre_b_mm: tuple | None = None
+    normal: tuple | None = None
+    size_mm: tuple | None = None
+    bar_diameter_mm: float = math.nan
+    scan: str = ""
+
+    def applies_to(self, scan: str) -> bool:
+        """Whether this artefact is in the scan named ``scan`` (module notes)."""
+        return not self.scan or not scan or scan.startswith(self.scan)
+
+
+@dataclass(frozen=True)
+class ArtefactLayout:
+    """Artefacts of one or more scans."""
+
+    name: str
+    artefacts: tuple[ArtefactSpec, ...]
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class Options:
+    """Point selection and evaluation settings (module notes; lengths [mm], angles [deg])."""
+
+    k: float = 2.0
+    drop_fraction: float = DROP_FRACTION
+    sd_drop_fraction: float = 0.0
+    max_incidence_deg: float = 70.0
+    shell_mm: float | None = None
+    margin_mm: float = 1.0
+    mount_margin_deg: float = 10.0
+    min_coverage: float = MIN_COVERAGE
+    oblique: str = "decoder"
+    tile_mm: float = 2.0
+    decide_with: str = "test"
+
+    def __post_init__(self) -> None:
+        if not 0 < self.max_incidence_deg <= 90:
+            raise InputError(f"max_incidence_deg must be in (0, 90] deg, got "
+                             f"{self.max_incidence_deg!r}")
+        if self.oblique not in OBLIQUE:
+            raise InputError(f"oblique must be one of {', '.join(OBLIQUE)}, got "
+                             f"{self.oblique!r}")
+        if not (self.tile_mm > 0 and self.margin_mm >= 0 and self.k > 0):
+            raise InputError("tile_mm and k must be > 0 and margin_mm >= 0")
+
+    def row(self) -> dict:
+        return {k: getattr(self, k) for k in self.__dataclass_fields__}
+
+
+@dataclass(frozen=True)
+class Selection:
+    """Which points an artefact's quantities rest on and what each step removed."""
+
+    index: np.ndarray
+    counts: dict
+
+
+@dataclass(frozen=True)
+class ArtefactResult:
+    """The quantities of one artefact in one scan."""
+
+    spec: ArtefactSpec
+    scan: str
+    quantities: tuple[Quantity, ...]
+    selections: tuple[Selection, ...]
+    test: SphereTest | BallBarTest | FlatTest = field(repr=False)
+    u_table: float = 0.0
+    kappa: float = 1.0
+    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
+
+    def rows(self) -> list[dict]:
+        """One report row per quantity (lengths in um)."""
+        zone = getattr(self.test, "zone", None)
+        return [{"scan": self.scan, "artefact": self.spec.id, "kind": self.spec.kind,
+                 **q.row(), "noise_corr_factor": self.kappa,
+                 "minimum_zone_um": 1e3 * zone.width if zone is not None
+                 and q.name in ("PF", "F") else math.nan} for q in self.quantities]
+
+    def budget(self) -> list[dict]:
+        """Each quantity's uncertainty budget: standard uncertainties [um] by component
+        (module notes of this module and of :mod:`scanqa.qa.vdi2634`)."""
+        out = []
+        for q in self.quantities:
+            if not math.isfinite(q.u):
+                continue
+            for component, u, how in self._components(q):
+                out.append({"scan": self.scan, "artefact": self.spec.id,
+                            "quantity": q.name, "component": component,
+                            "u_um": 1e3 * u, "enters": how})
+            out.append({"scan": self.scan, "artefact": self.spec.id, "quantity": q.name,
+                        "component": f"U = {q.k:g} u + |bias|", "u_um": 1e3 * q.expanded,
+                        "enters": "expanded"})
+        return out
+
+    def _components(self, q: Quantity) -> list[tuple[str, float, str]]:
+        kappa = f"noise-correlation factor {self.kappa:.2f} included"
+        if q.name in ("PF", "F"):
+            return [("noise of the points: spread of the range over scans", q.u_points, kappa),
+                     ("artefact form (certified, rectangular)", q.u_artefact, "test")]
+        if q.name == "PS":
+            fit = self.test.fit
+            return [("noise of the points: 2 u(R) of the fit", 2 * fit.u_radius, kappa),
+                    ("calibration table's own error: 2 u(R)", 2 * self.u_table, "quadrature"),
+                    ("certificate of the diameter", q.u_artefact, "test"),
+                    ("bias of the fit from line-of-sight noise", abs(q.bias), "linear")]
+        return [("noise of the points: both centres along the bar",
+                 self.test.bar.u_distance, kappa),
+                ("calibration table's own error: both balls", math.sqrt(2) * self.u_table,
+                 "quadrature"),
+                ("certificate of the distance", q.u_artefact, "test"),
+                ("bias of the fits from line-of-sight noise", abs(q.bias), "linear")]
+
+    def residuals(self) -> tuple[np.ndarray, np.ndarray]:
+        """The selected points [mm] and their distances from the fitted sphere(s) or
+        plane [mm] (the points the 0.3 % rule dropped included)."""
+        t, pts = self.test, self.points
+        if isinstance(t, FlatTest):
+            return pts, (pts - t.plane.centroid) @ t.plane.normal
+        fits = [t.fit] if isinstance(t, SphereTest) else [t.bar.sphere_a, t.bar.sphere_b]
+        d = np.stack([np.linalg.norm(pts - f.centre, axis=1) - f.radius for f in fits])
+        return pts, d[np.argmin(np.abs(d), axis=0), np.arange(len(pts))]
+
+
+@dataclass(frozen=True)
+class ArtefactQAResult:
+    """Every artefact's result over one or more scans, with settings and notes."""
+
+    results: tuple[ArtefactResult, ...]
+    options: Options
+    spec: Spec | None
+    layout: ArtefactLayout
+    notes: tuple[str, ...] = ()
+
+    def quantities(self) -> list[Quantity]:
+        return [q for r in self.results for q in r.quantities]
+
+    def rows(self) -> list[dict]:
+        return [row for r in self.results for row in r.rows()]
+
+    def verdict(self) -> dict:
+        """The overall verdict and the count of each decision (:mod:`scanqa.qa.verdict`)."""
+        return verdict([q.decision for q in self.quantities()])
+
+    def summary(self) -> dict:
+        """A JSON-ready summary: verdict, rows, selections, settings, notes."""
+        def clean(v):
+            return None if isinstance(v, float) and not math.isfinite(v) else v
+
+        return {"verdict": self.verdict(), "layout": self.layout.source,
+                "spec": None if self.spec is None else {"name": self.spec.name,
+                                                        "source": self.spec.source},
+                "quantities": [{k: clean(v) for k, v in row.items()} for row in self.rows()],
+                "selections": [{"scan": r.scan, "artefact": r.spec.id,
+                                "ball": "ab"[i] if len(r.selections) == 2 else "",
+                                **s.counts} for r in self.results
+                               for i, s in enumerate(r.selections)],
+                "options": self.options.row(), "notes": list(self.notes)}
+
+
+# --------------------------------------------------------------------------- layouts
+
+def load_artefact_layout(path: str | os.PathLike) -> ArtefactLayout:
+    """Read an artefact layout file (:mod:`scanqa.io.artefacts`)."""
+    data = read_artefact_layout(path)
+    arts = []
+    for e in data["sphere"]:
+        arts.append(ArtefactSpec("sphere", e["id"], e["diameter_mm"],
+                                 centre_mm=e["centre_mm"], scan=e["scan"]))
+    for e in data["ball_bar"]:
+        arts.append(ArtefactSpec("ball_bar", e["id"], e["diameter_mm"], e["distance_mm"],
+                                 e["centre_a_mm"], e["centre_b_mm"],
+                                 bar_diameter_mm=e.get("bar_diameter_mm", math.nan),
+                                 scan=e["scan"]))
+    for e in data["flat"]:
+        arts.append(ArtefactSpec("flat", e["id"], centre_mm=e["centre_mm"],
+                                 normal=e["normal"], size_mm=e["size_mm"], scan=e["scan"]))
+    return ArtefactLayout(data["name"], tuple(arts), data["source"])
+
+
+def auto_layout(kind: str, spec: Spec | None, diameter_mm: float | None = None,
+                distance_mm: float | None = None) -> ArtefactLayout:
+    """A layout of one artefact to be found by RANSAC, sizes from the spec's certificates
+    unless given.
+
+    Parameters
+    ----------
+    kind : {"sphere", "ball_bar", "flat"}
+        The artefact in the scan.
+    spec : Spec, optional
+        Its certificate gives the nominal diameter / distance.
+    diameter_mm, distance_mm : float, optional
+        Nominal ball diameter and centre distance [mm], overriding the spec's.
+    """
+    kind = kind.replace("-", "_")
+    if kind not in KINDS:
+        raise InputError(f"--artefact must be one of sphere, ball-bar, flat, got {kind!r}")
+    if kind == "flat":
+        return ArtefactLayout("found by RANSAC", (ArtefactSpec("flat", "flat"),))
+    cert = None if spec is None else (spec.sphere if kind == "sphere" else spec.ball_bar)
+    d = diameter_mm or (None if cert is None else cert.diameter_mm)
+    if not d:
+        raise InputError(f"finding a {kind.replace('_', ' ')} needs its nominal diameter: "
+                         "give --diameter or a spec whose certificate has diameter_mm")
+    if kind == "sphere":
+        return ArtefactLayout("found by RANSAC", (ArtefactSpec("sphere", "sphere", d),))
+    dist = distance_mm or (None if cert is None else cert.distance_mm)
+    if not dist:
+        raise InputError("finding a ball bar needs its nominal distance: give --distance "
+                         "or a spec with a [ball_bar] certificate")
+    return ArtefactLayout("found by RANSAC", (ArtefactSpec("ball_bar", "ball bar", d, dist),))
+
+
+# ------------------------------------------------------------------ point selection
+
+def _incidence_cos(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    """|cos| of the angle between each line of sight (from the origin) and the normal."""
+    los = points / np.linalg.norm(points, axis=1, keepdims=True)
+    return np.abs(np.sum(los * normals, axis=1))
+
+
+def _ball_points(xyz: np.ndarray, centre, diameter: float, shell: float, what: str,
+                 ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """Indices of the points of one ball near ``centre``, its refined centre and counts."""
+    r = diameter / 2.0
+    near = np.flatnonzero(np.linalg.norm(xyz - np.asarray(centre), axis=1) <= 2.0 * r)
+    counts = {"searched": int(near.size)}
+    if near.size < MIN_POINTS:
+        raise InputError(f"{what}: {near.size} points within {2 * r:g} mm of its "
+                         f"approximate centre {_fmt(centre)} mm, a sphere fit needs at least "
+                         f"{MIN_POINTS}: check the layout's centre and the scan")
+    cand = ransac_sphere(xyz[near], r, 0.1 * r, threshold_mm=shell, min_inliers=MIN_POINTS)
+    if cand is None:
+        raise InputError(f"{what}: no sphere of diameter {diameter:g} mm found near "
+                         f"{_fmt(centre)} mm ({near.size} points searched): check the "
+                         "layout's diameter and centre")
+    idx = near[np.abs(np.linalg.norm(xyz[near] - cand.centre, axis=1) - cand.radius) <= shell]
+    counts["on_surface"] = int(idx.size)
+    return idx, cand.centre, counts
+
+
+def _drop_grazing(xyz: np.ndarray, idx: np.ndarray, centre: np.ndarray, options: Options,
+                  counts: dict) -> tuple[np.ndarray, np.ndarray]:
+    """Drop the points of a ball seen at more than ``max_incidence_deg``; returns the kept
+    indices and the centre the incidences were taken from.
+
+    The normals come from a least-squares sphere, refitted once on the points kept by a
+    first cut (the mixed points at the silhouette pull a fit of all the points)."""
+    pts = xyz[idx]
+    limit = math.cos(math.radians(options.max_incidence_deg)) - 1e-12
+    c = np.asarray(centre, dtype=float)
+    for _ in range(2):
+        n = (pts - c) / np.linalg.norm(pts - c, axis=1, keepdims=True)
+        keep = _incidence_cos(pts, n) >= limit
+        if keep.sum() < MIN_POINTS:
+            break
+        c = _ls_centre(pts[keep], c)
+    counts["grazing_removed"] = int(np.sum(~keep))
+    return idx[keep], c
+
+
+def _ls_centre(pts: np.ndarray, start: np.ndarray, iterations: int = 10) -> np.ndarray:
+    """Centre of the least-squares (orthogonal) sphere, by Gauss-Newton from ``start``."""
+    c = np.asarray(start, dtype=float)
+    r = float(np.mean(np.linalg.norm(pts - c, axis=1)))
+    for _ in range(iterations):
+        d = pts - c
+        dist = np.linalg.norm(d, axis=1)
+        jac = np.column_stack([-d / dist[:, None], -np.ones(len(d))])
+        step, *_ = np.linalg.lstsq(jac, -(dist - r), rcond=None)
+        c, r = c + step[:3], r + step[3]
+        if np.max(np.abs(step)) < 1e-10:
+            break
+    return c
+
+
+def select_sphere(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selection:
+    """The points PF and PS of a test sphere rest on (module notes, steps 1-3)."""
+    what = f"sphere {art.id!r}"
+    shell = options.shell_mm or 0.05 * art.diameter_mm
+    centre = art.centre_mm
+    if centre is None:
+        centre = find_spheres(xyz, 1, art.diameter_mm / 2.0, what=what,
+                              threshold_mm=shell)[0].centre
+    idx, c, counts = _ball_points(xyz, centre, art.diameter_mm, shell, what)
+    idx, _ = _drop_grazing(xyz, idx, c, options, counts)
+    counts["used"] = int(idx.size)
+    return Selection(idx, counts)
+
+
+def select_ball_bar(xyz: np.ndarray, art: ArtefactSpec, options: Options
+                    ) -> tuple[Selection, Selection]:
+    """The points of each ball of a ball bar (module notes, steps 1-4)."""
+    shell = options.shell_mm or 0.05 * art.diameter_mm
+    if art.centre_mm is None:
+        found = find_ball_bar(xyz, art.diameter_mm, art.distance_mm, threshold_mm=shell)
+        centres = [algebraic_sphere(xyz[i])[0] for i in found]
+    else:
+        centres = [art.centre_mm, art.centre_b_mm]
+    found = [_ball_points(xyz, c, art.diameter_mm, shell, f"ball bar {art.id!r}, ball {w}")
+             for c, w in zip(centres, "ab", strict=True)]
+    bar = art.bar_diameter_mm if math.isfinite(art.bar_diameter_mm) else art.diameter_mm / 3
+    cone = math.asin(min(bar / art.diameter_mm, 1.0)) + math.radians(options.mount_margin_deg)
+    cut = [_drop_grazing(xyz, idx, c, options, counts) for idx, c, counts in found]
+    out = []
+    for (idx, c), (_, other), (_, _, counts) in zip(cut, cut[::-1], found, strict=True):
+        axis = (other - c) / np.linalg.norm(other - c)
+        u = (xyz[idx] - c) / np.linalg.norm(xyz[idx] - c, axis=1, keepdims=True)
+        mount = u @ axis > math.cos(cone)
+        counts["mount_removed"] = int(mount.sum())
+        counts["used"] = int(np.sum(~mount))
+        out.append(Selection(idx[~mount], counts))
+    return out[0], out[1]
+
+
+def select_flat(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selection:
+    """The points F of a flat rests on (module notes, steps 1-3)."""
+    shell = options.shell_mm or 0.5
+    what = f"flat {art.id!r}"
+    cand = np.arange(len(xyz))
+    if art.centre_mm is not None and art.normal is not None:
+        centre = np.asarray(art.centre_mm, float)
+        normal = np.asarray(art.normal, float) / np.linalg.norm(art.normal)
+        d = xyz - centre
+        near = np.abs(d @ normal) <= FLAT_SEARCH_MM
+        if art.size_mm is not None:  # in-plane axes as scanqa.simulator.scene.flat_target's
+            e1 = np.cross([0.0, 1.0, 0.0], normal)
+            e1 /= np.linalg.norm(e1)
+            st = np.abs(d @ np.stack([e1, np.cross(normal, e1)]).T)
+            near &= np.all(st <= np.asarray(art.size_mm) / 2 + FLAT_SEARCH_MM, axis=1)
+        cand = np.flatnonzero(near)
+    counts = {"searched": int(cand.size)}
+    if cand.size < 10:
+        raise InputError(f"{what}: {cand.size} points near its approximate plane, F needs "
+                         "at least 10: check the layout's centre and normal")
+    normal, offset, _ = ransac_plane(xyz[cand], threshold_mm=shell)
+    idx = cand[np.abs(xyz[cand] @ normal - offset) <= shell]
+    counts["on_surface"] = int(idx.size)
+    if idx.size < 10:
+        raise InputError(f"{what}: {idx.size} points within {shell:g} mm of its plane, F "
+                         "needs at least 10")
+    plane = fit_plane(xyz[idx], what)
+    inside = _inside_hull((xyz[idx] - plane.centroid) @ plane.axes.T, options.margin_mm)
+    counts["edge_removed"] = int(np.sum(~inside))
+    idx = idx[inside]
+    counts["used"] = int(idx.size)
+    return Selection(idx, counts)
+
+
+def _inside_hull(st: np.ndarray, margin: float) -> np.ndarray:
+    """Points of a planar patch (in-plane coordinates) at least ``margin`` inside the
+    convex hull of all of them."""
+    from scipy.spatial import ConvexHull
+
+    hull = ConvexHull(st)
+    dist = -(st @ hull.equations[:, :2].T + hull.equations[:, 2])
+    return dist.min(axis=1) >= margin
+
+
+# ------------------------------------------------------------- sigmas and factors
+
+def point_sigma(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
+                options: Options) -> np.ndarray | None:
+    """Per-point sigma along the line of sight, scaled for oblique views (module notes)
+    [mm]; None when the cloud has no ``sigma_model_um``."""
+    attrs = cloud.attributes
+    if "sigma_model_um" not in attrs:
+        return None
+    sig = 1e-3 * np.asarray(attrs["sigma_model_um"], float)[idx]
+    if options.oblique == "none":
+        return sig
+    return sig * oblique_factor(cloud, idx, normals, options.oblique)
+
+
+def oblique_factor(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
+                   how: str = "decoder") -> np.ndarray:
+    """How much noisier each point is than where the artefact faces the scanner [-]
+    (module notes); 1 where it cannot be formed.
+
+    Parameters
+    ----------
+    cloud : AnnotatedCloud
+        With ``sigma_phase_um`` and ``s_t_um_px`` ("decoder") or ``modulation_dn``
+        ("modulation"; also the fallback), and ``att_camera``, ``att_projector``.
+    idx : (n,) int
+        The artefact's points [-].
+    normals : (n, 3) float
+        Their unit surface normals [-].
+    how : {"decoder", "modulation"}
+        The decoder's phase-noise sigma, or 1 / modulation.
+    """
+    attrs = cloud.attributes
+    att = np.ones(idx.size)
+    for name in ("att_camera", "att_projector"):
+        if name in attrs:
+            att = att * np.asarray(attrs[name], float)[idx]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        if how == "decoder" and "sigma_phase_um" in attrs and "s_t_um_px" in attrs:
+            noise = (np.asarray(attrs["sigma_phase_um"], float)[idx]
+                     / np.asarray(attrs["s_t_um_px"], float)[idx]) * np.sqrt(att)
+        elif "modulation_dn" in attrs:
+            noise = np.sqrt(att) / np.asarray(attrs["modulation_dn"], float)[idx]
+        else:
+            return np.ones(idx.size)
+    ok = np.isfinite(noise) & (noise > 0)
+    if ok.sum() < 10:
+        return np.ones(idx.size)
+    frontal = ok & (_incidence_cos(cloud.xyz[idx], normals)
+                    >= math.cos(math.radians(FRONTAL_DEG)))
+    ref = float(np.median(noise[frontal] if frontal.sum() >= 10 else noise[ok]))
+    return np.where(ok, noise / ref, 1.0)
+
+
+def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -> float:
+    """Standard uncertainty of an artefact's position from the table's own errors [mm]
+    (module notes); 0 when the cloud does not carry them."""
+    attrs = cloud.attributes
+    if "sigma_table_um" not in attrs:
+        return 0.0
+    tab = np.asarray(attrs["sigma_table_um"], float)[idx]
+    if not np.isfinite(tab).any():
+        return 0.0
+    rms = 1e-3 * float(np.sqrt(np.nanmean(tab**2)))
+    corr = np.asarray(attrs.get("table_corr_mm", np.full(len(cloud), np.nan)), float)[idx]
+    c = float(np.nanmedian(corr)) if np.isfinite(corr).any() else math.nan
+    n_eff = max(1.0, area_mm2 / c**2) if math.isfinite(c) and c > 0 else 1.0
+    return rms / math.sqrt(n_eff)
+
+
+def tile_correlation(tile_mm: float):
+    """A noise-correlation callable for :func:`scanqa.qa.sphere.fit_sphere`: kappa per
+    parameter from cubes of ``tile_mm`` as clusters (module notes); 1 with too few."""
+    def kappa(points: np.ndarray, jac: np.ndarray, res: np.ndarray) -> np.ndarray:
+        key = np.floor((points - points.min(axis=0)) / tile_mm).astype(np.int64)
+        _, tile = np.unique(key, axis=0, return_inverse=True)
+        tile = tile.ravel()
+        counts = np.bincount(tile)
+        if np.sum(counts >= 3) < MIN_TILES:
+            return np.ones(jac.shape[1])
+        bread = np.linalg.inv(jac.T @ jac)
+        score = jac * res[:, None]
+        per = np.stack([np.bincount(tile, weights=score[:, j]) for j in range(jac.shape[1])],
+                       axis=1)
+        k_tiles = counts.size
+        meat_t = per.T @ per * k_tiles / (k_tiles - jac.shape[1])
+        v_t = np.diag(bread @ meat_t @ bread)
+        v_p = np.diag(bread @ (score.T @ score) @ bread)
+        return np.maximum(1.0, v_t / v_p)
+    return kappa
+
+
+def _fmt(v) -> str:
+    return "[" + ", ".join(f"{x:.1f}" for x in np.asarray(v, float)) + "]"
+
+
+# ---------------------------------------------------------------------- evaluation
+
+def _normals_sphere(xyz: np.ndarray, idx: np.ndarray) -> np.ndarray:
+    """Unit normals of a ball's points from a quick algebraic fit [-]."""
+    c, _ = algebraic_sphere(xyz[idx])
+    d = xyz[idx] - c
+    return d / np.linalg.norm(d, axis=1, keepdims=True)
+
+
+def _ball_inputs(cloud: AnnotatedCloud, sel: Selection, options: Options
+                 ) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """Points, per-point sigma (line of sight) and the table's u of one ball."""
+    xyz = np.asarray(cloud.xyz, float)
+    pts = xyz[sel.index]
+    if len(pts) < MIN_POINTS:
+        return pts, None, 0.0  # the fit raises the clear message
+    normals = _normals_sphere(xyz, sel.index)
+    sig = point_sigma(cloud, sel.index, normals, options)
+    seen = math.pi * (0.5 * float(np.ptp(pts @ _plane_axes(normals), axis=0).mean())) ** 2
+    return pts, sig, table_uncertainty(cloud, sel.index, seen)
+
+
+def _plane_axes(normals: np.ndarray) -> np.ndarray:
+    """(3, 2) two axes across the mean normal [-]."""
+    n = normals.mean(axis=0)
+    n /= np.linalg.norm(n)
+    e1 = np.cross(n, [1.0, 0, 0] if abs(n[0]) < 0.9 else [0, 1.0, 0])
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1)], axis=1)
+
+
+def evaluate_sphere(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
+                    options: Options, scan: str = "") -> ArtefactResult:
+    """PF and PS of one test sphere (module notes)."""
+    sel = select_sphere(np.asarray(cloud.xyz, float), art, options)
+    pts, sig, u_tab = _ball_inputs(cloud, sel, options)
+    test = probing_errors(pts, sig, spec, options.k, options.drop_fraction,
+                          tile_correlation(options.tile_mm), min_coverage=options.min_coverage,
+                          decide_with=options.decide_with, u_table=u_tab,
+                          where=f"sphere {art.id!r}")
+    return ArtefactResult(art, scan, (test.pf, test.ps), (sel,), test, u_tab,
+                          float(np.max(test.fit.correlation)), pts)
+
+
+def evaluate_ball_bar(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
+                      options: Options, scan: str = "") -> ArtefactResult:
+    """SD of a ball bar in one position (module notes)."""
+    sel_a, sel_b = select_ball_bar(np.asarray(cloud.xyz, float), art, options)
+    (pa, sa, ua), (pb, sb, ub) = (_ball_inputs(cloud, s, options) for s in (sel_a, sel_b))
+    test = sphere_spacing_error(pa, pb, sa, sb, spec, options.k, options.sd_drop_fraction,
+                                tile_correlation(options.tile_mm),
+                                min_coverage=options.min_coverage,
+                                decide_with=options.decide_with, u_table=max(ua, ub),
+                                where=f"ball bar {art.id!r}")
+    kappa = max(float(np.max(test.bar.sphere_a.correlation)),
+                float(np.max(test.bar.sphere_b.correlation)))
+    return ArtefactResult(art, scan, (test.sd,), (sel_a, sel_b), test, max(ua, ub), kappa,
+                          np.vstack([pa, pb]))
+
+
+def evaluate_flat(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
+                  options: Options, scan: str = "") -> ArtefactResult:
+    """F of one flat (module notes)."""
+    xyz = np.asarray(cloud.xyz, float)
+    sel = select_flat(xyz, art, options)
+    pts = xyz[sel.index]
+    plane = fit_plane(pts, f"flat {art.id!r}")
+    normals = np.broadcast_to(plane.normal, pts.shape)
+    sig = point_sigma(cloud, sel.index, normals, options)
+    d = pts - plane.centroid
+    design = np.column_stack([np.ones(len(pts)), d @ plane.axes[0], d @ plane.axes[1]])
+    kappa, _ = noise_correlation(design, np.linalg.inv(design.T @ design), plane.residuals,
+                                 options.tile_mm)
+    k0 = float(kappa[0]) if np.isfinite(kappa[0]) else 1.0
+    test = flatness_error(pts, sig, spec, options.k, options.drop_fraction, k0,
+                          decide_with=options.decide_with)
+    return ArtefactResult(art, scan, (test.f,), (sel,), test, 0.0, k0, pts)
+
+
+EVALUATE = {"sphere": evaluate_sphere, "ball_bar": evaluate_ball_bar, "flat": evaluate_flat}
+
+
+def run_artefact_qa(clouds, layout: ArtefactLayout, spec: Spec | None = None,
+                    options: Options | None = None) -> ArtefactQAResult:
+    """VDI/VDE 2634-2 quantities of every artefact of a layout in every scan.
+
+    Parameters
+    ----------
+    clouds : sequence of (str, AnnotatedCloud)
+        Scan names (matched against each artefact's ``scan``) and their clouds [mm].
+    layout : ArtefactLayout
+        The artefacts (:func:`load_artefact_layout` or :func:`auto_layout`).
+    spec : Spec, optional
+        MPEs and certificates; without them the quantities are measured, not decided.
+    options : Options, optional
+        Point selection and evaluation settings.
+
+    Returns
+    -------
+    ArtefactQAResult
+
+    Raises
+    ------
+    InputError
+        An artefact that is not found, has too few points or too small a cap, or a
+        layout that matches none of the scans.
+    """
+    options = options or Options()
+    results, notes = [], []
+    for name, cloud in clouds:
+        arts = [a for a in layout.artefacts if a.applies_to(name)]
+        if not arts:
+            notes.append(f"scan {name!r}: no artefact of the layout applies to it")
+        for art in arts:
+            results.append(EVALUATE[art.kind](cloud, art, spec, options, name))
+        if "sigma_model_um" not in cloud.attributes:
+            notes.append(f"scan {name!r} has no per-point sigma: u and the predicted form "
+                         "come from the residuals' scatter")
+    if not results:
+        raise InputError(f"{layout.source or 'the layout'}: none of its artefacts applies to "
+                         "the scans given (check each artefact's 'scan' against the scan "
+                         "names)")
+    if spec is None:
+        notes.append("no spec given: the quantities are measured, not decided (give --spec "
+                     "with the MPEs and the artefacts' certificates)")
+    return ArtefactQAResult(tuple(results), options, spec, layout, tuple(notes))

@@ -1,0 +1,41 @@
+"""The PDF of a report: the HTML page printed by WeasyPrint.
+
+WeasyPrint renders HTML and CSS to PDF in Python (with Pango for text), so the PDF is
+the very page the browser shows, laid out by the print rules of its style sheet
+(:mod:`scanqa.report.html`): one content, two media. It needs Debian's pango libraries
+(``tools/install_syslibs.sh`` installs them when missing).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from scanqa.errors import InputError
+from scanqa.io.atomic import atomic_path
+
+
+def write_pdf(page_html: str, path: str | os.PathLike) -> Path:
+    """Print an HTML page to a PDF file, atomically.
+
+    Parameters
+    ----------
+    page_html : str
+        A self-contained page (images as data: URIs).
+    path : str or PathLike
+        The PDF file.
+
+    Raises
+    ------
+    InputError
+        When WeasyPrint or the pango libraries it needs are missing.
+    """
+    try:
+        import weasyprint
+    except (ImportError, OSError) as err:
+        raise InputError(f"cannot write {path}: the PDF needs WeasyPrint and the pango "
+                         f"libraries ({err}); run tools/install_syslibs.sh, or leave out "
+                         "--pdf") from None
+    with atomic_path(path, suffix=".pdf") as tmp:
+        weasyprint.HTML(string=page_html).write_pdf(tmp)
+    return Path(path)
