@@ -1,4 +1,5 @@
-"""The gauge-block QA's numbers against independent computations (docs/qa.rst).
+"""The gauge-block QA's numbers against independent computations (the notes of
+:mod:`scanqa.qa.blocks`).
 
 * The table term of a step's u: a Monte Carlo of the calibration table's error field
   (node errors bilinearly interpolated, as the table's lookup does, on a grid of the
@@ -111,10 +112,11 @@ def _block(block_id, centroid, spread, corr, sigma_tab_um, u_plane=None, height=
 
 
 def test_step_uncertainty_hand_values():
-    """docs/qa.rst, the step's u: block a (spread 3 x 4 mm, corr 2 mm, sigma_tab 5 um) is
-    12 * 3 * 4 / 2^2 = 36 patches, block b (2 x 5 mm, 1 mm, 3 um) 12 * 2 * 5 / 1 = 120;
-    b's centroid is 16 mm along a's first axis and -2 mm along its second. Variance [um^2]:
-    25 / 36 (a's shift) + 9 / 120 (b's shift) + 25 / 36 * ((16 / 3)^2 + (2 / 4)^2) (a's tilt)."""
+    """The step's u (scanqa.qa.blocks notes): block a (spread 3 x 4 mm, corr 2 mm,
+    sigma_tab 5 um) is 12 * 3 * 4 / 2^2 = 36 patches, block b (2 x 5 mm, 1 mm, 3 um)
+    12 * 2 * 5 / 1 = 120; b's centroid is 16 mm along a's first axis and -2 mm along its
+    second. Variance [um^2]: 25 / 36 (a's shift) + 9 / 120 (b's shift)
+    + 25 / 36 * ((16 / 3)^2 + (2 / 4)^2) (a's tilt)."""
     a = _block(2, (-8.0, -12.0, 443.65), (3.0, 4.0), 2.0, 5.0, height=25.4)
     b = _block(3, (8.0, -14.0, 456.35), (2.0, 5.0), 1.0, 3.0, height=12.7)
     step = step_between(a, b, 2.0, 20.0)
@@ -339,3 +341,33 @@ def test_summary_counts_steps_inside_the_volume():
     assert [b.status for b in res.blocks] == ["ok", "outside_volume"]
     info = res.summary()
     assert info["steps_inside_volume"] == 0 and info["fraction_within_U"] is None
+
+
+def test_robust_std_hand_values():
+    """1.4826 x the median absolute deviation; the plain std when the MAD is 0; 1e-12 mm
+    when both are 0 (a perfectly flat block)."""
+    r = np.array([1.0, 2.0, 3.0, 4.0, 100.0])  # median 3, |r - 3| = 2 1 0 1 97: MAD 1
+    assert blocks._robust_std(r) == pytest.approx(1.4826, rel=1e-15)
+    r = np.array([0.0, 0.0, 0.0, 0.0, 5.0])  # MAD 0: std = sqrt(mean((r - 1)^2)) = 2
+    assert blocks._robust_std(r) == pytest.approx(2.0, rel=1e-15)
+    assert blocks._robust_std(np.zeros(6)) == 1e-12
+
+
+def test_outliers_beyond_k_robust_std_are_dropped():
+    """Five spikes of 1 mm on a block with 2 um noise: with outlier_k = 5 exactly the
+    spikes go and the refit has the noise's std; without, they stay."""
+    rng = np.random.default_rng(12)
+    pts = _grid(BLOCK_A, 0.5)
+    pts[:, 2] += rng.normal(0.0, 2e-3, len(pts))
+    spikes = np.array([10, 200, 400, 600, 800])
+    pts[spikes, 2] -= 1.0
+    res = analyse_block(pts, {}, BLOCK_A, margin=0.0, outlier_k=5.0)
+    assert res.outliers == 5 and res.n_points == len(pts) - 5
+    assert not np.isin(spikes, res.index).any()
+    assert res.measured_std_um == pytest.approx(2.0, rel=0.1)
+    kept = analyse_block(pts, {}, BLOCK_A, margin=0.0, outlier_k=None)
+    assert kept.outliers == 0 and kept.measured_std_um > 50.0
+    # without predicted sigmas the per-point sigma is the measured std
+    np.testing.assert_allclose(res.sigma_n, res.measured_std_um * 1e-3)
+    assert math.isnan(res.predicted_std_um) and res.table_sigma_um == 0.0
+    assert math.isnan(res.table_corr_mm)

@@ -1,11 +1,12 @@
 """Table lookups (bilinear in (u, v), cubic Hermite in s) against a brute-force reference.
 
-The reference evaluates a small random table point by point as docs/calibration.rst
-describes it, with other tools than the code: scipy's CubicHermiteSpline per node for Z
-and dZ/ds, a straight line through the two nearest s nodes for the table's sigma, numpy's
-polyval2d for the shear, and the bilinear weights and the per-node lateral rays written
-out per point. The code packs the table into float32 Hermite coefficients, gathers per
-band of rows and blends in float32, so the two agree to float32 rounding (~1e-6 mm).
+The reference evaluates a small random table point by point as the notes of
+:mod:`scanqa.calibration.lookup` describe it, with other tools than the code: scipy's
+CubicHermiteSpline per node for Z and dZ/ds, a straight line through the two nearest s
+nodes for the table's sigma, numpy's polyval2d for the shear, and the bilinear weights
+and the per-node lateral rays written out per point. The code packs the table into
+float32 Hermite coefficients, gathers per band of rows and blends in float32, so the two
+agree to float32 rounding (~1e-6 mm).
 """
 
 from __future__ import annotations
@@ -23,12 +24,14 @@ WIDTH, HEIGHT, CELL = 40, 30, 8.0
 S_NODES = np.arange(-6, 7) * 2.0  # [projector px]
 
 
-def random_table(seed: int = 0) -> CalibrationTable:
-    """A table over a 40 x 30 px camera with 5 x 4 nodes, 13 s nodes, a random shear, random
-    smooth values per node and random calibrated ranges (one node without any)."""
+def random_table(seed: int = 0, width: int = WIDTH, height: int = HEIGHT, cell: float = CELL,
+                 shear: np.ndarray | None = None) -> CalibrationTable:
+    """A table over a camera of width x height px (5 x 4 nodes by default), 13 s nodes, a
+    random shear, random smooth values per node and random calibrated ranges (one node
+    without any)."""
     rng = np.random.default_rng(seed)
-    node_u = np.arange(5) * CELL + (CELL - 1) / 2
-    node_v = np.arange(4) * CELL + (CELL - 1) / 2
+    node_u = np.arange(int(np.ceil(width / cell))) * cell + (cell - 1) / 2
+    node_v = np.arange(int(np.ceil(height / cell))) * cell + (cell - 1) / 2
     n_v, n_u, n_s = node_v.size, node_u.size, S_NODES.size
     s = S_NODES[None, None, :]
     a0 = 450.0 + rng.normal(0, 5, (n_v, n_u, 1))
@@ -46,12 +49,14 @@ def random_table(seed: int = 0) -> CalibrationTable:
     sigma = rng.uniform(1e-3, 5e-3, (n_v, n_u, n_s))
     s_lo = rng.uniform(-12, -4, (n_v, n_u))
     s_hi = rng.uniform(4, 12, (n_v, n_u))
-    s_lo[3, 4] = s_hi[3, 4] = np.nan  # a node that was never calibrated
-    shear = np.zeros((DEGREE + 1) * (DEGREE + 2) // 2)
-    shear[:6] = [600.0, 4.0, -1.5, 30.0, 0.8, 2.5]  # terms 1, v, v^2, v^3, v^4, u (module order)
-    shear[6:] = rng.normal(0, 0.5, shear.size - 6)
+    if n_v * n_u > 4:
+        s_lo[-1, -1] = s_hi[-1, -1] = np.nan  # a node that was never calibrated
+    if shear is None:
+        shear = np.zeros((DEGREE + 1) * (DEGREE + 2) // 2)
+        shear[:6] = [600.0, 4.0, -1.5, 30.0, 0.8, 2.5]  # 1, v, v^2, v^3, v^4, u (module order)
+        shear[6:] = rng.normal(0, 0.5, shear.size - 6)
     return CalibrationTable(node_u, node_v, np.zeros((n_v, n_u)), S_NODES, xyz, dxyz, sigma,
-                            s_lo, s_hi, shear, WIDTH, HEIGHT, "none", {}, {})
+                            s_lo, s_hi, shear, width, height, "none", {}, {})
 
 
 def shear_at(t: CalibrationTable, u, v) -> np.ndarray:
@@ -68,73 +73,68 @@ def shear_at(t: CalibrationTable, u, v) -> np.ndarray:
     return P.polyval2d(un, vn, c)
 
 
-_SPLINES: dict = {}
+def _cell(nodes: np.ndarray, coord: np.ndarray, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Lower node of each coordinate's cell (edge cells extrapolate) and the fraction."""
+    f = (coord - nodes[0]) / cell
+    i = np.minimum(np.maximum(np.floor(f), 0), nodes.size - 2).astype(int)
+    return i, f - i
 
 
-def _spline(t: CalibrationTable, node: tuple[int, int]) -> CubicHermiteSpline:
-    """Z(s) of one node: the cubic Hermite spline through its values and slopes."""
-    key = (id(t), node)
-    if key not in _SPLINES:  # (the table is kept with its splines: its id stays unique)
-        _SPLINES[key] = (t, CubicHermiteSpline(S_NODES, t.xyz[node][:, 2],
-                                               t.dxyz[node][:, 2], extrapolate=True))
-    return _SPLINES[key][1]
-
-
-def reference(t: CalibrationTable, u: float, v: float, xp: float) -> dict:
-    """One point by brute force: the cell and fractions, four nodes, their Hermite Z(s),
-    linear sigma(s) and lateral rays, blended with bilinear weights."""
-    s = xp - float(shear_at(t, u, v))
-    fu, fv = (u - t.node_u[0]) / CELL, (v - t.node_v[0]) / CELL
-    iu = int(min(max(np.floor(fu), 0), t.node_u.size - 2))  # edge cells extrapolate
-    iv = int(min(max(np.floor(fv), 0), t.node_v.size - 2))
-    tu, tv = fu - iu, fv - iv
-    centre = S_NODES.size // 2
+def reference(t: CalibrationTable, u, v, xp) -> dict:
+    """Points by brute force: the cell and fractions, the four nodes' Hermite Z(s) (scipy),
+    linear sigma(s) and lateral rays, blended with bilinear weights; arrays like ``u``."""
+    u, v, xp = (np.asarray(a, float).ravel() for a in (u, v, xp))
+    s = xp - shear_at(t, u, v)
+    iu, tu = _cell(t.node_u, u, t.cell_px)
+    iv, tv = _cell(t.node_v, v, t.cell_px)
     h = S_NODES[1] - S_NODES[0]
-    k = int(min(max(np.floor((s - S_NODES[0]) / h), 0), S_NODES.size - 2)) \
-        if np.isfinite(s) else 0
-    out = {"z": 0.0, "dz": 0.0, "sig": 0.0, "x0": 0.0, "kx": 0.0, "y0": 0.0, "ky": 0.0}
-    lo, hi = -np.inf, np.inf
+    k = np.minimum(np.maximum(np.floor(np.nan_to_num((s - S_NODES[0]) / h)), 0),
+                   S_NODES.size - 2).astype(int)
+    frac = (s - S_NODES[k]) / h
+    centre = S_NODES.size // 2
+    acc = {name: np.zeros(u.size) for name in ("z", "dz", "sig", "x0", "kx", "y0", "ky")}
+    lo, hi = np.full(u.size, -np.inf), np.full(u.size, np.inf)
     for dv, du, w in ((0, 0, (1 - tv) * (1 - tu)), (0, 1, (1 - tv) * tu),
                       (1, 0, tv * (1 - tu)), (1, 1, tv * tu)):
-        node = (iv + dv, iu + du)
-        spline = _spline(t, node)
-        sig = t.sigma_node[node]
-        frac = (s - S_NODES[k]) / h
-        kx = t.dxyz[node][centre, 0] / t.dxyz[node][centre, 2]
-        ky = t.dxyz[node][centre, 1] / t.dxyz[node][centre, 2]
-        zc = t.xyz[node][centre, 2]
-        out["z"] += w * spline(s)
-        out["dz"] += w * spline(s, 1)
-        out["sig"] += w * (sig[k] + frac * (sig[k + 1] - sig[k]))
-        out["x0"] += w * (t.xyz[node][centre, 0] - kx * zc)
-        out["kx"] += w * kx
-        out["y0"] += w * (t.xyz[node][centre, 1] - ky * zc)
-        out["ky"] += w * ky
-        # a node never calibrated (NaN) leaves no calibrated range in its cells
-        lo, hi = np.maximum(lo, t.s_lo[node]), np.minimum(hi, t.s_hi[node])
-    inside = bool(lo <= s <= hi)
-    z, dz = out["z"], out["dz"]
-    return {"xyz": np.array([out["x0"] + out["kx"] * z, out["y0"] + out["ky"] * z, z]),
-            "slope": np.array([out["kx"] * dz, out["ky"] * dz, dz]),
-            "sigma": out["sig"], "inside": inside}
+        for a in range(t.node_v.size):
+            for b in range(t.node_u.size):
+                m = (iv + dv == a) & (iu + du == b)
+                if not m.any():
+                    continue
+                z, dz, sig = t.xyz[a, b, :, 2], t.dxyz[a, b, :, 2], t.sigma_node[a, b]
+                spline = CubicHermiteSpline(S_NODES, z, dz, extrapolate=True)
+                kx = t.dxyz[a, b, centre, 0] / t.dxyz[a, b, centre, 2]
+                ky = t.dxyz[a, b, centre, 1] / t.dxyz[a, b, centre, 2]
+                acc["z"][m] += w[m] * spline(s[m])
+                acc["dz"][m] += w[m] * spline(s[m], 1)
+                acc["sig"][m] += w[m] * (sig[k[m]] + frac[m] * (sig[k[m] + 1] - sig[k[m]]))
+                acc["x0"][m] += w[m] * (t.xyz[a, b, centre, 0] - kx * z[centre])
+                acc["kx"][m] += w[m] * kx
+                acc["y0"][m] += w[m] * (t.xyz[a, b, centre, 1] - ky * z[centre])
+                acc["ky"][m] += w[m] * ky
+                # a node never calibrated (NaN) leaves no calibrated range in its cells
+                lo[m] = np.maximum(lo[m], t.s_lo[a, b])
+                hi[m] = np.minimum(hi[m], t.s_hi[a, b])
+    z, dz = acc["z"], acc["dz"]
+    with np.errstate(invalid="ignore"):
+        inside = (lo <= s) & (s <= hi)
+    return {"xyz": np.stack([acc["x0"] + acc["kx"] * z, acc["y0"] + acc["ky"] * z, z], -1),
+            "slope": np.stack([acc["kx"] * dz, acc["ky"] * dz, dz], -1),
+            "sigma": acc["sig"], "inside": inside}
 
 
 def _check(look, u, v, xp, table, extrapolate: bool) -> None:
-    for i, (uu, vv, x) in enumerate(zip(u.ravel(), v.ravel(), xp.ravel(), strict=True)):
-        ref = reference(table, uu, vv, x)
-        got_xyz = look.xyz.reshape(-1, 3)[i]
-        assert look.in_volume.ravel()[i] == ref["inside"], (uu, vv, x)
-        if not (ref["inside"] or extrapolate) or not np.isfinite(x):
-            assert np.isnan(got_xyz).all() or not np.isfinite(x)
-            if not extrapolate:
-                assert np.isnan(look.sigma_table.ravel()[i])
-                assert np.isnan(look.slope.reshape(-1, 3)[i]).all()
-            continue
-        # float32 coefficients of Z - mean(Z) (|Z - mean| < 60 mm): ~4e-6 mm
-        np.testing.assert_allclose(got_xyz, ref["xyz"], rtol=0, atol=2e-5)
-        np.testing.assert_allclose(look.slope.reshape(-1, 3)[i], ref["slope"], rtol=1e-5,
-                                   atol=1e-6)
-        np.testing.assert_allclose(look.sigma_table.ravel()[i], ref["sigma"], rtol=1e-5)
+    ref = reference(table, u, v, xp)
+    xyz, slope = look.xyz.reshape(-1, 3), look.slope.reshape(-1, 3)
+    sigma, inside = look.sigma_table.ravel(), look.in_volume.ravel()
+    np.testing.assert_array_equal(inside, ref["inside"])
+    shown = ref["inside"] | (extrapolate & np.isfinite(xp.ravel()))
+    assert np.isnan(xyz[~shown]).all() and np.isnan(slope[~shown]).all()
+    assert np.isnan(sigma[~shown]).all()
+    # float32 coefficients of Z - mean(Z) (|Z - mean| < 60 mm): ~4e-6 mm
+    np.testing.assert_allclose(xyz[shown], ref["xyz"][shown], rtol=0, atol=2e-5)
+    np.testing.assert_allclose(slope[shown], ref["slope"][shown], rtol=1e-5, atol=1e-6)
+    np.testing.assert_allclose(sigma[shown], ref["sigma"][shown], rtol=1e-5, atol=1e-8)
 
 
 @pytest.fixture(scope="module")
@@ -226,3 +226,48 @@ def test_exact_at_the_nodes(table):
         np.testing.assert_allclose(look.xyz[2], table.xyz[iv, iu, k, 2], atol=1e-5)
         np.testing.assert_allclose(look.slope[2], table.dxyz[iv, iu, k, 2], rtol=1e-5)
         np.testing.assert_allclose(look.sigma_table, table.sigma_node[iv, iu, k], rtol=1e-5)
+
+
+def test_large_query_runs_in_bands(table):
+    """40 000 points are three bands of 16 384 (scanqa.chunks): every band lands in place."""
+    u, v, xp = _queries(table, 40_000, seed=4)
+    look = table.apply(u, v, xp, extrapolate=False)
+    _check(look, u, v, xp, table, extrapolate=False)
+
+
+def test_calibrated_range_is_inclusive():
+    """A phase exactly at the lowest or the highest calibrated s of a cell is inside. The
+    shear is the constant 600.25 px (exact in binary), so s = x_p - 600.25 is exact."""
+    shear = np.zeros((DEGREE + 1) * (DEGREE + 2) // 2)
+    shear[0] = 600.25
+    t = random_table(seed=6, shear=shear)
+    t.s_lo[...] = -7.5
+    t.s_hi[...] = 7.25
+    t.s_lo[1, 2] = -8.0  # a lower bound at one corner does not widen the cell's range
+    t.s_hi[1, 2] = 7.75
+    u = np.array([10.0, 12.0, 30.0, 17.0, 17.0])
+    v = np.array([5.0, 9.0, 20.0, 13.0, 13.0])
+    xp = 600.25 + np.array([-7.5, 7.25, 7.25, -7.5 - 2**-20, 7.25 + 2**-20])
+    look = t.apply(u, v, xp)
+    np.testing.assert_array_equal(look.in_volume, [True, True, True, False, False])
+    img = np.full((HEIGHT, WIDTH), 600.25 - 7.5)
+    img[::2] = 600.25 + 7.25
+    img[:, 7] = 600.25 + 7.25 + 2**-20
+    inside = t.apply_image(img).in_volume
+    assert inside[:, :7].all() and not inside[:, 7].any()
+    np.testing.assert_array_equal(t.in_volume_rows(img[3:9], row0=3), inside[3:9])
+
+
+def test_smallest_table_two_nodes_each_way():
+    """A 2 x 2 px camera with one node per pixel (cell 1 px): one cell, the shear's
+    normalised coordinates are -1 and +1 exactly."""
+    t = random_table(seed=8, width=2, height=2, cell=1.0)
+    assert t.node_u.size == 2 and t.node_v.size == 2
+    rng = np.random.default_rng(9)
+    xp = shear_at(t, *np.indices((2, 2))[::-1]) + rng.uniform(-4, 4, (2, 2))
+    look = t.apply_image(xp)
+    v, u = np.indices((2, 2), dtype=float)
+    _check(look, u, v, xp, t, extrapolate=False)
+    u, v = rng.uniform(-0.5, 1.5, 50), rng.uniform(-0.5, 1.5, 50)
+    xp = shear_at(t, u, v) + rng.uniform(-14, 14, 50)
+    _check(t.apply(u, v, xp, extrapolate=True), u, v, xp, t, extrapolate=True)
