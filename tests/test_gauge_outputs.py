@@ -191,9 +191,8 @@ def test_model_curve_and_cloud_config(paper_config):
     np.testing.assert_allclose(res.curve["sigma_um"][::8], want, rtol=1e-9)
     res = run_qa(AnnotatedCloud(xyz, attrs, metadata={"config": {"camera": {}}}), THREE,
                  config=other)
-    assert len(res.notes) == 1 and res.notes[0].startswith(
-        "the cloud's metadata holds an unreadable config (")
-    assert res.notes[0].endswith("); its model curve is not drawn")
+    assert res.notes == ["the cloud's metadata holds an unreadable config (missing table "
+                         "[projector] (in the cloud's metadata)); its model curve is not drawn"]
     assert res.curve["sigma_um"][0] > 0  # from the config given
     assert blocks.model_curve([blocks.BlockResult(1, 1.0)], paper_config) is None
 
@@ -218,3 +217,106 @@ def test_annotated_cloud_carries_the_per_point_fields():
     assert np.isfinite(res.residual_um[~outside]).all()
     res.cloud = None
     assert res.annotated_cloud() is None
+
+
+def _result(blocks_, steps, cloud=None):
+    return blocks.QAResult(blocks_, steps, np.zeros(0, int), np.zeros(0), np.zeros(0), True,
+                           [], {}, cloud)
+
+
+def test_summary_counts_at_the_boundaries():
+    """An error of exactly U is within U; ratios come from "ok" blocks only; the model is
+    the cloud's."""
+    ok1, ok2, out = (blocks.BlockResult(i, 10.0 - i) for i in (1, 2, 3))
+    for b, measured, status in ((ok1, 3.0, "ok"), (ok2, 2.5, "ok"), (out, 9.0, "model_invalid")):
+        b.measured_std_um, b.predicted_std_um, b.status = measured, 2.0, status
+    steps = [StepResult(1, 2, 0.0, 2**-8, 1000 * 2**-9, 2.0, 20.0),   # |e| = U = 3.90625 um
+             StepResult(2, 3, 0.0, 2**-8, 1.0, 2.0, 20.0)]           # (not inside)
+    cloud = AnnotatedCloud(np.zeros((1, 3)), {}, metadata={"model": {"gamma": 3.0}})
+    info = _result([ok1, ok2, out], steps, cloud).summary()
+    assert info["steps_inside_volume"] == 1 and info["steps_error_within_U"] == 1
+    assert info["max_abs_ratio_deviation"] == 0.5  # 3.0 / 2.0 (not the 4.5 of block 3)
+    assert info["model"] == {"gamma": 3.0}
+    ok1.predicted_std_um = math.nan  # a block without a prediction has no ratio
+    assert _result([ok1, ok2], steps).summary()["max_abs_ratio_deviation"] == 0.25
+
+
+def test_few_points_and_the_height_window():
+    """Exactly 3 points make a plane (no residuals); with 4, the std has n - 3 = 1 degree of
+    freedom; points 3.5 mm off the top face are outside the default 3 mm window."""
+    spec = BlockSpec(7, 5.0, (0.0, 10.0, 0.0, 10.0), 450.0)
+    tri = np.array([[2.0, 2.0, 450.0], [8.0, 2.0, 450.0], [5.0, 8.0, 450.0]])
+    res = analyse_block(tri, {}, spec, margin=0.0, outlier_k=None)
+    assert res.status == "ok" and res.n_points == 3 and res.measured_std_um == 0.0
+    quad = np.array([[2.0, 2.0, 450.0], [8.0, 2.0, 450.0], [8.0, 8.0, 450.0],
+                     [2.0, 8.0, 450.004]])  # residuals +-1 um: sum of squares 4 um^2
+    res = analyse_block(quad, {}, spec, margin=0.0, outlier_k=None)
+    np.testing.assert_allclose(np.abs(res.fit.residuals), 1e-3, rtol=1e-6)
+    np.testing.assert_allclose(res.measured_std_um, 2.0, rtol=1e-6)
+    far = np.vstack([quad, [[5.0, 5.0, 453.5], [5.0, 5.0, 446.5]]])
+    assert analyse_block(far, {}, spec, margin=0.0, outlier_k=None).n_points == 4
+    assert analyse_block(far, {}, spec, margin=0.0, outlier_k=None, z_window=4.0).n_points == 6
+
+
+def test_a_block_left_degenerate_by_outlier_rejection_is_named():
+    """A line of points plus a few far off it: rejecting those leaves a line."""
+    spec = BlockSpec(5, 5.0, (0.0, 20.0, 0.0, 20.0), 450.0)
+    line = np.column_stack([np.linspace(1, 19, 60), np.full(60, 10.0), np.full(60, 450.0)])
+    off = np.array([[5.0, 4.0, 449.0], [15.0, 16.0, 449.0]])
+    res = analyse_block(np.vstack([line, off]), {}, spec, margin=0.0, outlier_k=3.0)
+    assert res.status == "degenerate"
+    assert res.message == "block 5: the points are collinear, no plane is defined"
+
+
+def test_missing_or_nan_attributes_are_silent(recwarn):
+    """No sigma, attenuation or correlation attribute, or a table sigma that is all NaN: the
+    block's numbers fall back (NaN, measured std, table sigma 0) without RuntimeWarnings."""
+    xyz, _ = _cloud(specs=(BLOCK_A,))
+    res = analyse_block(xyz, {}, BLOCK_A, margin=0.0, outlier_k=None)
+    assert math.isnan(res.predicted_std_um) and math.isnan(res.mean_attenuation)
+    assert math.isnan(res.table_corr_mm) and res.table_sigma_um == 0.0
+    nan = np.full(len(xyz), np.nan)
+    res = analyse_block(xyz, {"sigma_table_um": nan, "table_corr_mm": nan}, BLOCK_A,
+                        margin=0.0, outlier_k=None)
+    assert res.table_sigma_um == 0.0 and math.isnan(res.table_corr_mm)
+    assert [str(w.message) for w in recwarn] == []
+
+
+def test_run_qa_defaults_and_what_it_passes_on():
+    """Defaults T = 20 um, k = 2, 16 neighbours, no outlier rejection; outlier_k and knn
+    reach the blocks and the local std; the local std is in um."""
+    xyz, attrs = _cloud()
+    res = run_qa(AnnotatedCloud(xyz, attrs), THREE)
+    assert res.settings == {"margin_mm": 1.0, "outlier_k": None, "tolerance_um": 20.0,
+                            "k": 2.0, "knn": 16, "tile_mm": 2.0, "layout": "three.toml"}
+    assert all(s.k == 2.0 and s.tolerance_um == 20.0 for s in res.steps)
+    resid = np.where(res.block_id >= 0, res.residual_um * 1e-3, np.nan)
+    np.testing.assert_allclose(res.local_std_um,
+                               1e3 * blocks.local_std(xyz, resid, res.block_id, k=16),
+                               rtol=1e-12, equal_nan=True)
+    centres = [np.argmin(np.linalg.norm(xyz[:, :2] - [(b.region_mm[0] + b.region_mm[1]) / 2,
+                                                      (b.region_mm[2] + b.region_mm[3]) / 2],
+                                        axis=1)) for b in THREE.blocks]
+    xyz[centres, 2] -= 0.5  # a spike of 0.5 mm in the middle of each block
+    res = run_qa(AnnotatedCloud(xyz, attrs), THREE, outlier_k=5.0, knn=5)
+    assert sum(b.outliers for b in res.blocks) == 3
+    resid = np.where(res.block_id >= 0, res.residual_um * 1e-3, np.nan)
+    np.testing.assert_allclose(res.local_std_um,
+                               1e3 * blocks.local_std(xyz, resid, res.block_id, k=5),
+                               rtol=1e-12, equal_nan=True)
+
+
+def test_local_std_small_blocks_and_default_k():
+    """Blocks of 2 points get NaN, of 3 points the std of all 3, whatever comes after them;
+    the default is 16 neighbours."""
+    rng = np.random.default_rng(6)
+    xyz = rng.uniform(0, 10, (45, 3))
+    resid = rng.normal(0, 1, 45)
+    block = np.repeat([7, 3, 5], [2, 3, 40])  # the small blocks first
+    got = blocks.local_std(xyz, resid, block)
+    assert np.isnan(got[:2]).all()
+    np.testing.assert_allclose(got[2:5], np.std(resid[2:5], ddof=1), rtol=1e-12)
+    for i in range(5, 45):
+        d = np.linalg.norm(xyz[5:, :2] - xyz[i, :2], axis=1)
+        nearest = 5 + np.argsort(d, kind="stable")[:16]
+        np.testing.assert_allclose(got[i], np.std(resid[nearest], ddof=1), rtol=1e-12)

@@ -68,12 +68,13 @@ def _table_error_cloud(rng, corr_mm: float | None, sigma_tab_um: float, noise_um
 
 def _monte_carlo(corr_mm: float | None, trials: int, seed: int) -> tuple[float, float]:
     """RMS of the step error over ``trials`` draws of the table and the noise, and the mean
-    u the QA propagated [um]."""
+    u the QA propagated [um] (blocks with a 1 mm edge margin, as run_qa's default)."""
     rng = np.random.default_rng(seed)
     errors, us = [], []
     for _ in range(trials):
         xyz, attrs = _table_error_cloud(rng, corr_mm, sigma_tab_um=5.0, noise_um=1.0)
-        (step,) = run_qa(AnnotatedCloud(xyz, attrs), TWO).steps
+        a, b = (analyse_block(xyz, attrs, spec, 1.0, None) for spec in (BLOCK_A, BLOCK_B))
+        step = step_between(a, b, 2.0, 20.0)  # what run_qa does, without the per-point fields
         errors.append(step.error_um)
         us.append(step.u_um)
     return float(np.sqrt(np.mean(np.square(errors)))), float(np.mean(us))
@@ -371,3 +372,25 @@ def test_outliers_beyond_k_robust_std_are_dropped():
     np.testing.assert_allclose(res.sigma_n, res.measured_std_um * 1e-3)
     assert math.isnan(res.predicted_std_um) and res.table_sigma_um == 0.0
     assert math.isnan(res.table_corr_mm)
+
+
+def test_plane_covariance_is_scaled_by_the_noise_correlation():
+    """With noise shared by 3 x 3 points the covariance is the explicit-sums one times
+    sqrt(kappa_i kappa_j), kappa from the loop-per-tile sandwich."""
+    rng = np.random.default_rng(21)
+    pts = _grid(BLOCK_A, 0.25)
+    patch = np.floor((pts[:, :2] - pts[:, :2].min(axis=0)) / 0.75 + 1e-9).astype(int)
+    _, pid = np.unique(patch, axis=0, return_inverse=True)
+    pts[:, 2] += rng.normal(0.0, 4e-3, pid.max() + 1)[pid.ravel()]
+    attrs = {"sigma_model_um": rng.uniform(3.0, 5.0, len(pts))}
+    res = analyse_block(pts, attrs, BLOCK_A, margin=0.0, outlier_k=None)
+    v_tiles, _ = _sandwich_by_tiles(pts, res.fit.residuals, 2.0)
+    v_points, _ = _sandwich_by_tiles(pts, res.fit.residuals, None)
+    kappa = np.maximum(1.0, v_tiles / v_points)
+    assert np.all(kappa > 2.0)
+    np.testing.assert_allclose(res.noise_corr, kappa, rtol=1e-9)
+    d = pts - pts.mean(axis=0)
+    a = np.column_stack([np.ones(len(pts)), d @ res.fit.axes[0], d @ res.fit.axes[1]])
+    bread = np.linalg.inv(a.T @ a)
+    base = bread @ (a.T * res.sigma_n**2) @ a @ bread
+    np.testing.assert_allclose(res.u_plane, base * np.sqrt(np.outer(kappa, kappa)), rtol=1e-9)

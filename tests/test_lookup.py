@@ -49,8 +49,9 @@ def random_table(seed: int = 0, width: int = WIDTH, height: int = HEIGHT, cell: 
     sigma = rng.uniform(1e-3, 5e-3, (n_v, n_u, n_s))
     s_lo = rng.uniform(-12, -4, (n_v, n_u))
     s_hi = rng.uniform(4, 12, (n_v, n_u))
-    if n_v * n_u > 4:
-        s_lo[-1, -1] = s_hi[-1, -1] = np.nan  # a node that was never calibrated
+    if n_v * n_u > 4:  # a node that was never calibrated: no range, no values
+        s_lo[-1, -1] = s_hi[-1, -1] = np.nan
+        xyz[-1, -1] = dxyz[-1, -1] = sigma[-1, -1] = np.nan
     if shear is None:
         shear = np.zeros((DEGREE + 1) * (DEGREE + 2) // 2)
         shear[:6] = [600.0, 4.0, -1.5, 30.0, 0.8, 2.5]  # 1, v, v^2, v^3, v^4, u (module order)
@@ -101,7 +102,14 @@ def reference(t: CalibrationTable, u, v, xp) -> dict:
                 m = (iv + dv == a) & (iu + du == b)
                 if not m.any():
                     continue
+                # a node never calibrated (NaN) leaves no calibrated range in its cells
+                lo[m] = np.maximum(lo[m], t.s_lo[a, b])
+                hi[m] = np.minimum(hi[m], t.s_hi[a, b])
                 z, dz, sig = t.xyz[a, b, :, 2], t.dxyz[a, b, :, 2], t.sigma_node[a, b]
+                if not np.isfinite(z).all():  # and no values: every blend with it is NaN
+                    for values in acc.values():
+                        values[m] = np.nan
+                    continue
                 spline = CubicHermiteSpline(S_NODES, z, dz, extrapolate=True)
                 kx = t.dxyz[a, b, centre, 0] / t.dxyz[a, b, centre, 2]
                 ky = t.dxyz[a, b, centre, 1] / t.dxyz[a, b, centre, 2]
@@ -112,9 +120,6 @@ def reference(t: CalibrationTable, u, v, xp) -> dict:
                 acc["kx"][m] += w[m] * kx
                 acc["y0"][m] += w[m] * (t.xyz[a, b, centre, 1] - ky * z[centre])
                 acc["ky"][m] += w[m] * ky
-                # a node never calibrated (NaN) leaves no calibrated range in its cells
-                lo[m] = np.maximum(lo[m], t.s_lo[a, b])
-                hi[m] = np.minimum(hi[m], t.s_hi[a, b])
     z, dz = acc["z"], acc["dz"]
     with np.errstate(invalid="ignore"):
         inside = (lo <= s) & (s <= hi)
@@ -167,9 +172,9 @@ def test_points_match_brute_force(table, extrapolate):
     np.testing.assert_allclose(look.s_t, np.linalg.norm(look.slope, axis=-1))
 
 
-def _phase_image(table, seed: int) -> np.ndarray:
+def _phase_image(table, seed: int, width: int = WIDTH, height: int = HEIGHT) -> np.ndarray:
     rng = np.random.default_rng(seed)
-    v, u = np.indices((HEIGHT, WIDTH), dtype=float)
+    v, u = np.indices((height, width), dtype=float)
     xp = shear_at(table, u, v) + rng.uniform(S_NODES[0] - 2, S_NODES[-1] + 2, u.shape)
     xp[rng.uniform(size=u.shape) < 0.05] = np.nan
     return xp
@@ -219,7 +224,7 @@ def test_node_index_extrapolates_at_the_edges(table):
 
 def test_exact_at_the_nodes(table):
     """At a node's pixel and an s node, the lookup returns that node's stored values."""
-    for iv, iu, k in ((0, 0, 6), (2, 3, 1), (1, 4, 11), (3, 0, 2)):
+    for iv, iu, k in ((0, 0, 6), (2, 2, 1), (1, 4, 11), (3, 0, 2)):  # not by node (3, 4)
         u, v = table.node_u[iu], table.node_v[iv]
         xp = S_NODES[k] + shear_at(table, u, v)
         look = table.apply(u, v, xp, extrapolate=True)
@@ -271,3 +276,21 @@ def test_smallest_table_two_nodes_each_way():
     u, v = rng.uniform(-0.5, 1.5, 50), rng.uniform(-0.5, 1.5, 50)
     xp = shear_at(t, u, v) + rng.uniform(-14, 14, 50)
     _check(t.apply(u, v, xp, extrapolate=True), u, v, xp, t, extrapolate=True)
+
+
+def test_whole_image_in_bands_with_an_uncalibrated_node(recwarn):
+    """A 200 x 100 px camera is two bands of rows (scanqa.chunks); pixels in the cells of
+    the node without data are NaN and out of the volume, silently; in_volume is boolean
+    (it indexes the points) and the packed table is float32 (half the memory traffic)."""
+    t = random_table(seed=10, width=200, height=100)
+    xp = _phase_image(t, 11, width=200, height=100)
+    look = t.apply_image(xp)
+    v, u = np.indices(xp.shape, dtype=float)
+    _check(look, u, v, xp, t, extrapolate=False)
+    assert look.in_volume.dtype == bool and look.xyz[~look.in_volume].shape[1] == 3
+    corner = np.s_[92:, 188:]  # the cell of the last node (99.5, 195.5); cell 8 px
+    assert not look.in_volume[corner].any() and np.isnan(look.xyz[corner]).all()
+    ext = t.apply_image(xp, extrapolate=True)
+    assert np.isnan(ext.xyz[corner]).all()
+    assert t.packed.coef.dtype == np.float32
+    assert [str(w.message) for w in recwarn] == []

@@ -200,3 +200,74 @@ def test_attenuation_against_series_and_side_lobe():
     optics.attenuation(r)
     np.testing.assert_array_equal(r, before)
     assert optics.attenuation(1.5) > optics.attenuation(1.2)  # side lobe
+
+
+def test_defaults_of_the_readings():
+    """Called without a reading, Eq. 17 and Eq. 19 are applied as printed."""
+    np.testing.assert_allclose(optics.filter_factor(4.0, 0.25, 2.0), 0.5, rtol=1e-15)
+    np.testing.assert_allclose(optics.optical_scale(0.5, 0.5, 0.8), 1 / (0.5 * 0.4),
+                               rtol=1e-15)
+
+
+def test_integer_input():
+    """Integer arrays (e.g. ranges typed by hand) give the same numbers as floats."""
+    np.testing.assert_array_equal(optics.attenuation(0), 1.0)
+    np.testing.assert_allclose(optics.attenuation(np.array([0, 1])),
+                               [1.0, attenuation(1.0)], rtol=1e-11)
+    np.testing.assert_allclose(optics.circle_of_confusion([440, 460], 450, 12), [12 / 45] * 2,
+                               rtol=1e-15)
+
+
+def test_degenerate_inputs_give_nan_or_inf_without_warnings(paper_config, recwarn):
+    """The documented NaN / inf cases are silent (no RuntimeWarning): r = 0 in Eq. 12, an
+    attenuation of 0 in Eq. 19, Z_p < 4 f_p in Eq. 3, a point at the scanner's origin."""
+    assert optics.attenuation(np.array([0.0, np.nan]))[0] == 1.0
+    assert np.isinf(optics.optical_scale(1.0, np.array([0.0]), 0.5, "power"))[0]
+    assert np.isinf(optics.optical_scale(1.0, 0.5, np.array([0.0]), "mixed"))[0]
+    assert np.isnan(optics.projector_magnification(np.array([50.0]), 471.0, 25.0))[0]
+    assert np.isnan(optics.triangulation_scale(np.zeros((1, 3)), paper_config))[0]
+    pred = optics.predict([[0.0, 0.0, np.nan], [0.0, 0.0, 405.0], [0.0, 0.0, 450.0]],
+                          paper_config)
+    assert np.isnan(pred.sigma[:2]).all() and np.isfinite(pred.sigma[2])
+    assert [str(w.message) for w in recwarn] == []
+
+
+def _tilted_config(paper_config):
+    """The paper's scanner with the projector raised, set back and aimed off the XZ plane."""
+    proj = dataclasses.replace(paper_config.projector, position_mm=(140.0, 30.0, -12.0),
+                               look_at_mm=(5.0, -8.0, 455.0))
+    return dataclasses.replace(paper_config, projector=proj)
+
+
+def test_projector_frame_of_a_general_pose(paper_config):
+    """For a projector off the XZ plane: its position maps to the origin, the point it looks
+    at to (0, 0, distance), distances are kept, its x axis is horizontal (no Y component)
+    and right-handed with y and z; projector_depth is the frame's third coordinate."""
+    cfg = _tilted_config(paper_config)
+    pos, look = np.array([140.0, 30.0, -12.0]), np.array([5.0, -8.0, 455.0])
+    np.testing.assert_allclose(optics.to_projector_frame(pos, cfg), 0.0, atol=1e-12)
+    np.testing.assert_allclose(optics.to_projector_frame(look, cfg),
+                               [0.0, 0.0, np.linalg.norm(look - pos)], atol=1e-9)
+    rng = np.random.default_rng(2)
+    q = rng.uniform([-60, -50, 400], [60, 50, 500], (50, 3))
+    qp = optics.to_projector_frame(q, cfg)
+    np.testing.assert_allclose(np.linalg.norm(qp, axis=1), np.linalg.norm(q - pos, axis=1),
+                               rtol=1e-12)
+    x_axis = optics.to_projector_frame(pos + np.array([1.0, 0.0, 0.0]), cfg)  # scanner X
+    y_axis = optics.to_projector_frame(pos + np.array([0.0, 1.0, 0.0]), cfg)
+    assert abs(y_axis[0]) < 1e-12  # the projector's x axis has no scanner-Y component
+    assert x_axis[0] > 0.9 and y_axis[1] > 0.9
+    np.testing.assert_allclose(optics.projector_depth(q, cfg), qp[:, 2], rtol=1e-12)
+    # and the whole chain with this pose: Z_p is that depth, s_T the finite difference
+    pred = optics.predict(q, cfg)
+    np.testing.assert_allclose(pred.z_p, qp[:, 2], rtol=1e-12)
+    d = q / np.linalg.norm(q, axis=1, keepdims=True)
+    f_p = cfg.projector.principal_distance_px
+
+    def x_p(points):
+        p = optics.to_projector_frame(points, cfg)
+        return f_p * p[:, 0] / p[:, 2]
+
+    h = 1e-3
+    slope = (x_p(q + h * d) - x_p(q - h * d)) / (2 * h)
+    np.testing.assert_allclose(pred.s_t, 1 / np.abs(slope), rtol=1e-6)

@@ -69,3 +69,28 @@ def test_degenerate_inputs_name_the_block():
     assert fit_plane([*line[:2].tolist(), [0.0, 1.0, 450.0]]).residuals.shape == (3,)
     with pytest.raises(InputError, match="collinear"):
         fit_plane(np.zeros((5, 3)))
+
+
+def test_collinearity_threshold_is_relative_to_the_extent():
+    """s_2 <= 1e-9 s_1 (singular values of the centred points): a 100 mm line of 1000
+    points wobbling by 1e-9 mm is a line; a 0.01 mm patch 1e-10 mm wide is a plane."""
+    t = np.linspace(0.0, 100.0, 1000)
+    line = np.column_stack([t, 0.5 * t, np.full_like(t, 450.0)])
+    line[:, 2] += 1e-9 * (-1.0) ** np.arange(1000)
+    with pytest.raises(InputError, match="collinear"):
+        fit_plane(line)
+    t = np.linspace(0.0, 0.01, 50)
+    patch = np.column_stack([t, 1e-10 * (-1.0) ** np.arange(50), np.full_like(t, 450.0)])
+    fit = fit_plane(patch)
+    np.testing.assert_allclose(abs(fit.normal[2]), 1.0, atol=1e-6)
+
+
+def test_orientation_near_the_origin():
+    """A plane 0.5 mm in front of the scanner still faces it (the sign test is n . c < 0,
+    not a distance)."""
+    x, y = np.meshgrid(np.linspace(-5, 5, 11), np.linspace(-5, 5, 11))
+    pts = np.column_stack([x.ravel() + 0.3, y.ravel(), np.full(x.size, 0.5)])
+    fit = fit_plane(pts)
+    np.testing.assert_allclose(fit.normal, [0.0, 0.0, -1.0], atol=1e-12)
+    fit = fit_plane(pts * [1.0, 1.0, -1.0])  # 0.5 mm behind
+    np.testing.assert_allclose(fit.normal, [0.0, 0.0, 1.0], atol=1e-12)
