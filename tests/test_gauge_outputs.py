@@ -95,6 +95,7 @@ def test_notes_name_what_is_missing():
     res = run_qa(AnnotatedCloud(xyz, {}), THREE, tile_mm=20.0)
     assert ("block 2: only 1 tiles of 20 mm, too few to measure the noise correlation; its "
             "points are taken as independent") in res.notes
+    assert run_qa(AnnotatedCloud(xyz, {}), THREE, tile_mm=0.5).settings["tile_mm"] == 0.5
     with pytest.raises(InputError, match=r"^tile size must be > 0 mm, got 0.0$"):
         run_qa(AnnotatedCloud(xyz, {}), THREE, tile_mm=0.0)
 
@@ -312,7 +313,7 @@ def test_local_std_small_blocks_and_default_k():
     rng = np.random.default_rng(6)
     xyz = rng.uniform(0, 10, (45, 3))
     resid = rng.normal(0, 1, 45)
-    block = np.repeat([7, 3, 5], [2, 3, 40])  # the small blocks first
+    block = np.repeat([1, 3, 5], [2, 3, 40])  # the small blocks first (ids ascending)
     got = blocks.local_std(xyz, resid, block)
     assert np.isnan(got[:2]).all()
     np.testing.assert_allclose(got[2:5], np.std(resid[2:5], ddof=1), rtol=1e-12)

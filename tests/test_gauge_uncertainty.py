@@ -241,6 +241,10 @@ def test_plane_covariance_by_explicit_sums():
         for j in range(2):
             want[k + 1, j + 1] = (v * s[k] * s[j]).sum() / (ssk * (s[j] ** 2).sum())
     np.testing.assert_allclose(res.u_plane, want, rtol=1e-9, atol=1e-20)
+    # tiles too large to count 8 of them: no factor measured (NaN), none applied
+    res = analyse_block(pts, attrs, BLOCK_A, margin=0.0, outlier_k=None, tile_mm=10.0)
+    assert np.isnan(res.noise_corr).all() and res.n_tiles == 4
+    np.testing.assert_allclose(res.u_plane, want, rtol=1e-9, atol=1e-20)
 
 
 def _sandwich_by_tiles(pts: np.ndarray, residuals: np.ndarray, tile: float | None):

@@ -220,12 +220,15 @@ def test_integer_input():
 
 def test_degenerate_inputs_give_nan_or_inf_without_warnings(paper_config, recwarn):
     """The documented NaN / inf cases are silent (no RuntimeWarning): r = 0 in Eq. 12, an
-    attenuation of 0 in Eq. 19, Z_p < 4 f_p in Eq. 3, a point at the scanner's origin."""
+    attenuation of 0 in Eq. 19, Z_p < 4 f_p in Eq. 3, a point at the scanner's origin or on
+    the baseline."""
     assert optics.attenuation(np.array([0.0, np.nan]))[0] == 1.0
     assert np.isinf(optics.optical_scale(1.0, np.array([0.0]), 0.5, "power"))[0]
     assert np.isinf(optics.optical_scale(1.0, 0.5, np.array([0.0]), "mixed"))[0]
     assert np.isnan(optics.projector_magnification(np.array([50.0]), 471.0, 25.0))[0]
     assert np.isnan(optics.triangulation_scale(np.zeros((1, 3)), paper_config))[0]
+    # a point on the baseline: camera and projector rays coincide, s_T is infinite
+    assert np.isinf(optics.triangulation_scale(np.array([[70.0, 0.0, 0.0]]), paper_config))[0]
     pred = optics.predict([[0.0, 0.0, np.nan], [0.0, 0.0, 405.0], [0.0, 0.0, 450.0]],
                           paper_config)
     assert np.isnan(pred.sigma[:2]).all() and np.isfinite(pred.sigma[2])
