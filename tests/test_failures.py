@@ -199,7 +199,8 @@ def test_outputs_get_the_mode_the_umask_gives(inputs, tmp_path, umask):
     out = tmp_path / "qa"
     assert main(qa_argv(inputs["ply"], inputs["layout"], out)) == 0
     assert {p.name: p.stat().st_mode & 0o777 for p in out.iterdir()} == dict.fromkeys(
-        ("blocks.csv", "steps.csv", "summary.json", "report.html", "cloud_qa.ply"), 0o644)
+        ("blocks.csv", "steps.csv", "budget.csv", "summary.json", "report.html", "cloud_qa.ply"),
+        0o644)
     assert out.stat().st_mode & 0o777 == 0o755
     (out / "blocks.csv").chmod(0o600)
     umask(0o027)
@@ -542,7 +543,11 @@ def test_characterize_uses_or_checks_the_manifest_config(tmp_path, capsys):
     assert main(["characterize", str(SAMPLE / "camera_sweep"), "--out", str(tmp_path / "b"),
                  "-q"]) == 0
     best = json.loads((tmp_path / "b" / "summary.json").read_text())["best_variant"]
-    assert best["sigma_p_px"] == pytest.approx(0.0004278, rel=0.01)
+    from scanqa.config import load_config
+
+    profile = load_config(SAMPLE / "sample_scanner.toml", profile="sample").model
+    assert best["noise_reading"] == profile.noise_reading
+    assert best["sigma_p_px"] == pytest.approx(profile.sigma_p_px, rel=0.01)
 
 
 # ------------------------------------------------------------------ parquet

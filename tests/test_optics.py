@@ -10,6 +10,8 @@ from scipy.special import j1
 
 from scanqa import design, optics
 
+from .model_reference import reference_point
+
 FINITE = st.floats(min_value=0.0, max_value=1.2, allow_nan=False)
 
 
@@ -223,13 +225,50 @@ def test_usable_volume_is_part_of_total(paper_config):
     assert vol.total_mm3 == strict.total_mm3
 
 
-def test_flatten_reaches_target(paper_config):
-    res = design.flatten_curve(paper_config, 438.0, 462.0, 0.5)
-    ok = res["model_valid"]
-    flat = res["sigma_flat_um"][ok]
-    np.testing.assert_allclose(flat, flat.min(), rtol=1e-9)
-    # between the two minima of the W the largest filter is at focus (Fig. 7)
+@pytest.mark.parametrize("floor", ["none", "one"])
+def test_flatten_filter_brings_sigma_to_the_lowest_valid_sigma(paper_config, floor):
+    """Sect. 5.2 forward: the filter's area, added to b_c in Eq. 17, must lower every valid
+    sigma of the independent model chain (tests/model_reference.py) to the lowest one;
+    sigma is 1 / F_gamma times quantities the filter does not change (Eqs. 18, 19)."""
+    cfg = paper_config.replace_model(filter_floor=floor)
+    res = design.flatten_curve(cfg, 434.0, 466.0, 0.5)
+    ref = [reference_point((0.0, 0.0, z), cfg, "power", floor) for z in res["z_mm"]]
+    sigma = 1e3 * np.array([r["sigma"] for r in ref])
+    valid = np.array([r["valid"] for r in ref])
+    assert valid.any() and not valid.all()  # the range reaches past the validity
+    np.testing.assert_array_equal(res["model_valid"], valid)
+    np.testing.assert_allclose(res["sigma_um"], sigma, rtol=1e-9)
+    target = sigma[valid].min()
+    b_c = np.array([r["blur_area_camera"] for r in ref])
+    f_before = np.array([r["filter_factor"] for r in ref])
+    b_d = np.pi * (2 * 1.22 * 450e-6 * 8.0 / (2 * 8e-3)) ** 2  # Eqs. 15, 16 at f/8
+    b_f = np.pi * (res["filter_diameter_px"] / 2) ** 2
+    f_after = np.sqrt((b_c + b_f) * b_d) / 3.0  # Eq. 17, gamma = 3
+    if floor == "one":
+        f_after = np.maximum(f_after, 1.0)
+    after = sigma * f_before / f_after
+    np.testing.assert_allclose(after[valid], target, rtol=1e-9)
+    np.testing.assert_allclose(res["sigma_flat_um"][valid], after[valid], rtol=1e-9)
+    assert np.isnan(res["sigma_flat_um"][~valid]).all()
+    assert np.isnan(res["filter_diameter_px"][~valid]).all()
+    np.testing.assert_allclose(res["optical_blur_diameter_px"], 2 * np.sqrt(b_c / np.pi),
+                               rtol=1e-12)
+    # no filter where sigma is already at the target; between the two minima of the W the
+    # largest filter is at focus (Fig. 7)
+    assert res["filter_diameter_px"][valid][np.argmin(sigma[valid])] == 0.0
     z, d = res["z_mm"], res["filter_diameter_px"]
     inner = (z > 441.0) & (z < 459.0)
     assert z[inner][np.argmax(d[inner])] == pytest.approx(450.0, abs=1.0)
-    assert np.nanmin(d) == 0.0  # no filter where sigma is already at the target
+
+
+def test_flatten_hand_value_at_focus(paper_config):
+    """At focus b_c = 1 (Eq. 13), so with Eq. 17 as printed the filter area is
+    (sigma_focus / target)^2 - 1 and its diameter 2 sqrt(b_f / pi)."""
+    res = design.flatten_curve(paper_config, 438.0, 462.0, 0.5)
+    i = int(np.flatnonzero(res["z_mm"] == 450.0)[0])
+    ok = res["model_valid"]
+    ratio = res["sigma_um"][i] / res["sigma_um"][ok].min()
+    np.testing.assert_allclose(res["filter_diameter_px"][i],
+                               2 * np.sqrt((ratio**2 - 1) / np.pi), rtol=1e-9)
+    with pytest.raises(optics.RangeError, match="not valid anywhere"):
+        design.flatten_curve(paper_config, 400.0, 420.0, 1.0)

@@ -320,8 +320,9 @@ def flatten_curve(config: ScannerConfig, z_min: float, z_max: float, step: float
     A disc filter of area b_f [px^2] applied to the phase image adds to the optical blur
     area, so F_gamma becomes sqrt((b_c + b_f) b_d) / gamma (areas of convolved discs add
     as their second moments do). The target is the lowest valid sigma over the range;
-    at each range the filter area that brings sigma down to it is
-    b_f = b_c ((sigma / target)^2 - 1).
+    sigma is inversely proportional to F_gamma (Eq. 18/19), so at each range the filter
+    area that brings sigma down to it is b_f = (gamma F_gamma sigma / target)^2 / b_d - b_c,
+    which is b_c ((sigma / target)^2 - 1) for Eq. 17 as printed.
 
     Parameters
     ----------
@@ -343,7 +344,9 @@ def flatten_curve(config: ScannerConfig, z_min: float, z_max: float, step: float
     -----
     Only the noise term is modelled: filtering the unwrapped phase image does not
     attenuate the fringes, but it does widen the lateral resolution by the filter size.
-    With ``filter_floor = "one"`` the filter only acts where F >= 1.
+    With ``filter_floor = "one"`` a filter where F is held at 1 must first lift
+    sqrt(b_c b_d) / gamma to 1 before it lowers sigma, so it is larger there.
+    ``sigma_flat_um`` is sigma with the filter's area added in Eq. 17.
     """
     curve = axis_curve(config, z_min, z_max, step, period_px)
     z = curve["z_mm"]
@@ -354,10 +357,15 @@ def flatten_curve(config: ScannerConfig, z_min: float, z_max: float, step: float
         raise RangeError("the model is not valid anywhere in the requested range; "
                          "widen or move z_min/z_max towards the focus")
     target = float(np.nanmin(np.where(ok, sigma, np.nan)))
-    b_c = pred.blur_area_camera
-    b_f = np.where(ok, b_c * ((sigma / target) ** 2 - 1.0), np.nan)
-    b_f = np.maximum(b_f, 0.0)
+    b_c, f_gamma, gamma = pred.blur_area_camera, pred.filter_factor, config.model.gamma
+    b_d = optics.diffraction_blur_area(
+        optics.airy_diameter(config.model.wavelength_nm * 1e-6, config.camera.f_number),
+        config.camera.pixel_um * 1e-3)
+    with np.errstate(invalid="ignore"):
+        excess = (gamma * f_gamma * sigma / target) ** 2 / b_d - b_c
+        b_f = np.where(ok, np.where(sigma > target, np.maximum(excess, 0.0), 0.0), np.nan)
+    f_flat = optics.filter_factor(b_c + b_f, b_d, gamma, pred.filter_floor)
     return {"z_mm": z, "optical_blur_diameter_px": 2.0 * np.sqrt(b_c / np.pi),
             "filter_diameter_px": 2.0 * np.sqrt(b_f / np.pi), "sigma_um": sigma,
-            "sigma_flat_um": np.where(ok, np.minimum(sigma, target), np.nan),
+            "sigma_flat_um": np.where(ok, sigma * f_gamma / f_flat, np.nan),
             "model_valid": ok}

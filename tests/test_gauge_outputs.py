@@ -1,0 +1,323 @@
+"""What the gauge-block QA hands on: column names, notes, statuses at their thresholds,
+the model curve and the per-point fields, each against a value worked out here."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from scanqa.cloud import AnnotatedCloud
+from scanqa.errors import InputError
+from scanqa.qa import blocks
+from scanqa.qa.blocks import StepResult, analyse_block, run_qa
+from scanqa.qa.layout import BlockSpec, Layout
+
+from .model_reference import reference_point
+
+BLOCK_A = BlockSpec(2, 25.40, (-14.0, -2.0, -21.0, -3.0), 443.65)
+BLOCK_B = BlockSpec(3, 12.70, (2.0, 14.0, -21.0, -3.0), 456.35)
+BLOCK_C = BlockSpec(4, 7.62, (18.0, 30.0, -21.0, -3.0), 461.43)
+THREE = Layout("three blocks", (BLOCK_B, BLOCK_C, BLOCK_A), source="three.toml")
+
+BLOCK_COLUMNS = ["block_id", "nominal_height_mm", "n_points", "measured_std_um",
+                 "predicted_std_um", "ratio", "flatness_um", "mean_attenuation",
+                 "in_volume_fraction", "status", "noise_corr_factor", "n_tiles"]
+STEP_COLUMNS = ["block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "error_um",
+                "u_um", "U_um", "k", "tolerance_um", "pass"]
+
+
+def _cloud(seed: int = 0, specs=(BLOCK_A, BLOCK_B, BLOCK_C), sigma_um: float = 2.0,
+           step: float = 0.5):
+    rng = np.random.default_rng(seed)
+    pts = []
+    for b in specs:
+        x0, x1, y0, y1 = b.region_mm
+        x, y = np.meshgrid(np.arange(x0, x1, step) + step / 2, np.arange(y0, y1, step) + step / 2)
+        pts.append(np.stack([x.ravel(), y.ravel(), np.full(x.size, b.top_z_mm)], -1))
+    xyz = np.concatenate(pts)
+    xyz[:, 2] += rng.normal(0.0, sigma_um * 1e-3, len(xyz))
+    attrs = {"sigma_model_um": np.full(len(xyz), sigma_um)}
+    return xyz, attrs
+
+
+def test_rows_and_summary_have_their_documented_names():
+    """blocks.csv, steps.csv and summary.json columns; the steps go from the tallest block
+    down, whatever the layout's order; the summary's fractions worked out here."""
+    xyz, attrs = _cloud()
+    res = run_qa(AnnotatedCloud(xyz, attrs), THREE, margin_mm=0.5, tolerance_um=15.0, k=3.0,
+                 knn=9, tile_mm=2.5)
+    assert [b.block_id for b in res.blocks] == [3, 4, 2]  # layout order
+    assert [(s.block_a, s.block_b) for s in res.steps] == [(2, 3), (3, 4)]
+    rows = [b.row() for b in res.blocks]
+    assert all(list(r) == BLOCK_COLUMNS for r in rows)
+    b = res.blocks[0]
+    assert rows[0]["noise_corr_factor"] == b.noise_corr[0] and rows[0]["n_tiles"] == b.n_tiles
+    assert rows[0]["ratio"] == b.measured_std_um / b.predicted_std_um
+    steps = [s.row() for s in res.steps]
+    assert all(list(r) == STEP_COLUMNS for r in steps)
+    s = res.steps[0]
+    assert steps[0]["U_um"] == 3.0 * s.u_um and steps[0]["tolerance_um"] == 15.0
+    assert steps[0]["nominal_diff_mm"] == pytest.approx(25.40 - 12.70)
+    info = res.summary()
+    assert list(info) == ["format", "settings", "model", "has_prediction", "blocks", "steps",
+                          "steps_inside_volume", "steps_error_within_U", "fraction_within_U",
+                          "max_abs_ratio_deviation", "notes"]
+    assert info["format"] == "scanqa-qa-summary/1" and info["model"] == {}
+    assert info["settings"] == {"margin_mm": 0.5, "outlier_k": None, "tolerance_um": 15.0,
+                                "k": 3.0, "knn": 9, "tile_mm": 2.5, "layout": "three.toml"}
+    assert info["has_prediction"] is True and info["notes"] == res.notes == []
+    within = sum(abs(s.error_um) <= s.expanded_um for s in res.steps)
+    assert info["steps_inside_volume"] == 2 and info["steps_error_within_U"] == within
+    assert info["fraction_within_U"] == within / 2
+    ratios = [b.measured_std_um / b.predicted_std_um for b in res.blocks]
+    assert info["max_abs_ratio_deviation"] == max(abs(r - 1) for r in ratios)
+    assert info["blocks"][0]["block_id"] == 3 and info["steps"][1]["block_b"] == 4
+
+
+def test_nan_becomes_null_in_the_summary():
+    step = StepResult(1, 2, 1.0, math.nan, math.inf, 2.0, 20.0)
+    assert blocks._finite(math.nan) is None and blocks._finite(math.inf) is None
+    assert blocks._finite(1.5) == 1.5 and blocks._finite("ok") == "ok"
+    assert step.row()["pass"] == "undecided"
+
+
+def test_notes_name_what_is_missing():
+    xyz, _ = _cloud(specs=(BLOCK_A, BLOCK_B))
+    res = run_qa(AnnotatedCloud(xyz, {}), THREE)
+    assert res.notes[0] == ("the cloud has no sigma attributes: the predicted-std column is "
+                            "missing and step uncertainties use the measured residual std "
+                            "instead")
+    assert res.notes[1] == ("block 4: no points inside its region after the 1 mm edge margin "
+                            "(occluded, outside the calibrated volume or a wrong layout?)")
+    assert not res.has_prediction and res.summary()["has_prediction"] is False
+    res = run_qa(AnnotatedCloud(xyz, {}), THREE, tile_mm=20.0)
+    assert ("block 2: only 1 tiles of 20 mm, too few to measure the noise correlation; its "
+            "points are taken as independent") in res.notes
+    assert run_qa(AnnotatedCloud(xyz, {}), THREE, tile_mm=0.5).settings["tile_mm"] == 0.5
+    with pytest.raises(InputError, match=r"^tile size must be > 0 mm, got 0.0$"):
+        run_qa(AnnotatedCloud(xyz, {}), THREE, tile_mm=0.0)
+
+
+def test_status_of_a_block_at_each_threshold():
+    """outside_volume below half the points in the volume, model_invalid below half valid
+    (exactly half is enough), too_few_points under 3, degenerate for a line."""
+    xyz, attrs = _cloud(specs=(BLOCK_A,))
+    n = len(xyz)
+    half = np.arange(n) < n // 2  # n is even: exactly half
+    for name, status in (("in_volume", "outside_volume"), ("model_valid", "model_invalid")):
+        at = {**attrs, name: half.astype(np.float32)}
+        res = analyse_block(xyz, at, BLOCK_A, margin=0.0, outlier_k=None)
+        assert res.status == "ok"
+        at[name][0] = 0.0  # one point fewer than half
+        res = analyse_block(xyz, at, BLOCK_A, margin=0.0, outlier_k=None)
+        assert res.status == status
+    two = analyse_block(xyz[:2], attrs, BLOCK_A, margin=0.0, outlier_k=None)
+    assert (two.status, two.message) == ("too_few_points",
+                                         "block 2: only 2 points, a plane needs 3")
+    line = xyz[:40].copy()
+    line[:, 1:] = [-10.0, 443.65]
+    bad = analyse_block(line, attrs, BLOCK_A, margin=0.0, outlier_k=None)
+    assert bad.status == "degenerate" and bad.message == ("block 2: the points are collinear, "
+                                                         "no plane is defined")
+    empty = analyse_block(xyz, attrs, BlockSpec(9, 1.0, (100.0, 110.0, 0.0, 5.0)), 1.0, None)
+    assert empty.status == "no_points" and empty.n_points == 0 and empty.fit is None
+
+
+def test_region_margin_and_height_window_are_inclusive():
+    """Points exactly at region minus margin, and exactly 3 mm from the top, are in."""
+    spec = BlockSpec(1, 10.0, (0.0, 10.0, 0.0, 8.0), 450.0)
+    pts = np.array([[1.0, 1.0, 450.0], [9.0, 7.0, 450.0], [0.75, 4.0, 450.0],
+                    [9.25, 4.0, 450.0], [5.0, 0.75, 450.0], [5.0, 7.25, 450.0],
+                    [5.0, 4.0, 453.0], [5.0, 4.0, 447.0], [5.0, 4.0, 453.125],
+                    [5.0, 4.0, 446.875]])
+    np.testing.assert_array_equal(blocks._select(pts, spec, 1.0, 3.0), [0, 1, 6, 7])
+    open_spec = BlockSpec(1, 10.0, (0.0, 10.0, 0.0, 8.0))  # no top height: no window
+    np.testing.assert_array_equal(blocks._select(pts, open_spec, 1.0, 3.0), [0, 1, 6, 7, 8, 9])
+
+
+def test_missing_attributes_default_to_inside_and_valid():
+    xyz, attrs = _cloud(specs=(BLOCK_A,))
+    res = analyse_block(xyz, attrs, BLOCK_A, margin=0.0, outlier_k=None)
+    assert res.in_volume_fraction == 1.0 and res.model_valid_fraction == 1.0
+    assert math.isnan(res.mean_attenuation) and res.status == "ok"
+    idx = np.arange(5)
+    np.testing.assert_array_equal(blocks._attr({}, "x", idx, 2.5), np.full(5, 2.5))
+    got = blocks._attr({"x": np.arange(10, dtype=np.float32)}, "x", idx)
+    assert got.dtype == np.float64 and list(got) == [0, 1, 2, 3, 4]
+
+
+def test_local_std_by_brute_force():
+    """Std (ddof 1) of the residuals of each point's k nearest neighbours in XY within its
+    block, by sorting all distances; NaN outside blocks and in blocks of < 3 points."""
+    rng = np.random.default_rng(4)
+    xyz = rng.uniform(0, 10, (60, 3))
+    resid = rng.normal(0, 1, 60)
+    block = np.repeat([0, 1, -1, 2], [30, 22, 6, 2])
+    got = blocks.local_std(xyz, resid, block, k=7)
+    for i in range(60):
+        if block[i] < 0 or (block == block[i]).sum() < 3:
+            assert np.isnan(got[i])
+            continue
+        same = np.flatnonzero(block == block[i])
+        d = np.linalg.norm(xyz[same, :2] - xyz[i, :2], axis=1)
+        nearest = same[np.argsort(d, kind="stable")[:7]]
+        np.testing.assert_allclose(got[i], np.std(resid[nearest], ddof=1), rtol=1e-12)
+    small = blocks.local_std(xyz[:5], resid[:5], np.zeros(5, int), k=16)  # k > block: all 5
+    np.testing.assert_allclose(small, np.std(resid[:5], ddof=1), rtol=1e-12)
+
+
+def test_model_curve_and_cloud_config(paper_config):
+    """The model's curve spans the blocks' depths +- 5 mm in 0.25 mm steps, from the model
+    in the cloud's metadata when it has one; unreadable or different models are noted."""
+    xyz, attrs = _cloud()
+    meta = {"config": paper_config.to_dict()}
+    res = run_qa(AnnotatedCloud(xyz, attrs, metadata=meta), THREE)
+    z = res.curve["z_mm"]
+    assert z[0] == pytest.approx(443.65 - 5, abs=1e-3) and z[-1] == pytest.approx(461.43 + 5,
+                                                                                  abs=0.25)
+    np.testing.assert_allclose(np.diff(z), 0.25)
+    want = [1e3 * reference_point((0.0, 0.0, zz), paper_config, "power", "none")["sigma"]
+            for zz in z[::8]]
+    np.testing.assert_allclose(res.curve["sigma_um"][::8], want, rtol=1e-9)
+    assert res.notes == []
+    assert run_qa(AnnotatedCloud(xyz, attrs), THREE).curve is None
+    # a different model in the config given: the cloud's wins, and the notes say so
+    other = paper_config.replace_model(gamma=5.0)
+    res = run_qa(AnnotatedCloud(xyz, attrs, metadata=meta), THREE, config=other)
+    assert res.notes == ["the cloud's sigmas come from the model in its metadata (none/power, "
+                         "sigma_p 0.006487 px, gamma 3); the model of the config given to "
+                         "the QA was not used"]
+    np.testing.assert_allclose(res.curve["sigma_um"][::8], want, rtol=1e-9)
+    res = run_qa(AnnotatedCloud(xyz, attrs, metadata={"config": {"camera": {}}}), THREE,
+                 config=other)
+    assert res.notes == ["the cloud's metadata holds an unreadable config (missing table "
+                         "[projector] (in the cloud's metadata)); its model curve is not drawn"]
+    assert res.curve["sigma_um"][0] > 0  # from the config given
+    assert blocks.model_curve([blocks.BlockResult(1, 1.0)], paper_config) is None
+
+
+def test_annotated_cloud_carries_the_per_point_fields():
+    xyz, attrs = _cloud()
+    cloud = AnnotatedCloud(xyz, attrs, metadata={"source": "x"})
+    res = run_qa(cloud, THREE)
+    out = res.annotated_cloud()
+    assert set(out.attributes) == {"sigma_model_um", "qa_block_id", "qa_residual_um",
+                                   "qa_local_std_um"}
+    np.testing.assert_array_equal(out.attributes["qa_block_id"], res.block_id)
+    np.testing.assert_array_equal(out.attributes["qa_residual_um"], res.residual_um)
+    np.testing.assert_array_equal(out.attributes["qa_local_std_um"], res.local_std_um)
+    assert out.metadata == {"source": "x"}
+    # the per-point fields are the fits' own residuals, in um, and -1 / NaN elsewhere
+    b = res.blocks[0]
+    np.testing.assert_allclose(res.residual_um[b.index], 1e3 * b.fit.residuals)
+    assert set(np.unique(res.block_id)) == {-1, 2, 3, 4}  # -1: in the 1 mm edge margins
+    outside = res.block_id < 0
+    assert np.isnan(res.residual_um[outside]).all() and np.isnan(res.local_std_um[outside]).all()
+    assert np.isfinite(res.residual_um[~outside]).all()
+    res.cloud = None
+    assert res.annotated_cloud() is None
+
+
+def _result(blocks_, steps, cloud=None):
+    return blocks.QAResult(blocks_, steps, np.zeros(0, int), np.zeros(0), np.zeros(0), True,
+                           [], {}, cloud)
+
+
+def test_summary_counts_at_the_boundaries():
+    """An error of exactly U is within U; ratios come from "ok" blocks only; the model is
+    the cloud's."""
+    ok1, ok2, out = (blocks.BlockResult(i, 10.0 - i) for i in (1, 2, 3))
+    for b, measured, status in ((ok1, 3.0, "ok"), (ok2, 2.5, "ok"), (out, 9.0, "model_invalid")):
+        b.measured_std_um, b.predicted_std_um, b.status = measured, 2.0, status
+    steps = [StepResult(1, 2, 0.0, 2**-8, 1000 * 2**-9, 2.0, 20.0),   # |e| = U = 3.90625 um
+             StepResult(2, 3, 0.0, 2**-8, 1.0, 2.0, 20.0)]           # (not inside)
+    cloud = AnnotatedCloud(np.zeros((1, 3)), {}, metadata={"model": {"gamma": 3.0}})
+    info = _result([ok1, ok2, out], steps, cloud).summary()
+    assert info["steps_inside_volume"] == 1 and info["steps_error_within_U"] == 1
+    assert info["max_abs_ratio_deviation"] == 0.5  # 3.0 / 2.0 (not the 4.5 of block 3)
+    assert info["model"] == {"gamma": 3.0}
+    ok1.predicted_std_um = math.nan  # a block without a prediction has no ratio
+    assert _result([ok1, ok2], steps).summary()["max_abs_ratio_deviation"] == 0.25
+
+
+def test_few_points_and_the_height_window():
+    """Exactly 3 points make a plane (no residuals); with 4, the std has n - 3 = 1 degree of
+    freedom; points 3.5 mm off the top face are outside the default 3 mm window."""
+    spec = BlockSpec(7, 5.0, (0.0, 10.0, 0.0, 10.0), 450.0)
+    tri = np.array([[2.0, 2.0, 450.0], [8.0, 2.0, 450.0], [5.0, 8.0, 450.0]])
+    res = analyse_block(tri, {}, spec, margin=0.0, outlier_k=None)
+    assert res.status == "ok" and res.n_points == 3 and res.measured_std_um == 0.0
+    quad = np.array([[2.0, 2.0, 450.0], [8.0, 2.0, 450.0], [8.0, 8.0, 450.0],
+                     [2.0, 8.0, 450.004]])  # residuals +-1 um: sum of squares 4 um^2
+    res = analyse_block(quad, {}, spec, margin=0.0, outlier_k=None)
+    np.testing.assert_allclose(np.abs(res.fit.residuals), 1e-3, rtol=1e-6)
+    np.testing.assert_allclose(res.measured_std_um, 2.0, rtol=1e-6)
+    far = np.vstack([quad, [[5.0, 5.0, 453.5], [5.0, 5.0, 446.5]]])
+    assert analyse_block(far, {}, spec, margin=0.0, outlier_k=None).n_points == 4
+    assert analyse_block(far, {}, spec, margin=0.0, outlier_k=None, z_window=4.0).n_points == 6
+
+
+def test_a_block_left_degenerate_by_outlier_rejection_is_named():
+    """A line of points plus a few far off it: rejecting those leaves a line."""
+    spec = BlockSpec(5, 5.0, (0.0, 20.0, 0.0, 20.0), 450.0)
+    line = np.column_stack([np.linspace(1, 19, 60), np.full(60, 10.0), np.full(60, 450.0)])
+    off = np.array([[5.0, 4.0, 449.0], [15.0, 16.0, 449.0]])
+    res = analyse_block(np.vstack([line, off]), {}, spec, margin=0.0, outlier_k=3.0)
+    assert res.status == "degenerate"
+    assert res.message == "block 5: the points are collinear, no plane is defined"
+
+
+def test_missing_or_nan_attributes_are_silent(recwarn):
+    """No sigma, attenuation or correlation attribute, or a table sigma that is all NaN: the
+    block's numbers fall back (NaN, measured std, table sigma 0) without RuntimeWarnings."""
+    xyz, _ = _cloud(specs=(BLOCK_A,))
+    res = analyse_block(xyz, {}, BLOCK_A, margin=0.0, outlier_k=None)
+    assert math.isnan(res.predicted_std_um) and math.isnan(res.mean_attenuation)
+    assert math.isnan(res.table_corr_mm) and res.table_sigma_um == 0.0
+    nan = np.full(len(xyz), np.nan)
+    res = analyse_block(xyz, {"sigma_table_um": nan, "table_corr_mm": nan}, BLOCK_A,
+                        margin=0.0, outlier_k=None)
+    assert res.table_sigma_um == 0.0 and math.isnan(res.table_corr_mm)
+    assert [str(w.message) for w in recwarn] == []
+
+
+def test_run_qa_defaults_and_what_it_passes_on():
+    """Defaults T = 20 um, k = 2, 16 neighbours, no outlier rejection; outlier_k and knn
+    reach the blocks and the local std; the local std is in um."""
+    xyz, attrs = _cloud()
+    res = run_qa(AnnotatedCloud(xyz, attrs), THREE)
+    assert res.settings == {"margin_mm": 1.0, "outlier_k": None, "tolerance_um": 20.0,
+                            "k": 2.0, "knn": 16, "tile_mm": 2.0, "layout": "three.toml"}
+    assert all(s.k == 2.0 and s.tolerance_um == 20.0 for s in res.steps)
+    resid = np.where(res.block_id >= 0, res.residual_um * 1e-3, np.nan)
+    np.testing.assert_allclose(res.local_std_um,
+                               1e3 * blocks.local_std(xyz, resid, res.block_id, k=16),
+                               rtol=1e-12, equal_nan=True)
+    centres = [np.argmin(np.linalg.norm(xyz[:, :2] - [(b.region_mm[0] + b.region_mm[1]) / 2,
+                                                      (b.region_mm[2] + b.region_mm[3]) / 2],
+                                        axis=1)) for b in THREE.blocks]
+    xyz[centres, 2] -= 0.5  # a spike of 0.5 mm in the middle of each block
+    res = run_qa(AnnotatedCloud(xyz, attrs), THREE, outlier_k=5.0, knn=5)
+    assert sum(b.outliers for b in res.blocks) == 3
+    resid = np.where(res.block_id >= 0, res.residual_um * 1e-3, np.nan)
+    np.testing.assert_allclose(res.local_std_um,
+                               1e3 * blocks.local_std(xyz, resid, res.block_id, k=5),
+                               rtol=1e-12, equal_nan=True)
+
+
+def test_local_std_small_blocks_and_default_k():
+    """Blocks of 2 points get NaN, of 3 points the std of all 3, whatever comes after them;
+    the default is 16 neighbours."""
+    rng = np.random.default_rng(6)
+    xyz = rng.uniform(0, 10, (45, 3))
+    resid = rng.normal(0, 1, 45)
+    block = np.repeat([1, 3, 5], [2, 3, 40])  # the small blocks first (ids ascending)
+    got = blocks.local_std(xyz, resid, block)
+    assert np.isnan(got[:2]).all()
+    np.testing.assert_allclose(got[2:5], np.std(resid[2:5], ddof=1), rtol=1e-12)
+    for i in range(5, 45):
+        d = np.linalg.norm(xyz[5:, :2] - xyz[i, :2], axis=1)
+        nearest = 5 + np.argsort(d, kind="stable")[:16]
+        np.testing.assert_allclose(got[i], np.std(resid[nearest], ddof=1), rtol=1e-12)

@@ -1,0 +1,276 @@
+"""The model chain (Eqs. 1-19 of Drouin et al. 2017) against an independent scalar version
+(tests/model_reference.py): a wrong constant, operator or argument anywhere in the chain
+changes at least one field of the prediction."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from scanqa import optics
+
+from .model_reference import FLOORS, READINGS, attenuation, reference_point
+
+
+def _grid_points() -> np.ndarray:
+    """On and off axis, in focus, inside the DOF, past its validity and past the first zero."""
+    zs = np.array([415.0, 430.0, 436.0, 441.5, 447.0, 450.0, 453.0, 458.5, 466.0, 480.0])
+    xs = np.array([-45.0, 0.0, 30.0])
+    ys = np.array([-35.0, 0.0, 20.0])
+    return np.array([[x, y, z] for z in zs for x in xs for y in ys])
+
+
+FIELDS = ("z_c", "z_p", "omega_o", "ratio_camera", "ratio_projector", "attenuation_camera",
+          "attenuation_projector", "blur_area_camera", "filter_factor", "s_o", "s_t", "sigma")
+
+
+def _compare(pred, ref_rows: list[dict]) -> None:
+    for name in FIELDS:
+        want = np.array([r[name] for r in ref_rows])
+        got = np.asarray(getattr(pred, name))
+        # float64 agreement ~1e-12 (atol: |Z - Z'| cancels near focus); 1e-9 leaves room
+        np.testing.assert_allclose(got, want, rtol=1e-9, atol=1e-12, equal_nan=True,
+                                   err_msg=name)
+    np.testing.assert_array_equal(pred.valid, [r["valid"] for r in ref_rows])
+
+
+@pytest.mark.parametrize("reading", READINGS)
+@pytest.mark.parametrize("floor", FLOORS)
+def test_predict_matches_independent_chain(paper_config, reading, floor):
+    pts = _grid_points()
+    pred = optics.predict(pts, paper_config, filter_floor=floor, noise_reading=reading)
+    ref = [reference_point(p, paper_config, reading, floor) for p in pts]
+    _compare(pred, ref)
+    assert pred.filter_floor == floor and pred.noise_reading == reading
+    # the grid reaches every regime of the model
+    assert any(r["valid"] for r in ref) and not all(r["valid"] for r in ref)
+    assert any(math.isnan(r["sigma"]) for r in ref)
+    assert any(r["blur_area_camera"] == 1.0 for r in ref)  # Eq. 13's floor at focus
+    assert any(r["blur_area_camera"] > 1.0 for r in ref)
+    assert any(r["filter_factor"] > 1.0 for r in ref)
+    assert any(r["filter_factor"] < 1.0 for r in ref) == (floor == "none")
+
+
+def test_config_defaults_period_sigma_p_and_given_s_t(paper_config):
+    """The config's readings, working period and sigma_p are the defaults; a given
+    period, sigma_p and s_T replace them."""
+    cfg = paper_config.replace_model(filter_floor="one", noise_reading="mixed")
+    pts = _grid_points()
+    pred = optics.predict(pts, cfg)
+    _compare(pred, [reference_point(p, cfg, "mixed", "one") for p in pts])
+    pred7 = optics.predict(pts, cfg, period_px=7.0, s_t=0.125, sigma_p=0.01)
+    ref7 = [reference_point(p, cfg, "mixed", "one", period=7.0) for p in pts]
+    for name in ("omega_o", "ratio_camera", "ratio_projector", "s_o"):
+        np.testing.assert_allclose(getattr(pred7, name), [r[name] for r in ref7],
+                                   rtol=1e-9, atol=1e-12, equal_nan=True, err_msg=name)
+    np.testing.assert_allclose(pred7.s_t, 0.125)
+    np.testing.assert_allclose(pred7.sigma, [0.125 * r["s_o"] * 0.01 for r in ref7],
+                               rtol=1e-9, equal_nan=True)
+
+
+def test_optical_terms_gamma_and_overrides(paper_config):
+    """optical_terms: the given gamma replaces the config's (Eq. 17 scales as 1 / gamma)."""
+    z_c = np.array([440.0, 450.0, 462.0])
+    z_p = np.array([460.0, 471.2749, 485.0])
+    t3 = optics.optical_terms(z_c, z_p, paper_config)
+    t6 = optics.optical_terms(z_c, z_p, paper_config, gamma=6.0, filter_floor="none",
+                              noise_reading="power")
+    np.testing.assert_allclose(t6.filter_factor, t3.filter_factor / 2.0, rtol=1e-14)
+    np.testing.assert_allclose(t6.s_o, 2.0 * t3.s_o, rtol=1e-14)
+    for zc, zp, so in zip(z_c, z_p, t3.s_o, strict=True):
+        pc = _point_at(paper_config, zc, zp)
+        r = reference_point(pc, paper_config, "power", "none")
+        np.testing.assert_allclose(r["z_p"], zp, rtol=1e-9)
+        np.testing.assert_allclose(so, r["s_o"], rtol=1e-9)
+
+
+def _point_at(cfg, z_c: float, z_p: float) -> tuple[float, float, float]:
+    """The point with Y = 0 at camera depth z_c and projector depth z_p [mm]."""
+    px, _, pz = cfg.projector.position_mm
+    ax, az = cfg.projector.look_at_mm[0] - px, cfg.projector.look_at_mm[2] - pz
+    norm = math.hypot(ax, az)
+    # z_p = ((x - px) ax + (z_c - pz) az) / norm, solved for x
+    x = px + (z_p * norm - (z_c - pz) * az) / ax
+    return (x, 0.0, z_c)
+
+
+def test_focus_hand_value(paper_config):
+    """calib/paper_scanner.toml's note: s_O(focus) = 3.0830 at f/8, gamma = 3 (Eq. 19 with
+    A_c = 1, b_c = 1 and b_d = pi (2.44 * 0.45 um * 8 / 16 um)^2 = 0.94688)."""
+    b_d = math.pi * (2.44 * 0.45 * 8 / 16) ** 2
+    np.testing.assert_allclose(b_d, 0.94688, rtol=1e-5)
+    terms = optics.optical_terms(450.0, 471.2749, paper_config)
+    np.testing.assert_allclose(terms.filter_factor, math.sqrt(b_d) / 3.0, rtol=1e-12)
+    np.testing.assert_allclose(terms.attenuation_camera, 1.0, rtol=0, atol=0)
+    np.testing.assert_allclose(terms.s_o, 3.0830, rtol=1e-4)
+
+
+@settings(max_examples=40, deadline=None)
+@given(x=st.floats(-60, 60), y=st.floats(-50, 50), z=st.floats(425.0, 480.0),
+       reading=st.sampled_from(READINGS), floor=st.sampled_from(FLOORS))
+def test_predict_matches_independent_chain_anywhere(paper_config, x, y, z, reading, floor):
+    pred = optics.predict([x, y, z], paper_config, filter_floor=floor, noise_reading=reading)
+    _compare(pred, [reference_point((x, y, z), paper_config, reading, floor)])
+
+
+def test_image_blur_diameter_eq14_and_thin_lens():
+    """Eq. 14 by hand, and within 1 % of the thin-lens blur of a sensor focused at Z' over
+    +-10 mm (they differ by f |Z - Z'| / (Z' (Z - f)) relative, to first order)."""
+    f, focus, phi = 100.0, 450.0, 12.5
+    # Eq. 14 at Z = 460: f / (Z - f) * Phi |Z - Z'| / Z' = 100 / 360 * 12.5 * 10 / 450
+    np.testing.assert_allclose(optics.image_blur_diameter(460.0, f, focus, phi),
+                               100 / 360 * 12.5 * 10 / 450, rtol=1e-14)
+    z = np.array([440.0, 445.0, 449.0, 450.0, 455.0, 460.0])
+    v, v_focus = f * z / (z - f), f * focus / (focus - f)  # thin lens: image distances
+    geometric = phi * np.abs(v - v_focus) / v
+    got = optics.image_blur_diameter(z, f, focus, phi)
+    np.testing.assert_allclose(got, geometric, rtol=0.01, atol=1e-15)
+    assert got[3] == 0.0
+
+
+def test_validity_boundary_is_inclusive():
+    """The paper's validity is r <= 1/2 (Sect. 3.1): r = 0.5 exactly is valid."""
+    one = np.ones(3)
+    terms = optics.OpticalTerms(*(one,) * 5, one, one, one, one, one, "none", "power")
+    terms = dataclasses.replace(terms, ratio_camera=np.array([0.5, 0.5, 0.5000001]),
+                                ratio_projector=np.array([0.5, 0.4999999, 0.1]))
+    np.testing.assert_array_equal(terms.within_validity, [True, True, False])
+    terms = dataclasses.replace(terms, ratio_camera=np.array([0.1, 0.1, 0.1]),
+                                ratio_projector=np.array([0.5, 0.5000001, 0.0]))
+    np.testing.assert_array_equal(terms.within_validity, [True, False, True])
+
+
+def test_config_with_list_pose_still_predicts(paper_config):
+    """A projector whose pose fields are lists (unhashable: no rotation cache) gives the
+    same numbers through the uncached rotation."""
+    proj = dataclasses.replace(paper_config.projector)
+    object.__setattr__(proj, "position_mm", list(proj.position_mm))
+    cfg = dataclasses.replace(paper_config, projector=proj)
+    with pytest.raises(TypeError):
+        hash(proj)
+    pts = _grid_points()
+    _compare(optics.predict(pts, cfg), [reference_point(p, paper_config, "power", "none")
+                                        for p in pts])
+    np.testing.assert_allclose(optics.to_projector_frame(pts, cfg),
+                               optics.to_projector_frame(pts, paper_config), rtol=1e-15)
+
+
+def test_to_projector_frame_by_hand(paper_config):
+    """Q_p = R (Q - position) with R built by hand for a projector at (140, 0, 0) looking at
+    (0, 0, 450): z axis (-140, 0, 450) / n, x axis (450, 0, 140) / n, y axis +Y."""
+    n = math.hypot(140.0, 450.0)
+    q = np.array([[10.0, -7.0, 440.0], [-30.0, 25.0, 470.0]])
+    d = q - [140.0, 0.0, 0.0]
+    want = np.stack([(450 * d[:, 0] + 140 * d[:, 2]) / n, d[:, 1],
+                     (-140 * d[:, 0] + 450 * d[:, 2]) / n], -1)
+    np.testing.assert_allclose(optics.to_projector_frame(q, paper_config), want, rtol=1e-13)
+    np.testing.assert_allclose(optics.projector_depth(q, paper_config), want[:, 2], rtol=1e-13)
+    # the axes crossing at (0, 0, 450) is at the projector's focus distance hypot(140, 450)
+    np.testing.assert_allclose(optics.projector_depth([0.0, 0.0, 450.0], paper_config),
+                               n, rtol=1e-13)
+
+
+def test_ratio_at_attenuation_hand_values():
+    """Inverse of Eq. 12 against the power-series attenuation: A(r_a) = a on the main lobe;
+    a = 1 is r = 0 exactly, and a = 0.49 gives the r_a = 0.52148 of calib/paper_scanner.toml."""
+    assert optics.ratio_at_attenuation(1.0) == 0.0
+    np.testing.assert_allclose(optics.ratio_at_attenuation(0.49), 0.52148, atol=5e-6)
+    for level in (1e-6, 0.1, 0.49, 0.8, 1 - 1e-9):
+        r = optics.ratio_at_attenuation(level)
+        assert 0.0 < r < 1.2196698912665045
+        np.testing.assert_allclose(attenuation(r), level, rtol=1e-9)
+    for bad in (0.0, -0.2, 1.0000001, math.nan):
+        with pytest.raises(optics.RangeError, match=r"attenuation level must be in \(0, 1\]"):
+            optics.ratio_at_attenuation(bad)
+
+
+def test_attenuation_against_series_and_side_lobe():
+    """Eq. 12 vs the power series on and past the main lobe (A rises again in side lobes);
+    negative r gives the same (the kernel is symmetric); the input is not modified."""
+    r = np.array([1e-9, 0.05, 0.3, 0.5, 0.9, 1.2, 1.5, 2.0, 2.6])
+    want = [attenuation(v) for v in r]
+    np.testing.assert_allclose(optics.attenuation(r), want, rtol=1e-11)
+    np.testing.assert_allclose(optics.attenuation(-r), want, rtol=1e-11)
+    before = r.copy()
+    optics.attenuation(r)
+    np.testing.assert_array_equal(r, before)
+    assert optics.attenuation(1.5) > optics.attenuation(1.2)  # side lobe
+
+
+def test_defaults_of_the_readings():
+    """Called without a reading, Eq. 17 and Eq. 19 are applied as printed."""
+    np.testing.assert_allclose(optics.filter_factor(4.0, 0.25, 2.0), 0.5, rtol=1e-15)
+    np.testing.assert_allclose(optics.optical_scale(0.5, 0.5, 0.8), 1 / (0.5 * 0.4),
+                               rtol=1e-15)
+
+
+def test_integer_input():
+    """Integer arrays (e.g. ranges typed by hand) give the same numbers as floats."""
+    np.testing.assert_array_equal(optics.attenuation(0), 1.0)
+    np.testing.assert_allclose(optics.attenuation(np.array([0, 1])),
+                               [1.0, attenuation(1.0)], rtol=1e-11)
+    np.testing.assert_allclose(optics.circle_of_confusion([440, 460], 450, 12), [12 / 45] * 2,
+                               rtol=1e-15)
+
+
+def test_degenerate_inputs_give_nan_or_inf_without_warnings(paper_config, recwarn):
+    """The documented NaN / inf cases are silent (no RuntimeWarning): r = 0 in Eq. 12, an
+    attenuation of 0 in Eq. 19, Z_p < 4 f_p in Eq. 3, a point at the scanner's origin or on
+    the baseline."""
+    assert optics.attenuation(np.array([0.0, np.nan]))[0] == 1.0
+    assert np.isinf(optics.optical_scale(1.0, np.array([0.0]), 0.5, "power"))[0]
+    assert np.isinf(optics.optical_scale(1.0, 0.5, np.array([0.0]), "mixed"))[0]
+    assert np.isnan(optics.projector_magnification(np.array([50.0]), 471.0, 25.0))[0]
+    assert np.isnan(optics.triangulation_scale(np.zeros((1, 3)), paper_config))[0]
+    # a point on the baseline: camera and projector rays coincide, s_T is infinite
+    assert np.isinf(optics.triangulation_scale(np.array([[70.0, 0.0, 0.0]]), paper_config))[0]
+    pred = optics.predict([[0.0, 0.0, np.nan], [0.0, 0.0, 405.0], [0.0, 0.0, 450.0]],
+                          paper_config)
+    assert np.isnan(pred.sigma[:2]).all() and np.isfinite(pred.sigma[2])
+    assert [str(w.message) for w in recwarn] == []
+
+
+def _tilted_config(paper_config):
+    """The paper's scanner with the projector raised, set back and aimed off the XZ plane."""
+    proj = dataclasses.replace(paper_config.projector, position_mm=(140.0, 30.0, -12.0),
+                               look_at_mm=(5.0, -8.0, 455.0))
+    return dataclasses.replace(paper_config, projector=proj)
+
+
+def test_projector_frame_of_a_general_pose(paper_config):
+    """For a projector off the XZ plane: its position maps to the origin, the point it looks
+    at to (0, 0, distance), distances are kept, its x axis is horizontal (no Y component)
+    and right-handed with y and z; projector_depth is the frame's third coordinate."""
+    cfg = _tilted_config(paper_config)
+    pos, look = np.array([140.0, 30.0, -12.0]), np.array([5.0, -8.0, 455.0])
+    np.testing.assert_allclose(optics.to_projector_frame(pos, cfg), 0.0, atol=1e-12)
+    np.testing.assert_allclose(optics.to_projector_frame(look, cfg),
+                               [0.0, 0.0, np.linalg.norm(look - pos)], atol=1e-9)
+    rng = np.random.default_rng(2)
+    q = rng.uniform([-60, -50, 400], [60, 50, 500], (50, 3))
+    qp = optics.to_projector_frame(q, cfg)
+    np.testing.assert_allclose(np.linalg.norm(qp, axis=1), np.linalg.norm(q - pos, axis=1),
+                               rtol=1e-12)
+    x_axis = optics.to_projector_frame(pos + np.array([1.0, 0.0, 0.0]), cfg)  # scanner X
+    y_axis = optics.to_projector_frame(pos + np.array([0.0, 1.0, 0.0]), cfg)
+    assert abs(y_axis[0]) < 1e-12  # the projector's x axis has no scanner-Y component
+    assert x_axis[0] > 0.9 and y_axis[1] > 0.9
+    np.testing.assert_allclose(optics.projector_depth(q, cfg), qp[:, 2], rtol=1e-12)
+    # and the whole chain with this pose: Z_p is that depth, s_T the finite difference
+    pred = optics.predict(q, cfg)
+    np.testing.assert_allclose(pred.z_p, qp[:, 2], rtol=1e-12)
+    d = q / np.linalg.norm(q, axis=1, keepdims=True)
+    f_p = cfg.projector.principal_distance_px
+
+    def x_p(points):
+        p = optics.to_projector_frame(points, cfg)
+        return f_p * p[:, 0] / p[:, 2]
+
+    h = 1e-3
+    slope = (x_p(q + h * d) - x_p(q - h * d)) / (2 * h)
+    np.testing.assert_allclose(pred.s_t, 1 / np.abs(slope), rtol=1e-6)
