@@ -150,8 +150,8 @@ def test_mismatch_camera_size(tmp_path, capsys):
     code = main(["calibrate", str(tmp_path), "--config", str(ROOT / "calib" /
                  "paper_scanner.toml"), "--out", str(tmp_path / "t.npz")])
     err = capsys.readouterr().err
-    assert code == 2 and "camera.width_px x camera.height_px = 2448 x 2048" in err
-    assert "192 x 128 px" in err and "Traceback" not in err
+    assert code == 2 and "is 192 x 128 px but the camera of config" in err
+    assert "2448 x 2048 px" in err and "Traceback" not in err
     assert not (tmp_path / "t.npz").exists()
 
 
@@ -175,12 +175,14 @@ def test_mismatch_pixel_size(tmp_path):
 
 
 def test_mismatch_simulated_config(tmp_path, capsys):
-    """The committed sample sweep with the paper's config (the issue's example)."""
+    """The committed sample sweep with a config of the same size but another lens
+    setting (profile binned8: f/8, not the simulated f/11)."""
     sweep = ROOT / "sample_data" / "calibration_sweep"
-    code = main(["calibrate", str(sweep), "--config", str(ROOT / "calib" /
-                 "paper_scanner.toml"), "--out", str(tmp_path / "t.npz")])
+    code = main(["calibrate", str(sweep), "--config", f"{SAMPLE}#binned8", "--out",
+                 str(tmp_path / "t.npz")])
     err = capsys.readouterr().err
-    assert code == 2 and "was simulated with camera." in err and "Traceback" not in err
+    assert code == 2 and "was simulated with camera.f_number = 11.0" in err
+    assert "Traceback" not in err and not (tmp_path / "t.npz").exists()
 
 
 def test_mismatch_scanner_table(tmp_path):

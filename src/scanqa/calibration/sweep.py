@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa import optics
-from scanqa.calibration.build import BuildReport, PlaneObservation, build_table
+from scanqa.calibration.build import BuildReport, PlaneObservation, _check_first, build_table
 from scanqa.calibration.table import CalibrationTable
 from scanqa.calibration.target import (
     ChessboardSpec,
@@ -197,11 +197,14 @@ def check_scale(obs: PlaneObservation, config: ScannerConfig) -> None:
                      f"z = {obs.z_mm:g} mm")
 
 
-def _checked(observations: Iterator[PlaneObservation], config: ScannerConfig
-             ) -> Iterator[PlaneObservation]:
-    """Pass observations through, checking the first one's size and scale."""
+def _checked(observations: Iterator[PlaneObservation], sweep: Sweep,
+             config: ScannerConfig) -> Iterator[PlaneObservation]:
+    """Pass observations through; on the first, check its size (the build's own check
+    first), then the sweep's records (:func:`check_sweep`), then the images' scale."""
     for i, obs in enumerate(observations):
         if i == 0:
+            _check_first(obs, config)
+            check_sweep(sweep, config)
             check_scale(obs, config)
         yield obs
 
@@ -238,11 +241,10 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
         Rejected samples by reason and the fit residual per position.
     """
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
-    check_sweep(sweep, config)
     geometry = marker_geometry(sweep, config) if use_markers and sweep.has_markers else None
     prov = sweep.provenance()
     if geometry is not None:
         prov["target_geometry"] = geometry.summary()
-    return build_table(_checked(iter_observations(sweep, geometry), config), config,
+    return build_table(_checked(iter_observations(sweep, geometry), sweep, config), config,
                        weights=weights, cell_px=cell_px, min_modulation=min_modulation,
                        provenance=prov, total=sweep.observation_count())

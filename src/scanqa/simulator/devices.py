@@ -202,9 +202,11 @@ def project_to_projector(config: ScannerConfig, pose: Pose, points: np.ndarray
     q = pose.to_device(points)
     f = config.projector.principal_distance_px
     x0, y0 = config.projector.principal_point_px
+    coef = distortion(config, "projector")
     with np.errstate(divide="ignore", invalid="ignore"):
-        xd, yd = distort(distortion(config, "projector"), q[..., 0] / q[..., 2],
-                         q[..., 1] / q[..., 2])
+        if not any(coef):  # today's pinhole, bit for bit
+            return f * q[..., 0] / q[..., 2] + x0, f * q[..., 1] / q[..., 2] + y0, q[..., 2]
+        xd, yd = distort(coef, q[..., 0] / q[..., 2], q[..., 1] / q[..., 2])
     return f * xd + x0, f * yd + y0, q[..., 2]
 
 
