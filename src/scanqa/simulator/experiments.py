@@ -314,7 +314,8 @@ def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path) -> P
 
 def write_scan(name: str, config: ScannerConfig, desc: PatternDescription, pos: Position,
                repeat: int, out: Path,
-               on_tile: Callable[[int, int], None] | None = None) -> Path:
+               on_tile: Callable[[int, int], None] | None = None,
+               folder: Path | None = None) -> Path:
     """Render one scan (position ``pos``, repeat ``repeat``) and write its pattern folder
     ``out/pNNN_rR``; its noise depends only on the config's seed, the experiment, the
     position's index and the repeat (:func:`acquisition`), so scans may be rendered in
@@ -336,13 +337,16 @@ def write_scan(name: str, config: ScannerConfig, desc: PatternDescription, pos: 
         The experiment folder.
     on_tile : callable, optional
         ``on_tile(done, tiles)`` after every rendered tile.
+    folder : Path, optional
+        Write the pattern folder here instead (a staging folder that becomes
+        ``out/pNNN_rR``).
 
     Returns
     -------
     Path
         The pattern folder.
     """
-    folder = out / f"{pos.label}_r{repeat}"
+    folder = folder or out / f"{pos.label}_r{repeat}"
     images = render.render_images(config, acquisition(config, pos, repeat, name), desc,
                                   on_tile)
     write_pattern_set(folder, desc, images, "png")
