@@ -45,6 +45,8 @@ log = logging.getLogger(__name__)
 #: Markers of finished scans: DIR/DONE_DIR/RUN/pNNN_rR.json.
 DONE_DIR = "done"
 MARKER_FORMAT = "scanqa-campaign-done/1"
+#: Derived seeds lie in [0, SEED_RANGE) (the config's range of simulator.seed).
+SEED_RANGE = 10**9
 #: The first columns of a campaign's results table.
 COLUMNS = ("scan", "run", "experiment", "position", "stage_mm", "repeat", "seed", "status",
            "error")
@@ -104,7 +106,8 @@ class ScanJob:
 
 
 def derive_seed(campaign_seed: int, run_name: str) -> int:
-    """A run's simulator seed: the first 31 bits of SHA-256 of "SEED/NAME".
+    """A run's simulator seed: the first 8 bytes of SHA-256 of "SEED/NAME" (big-endian)
+    modulo 10**9 (the config's range of ``simulator.seed``).
 
     Parameters
     ----------
@@ -119,7 +122,7 @@ def derive_seed(campaign_seed: int, run_name: str) -> int:
     True
     """
     digest = hashlib.sha256(f"{int(campaign_seed)}/{run_name}".encode()).digest()
-    return int.from_bytes(digest[:4], "big") >> 1
+    return int.from_bytes(digest[:8], "big") % SEED_RANGE
 
 
 def _plan(run: CampaignRun, campaign_seed: int) -> RunPlan:
