@@ -15,6 +15,7 @@ Run: .venv/bin/python benchmarks/bench_batch.py [--scans 40] [--campaign-scans 8
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import tempfile
 import time
@@ -36,9 +37,11 @@ def _line(what: str, n: int, result, serial_s: float | None = None) -> str:
     s = result.report.seconds
     ratio = f", speed-up {serial_s / s:.2f}x over serial" if serial_s else ""
     failed = len(result.failed)
+    load = os.getloadavg()[0]  # other jobs on the machine slow both runs
     return (f"{what}: {n} scans, {s:.1f} s, {n / s:.3f} scans/s{ratio}, "
             f"peak RSS {max(peaks.values()):.0f} MB per worker (each: "
-            f"{', '.join(f'{v:.0f}' for v in peaks.values())} MB), {failed} failed")
+            f"{', '.join(f'{v:.0f}' for v in peaks.values())} MB), {failed} failed, "
+            f"load average {load:.1f} on {os.cpu_count()} cores")
 
 
 def bench_batch(tmp: Path, n: int) -> None:
