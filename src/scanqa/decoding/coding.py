@@ -132,7 +132,9 @@ class Thresholds:
         fringe order is accepted at most.
     gray_min_contrast_sigma : float
         A Gray-code bit whose contrast is below this many noise standard deviations
-        is undecidable, and the pixel has too low a modulation [-].
+        is undecidable, and the pixel has too low a modulation - unless, in a Gray
+        code decoded alone, it is the one such bit between two neighbouring cells
+        (the pixel then takes their edge, :mod:`scanqa.decoding.gray`) [-].
     max_period_ratio : float
         Largest ratio between the period of an estimate (times its noise
         amplification) and the period it unwraps [-].

@@ -104,20 +104,20 @@ def _phase_map(desc: PatternDescription, out: dict, stats: ChainStats, noise: No
     if misstated:
         diagnostics.apply_guard(out)
     arrays = {k: v for k, v in out.items() if not k.startswith("x:")}
-    info = _decode_info(desc, stats, noise, response, misstated, notes)
-    info["hint"] = diagnostics.mask_hint(desc, count_reasons(out["mask"]), stats)
+    counts = count_reasons(out["mask"])
+    info = _decode_info(desc, stats, noise, response, misstated, notes, counts["valid"])
+    info["hint"] = diagnostics.mask_hint(desc, counts, stats)
     return PhaseMap(**arrays, period_px=desc.working_period_px, orientation=desc.orientation,
                     projector_width_px=desc.projector_width_px,
                     provenance=_provenance(desc, noise, np.asarray(images[0]), info))
 
 
 def _decode_info(desc: PatternDescription, stats: ChainStats, noise: NoiseEstimate,
-                 response: ProjectorResponse | None, misstated: list, notes: Sequence[str]
-                 ) -> dict:
+                 response: ProjectorResponse | None, misstated: list, notes: Sequence[str],
+                 valid: int) -> dict:
     phase = desc.phase_sets
     if not phase:
-        working = (f"Gray-code cell centres (cells of {desc.gray_cell_px:g} px; sigma_xp is "
-                   "the quantisation, cell / sqrt(12))")
+        working = _gray_working(desc.gray_cell_px, sum(stats.edges.values()), valid)
     elif desc.options.fuse_periods:
         working = ("inverse-variance fusion of every phase set (decode.fuse_periods = true): "
                    "systematic differences between periods bias x_p")
@@ -134,12 +134,23 @@ def _decode_info(desc: PatternDescription, stats: ChainStats, noise: NoiseEstima
     return {"noise": noise.as_dict(), "working": working,
             "chain": [s.name for s in UnwrapPlan.build(desc, noise.sensor, False).steps],
             "disagreement": diagnostics.disagreement(stats), "misstated": misstated,
+            "gray_edge_pixels": int(sum(stats.edges.values())),
             "low_modulation_reasons": {diagnostics.LOW_REASONS[b]: int(n)
                                        for b, n in stats.low.items() if n},
             "steps": {k: {"checked": int(v), "rejected": int(stats.rejected[k]),
                           "noisy": int(stats.noisy.get(k, 0))}
                       for k, v in stats.checked.items()},
             "notes": notes}
+
+
+def _gray_working(cell_px: float, edges: int, valid: int) -> str:
+    """How x_p is formed from a Gray code alone, with the count of edge pixels."""
+    share = 100.0 * edges / valid if valid else 0.0
+    return (f"Gray-code cell centres (cells of {cell_px:g} px; sigma_xp is the "
+            f"quantisation, cell / sqrt(12) = {cell_px / 12 ** 0.5:.3g} px); {edges} edge "
+            f"pixels ({share:.1f} % of the valid: one bit undecidable between two "
+            "neighbouring cells) take the cell edge, sigma_xp 2 cell / sqrt(12) = "
+            f"{2 * cell_px / 12 ** 0.5:.3g} px")
 
 
 def _allocate(height: int, width: int, set_names: Sequence[str]) -> dict[str, np.ndarray]:

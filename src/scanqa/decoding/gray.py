@@ -3,9 +3,18 @@
 Each bit frame is compared with a threshold that is measured at the same pixel: its
 inverse frame, the mid level of the white and black reference frames, or the offset A
 of the phase set it orders. The difference must exceed ``gray_min_contrast_sigma``
-times its predicted noise, else the bit - and the pixel - is undecidable (dark, in
-shadow, or on a cell edge blurred to grey). Bits come most significant first and are
-decoded as the reflected binary code: ``b_i = b_(i-1) xor g_i``.
+times its predicted noise, else the bit is undecidable (dark, in shadow, or on a cell
+edge blurred to grey). Bits come most significant first and are decoded as the
+reflected binary code: ``b_i = b_(i-1) xor g_i``.
+
+The edge rule. Every physical edge between two neighbouring cells flips exactly one bit
+of a reflected Gray code, so a pixel that sees such an edge blurred to grey has exactly
+one undecidable bit, and its two candidate codes (that bit 0 or 1) are the adjacent
+cells k and k + 1. Such a pixel is an *edge pixel*: it lies in cell k or k + 1, and the
+decoder (:mod:`scanqa.decoding.unwrap`) puts it on their shared edge. Any other pixel
+with an undecidable bit - several undecidable bits (dark, shadow), or one whose two
+candidates are not neighbours (the bit's grey level is not explained by an edge at
+this pixel) - is undecidable.
 """
 
 from __future__ import annotations
@@ -25,17 +34,23 @@ class GrayDecode:
     Attributes
     ----------
     cell : (M,) int64
-        Cell index [-].
+        Cell index [-]; for an edge pixel the lower of its two cells, k.
     undecidable : (M,) bool
-        Some bit's contrast is below the noise threshold.
+        Some bit's contrast is below the noise threshold, and the pixel is not an
+        edge pixel.
+    edge : (M,) bool
+        Edge pixel: exactly one bit undecidable, and its two candidate cells are
+        ``cell`` and ``cell + 1``; the pixel lies in one of the two, x_p at their edge.
     mid_dn : (M,) float64
         Threshold level (mid grey) [DN].
     contrast_dn : (M,) float64
-        Half the contrast of the weakest bit, |bit - threshold| [DN].
+        Half the contrast of the weakest bit the cell rests on, |bit - threshold|
+        (an edge pixel's undecidable bit left out) [DN].
     """
 
     cell: np.ndarray
     undecidable: np.ndarray
+    edge: np.ndarray
     mid_dn: np.ndarray
     contrast_dn: np.ndarray
 
@@ -92,7 +107,7 @@ def decode_gray(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
     Returns
     -------
     GrayDecode
-        Cells, undecidable pixels, threshold and weakest contrast.
+        Cells, undecidable and edge pixels, threshold and weakest contrast.
     """
     f = frames.astype(np.float64)
     plain, inverse = gray.frame_order()
@@ -106,8 +121,31 @@ def decode_gray(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
         mid, mid_var = threshold
         diff = bits - mid
         var = var + mid_var
-    undecidable = (diff * diff < min_sigma * min_sigma * var).any(axis=0)
-    return GrayDecode(_cells(diff > 0), undecidable, mid, np.abs(diff).min(axis=0))
+    weak = diff * diff < min_sigma * min_sigma * var
+    cell, edge = _edge_rule(diff > 0, weak)
+    magnitude = np.abs(diff)
+    contrast = np.where(weak & edge, np.inf, magnitude).min(axis=0)
+    contrast = np.where(np.isfinite(contrast), contrast, magnitude.min(axis=0))
+    return GrayDecode(cell, weak.any(axis=0) & ~edge, edge, mid, contrast)
+
+
+def _edge_rule(bits: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(M,) cells and edge pixels of bit planes (bits, M) with undecidable bits ``weak``.
+
+    An edge pixel has one weak bit, and its cell with that bit flipped is a neighbour;
+    its cell is then the lower of the two. Flipping Gray bit i (most significant first)
+    flips binary bit i and all below it, so the two candidates are neighbours only where
+    those binary bits read 10...0 or 01...1 (always for the least significant bit).
+    """
+    cell = _cells(bits)
+    single = np.flatnonzero(weak.sum(axis=0) == 1)
+    other = _cells(bits[:, single] ^ weak[:, single])
+    adjacent = np.abs(other - cell[single]) == 1
+    single, other = single[adjacent], other[adjacent]
+    cell[single] = np.minimum(cell[single], other)
+    edge = np.zeros(cell.shape, bool)
+    edge[single] = True
+    return cell, edge
 
 
 def _cells(bits: np.ndarray) -> np.ndarray:

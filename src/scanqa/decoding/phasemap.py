@@ -21,7 +21,8 @@ MASK_VALID = 0
 #: A sample of a phase set reached the saturation level.
 MASK_SATURATED = 1
 #: Modulation too low for a reliable phase: below the floor, too noisy to unwrap, or an
-#: undecidable Gray-code bit (dark pixels land here).
+#: undecidable Gray-code bit (dark pixels land here; the one undecidable bit between two
+#: neighbouring cells of a Gray code decoded alone gives their edge instead).
 MASK_LOW_MODULATION = 2
 #: Sets (or the Gray code) disagree by more than the accepted unwrapping residual.
 MASK_INCONSISTENT = 3

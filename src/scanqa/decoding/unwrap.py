@@ -1,17 +1,20 @@
 """Temporal unwrapping along the planned chain, with a reason for every mask.
 
-The absolute start is the Gray code (ordering its phase set), a phase whose period
-covers the coded range, or a synthetic (beat) period that does
-(:mod:`scanqa.decoding.chain`). Each further step is unwrapped by the previous step's
-estimate x: the fringe order is ``k = rint(x / P - f)`` with f the wrapped phase in
-cycles, and the residual ``x / P - f - k`` measures the disagreement. x_p is the
-finest phase set's own ``(f + k) P`` (every set fused by inverse variance with
-``fuse_periods``). A pixel is
+A Gray code alone gives x_p from its cells: the cell centre, or for an edge pixel (one
+undecidable bit between two neighbouring cells, :mod:`scanqa.decoding.gray`) the edge
+between them (:func:`gray_coordinate`). Otherwise the absolute start is the Gray code
+(ordering its phase set), a phase whose period covers the coded range, or a synthetic
+(beat) period that does (:mod:`scanqa.decoding.chain`). Each further step is unwrapped
+by the previous step's estimate x: the fringe order is ``k = rint(x / P - f)`` with f
+the wrapped phase in cycles, and the residual ``x / P - f - k`` measures the
+disagreement. x_p is the finest phase set's own ``(f + k) P`` (every set fused by
+inverse variance with ``fuse_periods``). A pixel is
 
 - *low modulation* when a set's modulation is below ``min_modulation_dn``, when its
   predicted phase noise (times the margin) exceeds the accepted residual, when the
-  predicted residual of an unwrapping step does, when a Gray bit is undecidable, or
-  when the phase lies too close to the edge of its Gray cell for its noise;
+  predicted residual of an unwrapping step does, when a Gray bit is undecidable (an
+  edge pixel too, when the code orders a phase: its cell is not known), or when the
+  phase lies too close to the edge of its Gray cell for its noise;
 - *inconsistent* when an observed residual exceeds the accepted one (or the phase
   lies outside its Gray cell by more than ``gray_edge_cells``);
 - *out of range* when the result lies outside [-0.5, width - 0.5).
@@ -122,6 +125,7 @@ class ChainStats:
     ``checked[name]`` pixels reached the step (not yet low or saturated),
     ``rejected[name]`` of them were inconsistent, ``uniform[name]`` is the share an
     unrelated pattern would reject, ``noisy[name]`` were first marked low there;
+    ``edges[name]`` counts the valid edge pixels of a Gray code decoded alone;
     ``low[bit]`` counts masked pixels by low-modulation reason; ``disagreement[name]``
     holds samples of each set's coordinate minus x_p at valid pixels [projector px].
     """
@@ -132,6 +136,7 @@ class ChainStats:
     noisy: dict = field(default_factory=dict)
     low: dict = field(default_factory=dict)
     disagreement: dict = field(default_factory=dict)
+    edges: dict = field(default_factory=dict)
 
     def count(self, table: str, key: str, n: int) -> None:
         getattr(self, table)[key] = getattr(self, table).get(key, 0) + int(n)
@@ -226,7 +231,10 @@ def _gray(plan: UnwrapPlan, flat: dict, sets: list, flags: _Flags):
     th = plan.desc.thresholds
     dec = decode_gray(gray, flat[gray.name], plan.sensor, plan.quantised,
                       th.gray_min_contrast_sigma, threshold)
-    flags.low |= dec.undecidable.view(np.uint8) * np.uint8(LOW_GRAY)
+    # an edge pixel ordering a phase stays masked: the interval test needs its cell, and
+    # where the edge falls on a wrap of the phase its fringe order is ambiguous by one
+    unknown = dec.undecidable | dec.edge if plan.steps else dec.undecidable
+    flags.low |= unknown.view(np.uint8) * np.uint8(LOW_GRAY)
     return gray.name, dec
 
 
@@ -248,10 +256,8 @@ def _step_phase(plan: UnwrapPlan, step: chain.Step, sets: list
 def _run_chain(plan: UnwrapPlan, sets: list, gray, flags: _Flags, stats: ChainStats):
     """x_p and its variance, and every phase set's own (x, var) by name."""
     per_set: dict = {}
-    if not plan.steps:  # a Gray code alone: the cell centre, quantisation as noise
-        w = plan.gray_cell_px
-        x = gray[1].cell * w + 0.5 * (w - 1.0)
-        return x, np.full(x.shape, w * w / 12.0), per_set
+    if not plan.steps:  # a Gray code alone
+        return *gray_coordinate(gray[1].cell, gray[1].edge, plan.gray_cell_px), per_set
     first, rest = plan.steps[0], plan.steps[1:]
     frac, var = _step_phase(plan, first, sets)
     if gray is not None:
@@ -273,6 +279,41 @@ def _run_chain(plan: UnwrapPlan, sets: list, gray, flags: _Flags, stats: ChainSt
     weight = sum(1.0 / v for _, v in per_set.values())
     fused = sum(xs / v for xs, v in per_set.values()) / weight
     return fused, 1.0 / weight, per_set
+
+
+def gray_coordinate(cell: np.ndarray, edge: np.ndarray, cell_px: float
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """x_p and its variance from Gray cells alone.
+
+    Cell k covers ``[k w - 1/2, (k + 1) w - 1/2)`` (w = ``cell_px``; column j lies in
+    cell ``floor(j / w)``). A decided pixel gets the cell centre ``k w + (w - 1) / 2``
+    and, uniform over the cell, the variance ``w^2 / 12``. An edge pixel of cells k and
+    k + 1 gets their shared edge ``(k + 1) w - 1/2`` and the variance of a uniform
+    distribution over both cells, ``(2 w)^2 / 12``: its decided bits place it in one of
+    the two cells and nothing more. Often it lies much closer to the edge (a sharp
+    projector greys a bit only near its edge), but how close depends on the projector's
+    blur and the contrast, which the decoder does not know: a blur that washes out the
+    finest stripes greys their bit over most of the stripe, and the pixel may then be
+    anywhere in its two cells. The uniform distribution is the one claim that holds in
+    every case (measured numbers: docs/codings.rst, "Gray-code cells and edges").
+
+    Parameters
+    ----------
+    cell : (M,) int
+        Cell index, the lower one for an edge pixel [-].
+    edge : (M,) bool
+        Edge pixels of ``cell`` and ``cell + 1``.
+    cell_px : float
+        Cell width w [projector px].
+
+    Returns
+    -------
+    x, variance : (M,) float64
+        Coordinate [projector px] and its variance [px^2].
+    """
+    w = cell_px
+    x = cell * w + 0.5 * (w - 1.0) + np.where(edge, 0.5 * w, 0.0)
+    return x, np.where(edge, w * w / 3.0, w * w / 12.0)
 
 
 def _absolute(plan: UnwrapPlan, step: chain.Step, frac: np.ndarray) -> np.ndarray:
@@ -351,6 +392,8 @@ def _gather(plan: UnwrapPlan, per_set: dict, gray, x: np.ndarray, valid: np.ndar
     low = flags.low[mask == MASK_LOW_MODULATION]
     for bit in LOW_REASONS:
         stats.count("low", bit, np.count_nonzero(low & bit))
+    if gray is not None and not plan.steps:
+        stats.count("edges", gray[0], np.count_nonzero(gray[1].edge & valid))
     pick = np.flatnonzero(valid)[::DISAGREEMENT_STRIDE]
     if not pick.size:
         return
