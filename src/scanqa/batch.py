@@ -45,6 +45,7 @@ from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.atomic import STAGE_PREFIX, make_out_dir, staged_dir, write_text
 from scanqa.io.batchfiles import ScanEntry, default_name, read_batch_manifest, unique_scans
+from scanqa.io.opencv import is_opencv_file
 from scanqa.provenance import ReportHeader, build_header, content_hash, file_hash
 from scanqa.qa.blocks import QAResult, run_qa
 from scanqa.qa.layout import Layout, load_layout
@@ -158,8 +159,10 @@ def prepare(config: ScannerConfig, config_source: str, calibration: str,
         Z range of an OpenCV calibration's volume [mm].
     """
     settings = settings or BatchSettings()
-    cals = {o: load_calibration(calibration, config, o, depth_range_mm)
-            for o in ("vertical", "horizontal")}
+    first = load_calibration(calibration, config, "vertical", depth_range_mm)
+    cals = {"vertical": first,  # a table serves both orientations: one copy is shipped
+            "horizontal": load_calibration(calibration, config, "horizontal", depth_range_mm)
+            if is_opencv_file(calibration) else first}
     lay = load_layout(layout) if layout else None
     header = build_header(config.to_dict(), config_source, calibration)
     fingerprint = content_hash({
