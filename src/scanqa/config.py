@@ -288,6 +288,16 @@ class SimulatorConfig(_Section):
     the sensor (0: the whole sensor) with unchanged optics. ``projector_gamma`` is the
     projector's response: it emits ``p**projector_gamma`` for a pattern value p in
     [0, 1] (1: linear, the default).
+
+    Real-hardware realism (see docs/simulator.rst,
+    "Distortion, tilted stage, printed target"), all off by default:
+    ``camera_k1 .. camera_p2`` and ``projector_k1 .. projector_p2`` are Brown-Conrady
+    (OpenCV) coefficients on normalised pinhole
+    coordinates; ``stage_tilt_deg`` tilts the calibration stage's axis against the camera
+    axis towards ``stage_tilt_azimuth_deg`` (0: +X, 90: +Y); ``target_tilt_deg`` turns the
+    flat about the X axis; ``target = "chessboard"`` prints a marked chessboard of
+    ``target_square_mm`` squares on the flat, of albedo contrast ``target_contrast`` in
+    the marker frame and ``target_fringe_contrast`` under the fringe light.
     """
 
     section: ClassVar[str] = "simulator"
@@ -307,6 +317,21 @@ class SimulatorConfig(_Section):
     roi_width_px: int = _spec("px", ge=0, kind="int", default=0)
     roi_height_px: int = _spec("px", ge=0, kind="int", default=0)
     projector_gamma: float = _spec("", gt=0, le=10, default=1.0)
+    camera_k1: float = _spec("", ge=-50, le=50, default=0.0)
+    camera_k2: float = _spec("", ge=-5000, le=5000, default=0.0)
+    camera_p1: float = _spec("", ge=-1, le=1, default=0.0)
+    camera_p2: float = _spec("", ge=-1, le=1, default=0.0)
+    projector_k1: float = _spec("", ge=-50, le=50, default=0.0)
+    projector_k2: float = _spec("", ge=-5000, le=5000, default=0.0)
+    projector_p1: float = _spec("", ge=-1, le=1, default=0.0)
+    projector_p2: float = _spec("", ge=-1, le=1, default=0.0)
+    stage_tilt_deg: float = _spec("deg", ge=0, le=20, default=0.0)
+    stage_tilt_azimuth_deg: float = _spec("deg", ge=-360, le=360, default=0.0)
+    target_tilt_deg: float = _spec("deg", ge=-30, le=30, default=0.0)
+    target: str = _spec(kind="str", choices=("none", "chessboard"), default="none")
+    target_square_mm: float = _spec("mm", gt=0, default=4.0)
+    target_contrast: float = _spec("", ge=0, le=1, default=0.8)
+    target_fringe_contrast: float = _spec("", ge=0, le=1, default=0.0)
 
 
 _SECTIONS = {"camera": CameraConfig, "projector": ProjectorConfig, "fringes": FringeConfig,

@@ -74,6 +74,9 @@ class PlaneObservation:
     x_mm, y_mm : (H, W) ndarray, optional
         Lateral coordinates of the target per pixel (a marked target) [mm]; otherwise
         they come from the camera intrinsics.
+    z_map_mm : (H, W) ndarray, optional
+        Z of the target per pixel [mm] (a marked target, whose plane need not be
+        perpendicular to the camera axis nor move along it); otherwise ``z_mm``.
     source : str
         Where it came from, for messages and provenance.
     """
@@ -86,6 +89,7 @@ class PlaneObservation:
     x_mm: np.ndarray | None = None
     y_mm: np.ndarray | None = None
     source: str = ""
+    z_map_mm: np.ndarray | None = None
 
 
 @dataclass
@@ -202,7 +206,7 @@ class _CellStats:
     var: np.ndarray     # (n_v, n_u) variance used for the weight [px^2]
     n: np.ndarray       # (n_v, n_u) samples used
     scatter: np.ndarray  # (n_v, n_u) robust residual std [px]
-    lat: tuple | None   # (X, Y) cell estimates [mm] from lateral maps
+    lat: tuple | None   # (X, Y[, Z]) cell estimates [mm] from lateral maps
 
 
 def _stage1(obs: PlaneObservation, cell: int, n_v: int, n_u: int, jump_px: float,
@@ -220,9 +224,10 @@ def _stage1(obs: PlaneObservation, cell: int, n_v: int, n_u: int, jump_px: float
         report.used_samples += counts.pop("used")
         for reason, count in counts.items():
             report.rejected[reason] += count
-    a, var, n, scatter, lat_x, lat_y = (None if f[0] is None else np.concatenate(f)
-                                        for f in zip(*(p[:-1] for p in parts), strict=True))
-    return _CellStats(obs.z_mm, a, var, n, scatter, None if lat_x is None else (lat_x, lat_y))
+    a, var, n, scatter, *lat = (None if f[0] is None else np.concatenate(f)
+                                for f in zip(*(p[:-1] for p in parts), strict=True))
+    lat = tuple(m for m in lat if m is not None)
+    return _CellStats(obs.z_mm, a, var, n, scatter, lat or None)
 
 
 def _stage1_band(obs: PlaneObservation, cell: int, rows: tuple[int, int], n_u: int,
@@ -244,10 +249,11 @@ def _stage1_band(obs: PlaneObservation, cell: int, rows: tuple[int, int], n_u: i
     counts["sparse_cell"] = int(n[sparse].sum())
     counts["used"] = int(n[~sparse].sum())
     scatter = np.sqrt((np.where(ok, res, 0.0) ** 2).sum(-1) / np.maximum(n - 3, 1))
-    lat = (None, None)
+    lat = (None, None, None)
     if obs.x_mm is not None and obs.y_mm is not None:
-        lat = tuple(_fit_cells(_block_rows(m, cell, rows, n_u), ok, cell)[0]
-                    for m in (obs.x_mm, obs.y_mm))
+        maps = (obs.x_mm, obs.y_mm, obs.z_map_mm)
+        lat = tuple(None if m is None else _fit_cells(_block_rows(m, cell, rows, n_u), ok,
+                                                      cell)[0] for m in maps)
     return (np.where(sparse, np.nan, a), _sample_var(obs, ok, cell, rows, n_u),
             np.where(sparse, 0, n), scatter, *lat, counts)
 
@@ -592,10 +598,10 @@ def _sample_grid(theta, cov, n_obs, x, w, z0, half, centre, config, node_u, node
     zz = z0 + half * zeta
     dz = half * dzdx
     lat = _lateral(stats, w, z0, half, config, node_u, node_v)
-    xyz = np.stack([lat[0] + lat[1] * zz, lat[2] + lat[3] * zz, zz], -1)
-    dxyz = np.stack([lat[1] * dz, lat[3] * dz, dz], -1)
+    xyz = np.stack([lat[0] + lat[1] * zz, lat[2] + lat[3] * zz, lat[4] + lat[5] * zz], -1)
+    dxyz = np.stack([lat[1] * dz, lat[3] * dz, lat[5] * dz], -1)
     sig = _node_sigma(theta, cov, zeta, xq) * half * np.linalg.norm(
-        np.stack([lat[1] + 0 * zz, lat[3] + 0 * zz, np.ones_like(zz)], -1), axis=-1)
+        np.stack([lat[1] + 0 * zz, lat[3] + 0 * zz, lat[5] + 0 * zz], -1), axis=-1)
     prov = dict(provenance or {})
     prov.setdefault("positions", [{"z_mm": float(s.z_mm)} for s in stats])
     prov["report"] = report.as_dict()
@@ -621,11 +627,13 @@ def _node_sigma(theta, cov, zeta, xq) -> np.ndarray:
 
 
 def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
-    """X = X0 + kx Z, Y = Y0 + ky Z per node ray [mm], from maps or intrinsics."""
+    """X = X0 + kx z, Y = Y0 + ky z, Z = Z0 + kz z per node ray [mm], z the stage
+    reading: from lateral maps (Z = z where they give no Z) or from the intrinsics."""
     if all(s.lat is not None for s in stats):
         z = np.array([s.z_mm for s in stats])
         out = []
-        for j in (0, 1):
+        n_maps = min(len(s.lat) for s in stats)
+        for j in range(n_maps):
             m = np.stack([s.lat[j] for s in stats], -1)
             ww = np.where(np.isfinite(m) & (w > 0), 1.0, 0.0)
             m = np.where(ww > 0, m, 0.0)
@@ -634,10 +642,13 @@ def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
             with np.errstate(all="ignore"):
                 k = (sw * szm - sz * sm) / (sw * szz - sz**2)
             out += [((sm - k * sz) / sw)[..., None], k[..., None]]
+        if n_maps == 2:
+            out += [np.zeros_like(out[0]), np.ones_like(out[1])]
         return tuple(out)
     cam = config.camera
     f = cam.principal_distance_px
     uu, vv = np.meshgrid(node_u, node_v)
     kx = ((uu - cam.principal_point_px[0]) / f)[..., None]
     ky = ((vv - cam.principal_point_px[1]) / f)[..., None]
-    return (np.zeros_like(kx), kx, np.zeros_like(ky), ky)
+    return (np.zeros_like(kx), kx, np.zeros_like(ky), ky, np.zeros_like(kx),
+            np.ones_like(kx))

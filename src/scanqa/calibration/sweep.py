@@ -1,38 +1,218 @@
 """The observations of a calibration sweep: one decoded scan of the flat per position
 and repeat, loaded (or decoded) one at a time (:mod:`scanqa.io.sweep` reads the manifest).
+
+A sweep with marker frames (``markers`` on every position and a ``[target]`` table) gets
+its lateral geometry from the printed target: :func:`marker_geometry` detects it in every
+marker frame and fits the camera and the stage (:mod:`scanqa.calibration.target`), and
+each observation carries the X, Y, Z of the target plane per pixel.
+
+Before anything is built, :func:`check_sweep` compares the sweep with the config: the
+``[scanner]`` table of the manifest, the config a simulated sweep was made with
+(``manifest.toml`` beside it), the image size, and the scale of the images (the phase's
+slope across the image, or the marker-derived focal length) against ``camera.pixel_um``
+and ``camera.focal_mm``. Each mismatch is one error naming the file, the key and the fix.
 """
 
 from __future__ import annotations
 
 import os
 from collections.abc import Iterator
+from pathlib import Path
 
-from scanqa.calibration.build import BuildReport, PlaneObservation, build_table
+import numpy as np
+
+from scanqa import optics
+from scanqa.calibration.build import BuildReport, PlaneObservation, _check_first, build_table
 from scanqa.calibration.table import CalibrationTable
+from scanqa.calibration.target import (
+    ChessboardSpec,
+    SweepGeometry,
+    detect_chessboard,
+    fit_sweep_geometry,
+)
 from scanqa.config import ScannerConfig
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
+from scanqa.io.images import read_image
 from scanqa.io.sweep import Sweep, load_sweep, read_lateral
+from scanqa.io.tomlfile import read_toml
 
-__all__ = ["Sweep", "calibrate", "iter_observations", "load_sweep"]
+__all__ = ["Sweep", "calibrate", "check_sweep", "iter_observations", "load_sweep",
+           "marker_geometry"]
+
+#: The images' scale may differ from the config's by this factor before it is an error
+#: (distortion and a tilted target change the local scale by a few per cent) [-].
+SCALE_TOLERANCE = 1.25
+#: Config sections a simulated sweep must share with the config it is calibrated with.
+_SIMULATED_SECTIONS = ("camera", "projector")
 
 
-def iter_observations(sweep: Sweep) -> Iterator[PlaneObservation]:
-    """Yield one PlaneObservation per scan, loading (or decoding) one at a time."""
+def iter_observations(sweep: Sweep, geometry: SweepGeometry | None = None
+                      ) -> Iterator[PlaneObservation]:
+    """Yield one PlaneObservation per scan, loading (or decoding) one at a time.
+
+    With ``geometry`` (:func:`marker_geometry`), each carries the target plane's X, Y, Z
+    per pixel at its stage reading.
+    """
     for pos in sweep.positions:
         lat = read_lateral(pos.lateral) if pos.lateral else (None, None)
+        z_map = None
         for src in pos.sources:
             pm = decode(src)
+            if geometry is not None and z_map is None:
+                lat_x, lat_y, z_map = geometry.plane_points(pos.z_mm, pm.xp.shape[1],
+                                                            pm.xp.shape[0])
+                lat = (lat_x, lat_y)
             if lat[0] is not None and lat[0].shape != pm.xp.shape:
                 raise InputError(f"{pos.lateral}: lateral maps are {lat[0].shape[::-1]} px, "
                                  f"the scan {src} is {pm.xp.shape[::-1]} px")
             yield PlaneObservation(pos.z_mm, pm.xp, pm.mask, pm.modulation, pm.sigma_xp,
-                                   lat[0], lat[1], str(src))
+                                   lat[0], lat[1], str(src), z_map)
+
+
+def marker_geometry(sweep: Sweep, config: ScannerConfig) -> SweepGeometry:
+    """Detect the printed target in every marker frame and fit camera and stage.
+
+    Raises
+    ------
+    InputError
+        The sweep has no marker frames, a frame is not the camera's size, the target is
+        not found, or the fitted focal length contradicts the config's pixel size.
+    """
+    if not sweep.has_markers or sweep.target is None:
+        raise InputError(f"{sweep.path}: no marker frames (give 'markers' on every "
+                         "position and a [target] table)")
+    cells = sweep.target.get("marker_cells")
+    spec = ChessboardSpec(float(sweep.target["square_mm"]),
+                          *(() if cells is None else (tuple(map(tuple, cells)),)))
+    detections, size = [], None
+    for pos in sweep.positions:
+        image = read_image(pos.markers)
+        _check_size(image.shape, config, pos.markers)
+        size = image.shape
+        detections.append(detect_chessboard(image, spec, str(pos.markers)))
+    geometry = fit_sweep_geometry(detections, [p.z_mm for p in sweep.positions], config,
+                                  size[1], size[0])
+    _check_focal(geometry, config, sweep.path)
+    return geometry
+
+
+def _check_size(shape: tuple, config: ScannerConfig, source) -> None:
+    """The images must be the config's camera size."""
+    cam = config.camera
+    if tuple(shape[:2]) != (cam.height_px, cam.width_px):
+        raise InputError(
+            f"{source}: the image is {shape[1]} x {shape[0]} px but the config "
+            f"({config.source or config.name}) has camera.width_px x camera.height_px = "
+            f"{cam.width_px} x {cam.height_px}: use the config of the camera that took the "
+            "sweep (for binned images, the binned size and pixel_um)")
+
+
+def _check_focal(geometry: SweepGeometry, config: ScannerConfig, where) -> None:
+    """The marker-derived focal length must match focal_mm / pixel_um."""
+    fitted = float(geometry.camera.matrix[0, 0])
+    _check_ratio(fitted / config.camera.principal_distance_px, config, where,
+                 f"the printed target gives a focal length of {fitted:.0f} px")
+
+
+def _check_ratio(ratio: float, config: ScannerConfig, where, what: str) -> None:
+    if not (1.0 / SCALE_TOLERANCE < ratio < SCALE_TOLERANCE):
+        cam, name = config.camera, config.source or config.name
+        raise InputError(
+            f"{where}: {what}, {ratio:.3g} times what the config ({name}) implies "
+            f"with camera.pixel_um = {cam.pixel_um:g} and "
+            f"camera.focal_mm = {cam.focal_mm:g}: set camera.pixel_um to the pixel size of "
+            "these images (binning multiplies it) and focal_mm to the lens's")
+
+
+def check_sweep(sweep: Sweep, config: ScannerConfig) -> None:
+    """Refuse a config that disagrees with the sweep (module notes).
+
+    Raises
+    ------
+    InputError
+        On the first mismatch, naming the file, the key and the fix.
+    """
+    _check_scanner_table(sweep, config)
+    _check_simulated(sweep, config)
+
+
+def _check_scanner_table(sweep: Sweep, config: ScannerConfig) -> None:
+    keys = {"camera_width_px": "width_px", "camera_height_px": "height_px",
+            "camera_pixel_um": "pixel_um", "camera_focal_mm": "focal_mm"}
+    for key, field in keys.items():
+        have = (sweep.scanner or {}).get(key)
+        want = getattr(config.camera, field)
+        if have is not None and not np.isclose(float(have), float(want), rtol=1e-9):
+            raise InputError(
+                f"{sweep.path}: [scanner] {key} = {have} but the config "
+                f"({config.source or config.name}) has camera.{field} = {want}: calibrate "
+                "with the config the sweep was captured with")
+
+
+def _check_simulated(sweep: Sweep, config: ScannerConfig) -> None:
+    """A simulated sweep's manifest.toml records its config: camera and projector must
+    be the same."""
+    manifest = Path(sweep.path).parent / "manifest.toml"
+    if not manifest.is_file():
+        return
+    data = read_toml(manifest, "experiment manifest")
+    sim = data.get("config") if isinstance(data, dict) else None
+    if not isinstance(sim, dict):
+        return
+    given = config.to_dict()
+    for section in _SIMULATED_SECTIONS:
+        for key, value in sorted(sim.get(section, {}).items()):
+            mine = given[section].get(key)
+            if not np.allclose(np.asarray(value, float), np.asarray(mine, float),
+                               rtol=1e-9, atol=1e-12):
+                raise InputError(
+                    f"{manifest}: the sweep was simulated with {section}.{key} = {value} "
+                    f"but the config ({config.source or config.name}) has {mine}: calibrate "
+                    f"with the simulated config (its name: {sim.get('name', '?')!r}, e.g. "
+                    "the same file and profile given to 'scanqa simulate')")
+
+
+def check_scale(obs: PlaneObservation, config: ScannerConfig) -> None:
+    """The phase's slope across the image centre must match the config's pinhole.
+
+    Raises
+    ------
+    InputError
+        The measured x_p per camera pixel is off by more than :data:`SCALE_TOLERANCE`.
+    """
+    h, w = obs.xp.shape
+    _check_size(obs.xp.shape, config, obs.source)
+    r0, r1, c0, c1 = h // 2 - h // 8, h // 2 + h // 8 + 1, w // 2 - w // 8, w // 2 + w // 8 + 1
+    slope = np.nanmedian(np.diff(obs.xp[r0:r1, c0:c1], axis=1))
+    cam = config.camera
+    f, u0 = cam.principal_distance_px, cam.principal_point_px[0]
+    pts = np.array([[(u - u0) / f * obs.z_mm, 0.0, obs.z_mm] for u in (u0 - 5, u0 + 5)])
+    qp = optics.to_projector_frame(pts, config)
+    xp = config.projector.principal_distance_px * qp[:, 0] / qp[:, 2]
+    predicted = (xp[1] - xp[0]) / 10.0
+    if np.isfinite(slope) and predicted != 0:
+        _check_ratio(float(slope / predicted), config, obs.source,
+                     f"the phase changes by {slope:.4g} projector px per camera px at "
+                     f"z = {obs.z_mm:g} mm")
+
+
+def _checked(observations: Iterator[PlaneObservation], sweep: Sweep,
+             config: ScannerConfig) -> Iterator[PlaneObservation]:
+    """Pass observations through; on the first, check its size (the build's own check
+    first), then the sweep's records (:func:`check_sweep`), then the images' scale."""
+    for i, obs in enumerate(observations):
+        if i == 0:
+            _check_first(obs, config)
+            check_sweep(sweep, config)
+            check_scale(obs, config)
+        yield obs
 
 
 def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
               weights: str = "model", cell_px: int | None = None,
-              min_modulation: float = 0.0) -> tuple[CalibrationTable, BuildReport]:
+              min_modulation: float = 0.0, use_markers: bool = True
+              ) -> tuple[CalibrationTable, BuildReport]:
     """Build the calibration table of a sweep (the weighted calibration run).
 
     Parameters
@@ -48,15 +228,23 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
         Node spacing [camera px]; default about 0.45 mm on the object.
     min_modulation : float
         Samples with modulation below this are rejected [DN]; 0 keeps the decoder's mask.
+    use_markers : bool
+        Take the lateral geometry from the marker frames when the sweep has them
+        (otherwise from ``lateral`` maps or the config's pinhole).
 
     Returns
     -------
     table : CalibrationTable
-        The table (``table.save(path)`` writes it).
+        The table (``table.save(path)`` writes it); a marked sweep's fitted geometry is
+        in its provenance under ``target_geometry``.
     report : BuildReport
         Rejected samples by reason and the fit residual per position.
     """
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
-    return build_table(iter_observations(sweep), config, weights=weights, cell_px=cell_px,
-                       min_modulation=min_modulation, provenance=sweep.provenance(),
-                       total=sweep.observation_count())
+    geometry = marker_geometry(sweep, config) if use_markers and sweep.has_markers else None
+    prov = sweep.provenance()
+    if geometry is not None:
+        prov["target_geometry"] = geometry.summary()
+    return build_table(_checked(iter_observations(sweep, geometry), sweep, config), config,
+                       weights=weights, cell_px=cell_px, min_modulation=min_modulation,
+                       provenance=prov, total=sweep.observation_count())

@@ -28,6 +28,7 @@ from scanqa.progress import NORMAL, QUIET, VERBOSE, configure_logging
 COMMAND_MODULES = (
     "scanqa.cli.init",
     "scanqa.cli.design",
+    "scanqa.cli.sweep_manifest",
     "scanqa.cli.calibrate",
     "scanqa.cli.annotate",
     "scanqa.cli.qa",

@@ -39,6 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-modulation", type=number(ge=0, unit="DN"), default=0.0, metavar="DN",
                    help="reject samples with modulation below this [DN] (default: decoder "
                         "mask only)")
+    p.add_argument("--no-markers", action="store_true",
+                   help="ignore the sweep's marker frames: lateral X, Y from 'lateral' maps "
+                        "or the config's pinhole (for comparison)")
     p.set_defaults(func=run)
 
 
@@ -49,7 +52,8 @@ def run(args: argparse.Namespace) -> int:
     stem = out.with_suffix("").name
     with staged_dir(out.parent) as stage:  # the table and its reports, together or none
         table, report = calibrate(sweep, config, weights=args.weights, cell_px=args.cell,
-                                  min_modulation=args.min_modulation)
+                                  min_modulation=args.min_modulation,
+                                  use_markers=not args.no_markers)
         save_table(stage / out.name, table)
         info = report_calibration.summary(table, report)
         write_text(stage / f"{stem}_report.json", json.dumps(info, indent=1))

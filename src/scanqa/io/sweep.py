@@ -9,10 +9,21 @@ Format (paths relative to the manifest's folder)::
     phase = ["p430_r0/phase.npz", "p430_r1/phase.npz"]    # decoded phase files (repeats)
     # patterns = ["p430_r0", "p430_r1"]            # or pattern folders, decoded on the fly
     lateral = "p430_truth.npz"                     # optional: arrays X, Y [mm] per pixel
+    markers = "markers/p430.png"                   # optional: the marker frame
 
-Positions are listed once each, in increasing ``z_mm``; repeats go in the same position's
-list. At least three positions are needed. Without ``lateral`` the target's X, Y come
-from the camera intrinsics of the scanner config.
+    [target]                                       # with markers: the printed target
+    kind = "chessboard"
+    square_mm = 4.0
+    # marker_cells = [[0, 0], [0, 1], [1, 1]]      # default
+    [scanner]                                      # optional: what the images came from
+    camera_width_px = 306
+    camera_height_px = 256
+
+Positions are listed once each, in increasing ``z_mm`` (the stage reading); repeats go in
+the same position's list. At least three positions are needed. ``markers`` (on every
+position, with a ``[target]`` table) give the lateral geometry from the printed target;
+else ``lateral``; else the camera intrinsics of the scanner config. ``[scanner]`` keys
+are checked against the config a sweep is calibrated with.
 """
 
 from __future__ import annotations
@@ -29,8 +40,13 @@ from scanqa.io.npzfile import load_npz
 from scanqa.io.tomlfile import read_toml
 
 FORMAT = "scanqa-sweep/1"
-_TOP = ("format", "description", "position")
-_POS = ("z_mm", "phase", "patterns", "lateral")
+_TOP = ("format", "description", "position", "target", "scanner")
+_POS = ("z_mm", "phase", "patterns", "lateral", "markers")
+#: Keys of the ``[target]`` table.
+TARGET_KEYS = ("kind", "square_mm", "marker_cells")
+#: Keys of the ``[scanner]`` table: the config values the sweep was captured with.
+SCANNER_KEYS = ("config", "camera_width_px", "camera_height_px", "camera_pixel_um",
+                "camera_focal_mm")
 
 
 @dataclass(frozen=True)
@@ -41,6 +57,7 @@ class SweepPosition:
     sources: tuple[Path, ...]
     decoded: bool
     lateral: Path | None
+    markers: Path | None = None
 
 
 @dataclass(frozen=True)
@@ -50,6 +67,13 @@ class Sweep:
     path: Path
     positions: tuple[SweepPosition, ...]
     description: str = ""
+    target: dict | None = None
+    scanner: dict | None = None
+
+    @property
+    def has_markers(self) -> bool:
+        """Whether every position names a marker frame."""
+        return all(p.markers is not None for p in self.positions)
 
     def observation_count(self) -> int:
         """Number of scans (positions x repeats)."""
@@ -90,7 +114,42 @@ def load_sweep(path: str | os.PathLike) -> Sweep:
         raise _err(path, f"a calibration sweep needs at least 3 [[position]] entries, got {n}")
     positions = tuple(_position(path, i, p) for i, p in enumerate(raw))
     _check_order(path, positions)
-    return Sweep(path, positions, str(data.get("description", "")))
+    target = _target(path, data.get("target"), positions)
+    scanner = _table(path, "scanner", data.get("scanner"), SCANNER_KEYS)
+    return Sweep(path, positions, str(data.get("description", "")), target, scanner)
+
+
+def _table(path: Path, name: str, table, keys: tuple[str, ...]) -> dict | None:
+    """An optional sub-table with known keys only."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise _err(path, f"[{name}] must be a table")
+    unknown = sorted(set(table) - set(keys))
+    if unknown:
+        raise _err(path, f"[{name}]: unknown key {unknown[0]!r} (known: {', '.join(keys)})")
+    return dict(table)
+
+
+def _target(path: Path, table, positions: tuple[SweepPosition, ...]) -> dict | None:
+    """The ``[target]`` table, required exactly when positions name marker frames."""
+    target = _table(path, "target", table, TARGET_KEYS)
+    marked = [p.markers is not None for p in positions]
+    if any(marked) and not all(marked):
+        k = marked.index(False)
+        raise _err(path, f"position {k + 1} (z_mm = {positions[k].z_mm}) has no 'markers': "
+                         "give the marker frame of every position or of none")
+    if all(marked) and target is None:
+        raise _err(path, "positions name marker frames but there is no [target] table: add "
+                         "[target] kind = \"chessboard\", square_mm = <printed square> [mm]")
+    if target is not None:
+        if target.get("kind") != "chessboard":
+            raise _err(path, f"[target] kind must be 'chessboard', got {target.get('kind')!r}")
+        sq = target.get("square_mm")
+        if isinstance(sq, bool) or not isinstance(sq, (int, float)) or not sq > 0:
+            raise _err(path, f"[target] square_mm must be the printed square's side > 0 "
+                             f"[mm], got {sq!r}")
+    return target
 
 
 def _position(path: Path, i: int, table: dict) -> SweepPosition:
@@ -119,7 +178,11 @@ def _position(path: Path, i: int, table: dict) -> SweepPosition:
     lat = path.parent / lateral if isinstance(lateral, str) else None
     if lateral is not None and (lat is None or not lat.exists()):
         raise _err(path, f"{where}: lateral file {lateral!r} does not exist")
-    return SweepPosition(float(z), sources, has_phase, lat)
+    markers = table.get("markers")
+    mark = path.parent / markers if isinstance(markers, str) else None
+    if markers is not None and (mark is None or not mark.is_file()):
+        raise _err(path, f"{where}: marker frame {markers!r} does not exist")
+    return SweepPosition(float(z), sources, has_phase, lat, mark)
 
 
 def _check_order(path: Path, positions: tuple[SweepPosition, ...]) -> None:
@@ -141,3 +204,96 @@ def read_lateral(path: str | os.PathLike) -> tuple[np.ndarray, np.ndarray]:
             or x.dtype.kind not in "iuf" or y.dtype.kind not in "iuf":
         raise InputError(f"{path}: needs 2-D numeric arrays X and Y of one shape [mm]")
     return np.asarray(x, float), np.asarray(y, float)
+
+
+# ------------------------------------------------------------------- generating one
+
+
+def read_stage_readings(text: str, source: str = "stage readings") -> list[float]:
+    """Stage readings [mm] from a comma list (``"430,432.5"``) or a CSV file's text.
+
+    A CSV holds one reading per line, in its last column (so ``capture,z_mm`` rows
+    work); a first line that is not a number is a header; ``#`` starts a comment.
+
+    Raises
+    ------
+    InputError
+        A line whose reading is not a finite number (named by its line number).
+    """
+    lines = text.splitlines() if "\n" in text.strip() else [v for v in text.split(",")]
+    out = []
+    for n, line in enumerate(lines, 1):
+        cell = line.split("#", 1)[0].strip()
+        if not cell:
+            continue
+        last = cell.split(",")[-1].strip() if "\n" in text.strip() else cell
+        try:
+            value = float(last)
+        except ValueError:
+            if n == 1 and not out:
+                continue  # a header
+            raise InputError(f"{source}, line {n}: {line.strip()!r} is not a stage reading "
+                             "[mm] (one number per line, or in the last CSV column)") from None
+        if not math.isfinite(value):
+            raise InputError(f"{source}, line {n}: the stage reading must be finite [mm]")
+        out.append(value)
+    return out
+
+
+def sweep_manifest(captures: list[str], readings: list[float], markers: list[str] | None,
+                   square_mm: float | None, decoded: bool, scanner: dict | None = None,
+                   description: str = "") -> dict:
+    """The ``sweep.toml`` content for captures taken at stage readings.
+
+    Parameters
+    ----------
+    captures : list of str
+        Pattern folders (or phase files, ``decoded``), relative to the manifest, one per
+        scan in capture order.
+    readings : list of float
+        The stage reading of each capture [mm]; equal readings are repeats of one
+        position.
+    markers : list of str, optional
+        One marker frame per distinct reading, in increasing reading order.
+    square_mm : float, optional
+        The printed target's square [mm] (required with ``markers``).
+    decoded : bool
+        Captures are phase files (``phase``) rather than pattern folders (``patterns``).
+    scanner : dict, optional
+        The ``[scanner]`` table (:data:`SCANNER_KEYS`).
+    description : str
+        Free text.
+
+    Raises
+    ------
+    InputError
+        Counts that do not match, fewer than 3 positions, markers without a square size.
+    """
+    if len(captures) != len(readings):
+        raise InputError(f"{len(captures)} captures but {len(readings)} stage readings: give "
+                         "one reading per capture, in the captures' name order (repeats "
+                         "repeat the reading)")
+    zs = sorted(set(readings))
+    if len(zs) < 3:
+        raise InputError(f"a sweep needs at least 3 distinct stage readings, got {len(zs)}")
+    if markers is not None and len(markers) != len(zs):
+        raise InputError(f"{len(markers)} marker frames but {len(zs)} distinct stage "
+                         "readings: give one marker frame per position")
+    if markers is not None and not (square_mm and square_mm > 0):
+        raise InputError("marker frames need the printed target's square size (--square-mm, "
+                         "> 0 mm)")
+    key = "phase" if decoded else "patterns"
+    rows = []
+    for k, z in enumerate(zs):
+        row = {"z_mm": z, key: [c for c, r in zip(captures, readings, strict=True) if r == z]}
+        if markers is not None:
+            row["markers"] = markers[k]
+        rows.append(row)
+    out: dict = {"format": FORMAT, "description": description or
+                 f"{len(zs)} positions, {len(captures)} scans"}
+    if scanner:
+        out["scanner"] = dict(scanner)
+    if markers is not None:
+        out["target"] = {"kind": "chessboard", "square_mm": float(square_mm)}
+    out["position"] = rows
+    return out

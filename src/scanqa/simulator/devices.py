@@ -9,6 +9,18 @@ centre, principal distance ``camera.principal_distance_px`` (the thin-lens image
 distance at focus). Projector: ``x_p = f_p X_p / Z_p + x_0`` with
 ``projector.principal_distance_px``, consistent with Eq. 3 at focus.
 
+Lens distortion (``[simulator] camera_k1 .. projector_p2``, zero by default) is the
+Brown-Conrady model of OpenCV on normalised pinhole coordinates (x, y) = (X/Z, Y/Z)::
+
+    r2 = x^2 + y^2
+    x_d = x (1 + k1 r2 + k2 r2^2) + 2 p1 x y + p2 (r2 + 2 x^2)
+    y_d = y (1 + k1 r2 + k2 r2^2) + p1 (r2 + 2 y^2) + 2 p2 x y
+
+A camera pixel (u, v) sees the ray of the undistorted (x, y) of its distorted
+coordinates, solved by Newton's method to 1e-15; the projector lights a point at the
+panel position of its distorted coordinates. Both directions are exact, so the truth
+files hold the distorted geometry.
+
 Blur is exact thin-lens cone geometry:
 
 * projector: a point at distance Z_p (along the projector axis) receives light from the
@@ -87,6 +99,68 @@ def sensor_window(config: ScannerConfig) -> Window:
     return Window((cam.width_px - w) // 2, (cam.height_px - h) // 2, w, h)
 
 
+def distortion(config: ScannerConfig, device: str) -> tuple[float, float, float, float]:
+    """(k1, k2, p1, p2) of ``device`` ("camera" or "projector") from ``[simulator]`` [-]."""
+    sim = config.simulator
+    return tuple(float(getattr(sim, f"{device}_{k}")) for k in ("k1", "k2", "p1", "p2"))
+
+
+def distort(coef: tuple[float, float, float, float], x: np.ndarray, y: np.ndarray
+            ) -> tuple[np.ndarray, np.ndarray]:
+    """Brown-Conrady distortion of normalised coordinates (x, y) -> (x_d, y_d) [-]."""
+    if not any(coef):  # today's pinhole, bit for bit
+        return x, y
+    k1, k2, p1, p2 = coef
+    r2 = x * x + y * y
+    radial = 1.0 + k1 * r2 + k2 * r2 * r2
+    return (x * radial + 2.0 * p1 * x * y + p2 * (r2 + 2.0 * x * x),
+            y * radial + p1 * (r2 + 2.0 * y * y) + 2.0 * p2 * x * y)
+
+
+def undistort(coef: tuple[float, float, float, float], xd: np.ndarray, yd: np.ndarray
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Inverse of :func:`distort` by Newton's method (to 1e-15) [-].
+
+    Raises
+    ------
+    InputError
+        When the iteration does not converge (distortion too strong to be inverted
+        inside the field: the lens model folds over).
+    """
+    xd, yd = np.asarray(xd, float), np.asarray(yd, float)
+    if not any(coef):
+        return xd, yd
+    x, y = xd.copy(), yd.copy()
+    eps = 1e-7
+    for _ in range(30):
+        fx, fy = distort(coef, x, y)
+        rx, ry = fx - xd, fy - yd
+        if np.nanmax(np.abs(rx) + np.abs(ry), initial=0.0) < 1e-15:
+            return x, y
+        ax, ay = distort(coef, x + eps, y)
+        bx, by = distort(coef, x, y + eps)
+        j11, j21, j12, j22 = (ax - fx) / eps, (ay - fy) / eps, (bx - fx) / eps, (by - fy) / eps
+        det = j11 * j22 - j12 * j21
+        x = x - (j22 * rx - j12 * ry) / det
+        y = y - (-j21 * rx + j11 * ry) / det
+    if np.nanmax(np.abs(rx) + np.abs(ry), initial=0.0) < 1e-12:
+        return x, y
+    raise InputError(f"lens distortion {coef} cannot be inverted inside the field of view "
+                     "(the model folds over): use smaller simulator k1/k2")
+
+
+def project_to_camera(config: ScannerConfig, pose: Pose, points: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor coordinates (u, v) of world points, with the camera's distortion [px]."""
+    q = pose.to_device(points)
+    f = config.camera.principal_distance_px
+    u0, v0 = config.camera.principal_point_px
+    with np.errstate(divide="ignore", invalid="ignore"):
+        xd, yd = distort(distortion(config, "camera"), q[..., 0] / q[..., 2],
+                         q[..., 1] / q[..., 2])
+    return f * xd + u0, f * yd + v0
+
+
 def camera_rays(config: ScannerConfig, pose: Pose, u: np.ndarray, v: np.ndarray
                 ) -> tuple[np.ndarray, np.ndarray]:
     """World rays through sensor coordinates.
@@ -107,8 +181,9 @@ def camera_rays(config: ScannerConfig, pose: Pose, u: np.ndarray, v: np.ndarray
     """
     f = config.camera.principal_distance_px
     u0, v0 = config.camera.principal_point_px
-    d_cam = np.stack(np.broadcast_arrays((np.asarray(u, float) - u0) / f,
-                                         (np.asarray(v, float) - v0) / f, 1.0), axis=-1)
+    x, y = undistort(distortion(config, "camera"), (np.asarray(u, float) - u0) / f,
+                     (np.asarray(v, float) - v0) / f)
+    d_cam = np.stack(np.broadcast_arrays(x, y, 1.0), axis=-1)
     directions = d_cam @ pose.rotation
     return np.broadcast_to(pose.centre, directions.shape), directions
 
@@ -127,8 +202,12 @@ def project_to_projector(config: ScannerConfig, pose: Pose, points: np.ndarray
     q = pose.to_device(points)
     f = config.projector.principal_distance_px
     x0, y0 = config.projector.principal_point_px
+    coef = distortion(config, "projector")
     with np.errstate(divide="ignore", invalid="ignore"):
-        return f * q[..., 0] / q[..., 2] + x0, f * q[..., 1] / q[..., 2] + y0, q[..., 2]
+        if not any(coef):  # today's pinhole, bit for bit
+            return f * q[..., 0] / q[..., 2] + x0, f * q[..., 1] / q[..., 2] + y0, q[..., 2]
+        xd, yd = distort(coef, q[..., 0] / q[..., 2], q[..., 1] / q[..., 2])
+    return f * xd + x0, f * yd + y0, q[..., 2]
 
 
 def projector_blur_px(config: ScannerConfig, z_p: np.ndarray) -> np.ndarray:

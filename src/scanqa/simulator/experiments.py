@@ -52,9 +52,10 @@ from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 from scanqa.decoding.patternset import write_pattern_set
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path, make_out_dir, staged_dir, write_text
+from scanqa.io.images import write_image
 from scanqa.io.tomlfile import dumps_toml as dump_toml
 from scanqa.progress import Progress
-from scanqa.simulator import devices, render, scene
+from scanqa.simulator import devices, render, scene, texture
 from scanqa.simulator.render import Acquisition
 
 #: Experiments :func:`run_experiment` knows, with their default repeats.
@@ -159,7 +160,8 @@ def build_positions(name: str, config: ScannerConfig, positions: Sequence[float]
         flat = bisector_flat(config)
         return [Position(i, p, 0.0, p, flat) for i, p in enumerate(positions)]
     if name == "calibration-sweep":
-        return [Position(i, p, 0.0, 0.0, scene.plane_scene(p)) for i, p in enumerate(positions)]
+        return [Position(i, p, 0.0, 0.0, texture.stage_flat(config, p))
+                for i, p in enumerate(positions)]
     if name == "gauge-blocks":
         art = scene.gauge_block_artefact(scene.paper_gauge_layout(config.camera.focus_mm))
         return [Position(i, p, 0.0, 0.0, art) for i, p in enumerate(positions)]
@@ -285,7 +287,8 @@ def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescript
 
 
 def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path) -> Path:
-    """Render the ground truth of one position and write ``out/truth/pNNN.npz``.
+    """Render the ground truth of one position and write ``out/truth/pNNN.npz`` (and, for
+    a marked target, its marker frame ``out/markers/pNNN.png``).
 
     Parameters
     ----------
@@ -309,7 +312,12 @@ def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path) -> P
                          f"{name}: the scene is outside the camera or projector "
                          "frustum")
     make_out_dir(out / "truth")
-    return write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
+    path = write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
+    if pos.scene.texture is not None:  # a marked target: its marker frame too
+        make_out_dir(out / "markers")
+        frame = render.render_marker_frame(config, acquisition(config, pos, 0, name))
+        write_image(out / "markers" / f"{pos.label}.png", frame)
+    return path
 
 
 def write_scan(name: str, config: ScannerConfig, desc: PatternDescription, pos: Position,
@@ -361,7 +369,7 @@ def finish_experiment(name: str, config: ScannerConfig, desc: PatternDescription
     entries = [_entry(pos, rep, f"{pos.label}_r{rep}") for pos in pos_list
                for rep in range(repeats)]
     if name == "calibration-sweep":
-        write_text(out / "sweep.toml", dump_toml(_sweep(pos_list, entries)))
+        write_text(out / "sweep.toml", dump_toml(_sweep(config, pos_list, entries)))
     if name == "gauge-blocks":  # the artefact's layout, for 'scanqa qa --layout'
         layout = scene.paper_gauge_layout(config.camera.focus_mm)
         write_text(out / "layout.toml", scene.gauge_layout_toml(layout))
@@ -443,17 +451,36 @@ def example_spec(g: dict) -> dict:
     return spec
 
 
-def _sweep(pos_list: list[Position], entries: list[dict]) -> dict:
-    """The calibration's ``sweep.toml`` (scanqa.io.sweep): positions in increasing Z."""
+def _sweep(config: ScannerConfig, pos_list: list[Position], entries: list[dict]) -> dict:
+    """The calibration's ``sweep.toml`` (scanqa.io.sweep): positions in increasing Z.
+
+    A plain flat moving along the camera axis lists the truth's X, Y as its lateral maps;
+    a printed target lists its marker frames instead, as a real sweep would; a tilted
+    stage or target without print lists neither (Z of the flat is then not the reading).
+    """
+    sim = config.simulator
+    tilted = sim.stage_tilt_deg != 0 or sim.target_tilt_deg != 0
+    printed = sim.target != "none"
     rows = []
     for pos in sorted(pos_list, key=lambda p: p.stage_mm):
-        folders = [e["folder"] for e in entries if e["index"] == pos.index]
-        rows.append({"z_mm": pos.stage_mm, "patterns": folders,
-                     "lateral": f"truth/{pos.label}.npz"})
-    return {"format": "scanqa-sweep/1",
-            "description": f"simulated flat target, {len(pos_list)} positions, "
-                           f"{len(entries) // len(pos_list)} repeats",
-            "position": rows}
+        row = {"z_mm": pos.stage_mm,
+               "patterns": [e["folder"] for e in entries if e["index"] == pos.index]}
+        if printed:
+            row["markers"] = f"markers/{pos.label}.png"
+        elif not tilted:
+            row["lateral"] = f"truth/{pos.label}.npz"
+        rows.append(row)
+    out = {"format": "scanqa-sweep/1",
+           "description": f"simulated flat target, {len(pos_list)} positions, "
+                          f"{len(entries) // len(pos_list)} repeats",
+           "scanner": {"config": config.name, "camera_width_px": config.camera.width_px,
+                       "camera_height_px": config.camera.height_px,
+                       "camera_pixel_um": config.camera.pixel_um,
+                       "camera_focal_mm": config.camera.focal_mm}}
+    if printed:
+        out["target"] = {"kind": "chessboard", "square_mm": sim.target_square_mm}
+    out["position"] = rows
+    return out
 
 
 def _entry(pos: Position, rep: int, folder: str) -> dict:

@@ -383,10 +383,11 @@ def _check_desc(desc: PatternDescription) -> None:
                              f"{s.name!r}")
 
 
-def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescription,
+def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescription | None,
                  win: Window, tile: tuple, halo: int, table: DiscAverage,
                  images: list[np.ndarray], tile_index: int) -> bool:
-    """Render every pattern of one tile into ``images``; True if any sample is lit."""
+    """Render every pattern of one tile into ``images`` (``desc`` None: the marker
+    frame); True if any sample is lit."""
     sim, s = config.simulator, config.simulator.supersampling
     uu, vv = _supersample_grid(config, win, tile, halo)
     pts = _geometry(config, acq, uu, vv)
@@ -401,24 +402,91 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
     m = sim.modulation_ratio
     ambient = np.where(pts.hit, 1.0 - m, 0.0)
     mean_level = sim.mean_signal_e * (ambient + m * pts.shade)
-    r0, r1, c0, c1 = tile
+    albedo = _albedo(config, acq, pts, desc is None)
+    if albedo is not None:
+        ambient, mean_level = ambient * albedo, mean_level * albedo
+    frame = _Frame(config, acq, pts, tile, halo, layers, ambient, (ix, iy, scale),
+                   tile_index)
+    if desc is None:  # one uniformly lit frame (the mean level of the fringes)
+        lit = m * pts.shade * (1.0 if albedo is None else albedo)
+        images[0][0, tile[0]:tile[1], tile[2]:tile[3]] = frame.image(lit, mean_level,
+                                                                     MARKER_STREAM)
+        return bool(pts.lit.any())
     k_pattern = 0
     for set_index, pset in enumerate(desc.sets):
         fringe = _Fringe(pts, d_panel, pset.period_px, table, sim.projector_gamma)
         for k, delta in enumerate(pset.shifts_rad):
-            key = _stream_key(config, (*acq.key, k_pattern))
             lit_part = m * pts.shade * fringe.relative(delta)
-            radiance = sim.mean_signal_e * (ambient + lit_part)
-            if sim.scene_noise_rel > 0:
-                radiance += sim.scene_noise_rel * mean_level * _scene_noise(key, ix, iy, scale)
-            blurred = _blur(np.where(pts.hit, radiance, 0.0), layers)
-            core = blurred[halo * s:(halo + r1 - r0) * s, halo * s:(halo + c1 - c0) * s]
-            pixels = core.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3))
-            rng = np.random.Generator(np.random.PCG64(
-                np.random.SeedSequence([key, tile_index, 7])))
-            images[set_index][k, r0:r1, c0:c1] = _sensor(config, pixels, rng)
+            if albedo is not None:
+                lit_part = lit_part * albedo
+            images[set_index][k, tile[0]:tile[1], tile[2]:tile[3]] = frame.image(
+                lit_part, mean_level, k_pattern)
             k_pattern += 1
     return bool(pts.lit.any())
+
+
+#: Pattern index of the marker frame's noise stream (beyond any pattern set).
+MARKER_STREAM = 1_000_000
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """What every frame of a tile shares: blur layers, noise cells, the sensor."""
+
+    config: ScannerConfig
+    acq: Acquisition
+    pts: _Points
+    tile: tuple
+    halo: int
+    layers: list
+    ambient: np.ndarray
+    cells: tuple
+    tile_index: int
+
+    def image(self, lit_part: np.ndarray, mean_level: np.ndarray, pattern: int
+              ) -> np.ndarray:
+        """Scene noise, camera blur, pixel integration and sensor of one frame [DN]."""
+        sim, s = self.config.simulator, self.config.simulator.supersampling
+        r0, r1, c0, c1 = self.tile
+        key = _stream_key(self.config, (*self.acq.key, pattern))
+        radiance = sim.mean_signal_e * (self.ambient + lit_part)
+        if sim.scene_noise_rel > 0:
+            radiance += sim.scene_noise_rel * mean_level * _scene_noise(key, *self.cells)
+        blurred = _blur(np.where(self.pts.hit, radiance, 0.0), self.layers)
+        h = self.halo
+        core = blurred[h * s:(h + r1 - r0) * s, h * s:(h + c1 - c0) * s]
+        pixels = core.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3))
+        rng = np.random.Generator(np.random.PCG64(
+            np.random.SeedSequence([key, self.tile_index, 7])))
+        return _sensor(self.config, pixels, rng)
+
+
+def _albedo(config: ScannerConfig, acq: Acquisition, pts: _Points, marker: bool
+            ) -> np.ndarray | None:
+    """Reflectance of the printed target at each sample, None for a plain scene."""
+    texture = acq.scene.texture
+    if texture is None or (not marker and texture.fringe_contrast == 0):
+        return None
+    s = config.simulator.supersampling
+    footprint = np.abs(np.nan_to_num(pts.z_c, nan=1.0)) / (
+        config.camera.principal_distance_px * s)
+    world = np.where(pts.hit[..., None], pts.world, 0.0)
+    return np.where(pts.hit, texture.albedo(world, footprint, fringe=not marker), 1.0)
+
+
+def render_marker_frame(config: ScannerConfig, acq: Acquisition) -> np.ndarray:
+    """The uniformly lit frame of the printed target (the marker frame), (H, W) [DN].
+
+    The projector shows a flat field at the fringes' mean level; the target's print is
+    seen at ``target_contrast``. Noise and sensor as for a fringe frame.
+    """
+    win = devices.sensor_window(config)
+    images = [np.zeros((1, win.height, win.width), np.uint16)]
+    halo = halo_px(config, acq)
+    table = disc_average(config.simulator.projector_samples)
+    for n, tile in enumerate(_tiles(win)):
+        _render_tile(config, acq, None, win, tile, halo, table, images, n)
+    return images[0][0]
 
 
 def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage,

@@ -88,6 +88,8 @@ class Scene:
             raise InputError(f"scene {name!r} has no triangles")
         self.mesh = mesh
         self.name = name
+        #: A printed texture (:class:`scanqa.simulator.texture.PrintedTarget`) or None.
+        self.texture = None
         self._v = np.asarray(mesh.vertices, dtype=np.float64)
         self._f = np.asarray(mesh.faces, dtype=np.int64)
         normals = np.cross(self._v[self._f[:, 1]] - self._v[self._f[:, 0]],

@@ -1,0 +1,82 @@
+"""``scanqa sweep-manifest``: write a sweep.toml from a folder of captures and the stage
+readings, so that nobody writes one by hand."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from scanqa.cli.common import add_config_argument, config_from_args
+from scanqa.errors import InputError
+from scanqa.io.atomic import write_text
+from scanqa.io.sweep import load_sweep, read_stage_readings, sweep_manifest
+from scanqa.io.tomlfile import dumps_toml
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "sweep-manifest", formatter_class=argparse.RawDescriptionHelpFormatter,
+        help="write the sweep.toml of a calibration sweep from its captures and stage "
+             "readings",
+        epilog="examples:\n  scanqa sweep-manifest captures --stage-mm readings.csv "
+               "--markers 'markers/*.png' --square-mm 4 --config scanner.toml\n"
+               "  scanqa sweep-manifest captures --stage-mm 430,432,434,436\n\n"
+               "Captures are the pattern folders (with patterns.toml) or phase files "
+               "(.npz) directly\nin FOLDER, in name order; give one stage reading per "
+               "capture (equal readings are repeats).\nWrites FOLDER/sweep.toml (or --out) "
+               "and reads it back to check it.")
+    p.add_argument("folder", metavar="FOLDER", help="folder holding the captures")
+    p.add_argument("--stage-mm", required=True, metavar="CSV|LIST",
+                   help="stage readings [mm]: a CSV/text file (one per line, last column) "
+                        "or a comma list")
+    p.add_argument("--markers", metavar="GLOB", default=None,
+                   help="marker frames relative to FOLDER, one per position in reading "
+                        "order (e.g. 'markers/*.png')")
+    p.add_argument("--square-mm", type=float, default=None, metavar="MM",
+                   help="side of the printed chessboard's squares [mm] (with --markers)")
+    add_config_argument(p, required=False)
+    p.add_argument("--out", default=None, metavar="SWEEP.toml",
+                   help="manifest to write (default FOLDER/sweep.toml)")
+    p.set_defaults(func=run)
+
+
+def _captures(folder: Path) -> tuple[list[str], bool]:
+    """Pattern folders, else phase files, directly in ``folder`` (name order)."""
+    dirs = sorted(d.name for d in folder.iterdir() if (d / "patterns.toml").is_file())
+    if dirs:
+        return dirs, False
+    files = sorted(f.name for f in folder.glob("*.npz"))
+    if files:
+        return files, True
+    raise InputError(f"{folder}: no captures found (pattern folders holding a "
+                     "patterns.toml, or phase files *.npz)")
+
+
+def run(args: argparse.Namespace) -> int:
+    folder = Path(args.folder)
+    if not folder.is_dir():
+        raise InputError(f"{folder} is not a folder of captures")
+    captures, decoded = _captures(folder)
+    stage = Path(args.stage_mm)
+    readings = read_stage_readings(stage.read_text(), str(stage)) if stage.is_file() \
+        else read_stage_readings(args.stage_mm, "--stage-mm")
+    markers = None
+    if args.markers:
+        markers = sorted(str(p.relative_to(folder)) for p in folder.glob(args.markers))
+        if not markers:
+            raise InputError(f"--markers {args.markers!r} matches no file in {folder}")
+    scanner = None
+    if getattr(args, "config", None):
+        cam = config_from_args(args).camera
+        scanner = {"camera_width_px": cam.width_px, "camera_height_px": cam.height_px,
+                   "camera_pixel_um": cam.pixel_um, "camera_focal_mm": cam.focal_mm}
+    data = sweep_manifest(captures, readings, markers, args.square_mm, decoded, scanner)
+    out = Path(args.out) if args.out else folder / "sweep.toml"
+    if out.resolve().parent != folder.resolve():
+        raise InputError(f"--out {out} must be in {folder}: the manifest's paths are "
+                         "relative to its folder")
+    write_text(out, dumps_toml(data))
+    sweep = load_sweep(out)
+    print(f"{out}: {len(sweep.positions)} positions, {sweep.observation_count()} scans"
+          + (", marker frames" if markers else ""))
+    return 0
