@@ -23,7 +23,8 @@ LAYERS = {
     "scanqa.annotation": 6, "scanqa.characterization": 6, "scanqa.qa": 6,
     "scanqa.simulator": 6,
     "scanqa.report": 7,
-    "scanqa.demo": 8, "scanqa.batch": 8, "scanqa": 8,
+    "scanqa.demo": 8, "scanqa.batch": 8, "scanqa.cluster": 8, "scanqa.campaign": 8,
+    "scanqa": 8,
     "scanqa.cli": 9, "scanqa.__main__": 9,
 }
 

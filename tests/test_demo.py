@@ -96,6 +96,8 @@ BAD_INPUTS = {
     "demo": ["--out", "/proc/forbidden/demo"],
     "init": ["i.toml", "--calibration", "nope.xml"],
     "patterns": ["sim", "--config", "nope.toml"],
+    "batch": ["nothing/*", "--calibration", "t.npz", "--config", "c.toml", "--out", "o"],
+    "campaign": ["nope.toml", "--out", "o"],
 }
 
 

@@ -584,7 +584,10 @@ def test_no_blanket_exception_handlers_in_the_library():
                ("response.py", "TypeError"),    # a response.toml value of a wrong type
                ("phasemap.py", "TypeError"),    # json.dumps of a provenance
                ("fitted_model.py", "TypeError"),  # a summary.json value of a wrong type
-               ("optics.py", "TypeError")}      # lru_cache of a hand-built config
+               ("optics.py", "TypeError"),      # lru_cache of a hand-built config
+               # one scan's failure (or its workers' deaths) becomes its row in the
+               # results table and the batch goes on (docs/cluster.rst)
+               ("cluster.py", "Exception")}
     found = []
     for path in (ROOT / "src" / "scanqa").rglob("*.py"):
         for node in ast.walk(ast.parse(path.read_text())):

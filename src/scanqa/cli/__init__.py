@@ -36,6 +36,7 @@ COMMAND_MODULES = (
     "scanqa.cli.patterns",
     "scanqa.cli.decode",
     "scanqa.cli.simulate",
+    "scanqa.cli.batch",
 )
 
 log = logging.getLogger(__name__)

@@ -58,11 +58,13 @@ def csv_text(rows: list[dict], columns: tuple) -> str:
 
 
 def write_outputs(result: QAResult, out_dir: str | os.PathLike,
-                  header: ReportHeader | None = None, pdf: bool = False) -> dict:
+                  header: ReportHeader | None = None, pdf: bool = False,
+                  html: bool = True) -> dict:
     """Write report.html (and with ``pdf`` report.pdf), blocks.csv, steps.csv, budget.csv,
     summary.json and, when the result holds its cloud, cloud_qa.ply (the cloud plus the
-    per-point QA fields) into ``out_dir``; returns the summary. The folder is created
-    when missing; the files are published together or not at all
+    per-point QA fields) into ``out_dir``; returns the summary. ``html=False`` leaves
+    out the reports (their plots take most of the time; ``scanqa batch --no-report``).
+    The folder is created when missing; the files are published together or not at all
     (:func:`scanqa.io.atomic.staged_dir`)."""
     info = result.summary()
     with staged_dir(out_dir) as out:
@@ -74,9 +76,10 @@ def write_outputs(result: QAResult, out_dir: str | os.PathLike,
              for s in result.steps if s.budget is not None for c in s.budget.components],
             ("block_a", "block_b", *BUDGET_COLUMNS)))
         write_text(out / "summary.json", json.dumps(info, indent=1))
-        page = render(result, header)
-        write_text(out / "report.html", page)
-        if pdf:
+        if html:
+            page = render(result, header)
+            write_text(out / "report.html", page)
+        if html and pdf:
             from scanqa.report.pdf import write_pdf
 
             write_pdf(page, out / "report.pdf")

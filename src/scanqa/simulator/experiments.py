@@ -40,7 +40,7 @@ import logging
 import os
 import zipfile
 import zlib
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -276,27 +276,98 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
 def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescription,
               pos_list: list[Position], repeats: int, progress: bool) -> None:
     """Render every scan of an experiment and write its folder into ``out``."""
-    make_out_dir(out / "truth")
-    entries = []
     with Progress(f"simulate {name}", len(pos_list) * repeats, "scan", log,
                   enabled=progress) as bar:
         for pos in pos_list:
-            truth = render.truth_for(config, acquisition(config, pos, 0))
-            if not truth.valid.any():
-                raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of "
-                                 f"{name}: the scene is outside the camera or projector "
-                                 "frustum")
-            write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
-            if pos.scene.texture is not None:
-                make_out_dir(out / "markers")
-                frame = render.render_marker_frame(config, acquisition(config, pos, 0, name))
-                write_image(out / "markers" / f"{pos.label}.png", frame)
+            write_truth(name, config, pos, out)
             for rep in range(repeats):
-                folder = f"{pos.label}_r{rep}"
-                images = render.render_images(config, acquisition(config, pos, rep, name), desc,
-                                              lambda done, tiles: bar.update(1 / tiles))
-                write_pattern_set(out / folder, desc, images, "png")
-                entries.append(_entry(pos, rep, folder))
+                write_scan(name, config, desc, pos, rep, out,
+                           lambda done, tiles: bar.update(1 / tiles))
+    finish_experiment(name, config, desc, pos_list, repeats, out)
+
+
+def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path) -> Path:
+    """Render the ground truth of one position and write ``out/truth/pNNN.npz`` (and, for
+    a marked target, its marker frame ``out/markers/pNNN.png``).
+
+    Parameters
+    ----------
+    name : str
+        The experiment (for the message when the scene is out of view).
+    config : ScannerConfig
+        Scanner config.
+    pos : Position
+        The position.
+    out : Path
+        The experiment folder.
+
+    Raises
+    ------
+    InputError
+        When no pixel sees the scene at this position.
+    """
+    truth = render.truth_for(config, acquisition(config, pos, 0))
+    if not truth.valid.any():
+        raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of "
+                         f"{name}: the scene is outside the camera or projector "
+                         "frustum")
+    make_out_dir(out / "truth")
+    path = write_npz(out / "truth" / f"{pos.label}.npz", truth.arrays())
+    if pos.scene.texture is not None:  # a marked target: its marker frame too
+        make_out_dir(out / "markers")
+        frame = render.render_marker_frame(config, acquisition(config, pos, 0, name))
+        write_image(out / "markers" / f"{pos.label}.png", frame)
+    return path
+
+
+def write_scan(name: str, config: ScannerConfig, desc: PatternDescription, pos: Position,
+               repeat: int, out: Path,
+               on_tile: Callable[[int, int], None] | None = None,
+               folder: Path | None = None) -> Path:
+    """Render one scan (position ``pos``, repeat ``repeat``) and write its pattern folder
+    ``out/pNNN_rR``; its noise depends only on the config's seed, the experiment, the
+    position's index and the repeat (:func:`acquisition`), so scans may be rendered in
+    any order and on any machine.
+
+    Parameters
+    ----------
+    name : str
+        The experiment.
+    config : ScannerConfig
+        Scanner config (its ``simulator.seed`` keys the noise).
+    desc : PatternDescription
+        What is projected (:func:`pattern_description`).
+    pos : Position
+        The position.
+    repeat : int
+        Repeat number [-].
+    out : Path
+        The experiment folder.
+    on_tile : callable, optional
+        ``on_tile(done, tiles)`` after every rendered tile.
+    folder : Path, optional
+        Write the pattern folder here instead (a staging folder that becomes
+        ``out/pNNN_rR``).
+
+    Returns
+    -------
+    Path
+        The pattern folder.
+    """
+    folder = folder or out / f"{pos.label}_r{repeat}"
+    images = render.render_images(config, acquisition(config, pos, repeat, name), desc,
+                                  on_tile)
+    write_pattern_set(folder, desc, images, "png")
+    return folder
+
+
+def finish_experiment(name: str, config: ScannerConfig, desc: PatternDescription,
+                      pos_list: list[Position], repeats: int, out: Path) -> Path:
+    """Write an experiment's own files once its scans are written: sweep.toml
+    (calibration sweeps), layout.toml (gauge blocks), the artefact files and, last,
+    manifest.toml; returns the manifest's path."""
+    entries = [_entry(pos, rep, f"{pos.label}_r{rep}") for pos in pos_list
+               for rep in range(repeats)]
     if name == "calibration-sweep":
         write_text(out / "sweep.toml", dump_toml(_sweep(config, pos_list, entries)))
     if name == "gauge-blocks":  # the artefact's layout, for 'scanqa qa --layout'
@@ -305,7 +376,7 @@ def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescript
     if name in ARTEFACT_EXPERIMENTS:
         _write_artefact_files(name, config, pos_list, out)
     manifest = _manifest(name, config, desc, pos_list, repeats, entries)
-    write_text(out / "manifest.toml", dump_toml(manifest))
+    return write_text(out / "manifest.toml", dump_toml(manifest))
 
 
 def _write_artefact_files(name: str, config: ScannerConfig, pos_list: list[Position],
