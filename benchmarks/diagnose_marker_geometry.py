@@ -1,0 +1,223 @@
+"""Where the marker-derived geometry's error comes from (simulated): oracle experiments.
+
+On the acceptance sweep of ``acceptance_calibration.py`` (whose simulator truth is
+known), the sweep geometry (:mod:`scanqa.calibration.target`) is fitted with parts of it
+replaced by the truth, and each variant's target-plane points (the X, Y, Z the table is
+built with) are compared with the simulator's truth maps of the sweep: RMS in the camera
+frame, after one rigid registration (as the acceptance) and the range of the mean
+line-of-sight error over the positions (trend). A last part propagates white corner noise
+of the measured size through the fit (linearised) to the registered error.
+
+Usage::
+
+    python benchmarks/diagnose_marker_geometry.py [--sweep DIR]
+
+DIR defaults to ``acceptance_calibration_data/sweep`` (simulate it with
+``acceptance_calibration.py --simulate-only``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import acceptance_calibration as acc
+from scipy.optimize import least_squares
+
+from scanqa.calibration import target as tg
+from scanqa.calibration.parametric import Lens
+from scanqa.io.images import read_image
+from scanqa.io.sweep import load_sweep
+from scanqa.simulator import devices, texture
+
+NAMES = ("f", "cx", "cy", "k1", "k2", "p1", "p2", "r1", "r2", "r3", "tx", "ty", "tz",
+         "ax", "ay")
+ALL = np.ones(15, bool)
+PP_HELD = ALL & ~np.isin(np.arange(15), (1, 2))
+INTRINSICS, POSES = np.arange(15) < 7, np.arange(15) >= 7
+
+
+class Setup:
+    """The sweep, its truth, the detected and the exact corners."""
+
+    def __init__(self, folder: Path) -> None:
+        self.cfg = acc.scanner()
+        self.sweep = load_sweep(folder)
+        self.stage = [p.z_mm for p in self.sweep.positions]
+        self.ref = 0.5 * (min(self.stage) + max(self.stage))
+        self.size = (self.cfg.camera.width_px, self.cfg.camera.height_px)
+        spec = tg.ChessboardSpec(float(self.sweep.target["square_mm"]))
+        self.detected = [tg.detect_chessboard(read_image(p.markers), spec)
+                         for p in self.sweep.positions]
+        self.exact = [tg.Detection(self.true_uv(d.target_points, s), d.target_points)
+                      for d, s in zip(self.detected, self.stage, strict=True)]
+        self.truth = []
+        for i in range(len(self.stage)):
+            with np.load(folder / "truth" / f"p{i:03d}.npz") as t:
+                self.truth.append((np.stack([t["X"], t["Y"], t["Z"]], -1), t["valid"]))
+
+    def true_uv(self, xy: np.ndarray, stage: float) -> np.ndarray:
+        frame = texture.target_frame(self.cfg, stage)
+        u, v = devices.project_to_camera(self.cfg, devices.camera_pose(), frame.to_world(xy))
+        return np.stack([u, v], -1)
+
+    def oracle(self) -> np.ndarray:
+        """The simulator's camera, target pose and stage axis as fit parameters."""
+        import cv2
+
+        cam = self.cfg.camera
+        frame = texture.target_frame(self.cfg, self.ref)
+        d = texture.stage_axis(self.cfg)
+        return np.array([cam.principal_distance_px, *cam.principal_point_px,
+                         *devices.distortion(self.cfg, "camera"),
+                         *cv2.Rodrigues(frame.axes.T)[0].ravel(), *frame.origin,
+                         math.atan2(d[0], d[2]), math.atan2(d[1], d[2])])
+
+    def arrays(self, dets):
+        xy = np.concatenate([d.target_points for d in dets])
+        uv = np.concatenate([d.image_points for d in dets])
+        st = np.concatenate([np.full(len(d.target_points), s - self.ref)
+                             for d, s in zip(dets, self.stage, strict=True)])
+        return xy, st, uv
+
+    def fit(self, dets, free, start=None) -> tuple[np.ndarray, np.ndarray]:
+        """Fit the free parameters (others at ``start``, default the truth)."""
+        p0 = self.oracle() if start is None else start.copy()
+        xy, st, uv = self.arrays(dets)
+
+        def res(q):
+            p = p0.copy()
+            p[free] = q
+            return tg._residuals(p, None, xy, st, uv, self.size)
+
+        out = least_squares(res, p0[free], x_scale="jac", method="lm")
+        p = p0.copy()
+        p[free] = out.x
+        s2 = out.fun @ out.fun / max(out.jac.shape[0] - out.jac.shape[1], 1)
+        std = np.zeros(15)
+        std[free] = np.sqrt(np.diag(np.linalg.inv(out.jac.T @ out.jac)) * s2)
+        return p, std
+
+    def geometry(self, p) -> tg.SweepGeometry:
+        k, dist, rot, t0, axis = tg._unpack(p, None)
+        return tg.SweepGeometry(Lens(k, dist, *self.size), rot, np.asarray(t0), axis,
+                                self.ref, 0.0)
+
+    def points(self, p, step: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        g, src, dst, idx = self.geometry(p), [], [], []
+        for i, s in enumerate(self.stage):
+            q = np.stack(g.plane_points(s, *self.size), -1)[::step, ::step]
+            t, ok = self.truth[i][0][::step, ::step], self.truth[i][1][::step, ::step]
+            ok = ok & np.isfinite(q).all(-1)
+            src.append(q[ok])
+            dst.append(t[ok])
+            idx.append(np.full(int(ok.sum()), i))
+        return np.concatenate(src), np.concatenate(dst), np.concatenate(idx)
+
+    def error(self, p) -> dict:
+        """Plane points against truth: camera frame, registered, trend [um]."""
+        a, b, idx = self.points(p)
+        ca, cb = a.mean(0), b.mean(0)
+        uu, _, vt = np.linalg.svd((a - ca).T @ (b - cb))
+        rot = vt.T @ np.diag([1, 1, np.sign(np.linalg.det(vt.T @ uu.T))]) @ uu.T
+        e = (a - ca) @ rot.T + cb - b
+        los = np.einsum("ni,ni->n", e, b / np.linalg.norm(b, axis=1, keepdims=True))
+        per = [los[idx == i].mean() for i in range(len(self.stage))]
+        return {"camera_frame_um": 1e3 * float(np.sqrt(np.mean(np.sum((a - b)**2, -1)))),
+                "registered_um": 1e3 * float(np.sqrt(np.mean(np.sum(e**2, -1)))),
+                "trend_um": 1e3 * float(np.ptp(per))}
+
+
+def detection_error(s: Setup) -> dict:
+    """Detected corners against the exact ones: RMS and the pixel-locking term [px]."""
+    err = np.concatenate([d.image_points - e.image_points
+                          for d, e in zip(s.detected, s.exact, strict=True)])
+    uv = np.concatenate([e.image_points for e in s.exact])
+    frac = uv - np.round(uv)
+    amp = [float(np.linalg.lstsq(np.column_stack([np.ones(len(f)), np.sin(2 * np.pi * f)]),
+                                 e, rcond=None)[0][1]) for f, e in zip(frac.T, err.T,
+                                                                        strict=True)]
+    locked = err - np.outer(np.ones(len(err)), amp) * np.sin(2 * np.pi * frac)
+    return {"rms_px": float(np.sqrt(np.mean(np.sum(err**2, 1)))),
+            "mean_px": err.mean(0).tolist(), "locking_amplitude_px": amp,
+            "rest_rms_per_coord_px": float(locked.std(0).mean()), "n": len(err)}
+
+
+def experiments(s: Setup) -> dict:
+    """The fit variants and their plane-point errors (module notes)."""
+    held = {k: PP_HELD & ~np.isin(np.arange(15), v) for k, v in
+            (("k2", (4,)), ("p", (5, 6)))}
+    runs = {"oracle geometry": None,
+            "exact corners, pp held": (s.exact, PP_HELD),
+            "exact corners, pp free": (s.exact, ALL),
+            "detected, pp held (as calibrate)": (s.detected, PP_HELD),
+            "detected, pp free": (s.detected, ALL),
+            "detected, pp held, k2 = 0": (s.detected, held["k2"]),
+            "detected, pp held, p1 = p2 = 0": (s.detected, held["p"]),
+            "detected, true intrinsics, fitted poses": (s.detected, POSES),
+            "detected, fitted intrinsics, true poses": (s.detected, INTRINSICS)}
+    out, truth = {}, s.oracle()
+    for name, run in runs.items():
+        p, std = (truth, np.zeros(15)) if run is None else s.fit(*run)
+        row = s.error(p)
+        row["params"] = {n: [float(v), float(e), float(t)] for n, v, e, t in
+                         zip(NAMES, p, std, truth, strict=True) if e > 0}
+        out[name] = row
+    main, _ = s.fit(s.detected, PP_HELD)
+    mixed = truth.copy()
+    mixed[:7] = main[:7]
+    out["intrinsics of the calibrate fit, true poses"] = s.error(mixed)
+    return out
+
+
+def propagation(s: Setup, sigma_px: float) -> dict:
+    """Registered plane-point RMS from white corner noise through the linearised fit [um]."""
+    p0 = s.oracle()
+    free = np.nonzero(PP_HELD)[0]
+    xy, st, uv = s.arrays(s.exact)
+    base_r = tg._residuals(p0, None, xy, st, uv, s.size)
+    base_f, _, _ = s.points(p0, step=8)
+    n = len(base_f)
+    rigid = []
+    for a in range(3):
+        e = np.zeros(3)
+        e[a] = 1.0
+        rigid += [np.tile(e, n), np.cross(e, base_f - base_f.mean(0)).ravel()]
+    q, _ = np.linalg.qr(np.array(rigid).T)
+    jac, field = [], []
+    for k in free:
+        p = p0.copy()
+        h = 1e-6 * max(1.0, abs(p0[k]) * 1e-2)
+        p[k] += h
+        jac.append((tg._residuals(p, None, xy, st, uv, s.size) - base_r) / h)
+        f = ((s.points(p, step=8)[0] - base_f) / h).ravel()
+        field.append(f - q @ (q.T @ f))
+    jac, field = np.array(jac).T, np.array(field).T
+    out = {}
+    for name, sel in (("pp held", free >= 0), ("intrinsics known", free >= 7)):
+        cov = np.linalg.inv(jac[:, sel].T @ jac[:, sel]) * sigma_px**2
+        g = field[:, sel]
+        out[name] = 1e3 * float(np.sqrt(np.trace(cov @ (g.T @ g)) / n))
+    return out
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--sweep", default="acceptance_calibration_data/sweep")
+    args = parser.parse_args(argv)
+    s = Setup(Path(args.sweep))
+    det = detection_error(s)
+    result = {"simulated": True, "detection": det, "experiments": experiments(s),
+              "white_noise_prediction_um": propagation(s, det["rms_px"] / math.sqrt(2))}
+    print(json.dumps(result, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
