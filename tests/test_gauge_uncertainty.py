@@ -193,7 +193,13 @@ def test_block_statistics_by_explicit_sums():
     pts, attrs, sign = _checkerboard_block()
     res = analyse_block(pts, attrs, BLOCK_A, margin=0.0, outlier_k=None)
     n = len(pts)
-    assert res.status == "ok" and res.n_points == n and res.outliers == 0
+    assert res.n_points == n and res.outliers == 0
+    # ~20 % of the points outside the volume (> 5 %): flagged, though it has a plane
+    outside = 100 * (1 - sum(attrs["in_volume"]) / n)
+    assert 15 < outside < 25
+    assert (res.status, res.message) == (
+        "outside_volume", f"block 2: {outside:.0f} % of its points lie outside the calibrated "
+        "volume (more than 5 %): flagged, its steps are not evaluated")
     np.testing.assert_allclose(res.fit.residuals, sign * 3e-3, atol=1e-12)
     np.testing.assert_allclose(res.measured_std_um, 3.0 * math.sqrt(n / (n - 3)), rtol=1e-9)
     np.testing.assert_allclose(res.flatness_um, 6.0, rtol=1e-9)
@@ -333,19 +339,33 @@ def test_iso_14253_decision_at_its_boundaries(measured_mm, expanded_um, decision
     assert step.row()["pass"] == decision
 
 
-def test_summary_counts_steps_inside_the_volume():
-    """A block outside the calibrated volume takes its steps out of the counts."""
+def test_summary_counts_evaluated_steps():
+    """A block outside the calibrated volume is flagged: its step stays in the table, "not
+    evaluated" (no decision), and out of the counts of steps within U."""
     xyz = np.concatenate([_grid(BLOCK_A, 0.5), _grid(BLOCK_B, 0.5)])
     n = len(xyz)
     attrs = {"sigma_model_um": np.full(n, 1.0), "in_volume": np.ones(n)}
     res = run_qa(AnnotatedCloud(xyz, attrs), TWO)
     info = res.summary()
-    assert info["steps_inside_volume"] == 1 and info["steps_error_within_U"] == 1
+    assert (info["steps_evaluated"], info["steps_not_evaluated"]) == (1, 0)
+    assert info["steps_error_within_U"] == 1 and info["fraction_within_U"] == 1.0
+    assert (info["blocks_ok"], info["blocks_flagged"]) == (2, 0)
+    # a perfect cloud: error 0 <= T - U, so "pass"
+    assert info["decisions"] == {"pass": 1, "fail": 0, "undecided": 0, "not evaluated": 0}
     attrs["in_volume"][xyz[:, 0] > 0] = 0.0
     res = run_qa(AnnotatedCloud(xyz, attrs), TWO)
     assert [b.status for b in res.blocks] == ["ok", "outside_volume"]
+    (step,) = res.steps
+    assert (step.evaluated, step.decision, step.note) == (False, "not evaluated",
+                                                          "not evaluated: block 3 flagged")
+    assert step.within_u  # |error| <= U, but not counted: the step is not evaluated
+    assert res.steps_evaluated() == []
     info = res.summary()
-    assert info["steps_inside_volume"] == 0 and info["fraction_within_U"] is None
+    assert (info["steps_evaluated"], info["steps_not_evaluated"]) == (0, 1)
+    assert info["steps_error_within_U"] == 0 and info["fraction_within_U"] is None
+    assert (info["blocks_ok"], info["blocks_flagged"]) == (1, 1)
+    assert info["decisions"] == {"pass": 0, "fail": 0, "undecided": 0, "not evaluated": 1}
+    assert info["steps"][0]["pass"] == "not evaluated" and info["steps"][0]["evaluated"] is False
 
 
 def test_robust_std_hand_values():
