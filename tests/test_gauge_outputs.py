@@ -103,6 +103,9 @@ def test_rows_and_summary_have_their_documented_names():
     assert [(x["block_a"], x["block_b"], x["u_um"], x["k"], x["k_rule"])
             for x in info["budgets"]] == [(2, 3, res.steps[0].u_um, 3.0, "stated"),
                                           (3, 4, res.steps[1].u_um, 3.0, "stated")]
+    assert [c["component"] for c in info["budgets"][0]["components"]] == [
+        "noise, plane of block 2 at block 3", "noise, mean height of block 3",
+        "calibration table"]
     ratios = [b.measured_std_um / b.predicted_std_um for b in res.blocks]
     assert info["max_abs_ratio_deviation"] == max(abs(r - 1) for r in ratios)
     assert info["blocks"][0]["block_id"] == 3 and info["steps"][1]["block_b"] == 4
@@ -370,3 +373,127 @@ def test_local_std_small_blocks_and_default_k():
         d = np.linalg.norm(xyz[5:, :2] - xyz[i, :2], axis=1)
         nearest = 5 + np.argsort(d, kind="stable")[:16]
         np.testing.assert_allclose(got[i], np.std(resid[nearest], ddof=1), rtol=1e-12)
+
+
+def test_settings_are_refused_with_one_message():
+    """Each setting at its bound: margin and tolerance may be 0, the tile size and the
+    outlier K must be > 0, the neighbour count > 2; the message names the setting, the
+    bound, the unit and the value."""
+    ok = {"margin_mm": 0.0, "outlier_k": None, "tolerance_um": 0.0, "knn": 3, "tile_mm": 0.01}
+    blocks._check_settings(**ok)
+    blocks._check_settings(**{**ok, "outlier_k": 0.01})
+    for change, message in (
+            ({"margin_mm": -0.5}, "edge margin must be >= 0 mm, got -0.5"),
+            ({"margin_mm": math.nan}, "edge margin must be >= 0 mm, got nan"),
+            ({"margin_mm": "1"}, "edge margin must be >= 0 mm, got '1'"),
+            ({"tolerance_um": -1.0}, "tolerance must be >= 0 um, got -1.0"),
+            ({"tolerance_um": math.inf}, "tolerance must be >= 0 um, got inf"),
+            ({"tile_mm": 0.0}, "tile size must be > 0 mm, got 0.0"),
+            ({"knn": 2}, "neighbour count must be > 2, got 2"),
+            ({"outlier_k": 0.0},
+             "outlier rejection K must be > 0 robust std (or not given), got 0.0"),
+            ({"outlier_k": math.inf},
+             "outlier rejection K must be > 0 robust std (or not given), got inf"),
+            ({"outlier_k": -2.0},
+             "outlier rejection K must be > 0 robust std (or not given), got -2.0")):
+        with pytest.raises(InputError) as err:
+            blocks._check_settings(**{**ok, **change})
+        assert str(err.value) == message
+    xyz, attrs = _cloud(specs=(BLOCK_A,))
+    cloud = AnnotatedCloud(xyz, attrs)
+    with pytest.raises(InputError, match=r"^outlier rejection K must be > 0"):
+        run_qa(cloud, THREE, outlier_k=0.0)
+    with pytest.raises(InputError, match=r"^k must be a number > 0"):
+        run_qa(cloud, THREE, k=0.0)
+    assert run_qa(cloud, THREE, k=0.5).steps == []  # one block: no step, but k accepted
+
+
+def test_clouds_without_finite_points_or_outside_every_block():
+    """No finite point: one message with the count. No point in any block: the extents of
+    cloud and layout, and a hint - metres when the cloud is over 100 times smaller than
+    the layout (here 1000: the blocks in metres), else the frame."""
+    with pytest.raises(InputError) as err:
+        run_qa(AnnotatedCloud(np.full((3, 3), np.nan), {}), THREE)
+    assert str(err.value) == ("the cloud has no points with finite coordinates (3 points): "
+                              "nothing to measure")
+    xyz, _ = _cloud()
+    metres = np.vstack([xyz * 1e-3, [[np.nan, 0.0, 0.0]]])
+    lo, hi = xyz[:, :2].min(axis=0) * 1e-3, xyz[:, :2].max(axis=0) * 1e-3
+    with pytest.raises(InputError) as err:
+        run_qa(AnnotatedCloud(metres, {}), THREE, margin_mm=0.5)
+    assert str(err.value) == (
+        "no block of the layout holds a point of the cloud (after the 0.5 mm edge margin): "
+        f"the cloud spans X {lo[0]:.4g} to {hi[0]:.4g}, Y {lo[1]:.4g} to {hi[1]:.4g} mm; "
+        "the blocks X -14 to 30, Y -21 to -3 mm. The cloud is about 1000 times smaller "
+        "than the layout: is it in metres? scanqa reads millimetres.")
+    assert f"{lo[0]:.4g}" == "-0.01375" and f"{hi[1]:.4g}" == "-0.00325"
+    shifted = xyz + np.array([500.0, 250.0, 0.0])
+    with pytest.raises(InputError) as err:
+        run_qa(AnnotatedCloud(shifted, {}), THREE)
+    assert str(err.value) == (
+        "no block of the layout holds a point of the cloud (after the 1 mm edge margin): "
+        "the cloud spans X 486.2 to 529.8, Y 229.2 to 246.8 mm; the blocks X -14 to 30, "
+        "Y -21 to -3 mm. Check that cloud and layout share the scanner frame.")
+    # the layout's span is the larger of its X and Y spans (44 mm here): a cloud of 0.4 mm
+    # is under 1/100 of it, a single point (span 0) is not
+    tiny = np.array([[100.0, 100.0, 400.0], [100.4, 100.0, 400.0]])
+    with pytest.raises(InputError, match="is it in metres"):
+        run_qa(AnnotatedCloud(tiny, {}), THREE)
+    with pytest.raises(InputError, match="share the scanner frame"):
+        run_qa(AnnotatedCloud(tiny[:1], {}), THREE)
+    wide = np.array([[100.0, 100.0, 400.0], [100.0, 100.43, 400.0]])
+    with pytest.raises(InputError, match="is it in metres"):
+        run_qa(AnnotatedCloud(wide, {}), Layout("tall", (BlockSpec(1, 1.0, (0, 1, 0, 44)),)))
+    wide[1, 1] = 100.45
+    with pytest.raises(InputError, match="share the scanner frame"):
+        run_qa(AnnotatedCloud(wide, {}), Layout("tall", (BlockSpec(1, 1.0, (0, 1, 0, 44)),)))
+
+
+def test_nan_points_float32_and_zero_sigmas():
+    """A NaN point is skipped (the blocks keep theirs); float32 coordinates give the
+    numbers of their float64 values; a zero sigma predicts nothing (the block's predicted
+    std is the RMS over the others, and that point's plane weight is the measured std)."""
+    xyz, attrs = _cloud()
+    xyz32 = xyz.astype(np.float32)
+    with_nan = np.vstack([xyz32, [[np.nan, -10.0, 450.0]]])
+    attrs_nan = {"sigma_model_um": np.append(attrs["sigma_model_um"], 2.0)}
+    a = run_qa(AnnotatedCloud(with_nan, attrs_nan), THREE)
+    b = run_qa(AnnotatedCloud(xyz32.astype(np.float64), attrs), THREE)
+    assert [s.measured_diff_mm for s in a.steps] == [s.measured_diff_mm for s in b.steps]
+    assert [x.measured_std_um for x in a.blocks] == [x.measured_std_um for x in b.blocks]
+    assert a.block_id[-1] == -1
+    sig = attrs["sigma_model_um"].copy()
+    sig[::2] = 0.0
+    spec = BLOCK_A
+    res = analyse_block(xyz, {"sigma_model_um": sig}, spec, margin=0.0, outlier_k=None)
+    inside = blocks._select(xyz, spec, 0.0, 3.0)
+    pos = sig[inside] > 0
+    los = xyz[inside] / np.linalg.norm(xyz[inside], axis=1)[:, None]
+    cos = np.abs(los @ res.fit.normal)  # the fitted normal, not quite -Z (noise)
+    want = math.sqrt(np.mean((2.0 * cos[pos]) ** 2))
+    assert 0 < pos.sum() < len(inside)
+    np.testing.assert_allclose(res.predicted_std_um, want, rtol=1e-12)
+    np.testing.assert_allclose(res.sigma_n[~pos], res.measured_std_um * 1e-3, rtol=1e-12)
+
+
+def test_table_variance_needs_a_positive_correlation_length_on_both_blocks():
+    """A correlation length of 0 (or NaN) on either block: one shift per block,
+    sigma_a^2 + sigma_b^2; lengths under 1 mm are used as given."""
+    from scanqa.qa.planes import PlaneFit
+
+    def block(bid, centroid, corr, sig):
+        res = blocks.BlockResult(bid, 10.0)
+        res.fit = PlaneFit(np.asarray(centroid, float), np.array([0.0, 0.0, -1.0]),
+                           np.zeros(3), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+        res.spread_mm, res.table_corr_mm, res.table_sigma_um = (3.0, 4.0), corr, sig
+        res.u_plane = np.zeros((3, 3))
+        return res
+
+    for ca, cb in ((0.0, 1.0), (1.0, 0.0), (-1.0, 1.0)):
+        a, b = block(2, (-8.0, -12.0, 443.65), ca, 5.0), block(3, (8.0, -12.0, 456.35), cb, 3.0)
+        np.testing.assert_allclose(blocks.step_between(a, b, 2.0, 20.0).u_um,
+                                   math.hypot(5.0, 3.0), rtol=1e-12)
+    # 0.5 mm: 12 * 3 * 4 / 0.25 = 576 patches each; tilt (16 / 3)^2 (lever along X only)
+    a, b = block(2, (-8.0, -12.0, 443.65), 0.5, 5.0), block(3, (8.0, -12.0, 456.35), 0.5, 3.0)
+    want = math.sqrt(25 / 576 + 9 / 576 + 25 / 576 * (16 / 3) ** 2)
+    np.testing.assert_allclose(blocks.step_between(a, b, 2.0, 20.0).u_um, want, rtol=1e-12)

@@ -449,6 +449,8 @@ def test_budget_type_a_terms_and_their_degrees_of_freedom():
                                ("calibration table", "A", "um", 1.0, 10.0)]
     assert rows[0]["source"] == "model sigma x measured correlation (13 tiles)"
     assert rows[1]["source"] == "model sigma x measured correlation (23 tiles)"
+    assert rows[2]["source"] == ("node fits over the calibration planes, scaled by their "
+                                 "reduced chi-square")
     np.testing.assert_allclose([r["u"] for r in rows], [2.0, 3.0, 2.0], rtol=1e-12)
     np.testing.assert_allclose(step.u_um, math.sqrt(17.0), rtol=1e-12)
     np.testing.assert_allclose(step.budget.nu_eff, 289 / 7.25, rtol=1e-12)

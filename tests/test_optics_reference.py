@@ -327,6 +327,9 @@ def test_optical_terms_fields_and_s_o_with(paper_config, form):
         np.testing.assert_allclose(getattr(terms, name), [r[name] for r in ref], rtol=1e-9,
                                    atol=1e-15, equal_nan=True, err_msg=name)
     assert terms.filter_form == form
+    # integer depths give float terms
+    ints = optics.optical_terms([450, 460], [471, 480], cfg)
+    assert ints.z_c.dtype == ints.z_p.dtype == np.float64
     for gamma, floor, reading, rho in ((1.5, "none", "two_source", 0.5),
                                        (4.0, "one", "two_source", 0.0),
                                        (2.0, "none", "mixed", 0.3),
@@ -354,6 +357,7 @@ def test_overrides_of_form_and_sensor_ratio(paper_config):
                                    equal_nan=True, err_msg=name)
     cfg = _two_source_config(paper_config, "sum", "one", "two_source")
     pred = optics.predict(pts, cfg, sigma_p=0.01)
+    assert optics.predict([[0, 0, 450]], cfg, s_t=1).s_t.dtype == np.float64
     ref = [reference_point(p, cfg.replace_model(sigma_p_px=0.01), "two_source", "one",
                            form="sum") for p in pts]
     _compare(pred, ref)
