@@ -184,6 +184,7 @@ def test_ratio_at_attenuation_hand_values():
         r = optics.ratio_at_attenuation(level)
         assert 0.0 < r < 1.2196698912665045
         np.testing.assert_allclose(attenuation(r), level, rtol=1e-9)
+        assert abs(attenuation(r) - level) < 1e-13  # solved to xtol 1e-14, not brentq's 2e-12
     for bad in (0.0, -0.2, 1.0000001, math.nan):
         with pytest.raises(optics.RangeError, match=r"attenuation level must be in \(0, 1\]"):
             optics.ratio_at_attenuation(bad)
@@ -397,6 +398,14 @@ def test_sum_form_and_two_source_hand_values():
         np.testing.assert_allclose(optics.optical_scale(2.0, 0.25, 0.64, reading, 0.5),
                                    1 / (2 * a), rtol=1e-15)
     assert np.isinf(optics.optical_scale(1.0, 0.0, 0.5, "two_source", 0.5))
+    assert np.isinf(optics.optical_scale(1.0, 0.0, 0.5, "two_source", 0.0))  # no 0 / 0
+    # defaults: no sensor part, and the paper's reading
+    np.testing.assert_allclose(optics.optical_scale(2.0, 0.25, 0.64, "two_source"), 1 / 0.8,
+                               rtol=1e-15)
+    scene, sensor = optics.noise_scales(2.0, 0.25, 0.64, "two_source")
+    assert sensor == 0.0
+    scene, sensor = optics.noise_scales(2.0, 0.25, 0.64)
+    np.testing.assert_allclose(scene, 1 / (2 * 0.16), rtol=1e-15)
 
 
 def test_unknown_form_floor_or_reading_is_refused():
