@@ -441,6 +441,13 @@ def test_clouds_without_finite_points_or_outside_every_block():
         run_qa(AnnotatedCloud(tiny, {}), THREE)
     with pytest.raises(InputError, match="share the scanner frame"):
         run_qa(AnnotatedCloud(tiny[:1], {}), THREE)
+    # 0.47 mm is over 44 / 100 (the spans are X and Y: X0, X1 and Y0 together span 51 mm);
+    # exactly 0.44 mm is not under it; 0.438 mm is
+    for span, hint in ((0.47, "share the scanner frame"), (0.44, "share the scanner frame"),
+                       (0.438, "is it in metres")):
+        edge = np.array([[0.0, 100.0, 400.0], [span, 100.0, 400.0]])
+        with pytest.raises(InputError, match=hint):
+            run_qa(AnnotatedCloud(edge, {}), THREE)
     wide = np.array([[100.0, 100.0, 400.0], [100.0, 100.43, 400.0]])
     with pytest.raises(InputError, match="is it in metres"):
         run_qa(AnnotatedCloud(wide, {}), Layout("tall", (BlockSpec(1, 1.0, (0, 1, 0, 44)),)))
@@ -460,7 +467,8 @@ def test_nan_points_float32_and_zero_sigmas():
     a = run_qa(AnnotatedCloud(with_nan, attrs_nan), THREE)
     b = run_qa(AnnotatedCloud(xyz32.astype(np.float64), attrs), THREE)
     assert [s.measured_diff_mm for s in a.steps] == [s.measured_diff_mm for s in b.steps]
-    assert [x.measured_std_um for x in a.blocks] == [x.measured_std_um for x in b.blocks]
+    for name in ("measured_std_um", "predicted_std_um", "mean_z_mm"):
+        assert [getattr(x, name) for x in a.blocks] == [getattr(x, name) for x in b.blocks]
     assert a.block_id[-1] == -1
     sig = attrs["sigma_model_um"].copy()
     sig[::2] = 0.0

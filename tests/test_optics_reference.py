@@ -340,6 +340,16 @@ def test_optical_terms_fields_and_s_o_with(paper_config, form):
         want = [reference_point(p, other, reading, floor, form=form)["s_o"] for p in pts]
         np.testing.assert_allclose(terms.s_o_with(gamma, floor, reading, rho), want,
                                    rtol=1e-9, equal_nan=True, err_msg=f"{gamma} {floor}")
+    # the sensor ratio defaults to 0; a ratio exactly at the first zero of J1 is NaN
+    np.testing.assert_allclose(terms.s_o_with(2.0, "one", "two_source"),
+                               terms.s_o_with(2.0, "one", "two_source", 0.0), rtol=0)
+    ok = np.flatnonzero(np.isfinite(terms.s_o))[:2]
+    edge = dataclasses.replace(terms, ratio_camera=np.where(
+        np.arange(len(pts)) == ok[0], optics.FIRST_ZERO_RATIO, terms.ratio_camera),
+        ratio_projector=np.where(np.arange(len(pts)) == ok[1], optics.FIRST_ZERO_RATIO,
+                                 terms.ratio_projector))
+    s_o = edge.s_o_with(3.0, "one", "two_source", 0.2)
+    assert np.isnan(s_o[ok]).all() and np.isfinite(s_o).sum() == np.isfinite(terms.s_o).sum() - 2
 
 
 def test_overrides_of_form_and_sensor_ratio(paper_config):
