@@ -462,7 +462,7 @@ def test_nan_points_float32_and_zero_sigmas():
     std is the RMS over the others, and that point's plane weight is the measured std)."""
     xyz, attrs = _cloud()
     xyz32 = xyz.astype(np.float32)
-    with_nan = np.vstack([xyz32, [[np.nan, -10.0, 450.0]]])
+    with_nan = np.vstack([xyz32, [[np.nan, -10.0, 450.0]]]).astype(np.float32)
     attrs_nan = {"sigma_model_um": np.append(attrs["sigma_model_um"], 2.0)}
     a = run_qa(AnnotatedCloud(with_nan, attrs_nan), THREE)
     b = run_qa(AnnotatedCloud(xyz32.astype(np.float64), attrs), THREE)
