@@ -8,6 +8,12 @@ the point seen from the projector (x_p = f_p' tan(phi - phi_axis)) differentiate
 analytically along the camera ray, instead of the vector form in the code. It assumes a
 projector that looks at a point of the scanner's XZ plane from that plane (as every
 config in calib/ does).
+
+The two-source model (docs/noise_model.rst) is written from its variances:
+sigma_x^2 = (sigma_p^2 / F^2 + sigma_s^2) / (A_c A_p), with the "sum" filter factor
+F^2 = (1 + b_disc + b_d) / gamma^2 built from the kernels' noise-equivalent areas
+(pixel 1, defocus disc pi c_c^2 / 4 without Eq. 13's floor, Airy disc b_d; px^2), and
+s_O = sigma_x / sigma_p.
 """
 
 from __future__ import annotations
@@ -16,6 +22,7 @@ import math
 
 READINGS = ("power", "amplitude", "mixed")
 FLOORS = ("none", "one")
+FORMS = ("product", "sum")
 
 
 def bessel_j1(x: float) -> float:
@@ -41,8 +48,10 @@ def magnification(z_p: float, focus: float, focal: float) -> float:
     return 2.0 * focal / (focus - 2.0 * focal + math.sqrt(z_p * (z_p - 4.0 * focal)))
 
 
-def reference_point(q, cfg, reading: str, floor: str, period: float | None = None) -> dict:
-    """Every quantity of the model for one point ``q`` (scanner frame) [mm]."""
+def reference_point(q, cfg, reading: str, floor: str, period: float | None = None,
+                    form: str = "product", sigma_s: float | None = None) -> dict:
+    """Every quantity of the model for one point ``q`` (scanner frame) [mm]; ``sigma_s``
+    the sensor's phase noise at focus [px] (default the config's; "two_source" only)."""
     cam, proj, model = cfg.camera, cfg.projector, cfg.model
     period = min(cfg.fringes.periods_px) if period is None else period
     x, y, z = (float(c) for c in q)
@@ -63,14 +72,30 @@ def reference_point(q, cfg, reading: str, floor: str, period: float | None = Non
     b_c = max(math.pi * (c_image / (2 * s_c)) ** 2, 1.0)        # Eq. 13
     airy = 2 * 1.22 * model.wavelength_nm * 1e-6 * cam.f_number  # Eq. 15
     b_d = math.pi * (airy / (2 * s_c)) ** 2                     # Eq. 16
-    f = math.sqrt(b_c * b_d) / model.gamma                      # Eq. 17
+    if form == "product":
+        f_1 = math.sqrt(b_c * b_d)                              # Eq. 17, gamma = 1
+    else:  # noise-equivalent areas [px^2] of the pixel, the defocus disc, the Airy disc
+        f_1 = math.sqrt(1.0 + math.pi * c_image**2 / (4 * s_c**2) + b_d)
+    f = f_1 / model.gamma
     if floor == "one":
         f = max(f, 1.0)
-    a = {"power": a_p * a_c, "amplitude": math.sqrt(a_p * a_c),
-         "mixed": math.sqrt(a_p) * a_c}[reading]
-    s_o = 1.0 / (f * a) if a > 0 else math.inf                  # Eq. 19
-    if max(r_c, r_p) >= 1.2196698912665045:                     # first zero of J1(pi r)
-        s_o = math.nan
+    beyond = max(r_c, r_p) >= 1.2196698912665045                # first zero of J1(pi r)
+    sigma_p = model.sigma_p_px
+    if reading == "two_source":
+        sig_s = model.sensor_sigma_p_px if sigma_s is None else sigma_s
+        var_scene = sigma_p**2 / f**2 / (a_c * a_p) if a_c * a_p > 0 else math.inf
+        var_sensor = sig_s**2 / (a_c * a_p) if a_c * a_p > 0 else math.inf
+        if sig_s == 0.0:
+            var_sensor = 0.0
+        s_o = math.sqrt(var_scene + var_sensor) / sigma_p
+        scene, sensor = math.sqrt(var_scene) / sigma_p, math.sqrt(var_sensor) / sigma_p
+    else:
+        a = {"power": a_p * a_c, "amplitude": math.sqrt(a_p * a_c),
+             "mixed": math.sqrt(a_p) * a_c}[reading]
+        s_o = scene = 1.0 / (f * a) if a > 0 else math.inf      # Eq. 19
+        sensor = 0.0
+    if beyond:
+        s_o = scene = sensor = math.nan
     # s_T: the projector sees the point at angle phi from +Z (towards +X) in the XZ plane
     # (its y axis is the scanner's Y: it looks at a point with Y = 0 from Y = 0); its
     # column is x_p = f_p' tan(phi - phi_axis) with f_p' the pinhole distance that gives
@@ -83,9 +108,11 @@ def reference_point(q, cfg, reading: str, floor: str, period: float | None = Non
     dphi_dt = (d_x * (z - pz) - (x - px) * d_z) / rho2
     angle = math.atan2(x - px, z - pz) - math.atan2(ax, az)
     s_t = 1.0 / abs(f_p * dphi_dt / math.cos(angle) ** 2)
-    sigma = s_t * s_o * model.sigma_p_px                        # Eq. 18
+    sigma = s_t * s_o * sigma_p                                 # Eq. 18
     valid = r_c <= 0.5 and r_p <= 0.5 and math.isfinite(sigma)
     return {"z_c": z_c, "z_p": z_p, "omega_o": omega_o, "ratio_camera": r_c,
             "ratio_projector": r_p, "attenuation_camera": a_c, "attenuation_projector": a_p,
-            "blur_area_camera": b_c, "filter_factor": f, "s_o": s_o, "s_t": s_t,
-            "sigma": sigma, "valid": valid}
+            "blur_area_camera": b_c, "filter_factor": f, "filter_base": f_1, "s_o": s_o,
+            "s_o_scene": scene, "s_o_sensor": sensor, "s_t": s_t, "sigma": sigma,
+            "sigma_scene": s_t * scene * sigma_p, "sigma_sensor": s_t * sensor * sigma_p,
+            "valid": valid}

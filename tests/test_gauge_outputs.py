@@ -22,10 +22,19 @@ BLOCK_C = BlockSpec(4, 7.62, (18.0, 30.0, -21.0, -3.0), 461.43)
 THREE = Layout("three blocks", (BLOCK_B, BLOCK_C, BLOCK_A), source="three.toml")
 
 BLOCK_COLUMNS = ["block_id", "nominal_height_mm", "n_points", "measured_std_um",
-                 "predicted_std_um", "ratio", "flatness_um", "mean_attenuation",
-                 "in_volume_fraction", "status", "noise_corr_factor", "n_tiles"]
+                 "measured_std_u_um", "predicted_std_um", "ratio", "flatness_um",
+                 "mean_attenuation", "in_volume_fraction", "model_valid_fraction", "status",
+                 "noise_corr_factor", "n_tiles"]
 STEP_COLUMNS = ["block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "error_um",
-                "u_um", "U_um", "k", "tolerance_um", "pass"]
+                "u_um", "nu_eff", "U_um", "k", "tolerance_um", "pass", "evaluated"]
+SUMMARY_KEYS = ["format", "settings", "model", "has_prediction", "blocks", "blocks_ok",
+                "blocks_flagged", "steps", "budgets", "type_b_included", "steps_evaluated",
+                "steps_not_evaluated", "steps_error_within_U", "fraction_within_U",
+                "decisions", "max_abs_ratio_deviation", "notes"]
+#: the note of every run without a budget file
+NO_TYPE_B = ("Type B inputs (gauge-block certificates, temperature, stage scale, flatness of "
+             "the calibration flat) are not included: no budget file was given; U holds the "
+             "noise and calibration-table terms only")
 
 
 def _cloud(seed: int = 0, specs=(BLOCK_A, BLOCK_B, BLOCK_C), sigma_um: float = 2.0,
@@ -55,22 +64,48 @@ def test_rows_and_summary_have_their_documented_names():
     b = res.blocks[0]
     assert rows[0]["noise_corr_factor"] == b.noise_corr[0] and rows[0]["n_tiles"] == b.n_tiles
     assert rows[0]["ratio"] == b.measured_std_um / b.predicted_std_um
+    assert rows[0]["model_valid_fraction"] == 1.0 and rows[0]["status"] == "ok"
+    # s / sqrt(2 nu), nu = n / kappa - 3
+    nu = b.n_points / b.noise_corr[0] - 3
+    assert rows[0]["measured_std_u_um"] == pytest.approx(b.measured_std_um / math.sqrt(2 * nu),
+                                                         rel=1e-12)
     steps = [s.row() for s in res.steps]
     assert all(list(r) == STEP_COLUMNS for r in steps)
     s = res.steps[0]
     assert steps[0]["U_um"] == 3.0 * s.u_um and steps[0]["tolerance_um"] == 15.0
     assert steps[0]["nominal_diff_mm"] == pytest.approx(25.40 - 12.70)
+    assert steps[0]["evaluated"] is True and steps[0]["k"] == 3.0
+    # nu_eff of the two noise terms (K - 3 dof each; no table term) by Welch-Satterthwaite
+    terms = [c.contribution_um for c in s.budget.components]
+    assert terms[2] == 0.0 and len(terms) == 3  # no table sigma, no Type B
+    a_, b_ = res.blocks[2], res.blocks[0]  # block 2 (tallest), then block 3
+    want = (terms[0]**2 + terms[1]**2) ** 2 / (terms[0]**4 / (a_.n_tiles - 3)
+                                             + terms[1]**4 / (b_.n_tiles - 3))
+    assert steps[0]["nu_eff"] == pytest.approx(want, rel=1e-12)
     info = res.summary()
-    assert list(info) == ["format", "settings", "model", "has_prediction", "blocks", "steps",
-                          "steps_inside_volume", "steps_error_within_U", "fraction_within_U",
-                          "max_abs_ratio_deviation", "notes"]
-    assert info["format"] == "scanqa-qa-summary/1" and info["model"] == {}
+    assert list(info) == SUMMARY_KEYS
+    assert info["format"] == "scanqa-qa-summary/2" and info["model"] == {}
     assert info["settings"] == {"margin_mm": 0.5, "outlier_k": None, "tolerance_um": 15.0,
-                                "k": 3.0, "knn": 9, "tile_mm": 2.5, "layout": "three.toml"}
-    assert info["has_prediction"] is True and info["notes"] == res.notes == []
+                                "k": 3.0, "budget": None, "max_flagged_fraction": 0.05,
+                                "knn": 9, "tile_mm": 2.5, "layout": "three.toml",
+                                "paper_comparison": False}
+    assert info["has_prediction"] is True and info["notes"] == res.notes == [NO_TYPE_B]
+    assert info["type_b_included"] is False
+    assert (info["blocks_ok"], info["blocks_flagged"]) == (3, 0)
     within = sum(abs(s.error_um) <= s.expanded_um for s in res.steps)
-    assert info["steps_inside_volume"] == 2 and info["steps_error_within_U"] == within
-    assert info["fraction_within_U"] == within / 2
+    assert (info["steps_evaluated"], info["steps_not_evaluated"]) == (2, 0)
+    assert info["steps_error_within_U"] == within and info["fraction_within_U"] == within / 2
+    want = {"pass": 0, "fail": 0, "undecided": 0, "not evaluated": 0}
+    for s in res.steps:  # ISO 14253-1 with T = 15 um
+        e, big_u = abs(s.error_um), 3.0 * s.u_um
+        want["pass" if e <= 15 - big_u else "fail" if e > 15 + big_u else "undecided"] += 1
+    assert info["decisions"] == want
+    assert [(x["block_a"], x["block_b"], x["u_um"], x["k"], x["k_rule"])
+            for x in info["budgets"]] == [(2, 3, res.steps[0].u_um, 3.0, "stated"),
+                                          (3, 4, res.steps[1].u_um, 3.0, "stated")]
+    assert [c["component"] for c in info["budgets"][0]["components"]] == [
+        "noise, plane of block 2 at block 3", "noise, mean height of block 3",
+        "calibration table"]
     ratios = [b.measured_std_um / b.predicted_std_um for b in res.blocks]
     assert info["max_abs_ratio_deviation"] == max(abs(r - 1) for r in ratios)
     assert info["blocks"][0]["block_id"] == 3 and info["steps"][1]["block_b"] == 4
@@ -101,18 +136,27 @@ def test_notes_name_what_is_missing():
 
 
 def test_status_of_a_block_at_each_threshold():
-    """outside_volume below half the points in the volume, model_invalid below half valid
-    (exactly half is enough), too_few_points under 3, degenerate for a line."""
+    """outside_volume when more than 5 % of the points lie outside the volume, model_invalid
+    when more than 5 % are outside the model's validity (exactly 5 % is still ok; the
+    volume is checked first), too_few_points under 3, degenerate for a line."""
     xyz, attrs = _cloud(specs=(BLOCK_A,))
-    n = len(xyz)
-    half = np.arange(n) < n // 2  # n is even: exactly half
-    for name, status in (("in_volume", "outside_volume"), ("model_valid", "model_invalid")):
-        at = {**attrs, name: half.astype(np.float32)}
+    xyz = xyz[:860]  # 43 points are exactly 5 %
+    attrs = {"sigma_model_um": attrs["sigma_model_um"][:860]}
+    inside = (np.arange(860) >= 43).astype(np.float32)
+    for name, status, what in (("in_volume", "outside_volume", "the calibrated volume"),
+                               ("model_valid", "model_invalid",
+                                "the model's validity (a blur ratio > 1/2)")):
+        at = {**attrs, name: inside.copy()}
         res = analyse_block(xyz, at, BLOCK_A, margin=0.0, outlier_k=None)
-        assert res.status == "ok"
-        at[name][0] = 0.0  # one point fewer than half
+        assert (res.status, res.message) == ("ok", "")
+        at[name][43] = 0.0  # 44 of 860 outside: 5.1 %
         res = analyse_block(xyz, at, BLOCK_A, margin=0.0, outlier_k=None)
-        assert res.status == status
+        assert (res.status, res.message) == (
+            status, f"block 2: 5 % of its points lie outside {what} (more than 5 %): flagged, "
+            "its steps are not evaluated")
+    both = {**attrs, "in_volume": np.zeros(860), "model_valid": np.zeros(860)}
+    res = analyse_block(xyz, both, BLOCK_A, margin=0.0, outlier_k=None)
+    assert res.status == "outside_volume" and res.message.startswith("block 2: 100 % of")
     two = analyse_block(xyz[:2], attrs, BLOCK_A, margin=0.0, outlier_k=None)
     assert (two.status, two.message) == ("too_few_points",
                                          "block 2: only 2 points, a plane needs 3")
@@ -181,18 +225,20 @@ def test_model_curve_and_cloud_config(paper_config):
     want = [1e3 * reference_point((0.0, 0.0, zz), paper_config, "power", "none")["sigma"]
             for zz in z[::8]]
     np.testing.assert_allclose(res.curve["sigma_um"][::8], want, rtol=1e-9)
-    assert res.notes == []
+    assert res.notes == [NO_TYPE_B]
     assert run_qa(AnnotatedCloud(xyz, attrs), THREE).curve is None
     # a different model in the config given: the cloud's wins, and the notes say so
     other = paper_config.replace_model(gamma=5.0)
     res = run_qa(AnnotatedCloud(xyz, attrs, metadata=meta), THREE, config=other)
-    assert res.notes == ["the cloud's sigmas come from the model in its metadata (none/power, "
+    assert res.notes == [NO_TYPE_B,
+                         "the cloud's sigmas come from the model in its metadata (none/power, "
                          "sigma_p 0.006487 px, gamma 3); the model of the config given to "
                          "the QA was not used"]
     np.testing.assert_allclose(res.curve["sigma_um"][::8], want, rtol=1e-9)
     res = run_qa(AnnotatedCloud(xyz, attrs, metadata={"config": {"camera": {}}}), THREE,
                  config=other)
-    assert res.notes == ["the cloud's metadata holds an unreadable config (missing table "
+    assert res.notes == [NO_TYPE_B,
+                         "the cloud's metadata holds an unreadable config (missing table "
                          "[projector] (in the cloud's metadata)); its model curve is not drawn"]
     assert res.curve["sigma_um"][0] > 0  # from the config given
     assert blocks.model_curve([blocks.BlockResult(1, 1.0)], paper_config) is None
@@ -226,16 +272,21 @@ def _result(blocks_, steps, cloud=None):
 
 
 def test_summary_counts_at_the_boundaries():
-    """An error of exactly U is within U; ratios come from "ok" blocks only; the model is
-    the cloud's."""
+    """An error of exactly U is within U (and, with T - U above it, a pass); a step that is
+    not evaluated counts only as such; ratios come from "ok" blocks only; the model is the
+    cloud's."""
     ok1, ok2, out = (blocks.BlockResult(i, 10.0 - i) for i in (1, 2, 3))
     for b, measured, status in ((ok1, 3.0, "ok"), (ok2, 2.5, "ok"), (out, 9.0, "model_invalid")):
         b.measured_std_um, b.predicted_std_um, b.status = measured, 2.0, status
     steps = [StepResult(1, 2, 0.0, 2**-8, 1000 * 2**-9, 2.0, 20.0),   # |e| = U = 3.90625 um
-             StepResult(2, 3, 0.0, 2**-8, 1.0, 2.0, 20.0)]           # (not inside)
+             StepResult(2, 3, 0.0, 2**-8, 1.0, 2.0, 20.0, evaluated=False)]  # block 3 flagged
     cloud = AnnotatedCloud(np.zeros((1, 3)), {}, metadata={"model": {"gamma": 3.0}})
     info = _result([ok1, ok2, out], steps, cloud).summary()
-    assert info["steps_inside_volume"] == 1 and info["steps_error_within_U"] == 1
+    assert (info["steps_evaluated"], info["steps_not_evaluated"]) == (1, 1)
+    assert info["steps_error_within_U"] == 1 and info["fraction_within_U"] == 1.0
+    assert info["decisions"] == {"pass": 1, "fail": 0, "undecided": 0, "not evaluated": 1}
+    assert (info["blocks_ok"], info["blocks_flagged"]) == (2, 1)
+    assert info["budgets"] == [] and info["type_b_included"] is False
     assert info["max_abs_ratio_deviation"] == 0.5  # 3.0 / 2.0 (not the 4.5 of block 3)
     assert info["model"] == {"gamma": 3.0}
     ok1.predicted_std_um = math.nan  # a block without a prediction has no ratio
@@ -289,7 +340,8 @@ def test_run_qa_defaults_and_what_it_passes_on():
     xyz, attrs = _cloud()
     res = run_qa(AnnotatedCloud(xyz, attrs), THREE)
     assert res.settings == {"margin_mm": 1.0, "outlier_k": None, "tolerance_um": 20.0,
-                            "k": 2.0, "knn": 16, "tile_mm": 2.0, "layout": "three.toml"}
+                            "k": 2.0, "budget": None, "max_flagged_fraction": 0.05, "knn": 16,
+                            "tile_mm": 2.0, "layout": "three.toml", "paper_comparison": False}
     assert all(s.k == 2.0 and s.tolerance_um == 20.0 for s in res.steps)
     resid = np.where(res.block_id >= 0, res.residual_um * 1e-3, np.nan)
     np.testing.assert_allclose(res.local_std_um,
@@ -321,3 +373,135 @@ def test_local_std_small_blocks_and_default_k():
         d = np.linalg.norm(xyz[5:, :2] - xyz[i, :2], axis=1)
         nearest = 5 + np.argsort(d, kind="stable")[:16]
         np.testing.assert_allclose(got[i], np.std(resid[nearest], ddof=1), rtol=1e-12)
+
+
+def test_settings_are_refused_with_one_message():
+    """Each setting at its bound: margin and tolerance may be 0, the tile size and the
+    outlier K must be > 0, the neighbour count > 2; the message names the setting, the
+    bound, the unit and the value."""
+    ok = {"margin_mm": 0.0, "outlier_k": None, "tolerance_um": 0.0, "knn": 3, "tile_mm": 0.01}
+    blocks._check_settings(**ok)
+    blocks._check_settings(**{**ok, "outlier_k": 0.01})
+    for change, message in (
+            ({"margin_mm": -0.5}, "edge margin must be >= 0 mm, got -0.5"),
+            ({"margin_mm": math.nan}, "edge margin must be >= 0 mm, got nan"),
+            ({"margin_mm": "1"}, "edge margin must be >= 0 mm, got '1'"),
+            ({"tolerance_um": -1.0}, "tolerance must be >= 0 um, got -1.0"),
+            ({"tolerance_um": math.inf}, "tolerance must be >= 0 um, got inf"),
+            ({"tile_mm": 0.0}, "tile size must be > 0 mm, got 0.0"),
+            ({"knn": 2}, "neighbour count must be > 2, got 2"),
+            ({"outlier_k": 0.0},
+             "outlier rejection K must be > 0 robust std (or not given), got 0.0"),
+            ({"outlier_k": math.inf},
+             "outlier rejection K must be > 0 robust std (or not given), got inf"),
+            ({"outlier_k": -2.0},
+             "outlier rejection K must be > 0 robust std (or not given), got -2.0")):
+        with pytest.raises(InputError) as err:
+            blocks._check_settings(**{**ok, **change})
+        assert str(err.value) == message
+    xyz, attrs = _cloud(specs=(BLOCK_A,))
+    cloud = AnnotatedCloud(xyz, attrs)
+    with pytest.raises(InputError, match=r"^outlier rejection K must be > 0"):
+        run_qa(cloud, THREE, outlier_k=0.0)
+    with pytest.raises(InputError, match=r"^k must be a number > 0"):
+        run_qa(cloud, THREE, k=0.0)
+    assert run_qa(cloud, THREE, k=0.5).steps == []  # one block: no step, but k accepted
+
+
+def test_clouds_without_finite_points_or_outside_every_block():
+    """No finite point: one message with the count. No point in any block: the extents of
+    cloud and layout, and a hint - metres when the cloud is over 100 times smaller than
+    the layout (here 1000: the blocks in metres), else the frame."""
+    with pytest.raises(InputError) as err:
+        run_qa(AnnotatedCloud(np.full((3, 3), np.nan), {}), THREE)
+    assert str(err.value) == ("the cloud has no points with finite coordinates (3 points): "
+                              "nothing to measure")
+    xyz, _ = _cloud()
+    metres = np.vstack([xyz * 1e-3, [[np.nan, 0.0, 0.0]]])
+    lo, hi = xyz[:, :2].min(axis=0) * 1e-3, xyz[:, :2].max(axis=0) * 1e-3
+    with pytest.raises(InputError) as err:
+        run_qa(AnnotatedCloud(metres, {}), THREE, margin_mm=0.5)
+    assert str(err.value) == (
+        "no block of the layout holds a point of the cloud (after the 0.5 mm edge margin): "
+        f"the cloud spans X {lo[0]:.4g} to {hi[0]:.4g}, Y {lo[1]:.4g} to {hi[1]:.4g} mm; "
+        "the blocks X -14 to 30, Y -21 to -3 mm. The cloud is about 1000 times smaller "
+        "than the layout: is it in metres? scanqa reads millimetres.")
+    assert f"{lo[0]:.4g}" == "-0.01375" and f"{hi[1]:.4g}" == "-0.00325"
+    shifted = xyz + np.array([500.0, 250.0, 0.0])
+    with pytest.raises(InputError) as err:
+        run_qa(AnnotatedCloud(shifted, {}), THREE)
+    assert str(err.value) == (
+        "no block of the layout holds a point of the cloud (after the 1 mm edge margin): "
+        "the cloud spans X 486.2 to 529.8, Y 229.2 to 246.8 mm; the blocks X -14 to 30, "
+        "Y -21 to -3 mm. Check that cloud and layout share the scanner frame.")
+    # the layout's span is the larger of its X and Y spans (44 mm here): a cloud of 0.4 mm
+    # is under 1/100 of it, a single point (span 0) is not
+    tiny = np.array([[100.0, 100.0, 400.0], [100.4, 100.0, 400.0]])
+    with pytest.raises(InputError, match="is it in metres"):
+        run_qa(AnnotatedCloud(tiny, {}), THREE)
+    with pytest.raises(InputError, match="share the scanner frame"):
+        run_qa(AnnotatedCloud(tiny[:1], {}), THREE)
+    # 0.47 mm is over 44 / 100 (the spans are X and Y: X0, X1 and Y0 together span 51 mm);
+    # exactly 0.44 mm is not under it; 0.438 mm is
+    for span, hint in ((0.47, "share the scanner frame"), (0.44, "share the scanner frame"),
+                       (0.438, "is it in metres")):
+        edge = np.array([[0.0, 100.0, 400.0], [span, 100.0, 400.0]])
+        with pytest.raises(InputError, match=hint):
+            run_qa(AnnotatedCloud(edge, {}), THREE)
+    wide = np.array([[100.0, 100.0, 400.0], [100.0, 100.43, 400.0]])
+    with pytest.raises(InputError, match="is it in metres"):
+        run_qa(AnnotatedCloud(wide, {}), Layout("tall", (BlockSpec(1, 1.0, (0, 1, 0, 44)),)))
+    wide[1, 1] = 100.45
+    with pytest.raises(InputError, match="share the scanner frame"):
+        run_qa(AnnotatedCloud(wide, {}), Layout("tall", (BlockSpec(1, 1.0, (0, 1, 0, 44)),)))
+
+
+def test_nan_points_float32_and_zero_sigmas():
+    """A NaN point is skipped (the blocks keep theirs); float32 coordinates give the
+    numbers of their float64 values; a zero sigma predicts nothing (the block's predicted
+    std is the RMS over the others, and that point's plane weight is the measured std)."""
+    xyz, attrs = _cloud()
+    xyz32 = xyz.astype(np.float32)
+    with_nan = np.vstack([xyz32, [[np.nan, -10.0, 450.0]]]).astype(np.float32)
+    attrs_nan = {"sigma_model_um": np.append(attrs["sigma_model_um"], 2.0)}
+    a = run_qa(AnnotatedCloud(with_nan, attrs_nan), THREE)
+    b = run_qa(AnnotatedCloud(xyz32.astype(np.float64), attrs), THREE)
+    assert [s.measured_diff_mm for s in a.steps] == [s.measured_diff_mm for s in b.steps]
+    for name in ("measured_std_um", "predicted_std_um", "mean_z_mm"):
+        assert [getattr(x, name) for x in a.blocks] == [getattr(x, name) for x in b.blocks]
+    assert a.block_id[-1] == -1
+    sig = attrs["sigma_model_um"].copy()
+    sig[::2] = 0.0
+    spec = BLOCK_A
+    res = analyse_block(xyz, {"sigma_model_um": sig}, spec, margin=0.0, outlier_k=None)
+    inside = blocks._select(xyz, spec, 0.0, 3.0)
+    pos = sig[inside] > 0
+    los = xyz[inside] / np.linalg.norm(xyz[inside], axis=1)[:, None]
+    cos = np.abs(los @ res.fit.normal)  # the fitted normal, not quite -Z (noise)
+    want = math.sqrt(np.mean((2.0 * cos[pos]) ** 2))
+    assert 0 < pos.sum() < len(inside)
+    np.testing.assert_allclose(res.predicted_std_um, want, rtol=1e-12)
+    np.testing.assert_allclose(res.sigma_n[~pos], res.measured_std_um * 1e-3, rtol=1e-12)
+
+
+def test_table_variance_needs_a_positive_correlation_length_on_both_blocks():
+    """A correlation length of 0 (or NaN) on either block: one shift per block,
+    sigma_a^2 + sigma_b^2; lengths under 1 mm are used as given."""
+    from scanqa.qa.planes import PlaneFit
+
+    def block(bid, centroid, corr, sig):
+        res = blocks.BlockResult(bid, 10.0)
+        res.fit = PlaneFit(np.asarray(centroid, float), np.array([0.0, 0.0, -1.0]),
+                           np.zeros(3), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+        res.spread_mm, res.table_corr_mm, res.table_sigma_um = (3.0, 4.0), corr, sig
+        res.u_plane = np.zeros((3, 3))
+        return res
+
+    for ca, cb in ((0.0, 1.0), (1.0, 0.0), (-1.0, 1.0)):
+        a, b = block(2, (-8.0, -12.0, 443.65), ca, 5.0), block(3, (8.0, -12.0, 456.35), cb, 3.0)
+        np.testing.assert_allclose(blocks.step_between(a, b, 2.0, 20.0).u_um,
+                                   math.hypot(5.0, 3.0), rtol=1e-12)
+    # 0.5 mm: 12 * 3 * 4 / 0.25 = 576 patches each; tilt (16 / 3)^2 (lever along X only)
+    a, b = block(2, (-8.0, -12.0, 443.65), 0.5, 5.0), block(3, (8.0, -12.0, 456.35), 0.5, 3.0)
+    want = math.sqrt(25 / 576 + 9 / 576 + 25 / 576 * (16 / 3) ** 2)
+    np.testing.assert_allclose(blocks.step_between(a, b, 2.0, 20.0).u_um, want, rtol=1e-12)

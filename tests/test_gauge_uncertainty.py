@@ -12,6 +12,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -193,7 +194,13 @@ def test_block_statistics_by_explicit_sums():
     pts, attrs, sign = _checkerboard_block()
     res = analyse_block(pts, attrs, BLOCK_A, margin=0.0, outlier_k=None)
     n = len(pts)
-    assert res.status == "ok" and res.n_points == n and res.outliers == 0
+    assert res.n_points == n and res.outliers == 0
+    # ~20 % of the points outside the volume (> 5 %): flagged, though it has a plane
+    outside = 100 * (1 - sum(attrs["in_volume"]) / n)
+    assert 15 < outside < 25
+    assert (res.status, res.message) == (
+        "outside_volume", f"block 2: {outside:.0f} % of its points lie outside the calibrated "
+        "volume (more than 5 %): flagged, its steps are not evaluated")
     np.testing.assert_allclose(res.fit.residuals, sign * 3e-3, atol=1e-12)
     np.testing.assert_allclose(res.measured_std_um, 3.0 * math.sqrt(n / (n - 3)), rtol=1e-9)
     np.testing.assert_allclose(res.flatness_um, 6.0, rtol=1e-9)
@@ -333,19 +340,33 @@ def test_iso_14253_decision_at_its_boundaries(measured_mm, expanded_um, decision
     assert step.row()["pass"] == decision
 
 
-def test_summary_counts_steps_inside_the_volume():
-    """A block outside the calibrated volume takes its steps out of the counts."""
+def test_summary_counts_evaluated_steps():
+    """A block outside the calibrated volume is flagged: its step stays in the table, "not
+    evaluated" (no decision), and out of the counts of steps within U."""
     xyz = np.concatenate([_grid(BLOCK_A, 0.5), _grid(BLOCK_B, 0.5)])
     n = len(xyz)
     attrs = {"sigma_model_um": np.full(n, 1.0), "in_volume": np.ones(n)}
     res = run_qa(AnnotatedCloud(xyz, attrs), TWO)
     info = res.summary()
-    assert info["steps_inside_volume"] == 1 and info["steps_error_within_U"] == 1
+    assert (info["steps_evaluated"], info["steps_not_evaluated"]) == (1, 0)
+    assert info["steps_error_within_U"] == 1 and info["fraction_within_U"] == 1.0
+    assert (info["blocks_ok"], info["blocks_flagged"]) == (2, 0)
+    # a perfect cloud: error 0 <= T - U, so "pass"
+    assert info["decisions"] == {"pass": 1, "fail": 0, "undecided": 0, "not evaluated": 0}
     attrs["in_volume"][xyz[:, 0] > 0] = 0.0
     res = run_qa(AnnotatedCloud(xyz, attrs), TWO)
     assert [b.status for b in res.blocks] == ["ok", "outside_volume"]
+    (step,) = res.steps
+    assert (step.evaluated, step.decision, step.note) == (False, "not evaluated",
+                                                          "not evaluated: block 3 flagged")
+    assert step.within_u  # |error| <= U, but not counted: the step is not evaluated
+    assert res.steps_evaluated() == []
     info = res.summary()
-    assert info["steps_inside_volume"] == 0 and info["fraction_within_U"] is None
+    assert (info["steps_evaluated"], info["steps_not_evaluated"]) == (0, 1)
+    assert info["steps_error_within_U"] == 0 and info["fraction_within_U"] is None
+    assert (info["blocks_ok"], info["blocks_flagged"]) == (1, 1)
+    assert info["decisions"] == {"pass": 0, "fail": 0, "undecided": 0, "not evaluated": 1}
+    assert info["steps"][0]["pass"] == "not evaluated" and info["steps"][0]["evaluated"] is False
 
 
 def test_robust_std_hand_values():
@@ -398,3 +419,164 @@ def test_plane_covariance_is_scaled_by_the_noise_correlation():
     bread = np.linalg.inv(a.T @ a)
     base = bread @ (a.T * res.sigma_n**2) @ a @ bread
     np.testing.assert_allclose(res.u_plane, base * np.sqrt(np.outer(kappa, kappa)), rtol=1e-9)
+
+
+# -- the GUM budget of a step (docs/uncertainty_budget.rst) ------------------------------
+
+def _budget_blocks(n_tiles_a: int = 13, n_tiles_b: int = 23):
+    """Block a: noise 2 um at b's centroid, block b: 3 um mean height, table sigmas 1.2 and
+    1.6 um without a correlation length (2 um for the step); noise factors measured on
+    n_tiles_a and n_tiles_b tiles."""
+    u_a = np.diag([4.0e-6, 0.0, 0.0])
+    u_b = np.diag([9.0e-6, 1.0, 1.0])
+    a = _block(2, (-8.0, -12.0, 443.65), (3.0, 4.0), math.nan, 1.2, u_a, height=25.4)
+    b = _block(3, (8.0, -14.0, 456.35), (2.0, 5.0), math.nan, 1.6, u_b, height=12.7)
+    for blk, tiles in ((a, n_tiles_a), (b, n_tiles_b)):
+        blk.n_tiles, blk.noise_corr, blk.n_points, blk.status = tiles, (1.5, 1, 1), 500, "ok"
+    return a, b
+
+
+def test_budget_type_a_terms_and_their_degrees_of_freedom():
+    """Three Type A lines, 2, 3 and 2 um, with K - 3 = 10 and 20 dof for the noise terms
+    and M - 4 = 10 for the table from 14 planes: u = sqrt(17) um and
+    nu_eff = 17^2 / (2^4 / 10 + 3^4 / 20 + 2^4 / 10) = 289 / 7.25."""
+    a, b = _budget_blocks()
+    step = step_between(a, b, 2.0, 20.0, None, 14)
+    rows = [c.row() for c in step.budget.components]
+    assert [(r["component"], r["type"], r["unit"], r["c_um_per_unit"], r["dof"])
+            for r in rows] == [("noise, plane of block 2 at block 3", "A", "um", 1.0, 10.0),
+                               ("noise, mean height of block 3", "A", "um", 1.0, 20.0),
+                               ("calibration table", "A", "um", 1.0, 10.0)]
+    assert rows[0]["source"] == "model sigma x measured correlation (13 tiles)"
+    assert rows[1]["source"] == "model sigma x measured correlation (23 tiles)"
+    assert rows[2]["source"] == ("node fits over the calibration planes, scaled by their "
+                                 "reduced chi-square")
+    np.testing.assert_allclose([r["u"] for r in rows], [2.0, 3.0, 2.0], rtol=1e-12)
+    np.testing.assert_allclose(step.u_um, math.sqrt(17.0), rtol=1e-12)
+    np.testing.assert_allclose(step.budget.nu_eff, 289 / 7.25, rtol=1e-12)
+    assert step.k == 2.0 and step.row()["nu_eff"] == pytest.approx(289 / 7.25, rel=1e-12)
+    assert step.evaluated and step.note == "" and not step.budget.type_b_included
+    # the table's dof: none known (no plane count, or too few planes for a node's 4
+    # parameters) is infinite; 5 planes leave 1
+    for n_planes, dof in ((None, None), (4, None), (5, 1.0), (0, None)):
+        comp = step_between(a, b, 2.0, 20.0, None, n_planes).budget.components[2]
+        assert comp.row()["dof"] == dof, n_planes
+
+
+def test_budget_dof_of_unmeasured_noise_correlation_and_std_u():
+    """Without a measured noise factor a block's points count as independent: the noise
+    term has n - 3 dof, and the measured std's u is s / sqrt(2 (n - 3)); with a factor
+    kappa, n / kappa - 3 (at least 1 either way)."""
+    a, b = _budget_blocks(n_tiles_a=8, n_tiles_b=4)
+    b.noise_corr = (math.nan,) * 3
+    step = step_between(a, b, 2.0, 20.0)
+    assert [c.dof for c in step.budget.components] == [5.0, 497.0, math.inf]
+    a.measured_std_um = b.measured_std_um = 6.0
+    np.testing.assert_allclose(a.std_u_um, 6.0 / math.sqrt(2 * (500 / 1.5 - 3)), rtol=1e-12)
+    np.testing.assert_allclose(b.std_u_um, 6.0 / math.sqrt(2 * 497), rtol=1e-12)
+    a.n_tiles, a.n_points = 2, 2
+    assert a.noise_dof == 1.0 and a.std_u_um == 6.0 / math.sqrt(2.0)
+    b.n_points = 3
+    assert b.noise_dof == 1.0
+
+
+def test_welch_satterthwaite_coverage_factor():
+    """k = t_0.975(nu_eff): one term with 10 dof (the others zero) gives nu_eff = 10 and
+    Student's table value 2.228; two equal terms of 10 dof give 20 and 2.086."""
+    a, b = _budget_blocks()
+    b.u_plane = np.zeros((3, 3))
+    a.table_sigma_um = b.table_sigma_um = 0.0
+    step = step_between(a, b, "welch-satterthwaite", 20.0)
+    np.testing.assert_allclose(step.budget.nu_eff, 10.0, rtol=1e-12)
+    np.testing.assert_allclose(step.k, 2.228139, rtol=1e-6)
+    np.testing.assert_allclose(step.expanded_um, 2.228139 * 2.0, rtol=1e-6)
+    b.u_plane = np.diag([4.0e-6, 0.0, 0.0])
+    b.n_tiles = 13
+    step = step_between(a, b, "welch-satterthwaite", 20.0)
+    np.testing.assert_allclose(step.budget.nu_eff, 20.0, rtol=1e-12)
+    np.testing.assert_allclose(step.k, 2.085963, rtol=1e-6)
+    assert step.budget.summary()["k_rule"] == "welch-satterthwaite"
+
+
+def test_budget_type_b_terms_from_the_inputs():
+    """A budget file's inputs for blocks of 25.4 and 12.7 mm (d = 12.7 mm): certificates
+    (0.1 + 0.001 L) / 2 per block, temperature 0.2 K x 1e3 alpha d, alpha's 1e-6 /K x
+    1e3 d dT, stage 20 ppm x 1e-3 d, flatness 0.5 / sqrt(6); the reference is corrected
+    by 1e3 d alpha dT = 0.073025 um; the budget's k applies when none is stated."""
+    from scanqa.io.budget import BudgetInputs
+
+    inputs = BudgetInputs("b.toml", 0.1, 0.001, 2.0, 0.5, 0.2, 11.5e-6, 1.0e-6, 20.0, 0.5,
+                          3.0)
+    a, b = _budget_blocks()
+    step = step_between(a, b, None, 20.0, inputs)
+    extra = [0.5 * math.hypot(0.1 + 0.0254, 0.1 + 0.0127), 0.2 * 11.5e-3 * 12.7,
+             1.0e-6 * 1e3 * 12.7 * 0.5, 20.0 * 12.7e-3, 0.5 / math.sqrt(6.0)]
+    got = [c.contribution_um for c in step.budget.components]
+    np.testing.assert_allclose(got, [2.0, 3.0, 2.0, *extra], rtol=1e-12)
+    assert [c.kind for c in step.budget.components] == ["A"] * 3 + ["B"] * 5
+    np.testing.assert_allclose(step.u_um, math.sqrt(17.0 + sum(x * x for x in extra)),
+                               rtol=1e-12)
+    assert step.k == 3.0 and step.budget.type_b_included
+    step_b = dataclasses.replace(step, measured_diff_mm=12.7 + 0.001)
+    np.testing.assert_allclose(step_b.error_um, 1.0 - 1e3 * 12.7 * 11.5e-6 * 0.5, rtol=1e-9)
+    # a stated k wins over the budget's
+    assert step_between(a, b, 2.5, 20.0, inputs).k == 2.5
+
+
+def test_coverage_rule_and_bad_k():
+    """k given: used; not given: the budget file's [coverage] k, else 2; anything but a
+    number > 0 or "welch-satterthwaite" is refused with one message."""
+    from scanqa.errors import InputError
+    from scanqa.io.budget import BudgetInputs
+
+    assert blocks.coverage_rule(None, None) == 2.0
+    assert blocks.coverage_rule(None, BudgetInputs()) == 2.0
+    assert blocks.coverage_rule(None, BudgetInputs(coverage_k=2.6)) == 2.6
+    assert blocks.coverage_rule(None, BudgetInputs(coverage_k="welch-satterthwaite")) == \
+        "welch-satterthwaite"
+    assert blocks.coverage_rule(1.5, BudgetInputs(coverage_k=2.6)) == 1.5
+    assert blocks.coverage_rule(3, None) == 3
+    assert blocks.coverage_rule("welch-satterthwaite", None) == "welch-satterthwaite"
+    for bad in (0.0, -1.0, True, math.nan, math.inf, "student", [2.0]):
+        with pytest.raises(InputError, match=r"^k must be a number > 0 or "
+                                             r"'welch-satterthwaite', got "):
+            blocks.coverage_rule(bad, None)
+
+
+def test_flagged_blocks_name_themselves_in_the_step_note():
+    a, b = _budget_blocks()
+    a.status = "model_invalid"
+    step = step_between(a, b, 2.0, 20.0)
+    assert (step.evaluated, step.note) == (False, "not evaluated: block 2 flagged")
+    b.status = "outside_volume"
+    step = step_between(a, b, 2.0, 20.0)
+    assert step.note == "not evaluated: block 2 and 3 flagged"
+    assert step.decision == "not evaluated" and step.row()["evaluated"] is False
+    a.status = "ok"
+    assert step_between(a, b, 2.0, 20.0).note == "not evaluated: block 3 flagged"
+
+
+def test_run_qa_with_a_budget_file_and_the_table_planes():
+    """run_qa hands the budget's inputs and the cloud's table plane count to every step:
+    the Type B lines are in, the note about their absence is not, the settings name the
+    file, and the table term has M - 4 dof."""
+    from scanqa.io.budget import BudgetInputs
+
+    xyz = np.concatenate([_grid(BLOCK_A, 0.5), _grid(BLOCK_B, 0.5)])
+    n = len(xyz)
+    attrs = {"sigma_model_um": np.full(n, 1.0), "sigma_table_um": np.full(n, 0.5)}
+    cloud = AnnotatedCloud(xyz, attrs, metadata={"table": {"n_planes": 12}})
+    inputs = BudgetInputs("budget.toml", flatness_um=0.6, coverage_k="welch-satterthwaite")
+    res = run_qa(cloud, TWO, budget=inputs)
+    (step,) = res.steps
+    names = [c.name for c in step.budget.components]
+    assert names[3:] == ["flatness of the calibration flat"] and len(names) == 4
+    assert step.budget.components[2].dof == 8.0
+    assert res.settings["budget"] == "budget.toml" and res.settings["k"] == "welch-satterthwaite"
+    assert not any("Type B" in note for note in res.notes)
+    assert res.type_b_included and res.summary()["type_b_included"] is True
+    # the flatness term alone is 0.6 / sqrt(6) = 0.245 um: u is above it
+    assert step.u_um > 0.6 / math.sqrt(6.0)
+    assert math.isfinite(step.k) and step.k > 1.96
+    res = run_qa(AnnotatedCloud(xyz, attrs), TWO)
+    assert res.steps[0].budget.components[2].dof == math.inf and not res.type_b_included

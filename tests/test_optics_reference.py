@@ -14,7 +14,7 @@ from hypothesis import strategies as st
 
 from scanqa import optics
 
-from .model_reference import FLOORS, READINGS, attenuation, reference_point
+from .model_reference import FLOORS, FORMS, READINGS, attenuation, reference_point
 
 
 def _grid_points() -> np.ndarray:
@@ -184,6 +184,7 @@ def test_ratio_at_attenuation_hand_values():
         r = optics.ratio_at_attenuation(level)
         assert 0.0 < r < 1.2196698912665045
         np.testing.assert_allclose(attenuation(r), level, rtol=1e-9)
+        assert abs(attenuation(r) - level) < 1e-13  # solved to xtol 1e-14, not brentq's 2e-12
     for bad in (0.0, -0.2, 1.0000001, math.nan):
         with pytest.raises(optics.RangeError, match=r"attenuation level must be in \(0, 1\]"):
             optics.ratio_at_attenuation(bad)
@@ -274,3 +275,173 @@ def test_projector_frame_of_a_general_pose(paper_config):
     h = 1e-3
     slope = (x_p(q + h * d) - x_p(q - h * d)) / (2 * h)
     np.testing.assert_allclose(pred.s_t, 1 / np.abs(slope), rtol=1e-6)
+
+
+# -- the two-source model and the "sum" filter form (docs/noise_model.rst) ---------------
+
+SENSOR_PX = 0.0042  # sigma_s, about a sixth of the paper config's sigma_p
+
+
+def _two_source_config(paper_config, form: str, floor: str, reading: str,
+                       sensor: float = SENSOR_PX):
+    return paper_config.replace_model(filter_form=form, filter_floor=floor,
+                                      noise_reading=reading, sensor_sigma_p_px=sensor)
+
+
+@pytest.mark.parametrize("reading", [*READINGS, "two_source"])
+@pytest.mark.parametrize("floor", FLOORS)
+@pytest.mark.parametrize("form", FORMS)
+def test_predict_every_variant_matches_independent_chain(paper_config, form, floor, reading):
+    """Every floor, form and reading from the config, against the scalar chain written from
+    the variances; the scene and sensor parts too (the sensor part is 0 but for
+    "two_source")."""
+    cfg = _two_source_config(paper_config, form, floor, reading)
+    pts = _grid_points()
+    pred = optics.predict(pts, cfg)
+    ref = [reference_point(p, cfg, reading, floor, form=form) for p in pts]
+    _compare(pred, ref)
+    for name in ("sigma_scene", "sigma_sensor"):
+        np.testing.assert_allclose(getattr(pred, name), [r[name] for r in ref], rtol=1e-9,
+                                   atol=1e-15, equal_nan=True, err_msg=name)
+    assert (pred.filter_floor, pred.noise_reading, pred.filter_form) == (floor, reading, form)
+    assert any(r["filter_factor"] < 1.0 for r in ref) == (floor == "none")
+    if reading == "two_source":  # sigma^2 = scene^2 + sensor^2, both parts present
+        np.testing.assert_allclose(pred.sigma**2, pred.sigma_scene**2 + pred.sigma_sensor**2,
+                                   rtol=1e-12)
+        ok = np.isfinite(pred.sigma)
+        assert (pred.sigma_sensor[ok] > 0).all() and (pred.sigma_scene[ok] > 0).all()
+    else:
+        assert np.all(pred.sigma_sensor[np.isfinite(pred.sigma)] == 0.0)
+
+
+@pytest.mark.parametrize("form", FORMS)
+def test_optical_terms_fields_and_s_o_with(paper_config, form):
+    """optical_terms keeps F_1 (gamma 1, no floor) as filter_base and the scene and sensor
+    parts of s_O; s_o_with redoes s_O for another gamma, floor, reading and sensor ratio
+    as the scalar chain does with those in the config."""
+    cfg = _two_source_config(paper_config, form, "one", "two_source")
+    pts = _grid_points()
+    z_p = optics.projector_depth(pts, cfg)
+    terms = optics.optical_terms(pts[:, 2], z_p, cfg)
+    ref = [reference_point(p, cfg, "two_source", "one", form=form) for p in pts]
+    for name in ("filter_base", "s_o_scene", "s_o_sensor", "s_o", "filter_factor"):
+        np.testing.assert_allclose(getattr(terms, name), [r[name] for r in ref], rtol=1e-9,
+                                   atol=1e-15, equal_nan=True, err_msg=name)
+    assert terms.filter_form == form
+    # integer depths give float terms
+    ints = optics.optical_terms([450, 460], [471, 480], cfg)
+    assert ints.z_c.dtype == ints.z_p.dtype == np.float64
+    for gamma, floor, reading, rho in ((1.5, "none", "two_source", 0.5),
+                                       (4.0, "one", "two_source", 0.0),
+                                       (2.0, "none", "mixed", 0.3),
+                                       (1.0, "one", "power", 0.0)):
+        other = cfg.replace_model(gamma=gamma, filter_floor=floor, noise_reading=reading,
+                                  sensor_sigma_p_px=rho * cfg.model.sigma_p_px)
+        want = [reference_point(p, other, reading, floor, form=form)["s_o"] for p in pts]
+        np.testing.assert_allclose(terms.s_o_with(gamma, floor, reading, rho), want,
+                                   rtol=1e-9, equal_nan=True, err_msg=f"{gamma} {floor}")
+    # the sensor ratio defaults to 0; a ratio exactly at the first zero of J1 is NaN
+    np.testing.assert_allclose(terms.s_o_with(2.0, "one", "two_source"),
+                               terms.s_o_with(2.0, "one", "two_source", 0.0), rtol=0)
+    ok = np.flatnonzero(np.isfinite(terms.s_o))[:2]
+    edge = dataclasses.replace(terms, ratio_camera=np.where(
+        np.arange(len(pts)) == ok[0], optics.FIRST_ZERO_RATIO, terms.ratio_camera),
+        ratio_projector=np.where(np.arange(len(pts)) == ok[1], optics.FIRST_ZERO_RATIO,
+                                 terms.ratio_projector))
+    s_o = edge.s_o_with(3.0, "one", "two_source", 0.2)
+    assert np.isnan(s_o[ok]).all() and np.isfinite(s_o).sum() == np.isfinite(terms.s_o).sum() - 2
+
+
+def test_overrides_of_form_and_sensor_ratio(paper_config):
+    """optical_terms takes the form and the sensor ratio as arguments over the config's;
+    predict's sigma_p replaces the scene-side noise only (the sensor's is kept)."""
+    cfg = _two_source_config(paper_config, "product", "none", "power")
+    pts = _grid_points()
+    z_p = optics.projector_depth(pts, cfg)
+    terms = optics.optical_terms(pts[:, 2], z_p, cfg, filter_form="sum", filter_floor="one",
+                                 noise_reading="two_source", sensor_ratio=0.25)
+    other = _two_source_config(paper_config, "sum", "one", "two_source",
+                               0.25 * cfg.model.sigma_p_px)
+    ref = [reference_point(p, other, "two_source", "one", form="sum") for p in pts]
+    for name in ("filter_factor", "s_o", "s_o_sensor"):
+        np.testing.assert_allclose(getattr(terms, name), [r[name] for r in ref], rtol=1e-9,
+                                   equal_nan=True, err_msg=name)
+    cfg = _two_source_config(paper_config, "sum", "one", "two_source")
+    pred = optics.predict(pts, cfg, sigma_p=0.01)
+    assert optics.predict([[0, 0, 450]], cfg, s_t=1).s_t.dtype == np.float64
+    ref = [reference_point(p, cfg.replace_model(sigma_p_px=0.01), "two_source", "one",
+                           form="sum") for p in pts]
+    _compare(pred, ref)
+    np.testing.assert_allclose(pred.sigma_sensor, [r["sigma_sensor"] for r in ref],
+                               rtol=1e-9, equal_nan=True)
+
+
+def test_sum_form_and_two_source_hand_values():
+    """F = sqrt(area) / gamma for the sum form, clamped at 1 by the floor;
+    camera_noise_area = 1 + pi (c / 2 s)^2 + b_d; s_O = sqrt(1 / F^2 + rho^2) /
+    sqrt(A_p A_c) with its parts 1 / (F sqrt(A_p A_c)) and rho / sqrt(A_p A_c)."""
+    np.testing.assert_allclose(optics.filter_factor(9.0, 100.0, 2.0, form="sum"), 1.5,
+                               rtol=1e-15)
+    np.testing.assert_allclose(optics.filter_factor(2.25, 100.0, 3.0, "none", "sum"), 0.5,
+                               rtol=1e-15)
+    np.testing.assert_allclose(optics.filter_factor(2.25, 100.0, 3.0, "one", "sum"), 1.0,
+                               rtol=1e-15)
+    np.testing.assert_allclose(optics.filter_factor(2.25, 4.0, 1.0, "one", "product"), 3.0,
+                               rtol=1e-15)
+    # c = 0.016 mm on 0.008 mm pixels: a disc of 2 px diameter, area pi
+    np.testing.assert_allclose(optics.camera_noise_area(0.016, 0.008, 0.25),
+                               1.0 + math.pi + 0.25, rtol=1e-15)
+    np.testing.assert_allclose(optics.camera_noise_area(np.array([0.0, 0.004]), 0.002, 0.0),
+                               [1.0, 1.0 + math.pi], rtol=1e-15)
+    # F = 2, A_p = 0.25, A_c = 0.64: sqrt(A_p A_c) = 0.4
+    got = optics.optical_scale(2.0, 0.25, 0.64, "two_source", 0.5)
+    np.testing.assert_allclose(got, math.sqrt(0.25 + 0.25) / 0.4, rtol=1e-15)
+    scene, sensor = optics.noise_scales(2.0, 0.25, 0.64, "two_source", 0.5)
+    np.testing.assert_allclose([scene, sensor], [1 / (2 * 0.4), 0.5 / 0.4], rtol=1e-15)
+    scene, sensor = optics.noise_scales(2.0, 0.25, 0.64, "two_source", 0.0)
+    np.testing.assert_allclose([scene, sensor], [1 / (2 * 0.4), 0.0], rtol=1e-15)
+    # the paper's readings have no sensor part, whatever rho
+    for reading, a in (("power", 0.16), ("amplitude", 0.4), ("mixed", 0.5 * 0.64)):
+        scene, sensor = optics.noise_scales(2.0, 0.25, 0.64, reading, 0.5)
+        np.testing.assert_allclose(scene, 1 / (2 * a), rtol=1e-15)
+        assert sensor == 0.0
+        np.testing.assert_allclose(optics.optical_scale(2.0, 0.25, 0.64, reading, 0.5),
+                                   1 / (2 * a), rtol=1e-15)
+    assert np.isinf(optics.optical_scale(1.0, 0.0, 0.5, "two_source", 0.5))
+    assert np.isinf(optics.optical_scale(1.0, 0.0, 0.5, "two_source", 0.0))  # no 0 / 0
+    # defaults: no sensor part, and the paper's reading
+    np.testing.assert_allclose(optics.optical_scale(2.0, 0.25, 0.64, "two_source"), 1 / 0.8,
+                               rtol=1e-15)
+    scene, sensor = optics.noise_scales(2.0, 0.25, 0.64, "two_source")
+    assert sensor == 0.0
+    scene, sensor = optics.noise_scales(2.0, 0.25, 0.64)
+    np.testing.assert_allclose(scene, 1 / (2 * 0.16), rtol=1e-15)
+
+
+def test_unknown_form_floor_or_reading_is_refused():
+    with pytest.raises(ValueError, match=r"^form must be 'product' or 'sum', got 'add'$"):
+        optics.filter_factor(4.0, 1.0, 1.0, "none", "add")
+    with pytest.raises(ValueError, match=r"^floor must be 'none' or 'one', got 'two'$"):
+        optics.filter_factor(4.0, 1.0, 1.0, "two", "sum")
+    with pytest.raises(ValueError, match=r"^reading must be 'power', 'amplitude', 'mixed' or "
+                                         r"'two_source', got 'cube'$"):
+        optics.noise_scales(1.0, 0.5, 0.5, "cube")
+
+
+def test_sum_form_filters_where_the_product_cannot(paper_config):
+    """docs/noise_model.rst: with pixels much larger than the Airy disc (b_d << 1) the
+    product sqrt(b_c b_d) stays below 1 even 30 mm out of focus, while the sum form's F
+    grows with the blur disc. A 64 um pixel at f/11: b_d = pi (2.44 * 0.45 * 11 / 128)^2."""
+    cam = dataclasses.replace(paper_config.camera, pixel_um=64.0, f_number=11.0)
+    base = dataclasses.replace(paper_config, camera=cam)
+    b_d = math.pi * (2.44 * 0.45 * 11 / 128) ** 2
+    assert 0.02 < b_d < 0.04
+    z_c = np.array([cam.focus_mm, cam.focus_mm + 30.0])
+    z_p = np.full(2, paper_config.projector.focus_mm)
+    prod = optics.optical_terms(z_c, z_p, base.replace_model(filter_form="product",
+                                                             filter_floor="none"), gamma=1.0)
+    summ = optics.optical_terms(z_c, z_p, base.replace_model(filter_form="sum",
+                                                             filter_floor="none"), gamma=1.0)
+    assert (prod.filter_factor < 1.0).all()
+    np.testing.assert_allclose(summ.filter_factor[0], math.sqrt(1 + b_d), rtol=1e-12)
+    assert summ.filter_factor[1] > 2.0 * summ.filter_factor[0]

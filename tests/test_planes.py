@@ -69,6 +69,16 @@ def test_degenerate_inputs_name_the_block():
     assert fit_plane([*line[:2].tolist(), [0.0, 1.0, 450.0]]).residuals.shape == (3,)
     with pytest.raises(InputError, match="collinear"):
         fit_plane(np.zeros((5, 3)))
+    # not an (n, 3) array: the same message, with the length of the first axis
+    with pytest.raises(InputError, match=r"^points: a plane needs at least 3 points, got 9$"):
+        fit_plane(np.zeros(9))
+    with pytest.raises(InputError, match=r"^points: a plane needs at least 3 points, got 5$"):
+        fit_plane(np.ones((5, 2)))
+    bad = thin.copy()
+    bad[3, 1] = np.inf
+    with pytest.raises(InputError) as err:
+        fit_plane(bad, "block 6")
+    assert str(err.value) == "block 6: points with NaN or infinite coordinates"
 
 
 def test_collinearity_threshold_is_relative_to_the_extent():
