@@ -31,8 +31,10 @@ stated or follows from the effective degrees of freedom.
 
 Statuses: a block is flagged "outside_volume" or "model_invalid" when more than
 :data:`MAX_FLAGGED_FRACTION` of its points lie outside the calibrated volume or outside
-the model's validity (a blur ratio > 1/2). A step involving a flagged block, or a block
-without a plane, is "not evaluated": it gets no decision.
+the model's validity (a blur ratio > 1/2). A step involving a flagged block is "not
+evaluated": it gets no decision. A block without a plane (too few points) has no steps: its
+steps to the blocks before and after it are left out of the table, and the notes name the
+block.
 
 Decision (ISO 14253-1): conformance is proven when |error| <= T - U ("pass"),
 non-conformance when |error| > T + U ("fail"), otherwise "undecided".
