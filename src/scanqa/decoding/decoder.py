@@ -20,6 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding import diagnostics
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.noise import NoiseEstimate, resolve_noise
@@ -87,12 +88,17 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     height, width = stacks[0].shape[1:]
     out = _allocate(height, width, [p.name for p in plan.phase] if keep_sets else [])
     by_name = {s.name: st for s, st in zip(desc.sets, stacks, strict=True)}
-    stats = ChainStats()
     step = max(int(chunk_rows or _CHUNK_PIXELS // max(width, 1)), 1)
-    for r0 in range(0, height, step):
-        rows = slice(r0, min(r0 + step, height))
-        unwrap_rows(plan, {k: v[:, rows] for k, v in by_name.items()},
-                    {k: v[rows] for k, v in out.items()}, stats)
+
+    def band(r0: int, r1: int) -> ChainStats:  # disjoint rows of the outputs: thread-safe
+        part = ChainStats()
+        unwrap_rows(plan, {k: v[:, r0:r1] for k, v in by_name.items()},
+                    {k: v[r0:r1] for k, v in out.items()}, part)
+        return part
+
+    stats = ChainStats()
+    for part in run_bands(band, row_bands(height, width, step * width)):
+        stats.merge(part)
     return out, stats, noise
 
 

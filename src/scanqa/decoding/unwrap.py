@@ -141,6 +141,16 @@ class ChainStats:
     def count(self, table: str, key: str, n: int) -> None:
         getattr(self, table)[key] = getattr(self, table).get(key, 0) + int(n)
 
+    def merge(self, other: ChainStats) -> None:
+        """Add the counts and samples of another chunk (chunks merged in row order keep
+        the samples in row order, whatever thread decoded them)."""
+        for table in ("checked", "rejected", "noisy", "low", "edges"):
+            for key, n in getattr(other, table).items():
+                self.count(table, key, n)
+        self.uniform.update(other.uniform)
+        for key, parts in other.disagreement.items():
+            self.disagreement.setdefault(key, []).extend(parts)
+
 
 @dataclass(eq=False)
 class _Flags:
