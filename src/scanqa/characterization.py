@@ -33,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa import design, optics
-from scanqa.config import ScannerConfig, config_from_dict
+from scanqa.config import ScannerConfig, config_from_dict, first_difference
 from scanqa.decoding.decoder import decode, decode_pattern_dir
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.fitted_model import read_fitted_model
@@ -443,15 +443,13 @@ def check_sweep_config(config: ScannerConfig, manifest: dict, source: Path) -> N
         rec = config_from_dict(recorded, source=str(source))
     except ScanQAError as err:
         raise InputError(f"{source}: the recorded config is invalid ({err})") from None
-    for section in ("camera", "projector"):
-        mine, theirs = asdict(getattr(config, section)), asdict(getattr(rec, section))
-        diff = [k for k in mine if mine[k] != theirs[k]]
-        if diff:
-            k = diff[0]
-            raise InputError(f"config {config.source or config.name} does not match the sweep "
-                             f"{source.parent}: {section}.{k} = {mine[k]!r} but the sweep was "
-                             f"made with {theirs[k]!r}; give the sweep's config or leave "
-                             "--config out to use the one its manifest records")
+    diff = first_difference(config, rec.to_dict())
+    if diff is not None:
+        section, k, mine, theirs = diff
+        raise InputError(f"config {config.source or config.name} does not match the sweep "
+                         f"{source.parent}: {section}.{k} = {mine!r} but the sweep was "
+                         f"made with {theirs!r}; give the sweep's config or leave "
+                         "--config out to use the one its manifest records")
 
 
 def sweep_config(sweep_dir: str | os.PathLike) -> ScannerConfig:

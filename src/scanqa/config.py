@@ -502,3 +502,24 @@ def load_config(path: str | os.PathLike, profile: str | None = None) -> ScannerC
     p = Path(text_path)
     data = read_toml(p, "scanner config", ConfigError)
     return config_from_dict(data, source=str(p), profile=profile)
+
+
+def first_difference(config: ScannerConfig, recorded: dict,
+                     sections: tuple[str, ...] = ("camera", "projector")
+                     ) -> tuple[str, str, Any, Any] | None:
+    """The first key where ``config`` differs from a recorded config (a manifest's
+    ``config`` table, or ``to_dict()`` of another config), section by section in key
+    order; numbers compare to a relative 1e-9. ``None`` when they agree.
+
+    Returns
+    -------
+    (section, key, value in config, recorded value) or None
+    """
+    given = config.to_dict()
+    for section in sections:
+        for key, theirs in sorted((recorded.get(section) or {}).items()):
+            mine = given[section].get(key)
+            if not np.allclose(np.asarray(mine, float), np.asarray(theirs, float),
+                               rtol=1e-9, atol=1e-12):
+                return section, key, mine, theirs
+    return None

@@ -30,7 +30,7 @@ from scanqa.calibration.target import (
     detect_chessboard,
     fit_sweep_geometry,
 )
-from scanqa.config import ScannerConfig
+from scanqa.config import ScannerConfig, first_difference
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.images import read_image
@@ -160,17 +160,14 @@ def _check_simulated(sweep: Sweep, config: ScannerConfig) -> None:
     sim = data.get("config") if isinstance(data, dict) else None
     if not isinstance(sim, dict):
         return
-    given = config.to_dict()
-    for section in _SIMULATED_SECTIONS:
-        for key, value in sorted(sim.get(section, {}).items()):
-            mine = given[section].get(key)
-            if not np.allclose(np.asarray(value, float), np.asarray(mine, float),
-                               rtol=1e-9, atol=1e-12):
-                raise InputError(
-                    f"{manifest}: the sweep was simulated with {section}.{key} = {value} "
-                    f"but the config ({config.source or config.name}) has {mine}: calibrate "
-                    f"with the simulated config (its name: {sim.get('name', '?')!r}, e.g. "
-                    "the same file and profile given to 'scanqa simulate')")
+    diff = first_difference(config, sim, _SIMULATED_SECTIONS)
+    if diff is not None:
+        section, key, mine, value = diff
+        raise InputError(
+            f"{manifest}: the sweep was simulated with {section}.{key} = {value} "
+            f"but the config ({config.source or config.name}) has {mine}: calibrate "
+            f"with the simulated config (its name: {sim.get('name', '?')!r}, e.g. "
+            "the same file and profile given to 'scanqa simulate')")
 
 
 def check_scale(obs: PlaneObservation, config: ScannerConfig) -> None:
