@@ -29,6 +29,7 @@ import numpy as np
 
 from scanqa.calibration.shear import DEGREE, eval_shear
 from scanqa.chunks import row_bands, run_bands
+from scanqa.errors import InputError
 
 
 class TableGrid(Protocol):
@@ -71,6 +72,28 @@ class TableLookup:
     def s_t(self) -> np.ndarray:
         """Triangulation scale |dQ/dx_p| [mm / projector px]."""
         return np.linalg.norm(self.slope, axis=-1)
+
+
+def check_rows(xp: np.ndarray, row0: int, width_px: int, height_px: int, whole: bool,
+               camera: str, built_for: str) -> None:
+    """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of a phase map of a
+    ``width_px`` x ``height_px`` camera [px]; ``camera`` ("the table's camera") and
+    ``built_for`` ("the table was built for") name the calibration in the messages.
+
+    Raises
+    ------
+    InputError
+        Rows outside the camera, or a phase map of another size.
+    """
+    if xp.ndim == 2 and xp.shape[1] == width_px and not whole:
+        if 0 <= row0 and row0 + xp.shape[0] <= height_px:
+            return
+        raise InputError(f"rows {row0} to {row0 + xp.shape[0] - 1} are outside the "
+                         f"{height_px} rows of {camera}")
+    if xp.shape != (height_px, width_px):
+        shape = " x ".join(str(n) for n in xp.shape[::-1])
+        raise InputError(f"phase map is {shape} px but {built_for} a {width_px} x "
+                         f"{height_px} px camera")
 
 
 def empty_lookup(shape: tuple[int, ...]) -> TableLookup:

@@ -49,7 +49,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa.calibration.lookup import TableLookup, empty_lookup
+from scanqa.calibration.lookup import TableLookup, check_rows, empty_lookup
 from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig
 from scanqa.decoding.phasemap import PhaseMap
@@ -339,16 +339,11 @@ class ParametricCalibration:
         return tuple(np.take(a, select) for a in arrays)
 
     def _check_rows(self, xp: np.ndarray, row0: int, whole: bool = False) -> None:
-        """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of the camera's images."""
-        if xp.ndim == 2 and xp.shape[1] == self.width_px and not whole:
-            if 0 <= row0 and row0 + xp.shape[0] <= self.height_px:
-                return
-            raise InputError(f"rows {row0} to {row0 + xp.shape[0] - 1} are outside the "
-                             f"{self.height_px} rows of the calibrated camera")
-        if xp.shape != (self.height_px, self.width_px):
-            shape = " x ".join(str(n) for n in xp.shape[::-1])
-            raise InputError(f"phase map is {shape} px but the calibration {self.source} is "
-                             f"for a {self.width_px} x {self.height_px} px camera")
+        """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of a phase map of the
+        calibrated camera (:func:`scanqa.calibration.lookup.check_rows`)."""
+        check_rows(xp, row0, self.width_px, self.height_px, whole, "the calibrated camera",
+                   f"the calibration {self.source} is for")
+
 
     def _solve(self, x: np.ndarray, y: np.ndarray, xp: np.ndarray, ok: np.ndarray,
                extrapolate: bool = False, out: TableLookup | None = None) -> np.ndarray:

@@ -171,16 +171,9 @@ class CalibrationTable:
 
     def _check_rows(self, xp: np.ndarray, row0: int, whole: bool = False) -> None:
         """Raise unless ``xp`` is rows row0.. (``whole``: all rows) of a phase map of the
-        calibrated camera."""
-        if xp.ndim == 2 and xp.shape[1] == self.width_px and not whole:
-            if 0 <= row0 and row0 + xp.shape[0] <= self.height_px:
-                return
-            raise InputError(f"rows {row0} to {row0 + xp.shape[0] - 1} are outside the "
-                             f"{self.height_px} rows of the table's camera")
-        if xp.shape != (self.height_px, self.width_px):
-            shape = " x ".join(str(n) for n in xp.shape[::-1])
-            raise InputError(f"phase map is {shape} px but the table was built for a "
-                             f"{self.width_px} x {self.height_px} px camera")
+        calibrated camera (:func:`scanqa.calibration.lookup.check_rows`)."""
+        lookup.check_rows(xp, row0, self.width_px, self.height_px, whole, "the table's camera",
+                          "the table was built for")
 
 
 def save_table(path: str | os.PathLike, table: CalibrationTable) -> Path:
