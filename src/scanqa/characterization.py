@@ -452,11 +452,17 @@ def check_sweep_config(config: ScannerConfig, manifest: dict, source: Path) -> N
                          "--config out to use the one its manifest records")
 
 
+def sweep_folder(sweep: str | os.PathLike) -> Path:
+    """The folder of a sweep: a device sweep's folder itself, or the folder holding a
+    calibration sweep's ``sweep.toml``."""
+    path = Path(sweep)
+    return path.parent if path.suffix == ".toml" else path
+
+
 def sweep_config(sweep_dir: str | os.PathLike) -> ScannerConfig:
     """The scanner config recorded in a sweep's manifest (a device sweep's folder, or a
     calibration sweep's ``sweep.toml`` with the manifest beside it)."""
-    folder = Path(sweep_dir)
-    folder = folder.parent if folder.suffix == ".toml" else folder
+    folder = sweep_folder(sweep_dir)
     path = folder / "manifest.toml"
     recorded = read_manifest(folder).get("config")
     if not isinstance(recorded, dict):

@@ -20,7 +20,7 @@ from pathlib import Path
 from scanqa import design
 from scanqa.annotation import annotate
 from scanqa.calibration.sweep import calibrate
-from scanqa.characterization import characterize_sweeps
+from scanqa.characterization import characterize_sweeps, sweep_folder
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError
@@ -36,7 +36,7 @@ from scanqa.report import artefacts as artefact_report
 from scanqa.report import calibration as calibration_report
 from scanqa.report import design as design_plots
 from scanqa.report import qa as qa_report
-from scanqa.report.characterization import write_characterization
+from scanqa.report.characterization import characterization_lines, write_characterization
 
 #: Simulation plan of ``--full``: (experiment, camera window, positions, repeats, folder).
 #: About 40 min on 2 cores: 14 sweep positions and 3 gauge scans at 2448 x 2048 (~2 min
@@ -172,11 +172,10 @@ def _run_stages(stage: _Stages, out: Path, data: Path, final: Path) -> DemoResul
     sweeps = check_data(data)
     config = manifest_config(data / "gauge_blocks")
 
-    names = [p.parent.name if p.name == "sweep.toml" else p.name for p in sweeps]
+    names = [sweep_folder(p).name for p in sweeps]
     stage(f"characterising the scanner from the {' and '.join(names)} "
           "(Figs. 3 and 4 procedure, model selected on held-out positions)")
-    sweep_config = manifest_config(sweeps[0].parent if sweeps[0].name == "sweep.toml"
-                                   else sweeps[0])
+    sweep_config = manifest_config(sweep_folder(sweeps[0]))
     char = characterize_sweeps(sweeps, sweep_config)
     write_characterization(char, out / "characterization", sweep_config)
     fitted = char.apply_to(config)
@@ -274,32 +273,6 @@ def _design(config, out: Path) -> None:
     design_plots.plot_curve(design.axis_curve(config, focus - 40, focus + 40, 0.25),
                             out / "curve.png", focus)
     design_plots.plot_volume(design.usable_volume(config, 0.49, step=2.0), out / "volume.png")
-
-
-def _interval(p: dict) -> str:
-    """A parameter with what the data say about it."""
-    if p["status"] == "fitted":
-        return f"{p['value']:.4g} [{p['low']:.4g}, {p['high']:.4g}] (95 %)"
-    if p["status"] == "bounded":
-        return f"{p['value']:.4g}, only bounded: [{p['low']:.4g}, {p['high']:.4g}] (95 %)"
-    return f"{p['value']:.4g}, not identifiable ({p['why']})"
-
-
-def characterization_lines(summary: dict) -> list[str]:
-    """What the characterisation found: the selected variant, each parameter with its
-    interval or why it is not identifiable, the identifiable quantities, the baseline."""
-    v = summary["best_variant"]
-    lines = [f"selected model: filter_floor={v['filter_floor']}, filter_form="
-             f"{v['filter_form']}, noise_reading={v['noise_reading']} (held-out RMS "
-             f"{100 * v['cv_rms_relative']:.1f} %, a constant "
-             f"{100 * summary['constant']['cv_rms_relative']:.1f} %)"]
-    lines += [f"{p['name']} = {_interval(p)}" for p in v["parameters"]]
-    lines += [f"identifiable: {c['name']} = {c['value']:.4g}"
-              + (f" [{c['low']:.4g}, {c['high']:.4g}]" if "low" in c else "")
-              for c in v["identifiable"]]
-    if not summary["better_than_constant"]:
-        lines.append(summary["verdict"])
-    return lines
 
 
 def summary_lines(result: DemoResult) -> list[str]:

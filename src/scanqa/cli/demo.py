@@ -7,7 +7,8 @@ import time
 
 from scanqa.cli.common import emit
 from scanqa.config import load_config
-from scanqa.demo import characterization_lines, run_demo, summary_lines
+from scanqa.demo import run_demo, summary_lines
+from scanqa.report.characterization import characterization_lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:

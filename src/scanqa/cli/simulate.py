@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import math
-from pathlib import Path
 
 from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list, number
 
@@ -105,14 +104,12 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.characterization import characterize_sweeps, sweep_config
-    from scanqa.demo import characterization_lines
-    from scanqa.report.characterization import write_characterization
+    from scanqa.characterization import characterize_sweeps, sweep_config, sweep_folder
+    from scanqa.report.characterization import characterization_lines, write_characterization
 
     config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
     result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
-    first = Path(args.sweep[0])
-    default = (first.parent if first.suffix == ".toml" else first) / "characterize"
+    default = sweep_folder(args.sweep[0]) / "characterize"
     out = write_characterization(result, args.out or default, config)
     summary = result.summary()
     emit(summary["verdict"])

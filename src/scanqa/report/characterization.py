@@ -74,3 +74,29 @@ def _plot(result: Characterization, config: ScannerConfig, out: Path,
     ax.set_ylabel("attenuation [-]")
     ax.legend()
     save_png(fig, out / f"attenuation{suffix}.png")
+
+
+def _interval(p: dict) -> str:
+    """A parameter with what the data say about it."""
+    if p["status"] == "fitted":
+        return f"{p['value']:.4g} [{p['low']:.4g}, {p['high']:.4g}] (95 %)"
+    if p["status"] == "bounded":
+        return f"{p['value']:.4g}, only bounded: [{p['low']:.4g}, {p['high']:.4g}] (95 %)"
+    return f"{p['value']:.4g}, not identifiable ({p['why']})"
+
+
+def characterization_lines(summary: dict) -> list[str]:
+    """What the characterisation found: the selected variant, each parameter with its
+    interval or why it is not identifiable, the identifiable quantities, the baseline."""
+    v = summary["best_variant"]
+    lines = [f"selected model: filter_floor={v['filter_floor']}, filter_form="
+             f"{v['filter_form']}, noise_reading={v['noise_reading']} (held-out RMS "
+             f"{100 * v['cv_rms_relative']:.1f} %, a constant "
+             f"{100 * summary['constant']['cv_rms_relative']:.1f} %)"]
+    lines += [f"{p['name']} = {_interval(p)}" for p in v["parameters"]]
+    lines += [f"identifiable: {c['name']} = {c['value']:.4g}"
+              + (f" [{c['low']:.4g}, {c['high']:.4g}]" if "low" in c else "")
+              for c in v["identifiable"]]
+    if not summary["better_than_constant"]:
+        lines.append(summary["verdict"])
+    return lines
