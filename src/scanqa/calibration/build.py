@@ -453,7 +453,7 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     with Progress("calibrate", total, "scan", log) as bar:
         for obs in observations:
             if shape is None:
-                shape = _check_first(obs, config)
+                shape = check_camera_size(obs, config)
                 cell_px = _cell_size(cell_px, config, obs)
                 n_v, n_u = _cell_count(shape[0], cell_px), _cell_count(shape[1], cell_px)
             elif obs.xp.shape != shape:
@@ -474,8 +474,15 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     return table, report
 
 
-def _check_first(obs: PlaneObservation, config: ScannerConfig) -> tuple[int, int]:
-    """The image size of the sweep, which must be the config's camera."""
+def check_camera_size(obs: PlaneObservation, config: ScannerConfig) -> tuple[int, int]:
+    """The image size of an observation (rows, columns) [px], which must be the config's
+    camera's.
+
+    Raises
+    ------
+    InputError
+        Naming the scan, both sizes and the fix.
+    """
     shape = tuple(int(n) for n in np.shape(obs.xp))
     cam = config.camera
     if shape != (cam.height_px, cam.width_px):

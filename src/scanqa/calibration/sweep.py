@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa import optics
-from scanqa.calibration.build import BuildReport, PlaneObservation, _check_first, build_table
+from scanqa.calibration.build import BuildReport, PlaneObservation, build_table, check_camera_size
 from scanqa.calibration.table import CalibrationTable
 from scanqa.calibration.target import (
     ChessboardSpec,
@@ -98,7 +98,7 @@ def marker_geometry(sweep: Sweep, config: ScannerConfig) -> SweepGeometry:
 
 
 def _check_size(shape: tuple, config: ScannerConfig, source) -> None:
-    """The images must be the config's camera size."""
+    """A marker frame must be the config's camera size."""
     cam = config.camera
     if tuple(shape[:2]) != (cam.height_px, cam.width_px):
         raise InputError(
@@ -178,8 +178,7 @@ def check_scale(obs: PlaneObservation, config: ScannerConfig) -> None:
     InputError
         The measured x_p per camera pixel is off by more than :data:`SCALE_TOLERANCE`.
     """
-    h, w = obs.xp.shape
-    _check_size(obs.xp.shape, config, obs.source)
+    h, w = check_camera_size(obs, config)
     r0, r1, c0, c1 = h // 2 - h // 8, h // 2 + h // 8 + 1, w // 2 - w // 8, w // 2 + w // 8 + 1
     slope = np.nanmedian(np.diff(obs.xp[r0:r1, c0:c1], axis=1))
     cam = config.camera
@@ -200,7 +199,7 @@ def _checked(observations: Iterator[PlaneObservation], sweep: Sweep,
     first), then the sweep's records (:func:`check_sweep`), then the images' scale."""
     for i, obs in enumerate(observations):
         if i == 0:
-            _check_first(obs, config)
+            check_camera_size(obs, config)
             check_sweep(sweep, config)
             check_scale(obs, config)
         yield obs
