@@ -41,7 +41,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scanqa.errors import InputError
-from scanqa.io.tomlfile import read_toml
+from scanqa.io.tomlfile import known_table, read_toml
 
 #: Value of the ``format`` key this version reads.
 FORMAT = "scanqa-spec/1"
@@ -133,14 +133,9 @@ def _mpe(path, key: str, value) -> Mpe:
 
 
 def _table(path, data: dict, name: str, keys: dict) -> dict | None:
-    table = data.get(name)
+    table = known_table(data.get(name), name, keys, lambda msg: _err(path, msg))
     if table is None:
         return None
-    if not isinstance(table, dict):
-        raise _err(path, f"[{name}] must be a table")
-    unknown = sorted(set(table) - set(keys))
-    if unknown:
-        raise _err(path, f"[{name}]: unknown key {unknown[0]!r} (known: {', '.join(keys)})")
     missing = [k for k, required in keys.items() if required and k not in table]
     if missing:
         raise _err(path, f"[{name}]: {missing[0]} is missing (the certificate's value)")

@@ -37,7 +37,7 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.npzfile import load_npz
-from scanqa.io.tomlfile import read_toml
+from scanqa.io.tomlfile import known_table, read_toml
 
 FORMAT = "scanqa-sweep/1"
 _TOP = ("format", "description", "position", "target", "scanner")
@@ -115,25 +115,14 @@ def load_sweep(path: str | os.PathLike) -> Sweep:
     positions = tuple(_position(path, i, p) for i, p in enumerate(raw))
     _check_order(path, positions)
     target = _target(path, data.get("target"), positions)
-    scanner = _table(path, "scanner", data.get("scanner"), SCANNER_KEYS)
+    scanner = known_table(data.get("scanner"), "scanner", SCANNER_KEYS,
+                          lambda msg: _err(path, msg))
     return Sweep(path, positions, str(data.get("description", "")), target, scanner)
-
-
-def _table(path: Path, name: str, table, keys: tuple[str, ...]) -> dict | None:
-    """An optional sub-table with known keys only."""
-    if table is None:
-        return None
-    if not isinstance(table, dict):
-        raise _err(path, f"[{name}] must be a table")
-    unknown = sorted(set(table) - set(keys))
-    if unknown:
-        raise _err(path, f"[{name}]: unknown key {unknown[0]!r} (known: {', '.join(keys)})")
-    return dict(table)
 
 
 def _target(path: Path, table, positions: tuple[SweepPosition, ...]) -> dict | None:
     """The ``[target]`` table, required exactly when positions name marker frames."""
-    target = _table(path, "target", table, TARGET_KEYS)
+    target = known_table(table, "target", TARGET_KEYS, lambda msg: _err(path, msg))
     marked = [p.markers is not None for p in positions]
     if any(marked) and not all(marked):
         k = marked.index(False)

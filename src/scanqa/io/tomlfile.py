@@ -6,6 +6,7 @@ from __future__ import annotations
 import math
 import os
 import sys
+from collections.abc import Callable
 from pathlib import Path
 
 from scanqa.errors import InputError, ScanQAError
@@ -42,6 +43,20 @@ def read_toml(path: str | os.PathLike, what: str, error: type[ScanQAError] = Inp
         return tomllib.loads(raw.decode("utf-8"))
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
         raise error(f"{p} is not valid TOML: {err}") from None
+
+
+def known_table(table: object, name: str, keys, fail: Callable[[str], Exception]
+                ) -> dict | None:
+    """An optional ``[name]`` sub-table holding only ``keys`` (a copy), or None when
+    absent; otherwise ``fail(message)`` is raised."""
+    if table is None:
+        return None
+    if not isinstance(table, dict):
+        raise fail(f"[{name}] must be a table")
+    unknown = sorted(set(table) - set(keys))
+    if unknown:
+        raise fail(f"[{name}]: unknown key {unknown[0]!r} (known: {', '.join(keys)})")
+    return dict(table)
 
 
 def dumps_toml(data: dict) -> str:
