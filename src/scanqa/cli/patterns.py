@@ -4,8 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanqa.cli.common import float_list
-from scanqa.config import load_config
+from scanqa.cli.common import add_config_argument, config_from_args, float_list
 from scanqa.decoding.projection import standard_coding, write_projector_patterns
 from scanqa.errors import ConfigError
 
@@ -36,9 +35,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                    "the camera images captured with them.",
                        epilog=_EPILOG)
     p.add_argument("out_dir", metavar="OUT_DIR", help="folder to write (created)")
-    p.add_argument("--config", metavar="FILE", default=None,
-                   help="scanner config: panel size and default periods (FILE#PROFILE "
-                        "selects a profile)")
+    add_config_argument(p, required=False)  # the panel size and default periods
     p.add_argument("--width", type=int, default=None, help="panel width [px]")
     p.add_argument("--height", type=int, default=None, help="panel height [px]")
     p.add_argument("--periods", type=float_list, default=None, metavar="P1,P2,...",
@@ -83,7 +80,7 @@ def _panel_and_periods(args: argparse.Namespace) -> tuple[int, int, list[float]]
     periods = list(args.periods or [])
     width, height = args.width, args.height
     if args.config:
-        config = load_config(args.config)
+        config = config_from_args(args)
         width = width or config.projector.width_px
         height = height or config.projector.height_px
         if args.periods is None and args.gray_cell is None:
