@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanqa.cli.common import add_config_argument, config_from_args, float_list
+from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list
 from scanqa.decoding.projection import standard_coding, write_projector_patterns
 from scanqa.errors import ConfigError
 
@@ -70,8 +70,8 @@ def run(args: argparse.Namespace) -> int:
                                        args.bit_depth, args.camera_suffix)
     frames = sum(s.frames for s in written.sets)
     kinds = ", ".join(f"{s.name} ({s.frames})" for s in written.sets)
-    print(f"{frames} projector images of {width} x {height} px -> {args.out_dir}/projector;"
-          f" sets: {kinds}; patterns.toml -> {written.source}")
+    emit(f"{frames} projector images of {width} x {height} px -> {args.out_dir}/projector;"
+         f" sets: {kinds}; patterns.toml -> {written.source}")
     return 0
 
 

@@ -26,7 +26,7 @@ from scanqa.decoding.coding import (
 )
 from scanqa.decoding.patternset import projector_patterns
 from scanqa.errors import ConfigError
-from scanqa.io.atomic import make_out_dir, write_text
+from scanqa.io.atomic import make_out_dir, staged_dir, write_text
 from scanqa.io.images import write_image
 from scanqa.io.patterns import PATTERNS_FILE, dumps_patterns
 
@@ -109,23 +109,23 @@ def write_projector_patterns(directory: str | os.PathLike, desc: PatternDescript
         raise ConfigError(f"bit_depth must be 8 or 16, got {bit_depth!r}")
     if not (math.isfinite(gamma) and 0.1 <= gamma <= 10):
         raise ConfigError(f"gamma must be in [0.1, 10], got {gamma!r}")
-    folder = make_out_dir(directory)
-    panel_dir = make_out_dir(folder / PROJECTOR_DIR)
     full = 2 ** bit_depth - 1
     dtype = np.uint8 if bit_depth == 8 else np.uint16
     sets, frame = [], 0
-    for index, pset in enumerate(desc.sets):
-        images = projector_patterns(desc, index, across_px, gamma)
-        names = []
-        for k, image in enumerate(images):
-            stem = f"{frame:03d}_{pset.name}_{k:02d}"
-            write_image(panel_dir / f"{stem}.png", np.rint(image * full).astype(dtype))
-            names.append(stem + camera_suffix)
-            frame += 1
-        sets.append(replace(pset, files=tuple(names), stack="", stack_key=""))
-    out = replace(desc, sets=tuple(sets), source=str(folder / PATTERNS_FILE))
-    text = _skeleton_header(gamma) + dumps_patterns(out.to_dict())
-    write_text(folder / PATTERNS_FILE, text)
+    with staged_dir(directory) as stage:  # the images and patterns.toml together, or none
+        panel_dir = make_out_dir(stage / PROJECTOR_DIR)
+        for index, pset in enumerate(desc.sets):
+            images = projector_patterns(desc, index, across_px, gamma)
+            names = []
+            for k, image in enumerate(images):
+                stem = f"{frame:03d}_{pset.name}_{k:02d}"
+                write_image(panel_dir / f"{stem}.png", np.rint(image * full).astype(dtype))
+                names.append(stem + camera_suffix)
+                frame += 1
+            sets.append(replace(pset, files=tuple(names), stack="", stack_key=""))
+        out = replace(desc, sets=tuple(sets), source=str(Path(directory) / PATTERNS_FILE))
+        text = _skeleton_header(gamma) + dumps_patterns(out.to_dict())
+        write_text(stage / PATTERNS_FILE, text)
     return out
 
 
