@@ -3,10 +3,10 @@
 from __future__ import annotations
 
 import argparse
-import sys
+import logging
 from dataclasses import replace
 
-from scanqa.cli.common import output_path
+from scanqa.cli.common import emit, output_path
 from scanqa.decoding.decoder import (
     decode_images,
     load_pattern_dir,
@@ -16,6 +16,8 @@ from scanqa.decoding.decoder import (
 from scanqa.decoding.patternset import lossy_image_note
 from scanqa.decoding.phasemap import save_phase_map
 from scanqa.decoding.response import save_response
+
+log = logging.getLogger(__name__)
 
 _EPILOG = """\
 PATTERN_DIR holds the camera images and a patterns.toml describing them
@@ -58,7 +60,6 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fuse-periods", action="store_true",
                    help="fuse every period into x_p by inverse variance (default: the "
                         "finest period alone; systematic differences bias a fusion)")
-    p.add_argument("--quiet", action="store_true", help="no progress messages on stderr")
     p.set_defaults(func=run)
 
 
@@ -66,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     """Load, (measure,) decode, write, and print the summary."""
     out = output_path(args.out)
     measure_out = output_path(args.measure_response)
-    progress = None if args.quiet else _progress
+    progress = _progress  # through the scanqa logger: -q/--quiet silence it
     desc, stacks = load_pattern_dir(args.pattern_dir, progress)
     if args.fuse_periods:
         desc = replace(desc, options=replace(desc.options, fuse_periods=True))
@@ -82,14 +83,14 @@ def run(args: argparse.Namespace) -> int:
     if measure_out is not None:
         save_response(measure_out, response)
         for table in response.tables:
-            print(f"response: {table.period_px:g} px x {table.steps} steps: phase error "
-                  f"rms {table.rms_rad:.4f} rad = {table.rms_rad * table.period_px / 6.2832:.3f}"
-                  f" px -> {measure_out}")
+            emit(f"response: {table.period_px:g} px x {table.steps} steps: phase error "
+                 f"rms {table.rms_rad:.4f} rad = {table.rms_rad * table.period_px / 6.2832:.3f}"
+                 f" px -> {measure_out}")
     save_phase_map(out, phase_map)
     first, *rest = phase_map.summary().splitlines()
-    print("\n".join([f"{first} -> {out}", *rest]))
+    emit("\n".join([f"{first} -> {out}", *rest]))
     return 0
 
 
 def _progress(message: str) -> None:
-    print(f"scanqa decode: {message}", file=sys.stderr, flush=True)
+    log.info(f"scanqa decode: {message}")
