@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scanqa.cli.common import add_config_argument, config_from_args
+from scanqa.cli.common import add_config_argument, config_from_args, emit
 from scanqa.errors import InputError
 from scanqa.io.atomic import write_text
 from scanqa.io.sweep import load_sweep, read_stage_readings, sweep_manifest
@@ -77,6 +77,6 @@ def run(args: argparse.Namespace) -> int:
                          "relative to its folder")
     write_text(out, dumps_toml(data))
     sweep = load_sweep(out)
-    print(f"{out}: {len(sweep.positions)} positions, {sweep.observation_count()} scans"
-          + (", marker frames" if markers else ""))
+    emit(f"{out}: {len(sweep.positions)} positions, {sweep.observation_count()} scans"
+         + (", marker frames" if markers else ""))
     return 0
