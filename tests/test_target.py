@@ -143,6 +143,22 @@ def test_sweep_manifest_cli_round_trip(tmp_path, capsys):
     assert err.startswith("scanqa: 12 captures but 3 stage readings") and "Traceback" not in err
 
 
+def test_sweep_manifest_cli_publishes_only_a_valid_manifest(tmp_path, capsys):
+    """A --markers glob that matches folders makes a manifest load_sweep refuses: the
+    error names the sweep.toml asked for and no sweep.toml is left behind."""
+    paper = load_config(ROOT / "calib" / "paper_scanner.toml")
+    _write_sweep(tmp_path, small_camera(paper), repeats=1)
+    (tmp_path / "sweep.toml").unlink()
+    for k in range(6):
+        (tmp_path / f"markers{k}").mkdir()
+    code = main(["sweep-manifest", str(tmp_path), "--stage-mm", "440,445,450,455,460,465",
+                 "--markers", "markers*", "--square-mm", "4"])
+    err = capsys.readouterr().err
+    assert code == 2 and "Traceback" not in err and "marker frame 'markers0'" in err
+    assert f"{tmp_path / 'sweep.toml'}" in err and ".sweep.toml." not in err
+    assert sorted(f.name for f in tmp_path.iterdir() if ".toml" in f.name) == []
+
+
 def test_mismatch_camera_size(tmp_path, capsys):
     """A config whose camera size differs from the images: one error, exit 2."""
     paper = load_config(ROOT / "calib" / "paper_scanner.toml")

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from scanqa.cli.common import add_config_argument, config_from_args, emit
 from scanqa.errors import InputError
-from scanqa.io.atomic import write_text
+from scanqa.io.atomic import atomic_path
 from scanqa.io.sweep import load_sweep, read_stage_readings, sweep_manifest
 from scanqa.io.tomlfile import dumps_toml
 
@@ -75,8 +75,12 @@ def run(args: argparse.Namespace) -> int:
     if out.resolve().parent != folder.resolve():
         raise InputError(f"--out {out} must be in {folder}: the manifest's paths are "
                          "relative to its folder")
-    write_text(out, dumps_toml(data))
-    sweep = load_sweep(out)
+    with atomic_path(out) as tmp:   # validated next to its captures, then published
+        tmp.write_text(dumps_toml(data), encoding="utf-8")
+        try:
+            sweep = load_sweep(tmp)
+        except InputError as err:   # name the file the user asked for, not the temporary
+            raise InputError(str(err).replace(str(tmp), str(out))) from None
     emit(f"{out}: {len(sweep.positions)} positions, {sweep.observation_count()} scans"
          + (", marker frames" if markers else ""))
     return 0
