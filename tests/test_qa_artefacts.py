@@ -203,6 +203,30 @@ def test_oblique_factor_follows_the_decoder():
     assert_allclose(g, (1.0 / cos) / ref, rtol=1e-5)  # modulation = 60 cos here
 
 
+def test_oblique_factor_two_part():
+    """With the model's two parts and the fringe offset, the sensor part follows the
+    decoder's sigma and the scene part the inverse contrast A / B: here A / B goes as
+    sqrt(cos) and the decoder sigma as 1 / cos, the scene part carries
+    80 % of the variance, so the factor is sqrt(0.8 c^2 + 0.2 d^2) with c, d each over
+    its median within 20 deg of the normal."""
+    rng = np.random.default_rng(7)
+    exact, normals = visible_cap(rng, CENTRE, D / 2, 4000, max_incidence_deg=70.0)
+    cloud = cloud_of([(exact, normals)])
+    cos = sight_cosine(exact, normals)
+    n = len(exact)
+    cloud.attributes["offset_dn"] = (120.0 * cos ** 1.5).astype(np.float32)  # A / B ~ sqrt(cos)
+    cloud.attributes["sigma_scene_um"] = np.full(n, 4.0, np.float32)
+    cloud.attributes["sigma_sensor_um"] = np.full(n, 2.0, np.float32)
+    f = oblique_factor(cloud, np.arange(n), normals)
+    front = cos >= math.cos(math.radians(20.0))
+    c = np.sqrt(cos) / np.median(np.sqrt(cos[front]))
+    d = (1.0 / cos) / np.median(1.0 / cos[front])
+    assert_allclose(f, np.sqrt(0.8 * c**2 + 0.2 * d**2), rtol=1e-5)
+    # a one-source reading (no sensor part) keeps the decoder's sigma alone
+    cloud.attributes["sigma_sensor_um"] = np.zeros(n, np.float32)
+    assert_allclose(oblique_factor(cloud, np.arange(n), normals), d, rtol=1e-5)
+
+
 def test_tile_correlation_counts_shared_noise():
     """Noise drawn once per 1 mm cube and shared by its points: kappa of the radius is
     about the number of points per cube; independent noise gives about 1."""

@@ -32,6 +32,7 @@ filter_factor      -      F_gamma (Eq. 17)
 s_o                -      optical scale s_O (Eq. 19)
 s_t_um_px          um/px  triangulation scale |dQ/dx_p|
 modulation_dn      DN     fringe modulation B
+offset_dn          DN     fringe offset A (the mean level; A / B is the inverse contrast)
 in_volume          0/1    phase inside the pixel's calibrated range
 model_valid        0/1    both blur ratios <= 1/2
 pixel_u, pixel_v   px     camera pixel (column, row)
@@ -64,7 +65,7 @@ from scanqa.io import ply
 ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
               "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_total_um",
               "att_camera", "att_projector", "filter_factor", "s_o", "s_t_um_px",
-              "modulation_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
+              "modulation_dn", "offset_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
 
@@ -122,7 +123,8 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
                          "decoding mask or the pattern images")
     names = ATTRIBUTES + (REPEAT_ATTRIBUTES if repeats else ())
     records = np.empty(counts["written"], dtype=ply.vertex_dtype(names))
-    extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation}
+    extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation,
+             "offset": phase_map.offset}
     if repeats:
         extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
     starts = np.cumsum([0, *kept])
@@ -239,7 +241,8 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
         "sigma_total_um": 1e3 * np.hypot(sigma, sig_tab),
         "att_camera": pred.attenuation_camera, "att_projector": pred.attenuation_projector,
         "filter_factor": pred.filter_factor, "s_o": pred.s_o, "s_t_um_px": 1e3 * s_t,
-        "modulation_dn": inputs["modulation"], "in_volume": look.in_volume.ravel(),
+        "modulation_dn": inputs["modulation"], "offset_dn": inputs["offset"],
+        "in_volume": look.in_volume.ravel(),
         "model_valid": pred.valid, "pixel_u": pixels[0], "pixel_v": pixels[1],
         "table_corr_mm": inputs["corr_px"] * points[:, 2] / config.camera.principal_distance_px,
     }

@@ -28,20 +28,29 @@ Point selection, in this order (every count is reported):
 
 Per-point sigma (what U and the predicted form rest on). The optics model gives each
 point's sigma along its line of sight for a surface facing the scanner (the paper's
-Eqs. 18-19). On a curved artefact the fringe signal drops where the surface turns away
-from the scanner (fringes foreshortened, light at an angle), and the phase noise rises:
-simulated, the noise along the line of sight at 55-70 deg incidence is about 1.8 times
-the model's, and the projection on the normal (sigma |cos|) then under-predicts the
-sphere's radial noise by 45 %. The decoder knows how its phase noise follows the
-measured modulation and signal level (its sensor noise model, ``sigma_phase_um``), so
-each point's model sigma is scaled by the ratio of the decoder's sigma there to its
-median over the points seen within 20 deg of their normal (the part of the artefact
-that faces the scanner, as the model assumes), both with the model's defocus
-attenuation divided out (sigma_xp sqrt(A_c A_p)), which the model already holds.
-Simulated, this predicts the radial noise within 5-13 % at every incidence up to 70 deg.
-``oblique="modulation"`` scales by the modulation alone (1 / B: phase noise as for
-additive noise; an upper bound, 30 % high at 55-70 deg), ``"none"`` keeps the model's
-sigma.
+Eqs. 18-19). On a curved artefact the fringe signal changes where the surface turns away
+from the scanner (fringes foreshortened, light at an angle), and so does the phase
+noise, differently for its two sources:
+
+* the sensor part (shot and read noise) grows as the signal falls; the decoder knows it
+  (its sensor noise model from the measured modulation and level, ``sigma_phase_um``);
+* the scene part is proportional to the light itself, so it follows the inverse fringe
+  contrast A / B (``offset_dn`` / ``modulation_dn``), not the brightness: dimmer light
+  at an angle leaves it unchanged, a fringe attenuated by the pixel's own width (a large
+  pixel on a foreshortened fringe) raises it.
+
+Each part of the model's sigma (``sigma_scene_um``, ``sigma_sensor_um``) is scaled by
+its factor, the ratio of the point's value to its median over the points seen within
+20 deg of their normal (the part of the artefact that faces the scanner, as the model
+assumes), both with the model's defocus amplitude sqrt(A_c A_p) divided out, which the
+model already holds. Simulated: at 64 um pixels the noise along the line of sight at
+55-70 deg incidence is about 1.8 times the model's (the pixel attenuates the
+foreshortened fringe); at the paper's 8 um pixels it is 1.15 times, where the
+decoder's sigma alone says 1.4 and over-predicted the sphere's PF by 40 %; the two-part
+factor predicts PF within 4 % there (scans not among the acceptance runs). A cloud
+without the two parts or the offset (a one-source reading, an older file) is scaled by
+the decoder's sigma alone. ``oblique="modulation"`` scales by the modulation alone
+(1 / B: an upper bound), ``"none"`` keeps the model's sigma.
 
 Shared errors. The calibration table's own error (``sigma_table_um``, correlated over
 ``table_corr_mm``) shifts a ball as a whole: its standard uncertainty on a radius or a
@@ -487,34 +496,56 @@ def oblique_factor(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
     Parameters
     ----------
     cloud : AnnotatedCloud
-        With ``sigma_phase_um`` and ``s_t_um_px`` ("decoder") or ``modulation_dn``
-        ("modulation"; also the fallback), and ``att_camera``, ``att_projector``.
+        With ``sigma_phase_um`` and ``s_t_um_px`` ("decoder"; with ``offset_dn``,
+        ``modulation_dn``, ``sigma_scene_um`` and ``sigma_sensor_um`` also the two-part
+        form) or ``modulation_dn`` ("modulation"; also the fallback), and
+        ``att_camera``, ``att_projector``.
     idx : (n,) int
         The artefact's points [-].
     normals : (n, 3) float
         Their unit surface normals [-].
     how : {"decoder", "modulation"}
-        The decoder's phase-noise sigma, or 1 / modulation.
+        The decoder's phase-noise sigma (sensor part) and inverse contrast (scene part),
+        or 1 / modulation.
     """
     attrs = cloud.attributes
     att = np.ones(idx.size)
     for name in ("att_camera", "att_projector"):
         if name in attrs:
             att = att * np.asarray(attrs[name], float)[idx]
+    amp = np.sqrt(att)  # the model's fringe amplitude from defocus, divided out below
+
+    def col(name: str) -> np.ndarray:
+        return np.asarray(attrs[name], float)[idx]
+
+    frontal = _incidence_cos(cloud.xyz[idx], normals) >= math.cos(math.radians(FRONTAL_DEG))
     with np.errstate(invalid="ignore", divide="ignore"):
         if how == "decoder" and "sigma_phase_um" in attrs and "s_t_um_px" in attrs:
-            noise = (np.asarray(attrs["sigma_phase_um"], float)[idx]
-                     / np.asarray(attrs["s_t_um_px"], float)[idx]) * np.sqrt(att)
-        elif "modulation_dn" in attrs:
-            noise = np.sqrt(att) / np.asarray(attrs["modulation_dn"], float)[idx]
-        else:
-            return np.ones(idx.size)
+            sensor = _relative(col("sigma_phase_um") / col("s_t_um_px") * amp, frontal)
+            parts = ("offset_dn", "modulation_dn", "sigma_scene_um", "sigma_sensor_um")
+            if sensor is None or not all(k in attrs for k in parts):
+                return np.ones(idx.size) if sensor is None else sensor
+            scene = _relative(col("offset_dn") / col("modulation_dn") * amp, frontal)
+            s2, n2 = col("sigma_scene_um") ** 2, col("sigma_sensor_um") ** 2
+            w = s2 / (s2 + n2)
+            if scene is None or not np.any(n2 > 0):
+                return sensor   # a one-source reading: the decoder's sigma, as before
+            out = np.sqrt(w * scene**2 + (1.0 - w) * sensor**2)
+            return np.where(np.isfinite(out), out, sensor)
+        if "modulation_dn" in attrs:
+            out = _relative(amp / col("modulation_dn"), frontal)
+            return np.ones(idx.size) if out is None else out
+    return np.ones(idx.size)
+
+
+def _relative(noise: np.ndarray, frontal: np.ndarray) -> np.ndarray | None:
+    """``noise`` over its median where the artefact faces the scanner (all points when
+    fewer than 10 do); 1 where it is not finite and positive; None with < 10 usable."""
     ok = np.isfinite(noise) & (noise > 0)
     if ok.sum() < 10:
-        return np.ones(idx.size)
-    frontal = ok & (_incidence_cos(cloud.xyz[idx], normals)
-                    >= math.cos(math.radians(FRONTAL_DEG)))
-    ref = float(np.median(noise[frontal] if frontal.sum() >= 10 else noise[ok]))
+        return None
+    front = ok & frontal
+    ref = float(np.median(noise[front] if front.sum() >= 10 else noise[ok]))
     return np.where(ok, noise / ref, 1.0)
 
 
