@@ -15,7 +15,7 @@ exact sizes as certificates (U_cert 0.5 um for the sphere, 1 um for the bar).
 Truth. PS and SD have two: the artefact's (the true diameter and distance: the test
 value's truth for an error-free scanner, E = 0) and the scanner's (its systematic test
 value, what the test measures: the same artefact rendered without any noise - no scene
-noise, no read noise, shot noise made negligible by a 1e9 e- signal on 16 bits - and
+noise, no read noise, shot noise made negligible by a 2.5e8 e- signal on 16 bits - and
 evaluated the same way). PF and F are ranges of noisy residuals: the scanner's value is
 their expectation over scans, estimated for each scan by the mean of the other scans.
 Each scan's test value is checked against the truth within its own U (k = 2); the
@@ -50,8 +50,10 @@ sys.path.insert(0, str(ROOT / "src"))
 
 from scanqa.annotation import annotate  # noqa: E402
 from scanqa.calibration.sweep import calibrate  # noqa: E402
+from scanqa.characterization import characterize_sweeps  # noqa: E402
 from scanqa.config import load_config  # noqa: E402
 from scanqa.decoding.decoder import decode_images  # noqa: E402
+from scanqa.demo import manifest_config  # noqa: E402
 from scanqa.io.atomic import write_text  # noqa: E402
 from scanqa.io.spec import read_spec  # noqa: E402
 from scanqa.io.tomlfile import dumps_toml  # noqa: E402
@@ -71,38 +73,40 @@ SWEEP = ROOT / "sample_data" / "calibration_sweep" / "sweep.toml"
 
 
 def noise_free(config):
-    """The same scanner with every noise source off or negligible (the truth renders)."""
+    """The same scanner with every noise source off or negligible (the truth renders):
+    2.5e8 e- of signal make the shot noise 6e-5 of it, 16 bits the quantisation 1.5e-5."""
     return config.replace_simulator(scene_noise_rel=0.0, read_noise_e=0.0, bit_depth=16,
-                                    mean_signal_e=1e9, full_well_e=4e9,
-                                    gain_e_per_dn=4e9 / 65535)
+                                    mean_signal_e=2.5e8, full_well_e=1e9,
+                                    gain_e_per_dn=1e9 / 65535)
 
 
-def scans_of(name: str, config, positions, repeats: int, table, model_config):
-    """(scan name, annotated cloud) of every position x repeat, rendered in memory."""
+def scans_of(name: str, config, positions, repeats: int, table, model_config, folder: Path
+             ) -> list:
+    """The QA results of every position x repeat, each scan rendered in memory and
+    evaluated at once (a full-resolution cloud is ~0.3 GB: they are not kept)."""
     desc = pattern_description(config)
-    out = []
-    for pos in build_positions(name, config, positions):
-        for rep in range(repeats):
-            images = render.render_images(config, acquisition(config, pos, rep, name), desc)
-            out.append((f"{pos.label}_r{rep}", annotate(decode_images(desc, images), table,
-                                                         model_config, keep_invalid=True)))
-    return out
-
-
-def evaluate(name: str, config, positions, clouds, folder: Path):
-    """Run the artefact QA with the experiment's own layout and spec files."""
     pos = build_positions(name, config, positions)
     geoms = [(p, artefact_geometry(name, config, p.stage_mm)) for p in pos]
     write_text(folder / f"{name}.toml", dumps_toml(artefact_layout(name, geoms)))
     write_text(folder / f"{name}_spec.toml", dumps_toml(example_spec(geoms[0][1])))
-    return run_artefact_qa(clouds, load_artefact_layout(folder / f"{name}.toml"),
-                           read_spec(folder / f"{name}_spec.toml"))
+    layout = load_artefact_layout(folder / f"{name}.toml")
+    spec = read_spec(folder / f"{name}_spec.toml")
+    results = []
+    for p in pos:
+        for rep in range(repeats):
+            images = render.render_images(config, acquisition(config, p, rep, name), desc)
+            cloud = annotate(decode_images(desc, images), table, model_config,
+                             keep_invalid=True)
+            results.extend(run_artefact_qa([(f"{p.label}_r{rep}", cloud)], layout,
+                                           spec).results)
+            del images, cloud
+    return results
 
 
-def by_quantity(result) -> dict:
+def by_quantity(results) -> dict:
     """{(quantity, position label): [(scan, Quantity)]}."""
     out: dict = {}
-    for r in result.results:
+    for r in results:
         for q in r.quantities:
             out.setdefault((q.name, r.scan.split("_")[0]), []).append((r.scan, q))
     return out
@@ -143,25 +147,45 @@ def form_ratio(label: str, rows: list[dict]) -> dict:
     return {"ratios": ratio, "within_20": ok, "n": len(ratio)}
 
 
-def run(scans: int, single_scans: int) -> dict:
-    config = load_config(CONFIG, profile="sample")
+def scanner(data: Path | None):
+    """(scanner config, model config, table): the sample scanner's, or those of a data
+    folder simulated by ``scanqa demo --full`` (its gauge scans' config; the model the
+    folder's camera + projector sweeps select; the table of its calibration sweep)."""
     t0 = time.perf_counter()
-    table, _ = calibrate(SWEEP, config, weights="model")
-    print(f"table built in {time.perf_counter() - t0:.0f} s")
-    report: dict = {"scans": scans, "single_scans": single_scans}
+    if data is None:
+        config = load_config(CONFIG, profile="sample")
+        table, _ = calibrate(SWEEP, config, weights="model")
+        model_config = config
+    else:
+        config = manifest_config(data / "gauge_blocks")
+        char = characterize_sweeps([data / "camera_sweep", data / "projector_sweep"],
+                                   manifest_config(data / "camera_sweep"))
+        print(f"model selected on {data}'s camera + projector sweeps: {char.best.label}")
+        model_config = char.apply_to(config)
+        table, _ = calibrate(data / "calibration_sweep" / "sweep.toml", model_config,
+                             weights="model")
+    print(f"scanner {config.name}: {config.camera.width_px} x {config.camera.height_px} px "
+          f"of {config.camera.pixel_um:g} um, f/{config.camera.f_number:g}; table built in "
+          f"{time.perf_counter() - t0:.0f} s", flush=True)
+    return config, model_config, table
+
+
+def run(scans: int, single_scans: int, data: Path | None = None) -> dict:
+    config, model_config, table = scanner(data)
+    report: dict = {"scans": scans, "single_scans": single_scans,
+                    "scanner": f"{config.camera.width_px} x {config.camera.height_px} px",
+                    "data": str(data) if data else "sample_data"}
     plan = (("sphere", [450.0], single_scans), ("ball-bar", [float(i) for i in range(1, 8)],
                                                  scans), ("flat", [450.0], single_scans))
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
         for name, positions, repeats in plan:
             t = time.perf_counter()
-            noisy = evaluate(name, config, positions,
-                             scans_of(name, config, positions, repeats, table, config), folder)
-            clean = evaluate(name, config, positions,
-                             scans_of(name, noise_free(config), positions, 1, table, config),
+            clean = scans_of(name, noise_free(config), positions, 1, table, model_config,
                              folder)
-            print(f"{name}: {len(noisy.results)} scans + {len(clean.results)} noise-free "
-                  f"rendered and evaluated in {time.perf_counter() - t:.0f} s")
+            noisy = scans_of(name, config, positions, repeats, table, model_config, folder)
+            print(f"{name}: {len(noisy)} scans + {len(clean)} noise-free rendered and "
+                  f"evaluated in {time.perf_counter() - t:.0f} s", flush=True)
             report[name] = compare(by_quantity(noisy), by_quantity(clean))
     return report
 
@@ -207,9 +231,14 @@ def main() -> None:
     ap.add_argument("--single-scans", type=int, default=20,
                     help="scans of the sphere and of the flat")
     ap.add_argument("--json", default=None, help="write the numbers to this file")
+    ap.add_argument("--data", type=Path, default=None,
+                    help="a folder simulated by 'scanqa demo --full' (camera_sweep/, "
+                         "projector_sweep/, calibration_sweep/, gauge_blocks/): its scanner "
+                         "(the paper's, full resolution), model and table instead of the "
+                         "sample scanner's")
     args = ap.parse_args()
     t0 = time.perf_counter()
-    report = run(args.scans, args.single_scans)
+    report = run(args.scans, args.single_scans, args.data)
     pooled(report)
     print(f"acceptance run = {time.perf_counter() - t0:.0f} s")
     if args.json:
