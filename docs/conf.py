@@ -21,7 +21,7 @@ import scanqa  # noqa: E402  (after the path: the checkout's sources, not an ins
 
 project = "scanqa"
 author = "the scanqa authors"
-copyright = "the scanqa authors, BSD-3-Clause"  # noqa: A001 (Sphinx's name)
+copyright = "the scanqa authors, BSD-3-Clause"
 release = scanqa.__version__
 version = release
 
