@@ -64,10 +64,13 @@ REALISM = {"camera_k1": -2.6, "projector_k1": -0.05, "projector_p1": 2e-4,
            "target": "chessboard", "target_square_mm": 4.0}
 
 
-def scanner(config: Path = SAMPLE, profile: str | None = "sample") -> ScannerConfig:
+def scanner(config: Path = SAMPLE, profile: str | None = "sample",
+            square_mm: float | None = None) -> ScannerConfig:
     """The scanner with the realism above: by default the sample camera (306 x 256 px of
-    64 um, f/11); ``calib/paper_scanner.toml#f11`` is the paper's 2448 x 2048 px of 8 um."""
-    return load_config(config, profile=profile).replace_simulator(**REALISM)
+    64 um, f/11); ``calib/paper_scanner.toml#f11`` is the paper's 2448 x 2048 px of 8 um.
+    ``square_mm`` replaces the chessboard's square (4 mm)."""
+    realism = dict(REALISM, **({"target_square_mm": square_mm} if square_mm else {}))
+    return load_config(config, profile=profile).replace_simulator(**realism)
 
 
 def simulate(out: Path, quick: bool, cfg: ScannerConfig) -> dict[str, Path]:
@@ -250,7 +253,8 @@ def evaluate(cfg: ScannerConfig, folders: dict[str, Path]) -> dict:
     holdout, gauge = scans(folders["holdout"]), scans(folders["gauge"])
     z_hold = [float(np.nanmedian(t["Z"])) for t, _ in holdout]
     focus = int(np.argmin(np.abs(np.array(z_hold) - cfg.camera.focus_mm)))
-    result = {"simulated": True, "realism": REALISM, "geometry": geometry.summary(),
+    result = {"simulated": True, "realism": REALISM,
+              "target_square_mm": cfg.simulator.target_square_mm, "geometry": geometry.summary(),
               "projector_fit_rms_px": proj_rms, "calibrations": {}}
     for name, cal in cals.items():
         reg = registration(cal, folders["sweep"])
@@ -291,9 +295,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--profile", default="sample",
                         help="profile of --config (default 'sample'; 'f11' with "
                              "calib/paper_scanner.toml is the paper's full-resolution camera)")
+    parser.add_argument("--square-mm", type=float, default=None,
+                        help="the printed chessboard's square [mm] (default 4)")
     args = parser.parse_args(argv)
     out = Path(args.out)
-    cfg = scanner(args.config, args.profile)
+    cfg = scanner(args.config, args.profile, args.square_mm)
     folders = simulate(out, args.quick, cfg)
     if args.simulate_only:
         return 0
