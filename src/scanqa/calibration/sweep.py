@@ -34,7 +34,7 @@ from scanqa.config import ScannerConfig, first_difference
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.images import read_image
-from scanqa.io.sweep import Sweep, load_sweep, read_lateral
+from scanqa.io.sweep import SCANNER_FIELDS, Sweep, load_sweep, read_lateral
 from scanqa.io.tomlfile import read_toml
 
 __all__ = ["Sweep", "calibrate", "check_sweep", "iter_observations", "load_sweep",
@@ -138,9 +138,7 @@ def check_sweep(sweep: Sweep, config: ScannerConfig) -> None:
 
 
 def _check_scanner_table(sweep: Sweep, config: ScannerConfig) -> None:
-    keys = {"camera_width_px": "width_px", "camera_height_px": "height_px",
-            "camera_pixel_um": "pixel_um", "camera_focal_mm": "focal_mm"}
-    for key, field in keys.items():
+    for key, field in SCANNER_FIELDS.items():
         have = (sweep.scanner or {}).get(key)
         want = getattr(config.camera, field)
         if have is not None and not np.isclose(float(have), float(want), rtol=1e-9):

@@ -9,7 +9,7 @@ from pathlib import Path
 from scanqa.cli.common import add_config_argument, config_from_args, emit
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
-from scanqa.io.sweep import load_sweep, read_stage_readings, sweep_manifest
+from scanqa.io.sweep import load_sweep, read_stage_readings, scanner_table, sweep_manifest
 from scanqa.io.tomlfile import dumps_toml
 
 
@@ -65,11 +65,7 @@ def run(args: argparse.Namespace) -> int:
         markers = sorted(str(p.relative_to(folder)) for p in folder.glob(args.markers))
         if not markers:
             raise InputError(f"--markers {args.markers!r} matches no file in {folder}")
-    scanner = None
-    if getattr(args, "config", None):
-        cam = config_from_args(args).camera
-        scanner = {"camera_width_px": cam.width_px, "camera_height_px": cam.height_px,
-                   "camera_pixel_um": cam.pixel_um, "camera_focal_mm": cam.focal_mm}
+    scanner = scanner_table(config_from_args(args).camera) if args.config else None
     data = sweep_manifest(captures, readings, markers, args.square_mm, decoded, scanner)
     out = Path(args.out) if args.out else folder / "sweep.toml"
     if out.resolve().parent != folder.resolve():

@@ -44,9 +44,11 @@ _TOP = ("format", "description", "position", "target", "scanner")
 _POS = ("z_mm", "phase", "patterns", "lateral", "markers")
 #: Keys of the ``[target]`` table.
 TARGET_KEYS = ("kind", "square_mm", "marker_cells")
+#: The camera fields the ``[scanner]`` table records: key -> ``camera.<field>`` of a config.
+SCANNER_FIELDS = {"camera_width_px": "width_px", "camera_height_px": "height_px",
+                  "camera_pixel_um": "pixel_um", "camera_focal_mm": "focal_mm"}
 #: Keys of the ``[scanner]`` table: the config values the sweep was captured with.
-SCANNER_KEYS = ("config", "camera_width_px", "camera_height_px", "camera_pixel_um",
-                "camera_focal_mm")
+SCANNER_KEYS = ("config", *SCANNER_FIELDS)
 
 
 @dataclass(frozen=True)
@@ -229,6 +231,17 @@ def read_stage_readings(text: str, source: str = "stage readings") -> list[float
     return out
 
 
+def scanner_table(camera, name: str | None = None) -> dict:
+    """The ``[scanner]`` table of a config's ``camera`` section (and its ``name``)."""
+    table = {} if name is None else {"config": name}
+    return table | {key: getattr(camera, field) for key, field in SCANNER_FIELDS.items()}
+
+
+def target_table(square_mm: float) -> dict:
+    """The ``[target]`` table of the marked chessboard with squares of ``square_mm``."""
+    return {"kind": "chessboard", "square_mm": float(square_mm)}
+
+
 def sweep_manifest(captures: list[str], readings: list[float], markers: list[str] | None,
                    square_mm: float | None, decoded: bool, scanner: dict | None = None,
                    description: str = "") -> dict:
@@ -283,6 +296,6 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
     if scanner:
         out["scanner"] = dict(scanner)
     if markers is not None:
-        out["target"] = {"kind": "chessboard", "square_mm": float(square_mm)}
+        out["target"] = target_table(square_mm)
     out["position"] = rows
     return out

@@ -53,6 +53,7 @@ from scanqa.decoding.patternset import write_pattern_set
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path, make_out_dir, staged_dir, write_text
 from scanqa.io.images import write_image
+from scanqa.io.sweep import scanner_table, target_table
 from scanqa.io.tomlfile import dumps_toml as dump_toml
 from scanqa.progress import Progress
 from scanqa.simulator import devices, render, scene, texture
@@ -473,12 +474,9 @@ def _sweep(config: ScannerConfig, pos_list: list[Position], entries: list[dict])
     out = {"format": "scanqa-sweep/1",
            "description": f"simulated flat target, {len(pos_list)} positions, "
                           f"{len(entries) // len(pos_list)} repeats",
-           "scanner": {"config": config.name, "camera_width_px": config.camera.width_px,
-                       "camera_height_px": config.camera.height_px,
-                       "camera_pixel_um": config.camera.pixel_um,
-                       "camera_focal_mm": config.camera.focal_mm}}
+           "scanner": scanner_table(config.camera, config.name)}
     if printed:
-        out["target"] = {"kind": "chessboard", "square_mm": sim.target_square_mm}
+        out["target"] = target_table(sim.target_square_mm)
     out["position"] = rows
     return out
 
