@@ -49,7 +49,7 @@ from scipy.optimize import least_squares  # noqa: E402
 
 from scanqa.calibration.parametric import Lens, ParametricCalibration  # noqa: E402
 from scanqa.calibration.sweep import calibrate, marker_geometry  # noqa: E402
-from scanqa.calibration.target import SweepGeometry  # noqa: E402
+from scanqa.calibration.target import SweepGeometry, plane_to_camera  # noqa: E402
 from scanqa.config import ScannerConfig, load_config  # noqa: E402
 from scanqa.decoding.decoder import decode  # noqa: E402
 from scanqa.io.manifest import read_manifest  # noqa: E402
@@ -125,8 +125,7 @@ def projector_observations(sweep: Sweep, geometry: SweepGeometry
             (uv[:, 1] > 5) & (uv[:, 1] < geometry.camera.height_px - 6)
         maps = [decode(src).xp for src in pos.sources]
         xp = np.nanmean([_xp_at(m, uv[inside]) for m in maps], axis=0)
-        p3 = xy[inside, :1] * geometry.rotation[:, 0] + xy[inside, 1:] * \
-            geometry.rotation[:, 1] + geometry.translation(pos.z_mm)
+        p3 = plane_to_camera(xy[inside], geometry.rotation, geometry.translation(pos.z_mm))
         pts.append(p3[np.isfinite(xp)])
         xps.append(xp[np.isfinite(xp)])
     return np.concatenate(pts), np.concatenate(xps)

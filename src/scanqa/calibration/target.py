@@ -277,6 +277,14 @@ def _rodrigues(rvec: np.ndarray) -> np.ndarray:
     return cv2.Rodrigues(np.asarray(rvec, float))[0]
 
 
+def plane_to_camera(xy: np.ndarray, rotation: np.ndarray, translation: np.ndarray
+                    ) -> np.ndarray:
+    """(n, 2) target-plane points -> (n, 3) camera-frame points [mm]; ``translation`` is
+    the target origin, (3,) or one per point (n, 3)."""
+    xy = np.asarray(xy, float)
+    return xy[:, :1] * rotation[:, 0] + xy[:, 1:2] * rotation[:, 1] + translation
+
+
 def _direction(a: float, b: float) -> np.ndarray:
     """Unit vector from two small angles about the camera axis [-]."""
     v = np.array([math.tan(a), math.tan(b), 1.0])
@@ -335,9 +343,7 @@ class SweepGeometry:
 
     def project(self, target_xy: np.ndarray, stage_mm: float) -> np.ndarray:
         """Sensor coordinates of target-plane points at a stage reading: (n, 2) [px]."""
-        xy = np.asarray(target_xy, float)
-        pts = xy[:, :1] * self.rotation[:, 0] + xy[:, 1:2] * self.rotation[:, 1] \
-            + self.translation(stage_mm)
+        pts = plane_to_camera(target_xy, self.rotation, self.translation(stage_mm))
         return np.stack(self.camera.project(pts), -1)
 
     def plane_points(self, stage_mm: float, width: int, height: int
@@ -379,7 +385,7 @@ def _unpack(p: np.ndarray, fixed_pp: tuple[float, float] | None):
 
 def _residuals(p, fixed_pp, xy, stage, uv, size):
     k, dist, rot, t0, axis = _unpack(p, fixed_pp)
-    pts = xy[:, :1] * rot[:, 0] + xy[:, 1:2] * rot[:, 1] + t0 + stage[:, None] * axis
+    pts = plane_to_camera(xy, rot, t0 + stage[:, None] * axis)
     u, v = Lens(k, dist, *size).project(pts)
     return np.concatenate([u - uv[:, 0], v - uv[:, 1]])
 
