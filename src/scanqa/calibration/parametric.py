@@ -344,7 +344,6 @@ class ParametricCalibration:
         check_rows(xp, row0, self.width_px, self.height_px, whole, "the calibrated camera",
                    f"the calibration {self.source} is for")
 
-
     def _solve(self, x: np.ndarray, y: np.ndarray, xp: np.ndarray, ok: np.ndarray,
                extrapolate: bool = False, out: TableLookup | None = None) -> np.ndarray:
         """Triangulate flat arrays (module notes) in pieces of :data:`PIECE_POINTS`; fill

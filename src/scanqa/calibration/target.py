@@ -251,13 +251,15 @@ def _mapper(m: np.ndarray, off: np.ndarray):
 
 def _consistent(mapping, colours: dict, grid: np.ndarray, valid: np.ndarray,
                 spec: ChessboardSpec) -> bool:
-    """Cell colours match the target and the labelling is not mirrored."""
-    for (c, r), white in colours.items():
+    """A cell's colour matches the target (one cell fixes the parity) and the labelling
+    is not mirrored."""
+    first = next(iter(colours.items()), None)
+    if first is not None:
+        (c, r), white = first
         quad = [mapping(c + dc, r + dr) for dc in (0, 1) for dr in (0, 1)]
         i, j = np.min(quad, axis=0)
         if spec.is_white(int(i), int(j)) != white:
             return False
-        break
     rows, cols = np.nonzero(valid[:-1, :-1] & valid[1:, :-1] & valid[:-1, 1:])
     r, c = rows[0], cols[0]
     e_c, e_r = grid[r, c + 1] - grid[r, c], grid[r + 1, c] - grid[r, c]

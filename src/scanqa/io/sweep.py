@@ -211,13 +211,13 @@ def read_stage_readings(text: str, source: str = "stage readings") -> list[float
     InputError
         A line whose reading is not a finite number (named by its line number).
     """
-    lines = text.splitlines() if "\n" in text.strip() else [v for v in text.split(",")]
+    lines = text.splitlines() if "\n" in text.strip() else text.split(",")
     out = []
     for n, line in enumerate(lines, 1):
         cell = line.split("#", 1)[0].strip()
         if not cell:
             continue
-        last = cell.split(",")[-1].strip() if "\n" in text.strip() else cell
+        last = cell.split(",")[-1].strip()  # a CSV row's last column; a list item itself
         try:
             value = float(last)
         except ValueError:
