@@ -522,14 +522,19 @@ def oblique_factor(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
     with np.errstate(invalid="ignore", divide="ignore"):
         if how == "decoder" and "sigma_phase_um" in attrs and "s_t_um_px" in attrs:
             sensor = _relative(col("sigma_phase_um") / col("s_t_um_px") * amp, frontal)
+            if sensor is None:
+                return np.ones(idx.size)
             parts = ("offset_dn", "modulation_dn", "sigma_scene_um", "sigma_sensor_um")
-            if sensor is None or not all(k in attrs for k in parts):
-                return np.ones(idx.size) if sensor is None else sensor
+            if not all(k in attrs for k in parts):
+                return sensor   # an older cloud: the decoder's sigma alone
+            n2 = col("sigma_sensor_um") ** 2
+            if not np.any(n2 > 0):
+                return sensor   # a one-source reading: the decoder's sigma alone
             scene = _relative(col("offset_dn") / col("modulation_dn") * amp, frontal)
-            s2, n2 = col("sigma_scene_um") ** 2, col("sigma_sensor_um") ** 2
+            if scene is None:
+                return sensor
+            s2 = col("sigma_scene_um") ** 2
             w = s2 / (s2 + n2)
-            if scene is None or not np.any(n2 > 0):
-                return sensor   # a one-source reading: the decoder's sigma, as before
             out = np.sqrt(w * scene**2 + (1.0 - w) * sensor**2)
             return np.where(np.isfinite(out), out, sensor)
         if "modulation_dn" in attrs:
