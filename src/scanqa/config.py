@@ -292,12 +292,15 @@ class SimulatorConfig(_Section):
     Real-hardware realism (see docs/simulator.rst,
     "Distortion, tilted stage, printed target"), all off by default:
     ``camera_k1 .. camera_p2`` and ``projector_k1 .. projector_p2`` are Brown-Conrady
-    (OpenCV) coefficients on normalised pinhole
-    coordinates; ``stage_tilt_deg`` tilts the calibration stage's axis against the camera
-    axis towards ``stage_tilt_azimuth_deg`` (0: +X, 90: +Y); ``target_tilt_deg`` turns the
-    flat about the X axis; ``target = "chessboard"`` prints a marked chessboard of
-    ``target_square_mm`` squares on the flat, of albedo contrast ``target_contrast`` in
-    the marker frame and ``target_fringe_contrast`` under the fringe light.
+    (OpenCV) coefficients on normalised pinhole coordinates;
+    ``camera_cx_offset_px``/``camera_cy_offset_px`` move the camera's principal point off
+    the sensor centre (as on a real camera; the config's ``camera.principal_point_px``
+    stays the nominal centre); ``stage_tilt_deg`` tilts the calibration stage's axis
+    against the camera axis towards ``stage_tilt_azimuth_deg`` (0: +X, 90: +Y);
+    ``target_tilt_deg`` turns the flat about the X axis; ``target = "chessboard"`` prints
+    a marked chessboard of ``target_square_mm`` squares on the flat, of albedo contrast
+    ``target_contrast`` in the marker frame and ``target_fringe_contrast`` under the
+    fringe light.
     """
 
     section: ClassVar[str] = "simulator"
@@ -321,6 +324,8 @@ class SimulatorConfig(_Section):
     camera_k2: float = _spec("", ge=-5000, le=5000, default=0.0)
     camera_p1: float = _spec("", ge=-1, le=1, default=0.0)
     camera_p2: float = _spec("", ge=-1, le=1, default=0.0)
+    camera_cx_offset_px: float = _spec("px", ge=-1000, le=1000, default=0.0)
+    camera_cy_offset_px: float = _spec("px", ge=-1000, le=1000, default=0.0)
     projector_k1: float = _spec("", ge=-50, le=50, default=0.0)
     projector_k2: float = _spec("", ge=-5000, le=5000, default=0.0)
     projector_p1: float = _spec("", ge=-1, le=1, default=0.0)

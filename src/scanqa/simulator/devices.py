@@ -99,6 +99,14 @@ def sensor_window(config: ScannerConfig) -> Window:
     return Window((cam.width_px - w) // 2, (cam.height_px - h) // 2, w, h)
 
 
+def camera_principal_point(config: ScannerConfig) -> tuple[float, float]:
+    """The simulated camera's principal point: the sensor centre plus ``[simulator]
+    camera_cx_offset_px, camera_cy_offset_px`` [px]."""
+    u0, v0 = config.camera.principal_point_px
+    sim = config.simulator
+    return u0 + sim.camera_cx_offset_px, v0 + sim.camera_cy_offset_px
+
+
 def distortion(config: ScannerConfig, device: str) -> tuple[float, float, float, float]:
     """(k1, k2, p1, p2) of ``device`` ("camera" or "projector") from ``[simulator]`` [-]."""
     sim = config.simulator
@@ -154,7 +162,7 @@ def project_to_camera(config: ScannerConfig, pose: Pose, points: np.ndarray
     """Sensor coordinates (u, v) of world points, with the camera's distortion [px]."""
     q = pose.to_device(points)
     f = config.camera.principal_distance_px
-    u0, v0 = config.camera.principal_point_px
+    u0, v0 = camera_principal_point(config)
     with np.errstate(divide="ignore", invalid="ignore"):
         xd, yd = distort(distortion(config, "camera"), q[..., 0] / q[..., 2],
                          q[..., 1] / q[..., 2])
@@ -180,7 +188,7 @@ def camera_rays(config: ScannerConfig, pose: Pose, u: np.ndarray, v: np.ndarray
         Ray origin (the lens centre) [mm] and unnormalised direction with unit device Z.
     """
     f = config.camera.principal_distance_px
-    u0, v0 = config.camera.principal_point_px
+    u0, v0 = camera_principal_point(config)
     x, y = undistort(distortion(config, "camera"), (np.asarray(u, float) - u0) / f,
                      (np.asarray(v, float) - v0) / f)
     d_cam = np.stack(np.broadcast_arrays(x, y, 1.0), axis=-1)
