@@ -1,7 +1,7 @@
 """Where the marker-derived geometry's error comes from (simulated): oracle experiments.
 
 On the acceptance sweep of ``acceptance_calibration.py`` (whose simulator truth is
-known), the sweep geometry (:mod:`scanqa.calibration.target`) is fitted with parts of it
+known), the sweep geometry (:mod:`scanqa.calibration.sweep_fit`) is fitted with parts of it
 replaced by the truth, and each variant's target-plane points (the X, Y, Z the table is
 built with) are compared with the simulator's truth maps of the sweep: RMS in the camera
 frame, after one rigid registration (as the acceptance) and the range of the mean
@@ -30,6 +30,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 import acceptance_calibration as acc
 from scipy.optimize import least_squares
 
+from scanqa.calibration import sweep_fit as sf
 from scanqa.calibration import target as tg
 from scanqa.calibration.parametric import Lens
 from scanqa.io.images import read_image
@@ -74,7 +75,7 @@ class Setup:
         cam = self.cfg.camera
         frame = texture.target_frame(self.cfg, self.ref)
         d = texture.stage_axis(self.cfg)
-        return np.array([cam.principal_distance_px, *cam.principal_point_px,
+        return np.array([cam.principal_distance_px, *devices.camera_principal_point(self.cfg),
                          *devices.distortion(self.cfg, "camera"),
                          *cv2.Rodrigues(frame.axes.T)[0].ravel(), *frame.origin,
                          math.atan2(d[0], d[2]), math.atan2(d[1], d[2])])
@@ -94,7 +95,7 @@ class Setup:
         def res(q):
             p = p0.copy()
             p[free] = q
-            return tg._residuals(p, None, xy, st, uv, self.size)
+            return sf._residuals(p, None, xy, st, uv, self.size)
 
         out = least_squares(res, p0[free], x_scale="jac", method="lm")
         p = p0.copy()
@@ -104,9 +105,9 @@ class Setup:
         std[free] = np.sqrt(np.diag(np.linalg.inv(out.jac.T @ out.jac)) * s2)
         return p, std
 
-    def geometry(self, p) -> tg.SweepGeometry:
-        k, dist, rot, t0, axis = tg._unpack(p, None)
-        return tg.SweepGeometry(Lens(k, dist, *self.size), rot, np.asarray(t0), axis,
+    def geometry(self, p) -> sf.SweepGeometry:
+        k, dist, rot, t0, axis = sf._unpack(p, None)
+        return sf.SweepGeometry(Lens(k, dist, *self.size), rot, np.asarray(t0), axis,
                                 self.ref, 0.0)
 
     def points(self, p, step: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -181,7 +182,7 @@ def propagation(s: Setup, sigma_px: float) -> dict:
     p0 = s.oracle()
     free = np.nonzero(PP_HELD)[0]
     xy, st, uv = s.arrays(s.exact)
-    base_r = tg._residuals(p0, None, xy, st, uv, s.size)
+    base_r = sf._residuals(p0, None, xy, st, uv, s.size)
     base_f, _, _ = s.points(p0, step=8)
     n = len(base_f)
     rigid = []
@@ -195,7 +196,7 @@ def propagation(s: Setup, sigma_px: float) -> dict:
         p = p0.copy()
         h = 1e-6 * max(1.0, abs(p0[k]) * 1e-2)
         p[k] += h
-        jac.append((tg._residuals(p, None, xy, st, uv, s.size) - base_r) / h)
+        jac.append((sf._residuals(p, None, xy, st, uv, s.size) - base_r) / h)
         f = ((s.points(p, step=8)[0] - base_f) / h).ravel()
         field.append(f - q @ (q.T @ f))
     jac, field = np.array(jac).T, np.array(field).T

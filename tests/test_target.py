@@ -14,12 +14,8 @@ import numpy as np
 import pytest
 
 from scanqa.calibration.sweep import calibrate, check_scale, check_sweep
-from scanqa.calibration.target import (
-    ChessboardSpec,
-    Detection,
-    detect_chessboard,
-    fit_sweep_geometry,
-)
+from scanqa.calibration.sweep_fit import fit_sweep_geometry
+from scanqa.calibration.target import ChessboardSpec, Detection, detect_chessboard
 from scanqa.cli import main
 from scanqa.config import load_config
 from scanqa.errors import InputError
@@ -91,6 +87,29 @@ def test_detector_subpixel_against_truth(cfg, z):
     assert err.size > 120  # most of the ~15 x 12 inner corners in view
     assert np.sqrt(np.mean(err**2)) <= 0.05
     assert err.max() < 0.2  # every corner labelled right (a wrong label is >= 17 px off)
+
+
+def test_marker_cell_corners_left_out(cfg):
+    """The eight corners of the marker cells are not returned, and the reason holds: the
+    refinement started at their exact positions drifts far more than at the others (the
+    dots break the corner's point symmetry)."""
+    from scanqa.calibration.target import refine_corners
+
+    fine = cfg.replace_simulator(target_square_mm=2.0)
+    pos = build_positions("calibration-sweep", fine, [450.0])[0]
+    image = render.render_marker_frame(fine, acquisition(fine, pos, 0, "calibration-sweep"))
+    det = detect_chessboard(image, ChessboardSpec(2.0), "z=450")
+    ij = {tuple(c) for c in np.round(det.target_points / 2.0).astype(int).tolist()}
+    marker_corners = {(0, 0), (1, 0), (0, 1), (1, 1), (0, 2), (1, 2), (2, 1), (2, 2)}
+    assert not ij & marker_corners
+    assert {(-1, 0), (3, 1), (2, 3), (0, -1)} <= ij  # their neighbours stay
+    grid = np.array([*sorted(marker_corners), (-2, -2), (4, 4), (-3, 3), (3, -3)], float)
+    truth = _corner_truth(fine, 450.0, grid * 2.0)
+    drift = np.hypot(*(refine_corners(image, truth)[0] - truth).T)
+    print(f"\n[target] drift at marker corners {np.round(drift[:8], 3)} px, "
+          f"elsewhere {np.round(drift[8:], 3)} px")
+    rms = [np.sqrt(np.mean(d ** 2)) for d in (drift[:8], drift[8:])]
+    assert rms[0] > 0.2 and rms[0] > 4 * rms[1]
 
 
 def test_geometry_recovers_stage_and_target_tilt(cfg):

@@ -3,7 +3,7 @@ and repeat, loaded (or decoded) one at a time (:mod:`scanqa.io.sweep` reads the 
 
 A sweep with marker frames (``markers`` on every position and a ``[target]`` table) gets
 its lateral geometry from the printed target: :func:`marker_geometry` detects it in every
-marker frame and fits the camera and the stage (:mod:`scanqa.calibration.target`), and
+marker frame and fits the camera and the stage (:mod:`scanqa.calibration.sweep_fit`), and
 each observation carries the X, Y, Z of the target plane per pixel.
 
 Before anything is built, :func:`check_sweep` compares the sweep with the config: the
@@ -23,13 +23,9 @@ import numpy as np
 
 from scanqa import optics
 from scanqa.calibration.build import BuildReport, PlaneObservation, build_table, check_camera_size
+from scanqa.calibration.sweep_fit import SweepGeometry, fit_sweep_geometry
 from scanqa.calibration.table import CalibrationTable
-from scanqa.calibration.target import (
-    ChessboardSpec,
-    SweepGeometry,
-    detect_chessboard,
-    fit_sweep_geometry,
-)
+from scanqa.calibration.target import ChessboardSpec, detect_chessboard
 from scanqa.config import ScannerConfig, first_difference
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError

@@ -1,0 +1,347 @@
+"""The sweep's geometry from the marked target: camera and rigid stage.
+
+:func:`fit_sweep_geometry` fits, to the labelled corners of every marker frame of a sweep
+(:func:`scanqa.calibration.target.detect_chessboard`), one camera (focal length,
+principal point, Brown-Conrady k1 k2 p1 p2; square pixels, no skew) and the target's pose
+at every position, constrained to a rigid stage: one rotation (the target's tilt) and a
+translation that moves along one straight axis by the stage readings. The stage axis and
+the target's tilt are estimated, not assumed.
+
+Two steps beyond a plain least-squares fit, each from the sweep's own data:
+
+* the principal point is fitted starting from the fit that holds it at the sensor
+  centre, and kept when a profile-likelihood test says the data pin it to
+  +-:data:`PRINCIPAL_POINT_LIMIT_PX` (else it is held at the centre, and the result says
+  so: ``principal_point_fitted``);
+* the corners' pixel locking (an error periodic in the pixel grid, which the smooth
+  camera model cannot produce) is estimated from the fit's misfit and removed
+  (:func:`pixel_locking`), then the fit is repeated.
+
+:meth:`SweepGeometry.plane_points` gives, per pixel, the 3-D point of the target plane it
+sees at a stage reading (pose + distortion): the lateral X, Y, Z that the calibration
+table is built with (:mod:`scanqa.calibration.sweep`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scanqa.calibration.parametric import Lens
+from scanqa.calibration.target import Detection
+from scanqa.config import ScannerConfig
+from scanqa.errors import InputError
+
+#: Half-width of the 95 % profile interval within which the sweep must pin the principal
+#: point for it to count as fitted [px] (else it is held at the sensor centre).
+PRINCIPAL_POINT_LIMIT_PX = 1.0
+
+
+def _rodrigues(rvec: np.ndarray) -> np.ndarray:
+    import cv2
+
+    return cv2.Rodrigues(np.asarray(rvec, float))[0]
+
+
+def plane_to_camera(xy: np.ndarray, rotation: np.ndarray, translation: np.ndarray
+                    ) -> np.ndarray:
+    """(n, 2) target-plane points -> (n, 3) camera-frame points [mm]; ``translation`` is
+    the target origin, (3,) or one per point (n, 3)."""
+    xy = np.asarray(xy, float)
+    return xy[:, :1] * rotation[:, 0] + xy[:, 1:2] * rotation[:, 1] + translation
+
+
+def _direction(a: float, b: float) -> np.ndarray:
+    """Unit vector from two small angles about the camera axis [-]."""
+    v = np.array([math.tan(a), math.tan(b), 1.0])
+    return v / np.linalg.norm(v)
+
+
+@dataclass(frozen=True)
+class SweepGeometry:
+    """Camera and rigid-stage geometry fitted to a marked sweep (module notes).
+
+    Attributes
+    ----------
+    camera : Lens
+        Camera matrix and distortion (k1 k2 p1 p2 0) [px], [-].
+    rotation : (3, 3) float
+        Target -> camera rotation; its third column is the target's normal [-].
+    origin_mm : (3,) float
+        Target origin in the camera frame at stage reading ``stage_ref_mm`` [mm].
+    axis : (3,) float
+        Stage direction in the camera frame (unit, + with the readings) [-].
+    stage_ref_mm : float
+        The reading at which ``origin_mm`` holds [mm].
+    rms_px : float
+        RMS reprojection error of all corners [px].
+    plane_rms_px : dict
+        RMS reprojection error per stage reading [px].
+    principal_point_fitted : bool
+        Whether the sweep identified the principal point (else: the sensor centre).
+    std : dict
+        Standard deviations of the main parameters from the fit's covariance.
+    locking_px : float
+        RMS of the pixel-locking correction applied to the corners [px].
+    """
+
+    camera: Lens
+    rotation: np.ndarray
+    origin_mm: np.ndarray
+    axis: np.ndarray
+    stage_ref_mm: float
+    rms_px: float
+    plane_rms_px: dict = field(default_factory=dict)
+    principal_point_fitted: bool = True
+    std: dict = field(default_factory=dict)
+    locking_px: float = 0.0
+
+    def translation(self, stage_mm: float) -> np.ndarray:
+        """Target origin in the camera frame at a stage reading [mm]."""
+        return self.origin_mm + (float(stage_mm) - self.stage_ref_mm) * self.axis
+
+    @property
+    def stage_tilt_deg(self) -> float:
+        """Angle between the stage axis and the camera axis [deg]."""
+        return math.degrees(math.acos(min(1.0, abs(float(self.axis[2])))))
+
+    @property
+    def target_tilt_deg(self) -> float:
+        """Angle between the target's normal and the camera axis [deg]."""
+        return math.degrees(math.acos(min(1.0, abs(float(self.rotation[2, 2])))))
+
+    def project(self, target_xy: np.ndarray, stage_mm: float) -> np.ndarray:
+        """Sensor coordinates of target-plane points at a stage reading: (n, 2) [px]."""
+        pts = plane_to_camera(target_xy, self.rotation, self.translation(stage_mm))
+        return np.stack(self.camera.project(pts), -1)
+
+    def plane_points(self, stage_mm: float, width: int, height: int
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """X, Y, Z maps [mm] of the target plane seen by every pixel at a stage reading.
+
+        Each pixel's ray (undistorted) meets the plane of the target's pose; NaN where
+        the undistortion fails.
+        """
+        v, u = np.mgrid[0:height, 0:width].astype(float)
+        x, y, ok = self.camera.undistort(u, v)
+        n = self.rotation[:, 2]
+        lam = (n @ self.translation(stage_mm)) / (n[0] * x + n[1] * y + n[2])
+        lam = np.where(ok, lam, np.nan)
+        return lam * x, lam * y, lam
+
+    def summary(self) -> dict:
+        """Plain numbers for reports."""
+        k = self.camera.matrix
+        return {"focal_px": float(k[0, 0]), "principal_point_px": [float(k[0, 2]),
+                                                                   float(k[1, 2])],
+                "principal_point_fitted": self.principal_point_fitted,
+                "distortion_k1_k2_p1_p2": [float(v) for v in self.camera.distortion[:4]],
+                "stage_axis": [float(v) for v in self.axis],
+                "stage_tilt_deg": self.stage_tilt_deg,
+                "target_tilt_deg": self.target_tilt_deg, "rms_px": self.rms_px,
+                "locking_px": self.locking_px, "std": dict(self.std)}
+
+
+def _unpack(p: np.ndarray, fixed_pp: tuple[float, float] | None):
+    """Parameters -> (K, dist, R, t0, axis)."""
+    if fixed_pp is not None:
+        p = np.concatenate([p[:1], fixed_pp, p[1:]])
+    f, cx, cy = p[:3]
+    k = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
+    dist = np.array([*p[3:7], 0.0])
+    return k, dist, _rodrigues(p[7:10]), p[10:13], _direction(p[13], p[14])
+
+
+def _residuals(p, fixed_pp, xy, stage, uv, size):
+    """Model - observed corners, u then v [px]."""
+    k, dist, rot, t0, axis = _unpack(p, fixed_pp)
+    pts = plane_to_camera(xy, rot, t0 + stage[:, None] * axis)
+    u, v = Lens(k, dist, *size).project(pts)
+    return np.concatenate([u - uv[:, 0], v - uv[:, 1]])
+
+
+def fit_sweep_geometry(detections: list[Detection], stage_mm: list[float],
+                       config: ScannerConfig, width: int, height: int) -> SweepGeometry:
+    """Fit the camera and the rigid stage to the labelled corners of a sweep.
+
+    The principal point is fitted from the fit that holds it at the sensor centre (a
+    start away from the valley's far ends, docs/calibration.rst) and kept when the sweep
+    pins it (:func:`_principal_point_identified`); the corners' pixel locking is
+    estimated from the fit's misfit and removed (:func:`pixel_locking`), then the fit is
+    repeated.
+
+    Parameters
+    ----------
+    detections : list of Detection
+        One per stage position.
+    stage_mm : list of float
+        The stage reading of each [mm].
+    config : ScannerConfig
+        Starting values (focal length, pixel size) only.
+    width, height : int
+        Image size [px].
+
+    Returns
+    -------
+    SweepGeometry
+
+    Raises
+    ------
+    InputError
+        Fewer than 3 positions, or a fit that does not converge to sub-pixel residuals.
+    """
+    from scipy.optimize import least_squares
+
+    if len(detections) < 3:
+        raise InputError(f"the marked target was found at {len(detections)} positions; the "
+                         "sweep's geometry needs at least 3")
+    ref = 0.5 * (min(stage_mm) + max(stage_mm))
+    xy = np.concatenate([d.target_points for d in detections])
+    uv = np.concatenate([d.image_points for d in detections])
+    counts = [len(d.target_points) for d in detections]
+    stage = np.repeat(np.asarray(stage_mm, float) - ref, counts)
+    groups = np.repeat(np.arange(len(detections)), counts)
+    p0 = _start(detections, stage_mm, ref, config, width, height)
+    centre = ((width - 1) / 2.0, (height - 1) / 2.0)
+    args = (xy, stage, uv, (width, height))
+    held = least_squares(_residuals, np.concatenate([p0[:1], p0[3:]]),
+                         args=(centre, *args), x_scale="jac", method="lm")
+    free = least_squares(_residuals, np.concatenate([held.x[:1], centre, held.x[1:]]),
+                         args=(None, *args), x_scale="jac", method="lm")
+    for _ in range(LOCKING_PASSES):
+        locking = pixel_locking(-free.fun.reshape(2, -1).T + (uv - args[2]), uv, groups)
+        args = (xy, stage, uv - locking, (width, height))
+        free = least_squares(_residuals, free.x, args=(None, *args), x_scale="jac",
+                             method="lm")
+    lock_rms = float(np.sqrt(np.mean(np.sum(locking**2, axis=1))))
+    if _principal_point_identified(free, args):
+        return _geometry(free, None, detections, stage_mm, ref, width, height,
+                         _std(free), lock_rms)
+    held = least_squares(_residuals, held.x, args=(centre, *args), x_scale="jac",
+                         method="lm")
+    return _geometry(held, centre, detections, stage_mm, ref, width, height,
+                     np.insert(_std(held), 1, [0.0, 0.0]), lock_rms)
+
+
+#: Harmonics of the pixel-locking model and the passes of its estimate (module notes).
+LOCKING_HARMONICS, LOCKING_PASSES = 2, 2
+
+
+def pixel_locking(misfit: np.ndarray, uv: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """The corners' pixel-locking error, estimated from the fit's misfit, (n, 2) [px].
+
+    A sub-pixel corner is pulled towards (or away from) pixel centres by an amount that
+    depends on where it falls within its pixel. Per position (``groups``) and
+    coordinate, the misfit (observed - model) is regressed on sines and cosines of
+    2 pi h f, h = 1 .. :data:`LOCKING_HARMONICS`, f = u - round(u) (resp. v): that
+    part is periodic in the pixel grid, which the smooth camera model cannot produce,
+    so it is the detector's and is removed from the corners.
+
+    Parameters
+    ----------
+    misfit : (n, 2) float
+        Observed minus modelled corners [px].
+    uv : (n, 2) float
+        Observed corners [px].
+    groups : (n,) int
+        Position of each corner.
+    """
+    out = np.zeros_like(uv)
+    h = np.arange(1, LOCKING_HARMONICS + 1)
+    for g in np.unique(groups):
+        m = groups == g
+        for a in range(2):
+            t = 2 * np.pi * np.outer(uv[m, a] - np.round(uv[m, a]), h)
+            basis = np.column_stack([np.sin(t), np.cos(t)])
+            if len(basis) <= 4 * basis.shape[1]:
+                continue  # too few corners to tell locking from noise
+            coef = np.linalg.lstsq(basis, misfit[m, a], rcond=None)[0]
+            out[m, a] = basis @ coef
+    return out
+
+
+#: 95 % quantile of chi-square with 1 degree of freedom [-].
+_CHI2_95_1DOF = 3.841
+
+
+def _principal_point_identified(free, args) -> bool:
+    """Whether the sweep pins the principal point to +-:data:`PRINCIPAL_POINT_LIMIT_PX`.
+
+    Profile likelihood, not the Jacobian's standard deviation: the principal point, the
+    tangential distortion and the stage axis trade along a curved valley in a narrow
+    field of view, where the linearised std can say 0.3 px while the valley runs 13 px
+    (simulated, docs/calibration.rst). The point is held at each of
+    ``pp +- limit`` along u and along v, the rest refitted; it is identified when every
+    one of the four raises the residual sum of squares by more than the 95 % quantile
+    of chi-square(1) times the residual variance.
+    """
+    from scipy.optimize import least_squares
+
+    dof = max(free.fun.size - free.x.size, 1)
+    s2 = float(free.fun @ free.fun) / dof
+    rest = np.concatenate([free.x[:1], free.x[3:]])
+    for axis in (0, 1):
+        for sign in (-1.0, 1.0):
+            pp = free.x[1:3].copy()
+            pp[axis] += sign * PRINCIPAL_POINT_LIMIT_PX
+            fit = least_squares(_residuals, rest, args=(tuple(pp), *args), x_scale="jac",
+                                method="lm")
+            if float(fit.fun @ fit.fun - free.fun @ free.fun) < _CHI2_95_1DOF * s2:
+                return False
+    return True
+
+
+def _std(fit) -> np.ndarray:
+    """Parameter standard deviations from the Jacobian, scaled by the residual RMS."""
+    j = fit.jac
+    dof = max(j.shape[0] - j.shape[1], 1)
+    s2 = float(fit.fun @ fit.fun) / dof
+    try:
+        cov = np.linalg.inv(j.T @ j) * s2
+    except np.linalg.LinAlgError:
+        return np.full(j.shape[1], np.inf)
+    return np.sqrt(np.abs(np.diag(cov)))
+
+
+def _start(detections, stage_mm, ref, config, width, height) -> np.ndarray:
+    """Starting parameters: the config's pinhole and two PnP poses."""
+    import cv2
+
+    f = config.camera.principal_distance_px
+    k = np.array([[f, 0, (width - 1) / 2.0], [0, f, (height - 1) / 2.0], [0, 0, 1.0]])
+    poses = []
+    for d in (detections[0], detections[-1]):
+        obj = np.column_stack([d.target_points, np.zeros(len(d.target_points))])
+        ok, rvec, tvec = cv2.solvePnP(obj, d.image_points, k, None)
+        if not ok:
+            raise InputError(f"{d.source}: cannot estimate the target's pose")
+        poses.append((rvec.ravel(), tvec.ravel()))
+    s0, s1 = stage_mm[0], stage_mm[-1]
+    axis = (poses[1][1] - poses[0][1]) / (s1 - s0)
+    t_ref = poses[0][1] + (ref - s0) * axis
+    axis = axis / np.linalg.norm(axis)
+    angles = [math.atan2(axis[0], axis[2]), math.atan2(axis[1], axis[2])]
+    return np.array([f, k[0, 2], k[1, 2], 0, 0, 0, 0, *poses[0][0], *t_ref, *angles])
+
+
+def _geometry(fit, fixed_pp, detections, stage_mm, ref, width, height, std,
+              locking_px: float = 0.0) -> SweepGeometry:
+    k, dist, rot, t0, axis = _unpack(fit.x, fixed_pp)
+    res = fit.fun.reshape(2, -1)
+    err = np.hypot(res[0], res[1])
+    rms = float(np.sqrt(np.mean(err**2)))
+    if not rms < 1.0:
+        raise InputError(f"the marked sweep does not fit one camera on a straight stage "
+                         f"(RMS reprojection error {rms:.2f} px): check the stage readings "
+                         "and that the target did not move on the stage")
+    per, start = {}, 0
+    for d, s in zip(detections, stage_mm, strict=True):
+        n = len(d.target_points)
+        per[float(s)] = float(np.sqrt(np.mean(err[start:start + n] ** 2)))
+        start += n
+    names = ("focal_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2")
+    return SweepGeometry(Lens(k, dist, width, height), rot, np.asarray(t0, float), axis,
+                         float(ref), rms, per, fixed_pp is None,
+                         {n: float(s) for n, s in zip(names, std, strict=False)}, locking_px)
