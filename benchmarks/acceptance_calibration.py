@@ -8,7 +8,7 @@ a target tilted 2 deg, a printed marked chessboard - scans a plane sweep (27 pos
 
 (a) the table with the marker-derived lateral geometry (``scanqa calibrate``);
 (b) a pinhole + distortion parametric calibration of the same sweep: the camera as
-    fitted to the marker corners (:mod:`scanqa.calibration.target`), the projector fitted
+    fitted to the marker corners (:mod:`scanqa.calibration.sweep_fit`), the projector fitted
     to the decoded x_p at the corners (pinhole + k1 k2 p1 p2, by least squares on
     ``cv2.projectPoints``), triangulated by :mod:`scanqa.calibration.parametric`;
 (c) the table with today's lateral: the config's ideal pinhole, Z = the stage reading
@@ -24,7 +24,7 @@ along the line of sight over the hold-out range.
 Usage::
 
     python benchmarks/acceptance_calibration.py [--out DIR] [--quick]
-        [--config calib/paper_scanner.toml --profile f11]
+        [--config calib/paper_scanner.toml --profile f11] [--square-mm MM] [--seed N]
 
 Simulation results are cached in DIR (default ``acceptance_calibration_data``). At the
 paper's full resolution (``--config calib/paper_scanner.toml --profile f11``) a scan
@@ -49,7 +49,7 @@ from scipy.optimize import least_squares  # noqa: E402
 
 from scanqa.calibration.parametric import Lens, ParametricCalibration  # noqa: E402
 from scanqa.calibration.sweep import calibrate, marker_geometry  # noqa: E402
-from scanqa.calibration.target import SweepGeometry, plane_to_camera  # noqa: E402
+from scanqa.calibration.sweep_fit import SweepGeometry, plane_to_camera  # noqa: E402
 from scanqa.config import ScannerConfig, load_config  # noqa: E402
 from scanqa.decoding.decoder import decode  # noqa: E402
 from scanqa.io.manifest import read_manifest  # noqa: E402
@@ -60,6 +60,7 @@ SAMPLE = ROOT / "sample_data" / "sample_scanner.toml"
 SWEEP_Z = [float(z) for z in np.arange(424.0, 477.0, 2.0)]
 HOLDOUT_Z = [425.0, 431.0, 437.0, 443.0, 449.0, 455.0, 461.0, 467.0, 475.0]
 REALISM = {"camera_k1": -2.6, "projector_k1": -0.05, "projector_p1": 2e-4,
+           "camera_cx_offset_px": 5.0, "camera_cy_offset_px": -3.0,
            "stage_tilt_deg": 1.0, "stage_tilt_azimuth_deg": 30.0, "target_tilt_deg": 2.0,
            "target": "chessboard", "target_square_mm": 4.0}
 
@@ -73,13 +74,16 @@ def scanner(config: Path = SAMPLE, profile: str | None = "sample",
     return load_config(config, profile=profile).replace_simulator(**realism)
 
 
-def simulate(out: Path, quick: bool, cfg: ScannerConfig) -> dict[str, Path]:
-    """Simulate (or reuse) the sweep, the hold-out planes and the gauge scans."""
+def simulate(out: Path, quick: bool, cfg: ScannerConfig, seed: int = 0) -> dict[str, Path]:
+    """Simulate (or reuse) the sweep, the hold-out planes and the gauge scans; ``seed``
+    > 0 gives all three fresh noise (a second, independent run of the same scanner)."""
     zs = SWEEP_Z[::2] if quick else SWEEP_Z
-    runs = {"sweep": ("calibration-sweep", cfg, zs, 1 if quick else 2),
-            "holdout": ("calibration-sweep", cfg.replace_simulator(seed=901),
+    shift = 10 * seed
+    runs = {"sweep": ("calibration-sweep", cfg.replace_simulator(
+                seed=cfg.simulator.seed + shift), zs, 1 if quick else 2),
+            "holdout": ("calibration-sweep", cfg.replace_simulator(seed=901 + shift),
                         HOLDOUT_Z[1::3] if quick else HOLDOUT_Z, 2 if quick else 4),
-            "gauge": ("gauge-blocks", cfg.replace_simulator(seed=902), None,
+            "gauge": ("gauge-blocks", cfg.replace_simulator(seed=902 + shift), None,
                       2 if quick else 6)}
     done = {}
     for key, (name, config, positions, repeats) in runs.items():
@@ -296,10 +300,13 @@ def main(argv: list[str] | None = None) -> int:
                              "calib/paper_scanner.toml is the paper's full-resolution camera)")
     parser.add_argument("--square-mm", type=float, default=None,
                         help="the printed chessboard's square [mm] (default 4)")
+    parser.add_argument("--seed", type=int, default=0,
+                        help="> 0: fresh noise for sweep, hold-out and gauge scans (an "
+                             "independent repetition of the run; default 0)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     cfg = scanner(args.config, args.profile, args.square_mm)
-    folders = simulate(out, args.quick, cfg)
+    folders = simulate(out, args.quick, cfg, args.seed)
     if args.simulate_only:
         return 0
     result = evaluate(cfg, folders)
