@@ -95,7 +95,7 @@ class Setup:
         def res(q):
             p = p0.copy()
             p[free] = q
-            return sf._residuals(p, None, xy, st, uv, self.size)
+            return sf._residuals(p, xy, st, uv, self.size)
 
         out = least_squares(res, p0[free], x_scale="jac", method="lm")
         p = p0.copy()
@@ -106,7 +106,7 @@ class Setup:
         return p, std
 
     def geometry(self, p) -> sf.SweepGeometry:
-        k, dist, rot, t0, axis = sf._unpack(p, None)
+        k, dist, rot, t0, axis = sf._unpack(p)
         return sf.SweepGeometry(Lens(k, dist, *self.size), rot, np.asarray(t0), axis,
                                 self.ref, 0.0)
 
@@ -182,7 +182,7 @@ def propagation(s: Setup, sigma_px: float) -> dict:
     p0 = s.oracle()
     free = np.nonzero(PP_HELD)[0]
     xy, st, uv = s.arrays(s.exact)
-    base_r = sf._residuals(p0, None, xy, st, uv, s.size)
+    base_r = sf._residuals(p0, xy, st, uv, s.size)
     base_f, _, _ = s.points(p0, step=8)
     n = len(base_f)
     rigid = []
@@ -196,7 +196,7 @@ def propagation(s: Setup, sigma_px: float) -> dict:
         p = p0.copy()
         h = 1e-6 * max(1.0, abs(p0[k]) * 1e-2)
         p[k] += h
-        jac.append((sf._residuals(p, None, xy, st, uv, s.size) - base_r) / h)
+        jac.append((sf._residuals(p, xy, st, uv, s.size) - base_r) / h)
         f = ((s.points(p, step=8)[0] - base_f) / h).ravel()
         field.append(f - q @ (q.T @ f))
     jac, field = np.array(jac).T, np.array(field).T

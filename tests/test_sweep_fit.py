@@ -69,6 +69,24 @@ def test_principal_point_held_when_the_data_cannot_pin_it(cfg):
     assert geo.std["cx_px"] == 0.0
 
 
+@pytest.mark.parametrize("p1", [0.0, 3e-3])
+def test_decentring_kept_only_when_the_corners_need_it(cfg, p1):
+    """Without tangential distortion in the simulated lens the likelihood-ratio test
+    drops p1, p2 (they would trade against the principal point); with p1 = 3e-3 (10
+    times what the sweep resolves) it keeps them and the corners fit to their noise.
+    The split between decentring, principal point and stage axis is then not pinned
+    (docs/calibration.rst): the point is reported as not fitted."""
+    lens = cfg.replace_simulator(camera_p1=p1)
+    zs = [float(z) for z in np.arange(424.0, 477.0, 4.0)]
+    geo = fit_sweep_geometry(_sweep(lens, 0.02, zs), zs, lens, 306, 256)
+    assert geo.decentring_fitted == (p1 > 0)
+    assert geo.rms_px == pytest.approx(0.02 * np.sqrt(2), rel=0.1)
+    if p1 > 0:
+        assert not geo.principal_point_fitted
+    else:
+        assert geo.camera.distortion[2] == 0.0 and geo.std["p1"] == 0.0
+
+
 def test_pixel_locking_recovers_a_grid_periodic_error():
     """Misfit = a locking term periodic in the pixel grid + a smooth trend + noise: the
     estimate returns the periodic part (to 0.002 px RMS) and leaves the trend alone."""

@@ -85,6 +85,8 @@ class SweepGeometry:
         Standard deviations of the main parameters from the fit's covariance.
     locking_px : float
         RMS of the pixel-locking correction applied to the corners [px].
+    decentring_fitted : bool
+        Whether the corners needed the tangential distortion p1, p2 (else held at 0).
     """
 
     camera: Lens
@@ -97,6 +99,7 @@ class SweepGeometry:
     principal_point_fitted: bool = True
     std: dict = field(default_factory=dict)
     locking_px: float = 0.0
+    decentring_fitted: bool = True
 
     def translation(self, stage_mm: float) -> np.ndarray:
         """Target origin in the camera frame at a stage reading [mm]."""
@@ -137,6 +140,7 @@ class SweepGeometry:
         return {"focal_px": float(k[0, 0]), "principal_point_px": [float(k[0, 2]),
                                                                    float(k[1, 2])],
                 "principal_point_fitted": self.principal_point_fitted,
+                "decentring_fitted": self.decentring_fitted,
                 "distortion_k1_k2_p1_p2": [float(v) for v in self.camera.distortion[:4]],
                 "stage_axis": [float(v) for v in self.axis],
                 "stage_tilt_deg": self.stage_tilt_deg,
@@ -144,19 +148,18 @@ class SweepGeometry:
                 "locking_px": self.locking_px, "std": dict(self.std)}
 
 
-def _unpack(p: np.ndarray, fixed_pp: tuple[float, float] | None):
-    """Parameters -> (K, dist, R, t0, axis)."""
-    if fixed_pp is not None:
-        p = np.concatenate([p[:1], fixed_pp, p[1:]])
+def _unpack(p: np.ndarray):
+    """Parameters (f, cx, cy, k1, k2, p1, p2, rotation, origin, axis) -> (K, dist, R, t0,
+    axis)."""
     f, cx, cy = p[:3]
     k = np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]])
     dist = np.array([*p[3:7], 0.0])
     return k, dist, _rodrigues(p[7:10]), p[10:13], _direction(p[13], p[14])
 
 
-def _residuals(p, fixed_pp, xy, stage, uv, size):
+def _residuals(p, xy, stage, uv, size):
     """Model - observed corners, u then v [px]."""
-    k, dist, rot, t0, axis = _unpack(p, fixed_pp)
+    k, dist, rot, t0, axis = _unpack(p)
     pts = plane_to_camera(xy, rot, t0 + stage[:, None] * axis)
     u, v = Lens(k, dist, *size).project(pts)
     return np.concatenate([u - uv[:, 0], v - uv[:, 1]])
@@ -166,11 +169,12 @@ def fit_sweep_geometry(detections: list[Detection], stage_mm: list[float],
                        config: ScannerConfig, width: int, height: int) -> SweepGeometry:
     """Fit the camera and the rigid stage to the labelled corners of a sweep.
 
-    The principal point is fitted from the fit that holds it at the sensor centre (a
-    start away from the valley's far ends, docs/calibration.rst) and kept when the sweep
-    pins it (:func:`_principal_point_identified`); the corners' pixel locking is
-    estimated from the fit's misfit and removed (:func:`pixel_locking`), then the fit is
-    repeated.
+    In order (module notes): a fit with the principal point at the sensor centre; from
+    it, the fit with the point free; the corners' pixel locking estimated from its misfit
+    and removed (:func:`pixel_locking`), refitting after each pass; the tangential
+    distortion p1, p2 dropped unless a likelihood-ratio test says the corners need it;
+    the principal point held at the sensor centre unless the sweep pins it
+    (:func:`_principal_point_identified`).
 
     Parameters
     ----------
@@ -192,8 +196,6 @@ def fit_sweep_geometry(detections: list[Detection], stage_mm: list[float],
     InputError
         Fewer than 3 positions, or a fit that does not converge to sub-pixel residuals.
     """
-    from scipy.optimize import least_squares
-
     if len(detections) < 3:
         raise InputError(f"the marked target was found at {len(detections)} positions; the "
                          "sweep's geometry needs at least 3")
@@ -204,25 +206,73 @@ def fit_sweep_geometry(detections: list[Detection], stage_mm: list[float],
     stage = np.repeat(np.asarray(stage_mm, float) - ref, counts)
     groups = np.repeat(np.arange(len(detections)), counts)
     p0 = _start(detections, stage_mm, ref, config, width, height)
-    centre = ((width - 1) / 2.0, (height - 1) / 2.0)
     args = (xy, stage, uv, (width, height))
-    held = least_squares(_residuals, np.concatenate([p0[:1], p0[3:]]),
-                         args=(centre, *args), x_scale="jac", method="lm")
-    free = least_squares(_residuals, np.concatenate([held.x[:1], centre, held.x[1:]]),
-                         args=(None, *args), x_scale="jac", method="lm")
+    fit = _solve(_solve(p0, ~_PP, args).p, _ALL, args)
     for _ in range(LOCKING_PASSES):
-        locking = pixel_locking(-free.fun.reshape(2, -1).T + (uv - args[2]), uv, groups)
+        locking = pixel_locking(-fit.fun.reshape(2, -1).T + (uv - args[2]), uv, groups)
         args = (xy, stage, uv - locking, (width, height))
-        free = least_squares(_residuals, free.x, args=(None, *args), x_scale="jac",
-                             method="lm")
+        fit = _solve(fit.p, _ALL, args)
+    plain = _solve(np.where(_DECENTRING, 0.0, fit.p), ~_DECENTRING, args)
+    if plain.ssr - fit.ssr < _CHI2_95_2DOF * fit.variance:
+        fit = plain
+    if not _principal_point_identified(fit, args):
+        fit = _solve(np.where(_PP, p0, fit.p), fit.free & ~_PP, args)
     lock_rms = float(np.sqrt(np.mean(np.sum(locking**2, axis=1))))
-    if _principal_point_identified(free, args):
-        return _geometry(free, None, detections, stage_mm, ref, width, height,
-                         _std(free), lock_rms)
-    held = least_squares(_residuals, held.x, args=(centre, *args), x_scale="jac",
-                         method="lm")
-    return _geometry(held, centre, detections, stage_mm, ref, width, height,
-                     np.insert(_std(held), 1, [0.0, 0.0]), lock_rms)
+    return _geometry(fit, detections, stage_mm, ref, width, height, lock_rms)
+
+
+#: Parameter masks of the 15-vector (f, cx, cy, k1, k2, p1, p2, rotation, origin, axis).
+_ALL = np.ones(15, bool)
+_PP = np.isin(np.arange(15), (1, 2))
+_DECENTRING = np.isin(np.arange(15), (5, 6))
+#: 95 % quantiles of chi-square with 1 and 2 degrees of freedom [-].
+_CHI2_95_1DOF, _CHI2_95_2DOF = 3.841, 5.991
+
+
+@dataclass(frozen=True)
+class _Fit:
+    """A least-squares fit of the free entries of the parameter vector."""
+
+    p: np.ndarray
+    free: np.ndarray
+    fun: np.ndarray
+    jac: np.ndarray
+
+    @property
+    def ssr(self) -> float:
+        """Residual sum of squares [px^2]."""
+        return float(self.fun @ self.fun)
+
+    @property
+    def variance(self) -> float:
+        """Residual variance per coordinate [px^2]."""
+        return self.ssr / max(self.fun.size - int(self.free.sum()), 1)
+
+    def std(self) -> np.ndarray:
+        """Standard deviations of all 15 parameters (0 where held) from the Jacobian."""
+        out = np.zeros(self.p.size)
+        try:
+            cov = np.linalg.inv(self.jac.T @ self.jac) * self.variance
+        except np.linalg.LinAlgError:
+            out[self.free] = np.inf
+            return out
+        out[self.free] = np.sqrt(np.abs(np.diag(cov)))
+        return out
+
+
+def _solve(p: np.ndarray, free: np.ndarray, args) -> _Fit:
+    """Fit the ``free`` parameters of ``p`` (the others held) to the corners."""
+    from scipy.optimize import least_squares
+
+    def residuals(x):
+        q = p.copy()
+        q[free] = x
+        return _residuals(q, *args)
+
+    res = least_squares(residuals, p[free], x_scale="jac", method="lm")
+    q = p.copy()
+    q[free] = res.x
+    return _Fit(q, free.copy(), res.fun, res.jac)
 
 
 #: Harmonics of the pixel-locking model and the passes of its estimate (module notes).
@@ -262,47 +312,24 @@ def pixel_locking(misfit: np.ndarray, uv: np.ndarray, groups: np.ndarray) -> np.
     return out
 
 
-#: 95 % quantile of chi-square with 1 degree of freedom [-].
-_CHI2_95_1DOF = 3.841
-
-
-def _principal_point_identified(free, args) -> bool:
+def _principal_point_identified(fit: _Fit, args) -> bool:
     """Whether the sweep pins the principal point to +-:data:`PRINCIPAL_POINT_LIMIT_PX`.
 
     Profile likelihood, not the Jacobian's standard deviation: the principal point, the
     tangential distortion and the stage axis trade along a curved valley in a narrow
     field of view, where the linearised std can say 0.3 px while the valley runs 13 px
-    (simulated, docs/calibration.rst). The point is held at each of
-    ``pp +- limit`` along u and along v, the rest refitted; it is identified when every
-    one of the four raises the residual sum of squares by more than the 95 % quantile
-    of chi-square(1) times the residual variance.
+    (simulated, docs/calibration.rst). The point is held at each of ``pp +- limit``
+    along u and along v, the rest refitted; it is identified when every one of the four
+    raises the residual sum of squares by more than the 95 % quantile of chi-square(1)
+    times the residual variance.
     """
-    from scipy.optimize import least_squares
-
-    dof = max(free.fun.size - free.x.size, 1)
-    s2 = float(free.fun @ free.fun) / dof
-    rest = np.concatenate([free.x[:1], free.x[3:]])
-    for axis in (0, 1):
+    for k in np.nonzero(_PP)[0]:
         for sign in (-1.0, 1.0):
-            pp = free.x[1:3].copy()
-            pp[axis] += sign * PRINCIPAL_POINT_LIMIT_PX
-            fit = least_squares(_residuals, rest, args=(tuple(pp), *args), x_scale="jac",
-                                method="lm")
-            if float(fit.fun @ fit.fun - free.fun @ free.fun) < _CHI2_95_1DOF * s2:
+            p = fit.p.copy()
+            p[k] += sign * PRINCIPAL_POINT_LIMIT_PX
+            if _solve(p, fit.free & ~_PP, args).ssr - fit.ssr < _CHI2_95_1DOF * fit.variance:
                 return False
     return True
-
-
-def _std(fit) -> np.ndarray:
-    """Parameter standard deviations from the Jacobian, scaled by the residual RMS."""
-    j = fit.jac
-    dof = max(j.shape[0] - j.shape[1], 1)
-    s2 = float(fit.fun @ fit.fun) / dof
-    try:
-        cov = np.linalg.inv(j.T @ j) * s2
-    except np.linalg.LinAlgError:
-        return np.full(j.shape[1], np.inf)
-    return np.sqrt(np.abs(np.diag(cov)))
 
 
 def _start(detections, stage_mm, ref, config, width, height) -> np.ndarray:
@@ -326,9 +353,9 @@ def _start(detections, stage_mm, ref, config, width, height) -> np.ndarray:
     return np.array([f, k[0, 2], k[1, 2], 0, 0, 0, 0, *poses[0][0], *t_ref, *angles])
 
 
-def _geometry(fit, fixed_pp, detections, stage_mm, ref, width, height, std,
-              locking_px: float = 0.0) -> SweepGeometry:
-    k, dist, rot, t0, axis = _unpack(fit.x, fixed_pp)
+def _geometry(fit: _Fit, detections, stage_mm, ref, width, height,
+              locking_px: float) -> SweepGeometry:
+    k, dist, rot, t0, axis = _unpack(fit.p)
     res = fit.fun.reshape(2, -1)
     err = np.hypot(res[0], res[1])
     rms = float(np.sqrt(np.mean(err**2)))
@@ -343,5 +370,6 @@ def _geometry(fit, fixed_pp, detections, stage_mm, ref, width, height, std,
         start += n
     names = ("focal_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2")
     return SweepGeometry(Lens(k, dist, width, height), rot, np.asarray(t0, float), axis,
-                         float(ref), rms, per, fixed_pp is None,
-                         {n: float(s) for n, s in zip(names, std, strict=False)}, locking_px)
+                         float(ref), rms, per, bool(fit.free[1]),
+                         {n: float(v) for n, v in zip(names, fit.std(), strict=False)},
+                         locking_px, bool(fit.free[5]))
