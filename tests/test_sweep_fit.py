@@ -104,3 +104,26 @@ def test_pixel_locking_recovers_a_grid_periodic_error():
     assert abs(np.corrcoef(est[:, 0] - lock[:, 0], trend[:, 0])[0, 1]) < 0.1
     few = pixel_locking(misfit[:10], uv[:10], np.zeros(10, int))
     assert not few.any()  # 10 corners cannot tell locking from noise: no correction
+
+
+def test_calibration_report_shows_the_marker_geometry(cfg, tmp_path, capsys):
+    """scanqa calibrate on a simulated marked sweep: the report (JSON and HTML) carries
+    the fitted camera and stage and says what the sweep could not pin."""
+    import json
+
+    from scanqa.cli import main
+    from scanqa.simulator.experiments import run_experiment
+
+    small = cfg.replace_simulator(target_square_mm=4.0)
+    out = run_experiment("calibration-sweep", small, tmp_path / "s",
+                         positions=[430.0, 440.0, 450.0, 460.0, 470.0], repeats=1)
+    assert main(["calibrate", str(out.parent), "--config", f"{SAMPLE}#sample", "--out",
+                 str(tmp_path / "t.npz")]) == 0
+    info = json.loads((tmp_path / "t_report.json").read_text())
+    geo = info["target_geometry"]
+    assert geo["stage_tilt_deg"] == pytest.approx(1.0, abs=0.05)
+    assert isinstance(geo["principal_point_fitted"], bool)
+    assert isinstance(geo["decentring_fitted"], bool)
+    html = (tmp_path / "t_report.html").read_text()
+    assert "Camera and stage from the marked target" in html
+    assert f"stage tilt {geo['stage_tilt_deg']:.4f} deg" in html

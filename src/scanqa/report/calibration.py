@@ -27,6 +27,8 @@ def summary(table: CalibrationTable, report: BuildReport) -> dict:
         "table_sigma_um_p95": float(np.nanpercentile(sig, 95)) if np.isfinite(sig).any()
         else None,
         **report.as_dict(),
+        **({"target_geometry": table.provenance["target_geometry"]}
+           if "target_geometry" in table.provenance else {}),
     }
 
 
@@ -38,6 +40,8 @@ def render(table: CalibrationTable, report: BuildReport) -> str:
                    f"nodes every {table.cell_px:g} px; stage range "
                    f"{info['z_range_mm'][0]:g} to {info['z_range_mm'][1]:g} mm; "
                    f"{100 * info['covered_node_fraction']:.1f} % of nodes covered.")
+    if "target_geometry" in info:
+        _geometry_section(page, info["target_geometry"])
     page.heading("Residual per position", "residuals")
     rows = report.positions
     fig, ax = new_figure()
@@ -63,3 +67,28 @@ def render(table: CalibrationTable, report: BuildReport) -> str:
     page.figure(fig, "left: calibrated phase span per node; right: the table's own std",
                 "maps")
     return page.render()
+
+
+def _geometry_section(page: Page, geo: dict) -> None:
+    """The camera and stage fitted to the marked target, and what the sweep pinned."""
+    page.heading("Camera and stage from the marked target", "geometry")
+    held = [name for name, key in (("the principal point (held at the sensor centre)",
+                                    "principal_point_fitted"),
+                                   ("the tangential distortion p1, p2 (held at 0)",
+                                    "decentring_fitted")) if not geo.get(key, True)]
+    page.paragraph(f"stage tilt {geo['stage_tilt_deg']:.4f} deg, target tilt "
+                   f"{geo['target_tilt_deg']:.4f} deg, focal length "
+                   f"{geo['focal_px']:.2f} px, corner RMS {geo['rms_px']:.3f} px. Not fitted: "
+                   + ("; ".join(held) if held else "nothing") + ".")
+    if not geo.get("principal_point_fitted", True) and geo.get("decentring_fitted", False):
+        page.paragraph("The sweep did not separate the principal point from the stage axis "
+                       "(a lens that needs p1, p2): the table's volume may be sheared by a "
+                       "few um over its depth (docs/calibration.rst, 'The marked target').",
+                       note=True)
+    std = geo.get("std", {})
+    page.table([{"parameter": k, "value": v, "std": std.get(k, "")}
+                for k, v in (("focal_px", geo["focal_px"]),
+                             ("cx_px", geo["principal_point_px"][0]),
+                             ("cy_px", geo["principal_point_px"][1]),
+                             *zip(("k1", "k2", "p1", "p2"), geo["distortion_k1_k2_p1_p2"],
+                                  strict=True))])
