@@ -105,6 +105,15 @@ class Setup:
         std[free] = np.sqrt(np.diag(np.linalg.inv(out.jac.T @ out.jac)) * s2)
         return p, std
 
+    def params(self, g: sf.SweepGeometry) -> np.ndarray:
+        """A fitted geometry as the 15 fit parameters (stage reference as here)."""
+        import cv2
+
+        k, t0 = g.camera.matrix, g.translation(self.ref)
+        return np.array([k[0, 0], k[0, 2], k[1, 2], *g.camera.distortion[:4],
+                         *cv2.Rodrigues(g.rotation)[0].ravel(), *t0,
+                         math.atan2(g.axis[0], g.axis[2]), math.atan2(g.axis[1], g.axis[2])])
+
     def geometry(self, p) -> sf.SweepGeometry:
         k, dist, rot, t0, axis = sf._unpack(p)
         return sf.SweepGeometry(Lens(k, dist, *self.size), rot, np.asarray(t0), axis,
@@ -157,7 +166,7 @@ def experiments(s: Setup) -> dict:
     runs = {"oracle geometry": None,
             "exact corners, pp held": (s.exact, PP_HELD),
             "exact corners, pp free": (s.exact, ALL),
-            "detected, pp held (as calibrate)": (s.detected, PP_HELD),
+            "detected, pp held (the earlier calibrate)": (s.detected, PP_HELD),
             "detected, pp free": (s.detected, ALL),
             "detected, pp held, k2 = 0": (s.detected, held["k2"]),
             "detected, pp held, p1 = p2 = 0": (s.detected, held["p"]),
@@ -170,6 +179,8 @@ def experiments(s: Setup) -> dict:
         row["params"] = {n: [float(v), float(e), float(t)] for n, v, e, t in
                          zip(NAMES, p, std, truth, strict=True) if e > 0}
         out[name] = row
+    geo = sf.fit_sweep_geometry(s.detected, s.stage, s.cfg, *s.size)
+    out["as calibrate (fit_sweep_geometry)"] = s.error(s.params(geo))
     main, _ = s.fit(s.detected, PP_HELD)
     mixed = truth.copy()
     mixed[:7] = main[:7]
