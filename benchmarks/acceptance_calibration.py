@@ -205,7 +205,21 @@ def systematic(errors: np.ndarray) -> dict:
             "floor_um": 1e3 * np.sqrt(floor2), "n": int(errors.shape[1])}
 
 
-def _clean(valid: np.ndarray, z: np.ndarray, margin: int = 3) -> np.ndarray:
+#: Pixels this close to an edge of the scene are left out of the errors [mm on the object]:
+#: 3 px of the sample camera. Held in object space since the simulator's blur halo at a
+#: depth edge (docs/simulator.rst) is as wide in mm at any resolution; at the paper's
+#: 8 um pixels 3 px left 10 um of halo error in the gauge scan's figure.
+EDGE_MARGIN_MM = 0.6
+
+
+def edge_margin_px(cfg: ScannerConfig) -> int:
+    """:data:`EDGE_MARGIN_MM` in camera pixels at the focus distance [px]."""
+    cam = cfg.camera
+    object_px_mm = cam.pixel_um * 1e-3 * (cam.focus_mm - cam.focal_mm) / cam.focal_mm
+    return int(np.ceil(EDGE_MARGIN_MM / object_px_mm))
+
+
+def _clean(valid: np.ndarray, z: np.ndarray, margin: int) -> np.ndarray:
     k = 2 * margin + 1
     zz = np.where(np.isfinite(z), z, 0.0)
     flat = (maximum_filter(zz, size=k) - minimum_filter(zz, size=k)) < 0.05
@@ -225,12 +239,13 @@ def scans(folder: Path) -> list[tuple[dict, list[np.ndarray]]]:
     return result
 
 
-def errors_of(cal, data, reg=None) -> tuple[dict, list[float]]:
+def errors_of(cal, data, margin: int, reg=None) -> tuple[dict, list[float]]:
     """Pooled systematic error and the mean signed error along the line of sight per
-    position [um]."""
+    position [um], ``margin`` px from the scene's edges left out."""
     parts, bias = [], []
     for truth, maps in data:
-        ok = _clean(truth["valid"], truth["Z"]) & np.all([np.isfinite(m) for m in maps], 0)
+        ok = _clean(truth["valid"], truth["Z"], margin) & np.all([np.isfinite(m) for m in maps],
+                                                                 0)
         v, u = np.nonzero(ok)
         xyz = np.stack([truth[k][ok] for k in ("X", "Y", "Z")], -1)
         pts = np.stack([_points(cal, u, v, m[ok]) for m in maps])
@@ -255,30 +270,31 @@ def evaluate(cfg: ScannerConfig, folders: dict[str, Path]) -> dict:
     print(f"calibrated in {time.time() - t0:.0f} s", file=sys.stderr)
     holdout, gauge = scans(folders["holdout"]), scans(folders["gauge"])
     z_hold = [float(np.nanmedian(t["Z"])) for t, _ in holdout]
+    margin = edge_margin_px(cfg)
     focus = int(np.argmin(np.abs(np.array(z_hold) - cfg.camera.focus_mm)))
     result = {"simulated": True, "realism": REALISM,
               "target_square_mm": cfg.simulator.target_square_mm, "geometry": geometry.summary(),
-              "projector_fit_rms_px": proj_rms, "calibrations": {}}
+              "projector_fit_rms_px": proj_rms, "edge_margin_px": margin, "calibrations": {}}
     for name, cal in cals.items():
         reg = registration(cal, folders["sweep"])
         row = {"registration_deg": float(np.degrees(np.arccos(np.clip(
             (np.trace(reg[0]) - 1) / 2, -1, 1)))), "registration_mm": reg[1].tolist()}
         for frame, r in (("camera_frame", None), ("registered", reg)):
-            hold, bias = errors_of(cal, holdout, r)
-            gau, _ = errors_of(cal, gauge, r)
+            hold, bias = errors_of(cal, holdout, margin, r)
+            gau, _ = errors_of(cal, gauge, margin, r)
             slope = np.polyfit(z_hold, bias, 1)[0] if len(z_hold) > 1 else 0.0
             row[frame] = {"holdout": hold, "gauge": gau,
                           "trend_um": float(abs(slope) * (max(z_hold) - min(z_hold))),
                           "bias_um_per_plane": bias}
         result["calibrations"][name] = row
-    result["in_focus_sigma_um"] = in_focus_sigma(cals["a_marker_table"], holdout[focus])
+    result["in_focus_sigma_um"] = in_focus_sigma(cals["a_marker_table"], holdout[focus], margin)
     return result
 
 
-def in_focus_sigma(cal, plane) -> float:
+def in_focus_sigma(cal, plane, margin: int) -> float:
     """Measured single-point std along the line of sight at the plane nearest focus [um]."""
     truth, maps = plane
-    ok = _clean(truth["valid"], truth["Z"]) & np.all([np.isfinite(m) for m in maps], 0)
+    ok = _clean(truth["valid"], truth["Z"], margin) & np.all([np.isfinite(m) for m in maps], 0)
     v, u = np.nonzero(ok)
     pts = np.stack([_points(cal, u, v, m[ok]) for m in maps])
     los = pts[0] / np.linalg.norm(pts[0], axis=-1, keepdims=True)
