@@ -109,9 +109,9 @@ def detect_chessboard(image: np.ndarray, spec: ChessboardSpec, source: str = ""
 
     The eight corners of the three marker cells are left out: their dots break the point
     symmetry about the corner that the sub-pixel refinement relies on, and they come out
-    biased by a large fraction of a pixel (0.4 px RMS on simulated frames of the sample
-    camera with 2 mm squares, against 0.016 px for the other corners; docs/calibration.rst,
-    "The marked target").
+    biased by a large fraction of a pixel (0.4 px RMS on the average of 16 simulated
+    frames of the sample camera with 2 mm squares, against 0.016 px for the other
+    corners; docs/calibration.rst, "The marked target").
 
     Parameters
     ----------
