@@ -28,7 +28,6 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 import acceptance_calibration as acc
-from scipy.optimize import least_squares
 
 from scanqa.calibration import sweep_fit as sf
 from scanqa.calibration import target as tg
@@ -42,6 +41,15 @@ NAMES = ("f", "cx", "cy", "k1", "k2", "p1", "p2", "r1", "r2", "r3", "tx", "ty", 
 ALL = np.ones(15, bool)
 PP_HELD = ALL & ~np.isin(np.arange(15), (1, 2))
 INTRINSICS, POSES = np.arange(15) < 7, np.arange(15) >= 7
+
+
+def _pack(f, pp, dist, rotation, origin, axis) -> np.ndarray:
+    """Camera, target rotation (target -> camera), origin and stage axis as the 15 fit
+    parameters of :mod:`scanqa.calibration.sweep_fit` (the inverse of its ``_unpack``)."""
+    import cv2
+
+    return np.array([f, *pp, *dist, *cv2.Rodrigues(np.asarray(rotation, float))[0].ravel(),
+                     *origin, math.atan2(axis[0], axis[2]), math.atan2(axis[1], axis[2])])
 
 
 class Setup:
@@ -70,15 +78,11 @@ class Setup:
 
     def oracle(self) -> np.ndarray:
         """The simulator's camera, target pose and stage axis as fit parameters."""
-        import cv2
-
         cam = self.cfg.camera
         frame = texture.target_frame(self.cfg, self.ref)
-        d = texture.stage_axis(self.cfg)
-        return np.array([cam.principal_distance_px, *devices.camera_principal_point(self.cfg),
-                         *devices.distortion(self.cfg, "camera"),
-                         *cv2.Rodrigues(frame.axes.T)[0].ravel(), *frame.origin,
-                         math.atan2(d[0], d[2]), math.atan2(d[1], d[2])])
+        return _pack(cam.principal_distance_px, devices.camera_principal_point(self.cfg),
+                     devices.distortion(self.cfg, "camera"), frame.axes.T, frame.origin,
+                     texture.stage_axis(self.cfg))
 
     def arrays(self, dets):
         xy = np.concatenate([d.target_points for d in dets])
@@ -90,29 +94,14 @@ class Setup:
     def fit(self, dets, free, start=None) -> tuple[np.ndarray, np.ndarray]:
         """Fit the free parameters (others at ``start``, default the truth)."""
         p0 = self.oracle() if start is None else start.copy()
-        xy, st, uv = self.arrays(dets)
-
-        def res(q):
-            p = p0.copy()
-            p[free] = q
-            return sf._residuals(p, xy, st, uv, self.size)
-
-        out = least_squares(res, p0[free], x_scale="jac", method="lm")
-        p = p0.copy()
-        p[free] = out.x
-        s2 = out.fun @ out.fun / max(out.jac.shape[0] - out.jac.shape[1], 1)
-        std = np.zeros(15)
-        std[free] = np.sqrt(np.diag(np.linalg.inv(out.jac.T @ out.jac)) * s2)
-        return p, std
+        fit = sf._solve(p0, free, (*self.arrays(dets), self.size))
+        return fit.p, fit.std()
 
     def params(self, g: sf.SweepGeometry) -> np.ndarray:
         """A fitted geometry as the 15 fit parameters (stage reference as here)."""
-        import cv2
-
-        k, t0 = g.camera.matrix, g.translation(self.ref)
-        return np.array([k[0, 0], k[0, 2], k[1, 2], *g.camera.distortion[:4],
-                         *cv2.Rodrigues(g.rotation)[0].ravel(), *t0,
-                         math.atan2(g.axis[0], g.axis[2]), math.atan2(g.axis[1], g.axis[2])])
+        k = g.camera.matrix
+        return _pack(k[0, 0], k[:2, 2], g.camera.distortion[:4], g.rotation,
+                     g.translation(self.ref), g.axis)
 
     def geometry(self, p) -> sf.SweepGeometry:
         k, dist, rot, t0, axis = sf._unpack(p)
