@@ -215,8 +215,7 @@ EDGE_MARGIN_MM = 0.6
 def edge_margin_px(cfg: ScannerConfig) -> int:
     """:data:`EDGE_MARGIN_MM` in camera pixels at the focus distance [px]."""
     cam = cfg.camera
-    object_px_mm = cam.pixel_um * 1e-3 * (cam.focus_mm - cam.focal_mm) / cam.focal_mm
-    return int(np.ceil(EDGE_MARGIN_MM / object_px_mm))
+    return int(np.ceil(EDGE_MARGIN_MM * cam.principal_distance_px / cam.focus_mm))
 
 
 def _clean(valid: np.ndarray, z: np.ndarray, margin: int) -> np.ndarray:
