@@ -1,8 +1,8 @@
 """The sweep geometry fit beyond the plain least squares (issue 15): a decentred principal
 point found (or held, when the data cannot pin it) and the pixel-locking correction.
 
-Truth comes from the simulator's ray geometry (:func:`scanqa.simulator.texture.corner_truth`
-and :func:`scanqa.simulator.devices.camera_principal_point`), never from the fit.
+Truth comes from the simulator's ray geometry (``tests/test_target.py``'s corner truth and
+:func:`scanqa.simulator.devices.camera_principal_point`), never from the fit.
 """
 
 from __future__ import annotations
@@ -13,14 +13,13 @@ import pytest
 from scanqa.calibration.sweep_fit import fit_sweep_geometry, pixel_locking
 from scanqa.calibration.target import Detection
 from scanqa.config import load_config
-from scanqa.simulator import devices, texture
+from scanqa.simulator import devices
 
-from .conftest import ROOT
+from .test_target import REALISM as BASE
+from .test_target import SAMPLE, _corner_truth
 
-SAMPLE = ROOT / "sample_data" / "sample_scanner.toml"
-REALISM = {"camera_k1": -2.6, "projector_k1": -0.05, "stage_tilt_deg": 1.0,
-           "stage_tilt_azimuth_deg": 30.0, "target_tilt_deg": 2.0, "target": "chessboard",
-           "target_square_mm": 2.0, "camera_cx_offset_px": 5.0, "camera_cy_offset_px": -3.0}
+REALISM = {**BASE, "target_square_mm": 2.0, "camera_cx_offset_px": 5.0,
+           "camera_cy_offset_px": -3.0}
 GRID = np.array([[i, j] for i in range(-24, 25) for j in range(-20, 21)], float) * 2.0
 
 
@@ -29,16 +28,17 @@ def cfg():
     return load_config(SAMPLE, profile="sample").replace_simulator(**REALISM)
 
 
-def _observed(cfg, target, rng, noise_px: float) -> Detection:
-    """Exact corners of a printed target inside the sensor, plus white noise [px]."""
-    uv = texture.corner_truth(cfg, devices.camera_pose(), target, GRID)
-    inside = (uv[:, 0] > 2) & (uv[:, 0] < 303) & (uv[:, 1] > 2) & (uv[:, 1] < 253)
-    return Detection(uv[inside] + rng.normal(0, noise_px, uv[inside].shape), GRID[inside])
-
-
 def _sweep(cfg, noise_px: float, zs) -> list[Detection]:
+    """Exact corners of the printed target inside the sensor at each reading, plus white
+    noise [px]."""
     rng = np.random.default_rng(5)
-    return [_observed(cfg, texture.stage_flat(cfg, z).texture, rng, noise_px) for z in zs]
+    out = []
+    for z in zs:
+        uv = _corner_truth(cfg, z, GRID)
+        inside = (uv[:, 0] > 2) & (uv[:, 0] < 303) & (uv[:, 1] > 2) & (uv[:, 1] < 253)
+        out.append(Detection(uv[inside] + rng.normal(0, noise_px, uv[inside].shape),
+                             GRID[inside]))
+    return out
 
 
 def test_decentred_principal_point_found(cfg):
