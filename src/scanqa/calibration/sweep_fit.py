@@ -208,9 +208,12 @@ def fit_sweep_geometry(detections: list[Detection], stage_mm: list[float],
     p0 = _start(detections, stage_mm, ref, config, width, height)
     args = (xy, stage, uv, (width, height))
     fit = _solve(_solve(p0, ~_PP, args).p, _ALL, args)
+    corrected = uv
     for _ in range(LOCKING_PASSES):
-        locking = pixel_locking(-fit.fun.reshape(2, -1).T + (uv - args[2]), uv, groups)
-        args = (xy, stage, uv - locking, (width, height))
+        model = corrected + fit.fun.reshape(2, -1).T  # the residuals are model - corners
+        locking = pixel_locking(uv - model, uv, groups)
+        corrected = uv - locking
+        args = (xy, stage, corrected, (width, height))
         fit = _solve(fit.p, _ALL, args)
     plain = _solve(np.where(_DECENTRING, 0.0, fit.p), ~_DECENTRING, args)
     if plain.ssr - fit.ssr < _CHI2_95_2DOF * fit.variance:
