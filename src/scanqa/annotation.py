@@ -17,15 +17,20 @@ name               unit   meaning
 =================  =====  ==================================================================
 sigma_model_um     um     model sigma along the line of sight; NaN where the model is not
                           valid (a blur ratio > 1/2)
-sx_um, sy_um,      um     its X, Y, Z components (CloudCompare M3C2 precision maps pick
-sz_um                     fields containing "sx", "sy", "sz")
+sx_um, sy_um,      um     the X, Y, Z components of sigma_random (CloudCompare M3C2
+sz_um                     precision maps pick fields containing "sx", "sy", "sz")
 sigma_scene_um     um     the model sigma's scene-side part (filtered by the camera blur;
                           the whole model sigma for the paper's readings)
 sigma_sensor_um    um     the model sigma's sensor part (two-source model; 0 otherwise)
 sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
 sigma_table_um     um     the calibration table's own std at that point (0 for a
                           parametric calibration)
-sigma_total_um     um     sqrt(sigma_model^2 + sigma_table^2)
+sigma_random_um    um     the per-point random sigma along the line of sight, from the
+                          source the cloud's ``sigma_source`` names: the model where a
+                          characterisation pinned it, a board's noise law applied to the
+                          pixel's own A and B, else the decoder's image estimate
+                          (sigma_phase_um)
+sigma_total_um     um     sqrt(sigma_random^2 + sigma_table^2 + systematic^2)
 att_camera         -      camera attenuation A_c
 att_projector      -      projector attenuation A_p
 filter_factor      -      F_gamma (Eq. 17)
@@ -57,13 +62,15 @@ from scanqa.calibration.lookup import TableLookup
 from scanqa.chunks import row_bands, run_bands
 from scanqa.cloud import AnnotatedCloud
 from scanqa.config import ScannerConfig
+from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io import ply
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
-              "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_total_um",
+              "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_random_um",
+              "sigma_total_um",
               "att_camera", "att_projector", "filter_factor", "s_o", "s_t_um_px",
               "modulation_dn", "offset_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
@@ -125,6 +132,7 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     records = np.empty(counts["written"], dtype=ply.vertex_dtype(names))
     extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation,
              "offset": phase_map.offset}
+    origin = sigma_source(config, phase_map)
     if repeats:
         extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
     starts = np.cumsum([0, *kept])
@@ -133,13 +141,15 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     def band(r0: int, r1: int) -> int:
         i = index[(r0, r1)]
         return _annotate_band(table, config, xp, extra, keep[i], (r0, r1), keep_invalid,
-                              records[starts[i]:starts[i + 1]])
+                              records[starts[i]:starts[i + 1]], origin)
 
     invalid = run_bands(band, bands)
     counts["model_invalid"] = int(sum(invalid))
     counts["kept_invalid"] = keep_invalid
     xyz, attributes = ply.vertex_views(records)
-    return AnnotatedCloud(xyz, attributes, counts, cloud_metadata(config, table, source))
+    meta = cloud_metadata(config, table, source)
+    meta["sigma_source"] = {k: v for k, v in origin.items() if k != "law"}
+    return AnnotatedCloud(xyz, attributes, counts, meta)
 
 
 def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> dict:
@@ -163,6 +173,58 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
                       "calibration": table.provenance.get("calibration", "")}}
 
 
+def sigma_source(config: ScannerConfig, phase_map: PhaseMap) -> dict:
+    """Where a scan's per-point random sigma comes from, and what it assumes.
+
+    Returns
+    -------
+    dict
+        ``kind``: "characterised" (a characterisation pinned the noise: a board's noise
+        law, or the model's sigma_p), "images" (the decoder's estimate from the scan's
+        own images: the config's sigma_p is assumed) or "assumed" (neither: the decoder
+        fell back to a default camera model); ``random``: "law", "model" or "images";
+        ``detail``: the characterisation or the images' noise source, in words;
+        ``warning``: what the user must know, or ""; ``law``: (a, b, period, steps) for
+        the "law" source.
+    """
+    model = config.model
+    if model.has_noise_law:
+        law = (model.noise_read_var_dn2, model.noise_shot_dn, phase_map.period_px,
+               working_steps(phase_map))
+        return {"kind": "characterised", "random": "law", "detail": model.characterised_by
+                or "a board noise law of unstated origin", "warning": "", "law": law}
+    if model.characterised_by:
+        return {"kind": "characterised", "random": "model",
+                "detail": model.characterised_by, "warning": ""}
+    noise = phase_map.provenance.get("decode", {}).get("noise", {}).get("source", "")
+    where = f"{config.source}#{config.profile}" if config.profile else config.source
+    assumed = (f"sigma_p_px = {model.sigma_p_px:g} px in {where or 'the config'} is assumed "
+               "(its [model] has no characterised_by)")
+    if noise.startswith("default model"):
+        return {"kind": "assumed", "random": "images", "detail": noise,
+                "warning": f"{assumed}, and the decoder found no noise in the images "
+                           "(default camera model): every sigma is assumed; characterise "
+                           "the scanner (scanqa characterize-board) or give [sensor] gain"}
+    return {"kind": "images", "random": "images",
+            "detail": noise or "the phase map's sigma_xp (its noise source not recorded)",
+            "warning": f"{assumed}: sigma_random/sigma_total come from the scan's own "
+                       "images instead; sigma_model_um is only the assumed model "
+                       "(characterise the scanner: scanqa characterize-board)"}
+
+
+def _random_sigma(inputs: dict, sigma_model: np.ndarray, s_t: np.ndarray) -> np.ndarray:
+    """The per-point random sigma along the line of sight from the scan's sigma source
+    [mm] (:func:`sigma_source`)."""
+    source = inputs["source"]
+    if source["random"] == "model":
+        return sigma_model
+    if source["random"] == "law":
+        a, b, period, steps = source["law"]
+        return s_t * phase_sigma_px(inputs["modulation"], inputs["offset"], a, b, period,
+                                    steps)
+    return s_t * inputs["sigma_xp"]
+
+
 def _json_number(value: float) -> float | None:
     """A float for JSON metadata: None where it is not finite (no range limit, no cells)."""
     return float(value) if np.isfinite(value) else None
@@ -170,7 +232,7 @@ def _json_number(value: float) -> float | None:
 
 def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
                    extra: dict, keep: np.ndarray, rows: tuple[int, int], keep_invalid: bool,
-                   out: np.ndarray) -> int:
+                   out: np.ndarray, source: dict) -> int:
     """Look up, model and write the kept points of image rows ``rows`` into the records
     ``out``; returns the number outside the model's validity."""
     r0, r1 = rows
@@ -179,6 +241,7 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
     pixels = _pixels(select, r0, r1, xp.shape[1])
     inputs = {k: _pick(v[r0:r1], select) for k, v in extra.items()}
     inputs["corr_px"] = table_correlation_px(table)
+    inputs["source"] = source
     return _annotate_points(look, pixels, inputs, config, out)
 
 
@@ -231,6 +294,8 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
     pred = optics.predict(points, config, s_t=s_t)
     sigma = np.where(pred.valid, pred.sigma, np.nan)
     sig_tab = look.sigma_table.ravel()
+    random = _random_sigma(inputs, sigma, s_t)
+    total = np.sqrt(random**2 + sig_tab**2 + config.model.systematic_sigma_mm**2)
     ply.vertex_views(out)[0][...] = points
     values = {
         "sigma_model_um": 1e3 * sigma,
@@ -238,7 +303,8 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
         "sigma_sensor_um": 1e3 * np.where(pred.valid, pred.sigma_sensor, np.nan),
         "sigma_phase_um": 1e3 * s_t * inputs["sigma_xp"],
         "sigma_table_um": 1e3 * sig_tab,
-        "sigma_total_um": 1e3 * np.hypot(sigma, sig_tab),
+        "sigma_random_um": 1e3 * random,
+        "sigma_total_um": 1e3 * total,
         "att_camera": pred.attenuation_camera, "att_projector": pred.attenuation_projector,
         "filter_factor": pred.filter_factor, "s_o": pred.s_o, "s_t_um_px": 1e3 * s_t,
         "modulation_dn": inputs["modulation"], "offset_dn": inputs["offset"],
@@ -247,7 +313,7 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
         "table_corr_mm": inputs["corr_px"] * points[:, 2] / config.camera.principal_distance_px,
     }
     for i, name in enumerate(("sx_um", "sy_um", "sz_um")):
-        values[name] = 1e3 * sigma * np.abs(slope[:, i] / s_t)
+        values[name] = 1e3 * random * np.abs(slope[:, i] / s_t)
     if "std" in inputs:
         values["sigma_meas_um"] = 1e3 * inputs["std"]
         values["n_repeats"] = inputs["count"]

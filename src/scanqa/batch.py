@@ -213,8 +213,10 @@ def _outputs(ctx: BatchContext, task: ScanTask, stage: Path) -> dict:
                      keep_invalid=qa or ctx.settings.keep_invalid, source=task.source)
     if not cloud.counts["written"]:
         raise InputError(f"{task.source}: no point lies inside the calibrated volume")
+    source = cloud.metadata.get("sigma_source", {})
     row = {"scan": task.name, "path": task.source, "status": "ok", "error": "",
-           "points": int(cloud.counts["written"])}
+           "points": int(cloud.counts["written"]), "sigma_source": source.get("kind", ""),
+           "sigma_warning": source.get("warning", "")}
     if not qa:
         cloud.write(stage / "cloud.ply")
         return row

@@ -21,6 +21,15 @@ import numpy as np
 
 from scanqa.io import cloud as cloud_file
 
+#: Per-point random sigma attributes, most specific first: the one the cloud's
+#: ``sigma_source`` chose (clouds from this version), else the model's (older clouds).
+RANDOM_SIGMA_NAMES = ("sigma_random_um", "sigma_model_um")
+
+
+def random_sigma_name(attributes: dict) -> str | None:
+    """Name of the per-point random sigma attribute a cloud carries [um], or None."""
+    return next((n for n in RANDOM_SIGMA_NAMES if n in attributes), None)
+
 
 @dataclass(frozen=True, eq=False)
 class AnnotatedCloud:
@@ -66,6 +75,12 @@ class AnnotatedCloud:
     def model(self) -> dict:
         """The model variant and parameters that gave the sigmas (empty when unknown)."""
         return dict(self.metadata.get("model", {}))
+
+    @property
+    def sigma_warning(self) -> str:
+        """What the user must know about where the sigmas come from ("" when they were
+        characterised; :func:`scanqa.annotation.sigma_source`)."""
+        return str(self.metadata.get("sigma_source", {}).get("warning", ""))
 
     def summary(self) -> str:
         """One line: points written, and how many pixels were left out and why."""

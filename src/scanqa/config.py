@@ -108,6 +108,11 @@ def _check_value(key: str, value: Any, meta: dict) -> Any:
         if not isinstance(value, bool):
             raise ConfigError(f"{key} must be true or false, got {value!r}")
         return value
+    if kind == "text":
+        if not isinstance(value, str) or len(value) > 2000 or not value.isprintable():
+            raise ConfigError(f"{key} must be one line of text (at most 2000 characters), "
+                              f"got {value!r:.80}")
+        return value
     if kind == "str":
         if value not in meta["choices"]:
             raise ConfigError(f"{key} must be {_expected(meta)}, got {value!r}")
@@ -270,6 +275,22 @@ class ModelConfig(_Section):
     filter_form: str = _spec(kind="str", choices=FILTER_FORMS, default="sum")
     #: phase noise of the sensor at focus (A_c = A_p = 1) [projector px]; two_source only
     sensor_sigma_p_px: float = _spec("px", ge=0, default=0.0)
+    #: where sigma_p comes from ("" = assumed, not characterised): a characterisation
+    #: (its summary and data hash) or a published measurement. An assumed sigma_p does
+    #: not set the per-point sigma: the images' own noise does (docs/noise_model.rst)
+    characterised_by: str = _spec(kind="text", default="")
+    #: per-pixel noise law fitted to a board (scanqa characterize-board): intensity
+    #: variance a + b A per frame at offset A; 0 and 0 = no law
+    noise_read_var_dn2: float = _spec("DN^2", ge=0, default=0.0)
+    noise_shot_dn: float = _spec("DN", ge=0, default=0.0)
+    #: systematic error per point a characterisation measured (board flatness and
+    #: calibration), added in quadrature to the total sigma [mm]
+    systematic_sigma_mm: float = _spec("mm", ge=0, default=0.0)
+
+    @property
+    def has_noise_law(self) -> bool:
+        """True when a board characterisation gave a per-pixel noise law."""
+        return self.noise_read_var_dn2 > 0 or self.noise_shot_dn > 0
 
 
 @dataclass(frozen=True)

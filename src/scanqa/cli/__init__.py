@@ -36,6 +36,7 @@ COMMAND_MODULES = (
     "scanqa.cli.patterns",
     "scanqa.cli.decode",
     "scanqa.cli.simulate",
+    "scanqa.cli.characterize_board",
     "scanqa.cli.batch",
 )
 

@@ -13,6 +13,7 @@ from scanqa.cli.common import (
     calibration_from_args,
     config_from_args,
     emit,
+    warn_sigma,
 )
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
@@ -51,6 +52,7 @@ def run(args: argparse.Namespace) -> int:
     if not cloud.counts["written"]:
         raise InputError(f"{args.scan}: no point lies inside the calibrated volume; nothing "
                          "written (use --keep-invalid to extrapolate)")
+    warn_sigma([cloud])
     cloud.write(out)
     emit(f"{out}: {cloud.summary()}")
     return 0

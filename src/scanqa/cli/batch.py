@@ -12,6 +12,7 @@ from scanqa.cli.common import (
     config_from_args,
     emit,
     number,
+    warn,
 )
 from scanqa.errors import InputError
 
@@ -101,6 +102,9 @@ def _options(args: argparse.Namespace):
 
 
 def _finish(result, out: str) -> int:
+    for text in dict.fromkeys(r.get("sigma_warning") for r in result.rows
+                              if r.get("sigma_warning")):
+        warn(text)
     for row in result.failed:
         emit(f"failed: {row['scan']}: {row['error']}")
     n, failed = len(result.rows), len(result.failed)

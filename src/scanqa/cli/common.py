@@ -67,6 +67,20 @@ def emit(text: str = "") -> None:
         raise OutputError(f"cannot write to standard output: {err.strerror or err}") from None
 
 
+def warn(text: str) -> None:
+    """Print ``scanqa: warning: <text>`` on stderr (the result lines stay on stdout)."""
+    with contextlib.suppress(OSError, ValueError):
+        sys.stderr.write(f"scanqa: warning: {text}\n")
+        sys.stderr.flush()
+
+
+def warn_sigma(clouds) -> None:
+    """Warn once per distinct message about clouds whose sigmas are not characterised
+    (:attr:`scanqa.cloud.AnnotatedCloud.sigma_warning`)."""
+    for text in dict.fromkeys(c.sigma_warning for c in clouds if c.sigma_warning):
+        warn(text)
+
+
 def number(kind: type = float, *, gt: float | None = None, ge: float | None = None,
            unit: str = "") -> Callable[[str], float]:
     """argparse type: a finite number (``kind`` float or int) with an optional bound."""

@@ -16,6 +16,7 @@ from scanqa.cli.common import (
     config_from_args,
     emit,
     number,
+    warn_sigma,
 )
 from scanqa.cloud import AnnotatedCloud, read_cloud
 from scanqa.config import ScannerConfig
@@ -124,8 +125,10 @@ def _load(args: argparse.Namespace) -> tuple[list[tuple[str, AnnotatedCloud]],
             scan = decode(c)
             out.append((Path(c).name, annotate(scan, calibration_from_args(args, config, scan),
                                                config, keep_invalid=True, source=c)))
-        return out, config
-    return [(Path(c).stem, read_cloud(c)) for c in args.cloud], config
+    else:
+        out = [(Path(c).stem, read_cloud(c)) for c in args.cloud]
+    warn_sigma([c for _, c in out])
+    return out, config
 
 
 def _heights(args: argparse.Namespace) -> dict[int, float]:

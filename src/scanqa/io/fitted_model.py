@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
+import math
 import os
 from pathlib import Path
 
@@ -18,19 +20,41 @@ def read_fitted_model(path: str | os.PathLike) -> dict:
         ``filter_floor``, ``noise_reading``, ``filter_form``, ``sigma_p_px``
         [projector px], ``gamma`` [-] and ``sensor_sigma_p_px`` [projector px]. Summaries
         written before the two-source model lack the last two keys of the form and the
-        sensor: their fits used Eq. 17 as printed ("product") and no sensor term.
+        sensor: their fits used Eq. 17 as printed ("product") and no sensor term. Every
+        summary also gives ``characterised_by`` (the file and its hash); a board
+        characterisation gives its noise law instead of the variant
+        (``noise_read_var_dn2`` [DN^2], ``noise_shot_dn`` [DN], ``systematic_sigma_mm``).
     """
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        raw = path.read_bytes()
+        data = json.loads(raw.decode("utf-8"))
+        where = f"{path.name} (sha256 {hashlib.sha256(raw).hexdigest()[:16]})"
+        if isinstance(data, dict) and data.get("kind") == "board":
+            return _board_law(data["noise_law"], where)
         best = data["best_variant"]
-        return {"filter_floor": str(best["filter_floor"]),
+        return {"characterised_by": f"scanqa characterize: {where}",
+                "filter_floor": str(best["filter_floor"]),
                 "noise_reading": str(best["noise_reading"]),
                 "filter_form": str(best.get("filter_form", "product")),
                 "sigma_p_px": float(best["sigma_p_px"]), "gamma": float(best["gamma"]),
                 "sensor_sigma_p_px": float(best.get("sensor_sigma_p_px", 0.0))}
     except OSError as err:
         raise InputError(f"cannot read characterisation {path}: {err.strerror}") from None
-    except (ValueError, KeyError, TypeError) as err:
+    except (ValueError, KeyError, TypeError, AttributeError) as err:
         raise InputError(f"{path} is not a characterisation summary (scanqa characterize "
                          f"writes one; missing or bad {err})") from None
+
+
+def _board_law(law: dict, where: str) -> dict:
+    """``[model]`` overrides of a board characterisation's noise law (``scanqa
+    characterize-board``): the law, its systematic term and where it came from."""
+    values = {"noise_read_var_dn2": float(law["read_var_dn2"]),
+              "noise_shot_dn": float(law["shot_dn"]),
+              "systematic_sigma_mm": 1e-3 * float(law["systematic_um"])}
+    bad = [k for k, v in values.items() if not (math.isfinite(v) and v >= 0)]
+    if bad:
+        raise ValueError(f"noise_law {bad[0]} (must be a finite number >= 0)")
+    data_hash = str(law.get("data_sha256", ""))[:16]
+    return {"characterised_by": f"scanqa characterize-board: {where}, board images sha256 "
+                                f"{data_hash}", **values}

@@ -72,7 +72,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa.cloud import AnnotatedCloud
+from scanqa.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.errors import InputError
 from scanqa.io.artefacts import read_artefact_layout
 from scanqa.io.spec import Spec
@@ -247,6 +247,9 @@ class ArtefactQAResult:
     spec: Spec | None
     layout: ArtefactLayout
     notes: tuple[str, ...] = ()
+    #: where the scans' per-point sigmas come from (the first scan with a warning, else
+    #: the first scan; :func:`scanqa.annotation.sigma_source`), None when unknown
+    sigma_source: dict | None = None
 
     def quantities(self) -> list[Quantity]:
         return [q for r in self.results for q in r.quantities]
@@ -271,7 +274,8 @@ class ArtefactQAResult:
                                 "ball": "ab"[i] if len(r.selections) == 2 else "",
                                 **s.counts} for r in self.results
                                for i, s in enumerate(r.selections)],
-                "options": self.options.row(), "notes": list(self.notes)}
+                "options": self.options.row(), "sigma_source": self.sigma_source,
+                "notes": list(self.notes)}
 
 
 # --------------------------------------------------------------------------- layouts
@@ -480,9 +484,10 @@ def point_sigma(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
     """Per-point sigma along the line of sight, scaled for oblique views (module notes)
     [mm]; None when the cloud has no ``sigma_model_um``."""
     attrs = cloud.attributes
-    if "sigma_model_um" not in attrs:
+    name = random_sigma_name(attrs)
+    if name is None:
         return None
-    sig = 1e-3 * np.asarray(attrs["sigma_model_um"], float)[idx]
+    sig = 1e-3 * np.asarray(attrs[name], float)[idx]
     if options.oblique == "none":
         return sig
     return sig * oblique_factor(cloud, idx, normals, options.oblique)
@@ -704,6 +709,7 @@ def run_artefact_qa(clouds, layout: ArtefactLayout, spec: Spec | None = None,
         layout that matches none of the scans.
     """
     options = options or Options()
+    clouds = list(clouds)
     results, notes = [], []
     for name, cloud in clouds:
         arts = [a for a in layout.artefacts if a.applies_to(name)]
@@ -711,7 +717,7 @@ def run_artefact_qa(clouds, layout: ArtefactLayout, spec: Spec | None = None,
             notes.append(f"scan {name!r}: no artefact of the layout applies to it")
         for art in arts:
             results.append(EVALUATE[art.kind](cloud, art, spec, options, name))
-        if "sigma_model_um" not in cloud.attributes:
+        if random_sigma_name(cloud.attributes) is None:
             notes.append(f"scan {name!r} has no per-point sigma: u and the predicted form "
                          "come from the residuals' scatter")
     if not results:
@@ -721,4 +727,7 @@ def run_artefact_qa(clouds, layout: ArtefactLayout, spec: Spec | None = None,
     if spec is None:
         notes.append("no spec given: the quantities are measured, not decided (give --spec "
                      "with the MPEs and the artefacts' certificates)")
-    return ArtefactQAResult(tuple(results), options, spec, layout, tuple(notes))
+    sources = [c.metadata.get("sigma_source") for _, c in clouds]
+    sources = [s for s in sources if s]
+    source = next((s for s in sources if s.get("warning")), sources[0] if sources else None)
+    return ArtefactQAResult(tuple(results), options, spec, layout, tuple(notes), source)

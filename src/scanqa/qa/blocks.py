@@ -50,7 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa import design
-from scanqa.cloud import AnnotatedCloud
+from scanqa.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
@@ -231,6 +231,8 @@ class QAResult:
             "format": "scanqa-qa-summary/2",
             "settings": self.settings,
             "model": self.cloud.model if self.cloud is not None else {},
+            "sigma_source": (self.cloud.metadata.get("sigma_source")
+                             if self.cloud is not None else None),
             "has_prediction": self.has_prediction,
             "blocks": [{k: _finite(v) for k, v in b.row().items()} for b in self.blocks],
             "blocks_ok": sum(b.status == "ok" for b in self.blocks),
@@ -333,7 +335,7 @@ def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarra
     pts = xyz[idx]
     los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(los @ fit.normal)
-    sig = _attr(attrs, "sigma_model_um", idx) * 1e-3 * cos
+    sig = _attr(attrs, random_sigma_name(attrs) or "sigma_model_um", idx) * 1e-3 * cos
     sig[~(sig > 0)] = np.nan  # a zero, negative or NaN sigma predicts nothing
     res.n_points, res.fit, res.index = n, fit, idx
     res.measured_std_um = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
@@ -602,7 +604,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
         raise InputError(f"the cloud has no points with finite coordinates ({len(xyz)} "
                          "points): nothing to measure")
     notes = []
-    has_pred = "sigma_model_um" in attrs
+    has_pred = random_sigma_name(attrs) is not None
     if not has_pred:
         notes.append("the cloud has no sigma attributes: the predicted-std column is missing "
                      "and step uncertainties use the measured residual std instead")

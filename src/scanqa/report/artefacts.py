@@ -71,6 +71,7 @@ def render(result: ArtefactQAResult, header: ReportHeader) -> str:
     """The acceptance report as one self-contained HTML page."""
     page = Page("scanqa acceptance test report (VDI/VDE 2634-2)")
     page.banner(result.verdict(), "decisions (ISO 14253-1)")
+    page.sigma_source(result.sigma_source)
     page.header_block(header.items())
     _results(page, result)
     _form(page, result)

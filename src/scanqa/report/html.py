@@ -28,6 +28,8 @@ td.l,th.l{text-align:left}img{max-width:100%}figure{margin:0.6em 0}
 margin:0.4em 0 0.8em;border:2px solid}
 .verdict .word{font-size:2.1em;font-weight:bold;letter-spacing:0.04em}
 .verdict .counts{font-size:1.05em}
+.sigma-source{margin:0.5em 0;padding:0.4em 0.8em;border-left:4px solid #4a7}
+.sigma-warning{border-left-color:#c60;background:#fff4e0}
 .v-pass{background:#e7f6e7;border-color:#2a7a2a;color:#145214}
 .v-fail{background:#fbe5e5;border-color:#b00;color:#8a0000}
 .v-undecided,.v-incomplete{background:#fff4d6;border-color:#b07a00;color:#6b4a00}
@@ -87,6 +89,19 @@ class Page:
         self.parts.append(f'<div class="verdict {cls}" id="verdict"><span class="word">'
                           f'{html.escape(word)}</span> <span class="counts">'
                           f'{html.escape(what)}: {html.escape(counts)}</span></div>')
+
+    def sigma_source(self, source: dict | None) -> None:
+        """Where the per-point sigmas come from, on the first screen; an assumed sigma
+        as a warning (:func:`scanqa.annotation.sigma_source`)."""
+        source = source or {"kind": "unknown", "detail": "the cloud does not say (a cloud "
+                            "from elsewhere or an older scanqa)", "warning": ""}
+        warning = source.get("warning", "")
+        cls = "sigma-source sigma-warning" if warning or source.get("kind") != \
+            "characterised" else "sigma-source"
+        text = f"Per-point sigma: {source.get('kind', 'unknown')} ({source.get('detail', '')})"
+        if warning:
+            text += f". WARNING: {warning}"
+        self.parts.append(f'<div class="{cls}" id="sigma-source">{html.escape(text)}</div>')
 
     def header_block(self, items: Sequence[tuple[str, str]]) -> None:
         """The report's provenance as a two-column table (:mod:`scanqa.provenance`)."""

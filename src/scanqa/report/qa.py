@@ -100,6 +100,7 @@ def render(result: QAResult, header: ReportHeader | None = None) -> str:
     block (when given) and the sections."""
     page = Page("scanqa gauge-block QA report")
     page.banner(step_verdict(result), "height differences (ISO 14253-1)")
+    page.sigma_source(result.summary()["sigma_source"])
     if header is not None:
         page.header_block(header.items())
     info = result.summary()

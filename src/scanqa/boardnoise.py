@@ -1,0 +1,412 @@
+"""The noise of a real scanner from its calibration board: no stage needed.
+
+Every pose of a chessboard board is a plane seen through bright and dark squares, so the
+scatter of the triangulated points about that plane, square by square, is the scanner's
+real random error at that pose's depth and at two fringe contrasts. This module splits
+each pose's residual about its fitted plane into
+
+* a smooth part: a polynomial surface of degree :data:`SMOOTH_DEGREE` in the board's
+  plane (board flatness and calibration error; one pose cannot tell them apart);
+* a phase-locked ripple: harmonics 1-3 of the working fringe's phase (a projector
+  response that is not a pure sine, which 3-step shifting folds into the phase);
+* the random part, which the per-point sigma must predict;
+
+and fits the noise law of the phase that each pixel's own fringe offset ``A`` and
+modulation ``B`` give (:func:`scanqa.decoding.imagenoise.phase_sigma_px`)::
+
+    sigma_xp^2 = (P / 2 pi)^2 (2 / N) (a + b A) / B^2
+
+(``a`` [DN^2]: read noise and quantisation; ``b`` [DN]: shot noise, 1 / gain) to the
+random part of every square of every pose. Bright and dark squares at one depth differ
+several-fold in ``B``: the two terms scale differently with it, which is what pins both.
+
+The defocus model's filtering is not identified by a board at a few nearby depths (its
+blur ratios are small there); it is reported as such, and sigma takes the attenuation
+from the measured ``B`` of each pixel.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import nnls
+
+from scanqa.calibration.base import Calibration
+from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
+from scanqa.decoding.phasemap import PhaseMap
+from scanqa.errors import InputError
+
+#: Degree of the polynomial surface taken as the smooth part [-].
+SMOOTH_DEGREE = 4
+#: Harmonics of the fringe phase taken as the phase-locked ripple [-].
+RIPPLE_HARMONICS = 3
+#: Each square's quadrilateral is shrunk to this fraction about its centre (so the
+#: colour edges, blurred by both lenses, stay out) [-].
+SQUARE_SHRINK = 0.6
+#: Fewest points of a square used in the fit [-].
+MIN_SQUARE_POINTS = 200
+#: Format tag of the summary written by :func:`characterize_board`.
+SUMMARY_FORMAT = "scanqa-board-noise/1"
+
+
+def robust_std(values: np.ndarray) -> float:
+    """1.4826 x the median absolute deviation of the finite values [their unit]."""
+    v = np.asarray(values, float)
+    v = v[np.isfinite(v)]
+    if v.size == 0:
+        return math.nan
+    return float(1.4826 * np.median(np.abs(v - np.median(v))))
+
+
+def find_board_corners(image: np.ndarray, inner: tuple[int, int]) -> np.ndarray | None:
+    """Inner corners of a chessboard in an image, (rows, cols, 2) [camera px] or None.
+
+    Parameters
+    ----------
+    image : (H, W) float
+        A frame showing the board (e.g. the fringe offset A) [DN].
+    inner : (int, int)
+        Inner corners (saddle points) per row and per column of the board [-].
+    """
+    import cv2  # OpenCV's sector-based detector: sub-pixel and robust to blur
+
+    scale = np.nanpercentile(image, 99.5)
+    im = np.clip(255.0 * np.nan_to_num(image) / max(scale, 1e-9), 0, 255).astype(np.uint8)
+    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
+    for size in (inner, inner[::-1]):
+        ok, corners = cv2.findChessboardCornersSB(im, size, flags=flags)
+        if ok:
+            return corners.reshape(size[1], size[0], 2)
+    return None
+
+
+def square_labels(corners: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Label image of the board's squares between its inner corners, and their colours.
+
+    Returns
+    -------
+    labels : (H, W) int
+        Square index + 1 inside each square's shrunk quadrilateral, 0 elsewhere [-].
+    bright : (n_squares,) bool
+        True for the bright squares (the parity class with the higher median offset).
+    """
+    import cv2
+
+    labels = np.zeros(offset.shape, np.int32)
+    rows, cols = corners.shape[:2]
+    parity = []
+    for i in range(rows - 1):
+        for j in range(cols - 1):
+            quad = np.array([corners[i, j], corners[i, j + 1], corners[i + 1, j + 1],
+                             corners[i + 1, j]])
+            centre = quad.mean(axis=0)
+            quad = centre + SQUARE_SHRINK * (quad - centre)
+            cv2.fillConvexPoly(labels, np.round(quad).astype(np.int32), len(parity) + 1)
+            parity.append((i + j) % 2)
+    parity = np.array(parity)
+    level = np.array([np.nanmedian(offset[labels == k + 1]) for k in range(parity.size)])
+    even_bright = np.nanmedian(level[parity == 0]) > np.nanmedian(level[parity == 1])
+    return labels, (parity == 0) == even_bright
+
+
+@dataclass(frozen=True)
+class PoseResidual:
+    """One pose's residual about its plane, split into parts.
+
+    Attributes
+    ----------
+    name : str
+        The pose (its folder).
+    normal : (3,) float
+        Unit normal of the fitted plane, towards the camera [-].
+    depth_mm : float
+        Median Z of the board's points [mm].
+    smooth_rms_um, ripple_amplitude_um : float
+        RMS of the smooth part and amplitude (half peak-to-peak) of the phase-locked
+        ripple over the board [um].
+    squares : dict
+        Per square (arrays over squares): ``bright`` (bool), ``n`` points,
+        ``var_random_mm2`` and ``var_plane_mm2`` (robust variance of the random part and
+        of the whole residual about the plane [mm^2]), ``read_term``, ``shot_term``
+        (mean over the square's points of the law's two regressors [mm^2/DN^2],
+        [mm^2/DN]) and ``sigma_images_mm`` (median sigma along the normal from the
+        decoder's own noise estimate [mm]).
+    """
+
+    name: str
+    normal: np.ndarray
+    depth_mm: float
+    smooth_rms_um: float
+    ripple_amplitude_um: float
+    squares: dict = field(repr=False)
+    #: robust std of the whole residual about the plane over all points of the bright
+    #: and of the dark squares (smooth part and ripple included) [um]
+    about_plane_um: dict = field(default_factory=dict)
+
+
+def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
+                  inner: tuple[int, int]) -> PoseResidual:
+    """Split one board pose's residual about its plane (module docstring)."""
+    corners = find_board_corners(phase_map.offset.astype(float), inner)
+    if corners is None:
+        raise InputError(f"{name}: no {inner[0]} x {inner[1]} chessboard found in the "
+                         "fringe offset image; check --board (inner corners per row and "
+                         "column) and that the whole board is in view")
+    labels, bright = square_labels(corners, phase_map.offset)
+    look = calibration.apply_image(phase_map.xp)
+    on = (labels > 0) & np.isfinite(look.xyz).all(axis=-1)
+    xyz = look.xyz[on]
+    normal, resid = _plane(xyz)
+    ray = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    cos = np.abs(ray @ normal)
+    theta = 2 * math.pi * phase_map.xp[on] / phase_map.period_px
+    parts, keep = _split(xyz, normal, resid, theta)
+    smooth, ripple = parts
+    random = resid - smooth - ripple
+    lab = labels[on]
+    terms = _law_terms(phase_map, look.s_t[on], cos, on)
+    sig_img = look.s_t[on] * phase_map.sigma_xp[on] * cos
+    squares = _per_square(lab, bright, keep, random, resid, terms, sig_img)
+    is_bright = bright[lab - 1]
+    pooled = {"bright": 1e3 * robust_std(resid[is_bright]),
+              "dark": 1e3 * robust_std(resid[~is_bright])}
+    return PoseResidual(name, normal, float(np.median(xyz[:, 2])),
+                        1e3 * float(np.sqrt(np.mean(smooth[keep] ** 2))),
+                        1e3 * 0.5 * float(np.ptp(np.percentile(ripple[keep], [1, 99]))),
+                        squares, pooled)
+
+
+def _plane(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares plane with 4-sigma rejection: unit normal towards the camera and the
+    signed residual of every point [mm]."""
+    keep = np.ones(len(xyz), bool)
+    for _ in range(3):
+        centre = xyz[keep].mean(axis=0)
+        normal = np.linalg.svd(xyz[keep][::7] - centre, full_matrices=False)[2][2]
+        resid = (xyz - centre) @ normal
+        keep = np.abs(resid - np.median(resid)) < 4 * robust_std(resid)
+    if normal @ centre > 0:
+        normal, resid = -normal, -resid
+    return normal, resid
+
+
+def _split(xyz: np.ndarray, normal: np.ndarray, resid: np.ndarray, theta: np.ndarray
+           ) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+    """Smooth part and ripple of ``resid`` (joint least squares with 4-sigma rejection),
+    and the points kept [mm, mm, bool]."""
+    e1 = np.cross(normal, [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(normal, e1)
+    centre = xyz.mean(axis=0)
+    s, t = (xyz - centre) @ e1, (xyz - centre) @ e2
+    span = max(np.ptp(s), np.ptp(t)) / 2
+    s, t = s / span, t / span
+    smooth_cols = [s**i * t**j for i in range(SMOOTH_DEGREE + 1)
+                   for j in range(SMOOTH_DEGREE + 1 - i)]
+    ripple_cols = [f(k * theta) for k in range(1, RIPPLE_HARMONICS + 1)
+                   for f in (np.cos, np.sin)]
+    design = np.stack(smooth_cols + ripple_cols, axis=1)
+    keep = np.ones(resid.size, bool)
+    for _ in range(3):
+        coef = np.linalg.lstsq(design[keep][::3], resid[keep][::3], rcond=None)[0]
+        rest = resid - design @ coef
+        keep = np.abs(rest) < 4 * robust_std(rest)
+    n = len(smooth_cols)
+    return (design[:, :n] @ coef[:n], design[:, n:] @ coef[n:]), keep
+
+
+def _law_terms(phase_map: PhaseMap, s_t: np.ndarray, cos: np.ndarray, on: np.ndarray
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The noise law's two regressors per point, along the plane normal: the variance
+    for a = 1 DN^2, b = 0 and for a = 0, b = 1 DN [mm^2/DN^2, mm^2/DN]."""
+    steps = working_steps(phase_map)
+    unit = phase_sigma_px(phase_map.modulation[on], phase_map.offset[on], 1.0, 0.0,
+                          phase_map.period_px, steps)
+    scale = (s_t * cos) ** 2
+    read = scale * unit**2
+    return read, read * np.maximum(phase_map.offset[on].astype(float), 0.0)
+
+
+def _per_square(lab, bright, keep, random, resid, terms, sig_img) -> dict:
+    """Per-square statistics (see :class:`PoseResidual`)."""
+    out = {k: [] for k in ("bright", "n", "var_random_mm2", "var_plane_mm2", "read_term",
+                           "shot_term", "sigma_images_mm")}
+    for k in range(bright.size):
+        sel = (lab == k + 1) & keep
+        if sel.sum() < MIN_SQUARE_POINTS:
+            continue
+        out["bright"].append(bool(bright[k]))
+        out["n"].append(int(sel.sum()))
+        out["var_random_mm2"].append(robust_std(random[sel]) ** 2)
+        out["var_plane_mm2"].append(robust_std(resid[lab == k + 1]) ** 2)
+        out["read_term"].append(float(np.mean(terms[0][sel])))
+        out["shot_term"].append(float(np.mean(terms[1][sel])))
+        out["sigma_images_mm"].append(float(np.nanmedian(sig_img[sel])))
+    return {k: np.array(v) for k, v in out.items()}
+
+
+@dataclass(frozen=True)
+class NoiseLaw:
+    """The per-pixel phase-noise law ``var = a + b A`` [DN^2] fitted to board data.
+
+    Attributes
+    ----------
+    read_var_dn2 : float
+        ``a``: read noise and quantisation, per frame [DN^2].
+    shot_dn : float
+        ``b``: shot-noise slope, the inverse gain [DN].
+    interval : dict
+        95 % intervals of both from a bootstrap over poses.
+    """
+
+    read_var_dn2: float
+    shot_dn: float
+    interval: dict = field(default_factory=dict)
+
+
+def fit_noise_law(poses: list[PoseResidual], bootstrap: int = 200, seed: int = 0
+                  ) -> NoiseLaw:
+    """Fit ``a`` and ``b`` to the random part of every square of ``poses`` (non-negative
+    least squares on relative errors), with a bootstrap over poses for the intervals."""
+    if not poses:
+        raise InputError("no board pose to fit the noise law to")
+    a, b = _nnls_law(poses)
+    rng = np.random.default_rng(seed)
+    draws = [_nnls_law([poses[i] for i in rng.integers(0, len(poses), len(poses))])
+             for _ in range(bootstrap if len(poses) > 1 else 0)]
+    interval = {}
+    if draws:
+        d = np.array(draws)
+        interval = {"read_var_dn2": [float(x) for x in np.percentile(d[:, 0], [2.5, 97.5])],
+                    "shot_dn": [float(x) for x in np.percentile(d[:, 1], [2.5, 97.5])]}
+    return NoiseLaw(a, b, interval)
+
+
+def _nnls_law(poses: list[PoseResidual]) -> tuple[float, float]:
+    sq = [p.squares for p in poses]
+    y = np.concatenate([s["var_random_mm2"] for s in sq])
+    x = np.stack([np.concatenate([s["read_term"] for s in sq]),
+                  np.concatenate([s["shot_term"] for s in sq])], axis=1)
+    coef = nnls(x / y[:, None], np.ones(y.size))[0]
+    return float(coef[0]), float(coef[1])
+
+
+def law_sigma_mm(law: NoiseLaw, square: dict) -> np.ndarray:
+    """Predicted sigma along the normal of each square of a pose [mm]."""
+    return np.sqrt(law.read_var_dn2 * square["read_term"] + law.shot_dn * square["shot_term"])
+
+
+def cell_table(pose: PoseResidual, law: NoiseLaw | None, smooth_um: float = 0.0) -> list:
+    """Measured against predicted per colour of one pose: rows with the robust std of the
+    random part (per square, pooled) and of all the colour's points about the plane, the
+    median predicted sigma along the normal (from ``law``, or from the decoder's image
+    estimate when ``law`` is None), and that sigma with the systematic term ``smooth_um``
+    [um]."""
+    sq = pose.squares
+    rows = []
+    for colour, sel in (("bright", sq["bright"]), ("dark", ~sq["bright"])):
+        if not sel.any():
+            continue
+        w = sq["n"][sel]
+        meas = 1e3 * math.sqrt(np.average(sq["var_random_mm2"][sel], weights=w))
+        plane = pose.about_plane_um.get(colour, math.nan)
+        pred_sq = (law_sigma_mm(law, sq) if law is not None else sq["sigma_images_mm"])[sel]
+        pred = 1e3 * float(np.median(pred_sq))
+        rows.append({"pose": pose.name, "colour": colour, "depth_mm": pose.depth_mm,
+                     "squares": int(sel.sum()), "measured_random_um": meas,
+                     "measured_about_plane_um": plane, "predicted_um": pred,
+                     "predicted_with_systematic_um": math.hypot(pred, smooth_um),
+                     "ratio_random": meas / pred,
+                     "ratio_about_plane": plane / math.hypot(pred, smooth_um)})
+    return rows
+
+
+def leave_one_out(poses: list[PoseResidual]) -> list[dict]:
+    """Each pose predicted by the law fitted to the others (and the smooth part's RMS of
+    the others as the systematic term): the rows of :func:`cell_table`, plus the
+    dark/bright ratios measured and predicted."""
+    rows = []
+    for i, pose in enumerate(poses):
+        others = poses[:i] + poses[i + 1:]
+        law = fit_noise_law(others, bootstrap=0)
+        smooth = math.sqrt(np.mean([p.smooth_rms_um**2 for p in others]))
+        rows.extend(cell_table(pose, law, smooth))
+    return rows
+
+
+def digest(paths: list[str]) -> str:
+    """SHA-256 over the given files' bytes, in order (the data a characterisation used)."""
+    h = hashlib.sha256()
+    for p in paths:
+        with open(p, "rb") as f:
+            for chunk in iter(lambda: f.read(1 << 20), b""):
+                h.update(chunk)
+    return h.hexdigest()
+
+
+def summary(poses: list[PoseResidual], law: NoiseLaw, held_out: list[dict],
+            data_sha256: str, sources: list[str]) -> dict:
+    """The JSON summary that ``--model`` takes (``noise_law``) with every table."""
+    smooth = math.sqrt(np.mean([p.smooth_rms_um**2 for p in poses]))
+    return {"format": SUMMARY_FORMAT, "kind": "board",
+            "noise_law": {"read_var_dn2": law.read_var_dn2, "shot_dn": law.shot_dn,
+                          "interval_95": law.interval,
+                          "systematic_um": smooth,
+                          "data_sha256": data_sha256, "sources": sources},
+            "identifiability": {
+                "read_var_dn2": "fitted (bright and dark squares differ in B)",
+                "shot_dn": "fitted (bright and dark squares differ in B)",
+                "defocus filtering (gamma, sigma_p)": "not identified: the board's poses "
+                "span too little depth for the blur to change the noise"},
+            "poses": [{"name": p.name, "depth_mm": p.depth_mm,
+                       "smooth_rms_um": p.smooth_rms_um,
+                       "ripple_amplitude_um": p.ripple_amplitude_um,
+                       "squares": int(p.squares["n"].size)} for p in poses],
+            "held_out": held_out}
+
+
+def write_summary(path, data: dict) -> None:
+    """Write the summary JSON (plain floats)."""
+    from scanqa.io.atomic import write_text
+
+    write_text(path, json.dumps(data, indent=1))
+
+
+def characterize_board(poses: dict, calibration: Calibration, inner: tuple[int, int],
+                       progress=None) -> dict:
+    """Characterise a scanner from its board poses.
+
+    Parameters
+    ----------
+    poses : dict of str to PhaseMap
+        Each pose's decoded scan (fringes across the board), by name.
+    calibration : Calibration
+        The scanner's calibration (parametric or table).
+    inner : (int, int)
+        Inner corners of the chessboard per row and column [-].
+    progress : callable, optional
+        Receives a short message per pose.
+
+    Returns
+    -------
+    dict
+        The summary (:func:`summary`) without the data hash: the law fitted to every
+        pose, each pose predicted by the law of the others (``held_out``), and the
+        image-only prediction per pose (``images_only``).
+    """
+    if len(poses) < 2:
+        raise InputError(f"a board characterisation needs >= 2 poses (one held out at a "
+                         f"time), got {len(poses)}")
+    residuals = []
+    for name, pm in poses.items():
+        if progress:
+            progress(f"board pose {name}")
+        residuals.append(pose_residual(name, pm, calibration, inner))
+    law = fit_noise_law(residuals)
+    out = summary(residuals, law, leave_one_out(residuals), "", list(poses))
+    out["images_only"] = [row for p in residuals for row in cell_table(p, None)]
+    return out
