@@ -250,3 +250,77 @@ def test_bad_inputs(cfg, table, tmp_path, capsys):
     xyz, attrs, _ = read_cloud(tmp_path / "c.ply")
     assert xyz.shape == (W * H, 3) and "sigma_model_um" in attrs
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []
+
+
+def _slope_by_differences(table, xp, h=0.01):
+    """|dQ/dx_p| from central differences of the calibration [mm / projector px]."""
+    up, down = table.apply_image(xp + h).xyz, table.apply_image(xp - h).xyz
+    return np.linalg.norm(up - down, axis=-1).ravel() / (2 * h)
+
+
+def test_sigma_source_picks_the_random_sigma(cfg, table):
+    """Characterised model -> sigma_random is the model's; an assumed sigma_p -> the
+    decoder's image estimate s_T sigma_xp (and a warning); a board noise law -> the law on
+    each pixel's own A and B, worked out here by hand (docs/noise_model.rst)."""
+    pm, _ = scan(cfg, sigma=0.03)
+    s_t = _slope_by_differences(table, pm.xp)
+    model = annotate(pm, table, cfg)
+    a = model.attributes
+    assert model.metadata["sigma_source"]["kind"] == "characterised"
+    assert model.sigma_warning == ""
+    np.testing.assert_allclose(a["sigma_random_um"], a["sigma_model_um"], rtol=1e-6)
+
+    images = annotate(pm, table, cfg.replace_model(characterised_by=""))
+    a = images.attributes
+    source = images.metadata["sigma_source"]
+    assert source["kind"] == "images" and "assumed" in source["warning"]
+    # s_T x 0.03 px, the slope from differences of the table (rtol: float32, differences)
+    np.testing.assert_allclose(a["sigma_random_um"], 1e3 * s_t * 0.03, rtol=2e-3)
+    np.testing.assert_allclose(a["sigma_total_um"], np.hypot(a["sigma_random_um"],
+                                                             a["sigma_table_um"]), rtol=1e-5)
+
+    lawful = replace_prov(pm)
+    law = cfg.replace_model(characterised_by="board test", noise_read_var_dn2=4.0,
+                            noise_shot_dn=0.25, systematic_sigma_mm=0.002)
+    a = annotate(lawful, table, law).attributes
+    # 4 steps of period 5 px, A = 900 DN, B = 400 DN: sigma_xp = 5 / 2pi sqrt(2 (4 + 225)
+    # / 4) / 400 = 0.021288 px
+    sigma_xp = 5 / (2 * np.pi) * np.sqrt(2 * (4.0 + 0.25 * 900) / 4) / 400
+    np.testing.assert_allclose(sigma_xp, 0.021288, rtol=1e-4)
+    np.testing.assert_allclose(a["sigma_random_um"], 1e3 * s_t * sigma_xp, rtol=2e-3)
+    np.testing.assert_allclose(a["sigma_total_um"], np.sqrt(
+        a["sigma_random_um"].astype(float) ** 2 + a["sigma_table_um"].astype(float) ** 2
+        + 2.0**2), rtol=1e-5)
+    with pytest.raises(InputError, match="how many phase steps"):
+        annotate(pm, table, law)
+
+
+def replace_prov(pm):
+    """The phase map with a decode provenance naming a 4-step working set."""
+    from dataclasses import replace
+
+    return replace(pm, provenance={"decode": {"chain": ["p5"]},
+                                   "patterns": {"set": [{"name": "p5", "steps": 4}]}})
+
+
+def test_cli_warns_when_sigma_p_is_assumed(cfg, table, tmp_path, capsys):
+    """An assumed sigma_p is never silent: a warning on the console and the source in the
+    cloud's header; a characterised config gives neither."""
+    save_table(tmp_path / "t.npz", table)
+    save_phase_map(tmp_path / "s.npz", scan(cfg)[0])
+    text = PAPER_CONFIG.read_text().replace("width_px = 2448", f"width_px = {W}") \
+        .replace("height_px = 2048", f"height_px = {H}")
+    for name, body in (("char.toml", text), ("assumed.toml", "\n".join(
+            line for line in text.splitlines() if not line.startswith("characterised_by")))):
+        (tmp_path / name).write_text(body)
+        code = main(["annotate", str(tmp_path / "s.npz"), "--table", str(tmp_path / "t.npz"),
+                     "--config", str(tmp_path / name), "--out", str(tmp_path / f"{name}.ply")])
+        err = capsys.readouterr().err
+        header = (tmp_path / f"{name}.ply").read_bytes().split(b"end_header")[0].decode()
+        assert code == 0
+        if name == "char.toml":
+            assert err == "" and '"kind":"characterised"' in header
+        else:
+            assert err.startswith("scanqa: warning: sigma_p_px = 0.006487 px in ")
+            assert "is assumed" in err and err.count("\n") == 1
+            assert '"kind":"images"' in header and "is assumed" in header

@@ -27,10 +27,10 @@ BLOCK_COLUMNS = ["block_id", "nominal_height_mm", "n_points", "measured_std_um",
                  "noise_corr_factor", "n_tiles"]
 STEP_COLUMNS = ["block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "error_um",
                 "u_um", "nu_eff", "U_um", "k", "tolerance_um", "pass", "evaluated"]
-SUMMARY_KEYS = ["format", "settings", "model", "has_prediction", "blocks", "blocks_ok",
-                "blocks_flagged", "steps", "budgets", "type_b_included", "steps_evaluated",
-                "steps_not_evaluated", "steps_error_within_U", "fraction_within_U",
-                "decisions", "max_abs_ratio_deviation", "notes"]
+SUMMARY_KEYS = ["format", "settings", "model", "sigma_source", "has_prediction", "blocks",
+                "blocks_ok", "blocks_flagged", "steps", "budgets", "type_b_included",
+                "steps_evaluated", "steps_not_evaluated", "steps_error_within_U",
+                "fraction_within_U", "decisions", "max_abs_ratio_deviation", "notes"]
 #: the note of every run without a budget file
 NO_TYPE_B = ("Type B inputs (gauge-block certificates, temperature, stage scale, flatness of "
              "the calibration flat) are not included: no budget file was given; U holds the "
@@ -505,3 +505,27 @@ def test_table_variance_needs_a_positive_correlation_length_on_both_blocks():
     a, b = block(2, (-8.0, -12.0, 443.65), 0.5, 5.0), block(3, (8.0, -12.0, 456.35), 0.5, 3.0)
     want = math.sqrt(25 / 576 + 9 / 576 + 25 / 576 * (16 / 3) ** 2)
     np.testing.assert_allclose(blocks.step_between(a, b, 2.0, 20.0).u_um, want, rtol=1e-12)
+
+
+def test_report_first_screen_says_where_the_sigmas_come_from():
+    """An assumed sigma_p shows as a warning right under the verdict and in summary.json;
+    a cloud that does not say is 'unknown'; the random sigma attribute is preferred to the
+    model's."""
+    from scanqa.report.qa import render
+
+    xyz, attrs = _cloud(sigma_um=2.0)
+    attrs["sigma_random_um"] = np.full(len(xyz), 3.0)
+    source = {"kind": "images", "random": "images", "detail": "estimated from the images",
+              "warning": "sigma_p_px = 0.05 px in x.toml is assumed"}
+    res = run_qa(AnnotatedCloud(xyz, attrs, metadata={"sigma_source": source}), THREE)
+    assert res.summary()["sigma_source"] == source
+    page = render(res)
+    first = page[:page.index('id="sigma-source"') + 400]
+    assert page.index('id="verdict"') < page.index('id="sigma-source"') < page.index("<h2")
+    assert "WARNING: sigma_p_px = 0.05 px in x.toml is assumed" in first
+    ok = [b for b in res.blocks if b.status == "ok"]
+    # the predicted std is sigma_random (3 um, not the model's 2 um) times the cosine of
+    # the line of sight to the block's normal (>= 0.99 for these blocks near the axis)
+    np.testing.assert_allclose([b.predicted_std_um for b in ok], 3.0, rtol=1e-2)
+    page = render(run_qa(AnnotatedCloud(xyz, attrs), THREE))
+    assert "Per-point sigma: unknown" in page
