@@ -30,8 +30,9 @@ def read_fitted_model(path: str | os.PathLike) -> dict:
         raw = path.read_bytes()
         data = json.loads(raw.decode("utf-8"))
         where = f"{path.name} (sha256 {hashlib.sha256(raw).hexdigest()[:16]})"
-        if isinstance(data, dict) and data.get("kind") == "board":
-            return _board_law(data["noise_law"], where)
+        if isinstance(data, dict) and data.get("kind") in ("board", "repeats"):
+            kind = "board" if data["kind"] == "board" else "repeats"
+            return _board_law(data["noise_law"], where, kind)
         best = data["best_variant"]
         return {"characterised_by": f"scanqa characterize: {where}",
                 "filter_floor": str(best["filter_floor"]),
@@ -46,7 +47,7 @@ def read_fitted_model(path: str | os.PathLike) -> dict:
                          f"writes one; missing or bad {err})") from None
 
 
-def _board_law(law: dict, where: str) -> dict:
+def _board_law(law: dict, where: str, kind: str) -> dict:
     """``[model]`` overrides of a board characterisation's noise law (``scanqa
     characterize-board``): the law, its systematic term and where it came from."""
     values = {"noise_read_var_dn2": float(law["read_var_dn2"]),
@@ -56,5 +57,5 @@ def _board_law(law: dict, where: str) -> dict:
     if bad:
         raise ValueError(f"noise_law {bad[0]} (must be a finite number >= 0)")
     data_hash = str(law.get("data_sha256", ""))[:16]
-    return {"characterised_by": f"scanqa characterize-board: {where}, board images sha256 "
+    return {"characterised_by": f"scanqa characterize-{kind}: {where}, images sha256 "
                                 f"{data_hash}", **values}
