@@ -245,7 +245,10 @@ def _model() -> list[tuple]:
             ("filter_floor", "none", 'reading of Eq. 17: "none" as printed, "one" clamps '
              "F >= 1"),
             ("noise_reading", "power", 'how attenuation enters s_O: "power" (1/A), '
-             '"amplitude" (1/sqrt(A)) or "mixed"')]
+             '"amplitude" (1/sqrt(A)) or "mixed"'),
+            ("characterised_by", "", "where sigma_p was measured; empty = ASSUMED, so "
+             "every point's sigma comes from the scan's own images and every command warns "
+             "('scanqa characterize-board' or --model SUMMARY.json fill it)")]
 
 
 def _from(cal: ParametricCalibration | None, key: str) -> str:
