@@ -266,7 +266,7 @@ def test_sigma_source_picks_the_random_sigma(cfg, table):
     s_t = _slope_by_differences(table, pm.xp)
     model = annotate(pm, table, cfg)
     a = model.attributes
-    assert model.metadata["sigma_source"]["kind"] == "characterised"
+    assert model.sigma_source["kind"] == "characterised"
     assert model.sigma_warning == ""
     np.testing.assert_allclose(a["sigma_random_um"], a["sigma_model_um"], rtol=1e-6)
 

@@ -77,10 +77,18 @@ class AnnotatedCloud:
         return dict(self.metadata.get("model", {}))
 
     @property
+    def sigma_source(self) -> dict:
+        """Where the per-point random sigma comes from: ``kind`` ("characterised",
+        "images", "assumed"), ``random`` ("law", "model", "images"), ``detail`` and
+        ``warning`` (:func:`scanqa.annotation.sigma_source`); ``{"kind": "unknown"}`` for
+        a cloud that does not say."""
+        return dict(self.metadata.get("sigma_source") or {"kind": "unknown"})
+
+    @property
     def sigma_warning(self) -> str:
         """What the user must know about where the sigmas come from ("" when they were
         characterised; :func:`scanqa.annotation.sigma_source`)."""
-        return str(self.metadata.get("sigma_source", {}).get("warning", ""))
+        return str(self.sigma_source.get("warning", ""))
 
     def summary(self) -> str:
         """One line: points written, and how many pixels were left out and why."""
