@@ -294,7 +294,15 @@ def test_gray_code_masks_inconsistent_and_undecidable_bits():
     images[1][3, :, 128:192] = images[1][3 + 8, :, 128:192]  # bit 3 equals its inverse
     pm = decode_images(desc, images)
     assert (pm.mask[:, :16] == MASK_INCONSISTENT).all()
-    assert (pm.mask[:, 128:192] == MASK_LOW_MODULATION).all()
+    # bit 3 undecidable: the pixel may lie anywhere in its block of 32 cells, which the
+    # 16 px phase cannot order - unless the bit's two readings are neighbouring cells
+    # (the bit flips at the pixel's own cell edge): the phase then picks the right one
+    grey = pm.mask[:, 128:192]
+    assert np.isin(grey, [MASK_LOW_MODULATION, MASK_VALID]).all()
+    assert (grey == MASK_LOW_MODULATION).mean() > 0.8
+    ordered = pm.valid[:, 128:192]
+    np.testing.assert_allclose(pm.xp[:, 128:192][ordered], xp[:, 128:192][ordered],
+                               atol=0.01)
     assert pm.valid[:, 16:128].all() and pm.valid[:, 192:].all()
 
 

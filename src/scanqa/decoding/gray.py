@@ -46,6 +46,14 @@ class GrayDecode:
     contrast_dn : (M,) float64
         Half the contrast of the weakest bit the cell rests on, |bit - threshold|
         (an edge pixel's undecidable bit left out) [DN].
+    span : (M,) int64
+        Number of cells the pixel may lie in, starting at ``first`` [-]: 1 where every
+        bit is decided, 2 for an edge pixel, else the aligned block of ``2**(j + 1)``
+        cells that the undecidable bits can reach (j the most significant undecidable
+        bit, counted from the least significant one: flipping reflected-Gray bit j
+        changes the cell within that block only).
+    first : (M,) int64
+        First cell of the span [-].
     """
 
     cell: np.ndarray
@@ -53,6 +61,8 @@ class GrayDecode:
     edge: np.ndarray
     mid_dn: np.ndarray
     contrast_dn: np.ndarray
+    span: np.ndarray
+    first: np.ndarray
 
 
 def reference_levels(ref: ReferenceSet, frames: np.ndarray, sensor: SensorModel,
@@ -126,7 +136,25 @@ def decode_gray(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
     magnitude = np.abs(diff)
     contrast = np.where(weak & edge, np.inf, magnitude).min(axis=0)
     contrast = np.where(np.isfinite(contrast), contrast, magnitude.min(axis=0))
-    return GrayDecode(cell, weak.any(axis=0) & ~edge, edge, mid, contrast)
+    first, span = _spans(cell, edge, weak)
+    return GrayDecode(cell, weak.any(axis=0) & ~edge, edge, mid, contrast, span, first)
+
+
+def _spans(cell: np.ndarray, edge: np.ndarray, weak: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """First cell and number of cells each pixel may lie in, from its undecidable bits.
+
+    The decided bits above the most significant undecidable bit j (counted from the
+    least significant, 0) fix the aligned block ``cell >> (j + 1)`` of ``2**(j + 1)``
+    cells; the bits below it do not leave the block. An edge pixel's span is its two
+    neighbouring cells.
+    """
+    n = weak.shape[0]
+    anyweak = weak.any(axis=0)
+    j = np.where(anyweak, n - 1 - np.argmax(weak, axis=0), -1).astype(np.int64)
+    first = (cell >> (j + 1)) << (j + 1)
+    span = np.left_shift(np.int64(1), j + 1)
+    return np.where(edge, cell, first), np.where(edge, 2, span)
 
 
 def _edge_rule(bits: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

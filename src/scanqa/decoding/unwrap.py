@@ -241,9 +241,11 @@ def _gray(plan: UnwrapPlan, flat: dict, sets: list, flags: _Flags):
     th = plan.desc.thresholds
     dec = decode_gray(gray, flat[gray.name], plan.sensor, plan.quantised,
                       th.gray_min_contrast_sigma, threshold)
-    # an edge pixel ordering a phase stays masked: the interval test needs its cell, and
-    # where the edge falls on a wrap of the phase its fringe order is ambiguous by one
-    unknown = dec.undecidable | dec.edge if plan.steps else dec.undecidable
+    if plan.steps:  # a phase decides the order wherever the span of cells is narrower
+        # than its period (edge pixels, blurred fine bits: :func:`_gray_order`)
+        unknown = (dec.span > 1) & (dec.span * plan.gray_cell_px > plan.steps[0].period_px)
+    else:
+        unknown = dec.undecidable
     flags.low |= unknown.view(np.uint8) * np.uint8(LOW_GRAY)
     return gray.name, dec
 
@@ -271,7 +273,7 @@ def _run_chain(plan: UnwrapPlan, sets: list, gray, flags: _Flags, stats: ChainSt
     first, rest = plan.steps[0], plan.steps[1:]
     frac, var = _step_phase(plan, first, sets)
     if gray is not None:
-        x = _gray_order(plan, first, gray[1].cell, frac, var, flags, stats)
+        x = _gray_order(plan, first, gray[1], frac, var, flags, stats)
     else:
         x = _absolute(plan, first, frac)
     if first.is_set:
@@ -337,23 +339,36 @@ def _absolute(plan: UnwrapPlan, step: chain.Step, frac: np.ndarray) -> np.ndarra
     return np.mod(frac * period + margin, period) - margin
 
 
-def _gray_order(plan: UnwrapPlan, step: chain.Step, cell: np.ndarray, frac: np.ndarray,
+def _gray_order(plan: UnwrapPlan, step: chain.Step, dec, frac: np.ndarray,
                 var: np.ndarray, flags: _Flags, stats: ChainStats) -> np.ndarray:
-    """Fringe order of the ordered set from the Gray cell (interval test)."""
+    """Fringe order of the ordered set from the Gray cells (interval test).
+
+    A pixel may lie in ``dec.span`` cells from ``dec.first`` (one where every bit is
+    decided): the order puts the phase nearest their centre, and it is accepted when
+    the phase falls inside them (give or take ``gray_edge_cells``) and no other order
+    does. A pixel of one cell whose phase falls outside is inconsistent; a wider span
+    the phase cannot order is undecidable (low modulation). Either way the phase must
+    keep its own noise margin from the decision boundary half a period away.
+    """
     period, w = step.period_px, plan.gray_cell_px
     th = plan.desc.thresholds
     edge = min(th.gray_edge_cells * w, 0.5 * max(period - w, 0.0))
-    centre = cell * w + 0.5 * (w - 1.0)
+    half = 0.5 * w * dec.span
+    centre = dec.first * w + half - 0.5
     k = np.rint(centre / period - frac)
     x = (frac + k) * period
     dist = np.abs(x - centre)
-    accept = 0.5 * w + edge
-    bad = (dist > accept) | (period - dist <= accept)
-    # the phase must keep a noise margin from the decision boundary half a period away
+    # the phase may fall outside the cells by the edge tolerance and its own noise
+    accept = half + edge + 3.0 * th.unwrap_sigma_margin * np.sqrt(var)
+    full = dec.span == 1
+    outside = dist > accept
+    ambiguous = period - dist <= accept
+    bad = outside | (ambiguous & full)
+    flags.low |= (ambiguous & ~full).view(np.uint8) * np.uint8(LOW_GRAY)
     clearance = 0.5 * period - dist
     noisy = ~bad & ~(var * (3.0 * th.unwrap_sigma_margin) ** 2 <= clearance * clearance)
     _check_step(stats, f"{plan.gray.name} -> {step.name}", flags, bad,
-                1.0 - min(1.0, 2.0 * accept / period), noisy)
+                1.0 - min(1.0, (w + 2.0 * edge) / period), noisy, judged=full)
     return x
 
 
@@ -373,9 +388,10 @@ def _unwrap_step(plan: UnwrapPlan, step: chain.Step, x: np.ndarray, var_x: np.nd
 
 
 def _check_step(stats: ChainStats, name: str, flags: _Flags, bad: np.ndarray,
-                uniform: float, noisy: np.ndarray) -> None:
-    """Record a step's rejections and noise flags."""
-    open_ = flags.open()
+                uniform: float, noisy: np.ndarray, judged: np.ndarray | None = None
+                ) -> None:
+    """Record a step's rejections and noise flags (counts over ``judged`` pixels)."""
+    open_ = flags.open() if judged is None else flags.open() & judged
     stats.count("noisy", name, np.count_nonzero(open_ & noisy))
     flags.low |= noisy.view(np.uint8) * np.uint8(LOW_STEP)
     open_ &= ~noisy
@@ -412,5 +428,6 @@ def _gather(plan: UnwrapPlan, per_set: dict, gray, x: np.ndarray, valid: np.ndar
             stats.disagreement.setdefault(name, []).append(xs[pick] - x[pick])
     if gray is not None and plan.steps:
         w = plan.gray_cell_px
+        pick = pick[gray[1].span[pick] == 1]  # pixels of one known cell
         centre = gray[1].cell[pick] * w + 0.5 * (w - 1.0)
         stats.disagreement.setdefault(gray[0], []).append(centre - x[pick])
