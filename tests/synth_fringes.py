@@ -37,6 +37,7 @@ class Rig:
     black: float = 20.0
     noise_dn: float = 1.5
     shape: tuple = (80, 320)
+    box: float = 0.0  # width of a box blur of defocus [px]; 0: the Gaussian alone
 
 
 def truth(rig: Rig, seed: int) -> np.ndarray:
@@ -72,6 +73,20 @@ def blurred(panels: np.ndarray, x: np.ndarray, blur: float) -> np.ndarray:
     return out
 
 
+def boxed(panels: np.ndarray, x: np.ndarray, width: float) -> np.ndarray:
+    """(rows, *x.shape) panel values averaged over [x - width/2, x + width/2]: a defocus
+    whose spread is flat, which turns the contrast of fine stripes over [px]."""
+    n = panels.shape[1]
+    cum = np.concatenate([np.zeros((panels.shape[0], 1)), np.cumsum(panels, axis=1)], axis=1)
+
+    def integral(t: np.ndarray) -> np.ndarray:  # of the panel from -1/2 to t
+        s = np.clip(t + 0.5, 0.0, n - 1e-9)
+        j = np.floor(s).astype(int)
+        return cum[:, j] + (s - j) * panels[:, j]
+
+    return (integral(x + width / 2) - integral(x - width / 2)) / width
+
+
 def capture(rig: Rig, seed: int) -> tuple[dict, np.ndarray]:
     """Noisy 8-bit frames by kind ("reference", "gray", and each period) and the truth."""
     rng = np.random.default_rng(seed + 1000)
@@ -84,27 +99,40 @@ def capture(rig: Rig, seed: int) -> tuple[dict, np.ndarray]:
         return np.clip(np.rint(i), 0, 255).astype(np.uint8)
 
     frames = {"reference": camera(np.stack([np.ones_like(x), np.zeros_like(x)])),
-              "gray": camera(blurred(gray_panels(rig), x, rig.blur))}
+              "gray": camera(_optics(rig, gray_panels(rig), x))}
     for period in rig.periods:
         damp = math.exp(-2 * math.pi ** 2 * rig.blur ** 2 / period ** 2)
+        if rig.box:
+            damp *= np.sinc(rig.box / period)
         frames[period] = camera(np.stack([0.5 + 0.5 * damp * np.cos(2 * np.pi * x / period
                                                                      + d) for d in THREE]))
     return frames, x
 
 
+def _optics(rig: Rig, panels: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Panels through the Gaussian blur and, if any, the box of defocus."""
+    seen = blurred(panels, x, rig.blur)
+    if not rig.box:
+        return seen
+    grid = np.arange(rig.width, dtype=float)
+    boxed_panels = boxed(panels, grid, rig.box)  # box first, on the panel columns
+    return blurred(boxed_panels, x, rig.blur)
+
+
 def description(rig: Rig, *, periods=None, shifts=THREE, levels=("white", "black"),
                 inverse="interleaved", bits=None, cell=None, phase=True,
-                reference=True) -> tuple[PatternDescription, list]:
+                reference=True, gray=True) -> tuple[PatternDescription, list]:
     """The coding as a user would state it (each keyword a possible misstatement), and
     the keys of ``capture``'s frames in set order."""
     sets, keys = [], []
     if reference:
         sets.append(ReferenceSet("wb", tuple(levels)))
         keys.append("reference")
-    stated_bits = rig.bits if bits is None else bits
-    sets.append(GrayCodeSet("gray", stated_bits, cell_px=rig.cell if cell is None else cell,
-                            inverse=inverse, threshold="inverse"))
-    keys.append("gray")
+    if gray:
+        stated_bits = rig.bits if bits is None else bits
+        sets.append(GrayCodeSet("gray", stated_bits, inverse=inverse, threshold="inverse",
+                                cell_px=rig.cell if cell is None else cell))
+        keys.append("gray")
     if phase:
         for i, (true, stated) in enumerate(zip(rig.periods, periods or rig.periods,
                                                strict=True)):

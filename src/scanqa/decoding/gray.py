@@ -184,3 +184,63 @@ def _cells(bits: np.ndarray) -> np.ndarray:
         binary ^= bit
         cell = (cell << 1) | binary
     return cell
+
+
+#: Share of lit pixels at which a bit must be decidable to be kept: in a Gray code that
+#: orders a phase (the phase gives the precision, a barely resolved bit only adds
+#: readings of noise), and in a Gray code decoded alone (a bit is kept while it decides
+#: anything: each pixel it decides gets half the cell) [-].
+RESOLVED_SHARE = {"ordering": 0.5, "alone": 0.05}
+
+
+def bit_resolution(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
+                   quantised: bool, min_sigma: float,
+                   threshold: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """How well the optics resolve every bit, over the lit pixels.
+
+    Parameters
+    ----------
+    gray, frames, sensor, quantised, min_sigma, threshold
+        As for :func:`decode_gray` (a sample of the pixels is enough).
+
+    Returns
+    -------
+    share : (bits,) float64
+        Share of the lit pixels (the most significant bit decidable) where the bit is
+        decidable: its contrast exceeds ``min_sigma`` noise standard deviations [-].
+    contrast : (bits,) float64
+        Median contrast ``|bit - threshold|`` relative to the most significant bit's [-].
+        Both NaN where no pixel is lit.
+
+    Notes
+    -----
+    The most significant bit's stripes are half the panel wide, so no projector blur
+    greys them; a finer bit's contrast falls with its stripe width as the blur's
+    transfer function does, and where it falls below the noise the bit reads noise.
+    """
+    f = frames.astype(np.float64)
+    plain, inverse = gray.frame_order()
+    bits = f[plain]
+    var = sample_variance(bits, sensor, quantised)
+    if inverse is not None:
+        diff = bits - f[inverse]
+        var = var + sample_variance(f[inverse], sensor, quantised)
+    else:
+        diff = bits - threshold[0]
+        var = var + threshold[1]
+    decidable = diff * diff > min_sigma * min_sigma * var
+    lit = decidable[0]
+    if not lit.any():
+        return np.full(gray.bits, np.nan), np.full(gray.bits, np.nan)
+    magnitude = np.median(np.abs(diff[:, lit]), axis=1)
+    return decidable[:, lit].mean(axis=1), magnitude / magnitude[0]
+
+
+def resolved_bits(share: np.ndarray, least: float) -> int:
+    """How many of the most significant bits to decode: the finest bits decidable at
+    fewer than ``least`` of the lit pixels (:func:`bit_resolution`) are dropped [-]."""
+    keep = len(share)
+    while keep > 1 and share[keep - 1] < least:
+        keep -= 1
+    return keep

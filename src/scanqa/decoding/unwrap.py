@@ -26,7 +26,7 @@ periods disagree) are gathered in a :class:`ChainStats`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -86,6 +86,9 @@ class UnwrapPlan:
         Integer images: add the quantisation variance.
     desc : PatternDescription
         The coding (thresholds, width, options).
+    gray_frames : tuple of int
+        Frames of the Gray set that ``gray`` decodes (all bits unless the finest were
+        dropped: then ``gray`` is the coarser code, its inverses grouped after it).
     """
 
     phase: tuple
@@ -97,11 +100,15 @@ class UnwrapPlan:
     sensor: SensorModel
     quantised: bool
     desc: PatternDescription
+    gray_frames: tuple = ()
 
     @classmethod
     def build(cls, desc: PatternDescription, sensor: SensorModel, quantised: bool,
-              response: ProjectorResponse | None = None) -> UnwrapPlan:
-        """Plan for a description, a resolved sensor model and an optional response."""
+              response: ProjectorResponse | None = None, gray_bits: int | None = None
+              ) -> UnwrapPlan:
+        """Plan for a description, a resolved sensor model and an optional response;
+        ``gray_bits`` keeps only that many most significant Gray bits (the cells grow
+        by 2 per bit dropped)."""
         if response is not None and desc.phase_sets:
             response.check_covers(desc.phase_sets)
         phase = tuple(_SetPlan(s.name, s.period_px, s.steps, ShiftFit.from_shifts(s.shifts_rad),
@@ -114,8 +121,25 @@ class UnwrapPlan:
                 [p.period_px for p in phase], [p.name for p in phase],
                 desc.projector_width_px, desc.thresholds.max_period_ratio,
                 start=None if ordered is None else [p.name for p in phase].index(ordered.name))
-        return cls(phase, steps, desc.gray_set, desc.reference_set, desc.gray_threshold,
-                   desc.gray_cell_px, sensor, quantised, desc)
+        gray, cell, frames = _coarser_gray(desc, gray_bits)
+        return cls(phase, steps, gray, desc.reference_set, desc.gray_threshold,
+                   cell, sensor, quantised, desc, frames)
+
+
+def _coarser_gray(desc: PatternDescription, bits: int | None):
+    """(Gray set, cell [px], frames) decoding only the ``bits`` most significant bits."""
+    gray, cell = desc.gray_set, desc.gray_cell_px
+    if gray is None:
+        return None, cell, ()
+    plain, inverse = gray.frame_order()
+    if bits is None or bits >= gray.bits:
+        return gray, cell, ()
+    frames = plain[:bits] if inverse is None else np.concatenate([plain[:bits],
+                                                                  inverse[:bits]])
+    cell *= 2 ** (gray.bits - bits)
+    layout = "none" if inverse is None else "grouped"
+    return (replace(gray, bits=bits, cell_px=cell, inverse=layout), cell,
+            tuple(int(i) for i in frames))
 
 
 @dataclass(eq=False)
@@ -127,7 +151,8 @@ class ChainStats:
     unrelated pattern would reject, ``noisy[name]`` were first marked low there;
     ``edges[name]`` counts the valid edge pixels of a Gray code decoded alone;
     ``low[bit]`` counts masked pixels by low-modulation reason; ``disagreement[name]``
-    holds samples of each set's coordinate minus x_p at valid pixels [projector px].
+    holds samples of each set's coordinate minus x_p at valid pixels, ``positions[name]``
+    x_p at the same pixels [projector px].
     """
 
     checked: dict = field(default_factory=dict)
@@ -137,6 +162,7 @@ class ChainStats:
     low: dict = field(default_factory=dict)
     disagreement: dict = field(default_factory=dict)
     edges: dict = field(default_factory=dict)
+    positions: dict = field(default_factory=dict)
 
     def count(self, table: str, key: str, n: int) -> None:
         getattr(self, table)[key] = getattr(self, table).get(key, 0) + int(n)
@@ -150,6 +176,8 @@ class ChainStats:
         self.uniform.update(other.uniform)
         for key, parts in other.disagreement.items():
             self.disagreement.setdefault(key, []).extend(parts)
+        for key, parts in other.positions.items():
+            self.positions.setdefault(key, []).extend(parts)
 
 
 @dataclass(eq=False)
@@ -239,7 +267,10 @@ def _gray(plan: UnwrapPlan, flat: dict, sets: list, flags: _Flags):
         threshold = (a, sample_variance(a, plan.sensor, plan.quantised)
                      / plan.phase[index].steps)
     th = plan.desc.thresholds
-    dec = decode_gray(gray, flat[gray.name], plan.sensor, plan.quantised,
+    frames = flat[gray.name]
+    if plan.gray_frames:
+        frames = frames[list(plan.gray_frames)]
+    dec = decode_gray(gray, frames, plan.sensor, plan.quantised,
                       th.gray_min_contrast_sigma, threshold)
     if plan.steps:  # a phase decides the order wherever the span of cells is narrower
         # than its period (edge pixels, blurred fine bits: :func:`_gray_order`)
@@ -426,8 +457,10 @@ def _gather(plan: UnwrapPlan, per_set: dict, gray, x: np.ndarray, valid: np.ndar
     for name, (xs, _) in per_set.items():
         if plan.desc.options.fuse_periods or name != plan.phase[-1].name:
             stats.disagreement.setdefault(name, []).append(xs[pick] - x[pick])
+            stats.positions.setdefault(name, []).append(x[pick])
     if gray is not None and plan.steps:
         w = plan.gray_cell_px
         pick = pick[gray[1].span[pick] == 1]  # pixels of one known cell
         centre = gray[1].cell[pick] * w + 0.5 * (w - 1.0)
         stats.disagreement.setdefault(gray[0], []).append(centre - x[pick])
+        stats.positions.setdefault(gray[0], []).append(x[pick])
