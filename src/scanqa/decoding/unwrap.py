@@ -411,9 +411,13 @@ def _unwrap_step(plan: UnwrapPlan, step: chain.Step, x: np.ndarray, var_x: np.nd
     period = step.period_px
     r = x / period - frac
     k = np.rint(r)
-    bad = np.abs(r - k) > th.unwrap_max_residual
-    predicted = (var_x + var_step) * (th.unwrap_sigma_margin / period) ** 2
-    noisy = ~(predicted <= th.unwrap_max_residual ** 2)
+    residual = np.abs(r - k)
+    bad = residual > th.unwrap_max_residual
+    # the odds of the neighbouring order against the one taken, for the observed residual
+    # and the predicted noise, exp(-(1 - 2 |r|) / (2 sigma^2)), must stay below those of
+    # a 3 margin sigma excursion, exp(-(3 margin)^2 / 2)
+    variance = (var_x + var_step) / (period * period)
+    noisy = ~(1.0 - 2.0 * residual >= variance * (3.0 * th.unwrap_sigma_margin) ** 2)
     _check_step(stats, step.name, flags, bad, 1.0 - 2.0 * th.unwrap_max_residual, noisy)
     return (frac + k) * period
 
