@@ -38,6 +38,8 @@ class Rig:
     noise_dn: float = 1.5
     shape: tuple = (80, 320)
     box: float = 0.0  # width of a box blur of defocus [px]; 0: the Gaussian alone
+    jump: float = 0.0  # a depth edge at the middle column: x_p jumps by this [px]
+    albedo: float = 1.0  # the darkest row's reflectance, rising linearly to 1 [-]
 
 
 def truth(rig: Rig, seed: int) -> np.ndarray:
@@ -88,25 +90,42 @@ def boxed(panels: np.ndarray, x: np.ndarray, width: float) -> np.ndarray:
 
 
 def capture(rig: Rig, seed: int) -> tuple[dict, np.ndarray]:
-    """Noisy 8-bit frames by kind ("reference", "gray", and each period) and the truth."""
+    """Noisy 8-bit frames by kind ("reference", "gray", and each period) and the truth.
+
+    With ``rig.jump`` the pixels right of the middle column see x + jump, and the edge
+    column a mix of both (the truth there is the side it sees more of); with
+    ``rig.albedo`` < 1 the rows darken towards the top.
+    """
     rng = np.random.default_rng(seed + 1000)
-    x = truth(rig, seed)
-    lo, hi = rig.black, rig.white
+    near = truth(rig, seed)
+    h, w = rig.shape
+    shade = np.linspace(rig.albedo, 1.0, h)[:, None]
+    lo, hi = rig.black * shade, rig.white * shade
+    mix = np.zeros((1, w))
+    far = near
+    if rig.jump:
+        mix = np.clip(np.arange(w) + 0.5 - (w / 2 + 0.37), 0.0, 1.0)[None, :]
+        far = np.clip(near + rig.jump, 0.0, rig.width - 1.0)
+
+    def seen(pattern) -> np.ndarray:  # each pixel integrates what its two sides see
+        out = pattern(near)
+        return out if not rig.jump else (1 - mix) * out + mix * pattern(far)
 
     def camera(p: np.ndarray) -> np.ndarray:
         i = lo + (hi - lo) * p
         i = i + rng.normal(0.0, 1.0, i.shape) * np.sqrt(rig.noise_dn ** 2 + i / 10.0)
         return np.clip(np.rint(i), 0, 255).astype(np.uint8)
 
-    frames = {"reference": camera(np.stack([np.ones_like(x), np.zeros_like(x)])),
-              "gray": camera(_optics(rig, gray_panels(rig), x))}
+    ones = np.ones_like(near)
+    frames = {"reference": camera(np.stack([ones, 0 * ones])),
+              "gray": camera(seen(lambda x: _optics(rig, gray_panels(rig), x)))}
     for period in rig.periods:
         damp = math.exp(-2 * math.pi ** 2 * rig.blur ** 2 / period ** 2)
         if rig.box:
             damp *= np.sinc(rig.box / period)
-        frames[period] = camera(np.stack([0.5 + 0.5 * damp * np.cos(2 * np.pi * x / period
-                                                                     + d) for d in THREE]))
-    return frames, x
+        frames[period] = camera(seen(lambda x, p=period, a=damp: np.stack(
+            [0.5 + 0.5 * a * np.cos(2 * np.pi * x / p + d) for d in THREE])))
+    return frames, np.where(mix >= 0.5, far, near)
 
 
 def _optics(rig: Rig, panels: np.ndarray, x: np.ndarray) -> np.ndarray:

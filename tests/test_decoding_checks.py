@@ -55,6 +55,20 @@ def test_a_correct_description_decodes_every_pixel_without_a_warning(case, state
     assert _warnings(pm) == [] and "warning" not in pm.summary()
 
 
+@pytest.mark.parametrize("rig,before", [
+    (Rig(jump=137.0, albedo=0.15), 0.29),  # tuned on: 1-px cells, 100 / 66.667 px
+    (Rig(cell=2.0, bits=9, periods=(80.0, 57.0), blur=2.0, noise_dn=2.5, jump=300.0,
+         albedo=0.2), 0.53)], ids=["tuned", "held_out"])
+def test_gray_cell_edges_of_a_dark_surface_with_a_depth_edge_are_kept(rig, before):
+    # rows darkening to 15-20 % reflectance and a depth edge through the middle column:
+    # valid 0.29 and 0.53 before issue 26 (edge bands masked), 0.98 and 0.94 after,
+    # with no pixel off by a fringe order (seeds 0, 5, 9 alike)
+    frames, x = capture(rig, 5)
+    pm = _decode(rig, 5, frames)
+    valid, wrong = order_errors(pm, x, rig.periods[-1])
+    assert valid >= before + 0.35 and wrong == 0.0, pm.summary()
+
+
 @CASES
 @pytest.mark.parametrize("error", [0.005, 0.015])
 @pytest.mark.parametrize("which", [0, 1])
