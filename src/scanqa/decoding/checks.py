@@ -173,8 +173,7 @@ def inverse_layout(desc: PatternDescription, sample: Sequence[np.ndarray]) -> li
             f"inverse (now {gray.inverse!r}; {other!r}?) and the order of files"]
 
 
-def period_drift(desc: PatternDescription, samples: dict, positions: np.ndarray,
-                 width: float) -> list[str]:
+def period_drift(desc: PatternDescription, samples: dict, positions: dict) -> list[str]:
     """Warnings for sets whose coordinate drifts linearly against x_p.
 
     Parameters
@@ -183,8 +182,6 @@ def period_drift(desc: PatternDescription, samples: dict, positions: np.ndarray,
         Each set's coordinate minus x_p at sampled valid pixels [projector px].
     positions : dict of str to (n,) float
         x_p at the same pixels [projector px].
-    width : float
-        Coded range [projector px].
     """
     out = []
     periods = {s.name: s.period_px for s in desc.phase_sets}

@@ -156,7 +156,7 @@ def _decoded_checks(desc: PatternDescription, run: _Run) -> list[str]:
     samples = {k: np.concatenate(v) for k, v in stats.disagreement.items() if v}
     positions = {k: np.concatenate(v) for k, v in stats.positions.items() if v}
     valid = run.out["mask"] == 0
-    return [*checks.period_drift(desc, samples, positions, desc.projector_width_px),
+    return [*checks.period_drift(desc, samples, positions),
             *checks.mirrored(run.out["xp"], valid, desc.orientation)]
 
 

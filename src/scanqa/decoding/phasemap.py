@@ -20,9 +20,10 @@ from scanqa.io import phasemap as phasemap_file
 MASK_VALID = 0
 #: A sample of a phase set reached the saturation level.
 MASK_SATURATED = 1
-#: Modulation too low for a reliable phase: below the floor, too noisy to unwrap, or an
-#: undecidable Gray-code bit (dark pixels land here; the one undecidable bit between two
-#: neighbouring cells of a Gray code decoded alone gives their edge instead).
+#: Modulation too low for a reliable phase: below the floor, too noisy to unwrap, or
+#: undecidable Gray-code bits (dark pixels land here; the one undecidable bit between two
+#: neighbouring cells of a Gray code decoded alone gives their edge instead, and a phase
+#: the Gray code orders decides wherever the cells left open are narrower than its period).
 MASK_LOW_MODULATION = 2
 #: Sets (or the Gray code) disagree by more than the accepted unwrapping residual.
 MASK_INCONSISTENT = 3

@@ -11,12 +11,14 @@ disagreement. x_p is the finest phase set's own ``(f + k) P`` (every set fused b
 inverse variance with ``fuse_periods``). A pixel is
 
 - *low modulation* when a set's modulation is below ``min_modulation_dn``, when its
-  predicted phase noise (times the margin) exceeds the accepted residual, when the
-  predicted residual of an unwrapping step does, when a Gray bit is undecidable (an
-  edge pixel too, when the code orders a phase: its cell is not known), or when the
-  phase lies too close to the edge of its Gray cell for its noise;
+  predicted phase noise (times the margin) exceeds the accepted residual, when an
+  unwrapping step's odds of the neighbouring order exceed those of a ``3 margin``
+  sigma excursion (:func:`_unwrap_step`), when its undecidable Gray bits leave a span
+  of cells the phase cannot order (:func:`_gray_order`; a Gray code alone: any
+  undecidable bit but an edge pixel's), or when the phase lies too close to the Gray
+  order's decision boundary for its noise;
 - *inconsistent* when an observed residual exceeds the accepted one (or the phase
-  lies outside its Gray cell by more than ``gray_edge_cells``);
+  lies outside its decided Gray cell by more than ``gray_edge_cells`` and its noise);
 - *out of range* when the result lies outside [-0.5, width - 0.5).
 
 Everything works on flat row chunks (no per-pixel Python loop); counts for the decode
