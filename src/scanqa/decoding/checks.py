@@ -209,7 +209,9 @@ def period_drift(desc: PatternDescription, samples: dict, positions: dict) -> li
 def _drift(x: np.ndarray, d: np.ndarray) -> tuple[float, float, float]:
     """Slope [-] of d against x from medians in 8 bins, the drift it makes over the
     sampled range [px], and the robust spread of d about the line (1.4826 median
-    absolute deviation) [px]."""
+    absolute deviation) [px], from at most 20000 of the samples."""
+    step = max(1, d.size // 20000)
+    x, d = x[::step], d[::step]
     edges = np.quantile(x, np.linspace(0.0, 1.0, 9))
     which = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 7)
     xm = np.array([np.median(x[which == i]) for i in range(8) if np.any(which == i)])
@@ -228,13 +230,15 @@ def mirrored(xp: np.ndarray, valid: np.ndarray, orientation: str) -> list[str]:
     A projector beside the camera, mounted the same way up, sees its columns (rows)
     increase with the camera's; a reversed phase-shift sign mirrors every set, and
     the sets still agree with one another, so only the direction shows it. Each camera
-    row (column) with enough valid pixels votes with the sign of its covariance of x_p
-    and the camera coordinate, weighted by its valid pixels (depth edges and fringe-
-    order jumps move a row's covariance little).
+    row (column) with enough valid pixels - of at most 256 evenly spread - votes with the
+    sign of its covariance of x_p and the camera coordinate, weighted by its valid
+    pixels (depth edges and fringe-order jumps move a row's covariance little).
     """
-    x = np.where(valid, xp, 0.0)
     if orientation != "vertical":
-        x, valid = x.T, valid.T
+        xp, valid = xp.T, valid.T
+    step = max(1, xp.shape[0] // 256)  # 256 lines are plenty for a vote
+    xp, valid = xp[::step], valid[::step]
+    x = np.where(valid, xp, 0.0)
     n = valid.sum(axis=1)
     rows = n >= 20
     if n[rows].sum() < 1000:
