@@ -181,3 +181,23 @@ def test_the_phase_orders_an_edge_pixel_unless_it_wraps_inside_the_two_cells():
     assert pm.valid[0, :3].all()
     np.testing.assert_allclose(pm.xp[0, :3], x[0, :3], atol=0.05)
     assert pm.mask[0, 3] == MASK_LOW_MODULATION
+
+
+def test_the_span_of_a_pixel_is_the_block_its_undecidable_bits_reach():
+    # 4 bits; by hand: cell 5 = Gray 0111. Bit 1 (of 0..3, most significant first)
+    # undecidable leaves the aligned block of 8 cells 0..7; bits 2 and 3 the block 4..7;
+    # bit 3 alone is an edge pixel of cells 5 | 4 (Gray 0111 / 0110): span 2 from 4;
+    # nothing undecidable: span 1
+    from scanqa.decoding.gray import decode_gray
+
+    gray = GrayCodeSet("g", 4, cell_px=1.0, inverse="grouped")
+    code = np.array([0, 1, 1, 1], float)
+    bits = np.tile(code[:, None], (1, 4))
+    bits[1, 0] = 0.5
+    bits[2:, 1] = 0.5
+    bits[3, 2] = 0.5
+    frames = np.concatenate([bits, 1.0 - bits]) * 100.0
+    dec = decode_gray(gray, frames, _sensor(1.0), False, 3.0)
+    np.testing.assert_array_equal(dec.first, [0, 4, 4, 5])
+    np.testing.assert_array_equal(dec.span, [8, 4, 2, 1])
+    np.testing.assert_array_equal(dec.edge, [False, False, True, False])
