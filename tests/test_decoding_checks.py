@@ -67,6 +67,7 @@ def test_gray_cell_edges_of_a_dark_surface_with_a_depth_edge_are_kept(rig, befor
     pm = _decode(rig, 5, frames)
     valid, wrong = order_errors(pm, x, rig.periods[-1])
     assert valid >= before + 0.35 and wrong == 0.0, pm.summary()
+    assert _warnings(pm) == []  # dark rows do not look like a misdescription
 
 
 @CASES

@@ -149,14 +149,20 @@ def reference_swapped(desc: PatternDescription, sample: Sequence[np.ndarray],
             f"{[('black' if v == 'white' else 'white') for v in ref.levels]})"]
 
 
-def inverse_layout(desc: PatternDescription, sample: Sequence[np.ndarray]) -> list[str]:
-    """A warning when a coarse Gray bit reads the level of its stated inverse."""
+def inverse_layout(desc: PatternDescription, sample: Sequence[np.ndarray],
+                   sensor: SensorModel, quantised: bool) -> list[str]:
+    """A warning when a coarse Gray bit reads the level of its stated inverse.
+
+    Lit pixels are those whose full contrast over the Gray frames exceeds 10 noise
+    standard deviations of their mean level, so that noise cannot make a bit and its
+    inverse read alike.
+    """
     gray = desc.gray_set
     if gray is None or gray.inverse == "none":
         return []
     f = _flat(sample[desc.sets.index(gray)]).astype(np.float64)
     full = f.max(axis=0) - f.min(axis=0)
-    lit = full > np.percentile(full, 50) * 0.5
+    lit = full * full > 100.0 * sample_variance(f.mean(axis=0), sensor, quantised)
     if lit.sum() < 100:
         return []
     plain, inverse = gray.frame_order()

@@ -106,7 +106,7 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     if check:
         bits, notes = checks.gray_bits(desc, sample, noise.sensor, quantised)
         warnings = [*checks.reference_swapped(desc, sample, noise.sensor, quantised),
-                    *checks.inverse_layout(desc, sample)]
+                    *checks.inverse_layout(desc, sample, noise.sensor, quantised)]
     plan = UnwrapPlan.build(desc, noise.sensor, quantised, response, gray_bits=bits)
     height, width = stacks[0].shape[1:]
     out = _allocate(height, width, [p.name for p in plan.phase] if keep_sets else [])
