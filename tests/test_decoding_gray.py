@@ -25,7 +25,7 @@ from scanqa.decoding.coding import (
     SensorModel,
 )
 from scanqa.decoding.decoder import decode_images
-from scanqa.decoding.phasemap import MASK_LOW_MODULATION, MASK_VALID
+from scanqa.decoding.phasemap import MASK_LOW_MODULATION
 
 WIDTH, CELL, BITS = 512, 2.0, 8
 WHITE, BLACK = 160.0, 40.0  # a dim capture: contrast 120 DN against 3 DN of noise
@@ -159,20 +159,45 @@ def test_only_a_single_bit_between_neighbouring_cells_is_an_edge():
     assert "3 edge pixels (75.0 % of the valid" in pm.summary()
 
 
-def test_edge_pixels_stay_masked_where_the_gray_code_orders_a_phase():
-    # cells of 8 px ordering a 16 px phase: at a cell edge the phase wraps, and which
-    # cell holds the fringe order is not known - the edge pixel stays masked
+def test_the_phase_orders_an_edge_pixel_unless_it_wraps_inside_the_two_cells():
+    # cells of 8 px ordering a 16 px phase: an edge pixel lies in one of two cells,
+    # 16 px together; the phase names one place in them unless it falls within the
+    # edge tolerance (gray_edge_cells) of their ends, where it wraps
     width, a, b = 128, 100.0, 60.0
-    x = np.array([[7.5, 20.0]])  # on the edge of cells 0 | 1; inside cell 2
+    x = np.array([[7.5, 20.0, 12.0, 0.0]])  # edge 0|1 at its middle; inside cell 2;
+    # edge 1|2 (x 7.5..23.5) 3.5 px from its middle; edge 0|1 0.5 px from its end
     phase = PhaseSet("p16", 16.0, 4)
     shifts = np.asarray(phase.shifts_rad)[:, None, None]
     fringes = a + b * np.cos(2 * np.pi * x / 16.0 + shifts)
     cells = np.floor((x + 0.5) / 8.0).astype(int)
     code = cells ^ (cells >> 1)
     gray = np.stack([np.where(code >> (4 - 1 - k) & 1, a + b, a - b) for k in range(4)])
-    gray[3, 0, 0] = a  # the least significant bit of the edge pixel reads grey
+    gray[3, 0, 0] = a  # the least significant bit reads grey: edge of cells 0 | 1
+    gray[2, 0, 2] = a  # bit 2 reads grey: edge of cells 1 | 2
+    gray[3, 0, 3] = a
     desc = PatternDescription(width, (phase, GrayCodeSet("g", 4, cell_px=8.0)),
                               sensor=_sensor(1.0))
     pm = decode_images(desc, [fringes, gray.astype(float)])
-    assert pm.mask[0, 0] == MASK_LOW_MODULATION
-    assert pm.mask[0, 1] == MASK_VALID and abs(pm.xp[0, 1] - 20.0) < 0.05
+    assert pm.valid[0, :3].all()
+    np.testing.assert_allclose(pm.xp[0, :3], x[0, :3], atol=0.05)
+    assert pm.mask[0, 3] == MASK_LOW_MODULATION
+
+
+def test_the_span_of_a_pixel_is_the_block_its_undecidable_bits_reach():
+    # 4 bits; by hand: cell 5 = Gray 0111. Bit 1 (of 0..3, most significant first)
+    # undecidable leaves the aligned block of 8 cells 0..7; bits 2 and 3 the block 4..7;
+    # bit 3 alone is an edge pixel of cells 5 | 4 (Gray 0111 / 0110): span 2 from 4;
+    # nothing undecidable: span 1
+    from scanqa.decoding.gray import decode_gray
+
+    gray = GrayCodeSet("g", 4, cell_px=1.0, inverse="grouped")
+    code = np.array([0, 1, 1, 1], float)
+    bits = np.tile(code[:, None], (1, 4))
+    bits[1, 0] = 0.5
+    bits[2:, 1] = 0.5
+    bits[3, 2] = 0.5
+    frames = np.concatenate([bits, 1.0 - bits]) * 100.0
+    dec = decode_gray(gray, frames, _sensor(1.0), False, 3.0)
+    np.testing.assert_array_equal(dec.first, [0, 4, 4, 5])
+    np.testing.assert_array_equal(dec.span, [8, 4, 2, 1])
+    np.testing.assert_array_equal(dec.edge, [False, False, True, False])

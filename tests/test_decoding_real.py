@@ -140,3 +140,38 @@ def test_both_codings_agree_within_the_gray_quantisation(decoded):
     assert np.mean(np.abs(diff) <= 2.0 + 3.0 * sigma) >= 0.995
     z = diff[~order] / np.hypot(4 / math.sqrt(12), sigma[~order])
     assert 0.6 < np.sqrt(np.mean(z * z)) < 1.0
+
+
+def test_the_real_captures_as_described_give_no_warning(decoded):
+    for pm in decoded:
+        assert pm.provenance["decode"]["warnings"] == [], pm.summary()
+        assert "warning" not in pm.summary()
+        assert not any("finer than the optics" in n for n in pm.provenance["decode"]["notes"])
+
+
+def test_a_reversed_shift_sign_on_skull_2x3_is_named(tmp_path):
+    # both sets mirror and still agree (x_p -> 1824 - x_p, the same pixels valid), which
+    # triangulated puts the skull at up to 22.8 m: only the direction of x_p shows it
+    flipped = [-s for s in SHIFTS]
+    folder = _write(tmp_path, "skull_2x3_sign", [
+        {"kind": "phase", "name": "p114", "period_px": 114.0, "steps": 3,
+         "shifts_rad": flipped, "files": _frames("skull_2x3", range(3))},
+        {"kind": "phase", "name": "p1824", "period_px": 1824.0, "steps": 3,
+         "shifts_rad": flipped, "files": _frames("skull_2x3", range(3, 6))}])
+    pm = decode_pattern_dir(folder)
+    warnings = pm.provenance["decode"]["warnings"]
+    assert len(warnings) == 1 and "the decode looks mirrored" in warnings[0], pm.summary()
+    assert "x_p falls along the camera's columns in 100 % of the decoded pixels" in \
+        warnings[0]
+
+
+def test_white_and_black_swapped_on_skull_gray_are_named(tmp_path):
+    folder = _write(tmp_path, "skull_gray_swapped", [
+        {"kind": "reference", "name": "white_black", "levels": ["black", "white"],
+         "files": _frames("skull_gray", range(2))},
+        {"kind": "gray", "name": "gray", "bits": 10, "cell_px": 2.0,
+         "files": _frames("skull_gray", range(2, 12))}])
+    pm = decode_pattern_dir(folder)
+    assert any("white and black are swapped" in w
+               for w in pm.provenance["decode"]["warnings"]), pm.summary()
+    assert "\nwarning: set 'white_black': the frames named white are darker" in pm.summary()

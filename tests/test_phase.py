@@ -280,7 +280,11 @@ def test_noise_too_large_to_unwrap_is_low_modulation():
     images = [im + rng.normal(0, 100.0, im.shape)
               for im in synthesize_images(desc, xp, 1500.0, 1000.0)]
     pm = decode_images(desc, images)
-    assert (pm.mask == MASK_LOW_MODULATION).all()
+    # the odds of the neighbouring order, exp(-(1 - 2 |r|) / (2 sigma^2)), stay below
+    # those of a 6 sigma excursion only where the residual r happens to be near 0 and
+    # the pixel's estimated B high: a few pixels, each with the right order
+    assert np.mean(pm.mask == MASK_LOW_MODULATION) > 0.97  # measured 0.984
+    assert np.abs(pm.xp[pm.valid] - xp[pm.valid]).max() < 16.0 / 4
 
 
 def test_gray_code_masks_inconsistent_and_undecidable_bits():
@@ -294,7 +298,15 @@ def test_gray_code_masks_inconsistent_and_undecidable_bits():
     images[1][3, :, 128:192] = images[1][3 + 8, :, 128:192]  # bit 3 equals its inverse
     pm = decode_images(desc, images)
     assert (pm.mask[:, :16] == MASK_INCONSISTENT).all()
-    assert (pm.mask[:, 128:192] == MASK_LOW_MODULATION).all()
+    # bit 3 undecidable: the pixel may lie anywhere in its block of 32 cells, which the
+    # 16 px phase cannot order - unless the bit's two readings are neighbouring cells
+    # (the bit flips at the pixel's own cell edge): the phase then picks the right one
+    grey = pm.mask[:, 128:192]
+    assert np.isin(grey, [MASK_LOW_MODULATION, MASK_VALID]).all()
+    assert (grey == MASK_LOW_MODULATION).mean() > 0.8
+    ordered = pm.valid[:, 128:192]
+    np.testing.assert_allclose(pm.xp[:, 128:192][ordered], xp[:, 128:192][ordered],
+                               atol=0.01)
     assert pm.valid[:, 16:128].all() and pm.valid[:, 192:].all()
 
 

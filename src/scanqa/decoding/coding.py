@@ -121,11 +121,15 @@ class Thresholds:
         Largest accepted disagreement between a set and the estimate that unwraps it
         [cycles of the set's period]; beyond it the pixel is inconsistent.
     unwrap_sigma_margin : float
-        A pixel has too low a modulation when the predicted standard deviation of an
-        unwrapping residual times this margin exceeds the accepted residual [-]. A
-        fringe-order error then needs a noise excursion of ``margin * (1 -
-        unwrap_max_residual) / unwrap_max_residual`` standard deviations (6 for the
-        defaults, a probability of 2e-9).
+        Noise margin of every fringe-order decision [-]. A set's own phase is too
+        noisy when its predicted standard deviation times this margin exceeds the
+        accepted residual. An unwrapping step keeps a pixel while the odds of the
+        neighbouring order against the one taken, ``exp(-(1 - 2 |r|) / (2 sigma^2))``
+        for its observed residual r and predicted standard deviation sigma [cycles],
+        stay below those of a ``3 margin`` standard deviation excursion (6 for the
+        default: sigma up to 0.167 cycles where r = 0, 0.118 where r reaches
+        ``unwrap_max_residual``); a Gray code's order needs ``3 margin`` standard
+        deviations of the phase between it and the decision boundary.
     gray_edge_cells : float
         How far the phase may fall outside the Gray-code cell it was decoded in [cells]
         (blur and noise at the cell edges); limited to ``(P - cell) / 2`` so that one

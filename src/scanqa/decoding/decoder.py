@@ -12,16 +12,17 @@ The camera noise comes from ``[sensor]`` or from the images
 
 from __future__ import annotations
 
+import logging
 import os
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from scanqa.chunks import row_bands, run_bands
-from scanqa.decoding import diagnostics
+from scanqa.decoding import checks, diagnostics
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.noise import NoiseEstimate, resolve_noise
 from scanqa.decoding.parsing import load_patterns
@@ -29,7 +30,9 @@ from scanqa.decoding.patternset import lossy_image_note, read_pattern_images
 from scanqa.decoding.phasemap import PhaseMap, count_reasons, load_phase_map
 from scanqa.decoding.response import ProjectorResponse, load_response, measure_tables
 from scanqa.decoding.unwrap import ChainStats, UnwrapPlan, unwrap_rows
-from scanqa.errors import InputError
+from scanqa.errors import InputError, ScanQAError
+
+log = logging.getLogger(__name__)
 
 _CHUNK_PIXELS = 32768  # pixels per chunk: measured fastest on 2448 x 2048 (cache-sized)
 
@@ -71,20 +74,40 @@ def decode_images(desc: PatternDescription, images: Sequence[np.ndarray], *,
         On a wrong number of stacks or frames, mismatched sizes, or NaN in the images.
     """
     t0 = time.perf_counter()
-    out, stats, noise = _decode(desc, images, chunk_rows, response, keep_sets=False)
+    run = _decode(desc, images, chunk_rows, response, keep_sets=False)
+    out = run.out
     if progress:
         progress(f"decoded {out['xp'].shape[0]} x {out['xp'].shape[1]} px in "
                  f"{time.perf_counter() - t0:.2f} s")
-    return _phase_map(desc, out, stats, noise, response, images, notes)
+    return _phase_map(desc, run, response, images, notes)
+
+
+@dataclass(eq=False)
+class _Run:
+    """A decode's outputs (dict of arrays), counts, noise model and plan, the sample of
+    rows the checks read, and what the checks found."""
+
+    out: dict
+    stats: ChainStats
+    noise: NoiseEstimate
+    plan: UnwrapPlan
+    sample: list
+    notes: list
+    warnings: list
 
 
 def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: int | None,
-            response: ProjectorResponse | None, keep_sets: bool):
-    """Outputs (dict of arrays), counts and noise model of a decode."""
+            response: ProjectorResponse | None, keep_sets: bool, check: bool = True) -> _Run:
+    """Decode, with the checks of the description on a sample of rows first."""
     stacks = _checked_stacks(desc, images)
     quantised = stacks[0].dtype.kind in "ui"
     noise = resolve_noise(desc, stacks, desc.sensor.resolved(stacks[0].dtype), quantised)
-    plan = UnwrapPlan.build(desc, noise.sensor, quantised, response)
+    sample, bits, notes, warnings = checks.sample_rows(stacks), None, [], []
+    if check:
+        bits, notes = checks.gray_bits(desc, sample, noise.sensor, quantised)
+        warnings = [*checks.reference_swapped(desc, sample, noise.sensor, quantised),
+                    *checks.inverse_layout(desc, sample, noise.sensor, quantised)]
+    plan = UnwrapPlan.build(desc, noise.sensor, quantised, response, gray_bits=bits)
     height, width = stacks[0].shape[1:]
     out = _allocate(height, width, [p.name for p in plan.phase] if keep_sets else [])
     by_name = {s.name: st for s, st in zip(desc.sets, stacks, strict=True)}
@@ -99,31 +122,58 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     stats = ChainStats()
     for part in run_bands(band, row_bands(height, width, step * width)):
         stats.merge(part)
-    return out, stats, noise
+    return _Run(out, stats, noise, plan, sample, notes, warnings)
 
 
-def _phase_map(desc: PatternDescription, out: dict, stats: ChainStats, noise: NoiseEstimate,
-               response: ProjectorResponse | None, images: Sequence[np.ndarray],
-               notes: Sequence[str]) -> PhaseMap:
-    """Apply the guard, gather the diagnostics and build the map."""
+def _phase_map(desc: PatternDescription, run: _Run, response: ProjectorResponse | None,
+               images: Sequence[np.ndarray], notes: Sequence[str]) -> PhaseMap:
+    """Apply the guard, gather the diagnostics and warnings, and build the map."""
+    out, stats = run.out, run.stats
     misstated = diagnostics.misstated_steps(desc, stats)
+    warnings = list(run.warnings)
     if misstated:
         diagnostics.apply_guard(out)
+        warnings += checks.likely_cause(desc, run.sample, _trips_guard)
+    else:
+        warnings += _decoded_checks(desc, run)
+    for text in warnings:
+        log.warning(text)
     arrays = {k: v for k, v in out.items() if not k.startswith("x:")}
     counts = count_reasons(out["mask"])
-    info = _decode_info(desc, stats, noise, response, misstated, notes, counts["valid"])
+    info = _decode_info(desc, run, response, misstated, [*run.notes, *notes],
+                        counts["valid"])
+    info["warnings"] = warnings
     info["hint"] = diagnostics.mask_hint(desc, counts, stats)
-    return PhaseMap(**arrays, period_px=desc.working_period_px, orientation=desc.orientation,
+    period = desc.working_period_px if desc.phase_sets else run.plan.gray_cell_px
+    return PhaseMap(**arrays, period_px=period, orientation=desc.orientation,
                     projector_width_px=desc.projector_width_px,
-                    provenance=_provenance(desc, noise, np.asarray(images[0]), info))
+                    provenance=_provenance(desc, run.noise, np.asarray(images[0]), info))
 
 
-def _decode_info(desc: PatternDescription, stats: ChainStats, noise: NoiseEstimate,
-                 response: ProjectorResponse | None, misstated: list, notes: Sequence[str],
-                 valid: int) -> dict:
-    phase = desc.phase_sets
+def _decoded_checks(desc: PatternDescription, run: _Run) -> list[str]:
+    """Warnings from the decoded map: a drift between sets, a mirrored decode."""
+    stats = run.stats
+    samples = {k: np.concatenate(v) for k, v in stats.disagreement.items() if v}
+    positions = {k: np.concatenate(v) for k, v in stats.positions.items() if v}
+    valid = run.out["mask"] == 0
+    return [*checks.period_drift(desc, samples, positions),
+            *checks.mirrored(run.out["xp"], valid, desc.orientation)]
+
+
+def _trips_guard(desc: PatternDescription, sample: list) -> bool:
+    """True when a decode of the sample rows trips the misstatement guard."""
+    try:
+        run = _decode(desc, sample, None, None, keep_sets=False, check=False)
+    except ScanQAError:
+        return True
+    return bool(diagnostics.misstated_steps(desc, run.stats))
+
+
+def _decode_info(desc: PatternDescription, run: _Run, response: ProjectorResponse | None,
+                 misstated: list, notes: Sequence[str], valid: int) -> dict:
+    phase, stats, noise = desc.phase_sets, run.stats, run.noise
     if not phase:
-        working = _gray_working(desc.gray_cell_px, sum(stats.edges.values()), valid)
+        working = _gray_working(run.plan.gray_cell_px, sum(stats.edges.values()), valid)
     elif desc.options.fuse_periods:
         working = ("inverse-variance fusion of every phase set (decode.fuse_periods = true): "
                    "systematic differences between periods bias x_p")
@@ -282,9 +332,9 @@ def measure_response(desc: PatternDescription, images: Sequence[np.ndarray],
     if not desc.phase_sets:
         raise InputError("a projector response is measured on phase sets; this scan has "
                          "none (a Gray code is not affected by the projector's gamma)")
-    out, stats, noise = _decode(desc, images, None, None, keep_sets=True)
-    pm = _phase_map(desc, out, stats, noise, None, images, ())
-    maps = [out[f"x:{s.name}"] for s in desc.phase_sets]
+    run = _decode(desc, images, None, None, keep_sets=True)
+    pm = _phase_map(desc, run, None, images, ())
+    maps = [run.out[f"x:{s.name}"] for s in desc.phase_sets]
     tables = measure_tables(desc.phase_sets, maps, pm.xp, pm.valid)
     return ProjectorResponse(tables, description), pm
 

@@ -46,6 +46,14 @@ class GrayDecode:
     contrast_dn : (M,) float64
         Half the contrast of the weakest bit the cell rests on, |bit - threshold|
         (an edge pixel's undecidable bit left out) [DN].
+    span : (M,) int64
+        Number of cells the pixel may lie in, starting at ``first`` [-]: 1 where every
+        bit is decided, 2 for an edge pixel, else the aligned block of ``2**(j + 1)``
+        cells that the undecidable bits can reach (j the most significant undecidable
+        bit, counted from the least significant one: flipping reflected-Gray bit j
+        changes the cell within that block only).
+    first : (M,) int64
+        First cell of the span [-].
     """
 
     cell: np.ndarray
@@ -53,6 +61,8 @@ class GrayDecode:
     edge: np.ndarray
     mid_dn: np.ndarray
     contrast_dn: np.ndarray
+    span: np.ndarray
+    first: np.ndarray
 
 
 def reference_levels(ref: ReferenceSet, frames: np.ndarray, sensor: SensorModel,
@@ -126,7 +136,25 @@ def decode_gray(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
     magnitude = np.abs(diff)
     contrast = np.where(weak & edge, np.inf, magnitude).min(axis=0)
     contrast = np.where(np.isfinite(contrast), contrast, magnitude.min(axis=0))
-    return GrayDecode(cell, weak.any(axis=0) & ~edge, edge, mid, contrast)
+    first, span = _spans(cell, edge, weak)
+    return GrayDecode(cell, weak.any(axis=0) & ~edge, edge, mid, contrast, span, first)
+
+
+def _spans(cell: np.ndarray, edge: np.ndarray, weak: np.ndarray
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """First cell and number of cells each pixel may lie in, from its undecidable bits.
+
+    The decided bits above the most significant undecidable bit j (counted from the
+    least significant, 0) fix the aligned block ``cell >> (j + 1)`` of ``2**(j + 1)``
+    cells; the bits below it do not leave the block. An edge pixel's span is its two
+    neighbouring cells.
+    """
+    n = weak.shape[0]
+    anyweak = weak.any(axis=0)
+    j = np.where(anyweak, n - 1 - np.argmax(weak, axis=0), -1).astype(np.int64)
+    first = (cell >> (j + 1)) << (j + 1)
+    span = np.left_shift(np.int64(1), j + 1)
+    return np.where(edge, cell, first), np.where(edge, 2, span)
 
 
 def _edge_rule(bits: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -156,3 +184,63 @@ def _cells(bits: np.ndarray) -> np.ndarray:
         binary ^= bit
         cell = (cell << 1) | binary
     return cell
+
+
+#: Share of lit pixels at which a bit must be decidable to be kept: in a Gray code that
+#: orders a phase (the phase gives the precision, a barely resolved bit only adds
+#: readings of noise), and in a Gray code decoded alone (a bit is kept while it decides
+#: anything: each pixel it decides gets half the cell) [-].
+RESOLVED_SHARE = {"ordering": 0.5, "alone": 0.05}
+
+
+def bit_resolution(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
+                   quantised: bool, min_sigma: float,
+                   threshold: tuple[np.ndarray, np.ndarray] | None = None
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """How well the optics resolve every bit, over the lit pixels.
+
+    Parameters
+    ----------
+    gray, frames, sensor, quantised, min_sigma, threshold
+        As for :func:`decode_gray` (a sample of the pixels is enough).
+
+    Returns
+    -------
+    share : (bits,) float64
+        Share of the lit pixels (the most significant bit decidable) where the bit is
+        decidable: its contrast exceeds ``min_sigma`` noise standard deviations [-].
+    contrast : (bits,) float64
+        Median contrast ``|bit - threshold|`` relative to the most significant bit's [-].
+        Both NaN where no pixel is lit.
+
+    Notes
+    -----
+    The most significant bit's stripes are half the panel wide, so no projector blur
+    greys them; a finer bit's contrast falls with its stripe width as the blur's
+    transfer function does, and where it falls below the noise the bit reads noise.
+    """
+    f = frames.astype(np.float64)
+    plain, inverse = gray.frame_order()
+    bits = f[plain]
+    var = sample_variance(bits, sensor, quantised)
+    if inverse is not None:
+        diff = bits - f[inverse]
+        var = var + sample_variance(f[inverse], sensor, quantised)
+    else:
+        diff = bits - threshold[0]
+        var = var + threshold[1]
+    decidable = diff * diff > min_sigma * min_sigma * var
+    lit = decidable[0]
+    if not lit.any():
+        return np.full(gray.bits, np.nan), np.full(gray.bits, np.nan)
+    magnitude = np.median(np.abs(diff[:, lit]), axis=1)
+    return decidable[:, lit].mean(axis=1), magnitude / magnitude[0]
+
+
+def resolved_bits(share: np.ndarray, least: float) -> int:
+    """How many of the most significant bits to decode: the finest bits decidable at
+    fewer than ``least`` of the lit pixels (:func:`bit_resolution`) are dropped [-]."""
+    keep = len(share)
+    while keep > 1 and share[keep - 1] < least:
+        keep -= 1
+    return keep

@@ -20,9 +20,10 @@ from scanqa.io import phasemap as phasemap_file
 MASK_VALID = 0
 #: A sample of a phase set reached the saturation level.
 MASK_SATURATED = 1
-#: Modulation too low for a reliable phase: below the floor, too noisy to unwrap, or an
-#: undecidable Gray-code bit (dark pixels land here; the one undecidable bit between two
-#: neighbouring cells of a Gray code decoded alone gives their edge instead).
+#: Modulation too low for a reliable phase: below the floor, too noisy to unwrap, or
+#: undecidable Gray-code bits (dark pixels land here; the one undecidable bit between two
+#: neighbouring cells of a Gray code decoded alone gives their edge instead, and a phase
+#: the Gray code orders decides wherever the cells left open are narrower than its period).
 MASK_LOW_MODULATION = 2
 #: Sets (or the Gray code) disagree by more than the accepted unwrapping residual.
 MASK_INCONSISTENT = 3
@@ -117,8 +118,10 @@ class PhaseMap:
 
         The first line gives the valid pixel count and the count of each mask reason;
         a freshly decoded map adds lines for the noise source, how x_p was formed, the
-        disagreement between periods, a misstated coding, notes, and - when most
-        pixels are masked - the dominant reason with the key that would change it.
+        disagreement between periods, a misstated coding, warnings (what the captures
+        say against their description: :mod:`scanqa.decoding.checks`), notes, and -
+        when most pixels are masked - the dominant reason with the key that would
+        change it.
         """
         counts = self.counts()
         total = self.mask.size
@@ -155,10 +158,11 @@ def _summary_lines(info: dict) -> list[str]:
                      f"(robust std; 90 % within {row['p05_px']:+.3g}..{row['p95_px']:+.3g} "
                      f"px, {row['samples']} samples)")
     for row in info.get("misstated", []):
-        lines.append(f"misstated coding? step {row['step']!r} rejected "
+        lines.append(f"warning: misstated coding? step {row['step']!r} rejected "
                      f"{100 * row['rejected_share']:.0f} % of {row['checked']} pixels, as "
                      f"unrelated patterns would ({100 * row['uniform_share']:.0f} %): check "
                      "period_px, cell_px and projector_width_px; every pixel is masked")
+    lines += [f"warning: {text}" for text in info.get("warnings", [])]
     lines += [note for note in info.get("notes", []) if note]
     if info.get("hint"):
         lines.append(info["hint"])

@@ -11,12 +11,14 @@ disagreement. x_p is the finest phase set's own ``(f + k) P`` (every set fused b
 inverse variance with ``fuse_periods``). A pixel is
 
 - *low modulation* when a set's modulation is below ``min_modulation_dn``, when its
-  predicted phase noise (times the margin) exceeds the accepted residual, when the
-  predicted residual of an unwrapping step does, when a Gray bit is undecidable (an
-  edge pixel too, when the code orders a phase: its cell is not known), or when the
-  phase lies too close to the edge of its Gray cell for its noise;
+  predicted phase noise (times the margin) exceeds the accepted residual, when an
+  unwrapping step's odds of the neighbouring order exceed those of a ``3 margin``
+  sigma excursion (:func:`_unwrap_step`), when its undecidable Gray bits leave a span
+  of cells the phase cannot order (:func:`_gray_order`; a Gray code alone: any
+  undecidable bit but an edge pixel's), or when the phase lies too close to the Gray
+  order's decision boundary for its noise;
 - *inconsistent* when an observed residual exceeds the accepted one (or the phase
-  lies outside its Gray cell by more than ``gray_edge_cells``);
+  lies outside its decided Gray cell by more than ``gray_edge_cells`` and its noise);
 - *out of range* when the result lies outside [-0.5, width - 0.5).
 
 Everything works on flat row chunks (no per-pixel Python loop); counts for the decode
@@ -26,7 +28,7 @@ periods disagree) are gathered in a :class:`ChainStats`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -86,6 +88,9 @@ class UnwrapPlan:
         Integer images: add the quantisation variance.
     desc : PatternDescription
         The coding (thresholds, width, options).
+    gray_frames : tuple of int
+        Frames of the Gray set that ``gray`` decodes (all bits unless the finest were
+        dropped: then ``gray`` is the coarser code, its inverses grouped after it).
     """
 
     phase: tuple
@@ -97,11 +102,15 @@ class UnwrapPlan:
     sensor: SensorModel
     quantised: bool
     desc: PatternDescription
+    gray_frames: tuple = ()
 
     @classmethod
     def build(cls, desc: PatternDescription, sensor: SensorModel, quantised: bool,
-              response: ProjectorResponse | None = None) -> UnwrapPlan:
-        """Plan for a description, a resolved sensor model and an optional response."""
+              response: ProjectorResponse | None = None, gray_bits: int | None = None
+              ) -> UnwrapPlan:
+        """Plan for a description, a resolved sensor model and an optional response;
+        ``gray_bits`` keeps only that many most significant Gray bits (the cells grow
+        by 2 per bit dropped)."""
         if response is not None and desc.phase_sets:
             response.check_covers(desc.phase_sets)
         phase = tuple(_SetPlan(s.name, s.period_px, s.steps, ShiftFit.from_shifts(s.shifts_rad),
@@ -114,8 +123,25 @@ class UnwrapPlan:
                 [p.period_px for p in phase], [p.name for p in phase],
                 desc.projector_width_px, desc.thresholds.max_period_ratio,
                 start=None if ordered is None else [p.name for p in phase].index(ordered.name))
-        return cls(phase, steps, desc.gray_set, desc.reference_set, desc.gray_threshold,
-                   desc.gray_cell_px, sensor, quantised, desc)
+        gray, cell, frames = _coarser_gray(desc, gray_bits)
+        return cls(phase, steps, gray, desc.reference_set, desc.gray_threshold,
+                   cell, sensor, quantised, desc, frames)
+
+
+def _coarser_gray(desc: PatternDescription, bits: int | None):
+    """(Gray set, cell [px], frames) decoding only the ``bits`` most significant bits."""
+    gray, cell = desc.gray_set, desc.gray_cell_px
+    if gray is None:
+        return None, cell, ()
+    plain, inverse = gray.frame_order()
+    if bits is None or bits >= gray.bits:
+        return gray, cell, ()
+    frames = plain[:bits] if inverse is None else np.concatenate([plain[:bits],
+                                                                  inverse[:bits]])
+    cell *= 2 ** (gray.bits - bits)
+    layout = "none" if inverse is None else "grouped"
+    return (replace(gray, bits=bits, cell_px=cell, inverse=layout), cell,
+            tuple(int(i) for i in frames))
 
 
 @dataclass(eq=False)
@@ -127,7 +153,8 @@ class ChainStats:
     unrelated pattern would reject, ``noisy[name]`` were first marked low there;
     ``edges[name]`` counts the valid edge pixels of a Gray code decoded alone;
     ``low[bit]`` counts masked pixels by low-modulation reason; ``disagreement[name]``
-    holds samples of each set's coordinate minus x_p at valid pixels [projector px].
+    holds samples of each set's coordinate minus x_p at valid pixels, ``positions[name]``
+    x_p at the same pixels [projector px].
     """
 
     checked: dict = field(default_factory=dict)
@@ -137,6 +164,7 @@ class ChainStats:
     low: dict = field(default_factory=dict)
     disagreement: dict = field(default_factory=dict)
     edges: dict = field(default_factory=dict)
+    positions: dict = field(default_factory=dict)
 
     def count(self, table: str, key: str, n: int) -> None:
         getattr(self, table)[key] = getattr(self, table).get(key, 0) + int(n)
@@ -150,6 +178,8 @@ class ChainStats:
         self.uniform.update(other.uniform)
         for key, parts in other.disagreement.items():
             self.disagreement.setdefault(key, []).extend(parts)
+        for key, parts in other.positions.items():
+            self.positions.setdefault(key, []).extend(parts)
 
 
 @dataclass(eq=False)
@@ -239,11 +269,16 @@ def _gray(plan: UnwrapPlan, flat: dict, sets: list, flags: _Flags):
         threshold = (a, sample_variance(a, plan.sensor, plan.quantised)
                      / plan.phase[index].steps)
     th = plan.desc.thresholds
-    dec = decode_gray(gray, flat[gray.name], plan.sensor, plan.quantised,
+    frames = flat[gray.name]
+    if plan.gray_frames:
+        frames = frames[list(plan.gray_frames)]
+    dec = decode_gray(gray, frames, plan.sensor, plan.quantised,
                       th.gray_min_contrast_sigma, threshold)
-    # an edge pixel ordering a phase stays masked: the interval test needs its cell, and
-    # where the edge falls on a wrap of the phase its fringe order is ambiguous by one
-    unknown = dec.undecidable | dec.edge if plan.steps else dec.undecidable
+    if plan.steps:  # a phase decides the order wherever the span of cells is narrower
+        # than its period (edge pixels, blurred fine bits: :func:`_gray_order`)
+        unknown = (dec.span > 1) & (dec.span * plan.gray_cell_px > plan.steps[0].period_px)
+    else:
+        unknown = dec.undecidable
     flags.low |= unknown.view(np.uint8) * np.uint8(LOW_GRAY)
     return gray.name, dec
 
@@ -271,7 +306,7 @@ def _run_chain(plan: UnwrapPlan, sets: list, gray, flags: _Flags, stats: ChainSt
     first, rest = plan.steps[0], plan.steps[1:]
     frac, var = _step_phase(plan, first, sets)
     if gray is not None:
-        x = _gray_order(plan, first, gray[1].cell, frac, var, flags, stats)
+        x = _gray_order(plan, first, gray[1], frac, var, flags, stats)
     else:
         x = _absolute(plan, first, frac)
     if first.is_set:
@@ -337,23 +372,36 @@ def _absolute(plan: UnwrapPlan, step: chain.Step, frac: np.ndarray) -> np.ndarra
     return np.mod(frac * period + margin, period) - margin
 
 
-def _gray_order(plan: UnwrapPlan, step: chain.Step, cell: np.ndarray, frac: np.ndarray,
+def _gray_order(plan: UnwrapPlan, step: chain.Step, dec, frac: np.ndarray,
                 var: np.ndarray, flags: _Flags, stats: ChainStats) -> np.ndarray:
-    """Fringe order of the ordered set from the Gray cell (interval test)."""
+    """Fringe order of the ordered set from the Gray cells (interval test).
+
+    A pixel may lie in ``dec.span`` cells from ``dec.first`` (one where every bit is
+    decided): the order puts the phase nearest their centre, and it is accepted when
+    the phase falls inside them (give or take ``gray_edge_cells``) and no other order
+    does. A pixel of one cell whose phase falls outside is inconsistent; a wider span
+    the phase cannot order is undecidable (low modulation). Either way the phase must
+    keep its own noise margin from the decision boundary half a period away.
+    """
     period, w = step.period_px, plan.gray_cell_px
     th = plan.desc.thresholds
     edge = min(th.gray_edge_cells * w, 0.5 * max(period - w, 0.0))
-    centre = cell * w + 0.5 * (w - 1.0)
+    half = 0.5 * w * dec.span
+    centre = dec.first * w + half - 0.5
     k = np.rint(centre / period - frac)
     x = (frac + k) * period
     dist = np.abs(x - centre)
-    accept = 0.5 * w + edge
-    bad = (dist > accept) | (period - dist <= accept)
-    # the phase must keep a noise margin from the decision boundary half a period away
+    # the phase may fall outside the cells by the edge tolerance and its own noise
+    accept = half + edge + 3.0 * th.unwrap_sigma_margin * np.sqrt(var)
+    full = dec.span == 1
+    outside = dist > accept
+    ambiguous = period - dist <= accept
+    bad = outside | (ambiguous & full)
+    flags.low |= (ambiguous & ~full).view(np.uint8) * np.uint8(LOW_GRAY)
     clearance = 0.5 * period - dist
     noisy = ~bad & ~(var * (3.0 * th.unwrap_sigma_margin) ** 2 <= clearance * clearance)
     _check_step(stats, f"{plan.gray.name} -> {step.name}", flags, bad,
-                1.0 - min(1.0, 2.0 * accept / period), noisy)
+                1.0 - min(1.0, (w + 2.0 * edge) / period), noisy, judged=full)
     return x
 
 
@@ -365,17 +413,22 @@ def _unwrap_step(plan: UnwrapPlan, step: chain.Step, x: np.ndarray, var_x: np.nd
     period = step.period_px
     r = x / period - frac
     k = np.rint(r)
-    bad = np.abs(r - k) > th.unwrap_max_residual
-    predicted = (var_x + var_step) * (th.unwrap_sigma_margin / period) ** 2
-    noisy = ~(predicted <= th.unwrap_max_residual ** 2)
+    residual = np.abs(r - k)
+    bad = residual > th.unwrap_max_residual
+    # the odds of the neighbouring order against the one taken, for the observed residual
+    # and the predicted noise, exp(-(1 - 2 |r|) / (2 sigma^2)), must stay below those of
+    # a 3 margin sigma excursion, exp(-(3 margin)^2 / 2)
+    variance = (var_x + var_step) / (period * period)
+    noisy = ~(1.0 - 2.0 * residual >= variance * (3.0 * th.unwrap_sigma_margin) ** 2)
     _check_step(stats, step.name, flags, bad, 1.0 - 2.0 * th.unwrap_max_residual, noisy)
     return (frac + k) * period
 
 
 def _check_step(stats: ChainStats, name: str, flags: _Flags, bad: np.ndarray,
-                uniform: float, noisy: np.ndarray) -> None:
-    """Record a step's rejections and noise flags."""
-    open_ = flags.open()
+                uniform: float, noisy: np.ndarray, judged: np.ndarray | None = None
+                ) -> None:
+    """Record a step's rejections and noise flags (counts over ``judged`` pixels)."""
+    open_ = flags.open() if judged is None else flags.open() & judged
     stats.count("noisy", name, np.count_nonzero(open_ & noisy))
     flags.low |= noisy.view(np.uint8) * np.uint8(LOW_STEP)
     open_ &= ~noisy
@@ -410,7 +463,10 @@ def _gather(plan: UnwrapPlan, per_set: dict, gray, x: np.ndarray, valid: np.ndar
     for name, (xs, _) in per_set.items():
         if plan.desc.options.fuse_periods or name != plan.phase[-1].name:
             stats.disagreement.setdefault(name, []).append(xs[pick] - x[pick])
+            stats.positions.setdefault(name, []).append(x[pick])
     if gray is not None and plan.steps:
         w = plan.gray_cell_px
+        pick = pick[gray[1].span[pick] == 1]  # pixels of one known cell
         centre = gray[1].cell[pick] * w + 0.5 * (w - 1.0)
         stats.disagreement.setdefault(gray[0], []).append(centre - x[pick])
+        stats.positions.setdefault(gray[0], []).append(x[pick])
