@@ -22,13 +22,15 @@ References
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+import os
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from scanqa.calibration.board import Board, BoardPose
+from scanqa.calibration.board import Board, BoardPose, decode_pose
 from scanqa.calibration.parametric import ParametricCalibration, from_opencv
 from scanqa.calibration.uncertainty import jackknife_covariance, pack_opencv
+from scanqa.decoding.coding import PatternDescription
 from scanqa.errors import InputError
 from scanqa.io.opencv import OpenCVCalibration
 
@@ -83,12 +85,15 @@ class BoardCalibration:
         The lens model (``MODELS``).
     held_out : tuple of dict
         Leave-one-pose-out results (:func:`hold_out`); empty unless asked for.
+    comparison : dict
+        :func:`compare` with a reference calibration; empty unless asked for.
     """
 
     data: OpenCVCalibration
     poses: tuple
     model: str
     held_out: tuple = field(default=())
+    comparison: dict = field(default_factory=dict)
 
     @property
     def flagged(self) -> list[str]:
@@ -129,6 +134,49 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
         data = OpenCVCalibration(**{**data.__dict__, "covariance":
                                     jackknife_covariance(np.array(thetas))})
     return BoardCalibration(data, tuple(_flag(residuals)), model)
+
+
+def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,
+                    rows: PatternDescription, board: Board, model: str = "k1",
+                    held_out: bool = False, reference: OpenCVCalibration | None = None,
+                    progress=None) -> BoardCalibration:
+    """Decode board poses and calibrate from them (what ``scanqa calibrate --board`` does).
+
+    Parameters
+    ----------
+    folders : list of path
+        One folder of images per pose.
+    columns, rows : PatternDescription
+        The projected patterns (:func:`scanqa.calibration.board.decode_pose`); the
+        projector panel is ``columns.projector_width_px`` x ``rows.projector_width_px``.
+    board : Board
+        The chessboard.
+    model : str
+        Lens model (``MODELS``).
+    held_out : bool
+        Also leave each pose out in turn (:func:`hold_out`).
+    reference : OpenCVCalibration, optional
+        A calibration to compare with (:func:`compare`; its plane RMS on each held-out
+        pose too).
+    progress : callable, optional
+        Receives a message per pose.
+
+    Returns
+    -------
+    BoardCalibration
+    """
+    poses = []
+    for folder in folders:
+        poses.append(decode_pose(folder, columns, rows, board))
+        if progress:
+            progress(f"pose {poses[-1].name}: {np.isfinite(poses[-1].projector_px).all(1).sum()}"
+                     f" of {len(poses[-1].camera_px)} corners in the projector")
+    panel = (columns.projector_width_px, rows.projector_width_px)
+    result = calibrate_board(poses, board, panel, model)
+    ref = None if reference is None else from_opencv(reference)
+    return replace(result, comparison=compare(result.data, reference) if reference else {},
+                   held_out=tuple(hold_out(poses, board, panel, model, ref)
+                                  if held_out and len(poses) >= 3 else ()))
 
 
 def _fit(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
@@ -269,3 +317,37 @@ def plane_rms(pose: BoardPose, cal: ParametricCalibration) -> float:
     centred = xyz - xyz.mean(axis=0)
     normal = np.linalg.svd(centred, full_matrices=False)[2][2]
     return float(np.sqrt(np.mean((centred @ normal) ** 2)))
+
+
+def compare(ours: OpenCVCalibration, reference: OpenCVCalibration) -> dict:
+    """How far a calibration lies from another of the same scanner.
+
+    Returns
+    -------
+    dict
+        ``camera_focal_rel`` and ``projector_focal_rel`` (relative difference of the mean
+        of f_x and f_y [-]), ``rotation_deg`` (angle of Rp_ours Rp_ref^T), ``baseline_deg``
+        (angle between the projector centres seen from the camera, -Rp^T Tp) and
+        ``baseline_rel`` (relative difference of their lengths [-]), and both files'
+        reprojection errors [px].
+    """
+    import cv2
+
+    def focal(m: np.ndarray) -> float:
+        return float((m[0, 0] + m[1, 1]) / 2)
+
+    def centre(data: OpenCVCalibration) -> np.ndarray:
+        return -data.Rp.T @ np.ravel(data.Tp)
+
+    a, b = centre(ours), centre(reference)
+    cos = np.dot(a, b) / np.linalg.norm(a) / np.linalg.norm(b)
+    return {
+        "camera_focal_rel": focal(ours.Kc) / focal(reference.Kc) - 1,
+        "projector_focal_rel": focal(ours.Kp) / focal(reference.Kp) - 1,
+        "rotation_deg": float(np.degrees(np.linalg.norm(
+            cv2.Rodrigues(ours.Rp @ reference.Rp.T)[0]))),
+        "baseline_deg": float(np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))),
+        "baseline_rel": float(np.linalg.norm(a) / np.linalg.norm(b) - 1),
+        "errors_px": dict(ours.errors), "reference_errors_px": dict(reference.errors),
+        "reference": reference.source,
+    }
