@@ -239,7 +239,9 @@ class ParametricCalibration:
         return {"kind": "parametric", "calibration": self.source,
                 "reprojection_error_px": dict(self.errors), "orientation": self.orientation,
                 "sigma_table": "0: a parametric calibration carries no uncertainty of its "
-                               "own (scanqa.calibration.parametric)"}
+                               "own (scanqa.calibration.parametric)",
+                "calibration_covariance": "jackknife, per point: calibration_sigma_mm"
+                if self.covariance is not None else "none"}
 
     @functools.cached_property
     def image_grid(self) -> CameraRays:

@@ -64,13 +64,15 @@ def pack(cal) -> np.ndarray:
 
 
 def unpack(cal, theta: np.ndarray):
-    """``cal`` with the parameters ``theta`` (24,) (skew, sizes, range kept)."""
+    """``cal`` with the parameters ``theta`` (24,) (skew, sizes, range kept; no
+    covariance: it belongs to the fitted parameters)."""
     cam_m, cam_k = _lens_matrix(theta[:9])
     proj_m, proj_k = _lens_matrix(theta[9:18])
     cam_m[0, 1], proj_m[0, 1] = cal.camera.matrix[0, 1], cal.projector.matrix[0, 1]
     return replace(cal, camera=replace(cal.camera, matrix=cam_m, distortion=cam_k),
                    projector=replace(cal.projector, matrix=proj_m, distortion=proj_k),
-                   rotation=_rotation(theta[18:21]), translation=np.array(theta[21:24]))
+                   rotation=_rotation(theta[18:21]), translation=np.array(theta[21:24]),
+                   covariance=None)
 
 
 def jackknife_covariance(thetas: np.ndarray) -> np.ndarray:
