@@ -87,6 +87,9 @@ class BoardCalibration:
         Leave-one-pose-out results (:func:`hold_out`); empty unless asked for.
     comparison : dict
         :func:`compare` with a reference calibration; empty unless asked for.
+    fit_std : dict
+        OpenCV's std of each lens parameter from its fit (Jacobian, residuals as white
+        noise) [px, -], for comparison with the jackknife's.
     """
 
     data: OpenCVCalibration
@@ -94,6 +97,7 @@ class BoardCalibration:
     model: str
     held_out: tuple = field(default=())
     comparison: dict = field(default_factory=dict)
+    fit_std: dict = field(default_factory=dict)
 
     @property
     def flagged(self) -> list[str]:
@@ -127,13 +131,13 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
         raise InputError(f"lens model must be one of {MODELS}, got {model!r}")
     if len(poses) < 2:
         raise InputError(f"a board calibration needs at least 2 poses, got {len(poses)}")
-    data, residuals = _fit(poses, board, projector_size, model)
+    data, residuals, fit_std = _fit(poses, board, projector_size, model)
     if covariance and len(poses) >= 3:
         thetas = [pack_opencv(_fit(poses[:k] + poses[k + 1:], board, projector_size,
                                    model)[0]) for k in range(len(poses))]
         data = OpenCVCalibration(**{**data.__dict__, "covariance":
                                     jackknife_covariance(np.array(thetas))})
-    return BoardCalibration(data, tuple(_flag(residuals)), model)
+    return BoardCalibration(data, tuple(_flag(residuals)), model, fit_std=fit_std)
 
 
 def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,
@@ -180,17 +184,18 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
 
 
 def _fit(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
-         model: str) -> tuple[OpenCVCalibration, list[PoseResidual]]:
-    """One calibration of all ``poses`` and their residuals."""
+         model: str) -> tuple[OpenCVCalibration, list[PoseResidual], dict]:
+    """One calibration of all ``poses``, their residuals and OpenCV's std of the
+    intrinsics (from the fit's Jacobian, residuals taken as white noise)."""
     import cv2
 
     cam_flags, proj_flags = _flags()[model]
     obj, cam, proj = _points(poses, board)
     camera_size = poses[0].camera_size
-    e_c, kc_m, kc, rc, tc = cv2.calibrateCamera(obj, cam, camera_size, None, None,
-                                                flags=cam_flags)
-    e_p, kp_m, kp, rp, tp = cv2.calibrateCamera(obj, proj, tuple(projector_size), None,
-                                                None, flags=proj_flags)
+    e_c, kc_m, kc, rc, tc, std_c = cv2.calibrateCameraExtended(
+        obj, cam, camera_size, None, None, flags=cam_flags)[:6]
+    e_p, kp_m, kp, rp, tp, std_p = cv2.calibrateCameraExtended(
+        obj, proj, tuple(projector_size), None, None, flags=proj_flags)[:6]
     e_s, *_, rot, trans, _, _ = cv2.stereoCalibrate(obj, cam, proj, kc_m, kc, kp_m, kp,
                                                     camera_size,
                                                     flags=cv2.CALIB_FIX_INTRINSIC)
@@ -204,7 +209,12 @@ def _fit(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
                "screenResX": int(projector_size[0]), "screenResY": int(projector_size[1])},
         errors={"cam_error": float(e_c), "proj_error": float(e_p),
                 "stereo_error": float(e_s)})
-    return data, residuals
+    names = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+    fit_std = {f"{dev}_{n}": float(v) for dev, std in (("camera", std_c), ("projector", std_p))
+               for n, v in zip(names, np.ravel(std)[:9], strict=True)}
+    for dev in ("camera", "projector"):  # with f_x = f_y OpenCV gives f_y's std only
+        fit_std[f"{dev}_fx"] = fit_std[f"{dev}_fx"] or fit_std[f"{dev}_fy"]
+    return data, residuals, fit_std
 
 
 def _points(poses: list[BoardPose], board: Board) -> tuple[list, list, list]:
@@ -271,7 +281,7 @@ def hold_out(poses: list[BoardPose], board: Board, projector_size: tuple[int, in
     """
     out = []
     for k, pose in enumerate(poses):
-        data, _ = _fit(poses[:k] + poses[k + 1:], board, projector_size, model)
+        data = _fit(poses[:k] + poses[k + 1:], board, projector_size, model)[0]
         row = {"pose": pose.name, "projector_rms_px": predicted_projector_rms(pose, board,
                                                                               data),
                "plane_rms_mm": plane_rms(pose, from_opencv(data))}

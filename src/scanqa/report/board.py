@@ -31,6 +31,7 @@ def summary(result: BoardCalibration) -> dict:
         "parameter_std": None if cov is None else dict(zip(
             COVARIANCE_PARAMETERS, np.sqrt(np.clip(np.diag(cov), 0, None)).tolist(),
             strict=True)),
+        "parameter_std_fit": dict(result.fit_std),
         "held_out": list(result.held_out),
         "comparison": dict(result.comparison),
     }
@@ -71,6 +72,11 @@ def render(result: BoardCalibration) -> str:
         page.heading("Against the reference calibration", "reference")
         page.table([{"quantity": k, "value": v} for k, v in info["comparison"].items()])
     if info["parameter_std"]:
-        page.heading("Parameter standard deviations (jackknife over poses)", "std")
-        page.table([{"parameter": k, "std": v} for k, v in info["parameter_std"].items()])
+        page.heading("Parameter standard deviations", "std")
+        page.paragraph("jackknife: from the calibrations that left one pose out (what enters "
+                       "the calibration sigma); fit: OpenCV's, from the Jacobian of one fit "
+                       "with the residuals taken as white noise (lens parameters only).")
+        fit = info["parameter_std_fit"]
+        page.table([{"parameter": k, "jackknife": v, "fit": fit.get(k, "")}
+                    for k, v in info["parameter_std"].items()])
     return page.render()
