@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import logging
 
 from scanqa.calibration.board import Board
 from scanqa.calibration.board_fit import MODELS, calibrate_poses
@@ -25,6 +26,8 @@ from scanqa.io.opencv import is_opencv_file, read_opencv_calibration, write_open
 from scanqa.io.sweep import load_sweep
 from scanqa.report import board as report_board
 from scanqa.report import calibration as report_calibration
+
+log = logging.getLogger(__name__)  # progress: -q silences it
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -124,7 +127,7 @@ def run_board(args: argparse.Namespace) -> int:
     board = Board(args.board[0], args.board[1], args.square_mm)
     reference = read_opencv_calibration(args.reference) if args.reference else None
     result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns), board,
-                             args.lens_model, args.hold_out, reference, progress=emit)
+                             args.lens_model, args.hold_out, reference, progress=log.info)
     stem = out.with_suffix("").name
     with staged_dir(out.parent) as stage:
         write_opencv_calibration(stage / out.name, result.data)
