@@ -217,3 +217,20 @@ def test_bad_boards_and_models_are_refused():
         calibrate_board([synthetic_pose(0)] * 2, BOARD, PANEL, model="fisheye")
     with pytest.raises(InputError, match="at least 2 poses"):
         calibrate_board([synthetic_pose(0)], BOARD, PANEL)
+
+
+def test_report_renders_poses_flags_and_the_comparison():
+    from dataclasses import replace
+
+    from scanqa.report import board as report_board
+
+    poses = [synthetic_pose(k, 0.1) for k in range(5)] + [synthetic_pose(5, 1.0)]
+    result = calibrate_board(poses, BOARD, PANEL)
+    result = replace(result, comparison=compare(result.data, TRUTH))
+    info = report_board.summary(result)
+    assert info["flagged_poses"] == ["pose5"]
+    assert set(info["parameter_std"]) == set(COVARIANCE_PARAMETERS)
+    assert info["parameter_std_fit"]["camera_fx"] > 0
+    html = report_board.render(result)
+    assert "Flagged (pose RMS &gt; 2 x the median of the other poses): pose5" in html
+    assert "cam_error [px]: ours / reference" in html

@@ -70,7 +70,13 @@ def render(result: BoardCalibration) -> str:
         page.table(info["held_out"])
     if info["comparison"]:
         page.heading("Against the reference calibration", "reference")
-        page.table([{"quantity": k, "value": v} for k, v in info["comparison"].items()])
+        comp = info["comparison"]
+        page.paragraph(f"reference: {comp['reference']}")
+        page.table([{"quantity": k, "value": v} for k, v in comp.items()
+                    if not isinstance(v, (dict, str))]
+                   + [{"quantity": f"{k} [px]: ours / reference",
+                       "value": f"{v:.3f} / {comp['reference_errors_px'].get(k, float('nan')):.3f}"}
+                      for k, v in comp["errors_px"].items()])
     if info["parameter_std"]:
         page.heading("Parameter standard deviations", "std")
         page.paragraph("jackknife: from the calibrations that left one pose out (what enters "
