@@ -50,6 +50,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa.calibration.lookup import TableLookup, check_rows, empty_lookup
+from scanqa.calibration.uncertainty import calibration_sigma_mm
 from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig
 from scanqa.decoding.phasemap import PhaseMap
@@ -182,6 +183,9 @@ class ParametricCalibration:
         Reprojection errors of the calibration [px] (provenance only).
     source : str
         The calibration file.
+    covariance : (24, 24) float or None
+        Covariance of the parameters (:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`),
+        e.g. from ``scanqa calibrate --board``; None: unknown.
     """
 
     camera: Lens
@@ -192,6 +196,7 @@ class ParametricCalibration:
     depth_range_mm: tuple = (0.0, math.inf)
     errors: dict = field(default_factory=dict)
     source: str = ""
+    covariance: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=float))
@@ -234,7 +239,9 @@ class ParametricCalibration:
         return {"kind": "parametric", "calibration": self.source,
                 "reprojection_error_px": dict(self.errors), "orientation": self.orientation,
                 "sigma_table": "0: a parametric calibration carries no uncertainty of its "
-                               "own (scanqa.calibration.parametric)"}
+                               "own (scanqa.calibration.parametric)",
+                "calibration_covariance": "jackknife, per point: calibration_sigma_mm"
+                if self.covariance is not None else "none"}
 
     @functools.cached_property
     def image_grid(self) -> CameraRays:
@@ -314,6 +321,16 @@ class ParametricCalibration:
 
         run_bands(band, row_bands(*xp.shape))
         return out
+
+    def calibration_sigma_mm(self, u: np.ndarray, v: np.ndarray, xp: np.ndarray
+                             ) -> np.ndarray:
+        """Std of the points (u, v, xp) along their line of sight from the calibration's
+        own uncertainty [mm] (:func:`scanqa.calibration.uncertainty.calibration_sigma_mm`);
+        NaN everywhere when the calibration has no covariance."""
+        if self.covariance is None:
+            return np.full(np.broadcast_shapes(np.shape(u), np.shape(v), np.shape(xp)),
+                           np.nan)
+        return calibration_sigma_mm(self, self.covariance, u, v, xp)
 
     @property
     def projector_position_mm(self) -> np.ndarray:
@@ -612,7 +629,7 @@ def from_opencv(data: OpenCVCalibration, orientation: str = "vertical",
     return ParametricCalibration(Lens(data.Kc, data.kc, *cam), Lens(data.Kp, data.kp, *proj),
                                  data.Rp, data.Tp, orientation,
                                  tuple(float(v) for v in depth_range_mm), dict(data.errors),
-                                 data.source)
+                                 data.source, data.covariance)
 
 
 def _size(data: OpenCVCalibration, keys: tuple[str, str], given: tuple[int, int] | None,

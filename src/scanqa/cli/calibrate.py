@@ -1,10 +1,14 @@
-"""``scanqa calibrate``: build a weighted calibration table from a plane sweep."""
+"""``scanqa calibrate``: build a weighted calibration table from a plane sweep, or (with
+``--board``) a camera-projector calibration from chessboard poses."""
 
 from __future__ import annotations
 
 import argparse
 import json
+import logging
 
+from scanqa.calibration.board import Board
+from scanqa.calibration.board_fit import MODELS, calibrate_poses
 from scanqa.calibration.build import WEIGHT_MODES
 from scanqa.calibration.sweep import calibrate
 from scanqa.calibration.table import save_table
@@ -15,22 +19,34 @@ from scanqa.cli.common import (
     emit,
     number,
 )
+from scanqa.decoding.parsing import load_patterns
+from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, staged_dir, write_text
+from scanqa.io.opencv import is_opencv_file, read_opencv_calibration, write_opencv_calibration
 from scanqa.io.sweep import load_sweep
+from scanqa.report import board as report_board
 from scanqa.report import calibration as report_calibration
+
+log = logging.getLogger(__name__)  # progress: -q silences it
 
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "calibrate", formatter_class=argparse.RawDescriptionHelpFormatter,
         help="build a weighted nonparametric calibration table from a plane sweep",
-        epilog="example:\n  scanqa calibrate sample_data/calibration_sweep/sweep.toml "
-               "--config sample_data/sample_scanner.toml#sample --out table.npz\n\n"
-               "writes table.npz and, beside it, table_report.html and table_report.json")
-    p.add_argument("sweep", metavar="SWEEP", help="sweep manifest (sweep.toml) or its folder")
-    add_config_argument(p)
+        epilog="examples:\n  scanqa calibrate sample_data/calibration_sweep/sweep.toml "
+               "--config sample_data/sample_scanner.toml#sample --out table.npz\n"
+               "  scanqa calibrate --board 9x13 --square-mm 10 --patterns columns.toml "
+               "rows.toml calseq1 calseq3 calseq4 --out calibration.xml\n\n"
+               "writes the table (or calibration) and, beside it, <stem>_report.html and "
+               "<stem>_report.json")
+    p.add_argument("sweep", metavar="SWEEP", nargs="+",
+                   help="sweep manifest (sweep.toml) or its folder; with --board: the "
+                        "folders of the board poses")
+    add_config_argument(p, required=False)
     add_model_argument(p)
-    p.add_argument("--out", required=True, metavar="TABLE.npz", help="table file to write")
+    p.add_argument("--out", required=True, metavar="TABLE.npz",
+                   help="table file to write (with --board: the OpenCV calibration, .xml)")
     p.add_argument("--weights", choices=WEIGHT_MODES, default="model",
                    help="sample weights: optics model (default), decoder sigma_xp, or none")
     p.add_argument("--cell", type=number(int, ge=1, unit="px"), default=None, metavar="PX",
@@ -42,10 +58,42 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-markers", action="store_true",
                    help="ignore the sweep's marker frames: lateral X, Y from 'lateral' maps "
                         "or the config's pinhole (for comparison)")
+    board = p.add_argument_group("board calibration (docs/calibration.rst, 'From a board')")
+    board.add_argument("--board", metavar="ROWSxCOLS", type=_board_size, default=None,
+                       help="inner corners (saddle points) of the chessboard, e.g. 9x13: "
+                            "calibrate camera and projector from board poses")
+    board.add_argument("--square-mm", type=number(gt=0, unit="mm"), default=None,
+                       metavar="MM", help="side of a board square [mm]")
+    board.add_argument("--patterns", nargs=2, metavar=("COLUMNS.toml", "ROWS.toml"),
+                       help="patterns.toml of the column (vertical) and row (horizontal) "
+                            "fringes; their file names are read in each pose folder")
+    board.add_argument("--lens-model", choices=MODELS, default="k1",
+                       help="k1 (default: square pixels, radial k1, camera principal point "
+                            "at the centre), k1k2, or full (k1 k2 p1 p2 k3)")
+    board.add_argument("--hold-out", action="store_true",
+                       help="also calibrate without each pose in turn and measure on it")
+    board.add_argument("--reference", metavar="CALIBRATION.xml", default=None,
+                       help="an OpenCV calibration of the same scanner to compare with")
     p.set_defaults(func=run)
 
 
+def _board_size(text: str) -> tuple[int, int]:
+    """argparse type: ROWSxCOLS inner corners."""
+    try:
+        rows, cols = (int(t) for t in text.lower().split("x"))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"expected ROWSxCOLS inner corners such as 9x13, got {text!r}") from None
+    return rows, cols
+
+
 def run(args: argparse.Namespace) -> int:
+    if args.board is not None:
+        return run_board(args)
+    if len(args.sweep) != 1 or args.config is None:
+        raise InputError("a table is built from one sweep (SWEEP) and --config; board "
+                         "poses need --board ROWSxCOLS")
+    args.sweep = args.sweep[0]
     config = config_from_args(args)
     out = check_out_dir(args.out)
     sweep = load_sweep(args.sweep)
@@ -65,4 +113,30 @@ def run(args: argparse.Namespace) -> int:
          f"{report.used_samples} samples used, rejected: {rej}; table sigma median "
          + (f"{median:.3g} um" if median is not None else "unknown")
          + f"; report {report_html}")
+    return 0
+
+
+def run_board(args: argparse.Namespace) -> int:
+    """``--board``: decode the poses, calibrate, write the file and its reports."""
+    if args.square_mm is None or args.patterns is None:
+        raise InputError("--board needs --square-mm and --patterns COLUMNS.toml ROWS.toml")
+    out = check_out_dir(args.out)
+    if not is_opencv_file(out):
+        raise InputError(f"--out {out}: a board calibration is an OpenCV file (.xml, .yml, "
+                         ".yaml or .json)")
+    board = Board(args.board[0], args.board[1], args.square_mm)
+    reference = read_opencv_calibration(args.reference) if args.reference else None
+    result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns), board,
+                             args.lens_model, args.hold_out, reference, progress=log.info)
+    stem = out.with_suffix("").name
+    with staged_dir(out.parent) as stage:
+        write_opencv_calibration(stage / out.name, result.data)
+        write_text(stage / f"{stem}_report.json", json.dumps(report_board.summary(result),
+                                                            indent=1))
+        write_text(stage / f"{stem}_report.html", report_board.render(result))
+    err = result.data.errors
+    emit(f"calibration {out}: {len(result.poses)} poses, RMS camera {err['cam_error']:.3f} "
+         f"px, projector {err['proj_error']:.3f} px, stereo {err['stereo_error']:.3f} px; "
+         f"flagged: {', '.join(result.flagged) or 'none'}; report "
+         f"{out.with_name(f'{stem}_report.html')}")
     return 0

@@ -17,6 +17,10 @@ key                                required  meaning
 ``screenResX``, ``screenResY``     no        projector panel size [projector px]
 ``cam_error``, ``proj_error``,     no        RMS reprojection errors of the calibration
 ``stereo_error``                             [px]
+``calibration_covariance``         no        covariance of the 24 calibration parameters
+                                             (order: ``COVARIANCE_PARAMETERS``), written
+                                             by ``scanqa calibrate --board`` [px, -, rad,
+                                             mm squared]; other tools ignore the key
 =================================  ========  ===============================================
 
 Conventions (OpenCV's): ``Rp``, ``Tp`` map camera coordinates to projector coordinates,
@@ -53,6 +57,12 @@ MATRICES = {"Kc": (3, 3), "kc": "distortion", "Kp": (3, 3), "kp": "distortion",
 SIZES = ("frameWidth", "frameHeight", "screenResX", "screenResY")
 #: Optional reprojection errors [px].
 ERRORS = ("cam_error", "proj_error", "stereo_error")
+#: The parameters of ``calibration_covariance``, in order: camera and projector (f_x, f_y,
+#: c_x, c_y [px], k1 k2 p1 p2 k3 [-]), the rotation vector of Rp [rad], Tp [mm].
+COVARIANCE_PARAMETERS = (
+    *(f"{dev}_{name}" for dev in ("camera", "projector")
+      for name in ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")),
+    "rotation_x", "rotation_y", "rotation_z", "tx", "ty", "tz")
 #: Lengths OpenCV uses for distortion vectors.
 DISTORTION_LENGTHS = (4, 5, 8, 12, 14)
 
@@ -78,6 +88,8 @@ class OpenCVCalibration:
         Those of ``cam_error``, ``proj_error``, ``stereo_error`` it holds [px].
     source : str
         The file.
+    covariance : (24, 24) float64 or None
+        Covariance of the parameters ``COVARIANCE_PARAMETERS``, when the file has one.
     """
 
     Kc: np.ndarray
@@ -89,6 +101,7 @@ class OpenCVCalibration:
     sizes: dict = field(default_factory=dict)
     errors: dict = field(default_factory=dict)
     source: str = ""
+    covariance: np.ndarray | None = None
 
 
 def is_opencv_file(path: str | os.PathLike) -> bool:
@@ -155,9 +168,52 @@ def _read_nodes(fs, p: Path) -> OpenCVCalibration:
     mats = {name: _matrix(fs, p, name, shape) for name, shape in MATRICES.items()}
     sizes = {name: _size(fs, p, name) for name in SIZES}
     errors = {name: _real(fs, p, name) for name in ERRORS}
+    n = len(COVARIANCE_PARAMETERS)
+    cov = (None if fs.getNode("calibration_covariance").empty()
+           else _matrix(fs, p, "calibration_covariance", (n, n)))
     return OpenCVCalibration(**mats, sizes={k: v for k, v in sizes.items() if v is not None},
                              errors={k: v for k, v in errors.items() if v is not None},
-                             source=str(p))
+                             source=str(p), covariance=cov)
+
+
+def write_opencv_calibration(path: str | os.PathLike, data: OpenCVCalibration) -> Path:
+    """Write a calibration as an OpenCV FileStorage file (the keys of the module notes).
+
+    The file is written beside its final name and renamed into place, so a reader never
+    sees half a file. :func:`read_opencv_calibration` reads it back unchanged (float64).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        ``.xml``, ``.yml``/``.yaml`` or ``.json``.
+    data : OpenCVCalibration
+        What to write; ``source`` is not written.
+
+    Returns
+    -------
+    Path
+        The file written.
+    """
+    import cv2
+
+    p = Path(path)
+    if not is_opencv_file(p):
+        raise InputError(f"{p}: an OpenCV calibration file must end in "
+                         f"{', '.join(SUFFIXES)}")
+    tmp = p.with_name(f".{p.name}.tmp{p.suffix}")
+    fs = cv2.FileStorage(str(tmp), cv2.FILE_STORAGE_WRITE)
+    try:
+        for name in MATRICES:
+            value = np.asarray(getattr(data, name), dtype=float)
+            fs.write(name, value.reshape(-1, 1) if value.ndim == 1 else value)
+        for name, value in {**data.errors, **data.sizes}.items():
+            fs.write(name, value)
+        if data.covariance is not None:
+            fs.write("calibration_covariance", np.asarray(data.covariance, dtype=float))
+    finally:
+        fs.release()
+    os.replace(tmp, p)
+    return p
 
 
 def _matrix(fs, p: Path, name: str, shape) -> np.ndarray:

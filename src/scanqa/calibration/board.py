@@ -1,0 +1,247 @@
+"""Board poses for a camera-projector calibration: chessboard corners in the camera and,
+from the decoded phase, in the projector.
+
+A pose is one placement of a flat chessboard, scanned with fringes in both directions
+(columns, x_p, and rows, y_p). Its camera corners are found by OpenCV in the mean of the
+finest column set (the offset image, the board as a camera sees it under uniform light);
+its projector corners come from local homographies (Moreno and Taubin [1]): around each
+camera corner the decoded (x_p, y_p) of the valid pixels within ``window_px`` are fitted
+by a homography of the camera pixels, (x_p, y_p, 1) ~ H (u, v, 1), and the corner is
+mapped through it. The board is flat, so within the window the camera-to-projector map
+is a homography up to the lenses' distortion, and the fit averages the phase noise of a
+few thousand pixels into each corner.
+
+References
+----------
+.. [1] D. Moreno and G. Taubin, "Simple, Accurate, and Robust Projector-Camera
+   Calibration", 3DIMPVT 2012, pp. 464-471, Sec. 3 (local homographies).
+"""
+
+from __future__ import annotations
+
+import math
+import os
+from dataclasses import dataclass, replace
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.decoding.coding import PatternDescription
+from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.patternset import read_pattern_images
+from scanqa.errors import InputError
+
+#: Half-width of the window of each local homography [camera px] (Moreno and Taubin use
+#: 47 px on a 1600 x 1200 camera; the projector corners of the SLStudio board move by
+#: < 0.02 px between 15 and 45 px).
+WINDOW_PX = 30
+#: Fewest valid pixels a local homography needs [-].
+MIN_WINDOW_PIXELS = 50
+#: Margin around the board's corners that is decoded [camera px].
+CROP_MARGIN_PX = 60
+#: Margin around the corners found at half size where they are sought again [px].
+CORNER_MARGIN_PX = 40
+
+
+@dataclass(frozen=True)
+class Board:
+    """A chessboard: its inner corners (saddle points) and square size.
+
+    Attributes
+    ----------
+    rows, columns : int
+        Inner corners along the board's short and long side [-] (OpenCV's pattern size
+        is (columns, rows)).
+    square_mm : float
+        Side of a square [mm].
+    """
+
+    rows: int
+    columns: int
+    square_mm: float
+
+    def __post_init__(self) -> None:
+        for name in ("rows", "columns"):
+            value = getattr(self, name)
+            if not (isinstance(value, int) and value >= 2):
+                raise InputError(f"board {name} must be a whole number >= 2 of inner "
+                                 f"corners, got {value!r}")
+        if not (math.isfinite(self.square_mm) and self.square_mm > 0):
+            raise InputError(f"board square_mm must be > 0, got {self.square_mm} [mm]")
+
+    @property
+    def object_points(self) -> np.ndarray:
+        """(rows * columns, 3) float32 corners on the board, row by row, Z = 0 [mm]."""
+        j, i = np.meshgrid(np.arange(self.columns), np.arange(self.rows))
+        pts = np.zeros((self.rows * self.columns, 3), np.float32)
+        pts[:, 0], pts[:, 1] = j.ravel() * self.square_mm, i.ravel() * self.square_mm
+        return pts
+
+
+@dataclass(frozen=True)
+class BoardPose:
+    """One pose: the board's corners in the camera and the projector.
+
+    Attributes
+    ----------
+    name : str
+        The pose (its folder's name).
+    camera_px : (n, 2) float64
+        Corners in the camera image, in :attr:`Board.object_points` order [camera px].
+    projector_px : (n, 2) float64
+        The same corners on the projector panel [projector px]; NaN where a window had
+        too few decoded pixels.
+    crop : (int, int, int, int)
+        The decoded region (u0, v0, u1, v1) of the camera image [camera px].
+    xp, yp : (v1 - v0, u1 - u0) float64
+        Decoded projector column and row in the crop [projector px]; NaN where masked.
+    camera_size : (int, int)
+        Camera (width, height) [px].
+    """
+
+    name: str
+    camera_px: np.ndarray
+    projector_px: np.ndarray
+    crop: tuple
+    xp: np.ndarray
+    yp: np.ndarray
+    camera_size: tuple
+
+
+def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
+    """The board's inner corners in a grey image, or None when OpenCV finds no board.
+
+    Parameters
+    ----------
+    image : (H, W) float
+        The board under uniform light [DN], any range (stretched to its 99.5th
+        percentile first: dark captures are found as well).
+    board : Board
+        What to look for.
+
+    Returns
+    -------
+    (n, 2) float64 or None
+        Corners row by row [camera px].
+
+    Notes
+    -----
+    ``cv2.findChessboardCornersSB`` finds the board in the image at half size, then
+    again with its sub-pixel accuracy flag in the full-size region around it (three
+    times faster than the whole image at full size, corners within 0.05 px of it on
+    the SLStudio board but for one pose, 0.19 px).
+    """
+    import cv2
+
+    image = np.nan_to_num(np.asarray(image, dtype=float))
+    top = np.percentile(image, 99.5)
+    grey = np.clip(image * (255.0 / top if top > 0 else 1.0), 0, 255).astype(np.uint8)
+    size, flags = (board.columns, board.rows), cv2.CALIB_CB_EXHAUSTIVE
+    small = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    found, rough = cv2.findChessboardCornersSB(small, size, flags=flags)
+    u0, v0, u1, v1 = (_crop(rough.reshape(-1, 2) * 2 + 0.5, grey.shape, 2 * CORNER_MARGIN_PX)
+                      if found else (0, 0, grey.shape[1], grey.shape[0]))
+    found, corners = cv2.findChessboardCornersSB(np.ascontiguousarray(grey[v0:v1, u0:u1]),
+                                                 size, flags=flags | cv2.CALIB_CB_ACCURACY)
+    return corners.reshape(-1, 2).astype(float) + np.array([u0, v0]) if found else None
+
+
+def projector_corners(camera_px: np.ndarray, xp: np.ndarray, yp: np.ndarray,
+                      offset: tuple[int, int] = (0, 0), window_px: int = WINDOW_PX
+                      ) -> np.ndarray:
+    """Projector coordinates of camera points through local homographies (module notes).
+
+    Parameters
+    ----------
+    camera_px : (n, 2) float
+        Points in the camera image [camera px].
+    xp, yp : (H, W) float
+        Decoded projector column and row of a region of the image, NaN where masked
+        [projector px].
+    offset : (int, int)
+        (u, v) of the region's first pixel in the image [camera px].
+    window_px : int
+        Half-width of each window [camera px].
+
+    Returns
+    -------
+    (n, 2) float64
+        (x_p, y_p) of each point [projector px]; NaN where its window holds fewer than
+        ``MIN_WINDOW_PIXELS`` valid pixels.
+    """
+    import cv2
+
+    out = np.full((len(camera_px), 2), np.nan)
+    height, width = xp.shape
+    for n, (u, v) in enumerate(np.asarray(camera_px, dtype=float) - offset):
+        r0, r1 = max(round(v) - window_px, 0), min(round(v) + window_px + 1, height)
+        c0, c1 = max(round(u) - window_px, 0), min(round(u) + window_px + 1, width)
+        rows, cols = np.mgrid[r0:r1, c0:c1]
+        x, y = xp[r0:r1, c0:c1], yp[r0:r1, c0:c1]
+        ok = np.isfinite(x) & np.isfinite(y)
+        if ok.sum() < MIN_WINDOW_PIXELS:
+            continue
+        src = np.column_stack([cols[ok] - u, rows[ok] - v]).astype(float)  # centred
+        hom, _ = cv2.findHomography(src, np.column_stack([x[ok], y[ok]]), 0)
+        if hom is not None and abs(hom[2, 2]) > 0:
+            out[n] = hom[:2, 2] / hom[2, 2]
+    return out
+
+
+def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
+                rows: PatternDescription, board: Board,
+                window_px: int = WINDOW_PX) -> BoardPose:
+    """Find and decode one board pose.
+
+    Parameters
+    ----------
+    folder : str or PathLike
+        The pose's images, named as in the two descriptions' ``files``.
+    columns, rows : PatternDescription
+        What was projected: vertical fringes (x_p) and horizontal ones (y_p, with
+        ``projector_width_px`` the panel's height); their file names are read in
+        ``folder``.
+    board : Board
+        The chessboard.
+    window_px : int
+        Half-width of the local homographies [camera px].
+
+    Returns
+    -------
+    BoardPose
+
+    Raises
+    ------
+    InputError
+        The descriptions have the wrong orientations, or no board is found.
+    """
+    where = Path(folder)
+    if columns.orientation != "vertical" or rows.orientation != "horizontal":
+        raise InputError("the board's patterns: the first description must code columns "
+                         "(orientation = \"vertical\"), the second rows (\"horizontal\"); "
+                         f"got {columns.orientation!r} and {rows.orientation!r}")
+    stacks = [read_pattern_images(replace(d, source=str(where / "patterns.toml")))
+              for d in (columns, rows)]
+    finest = columns.sets.index(columns.phase_sets[-1])
+    image = np.asarray(stacks[0][finest], dtype=float).mean(axis=0)
+    corners = find_corners(image, board)
+    if corners is None:
+        raise InputError(f"{where}: no {board.columns} x {board.rows} chessboard found "
+                         "(check the board's corner counts and that the board is lit)")
+    crop = _crop(corners, image.shape, CROP_MARGIN_PX)
+    u0, v0, u1, v1 = crop
+    maps = [decode_images(desc, [s[:, v0:v1, u0:u1] for s in stack]).xp
+            for desc, stack in zip((columns, rows), stacks, strict=True)]
+    proj = projector_corners(corners, *maps, offset=(u0, v0), window_px=window_px)
+    return BoardPose(where.name, corners, proj, crop, maps[0], maps[1],
+                     (image.shape[1], image.shape[0]))
+
+
+def _crop(corners: np.ndarray, shape: tuple[int, int], margin: int
+          ) -> tuple[int, int, int, int]:
+    """The corners' bounding box (u0, v0, u1, v1) with ``margin`` around, inside the
+    image [px]."""
+    lo = np.floor(corners.min(axis=0)).astype(int) - margin
+    hi = np.ceil(corners.max(axis=0)).astype(int) + margin
+    return (max(int(lo[0]), 0), max(int(lo[1]), 0), min(int(hi[0]), shape[1]),
+            min(int(hi[1]), shape[0]))

@@ -1,0 +1,88 @@
+"""Report of a calibration from board poses: per-pose reprojection RMS (flagged poses),
+the poses left out in turn, and the comparison with a reference calibration."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from scanqa.calibration.board_fit import FLAG_FACTOR, BoardCalibration
+from scanqa.io.opencv import COVARIANCE_PARAMETERS
+from scanqa.report.html import Page
+from scanqa.report.plots import new_figure
+
+
+def summary(result: BoardCalibration) -> dict:
+    """JSON-ready summary of a board calibration."""
+    data = result.data
+    cov = data.covariance
+    return {
+        "format": "scanqa-board-calibration-report/1",
+        "model": result.model,
+        "errors_px": dict(data.errors),
+        "camera_matrix": np.asarray(data.Kc).tolist(),
+        "camera_distortion": np.asarray(data.kc).tolist(),
+        "projector_matrix": np.asarray(data.Kp).tolist(),
+        "projector_distortion": np.asarray(data.kp).tolist(),
+        "rotation": np.asarray(data.Rp).tolist(),
+        "translation_mm": np.asarray(data.Tp).tolist(),
+        "poses": [p.as_dict() for p in result.poses],
+        "flagged_poses": result.flagged,
+        "flag_rule": f"pose RMS > {FLAG_FACTOR:g} x the median of the other poses",
+        "parameter_std": None if cov is None else dict(zip(
+            COVARIANCE_PARAMETERS, np.sqrt(np.clip(np.diag(cov), 0, None)).tolist(),
+            strict=True)),
+        "parameter_std_fit": dict(result.fit_std),
+        "held_out": list(result.held_out),
+        "comparison": dict(result.comparison),
+    }
+
+
+def render(result: BoardCalibration) -> str:
+    """The board calibration report as one self-contained HTML page."""
+    info = summary(result)
+    page = Page("scanqa board calibration report")
+    err = info["errors_px"]
+    page.paragraph(f"lens model {result.model}; reprojection RMS camera "
+                   f"{err['cam_error']:.3f} px, projector {err['proj_error']:.3f} px, "
+                   f"stereo {err['stereo_error']:.3f} px over {len(result.poses)} poses.")
+    if info["flagged_poses"]:
+        page.paragraph(f"Flagged ({info['flag_rule']}): {', '.join(info['flagged_poses'])}"
+                       ": check the pose's images, or calibrate without it.", note=True)
+    page.heading("Reprojection RMS per pose", "poses")
+    fig, ax = new_figure()
+    names = [p["pose"] for p in info["poses"]]
+    x = np.arange(len(names))
+    ax[0][0].bar(x - 0.2, [p["camera_rms_px"] for p in info["poses"]], 0.4, label="camera")
+    ax[0][0].bar(x + 0.2, [p["projector_rms_px"] for p in info["poses"]], 0.4,
+                 label="projector")
+    ax[0][0].set_xticks(x, names)
+    ax[0][0].set(ylabel="RMS reprojection error [px]", title="per pose")
+    ax[0][0].legend()
+    page.figure(fig, "RMS distance between each pose's corners and the fitted model",
+                "poses")
+    page.table(info["poses"])
+    if info["held_out"]:
+        page.heading("Each pose left out in turn", "held-out")
+        page.paragraph("Calibrated on the other poses; on the pose left out: its projector "
+                       "corners predicted from its camera corners, and the RMS of its "
+                       "triangulated points about their plane (reference: the same pose "
+                       "with the reference calibration, which may have seen it).")
+        page.table(info["held_out"])
+    if info["comparison"]:
+        page.heading("Against the reference calibration", "reference")
+        comp = info["comparison"]
+        page.paragraph(f"reference: {comp['reference']}")
+        page.table([{"quantity": k, "value": v} for k, v in comp.items()
+                    if not isinstance(v, (dict, str))]
+                   + [{"quantity": f"{k} [px]: ours / reference",
+                       "value": f"{v:.3f} / {comp['reference_errors_px'].get(k, float('nan')):.3f}"}
+                      for k, v in comp["errors_px"].items()])
+    if info["parameter_std"]:
+        page.heading("Parameter standard deviations", "std")
+        page.paragraph("jackknife: from the calibrations that left one pose out (what enters "
+                       "the calibration sigma); fit: OpenCV's, from the Jacobian of one fit "
+                       "with the residuals taken as white noise (lens parameters only).")
+        fit = info["parameter_std_fit"]
+        page.table([{"parameter": k, "jackknife": v, "fit": fit.get(k, "")}
+                    for k, v in info["parameter_std"].items()])
+    return page.render()
