@@ -23,8 +23,9 @@ sigma_scene_um     um     the model sigma's scene-side part (filtered by the cam
                           the whole model sigma for the paper's readings)
 sigma_sensor_um    um     the model sigma's sensor part (two-source model; 0 otherwise)
 sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
-sigma_table_um     um     the calibration table's own std at that point (0 for a
-                          parametric calibration)
+sigma_table_um     um     the calibration's own std at that point along the line of
+                          sight: a table's cell std, or a parametric calibration's from
+                          its parameter covariance (0 when it carries none)
 sigma_random_um    um     the per-point random sigma along the line of sight, from the
                           source the cloud's ``sigma_source`` names: the model where a
                           characterisation pinned it, a board's noise law applied to the
@@ -242,6 +243,9 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
     inputs = {k: _pick(v[r0:r1], select) for k, v in extra.items()}
     inputs["corr_px"] = table_correlation_px(table)
     inputs["source"] = source
+    if getattr(table, "covariance", None) is not None:  # a parametric calibration's own
+        inputs["sigma_calibration"] = table.calibration_sigma_mm(*pixels, _pick(
+            xp[r0:r1], select))
     return _annotate_points(look, pixels, inputs, config, out)
 
 
@@ -293,7 +297,7 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
     s_t = np.sqrt(slope[:, 0] ** 2 + slope[:, 1] ** 2 + slope[:, 2] ** 2)  # |dQ/dx_p|
     pred = optics.predict(points, config, s_t=s_t)
     sigma = np.where(pred.valid, pred.sigma, np.nan)
-    sig_tab = look.sigma_table.ravel()
+    sig_tab = inputs.get("sigma_calibration", look.sigma_table.ravel())
     random = _random_sigma(inputs, sigma, s_t)
     total = np.sqrt(random**2 + sig_tab**2 + config.model.systematic_sigma_mm**2)
     ply.vertex_views(out)[0][...] = points
