@@ -36,6 +36,7 @@ import numpy as np
 from scipy.optimize import nnls
 
 from scanqa.calibration.base import Calibration
+from scanqa.calibration.board import Board, find_corners
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
@@ -63,7 +64,8 @@ def robust_std(values: np.ndarray) -> float:
 
 
 def find_board_corners(image: np.ndarray, inner: tuple[int, int]) -> np.ndarray | None:
-    """Inner corners of a chessboard in an image, (rows, cols, 2) [camera px] or None.
+    """Inner corners of a chessboard in an image, (rows, cols, 2) [camera px] or None
+    (:func:`scanqa.calibration.board.find_corners`, either orientation).
 
     Parameters
     ----------
@@ -72,22 +74,10 @@ def find_board_corners(image: np.ndarray, inner: tuple[int, int]) -> np.ndarray 
     inner : (int, int)
         Inner corners (saddle points) per row and per column of the board [-].
     """
-    import cv2  # OpenCV's sector-based detector: sub-pixel and robust to blur
-
-    scale = np.nanpercentile(image, 99.5)
-    im = np.clip(255.0 * np.nan_to_num(image) / max(scale, 1e-9), 0, 255).astype(np.uint8)
-    flags = cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_ACCURACY
-    small = cv2.pyrDown(im)  # 5-6x faster; the corners then refined at full size
-    for size in (inner, inner[::-1]):
-        ok, corners = cv2.findChessboardCornersSB(small, size, flags=flags)
-        if ok:
-            corners = cv2.cornerSubPix(im, (2 * corners + 0.5).astype(np.float32), (7, 7),
-                                       (-1, -1), (cv2.TERM_CRITERIA_EPS
-                                                  + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.01))
-            return corners.reshape(size[1], size[0], 2)
-        ok, corners = cv2.findChessboardCornersSB(im, size, flags=flags)
-        if ok:
-            return corners.reshape(size[1], size[0], 2)
+    for cols, rows in (inner, inner[::-1]):
+        corners = find_corners(image, Board(rows=rows, columns=cols, square_mm=1.0))
+        if corners is not None:
+            return corners.reshape(rows, cols, 2)
     return None
 
 
