@@ -21,7 +21,7 @@ LAYERS = {
     "scanqa.decoding": 4, "scanqa.design": 4, "scanqa.noisefit": 4,
     "scanqa.calibration": 5,
     "scanqa.annotation": 6, "scanqa.characterization": 6, "scanqa.qa": 6,
-    "scanqa.boardnoise": 6,
+    "scanqa.boardnoise": 6, "scanqa.compare": 6,
     "scanqa.simulator": 6,
     "scanqa.report": 7,
     "scanqa.demo": 8, "scanqa.batch": 8, "scanqa.cluster": 8, "scanqa.campaign": 8,

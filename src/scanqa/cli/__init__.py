@@ -32,6 +32,7 @@ COMMAND_MODULES = (
     "scanqa.cli.calibrate",
     "scanqa.cli.annotate",
     "scanqa.cli.qa",
+    "scanqa.cli.compare",
     "scanqa.cli.demo",
     "scanqa.cli.patterns",
     "scanqa.cli.decode",

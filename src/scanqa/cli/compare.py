@@ -1,0 +1,77 @@
+"""``scanqa compare``: an annotated cloud against a reference cloud or mesh (parsing only;
+:mod:`scanqa.compare`)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from scanqa.cli.common import emit, number, warn_sigma
+from scanqa.errors import InputError
+
+_EPILOG = """examples:
+  scanqa compare scan.ply reference.ply --out cmp
+  scanqa compare scan.ply part.stl --tolerance-um 50 --out cmp
+
+Writes cmp/report.html, cmp/summary.json and cmp/cloud_compare.ply (the scan with
+deviation_um, u_deviation_um, U_deviation_um, significance, significant and, with a
+tolerance, in_tolerance). Mesh references: .stl, .obj, .off, .glb (trimesh); cloud
+references: .ply, .las, .csv, .parquet (a .ply holding faces is read as a mesh)."""
+
+MESH_SUFFIXES = (".stl", ".obj", ".off", ".glb", ".gltf")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("compare", formatter_class=argparse.RawDescriptionHelpFormatter,
+                       help="deviation from a reference cloud or mesh vs the scan's own "
+                            "uncertainty", epilog=_EPILOG)
+    p.add_argument("cloud", metavar="CLOUD", help="annotated cloud (scanqa annotate)")
+    p.add_argument("reference", metavar="REFERENCE", help="reference cloud or mesh")
+    p.add_argument("--out", required=True, help="output folder")
+    p.add_argument("-k", type=number(gt=0), default=2.0, help="coverage factor (default 2)")
+    p.add_argument("--tolerance-um", type=number(gt=0), default=None,
+                   help="tolerance on |deviation| [um]: adds a verdict")
+    p.add_argument("--reference-sigma-um", type=number(ge=0), default=0.0,
+                   help="sigma of the reference where it carries none [um] (default 0)")
+    p.add_argument("--neighbours", type=number(int, ge=3), default=16,
+                   help="reference points per local plane (default 16)")
+    p.add_argument("--max-distance-mm", type=number(gt=0), default=1.0,
+                   help="farther from the reference: not compared (default 1 mm)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from scanqa.cloud import read_cloud
+    from scanqa.compare import compare_to_cloud, compare_to_mesh
+    from scanqa.report.compare import write_outputs
+
+    cloud = read_cloud(args.cloud)
+    warn_sigma([cloud])
+    tol = None if args.tolerance_um is None else 1e-3 * args.tolerance_um
+    ref_sigma = 1e-3 * args.reference_sigma_um
+    if Path(args.reference).suffix.lower() in MESH_SUFFIXES:
+        result = compare_to_mesh(cloud, _mesh(args.reference), args.k, ref_sigma,
+                                 args.max_distance_mm, tol, name=args.reference)
+    else:
+        result = compare_to_cloud(cloud, read_cloud(args.reference), args.k,
+                                  args.neighbours, ref_sigma, args.max_distance_mm,
+                                  tolerance_mm=tol, name=args.reference)
+    info = write_outputs(result, args.out)
+    emit(f"{info['compared']} of {info['points']} points compared: median deviation "
+         f"{info['median_deviation_um']:.1f} um, RMS {info['rms_deviation_um']:.1f} um, "
+         f"{100 * info['significant_fraction']:.1f} % significant (|dev| > U, k = {args.k:g})"
+         + (f"; verdict {info['verdict']}" if "verdict" in info else ""))
+    emit(f"report: {Path(args.out) / 'report.html'}")
+    return 0
+
+
+def _mesh(path: str):
+    import trimesh
+
+    try:
+        mesh = trimesh.load(path, force="mesh")
+    except (OSError, ValueError) as err:
+        raise InputError(f"cannot read the reference mesh {path}: {err}") from None
+    if len(getattr(mesh, "faces", ())) == 0:
+        raise InputError(f"{path} holds no triangles (a point cloud? give it as .ply/.las)")
+    return mesh

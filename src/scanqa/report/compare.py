@@ -1,0 +1,79 @@
+"""The comparison report: the statistics, a colour map of the deviations and of their
+significance, and a histogram (rendering only; :mod:`scanqa.compare` computes)."""
+
+from __future__ import annotations
+
+import json
+import os
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.compare import Comparison
+from scanqa.io.atomic import staged_dir, write_text
+from scanqa.report.html import Page
+from scanqa.report.plots import new_figure
+
+
+def render(result: Comparison) -> str:
+    """The report as one self-contained HTML page."""
+    info = result.summary()
+    page = Page("scanqa comparison with a reference")
+    if "verdict" in info:
+        word = info["verdict"]
+        page.banner({"verdict": word.upper(), "pass": int(word == "pass"),
+                     "fail": int(word == "fail"), "undecided": int(word == "undecided"),
+                     "not evaluated": int(word == "not evaluated")},
+                    f"tolerance {info['tolerance_um']:g} um (ISO 14253-1, worst point)")
+    page.sigma_source(info["sigma_source"])
+    page.heading("Summary", "summary")
+    rows = [{"quantity": k, "value": v} for k, v in info.items()
+            if k not in ("format", "sigma_source", "notes")]
+    page.table(rows, ["quantity", "value"])
+    page.paragraph(f"Deviation along the reference surface's normal; u combines the scan's "
+                   f"sigma_total (projected on the normal) with the reference's; a point is "
+                   f"significant when |deviation| > U = {result.k:g} u.", note=True)
+    a = result.cloud.attributes
+    xyz = np.asarray(result.cloud.xyz)
+    dev = np.asarray(a["deviation_um"], float)
+    ok = np.isfinite(dev)
+    if ok.any():
+        page.heading("Maps", "maps")
+        page.figure(_maps(xyz[ok], dev[ok], np.asarray(a["significance"], float)[ok]),
+                    "deviation [um] and significance |deviation| / U over the scan (X, Y "
+                    "in mm)", alt="deviation map")
+    for note in result.notes:
+        page.paragraph(note, note=True)
+    return page.render()
+
+
+def _maps(xyz: np.ndarray, dev: np.ndarray, significance: np.ndarray):
+    fig, ax = new_figure(3, 1, width=4.6, height=4.0)
+    lim = float(np.percentile(np.abs(dev), 99)) or 1.0
+    step = max(1, len(dev) // 200000)
+    s = slice(None, None, step)
+    m = ax[0, 0].scatter(xyz[s, 0], xyz[s, 1], c=dev[s], s=1, cmap="coolwarm",
+                         vmin=-lim, vmax=lim)
+    fig.colorbar(m, ax=ax[0, 0], label="deviation [um]")
+    m = ax[0, 1].scatter(xyz[s, 0], xyz[s, 1], c=significance[s], s=1, cmap="viridis",
+                         vmin=0, vmax=2)
+    fig.colorbar(m, ax=ax[0, 1], label="|deviation| / U")
+    for axis in ax[0, :2]:
+        axis.set_aspect("equal")
+        axis.invert_yaxis()
+        axis.set_xlabel("X [mm]")
+        axis.set_ylabel("Y [mm]")
+    ax[0, 2].hist(dev, bins=80, color="#4a7")
+    ax[0, 2].set_xlabel("deviation [um]")
+    ax[0, 2].set_ylabel("points")
+    return fig
+
+
+def write_outputs(result: Comparison, out_dir: str | os.PathLike) -> dict:
+    """report.html, summary.json and cloud_compare.ply, published together."""
+    info = result.summary()
+    with staged_dir(out_dir) as out:
+        write_text(Path(out) / "summary.json", json.dumps(info, indent=1))
+        write_text(Path(out) / "report.html", render(result))
+        result.cloud.write(Path(out) / "cloud_compare.ply")
+    return info

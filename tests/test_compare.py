@@ -1,0 +1,120 @@
+"""scanqa compare: simulated gauge-block scan against its truth (exact reference), then
+against the truth with one block shifted by 60 um, which must stand out; a mesh
+reference; errors. Expected fractions come from the scan's own sigma (simulated)."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import trimesh
+
+from scanqa.annotation import annotate
+from scanqa.cli import main
+from scanqa.cloud import AnnotatedCloud
+from scanqa.compare import compare_to_cloud, compare_to_mesh
+from scanqa.config import load_config
+from scanqa.decoding.decoder import decode
+from scanqa.errors import InputError
+from tests.conftest import ROOT
+from tests.test_noise_law import _pinhole
+
+SAMPLE = ROOT / "sample_data" / "gauge_blocks"
+BLOCK2 = (-14.0, -2.0, -21.0, -3.0)  # layout.toml block 2's region (X0, X1, Y0, Y1) [mm]
+
+
+@pytest.fixture(scope="module")
+def scan_and_truth():
+    config = load_config(ROOT / "sample_data" / "sample_scanner.toml", profile="sample")
+    cloud = annotate(decode(SAMPLE / "p000_r0"), _pinhole(config), config)
+    t = np.load(SAMPLE / "truth" / "p000.npz")
+    truth = np.stack([t["X"], t["Y"], t["Z"]], -1)[t["valid"].astype(bool)]
+    return cloud, truth
+
+
+def _interiors(xyz):
+    """Points 1 mm inside any block of the sample layout (layout.toml)."""
+    from scanqa.qa.layout import load_layout
+
+    inside = np.zeros(len(xyz), bool)
+    for block in load_layout(SAMPLE / "layout.toml").blocks:
+        x0, x1, y0, y1 = block.region_mm
+        inside |= (xyz[:, 0] > x0 + 1) & (xyz[:, 0] < x1 - 1) & (xyz[:, 1] > y0 + 1) \
+            & (xyz[:, 1] < y1 - 1)
+    return inside
+
+
+def _in_block(xyz):
+    x0, x1, y0, y1 = BLOCK2
+    return (xyz[:, 0] > x0 + 1) & (xyz[:, 0] < x1 - 1) & (xyz[:, 1] > y0 + 1) \
+        & (xyz[:, 1] < y1 - 1)
+
+
+def test_a_good_scan_is_within_its_uncertainty_and_a_shifted_block_stands_out(scan_and_truth):
+    cloud, truth = scan_and_truth
+    good = compare_to_cloud(cloud, AnnotatedCloud(truth, {}))
+    info = good.summary()
+    assert info["compared"] > 0.95 * info["points"]
+    # where the scan is good (the blocks' tops, 1 mm inside their edges) its own sigma
+    # covers its deviations from the truth: <= 5 % beyond U (k = 2; 4.0 % here, simulated);
+    # the mixed pixels at the blocks' edges are biased and do stand out (8.5 % over all)
+    significance = np.asarray(good.cloud.attributes["significance"])
+    tops = _interiors(np.asarray(good.cloud.xyz)) & np.isfinite(significance)
+    assert tops.sum() > 15000
+    assert (significance[tops] > 1).mean() <= 0.05
+    shifted = truth.copy()
+    shifted[_in_block(truth), 2] += 0.060  # the block 60 um farther than scanned
+    bad = compare_to_cloud(cloud, AnnotatedCloud(shifted, {})).cloud
+    sig = np.asarray(bad.attributes["significant"])
+    dev = np.asarray(bad.attributes["deviation_um"])
+    xyz = np.asarray(bad.xyz)
+    block = _in_block(xyz) & np.isfinite(sig)
+    others = _interiors(xyz) & ~_in_block(xyz) & np.isfinite(sig)
+    assert sig[block].mean() > 0.9 and sig[others].mean() <= 0.05
+    # the deviation is along the normal (towards the camera): the scan sits 60 um nearer
+    # than the shifted block, i.e. +60 um along a normal pointing at the camera
+    np.testing.assert_allclose(np.median(dev[block]), 60.0, atol=5.0)
+
+
+def test_mesh_reference_and_tolerance_verdict(scan_and_truth, tmp_path, capsys):
+    cloud, _ = scan_and_truth
+    pts = np.asarray(cloud.xyz)
+    sel = _in_block(pts)
+    z = float(np.median(pts[sel, 2]))
+    x0, x1, y0, y1 = BLOCK2
+    plane = trimesh.Trimesh(vertices=[[x0, y0, z], [x1, y0, z], [x1, y1, z], [x0, y1, z]],
+                            faces=[[0, 2, 1], [0, 3, 2]])  # normal -Z: towards the camera
+    one = AnnotatedCloud(pts[sel], {k: np.asarray(v)[sel] for k, v in
+                                    cloud.attributes.items()}, metadata=cloud.metadata)
+    res = compare_to_mesh(one, plane, tolerance_mm=0.2)
+    info = res.summary()
+    assert info["verdict"] == "pass" and info["significant_fraction"] <= 0.05
+    assert abs(info["median_deviation_um"]) < 3.0
+    assert compare_to_mesh(one, plane, tolerance_mm=0.001).summary()["verdict"] == "fail"
+    # the command line: a cloud file and an STL, outputs published together
+    one.write(tmp_path / "scan.ply")
+    plane.export(tmp_path / "plane.stl")
+    code = main(["compare", str(tmp_path / "scan.ply"), str(tmp_path / "plane.stl"),
+                 "--tolerance-um", "200", "--out", str(tmp_path / "cmp")])
+    out = capsys.readouterr().out
+    assert code == 0 and "verdict pass" in out
+    data = json.loads((tmp_path / "cmp" / "summary.json").read_text())
+    assert data["verdict"] == "pass"
+    assert sorted(p.name for p in (tmp_path / "cmp").iterdir()) == [
+        "cloud_compare.ply", "report.html", "summary.json"]
+
+
+def test_compare_refuses_what_it_cannot_judge(scan_and_truth, tmp_path, capsys):
+    cloud, truth = scan_and_truth
+    bare = AnnotatedCloud(np.asarray(cloud.xyz), {})
+    with pytest.raises(InputError, match="no sigma_total_um"):
+        compare_to_cloud(bare, AnnotatedCloud(truth, {}))
+    with pytest.raises(InputError, match="within reach"):
+        compare_to_cloud(cloud, AnnotatedCloud(truth + 1000.0, {}))
+    with pytest.raises(InputError, match="k must be > 0"):
+        compare_to_cloud(cloud, AnnotatedCloud(truth, {}), k=0.0)
+    code = main(["compare", str(tmp_path / "missing.ply"), str(tmp_path / "m.stl"),
+                 "--out", str(tmp_path / "o")])
+    assert code == 2 and "Traceback" not in capsys.readouterr().err
+    assert not (tmp_path / "o").exists()
