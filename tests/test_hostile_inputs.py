@@ -187,3 +187,155 @@ def test_deflate_bomb_is_refused_before_decompression(tmp_path, monkeypatch):
     peak = tracemalloc.get_traced_memory()[1]
     tracemalloc.stop()
     assert peak < 1 << 20
+
+
+# ------------------------------------------------------------------ PLY, CSV, phase maps
+
+
+def test_ply_metadata_holding_1e999(tmp_path, capsys):
+    """json reads 1e999 as inf; the QA's re-export (allow_nan=False) raised ValueError."""
+    from scanqa.io.ply import write_ply
+
+    from .smallcases import LAYOUT_TOML, gauge_cloud
+
+    xyz, attrs = gauge_cloud()
+    path = write_ply(tmp_path / "c.ply", xyz, attrs, {"source": "tests", "gain": 1.5})
+    data = path.read_bytes()
+    assert data.count(b'"gain":1.5') == 1
+    path.write_bytes(data.replace(b'"gain":1.5', b'"gain":1e999'))
+    (tmp_path / "layout.toml").write_text(LAYOUT_TOML)
+    code = main(["qa", str(path), "--layout", str(tmp_path / "layout.toml"), "--out",
+                 str(tmp_path / "qa"), "-q"])
+    message = one_line_error(capsys, code)
+    assert "c.ply: the scanqa-meta header comment" in message and "1e999" in message
+    assert not (tmp_path / "qa").exists()
+
+
+def _phase_file(inputs, tmp_path: Path, **changes) -> Path:
+    """The valid phase map with arrays or scalars changed, written by the file layer
+    (which checks structure, not values)."""
+    from scanqa.io.phasemap import ARRAYS, read_phase_file, write_phase_file
+
+    arrays, scalars = read_phase_file(inputs["phase"])
+    arrays = {k: np.array(v) for k, v in arrays.items()}
+    for key, value in changes.items():
+        if key in ARRAYS:
+            arrays[key][3, 4] = value
+        else:
+            scalars[key] = value
+    return write_phase_file(tmp_path / "phase.npz", arrays, **scalars)
+
+
+@pytest.mark.parametrize("change, message", [
+    ({"sigma_xp": -0.01}, r"sigma_xp must be >= 0 .* 1 pixels are not \(first at row 3, "
+                          r"column 4: -0\.01"),
+    ({"sigma_xp": np.inf}, "sigma_xp must be >= 0"),
+    ({"modulation": np.inf}, "modulation must be finite"),
+    ({"modulation": np.nan}, "modulation must be finite"),
+    ({"offset": -np.inf}, "offset must be finite"),
+    ({"orientation": "diagonal"}, "orientation must be one of vertical, horizontal, got "
+                                  "'diagonal'"),
+])
+def test_phase_map_values_are_validated(change, message, inputs, tmp_path, capsys):
+    import re
+
+    phase = _phase_file(inputs, tmp_path, **change)
+    out = tmp_path / "out"
+    out.mkdir()
+    code = main([*command("phase", {**inputs, "phase": phase}, out), "-q"])
+    line = one_line_error(capsys, code)
+    assert "phase.npz" in line and re.search(message, line), line
+    assert not any(out.iterdir())
+
+
+def test_cloud_csv_is_a_plain_table_with_a_metadata_sidecar(tmp_path):
+    import pandas as pd
+
+    from scanqa.io.cloud import csv_sidecar, read_cloud, write_cloud
+
+    xyz = np.arange(30.0).reshape(10, 3)
+    path = write_cloud(tmp_path / "c.csv", xyz, {"sigma_model_um": np.full(10, 4.0)},
+                       {"format": "scanqa-cloud/1", "model": {"gamma": 1.0}})
+    frame = pd.read_csv(path)  # a plain reader: every point, the right columns
+    assert list(frame.columns) == ["x_mm", "y_mm", "z_mm", "sigma_model_um"]
+    assert len(frame) == 10 and frame["z_mm"].iloc[-1] == 29.0
+    assert csv_sidecar(path).name == "c.csv.json"
+    assert read_cloud(path)[2]["model"] == {"gamma": 1.0}
+    legacy = tmp_path / "old.csv"  # scanqa before the sidecar: a first '# scanqa-meta' line
+    legacy.write_text('# scanqa-meta {"source": "old"}\n' + path.read_text())
+    assert read_cloud(legacy)[2] == {"source": "old"}
+
+
+def test_non_numeric_csv_cells_are_an_error(tmp_path, capsys):
+    from scanqa.io.cloud import read_cloud
+
+    path = tmp_path / "c.csv"
+    path.write_text("x_mm,y_mm,z_mm,sigma_model_um,label\n1,2,3,4,a\n1,2,3,x4,b\n"
+                    "1,2,,nan,c\n")
+    with pytest.raises(InputError, match=r"column 'sigma_model_um', row 2 \(line 3\).*not a "
+                                         "number"):
+        read_cloud(path)
+    path.write_text("x_mm,y_mm,z_mm,label\n1,2,3,a\n1,2,,b\n")
+    xyz, attrs, _ = read_cloud(path)  # an empty cell is no value; a text column is left out
+    assert np.isnan(xyz[1, 2]) and "label" not in attrs
+
+
+# ------------------------------------------------------------------ layouts and blocks
+
+_BLOCK = '\n[[block]]\nid = {id}\nnominal_height_mm = {h}\nregion_mm = {r}\n'
+
+
+def _layout_text(blocks=((1, 20.0, "[-16.0, -6.0, -5.0, 5.0]"),
+                         (2, 10.0, "[-5.0, 5.0, -5.0, 5.0]"),
+                         (3, 5.0, "[6.0, 16.0, -5.0, 5.0]")), top: str = "") -> str:
+    return ('format = "scanqa-gauge-layout/1"\n' + top
+            + "".join(_BLOCK.format(id=b, h=h, r=r) for b, h, r in blocks))
+
+
+@pytest.mark.parametrize("text, message", [
+    (_layout_text(((2**63, 20.0, "[-16.0, -6.0, -5.0, 5.0]"),
+                   (2, 10.0, "[-5.0, 5.0, -5.0, 5.0]"))),
+     "block 1: id must be an integer from 0 to 2147483647, got 9223372036854775808"),
+    (_layout_text(((1, 1e300, "[-16.0, -6.0, -5.0, 5.0]"),
+                   (2, 10.0, "[-5.0, 5.0, -5.0, 5.0]"))),
+     r"block 1 \(id 1\): nominal_height_mm must be > 0 mm and finite, at most 1000 mm"),
+    (_layout_text(((1, 20.0, "[-16.0, -6.0, -5.0, 5.0]"),)), "holds one \\[\\[block\\]\\]"),
+    (_layout_text(top="[base]\nregion_mm = [-45.0, 45.0, -37.5, 37.5]\nnormall = [0, 0, 1]\n"),
+     r"\[base\]: unknown key 'normall' \(known: region_mm, normal\)"),
+    (_layout_text(top="[base]\nnormal = [0, 0, 0]\n"), r"\[base\]: normal must be"),
+    (_layout_text(top="base_z_mm = 1e300\n"), "base_z_mm must be a finite number"),
+])
+def test_layouts_the_adversary_wrote(text, message, inputs, tmp_path, capsys):
+    import re
+
+    layout = tmp_path / "layout.toml"
+    layout.write_text(text)
+    code = main(["qa", str(inputs["ply"]), "--layout", str(layout), "--out",
+                 str(tmp_path / "qa"), "-q"])
+    line = one_line_error(capsys, code)
+    assert "layout.toml" in line and re.search(message, line), line
+    assert not (tmp_path / "qa").exists()
+
+
+def test_a_block_with_nine_points_is_flagged_not_decided(tmp_path):
+    import json
+
+    from scanqa.io.ply import write_ply
+    from scanqa.qa.blocks import MIN_POINTS
+
+    from .smallcases import LAYOUT_TOML, gauge_cloud
+
+    xyz, attrs = gauge_cloud()
+    inner = (np.abs(xyz[:, 0] - 11.0) < 4.0) & (np.abs(xyz[:, 1]) < 3.5)  # block 3's
+    keep = xyz[:, 0] < 6.0
+    keep[np.flatnonzero(inner)[:9]] = True  # nine points left on block 3
+    path = write_ply(tmp_path / "c.ply", xyz[keep], {k: v[keep] for k, v in attrs.items()})
+    (tmp_path / "layout.toml").write_text(LAYOUT_TOML)
+    assert main(["qa", str(path), "--layout", str(tmp_path / "layout.toml"), "--out",
+                 str(tmp_path / "qa"), "-q"]) in (0, 1)
+    info = json.loads((tmp_path / "qa" / "summary.json").read_text())
+    block = next(b for b in info["blocks"] if b["block_id"] == 3)
+    assert block["n_points"] == 9 < MIN_POINTS and block["status"] == "too_few_points"
+    step = next(s for s in info["steps"] if s["block_b"] == 3)
+    assert step["pass"] == "not evaluated" and not step["evaluated"]
+    assert any("block 3: only 9 points" in n for n in info["notes"])

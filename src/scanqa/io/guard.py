@@ -95,3 +95,71 @@ def check_size(nbytes: int, where: str, declared: str) -> None:
         raise InputError(f"{where}: {declared}, {nbytes / (1 << 30):.3g} GiB, more than "
                          f"the {limit / (1 << 30):.3g} GiB limit (a damaged or hostile "
                          f"file; for a real input this large set {LIMIT_VARIABLE})")
+
+
+def loads_json_object(text: str, where: str) -> dict:
+    """A JSON object from ``text`` holding only finite numbers, or one error.
+
+    Python's ``json`` reads ``1e999`` as inf and ``NaN``/``Infinity`` as floats, which a
+    later strict write (``allow_nan=False``) refuses with a traceback, and recurses
+    once per nesting level. Metadata read from a file goes through here.
+
+    Parameters
+    ----------
+    text : str
+        The JSON text.
+    where : str
+        The file and field, for messages ("cloud.ply, the scanqa-meta header comment").
+
+    Raises
+    ------
+    InputError
+        Not valid JSON, not an object, a non-finite number or nesting deeper than 64.
+    """
+    import json
+    import math
+
+    def finite(token: str) -> float:
+        value = float(token)
+        if not math.isfinite(value):
+            raise ValueError(f"number {token} is out of range")
+        return value
+
+    def constant(token: str) -> float:
+        raise ValueError(f"{token} is not a number JSON allows")
+
+    if _json_depth(text) > 64:
+        raise InputError(f"{where} is nested more than 64 deep (damaged file?); delete it "
+                         "or write the file again")
+    try:
+        value = json.loads(text, parse_float=finite, parse_constant=constant)
+    except (ValueError, RecursionError) as err:
+        raise InputError(f"{where} is not valid JSON with finite numbers ({err}); delete "
+                         "it or write the file again") from None
+    if not isinstance(value, dict):
+        raise InputError(f"{where} must be a JSON object, got {type(value).__name__}")
+    return value
+
+
+def _json_depth(text: str) -> int:
+    """Upper bound of the nesting depth of JSON text (brackets outside strings)."""
+    if text.count("[") + text.count("{") <= 64:
+        return 0
+    depth = deepest = 0
+    in_string = escaped = False
+    for c in text:
+        if in_string:
+            if escaped:
+                escaped = False
+            elif c == "\\":
+                escaped = True
+            elif c == '"':
+                in_string = False
+        elif c == '"':
+            in_string = True
+        elif c in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in "]}":
+            depth -= 1
+    return deepest

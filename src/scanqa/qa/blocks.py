@@ -63,6 +63,11 @@ from scanqa.qa.planes import PlaneFit, fit_plane
 TILE_MM = 2.0
 #: Fewest tiles (with 3 points or more) for a noise-correlation estimate.
 MIN_TILES = 8
+#: Fewest points of a block whose steps are decided: below, the plane is fitted and shown
+#: but the block is flagged "too_few_points" and its steps are not evaluated (the
+#: relative uncertainty of its std, 1/sqrt(2(n - 3)), exceeds 14 %, and MIN_TILES tiles
+#: of 3 points cannot be had).
+MIN_POINTS = 30
 #: Block status values, in the order they are checked.
 STATUSES = ("no_points", "too_few_points", "degenerate", "outside_volume", "model_invalid",
             "ok")
@@ -320,7 +325,26 @@ def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
         res.status, res.message = "degenerate", str(err)
         return res
     _fill_block(res, fit, idx, xyz, attrs, tile_mm)
+    if res.status == "ok" and res.n_points < MIN_POINTS:
+        res.status = "too_few_points"
+        res.message = (f"block {spec.block_id}: only {res.n_points} points (fewer than "
+                       f"{MIN_POINTS}): flagged, its steps are not evaluated")
     return res
+
+
+def check_sigmas(attrs: dict) -> None:
+    """A predicted sigma is > 0 and finite, or NaN (no prediction): 0, negative or
+    infinite values are refused, not read as "no prediction"."""
+    sig = attrs.get("sigma_model_um")
+    if sig is None:
+        return
+    sig = np.asarray(sig, dtype=float)
+    bad = np.flatnonzero(np.isinf(sig) | (sig <= 0))
+    if bad.size:
+        raise InputError(f"the cloud's sigma_model_um holds {bad.size} values that are 0, "
+                         f"negative or infinite (first: point {bad[0]}, {sig[bad[0]]!r} um); "
+                         "a predicted sigma must be > 0, or NaN where there is none "
+                         "(annotate the scan again)")
 
 
 def _robust_std(r: np.ndarray) -> float:
@@ -602,6 +626,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
         raise InputError(f"the cloud has no points with finite coordinates ({len(xyz)} "
                          "points): nothing to measure")
     notes = []
+    check_sigmas(attrs)
     has_pred = "sigma_model_um" in attrs
     if not has_pred:
         notes.append("the cloud has no sigma attributes: the predicted-std column is missing "
