@@ -339,3 +339,37 @@ def test_a_block_with_nine_points_is_flagged_not_decided(tmp_path):
     step = next(s for s in info["steps"] if s["block_b"] == 3)
     assert step["pass"] == "not evaluated" and not step["evaluated"]
     assert any("block 3: only 9 points" in n for n in info["notes"])
+
+
+# ------------------------------------------------------------------ calibration
+
+
+def test_calibrate_with_one_scan_listed_at_eight_positions(inputs, tmp_path, capsys):
+    """The adversary's sweep: the same phase file at 8 positions (a singular matrix in the
+    per-node fit before)."""
+    shutil.copy(inputs["phase"], tmp_path / "phase.npz")
+    (tmp_path / "sweep.toml").write_text('format = "scanqa-sweep/1"\n' + "".join(
+        f'\n[[position]]\nz_mm = {z}\nphase = ["phase.npz"]\n' for z in range(430, 470, 5)))
+    code = main(["calibrate", str(tmp_path / "sweep.toml"), "--config",
+                 str(inputs["config"]), "--out", str(tmp_path / "t.npz"), "-q"])
+    message = one_line_error(capsys, code)
+    assert "one scan is listed at two positions" in message and "435" in message
+    assert not (tmp_path / "t.npz").exists()
+
+
+def test_a_sweep_whose_phases_do_not_move_is_refused():
+    """Not the same file but the same phases to 1e-9 px: no singular matrix, no table."""
+    from dataclasses import replace
+
+    from scanqa.calibration.build import build_table
+
+    from .smallcases import small_config
+    from .synth_sweep import sweep
+
+    config = small_config()
+    scans = list(sweep(config, np.arange(430.0, 470.1, 10.0), seed=1))
+    frozen = [replace(scans[0], z_mm=s.z_mm, source=s.source, xp=scans[0].xp + 1e-9 * i)
+              for i, s in enumerate(scans)]
+    with pytest.raises(InputError, match="the phases barely change over the sweep's 430 to "
+                                         "470 mm"):
+        build_table(frozen, config, cell_px=8)
