@@ -105,8 +105,7 @@ def test_read_only_filesystem(inputs, tmp_path, capsys, monkeypatch):
     def read_only(*args, **kwargs):
         raise OSError(errno.EROFS, os.strerror(errno.EROFS))
 
-    monkeypatch.setattr(atomic.tempfile, "mkstemp", read_only)
-    monkeypatch.setattr(atomic.tempfile, "mkdtemp", read_only)
+    monkeypatch.setattr(atomic, "_new_temp", read_only)  # every temporary file and folder
     line = one_line_error(capsys, main(qa_argv(inputs["ply"], inputs["layout"],
                                                tmp_path / "qa")))
     assert "Read-only file system" in line

@@ -373,3 +373,64 @@ def test_a_sweep_whose_phases_do_not_move_is_refused():
     with pytest.raises(InputError, match="the phases barely change over the sweep's 430 to "
                                          "470 mm"):
         build_table(frozen, config, cell_px=8)
+
+
+# ------------------------------------------------------------------ signals and start-up
+
+
+@pytest.mark.parametrize("moment", ["file", "folder"])
+def test_sigterm_just_after_a_temporary_is_made(moment, inputs, tmp_path, monkeypatch,
+                                                capsys):
+    """The adversary's SIGTERM lands right after the temporary exists (before, the name
+    was only known once mkstemp returned: a hidden file was left)."""
+    import signal
+
+    real_open, real_mkdir = os.open, os.mkdir
+
+    def open_then_term(path, *args, **kwargs):
+        fd = real_open(path, *args, **kwargs)
+        if moment == "file" and Path(path).name.startswith(".cloud.ply."):
+            os.kill(os.getpid(), signal.SIGTERM)
+        return fd
+
+    def mkdir_then_term(path, *args, **kwargs):
+        real_mkdir(path, *args, **kwargs)
+        if moment == "folder" and Path(path).name.startswith(".scanqa-stage-"):
+            os.kill(os.getpid(), signal.SIGTERM)
+
+    monkeypatch.setattr(os, "open", open_then_term)
+    monkeypatch.setattr(os, "mkdir", mkdir_then_term)
+    out = tmp_path / "out"
+    out.mkdir()
+    kind = "phase" if moment == "file" else "layout"  # annotate writes a file, qa a folder
+    code = main([*command(kind, inputs, out / "qa" if kind == "layout" else out), "-q"])
+    assert code == 143 and "scanqa: terminated" in capsys.readouterr().err
+    assert list(tmp_path.rglob("*")) == [out]  # nothing, hidden or not
+
+
+def test_ctrl_c_during_start_up_is_one_line(monkeypatch, capsys):
+    """KeyboardInterrupt while the command modules are imported: no traceback."""
+    import importlib
+
+    import scanqa.cli as cli
+
+    def interrupted(name, *args):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(importlib, "import_module", interrupted)
+    assert cli.main(["dof", "--config", "x.toml"]) == 130
+    assert capsys.readouterr().err == "scanqa: interrupted\n"
+
+
+def test_importing_the_command_line_is_light():
+    """``import scanqa.cli`` (what the console script does before main runs) imports no
+    library module, so a Ctrl-C then is caught by main."""
+    import subprocess
+    import sys
+
+    run = subprocess.run([sys.executable, "-c", "import sys, scanqa.cli; print(sorted(m for "
+                          "m in sys.modules if m.startswith(('scanqa', 'numpy'))))"],
+                         capture_output=True, text=True, check=True,
+                         env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1]
+                                                                / "src")})
+    assert run.stdout.strip() == "['scanqa', 'scanqa._version', 'scanqa.cli', 'scanqa.errors']"
