@@ -45,7 +45,7 @@ def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
     assert info["steps_evaluated"] == 6 and info["steps_not_evaluated"] == 1
     # issue 16: block 1 lies outside the calibrated volume, so its step gets no decision
     step12 = next(s for s in info["steps"] if (s["block_a"], s["block_b"]) == (1, 2))
-    assert step12["pass"] == "not evaluated" and not step12["evaluated"]
+    assert step12["decision"] == "not evaluated" and not step12["evaluated"]
     assert info["decisions"]["not evaluated"] == 1
     rows = (demo_out / "qa" / "steps_all_scans.csv").read_text().splitlines()[1:]
     evaluated = [r.split(",") for r in rows if r.split(",")[-1] != "not evaluated"]

@@ -337,7 +337,7 @@ def test_a_block_with_nine_points_is_flagged_not_decided(tmp_path):
     block = next(b for b in info["blocks"] if b["block_id"] == 3)
     assert block["n_points"] == 9 < MIN_POINTS and block["status"] == "too_few_points"
     step = next(s for s in info["steps"] if s["block_b"] == 3)
-    assert step["pass"] == "not evaluated" and not step["evaluated"]
+    assert step["decision"] == "not evaluated" and not step["evaluated"]
     assert any("block 3: only 9 points" in n for n in info["notes"])
 
 
@@ -434,3 +434,88 @@ def test_importing_the_command_line_is_light():
                          env={**os.environ, "PYTHONPATH": str(Path(__file__).parents[1]
                                                                 / "src")})
     assert run.stdout.strip() == "['scanqa', 'scanqa._version', 'scanqa.cli', 'scanqa.errors']"
+
+
+# ------------------------------------------------------------------ outputs and decisions
+
+
+def _qa(inputs, out: Path, *extra: str) -> int:
+    return main(["qa", str(inputs["ply"]), "--layout", str(inputs["layout"]), "--out",
+                 str(out), *extra])
+
+
+def test_the_verdict_is_on_the_console_in_the_summary_and_the_exit_status(inputs, tmp_path,
+                                                                          capsys):
+    import json
+
+    code = _qa(inputs, tmp_path / "qa", "--strict")
+    console = capsys.readouterr().out
+    info = json.loads((tmp_path / "qa" / "summary.json").read_text())
+    from scanqa.qa.verdict import EXIT_STATUS
+
+    assert info["verdict"] in EXIT_STATUS and code == EXIT_STATUS[info["verdict"]]
+    line = next(ln for ln in console.splitlines() if ln.startswith("verdict: "))
+    assert line.startswith(f"verdict: {info['verdict']} (")
+    assert "against T = 20 um (the default: give --tolerance)" in line  # not silent
+    assert info["tolerance_um"] == 20.0 and info["tolerance_source"] == "default"
+    # decision and "within U" are separate words, on the console and in the CSV
+    steps = [ln for ln in console.splitlines() if ln.startswith("step ")]
+    assert steps and all(": pass" in s or ": fail" in s or ": undecided" in s
+                         or ": not evaluated" in s for s in steps)
+    assert not any("outside U" in s or "(within U)" in s for s in steps)
+    # a failing tolerance fails, in the exit status too
+    code = _qa(inputs, tmp_path / "qa0", "--strict", "--tolerance", "0")
+    info = json.loads((tmp_path / "qa0" / "summary.json").read_text())
+    assert info["tolerance_source"] == "given" and info["verdict"] in ("FAIL", "UNDECIDED")
+    assert code == EXIT_STATUS[info["verdict"]] != 0
+    assert _qa(inputs, tmp_path / "qa1", "--tolerance", "0") == 0  # without --strict
+
+
+def test_csv_outputs_are_quoted_and_reports_reproducible(inputs, tmp_path, monkeypatch):
+    import csv
+
+    import pandas as pd
+
+    from scanqa.report.qa import BUDGET_COLUMNS, STEP_COLUMNS
+
+    monkeypatch.setenv("SOURCE_DATE_EPOCH", "1700000000")
+    assert _qa(inputs, tmp_path / "qa", "-q") == 0
+    first = (tmp_path / "qa" / "report.html").read_bytes()
+    assert _qa(inputs, tmp_path / "qa", "-q") == 0
+    assert (tmp_path / "qa" / "report.html").read_bytes() == first
+    assert b"2023-11-14 22:13 +0000" in first  # the date SOURCE_DATE_EPOCH gives
+    budget = tmp_path / "qa" / "budget.csv"
+    rows = list(csv.reader(budget.open()))
+    assert len({len(r) for r in rows}) == 1  # no ragged row
+    frame = pd.read_csv(budget)
+    assert any("," in str(c) for c in frame["source"])  # the cells that broke it
+    assert set(BUDGET_COLUMNS) <= set(frame.columns)
+    assert frame["contribution_um"].dtype.kind == "f"  # not shifted into a text column
+    steps = pd.read_csv(tmp_path / "qa" / "steps.csv")
+    assert list(steps.columns) == list(STEP_COLUMNS)
+
+
+def test_one_decision_rule_for_blocks_and_artefacts():
+    import math
+
+    from scanqa.qa import vdi2634, verdict
+    from scanqa.qa.blocks import StepResult
+
+    assert vdi2634.decide is verdict.decide
+    for error_mm, u_um in ((math.nan, 1.0), (0.001, math.inf), (0.001, 1.0), (0.03, 1.0)):
+        step = StepResult(1, 2, 0.0, error_mm, u_um, 2.0, 20.0)
+        assert step.decision == verdict.decide(1e3 * error_mm, 2.0 * u_um, 20.0)
+    assert verdict.decide(math.nan, 1.0, 20.0) == "not evaluated"
+
+
+def test_a_stated_k_at_low_nu_eff_is_noted():
+    from scanqa.qa.blocks import StepResult, coverage_notes
+    from scanqa.qa.budget import Budget, Component, coverage_factor
+
+    budget = Budget((Component("noise", "A", "", 1.0, "um", 1.0, 8.9),), 2.0, False, 0.0)
+    step = StepResult(1, 2, 0.0, 0.0, budget.u_um, budget.k, 20.0, budget)
+    (note,) = coverage_notes([step])
+    assert note.startswith("step 1-2: nu_eff = 8.9, for which k = 2 covers less than 95 %")
+    assert f"gives k = {coverage_factor(8.9):.3g})" in note  # 2.27 at 95 %
+    wide = Budget((Component("noise", "A", "", 1.0, "um", 1.0, 200.0),), 2.0, False, 0.0)
+    assert coverage_notes([StepResult(1, 2, 0.0, 0.0, 1.0, 2.0, 20.0, wide)]) == []
