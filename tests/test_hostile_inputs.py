@@ -519,3 +519,16 @@ def test_a_stated_k_at_low_nu_eff_is_noted():
     assert f"gives k = {coverage_factor(8.9):.3g})" in note  # 2.27 at 95 %
     wide = Budget((Component("noise", "A", "", 1.0, "um", 1.0, 200.0),), 2.0, False, 0.0)
     assert coverage_notes([StepResult(1, 2, 0.0, 0.0, 1.0, 2.0, 20.0, wide)]) == []
+
+
+def test_npz_entry_with_another_compression_method(inputs, tmp_path):
+    """Found by the extended fuzzer: method 14 (LZMA) with deflate data raised LZMAError."""
+    data = bytearray(inputs["table"].read_bytes())
+    start = 0
+    while (start := data.find(b"PK\x01\x02", start)) >= 0:
+        data[start + 10:start + 12] = (14).to_bytes(2, "little")
+        start += 4
+    path = tmp_path / "table.npz"
+    path.write_bytes(bytes(data))
+    with pytest.raises(InputError, match=r"table\.npz, entry .*compression method 14"):
+        load_npz(path, "calibration table")

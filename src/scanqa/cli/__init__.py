@@ -94,6 +94,9 @@ def _sigterm_raises() -> Iterator[None]:
 
 
 def _fail(message: str) -> None:
+    """One line on stderr, whatever the message holds (a library's text may have line
+    breaks: pandas ends some of its errors with two)."""
+    message = " ".join(message.split())
     sys.stderr.write(f"scanqa: {message}\n")
     sys.stderr.flush()
 

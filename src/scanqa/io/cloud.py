@@ -114,7 +114,8 @@ def _read_table(path: Path) -> tuple[np.ndarray, dict, dict]:
             frame = pd.read_parquet(path)
             metadata = dict(frame.attrs.get("scanqa", {}))
     except (OSError, ValueError, ImportError, UnicodeDecodeError) as err:
-        raise InputError(f"cannot read point table {path}: {err}") from None
+        raise InputError(f"cannot read point table {path}: {' '.join(str(err).split())}"
+                         ) from None
     missing = {"x_mm", "y_mm", "z_mm"} - set(frame.columns)
     if missing:
         raise InputError(f"{path}: missing columns {sorted(missing)}")

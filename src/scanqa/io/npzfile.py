@@ -79,9 +79,13 @@ def load_npz(path: str | os.PathLike, what: str, keys: Iterable[str] | None = No
 def _check_directory(infos: list[zipfile.ZipInfo], path: Path, what: str) -> None:
     """Refuse encrypted entries and declared sizes beyond the limit, before reading."""
     for info in infos:
+        where = f"{what} {path}, entry {info.filename[:-4]!r}"
         if info.flag_bits & 0x1:
-            raise InputError(f"{what} {path}, entry {info.filename[:-4]!r}: encrypted "
-                             "(scanqa reads plain numpy .npz files; write it again with "
+            raise InputError(f"{where}: encrypted (scanqa reads plain numpy .npz files; "
+                             "write it again with numpy.savez)")
+        if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
+            raise InputError(f"{where}: zip compression method {info.compress_type} "
+                             "(numpy writes stored or deflated entries; write it again with "
                              "numpy.savez)")
     total = sum(info.file_size for info in infos)
     check_size(total, f"{what} {path}", f"its entries declare {total} bytes "
