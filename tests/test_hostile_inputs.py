@@ -155,13 +155,14 @@ def test_truncated_stack_npz(tmp_path):
         read_stack(path)
 
 
-def test_npz_entry_with_the_encrypted_flag(inputs, tmp_path, capsys):
+@pytest.mark.parametrize("bit", [0, 6, 13])  # encrypted, strong encryption, masked header
+def test_npz_entry_with_the_encrypted_flag(bit, inputs, tmp_path, capsys):
     data = bytearray(inputs["phase"].read_bytes())
-    # set bit 0 (encrypted) of the general-purpose flags in every local and central header
+    # set the flag in every local and central header
     for sig, offset in ((b"PK\x03\x04", 6), (b"PK\x01\x02", 8)):
         start = 0
         while (start := data.find(sig, start)) >= 0:
-            data[start + offset] |= 1
+            data[start + offset + bit // 8] |= 1 << (bit % 8)
             start += 4
     phase = tmp_path / "phase.npz"
     phase.write_bytes(bytes(data))

@@ -25,6 +25,9 @@ from scanqa.io.guard import check_size, regular_file
 
 #: Deflate cannot expand data more than ~1032 times: an entry declaring more is damaged.
 MAX_EXPANSION = 1100
+#: General-purpose flag bits of an encrypted entry: 0 (encrypted), 6 (strong encryption),
+#: 13 (masked local header); zipfile checks bit 0 only and would read the others as plain.
+_ENCRYPTION_FLAGS = 0x1 | 0x40 | 0x2000
 #: Bytes read at a time [bytes].
 _CHUNK = 1 << 24
 _HEADER_READERS = {(1, 0): np.lib.format.read_array_header_1_0,
@@ -80,7 +83,7 @@ def _check_directory(infos: list[zipfile.ZipInfo], path: Path, what: str) -> Non
     """Refuse encrypted entries and declared sizes beyond the limit, before reading."""
     for info in infos:
         where = f"{what} {path}, entry {info.filename[:-4]!r}"
-        if info.flag_bits & 0x1:
+        if info.flag_bits & _ENCRYPTION_FLAGS:
             raise InputError(f"{where}: encrypted (scanqa reads plain numpy .npz files; "
                              "write it again with numpy.savez)")
         if info.compress_type not in (zipfile.ZIP_STORED, zipfile.ZIP_DEFLATED):
