@@ -8,8 +8,15 @@ small slice; ``make fuzz`` runs thousands of cases.
 
 Mutations are of two kinds: bytes (bit flips, truncation, deleted, repeated or random
 spans) and structure (TOML values replaced by values of other types, keys dropped or
-added; PLY header tokens and lines; npz entries dropped, retyped, reshaped, or given a
-forged header).
+added, values nested hundreds deep as arrays or inline tables; PLY header tokens and
+lines; npz entries dropped, retyped, reshaped, given a forged header, flagged encrypted,
+declaring sizes they do not hold or deflated at deflate's limit; PNG headers declaring
+other dimensions, depths or colour types; CSV cells turned to text, quoted or dropped).
+
+A mutator returns the bytes, or (bytes, True) when the input is invalid for certain:
+such a case that exits 0 is counted as *silent* (accepted with a result it cannot have).
+Every case is timed: one over :data:`SLOW_S` seconds is a broken promise (a hang), and
+the run reports the process's peak memory.
 """
 
 from __future__ import annotations
@@ -18,7 +25,9 @@ import contextlib
 import io
 import os
 import random
+import resource
 import sys
+import time
 import traceback
 import warnings
 import zipfile
@@ -32,7 +41,10 @@ from scanqa.io.tomlfile import dumps_toml, tomllib
 
 from .smallcases import command, write_inputs
 
-FORMATS = ("ply", "phase", "table", "patterns", "layout", "config")
+FORMATS = ("ply", "phase", "table", "patterns", "layout", "config", "image", "stack",
+           "csv")
+#: A case running longer than this is reported as a hang [s].
+SLOW_S = 30.0
 #: Crashes the fuzzer still finds in code owned elsewhere, by signature (see
 #: :func:`signature`), with the reason they are tolerated here. patterns.toml is read by
 #: the decoder (scanqa.decoding, scanqa.io.patterns), which is being rewritten on its own
@@ -43,7 +55,10 @@ QUIET = () if os.environ.get("SCANQA_FUZZ_LOUD") else ("-q",)
 #: The file each format's mutations replace (inside the inputs folder).
 TARGET = {"ply": "cloud.ply", "phase": "phase.npz", "table": "table.npz",
           "patterns": "patterns/patterns.toml", "layout": "layout.toml",
-          "config": "config.toml"}
+          "config": "config.toml", "image": "patterns/p80_01.png", "stack": "stack/p80.npz",
+          "csv": "cloud.csv"}
+#: The folder a format's file lives in, copied whole for each case (others are linked).
+FOLDER = {"patterns": "patterns", "image": "patterns", "stack": "stack"}
 
 _VALUES = ("high", "", -1, 0, 1, -1.5, 1e308, -1e308, float("nan"), float("inf"),
            float("-inf"), 10**18, [1, 2, 3], [], ["a"], [[1, 2]], {}, {"x": 3}, True,
@@ -65,6 +80,8 @@ class Outcome:
     exits: Counter = field(default_factory=Counter)
     tracebacks: list = field(default_factory=list)   # (case, signature, text)
     broken_promises: list = field(default_factory=list)  # (case, what)
+    silent: list = field(default_factory=list)  # cases invalid for certain that exited 0
+    slowest_s: float = 0.0
 
 
 # ------------------------------------------------------------------------ mutations
@@ -119,6 +136,8 @@ def mutate_toml(text: str, rng: random.Random) -> str:
         else:
             lines[i] = lines[i].replace("=", "= [", 1) if "=" in lines[i] else lines[i] + " = 1"
         return "\n".join(lines) + "\n"
+    if rng.random() < 0.15:
+        return _nested_toml(text, rng)
     path, value = rng.choice(leaves)
     parent = data
     for k in path[:-1]:
@@ -136,6 +155,32 @@ def mutate_toml(text: str, rng: random.Random) -> str:
     else:
         parent[path[-1]] = rng.choice(_VALUES)
     return _dump(data)
+
+
+def _nested_toml(text: str, rng: random.Random):
+    """Grammar-aware nesting: a value that is arrays or inline tables ``depth`` deep, at
+    the top or inside a table, or a dotted table header ``depth`` keys long. Deeper
+    than the reader's limit is invalid for certain."""
+    from scanqa.io.tomlfile import MAX_DEPTH
+
+    depth = rng.choice((2, 8, 31, 33, 64, 300, 1000, 5000))
+    kind = rng.randrange(4)
+    if kind == 0:
+        value = "[" * depth + "1" + "]" * depth
+    elif kind == 1:
+        value = "{a = " * depth + "1" + "}" * depth
+    elif kind == 2:
+        value = "".join(rng.choice(("[", "{a = ")) for _ in range(depth))
+        value += "1" + "".join("]" if c == "[" else "}" for c in reversed(
+            [c for c in value if c in "[{"]))
+    else:
+        header = "[" + ".".join(f"k{i}" for i in range(depth)) + "]\nx = 1\n"
+        return text + "\n" + header, False
+    lines = text.splitlines()
+    tables = [i for i, ln in enumerate(lines) if ln.startswith("[")]
+    at = rng.choice([0, *tables]) + (1 if tables else 0)
+    lines.insert(min(at, len(lines)), f"nested_{rng.randrange(99)} = {value}")
+    return "\n".join(lines) + "\n", depth > MAX_DEPTH
 
 
 def _dump(data) -> str:
@@ -186,8 +231,10 @@ def _forged_entry(name: str, shape: tuple) -> tuple[str, bytes]:
 def mutate_npz(data: bytes, rng: random.Random) -> bytes:
     """One mutation of an npz archive: an entry dropped, retyped, reshaped, emptied,
     filled with NaN, replaced by an object array or a forged header; or bytes."""
-    if rng.random() < 0.35:
+    if rng.random() < 0.3:
         return mutate_bytes(data, rng)
+    if rng.random() < 0.25:
+        return mutate_zip(data, rng)
     with np.load(io.BytesIO(data), allow_pickle=False) as npz:
         arrays = {k: npz[k] for k in npz.files}
     key = rng.choice(sorted(arrays))
@@ -205,23 +252,160 @@ def mutate_npz(data: bytes, rng: random.Random) -> bytes:
         arrays[key] = np.full_like(a, rng.choice((np.nan, np.inf, -1e308, 0.0)))
     elif op == 5:
         arrays[key] = np.array([{"x": 1}, None], dtype=object)
-        return _npz_bytes_pickled(arrays)
+        return _npz_bytes_pickled(arrays), True
     elif op == 6 and a.dtype.kind == "U" and a.ndim == 0:
         text = str(a)
         i = rng.randrange(len(text) + 1)
         arrays[key] = np.array(text[:i] + rng.choice(('"x"', "}", "1e999", '"width_px": -1',
                                                       "null", "[")) + text[i:])
     elif op == 7:
-        name, raw = _forged_entry(key, rng.choice(((10**12,), (10**6, 10**6), (-5,), (3, 0))))
+        shape = rng.choice(((10**12,), (10**6, 10**6), (-5,), (3, 0), (4, 10**5, 10**5),
+                            (2**62, 4)))
+        name, raw = _forged_entry(key, shape)
         del arrays[key]
         buf = io.BytesIO(_npz_bytes(arrays))
         with zipfile.ZipFile(buf, "a") as zf:
             zf.writestr(name, raw)
-        return buf.getvalue()
+        return buf.getvalue(), shape != (3, 0)
     else:
         arrays[key] = a.astype(rng.choice((np.int8, np.float32, np.bool_, "U3"))) \
             if a.dtype.kind in "biuf" else np.array(3.5)
     return _npz_bytes(arrays)
+
+
+def mutate_zip(data: bytes, rng: random.Random):
+    """A mutation of the zip container of an npz: the encrypted flag, another compression
+    method, sizes in the directory that the entry does not hold, or an entry deflated at
+    deflate's own limit (~1030:1) declaring more than the reader's size limit."""
+    b = bytearray(data)
+    headers = [(m, 6 if sig == b"PK\x03\x04" else 8)
+               for sig in (b"PK\x03\x04", b"PK\x01\x02") for m in _find_all(b, sig)]
+    if not headers:
+        return mutate_bytes(data, rng)
+    op = rng.randrange(4)
+    if op == 0:  # general-purpose flags: encrypted (bit 0), data descriptor, UTF-8 ...
+        bit = rng.choice((0, 0, 3, 6, 11, 13))
+        for at, offset in headers:
+            b[at + offset] |= 1 << (bit % 8) if bit < 8 else 0
+            b[at + offset + 1] |= 1 << (bit - 8) if bit >= 8 else 0
+        return bytes(b), bit in (0, 6, 13)  # encryption flags: unreadable for certain
+    if op == 1:  # compression method: stored, deflate, bzip2, lzma, unknown
+        method = rng.choice((0, 8, 12, 14, 99))
+        for at, offset in headers:
+            b[at + offset + 2:at + offset + 4] = method.to_bytes(2, "little")
+        return bytes(b)
+    if op == 2:  # uncompressed size in the central directory: 0, small, 2^32 - 1
+        at = rng.choice([m for m in _find_all(b, b"PK\x01\x02")] or [headers[0][0]])
+        size = rng.choice((0, 1, 2**31, 2**32 - 1))
+        b[at + 24:at + 28] = size.to_bytes(4, "little")
+        return bytes(b)
+    return _deflate_bomb(), True
+
+
+def _find_all(data: bytes | bytearray, sig: bytes) -> list[int]:
+    found, at = [], data.find(sig)
+    while at >= 0:
+        found.append(at)
+        at = data.find(sig, at + 1)
+    return found
+
+
+def _deflate_bomb() -> bytes:
+    """An npz whose one entry is an honest deflate stream of zeros declaring 1.25 GiB
+    (5 MiB of file; the reader must refuse it from the directory, before inflating)."""
+    global _BOMB
+    if _BOMB is None:
+        import zlib
+
+        header = io.BytesIO()
+        n = (5 << 28) // 4  # float32 elements: 1.25 GiB
+        np.lib.format.write_array_header_1_0(header, {"descr": "<f4", "fortran_order":
+                                                      False, "shape": (n,)})
+        head = header.getvalue()
+        comp = zlib.compressobj(9, zlib.DEFLATED, -15)
+        chunk, parts, crc = bytes(1 << 24), [comp.compress(head)], zlib.crc32(head)
+        for _ in range((5 << 28) >> 24):
+            parts.append(comp.compress(chunk))
+            crc = zlib.crc32(chunk, crc)
+        parts.append(comp.flush())
+        body = b"".join(parts)
+        info = zipfile.ZipInfo("xp.npy")
+        info.compress_type = zipfile.ZIP_DEFLATED
+        buf = io.BytesIO()
+        with zipfile.ZipFile(buf, "w") as zf:  # write the raw stream with its true sizes
+            info.file_size, info.CRC = len(head) + (5 << 28), crc
+            info.compress_size = len(body)
+            zf.fp.write(info.FileHeader(zip64=True))
+            zf.fp.write(body)
+            zf.filelist.append(info)
+            zf.NameToInfo[info.filename] = info
+            info.header_offset = 0
+            zf.start_dir = zf.fp.tell()
+        _BOMB = buf.getvalue()
+    return _BOMB
+
+
+_BOMB: bytes | None = None
+
+
+def mutate_png(data: bytes, rng: random.Random):
+    """One mutation of a PNG: its IHDR dimensions, bit depth or colour type (with the CRC
+    made right, so that only the value is wrong), a truncated or dropped IDAT; or bytes.
+    Dimensions of a gigapixel or more are invalid for certain."""
+    import struct
+    import zlib
+
+    if rng.random() < 0.3 or data[12:16] != b"IHDR":
+        return mutate_bytes(data, rng)
+    width, height, depth, colour = struct.unpack(">IIBB", data[16:26])
+    op = rng.randrange(4)
+    must_fail = False
+    if op == 0:
+        width, height = (rng.choice((0, 1, width, 30000, 100000, 2**31 - 1, 2**32 - 1))
+                         for _ in range(2))
+        must_fail = width * height >= 1 << 30
+    elif op == 1:
+        depth = rng.choice((1, 2, 4, 8, 16, 32, 0))
+    elif op == 2:
+        colour = rng.choice((0, 2, 3, 4, 6, 7))
+    else:
+        at = data.find(b"IDAT") - 4
+        cut = rng.randrange(at, len(data))
+        return data[:cut] + (data[-12:] if rng.random() < 0.5 else b"")
+    ihdr = struct.pack(">IIBB", width, height, depth, colour) + data[26:29]
+    crc = struct.pack(">I", zlib.crc32(b"IHDR" + ihdr) & 0xFFFFFFFF)
+    return data[:16] + ihdr + crc + data[33:], must_fail
+
+
+_CSV_CELLS = ("x", "nan", "inf", "-inf", "", '"1,5"', "1e999", "0x10", " 3 ", "1;2", "TRUE",
+              "NaN", "null", "#", '"', "1.5.5")
+
+
+def mutate_csv(text: str, rng: random.Random):
+    """One mutation of a CSV point table: a cell replaced (text, quoted commas, overflow),
+    a row shortened or lengthened, a column renamed or dropped, a comment line. A word in
+    a numeric cell is invalid for certain."""
+    lines = text.splitlines()
+    i = rng.randrange(1, len(lines))
+    cells = lines[i].split(",")
+    op = rng.randrange(5)
+    must_fail = False
+    if op == 0:
+        j, cell = rng.randrange(len(cells)), rng.choice(_CSV_CELLS)
+        cells[j] = cell
+        must_fail = cell in ("x", "0x10", "1;2", "TRUE", "#", "1.5.5")
+    elif op == 1:
+        del cells[rng.randrange(len(cells)):]
+    elif op == 2:
+        cells.append(rng.choice(_CSV_CELLS))
+    elif op == 3:
+        header = lines[0].split(",")
+        header[rng.randrange(len(header))] = rng.choice(("x_mm", "", "z", "sigma_model_um"))
+        lines[0] = ",".join(header)
+    else:
+        lines.insert(i, rng.choice(("# scanqa-meta {", "# comment", "", ",,,")))
+    lines[i] = ",".join(cells) if op != 4 else lines[i]
+    return "\n".join(lines) + "\n", must_fail
 
 
 def _npz_bytes_pickled(arrays: dict) -> bytes:
@@ -233,16 +417,20 @@ def _npz_bytes_pickled(arrays: dict) -> bytes:
 MUTATORS = {"ply": mutate_ply, "phase": mutate_npz, "table": mutate_npz,
             "patterns": lambda d, r: _text(mutate_toml, d, r),
             "layout": lambda d, r: _text(mutate_toml, d, r),
-            "config": lambda d, r: _text(mutate_toml, d, r)}
+            "config": lambda d, r: _text(mutate_toml, d, r),
+            "image": mutate_png, "stack": mutate_npz,
+            "csv": lambda d, r: _text(mutate_csv, d, r)}
 
 
-def _text(mutator, data: bytes, rng: random.Random) -> bytes:
+def _text(mutator, data: bytes, rng: random.Random):
     if rng.random() < 0.3:
         return mutate_bytes(data, rng)
     try:
-        return mutator(data.decode("utf-8"), rng).encode("utf-8")
+        out = mutator(data.decode("utf-8"), rng)
     except (UnicodeDecodeError, tomllib.TOMLDecodeError):
         return mutate_bytes(data, rng)
+    text, must_fail = out if isinstance(out, tuple) else (out, False)
+    return text.encode("utf-8"), must_fail
 
 
 # --------------------------------------------------------------------------- running
@@ -297,13 +485,17 @@ def fuzz_format(kind: str, cases: int, seed: int, work: Path, render_every: int 
         case_dir = work / f"{kind}-{i}"
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")  # casts of extreme values while mutating
-            data = MUTATORS[kind](original, rng)
+            mutated = MUTATORS[kind](original, rng)
+        data, must_fail = mutated if isinstance(mutated, tuple) else (mutated, False)
         paths = _case_inputs(base, case_dir, kind, data)
         out = case_dir / "out"
-        if kind not in ("ply", "layout"):  # qa creates its folder, the others need one
+        if kind not in ("ply", "layout", "csv"):  # qa creates its folder, others need one
             out.mkdir()
+        start = time.monotonic()
         with _fast_reports(i % render_every != 0):
             code, stderr, exc = run_case([*command(kind, paths, out), *QUIET])
+        took = time.monotonic() - start
+        result.slowest_s = max(result.slowest_s, took)
         result.cases += 1
         result.exits[code] += 1
         if exc is not None:
@@ -311,8 +503,12 @@ def fuzz_format(kind: str, cases: int, seed: int, work: Path, render_every: int 
             result.tracebacks.append((i, signature(exc), text))
         else:
             broken = _promise_kept(code, stderr, out, case_dir)
+            if took > SLOW_S:
+                broken = f"{broken}; " if broken else "" + f"took {took:.0f} s (a hang)"
             if broken:
                 result.broken_promises.append((i, broken))
+            if must_fail and code == 0:
+                result.silent.append(i)
         _remove(case_dir)
     return result
 
@@ -323,13 +519,16 @@ def _case_inputs(base: Path, case_dir: Path, kind: str, data: bytes) -> dict[str
 
     case_dir.mkdir(parents=True)
     names = {"ply": "cloud.ply", "layout": "layout.toml", "config": "config.toml",
-             "table": "table.npz", "phase": "phase.npz", "patterns": "patterns"}
+             "table": "table.npz", "phase": "phase.npz", "patterns": "patterns",
+             "stack": "stack", "csv": "cloud.csv"}
     paths = {k: base / v for k, v in names.items()}
-    if kind == "patterns":
-        shutil.copytree(base / "patterns", case_dir / "patterns")
-        paths["patterns"] = case_dir / "patterns"
+    if kind in FOLDER:
+        shutil.copytree(base / FOLDER[kind], case_dir / FOLDER[kind])
+        paths[FOLDER[kind]] = case_dir / FOLDER[kind]
     else:
         paths[kind] = case_dir / names[kind]
+        if kind == "csv":  # its metadata sidecar goes along
+            shutil.copy(base / "cloud.csv.json", case_dir / "cloud.csv.json")
     (case_dir / TARGET[kind]).write_bytes(data)
     return paths
 
@@ -365,20 +564,23 @@ def _remove(folder: Path) -> None:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """``python -m tests.fuzz CASES [SEED]``: the nightly-size run with a report."""
+    """``python -m tests.fuzz CASES [SEED [FORMAT,...]]``: the nightly-size run with a
+    report (every format by default)."""
     import tempfile
 
     args = argv if argv is not None else sys.argv[1:]
     cases = int(args[0]) if args else 400
     seed = int(args[1]) if len(args) > 1 else 0
+    kinds = args[2].split(",") if len(args) > 2 else FORMATS
     failures = 0
     with tempfile.TemporaryDirectory() as tmp:
-        for kind in FORMATS:
+        for kind in kinds:
             res = fuzz_format(kind, cases, seed, Path(tmp))
             sigs = Counter(s for _, s, _ in res.tracebacks)
             print(f"{kind:9s} {res.cases} cases, exits {dict(res.exits)}, "
                   f"{len(res.tracebacks)} tracebacks {dict(sigs)}, "
-                  f"{len(res.broken_promises)} broken promises", flush=True)
+                  f"{len(res.broken_promises)} broken promises, {len(res.silent)} silent "
+                  f"{res.silent[:5]}, slowest {res.slowest_s:.1f} s", flush=True)
             for case, what in res.broken_promises[:5]:
                 print(f"    case {case}: {what}")
             for sig in sigs:
@@ -387,8 +589,10 @@ def main(argv: list[str] | None = None) -> int:
                                                  text.splitlines(True)[-6:]))
             known = KNOWN_DECODER_CRASHES if kind == "patterns" else {}
             failures += len([t for t in res.tracebacks if t[1] not in known])
-            failures += len(res.broken_promises)
-    return 1 if failures else 0
+            failures += len(res.broken_promises) + len(res.silent)
+    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    print(f"peak memory of the run: {peak_mb:.0f} MB")
+    return 1 if failures or peak_mb > 1024 else 0
 
 
 if __name__ == "__main__":

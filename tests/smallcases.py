@@ -18,8 +18,10 @@ from scanqa.calibration.build import build_table
 from scanqa.calibration.table import save_table
 from scanqa.config import ScannerConfig, load_config
 from scanqa.decoding.phasemap import PhaseMap, save_phase_map
+from scanqa.io.cloud import write_cloud
+from scanqa.io.images import read_image
 from scanqa.io.ply import write_ply
-from scanqa.io.tomlfile import dumps_toml
+from scanqa.io.tomlfile import dumps_toml, tomllib
 
 from .synth_sweep import plane_truth, small_camera, sweep
 
@@ -87,7 +89,25 @@ def write_inputs(folder: Path) -> dict[str, Path]:
     save_table(paths["table"], table)
     save_phase_map(paths["phase"], phase_map(config))
     shutil.copytree(PATTERN_SOURCE, paths["patterns"])
+    paths["stack"] = _stack_patterns(paths["patterns"], folder / "stack")
+    paths["csv"] = write_cloud(folder / "cloud.csv", xyz, attrs, {"source": "tests"})
     return paths
+
+
+def _stack_patterns(patterns: Path, folder: Path) -> Path:
+    """The pattern folder with its 80 px set as one (4, H, W) .npz stack (``p80.npz``)."""
+    shutil.copytree(patterns, folder)
+    text = (folder / "patterns.toml").read_text()
+    data = tomllib.loads(text)
+    for item in data["set"]:
+        if item.get("name") == "p80":
+            frames = [read_image(folder / f) for f in item.pop("files")]
+            np.savez(folder / "p80.npz", p80=np.stack(frames))
+            item["stack"] = "p80.npz"
+            for f in folder.glob("p80_*.png"):
+                f.unlink()
+    (folder / "patterns.toml").write_text(dumps_toml(data))
+    return folder
 
 
 def command(kind: str, paths: dict[str, Path], out: Path) -> list[str]:
@@ -103,4 +123,7 @@ def command(kind: str, paths: dict[str, Path], out: Path) -> list[str]:
         "phase": ["annotate", p["phase"], "--table", p["table"], "--config", p["config"],
                   "--out", str(out / "cloud.ply")],
         "patterns": ["decode", p["patterns"], "--out", str(out / "phase.npz")],
+        "image": ["decode", p["patterns"], "--out", str(out / "phase.npz")],
+        "stack": ["decode", p["stack"], "--out", str(out / "phase.npz")],
+        "csv": ["qa", p["csv"], "--layout", p["layout"], "--out", str(out)],
     }[kind]

@@ -112,10 +112,10 @@ def test_half_invalid_block_is_flagged_and_its_steps_not_evaluated(tmp_path):
             (tmp_path / "qa" / "steps.csv").read_text().splitlines()[1:]]
     blocks = [line.split(",")[-1] for line in
               (tmp_path / "qa" / "blocks.csv").read_text().splitlines()[1:]]
-    assert info["steps_not_evaluated"] == sum(r[-1] == "not evaluated" for r in rows) == 2
+    assert info["steps_not_evaluated"] == sum(r[-2] == "not evaluated" for r in rows) == 2
     assert info["steps_evaluated"] == len(rows) - 2 == 5
     for d in ("pass", "fail", "undecided"):
-        assert info["decisions"][d] == sum(r[-1] == d for r in rows)
+        assert info["decisions"][d] == sum(r[-2] == d for r in rows)
     assert info["blocks_flagged"] == sum(b != "ok" for b in blocks) == 1
     assert info["steps_error_within_U"] == 5
     html = (tmp_path / "qa" / "report.html").read_text()

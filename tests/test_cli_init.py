@@ -155,7 +155,7 @@ def test_qa_takes_an_opencv_calibration(cli_files, capsys, tmp_path):
                  str(config), "--layout", str(LAYOUT), "--out", str(tmp_path / "qa"),
                  "--depth-range-mm", "400,500"]) == 0, capsys.readouterr().err
     out = capsys.readouterr().out
-    assert out.count(", ok") == 8 and out.count(", pass") >= 5 and ", fail" not in out
+    assert out.count(", ok") == 8 and out.count(": pass") >= 5 and ": fail" not in out
 
 
 def test_cli_mismatch_is_one_line(cli_files, capsys, tmp_path):

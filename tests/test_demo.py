@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import csv
 import json
 
 import pytest
@@ -45,13 +46,23 @@ def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
     assert info["steps_evaluated"] == 6 and info["steps_not_evaluated"] == 1
     # issue 16: block 1 lies outside the calibrated volume, so its step gets no decision
     step12 = next(s for s in info["steps"] if (s["block_a"], s["block_b"]) == (1, 2))
-    assert step12["pass"] == "not evaluated" and not step12["evaluated"]
+    assert step12["decision"] == "not evaluated" and not step12["evaluated"]
     assert info["decisions"]["not evaluated"] == 1
-    rows = (demo_out / "qa" / "steps_all_scans.csv").read_text().splitlines()[1:]
-    evaluated = [r.split(",") for r in rows if r.split(",")[-1] != "not evaluated"]
-    within = [r for r in evaluated if abs(float(r[5])) <= float(r[8])]  # error_um, U_um
+    with open(demo_out / "qa" / "steps_all_scans.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
+    evaluated = [r for r in rows if r["decision"] != "not evaluated"]
+    within = [r for r in evaluated if abs(float(r["error_um"])) <= float(r["U_um"])]
+    assert all(r["within_U"] == ("yes" if r in within else "no") for r in evaluated)
     assert len(evaluated) == 18 and len(rows) == 21
     assert len(within) / len(evaluated) >= 0.9, (len(within), len(evaluated))
+    # issue 27: the budget's cells hold commas; pandas reads it with the right columns
+    import pandas as pd
+
+    from scanqa.report.qa import BUDGET_COLUMNS
+
+    budget = pd.read_csv(demo_out / "qa" / "budget.csv")
+    assert list(budget.columns) == ["block_a", "block_b", *BUDGET_COLUMNS]
+    assert budget["contribution_um"].dtype.kind == "f" and len(budget) >= 21
 
 
 def test_demo_reports_what_the_sweeps_identify(demo_out, capsys):

@@ -105,8 +105,7 @@ def test_read_only_filesystem(inputs, tmp_path, capsys, monkeypatch):
     def read_only(*args, **kwargs):
         raise OSError(errno.EROFS, os.strerror(errno.EROFS))
 
-    monkeypatch.setattr(atomic.tempfile, "mkstemp", read_only)
-    monkeypatch.setattr(atomic.tempfile, "mkdtemp", read_only)
+    monkeypatch.setattr(atomic, "_new_temp", read_only)  # every temporary file and folder
     line = one_line_error(capsys, main(qa_argv(inputs["ply"], inputs["layout"],
                                                tmp_path / "qa")))
     assert "Read-only file system" in line
@@ -381,17 +380,21 @@ def test_table_meta_without_width(inputs, tmp_path, capsys):
 
 
 def test_zero_sigmas_and_table_correlation(tmp_path, capsys):
-    """sigma_model_um = 0 predicts nothing (ratio NaN), table_corr_mm = 0 is taken as an
-    unknown correlation: the steps stay finite."""
+    """sigma_model_um = 0 is refused (issue 27: it was read as "no prediction" and the
+    block reported "predicted nan, ok"); table_corr_mm = 0 is taken as an unknown
+    correlation: the steps stay finite."""
     xyz, attrs = gauge_cloud()
-    attrs["sigma_model_um"][:] = 0.0
     attrs["table_corr_mm"][:] = 0.0
     write_ply(tmp_path / "c.ply", xyz, attrs)
     (tmp_path / "layout.toml").write_text(LAYOUT_TOML)
     assert main(qa_argv(tmp_path / "c.ply", tmp_path / "layout.toml", tmp_path / "qa")) == 0
     info = json.loads((tmp_path / "qa" / "summary.json").read_text())
-    assert all(b["ratio"] is None for b in info["blocks"])
     assert all(s["u_um"] > 0 for s in info["steps"])
+    attrs["sigma_model_um"][5] = 0.0
+    write_ply(tmp_path / "c.ply", xyz, attrs)
+    code = main(qa_argv(tmp_path / "c.ply", tmp_path / "layout.toml", tmp_path / "qa2"))
+    assert "sigma_model_um holds 1 values that are 0" in one_line_error(capsys, code)
+    assert not (tmp_path / "qa2").exists()
 
 
 # ------------------------------------------------------------- meaningless inputs

@@ -225,7 +225,7 @@ def test_qa_cli_writes_every_output(tmp_path, capsys):
                       "model_valid_fraction,status")
     header = (out / "steps.csv").read_text().splitlines()[0]
     assert header == ("block_a,block_b,nominal_diff_mm,measured_diff_mm,error_um,u_um,nu_eff,"
-                      "U_um,k,tolerance_um,pass")
+                      "U_um,k,tolerance_um,decision,within_U")
     info = json.loads((out / "summary.json").read_text())
     assert info["steps_evaluated"] == 7 and info["fraction_within_U"] == 1.0
     assert len((out / "budget.csv").read_text().splitlines()) == 1 + 7 * 3

@@ -26,11 +26,13 @@ BLOCK_COLUMNS = ["block_id", "nominal_height_mm", "n_points", "measured_std_um",
                  "mean_attenuation", "in_volume_fraction", "model_valid_fraction", "status",
                  "noise_corr_factor", "n_tiles"]
 STEP_COLUMNS = ["block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "error_um",
-                "u_um", "nu_eff", "U_um", "k", "tolerance_um", "pass", "evaluated"]
-SUMMARY_KEYS = ["format", "settings", "model", "sigma_source", "has_prediction", "blocks",
-                "blocks_ok", "blocks_flagged", "steps", "budgets", "type_b_included",
-                "steps_evaluated", "steps_not_evaluated", "steps_error_within_U",
-                "fraction_within_U", "decisions", "max_abs_ratio_deviation", "notes"]
+                "u_um", "nu_eff", "U_um", "k", "tolerance_um", "decision", "within_U",
+                "evaluated"]
+SUMMARY_KEYS = ["format", "verdict", "tolerance_um", "tolerance_source", "settings", "model",
+                "sigma_source", "has_prediction", "blocks", "blocks_ok",
+                "blocks_flagged", "steps", "budgets", "type_b_included", "steps_evaluated",
+                "steps_not_evaluated", "steps_error_within_U", "fraction_within_U",
+                "decisions", "max_abs_ratio_deviation", "notes"]
 #: the note of every run without a budget file
 NO_TYPE_B = ("Type B inputs (gauge-block certificates, temperature, stage scale, flatness of "
              "the calibration flat) are not included: no budget file was given; U holds the "
@@ -84,9 +86,10 @@ def test_rows_and_summary_have_their_documented_names():
     assert steps[0]["nu_eff"] == pytest.approx(want, rel=1e-12)
     info = res.summary()
     assert list(info) == SUMMARY_KEYS
-    assert info["format"] == "scanqa-qa-summary/2" and info["model"] == {}
+    assert info["format"] == "scanqa-qa-summary/3" and info["model"] == {}
     assert info["settings"] == {"margin_mm": 0.5, "outlier_k": None, "tolerance_um": 15.0,
-                                "k": 3.0, "budget": None, "max_flagged_fraction": 0.05,
+                                "tolerance_source": "given", "k": 3.0, "budget": None,
+                                "max_flagged_fraction": 0.05,
                                 "knn": 9, "tile_mm": 2.5, "layout": "three.toml",
                                 "paper_comparison": False}
     assert info["has_prediction"] is True and info["notes"] == res.notes == [NO_TYPE_B]
@@ -115,7 +118,7 @@ def test_nan_becomes_null_in_the_summary():
     step = StepResult(1, 2, 1.0, math.nan, math.inf, 2.0, 20.0)
     assert blocks._finite(math.nan) is None and blocks._finite(math.inf) is None
     assert blocks._finite(1.5) == 1.5 and blocks._finite("ok") == "ok"
-    assert step.row()["pass"] == "undecided"
+    assert step.row()["decision"] == "not evaluated"  # a NaN decides nothing (issue 27)
 
 
 def test_notes_name_what_is_missing():
@@ -299,7 +302,8 @@ def test_few_points_and_the_height_window():
     spec = BlockSpec(7, 5.0, (0.0, 10.0, 0.0, 10.0), 450.0)
     tri = np.array([[2.0, 2.0, 450.0], [8.0, 2.0, 450.0], [5.0, 8.0, 450.0]])
     res = analyse_block(tri, {}, spec, margin=0.0, outlier_k=None)
-    assert res.status == "ok" and res.n_points == 3 and res.measured_std_um == 0.0
+    # fitted, but fewer than MIN_POINTS points: flagged, its steps are not decided
+    assert res.status == "too_few_points" and res.n_points == 3 and res.measured_std_um == 0.0
     quad = np.array([[2.0, 2.0, 450.0], [8.0, 2.0, 450.0], [8.0, 8.0, 450.0],
                      [2.0, 8.0, 450.004]])  # residuals +-1 um: sum of squares 4 um^2
     res = analyse_block(quad, {}, spec, margin=0.0, outlier_k=None)
@@ -340,7 +344,8 @@ def test_run_qa_defaults_and_what_it_passes_on():
     xyz, attrs = _cloud()
     res = run_qa(AnnotatedCloud(xyz, attrs), THREE)
     assert res.settings == {"margin_mm": 1.0, "outlier_k": None, "tolerance_um": 20.0,
-                            "k": 2.0, "budget": None, "max_flagged_fraction": 0.05, "knn": 16,
+                            "tolerance_source": "default", "k": 2.0, "budget": None,
+                            "max_flagged_fraction": 0.05, "knn": 16,
                             "tile_mm": 2.0, "layout": "three.toml", "paper_comparison": False}
     assert all(s.k == 2.0 and s.tolerance_um == 20.0 for s in res.steps)
     resid = np.where(res.block_id >= 0, res.residual_um * 1e-3, np.nan)

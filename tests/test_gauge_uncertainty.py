@@ -329,7 +329,7 @@ def test_noise_correlation_needs_eight_tiles_of_three_points():
     (0.0, 0.0, "pass"), (1 / 64, 3.90625, "pass"), (-1 / 64, 3.90625, "pass"),
     (1 / 64 + 2**-20, 3.90625, "undecided"), (3 / 128, 3.90625, "undecided"),
     (3 / 128 + 2**-20, 3.90625, "fail"), (-3 / 128 - 2**-20, 3.90625, "fail"),
-    (math.nan, 3.90625, "undecided"), (1e-3, math.inf, "undecided"),
+    (math.nan, 3.90625, "not evaluated"), (1e-3, math.inf, "not evaluated"),
 ])
 def test_iso_14253_decision_at_its_boundaries(measured_mm, expanded_um, decision):
     """ISO 14253-1 with k = 2 (U = 2 u): pass when |e| <= T - U, fail when |e| > T + U."""
@@ -337,7 +337,7 @@ def test_iso_14253_decision_at_its_boundaries(measured_mm, expanded_um, decision
     assert step.decision == decision
     np.testing.assert_allclose(step.error_um, 1e3 * measured_mm)
     assert step.expanded_um == expanded_um
-    assert step.row()["pass"] == decision
+    assert step.row()["decision"] == decision
 
 
 def test_summary_counts_evaluated_steps():
@@ -366,7 +366,8 @@ def test_summary_counts_evaluated_steps():
     assert info["steps_error_within_U"] == 0 and info["fraction_within_U"] is None
     assert (info["blocks_ok"], info["blocks_flagged"]) == (1, 1)
     assert info["decisions"] == {"pass": 0, "fail": 0, "undecided": 0, "not evaluated": 1}
-    assert info["steps"][0]["pass"] == "not evaluated" and info["steps"][0]["evaluated"] is False
+    step = info["steps"][0]
+    assert step["decision"] == "not evaluated" and step["evaluated"] is False
 
 
 def test_robust_std_hand_values():

@@ -35,25 +35,50 @@ std of any point with :func:`predict`. Every error a user can cause is a
 from __future__ import annotations
 
 from scanqa._version import __version__
-from scanqa.annotation import annotate
-from scanqa.calibration.base import Calibration, load_calibration
-from scanqa.calibration.build import BuildReport, build_table
-from scanqa.calibration.parametric import ParametricCalibration, load_opencv_calibration
-from scanqa.calibration.sweep import calibrate, load_sweep
-from scanqa.calibration.table import CalibrationTable, load_table, save_table
-from scanqa.characterization import characterize_sweeps as characterize
-from scanqa.cloud import AnnotatedCloud, read_cloud, write_cloud
-from scanqa.config import ScannerConfig, load_config
-from scanqa.decoding.coding import PatternDescription
-from scanqa.decoding.decoder import decode, decode_images
-from scanqa.decoding.parsing import load_patterns
-from scanqa.decoding.phasemap import PhaseMap, load_phase_map, save_phase_map
-from scanqa.errors import ConfigError, InputError, OutputError, RangeError, ScanQAError
-from scanqa.optics import predict
-from scanqa.qa.blocks import QAResult, run_qa
-from scanqa.qa.detect import detect_blocks
-from scanqa.qa.layout import Layout, load_layout
-from scanqa.report.qa import write_outputs as write_report
+
+#: Public name -> (module, attribute): imported on first use (PEP 562), so that
+#: ``import scanqa.cli`` stays light and Ctrl-C during the command line's start-up is
+#: caught by :func:`scanqa.cli.main` instead of printing a traceback.
+_EXPORTS = {
+    "annotate": ("scanqa.annotation", "annotate"),
+    "Calibration": ("scanqa.calibration.base", "Calibration"),
+    "load_calibration": ("scanqa.calibration.base", "load_calibration"),
+    "BuildReport": ("scanqa.calibration.build", "BuildReport"),
+    "build_table": ("scanqa.calibration.build", "build_table"),
+    "ParametricCalibration": ("scanqa.calibration.parametric", "ParametricCalibration"),
+    "load_opencv_calibration": ("scanqa.calibration.parametric", "load_opencv_calibration"),
+    "calibrate": ("scanqa.calibration.sweep", "calibrate"),
+    "load_sweep": ("scanqa.calibration.sweep", "load_sweep"),
+    "CalibrationTable": ("scanqa.calibration.table", "CalibrationTable"),
+    "load_table": ("scanqa.calibration.table", "load_table"),
+    "save_table": ("scanqa.calibration.table", "save_table"),
+    "characterize": ("scanqa.characterization", "characterize_sweeps"),
+    "AnnotatedCloud": ("scanqa.cloud", "AnnotatedCloud"),
+    "read_cloud": ("scanqa.cloud", "read_cloud"),
+    "write_cloud": ("scanqa.cloud", "write_cloud"),
+    "ScannerConfig": ("scanqa.config", "ScannerConfig"),
+    "load_config": ("scanqa.config", "load_config"),
+    "PatternDescription": ("scanqa.decoding.coding", "PatternDescription"),
+    "decode": ("scanqa.decoding.decoder", "decode"),
+    "decode_images": ("scanqa.decoding.decoder", "decode_images"),
+    "load_patterns": ("scanqa.decoding.parsing", "load_patterns"),
+    "PhaseMap": ("scanqa.decoding.phasemap", "PhaseMap"),
+    "load_phase_map": ("scanqa.decoding.phasemap", "load_phase_map"),
+    "save_phase_map": ("scanqa.decoding.phasemap", "save_phase_map"),
+    "ConfigError": ("scanqa.errors", "ConfigError"),
+    "InputError": ("scanqa.errors", "InputError"),
+    "OutputError": ("scanqa.errors", "OutputError"),
+    "RangeError": ("scanqa.errors", "RangeError"),
+    "ScanQAError": ("scanqa.errors", "ScanQAError"),
+    "predict": ("scanqa.optics", "predict"),
+    "QAResult": ("scanqa.qa.blocks", "QAResult"),
+    "run_qa": ("scanqa.qa.blocks", "run_qa"),
+    "detect_blocks": ("scanqa.qa.detect", "detect_blocks"),
+    "Layout": ("scanqa.qa.layout", "Layout"),
+    "load_layout": ("scanqa.qa.layout", "load_layout"),
+    "write_report": ("scanqa.report.qa", "write_outputs"),
+}
+
 
 __all__ = [
     "AnnotatedCloud", "BuildReport", "Calibration", "CalibrationTable", "ConfigError",
@@ -65,3 +90,20 @@ __all__ = [
     "load_patterns", "load_phase_map", "load_sweep", "load_table", "predict", "read_cloud",
     "run_qa", "save_phase_map", "save_table", "write_cloud", "write_report",
 ]
+
+
+def __getattr__(name: str):
+    """The public API, imported on first use."""
+    import importlib
+
+    try:
+        module, attribute = _EXPORTS[name]
+    except KeyError:
+        raise AttributeError(f"module 'scanqa' has no attribute {name!r}") from None
+    value = getattr(importlib.import_module(module), attribute)
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted({*globals(), *_EXPORTS})

@@ -69,7 +69,7 @@ class BatchSettings:
 
     margin_mm: float = 1.0
     outlier_k: float | None = None
-    tolerance_um: float = 20.0
+    tolerance_um: float | None = None  # None: the QA default, said so in its outputs
     k: float | str | None = None
     tile_mm: float = 2.0
     report: bool = True          # report.html per scan (most of the time per scan)

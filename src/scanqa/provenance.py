@@ -87,6 +87,16 @@ def _table_text(table_path: str | None, cloud_table: dict | None) -> tuple[str, 
     return "not recorded", ""
 
 
+def report_time() -> datetime.datetime:
+    """The date of a report: ``SOURCE_DATE_EPOCH`` (seconds since 1970, UTC) when set,
+    for reproducible reports (https://reproducible-builds.org/specs/source-date-epoch/),
+    else now in local time with its offset."""
+    epoch = os.environ.get("SOURCE_DATE_EPOCH", "").strip()
+    if epoch.isdigit() and int(epoch) < 253402300800:  # before the year 10000
+        return datetime.datetime.fromtimestamp(int(epoch), datetime.timezone.utc)
+    return datetime.datetime.now().astimezone()
+
+
 def build_header(config: dict | None = None, config_source: str = "",
                  table_path: str | None = None, cloud_table: dict | None = None,
                  certificate: str = "", spec_path: str | None = None,
@@ -116,7 +126,7 @@ def build_header(config: dict | None = None, config_source: str = "",
     when : datetime, optional
         Date and time of the report (default now, local time with its offset).
     """
-    when = when or datetime.datetime.now().astimezone()
+    when = when or report_time()
     cfg, cfg_hash = _config_text(config, config_source)
     table, table_hash = _table_text(table_path, cloud_table)
     cert = certificate or "none given"

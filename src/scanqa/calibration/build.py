@@ -448,7 +448,7 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     if not (np.isfinite(min_modulation) and min_modulation >= 0):
         raise InputError(f"min_modulation must be >= 0 DN, got {min_modulation!r}")
     report = BuildReport()
-    stats, shape = [], None
+    stats, shape, seen = [], None, {}
     total = total if total is not None else getattr(observations, "__len__", lambda: None)()
     with Progress("calibrate", total, "scan", log) as bar:
         for obs in observations:
@@ -460,6 +460,7 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
                 raise InputError(f"{obs.source or 'observation'}: image is {obs.xp.shape[1]} "
                                  f"x {obs.xp.shape[0]} px, the sweep's first is {shape[1]} x "
                                  f"{shape[0]} px: all scans must come from one camera")
+            _check_not_repeated(obs, seen)
             jump = jump_fraction * config.fringes.working_period_px
             stats.append(_stage1(obs, cell_px, n_v, n_u, jump, min_modulation, report))
             bar.update(1, note=f"z = {obs.z_mm:g} mm")
@@ -472,6 +473,19 @@ def build_table(observations: Iterable[PlaneObservation], config: ScannerConfig,
     table = _stage2(stats, config, weights, node_u, node_v, s_step_px, shape, provenance,
                     report)
     return table, report
+
+
+def _check_not_repeated(obs: PlaneObservation, seen: dict) -> None:
+    """Refuse one scan listed at two stage positions: its phases cannot change with Z, and
+    the per-node fit would be singular."""
+    import hashlib
+
+    digest = hashlib.blake2b(np.ascontiguousarray(obs.xp).data, digest_size=16).digest()
+    source, z_mm = seen.setdefault(digest, (obs.source or "another scan", obs.z_mm))
+    if z_mm != obs.z_mm:
+        raise InputError(f"{obs.source or 'a scan'} at z = {obs.z_mm:g} mm holds exactly the "
+                         f"phases of {source} at z = {z_mm:g} mm: one scan is listed at two "
+                         "positions (check the sweep manifest's files)")
 
 
 def check_camera_size(obs: PlaneObservation, config: ScannerConfig) -> tuple[int, int]:
@@ -524,11 +538,32 @@ def _stage2(stats: list[_CellStats], config: ScannerConfig, weights: str,
     # centre each node's phases: the fit's columns 1, z, z^2, -x z stay well conditioned
     centre = np.nansum(np.where(w > 0, x, 0.0), -1) / np.maximum((w > 0).sum(-1), 1)
     x0 = np.where(w > 0, x - centre[..., None], 0.0)
+    _check_phase_changes(x, w, z)
     cols = np.stack(np.broadcast_arrays(np.ones_like(x0), zeta, zeta**2, -x0 * zeta), -1)
     theta, cov, n_obs = _wls(cols, x0, w)
     _position_residuals(stats, theta, zeta, x0, w, z, report)
     return _sample_grid(theta, cov, n_obs, x0, w, z0, half, centre, config, node_u, node_v,
                         s_step, shape, weights, stats, provenance, report)
+
+
+#: Least median change of the phase over a sweep [projector px]: a real sweep moves it
+#: by about 2 px per mm (the paper's scanner); less means the scans are not of the
+#: positions listed.
+MIN_PHASE_CHANGE_PX = 0.1
+
+
+def _check_phase_changes(x: np.ndarray, w: np.ndarray, z: np.ndarray) -> None:
+    """Refuse a sweep whose phases do not move with the stage (the per-node fit of x
+    against Z would be singular or meaningless)."""
+    used = (w > 0) & np.isfinite(x)
+    spread = np.where(used, x, -np.inf).max(-1) - np.where(used, x, np.inf).min(-1)
+    finite = spread[np.isfinite(spread)]  # nodes no scan saw give -inf
+    change = float(np.median(finite)) if finite.size else 0.0
+    if not change >= MIN_PHASE_CHANGE_PX:
+        raise InputError(f"the phases barely change over the sweep's {z.min():g} to "
+                         f"{z.max():g} mm (median {change:.3g} projector px per node, a real "
+                         f"sweep moves them by more than {MIN_PHASE_CHANGE_PX:g}): are the "
+                         "scans listed at the positions they were taken at?")
 
 
 def _wls(cols: np.ndarray, x: np.ndarray, w: np.ndarray
@@ -539,7 +574,11 @@ def _wls(cols: np.ndarray, x: np.ndarray, w: np.ndarray
     n_obs = (w > 0).sum(-1)
     good = n_obs >= 5
     ata[~good] = np.eye(4)
-    inv = np.linalg.inv(ata)
+    try:
+        inv = np.linalg.inv(ata)
+    except np.linalg.LinAlgError:  # a node whose phases do not change with Z
+        inv = np.linalg.pinv(ata)
+        good &= np.isfinite(np.linalg.cond(ata)) & (np.linalg.cond(ata) < 1e12)
     theta = np.einsum("...ij,...j->...i", inv, atb)
     res = x - np.einsum("...mi,...i->...m", cols, theta)
     chi2 = (w * res**2).sum(-1) / np.maximum(n_obs - 4, 1)

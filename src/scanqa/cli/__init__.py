@@ -20,9 +20,7 @@ import threading
 from collections.abc import Iterator, Sequence
 
 from scanqa._version import __version__
-from scanqa.cli.common import StdoutClosed, silence_stdout, verbosity_parent
 from scanqa.errors import ScanQAError
-from scanqa.progress import NORMAL, QUIET, VERBOSE, configure_logging
 
 #: Modules that register subcommands, in the order ``--help`` lists them.
 COMMAND_MODULES = (
@@ -61,6 +59,8 @@ class _SubParsers(argparse._SubParsersAction):
     """Adds the shared ``-v``/``-q`` options to every subcommand."""
 
     def add_parser(self, name: str, **kwargs) -> argparse.ArgumentParser:
+        from scanqa.cli.common import verbosity_parent
+
         kwargs["parents"] = [*kwargs.get("parents", ()), verbosity_parent()]
         kwargs.setdefault("conflict_handler", "resolve")  # a subcommand may refine -q
         return super().add_parser(name, **kwargs)
@@ -96,12 +96,30 @@ def _sigterm_raises() -> Iterator[None]:
 
 
 def _fail(message: str) -> None:
+    """One line on stderr, whatever the message holds (a library's text may have line
+    breaks: pandas ends some of its errors with two)."""
+    message = " ".join(message.split())
     sys.stderr.write(f"scanqa: {message}\n")
     sys.stderr.flush()
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``scanqa`` console script; returns the exit code."""
+    """Entry point of the ``scanqa`` console script; returns the exit code.
+
+    The library is imported here, not when this module is (``import scanqa`` is lazy), so
+    that Ctrl-C during start-up is "scanqa: interrupted" and exit 130, not a traceback.
+    """
+    try:
+        return _main(argv)
+    except KeyboardInterrupt:
+        _fail("interrupted")
+        return 130
+
+
+def _main(argv: Sequence[str] | None) -> int:
+    from scanqa.cli.common import StdoutClosed, silence_stdout
+    from scanqa.progress import NORMAL, QUIET, VERBOSE, configure_logging
+
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -74,8 +74,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="edge margin of the blocks [mm] (default 1)")
     p.add_argument("--outliers", type=number(gt=0), default=None, metavar="K",
                    help="reject points beyond K robust std of the first plane fit")
-    p.add_argument("--tolerance", type=number(ge=0, unit="um"), default=20.0,
-                   help="tolerance on each height difference [um] (default 20)")
+    p.add_argument("--tolerance", type=number(ge=0, unit="um"), default=None,
+                   help="tolerance on each height difference [um] (default 20, and the "
+                        "outputs say it was the default)")
     p.add_argument("--k", type=number(gt=0), default=None,
                    help="coverage factor (default 2)")
     p.add_argument("--tile", type=number(gt=0, unit="mm"), default=2.0, metavar="MM",

@@ -31,6 +31,7 @@ from scanqa.qa.blocks import run_qa
 from scanqa.qa.budget import load_budget
 from scanqa.qa.detect import detect_blocks
 from scanqa.qa.layout import load_layout
+from scanqa.qa.verdict import EXIT_STATUS
 from scanqa.report import artefacts as artefact_report
 from scanqa.report import qa as qa_report
 
@@ -83,8 +84,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--outliers", type=number(gt=0), default=None, metavar="K",
                    help="gauge blocks: reject points beyond K robust std of the first plane "
                         "fit (default: no rejection)")
-    p.add_argument("--tolerance", type=number(ge=0, unit="um"), default=20.0,
-                   help="gauge blocks: tolerance on each height difference [um] (default 20)")
+    p.add_argument("--tolerance", type=number(ge=0, unit="um"), default=None,
+                   help="gauge blocks: tolerance T on each height difference [um] (default "
+                        "20, and the verdict line says it was the default)")
+    p.add_argument("--strict", action="store_true",
+                   help="exit status from the verdict: 0 PASS, 1 FAIL, 3 UNDECIDED, "
+                        "INCOMPLETE or NOT EVALUATED (2 stays an error of the input); "
+                        "without it a QA that ran exits 0 whatever its verdict")
     p.add_argument("--k", type=_coverage, default=None,
                    help="coverage factor: a number, or welch-satterthwaite for k from each "
                         "step's effective degrees of freedom (default: the budget file's, "
@@ -199,7 +205,7 @@ def _run_artefacts(args, clouds, spec, header, out) -> int:
     emit(f"verdict: {v['verdict']} ({v['pass']} pass, {v['fail']} fail, {v['undecided']} "
          f"undecided, {v['not evaluated']} not evaluated)")
     emit(f"report: {out / 'report.html'}" + (f" and {out / 'report.pdf'}" if args.pdf else ""))
-    return 0
+    return EXIT_STATUS[v["verdict"]] if args.strict else 0
 
 
 def _run_blocks(args, cloud, config, header, out) -> int:
@@ -213,11 +219,18 @@ def _run_blocks(args, cloud, config, header, out) -> int:
         emit(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
              f"predicted {b.predicted_std_um:.1f} um, {b.status}")
     for s in result.steps:
+        within = ("|error| <= U" if s.within_u else "|error| > U") if s.evaluated else ""
         emit(f"step {s.block_a}-{s.block_b}: error {s.error_um:+.1f} um, U {s.expanded_um:.1f}"
-             f" um, {s.decision}")
+             f" um, T {s.tolerance_um:g} um: {s.decision}" + (f"; {within}" if within else ""))
     for note in result.notes:
         emit(f"note: {note}")
     frac = info["fraction_within_U"]
+    v = qa_report.step_verdict(result)
+    source = "" if result.settings["tolerance_source"] == "given" else \
+        " (the default: give --tolerance)"
+    emit(f"verdict: {v['verdict']} ({v['pass']} pass, {v['fail']} fail, {v['undecided']} "
+         f"undecided, {v['not evaluated']} not evaluated; ISO 14253-1 against T = "
+         f"{result.settings['tolerance_um']:g} um{source})")
     emit(f"report: {out / 'report.html'}" + (f" ({100 * frac:.0f} % of the evaluated steps "
                                              "within U)" if frac is not None else ""))
-    return 0
+    return EXIT_STATUS[v["verdict"]] if args.strict else 0

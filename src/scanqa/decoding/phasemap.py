@@ -29,6 +29,8 @@ MASK_LOW_MODULATION = 2
 MASK_INCONSISTENT = 3
 #: The unwrapped coordinate lies outside the coded range [-0.5, width - 0.5).
 MASK_OUT_OF_RANGE = 4
+#: Fringe directions: "vertical" fringes code x_p, "horizontal" ones y_p.
+ORIENTATIONS = ("vertical", "horizontal")
 #: Name of each reason code.
 MASK_REASONS = {MASK_VALID: "valid", MASK_SATURATED: "saturated",
                 MASK_LOW_MODULATION: "low_modulation", MASK_INCONSISTENT: "inconsistent",
@@ -98,6 +100,30 @@ class PhaseMap:
             raise InputError("PhaseMap.xp must be finite where mask == 0; mask the pixel")
         if not (np.isfinite(self.period_px) and self.period_px > 0):
             raise InputError(f"PhaseMap.period_px must be > 0 [px], got {self.period_px!r}")
+        self._check_values(valid)
+
+    def _check_values(self, valid: np.ndarray) -> None:
+        """The one validation of the per-pixel values, for a decoded map and a read one:
+        sigma_xp >= 0 and never infinite (NaN: no prediction), modulation and offset
+        finite where valid and modulation >= 0, a known orientation."""
+        if self.orientation not in ORIENTATIONS:
+            raise InputError(f"PhaseMap.orientation must be one of {', '.join(ORIENTATIONS)}"
+                             f", got {self.orientation!r}")
+        checks = (("sigma_xp", np.isinf(self.sigma_xp) | (self.sigma_xp < 0),
+                   "must be >= 0 [projector px] (NaN where masked), never negative or "
+                   "infinite"),
+                  ("modulation", np.isinf(self.modulation) | (self.modulation < 0)
+                   | (valid & np.isnan(self.modulation)),
+                   "must be finite and >= 0 [DN] where the pixel is valid"),
+                  ("offset", np.isinf(self.offset) | (valid & np.isnan(self.offset)),
+                   "must be finite [DN] where the pixel is valid"))
+        for name, bad, rule in checks:
+            if bad.any():
+                where = np.argwhere(bad)[0]
+                value = float(getattr(self, name)[tuple(where)])
+                raise InputError(f"PhaseMap.{name} {rule}: {int(bad.sum())} pixels are not "
+                                 f"(first at row {where[0]}, column {where[1]}: {value:.6g}); "
+                                 "decode the images again")
 
     @property
     def shape(self) -> tuple[int, int]:

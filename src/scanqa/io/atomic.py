@@ -12,7 +12,9 @@
   :class:`~scanqa.errors.OutputError` naming the file and the reason.
 
 The temporaries are removed by ``finally`` clauses; the command line turns SIGTERM into
-an exception so that they run on SIGTERM as on Ctrl-C.
+an exception so that they run on SIGTERM as on Ctrl-C. A temporary's name is registered
+for removal before the file is created (``O_EXCL``), so a signal arriving just after its
+creation cannot leave it behind.
 """
 
 from __future__ import annotations
@@ -20,8 +22,8 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import secrets
 import shutil
-import tempfile
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -139,23 +141,39 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     """
     out = check_out_dir(path)
     suffix = out.suffix if suffix is None else suffix
-    try:
-        fd, tmp_name = tempfile.mkstemp(prefix=f".{out.name}.", suffix=suffix,
-                                        dir=out.parent or ".")
-    except OSError as err:
-        raise output_error(out, err) from None
-    os.close(fd)
-    tmp = Path(tmp_name)
+    held: list[Path] = []  # the temporary, registered before it exists (module notes)
     try:
         try:
+            tmp = _new_temp(out.parent, f".{out.name}.", suffix, held, directory=False)
             yield tmp
             os.chmod(tmp, file_mode())
             os.replace(tmp, out)
         except OSError as err:
             raise output_error(out, err) from None
     finally:
-        with contextlib.suppress(OSError):
-            tmp.unlink()
+        for tmp in held:
+            with contextlib.suppress(OSError):
+                tmp.unlink()
+
+
+def _new_temp(folder: Path, prefix: str, suffix: str, held: list[Path], directory: bool
+              ) -> Path:
+    """Create a new hidden file (or folder) in ``folder``, its name appended to ``held``
+    *before* it is created, so that the caller's ``finally`` removes it whenever a signal
+    (SIGTERM through the command line, Ctrl-C) interrupts: there is no moment at which
+    the temporary exists and nobody will remove it."""
+    for _ in range(100):
+        name = Path(folder or ".") / f"{prefix}{secrets.token_hex(8)}{suffix}"
+        held.append(name)
+        try:
+            if directory:
+                os.mkdir(name, 0o700)
+            else:
+                os.close(os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600))
+            return name
+        except FileExistsError:  # someone else's: not ours to remove
+            held.remove(name)
+    raise FileExistsError(errno.EEXIST, "no unused temporary name", str(folder))
 
 
 def write_text(path: str | os.PathLike, text: str) -> Path:
@@ -221,17 +239,20 @@ def staged_dir(path: str | os.PathLike) -> Iterator[Path]:
     if target.exists() and not target.is_dir():
         raise OutputError(f"cannot write into {target}: it is a file, not a folder")
     anchor = _existing_ancestor(target)
+    held: list[Path] = []
     try:
-        stage = Path(tempfile.mkdtemp(prefix=STAGE_PREFIX, dir=anchor))
-    except OSError as err:
-        raise output_error(target, err) from None
-    try:
+        try:
+            stage = _new_temp(anchor, STAGE_PREFIX, "", held, directory=True)
+        except OSError as err:
+            raise output_error(target, err) from None
         yield stage
         _publish(stage, target)
     except OutputError as err:  # name the file the user asked for, not its staged copy
-        raise OutputError(str(err).replace(str(stage), str(target))) from None
+        raise OutputError(str(err).replace(str(held[-1]) if held else "\0", str(target))
+                          ) from None
     finally:
-        shutil.rmtree(stage, ignore_errors=True)
+        for stage in held:
+            shutil.rmtree(stage, ignore_errors=True)
 
 
 def _publish(stage: Path, target: Path) -> None:

@@ -2,8 +2,12 @@
 ``.csv`` and ``.parquet`` (pandas). One small registry, one module per format.
 
 Every format carries an optional metadata dict (plain JSON): a PLY header comment, a LAS
-variable-length record, a first CSV line ``# scanqa-meta {...}``, Parquet key-value
-metadata. Coordinates are millimetres in memory whatever the file stores.
+variable-length record, a JSON sidecar ``<name>.csv.json`` beside a CSV (so that the CSV
+itself is a plain table every reader loads whole: pandas, CloudCompare), Parquet
+key-value metadata. A CSV whose first line is ``# scanqa-meta {...}`` (scanqa before
+0.9 wrote its metadata there) is still read. Coordinates are millimetres in memory
+whatever the file stores. A cell of a numeric CSV column that is not a number is an
+error naming the row and the column, never a silent NaN.
 """
 
 from __future__ import annotations
@@ -19,9 +23,12 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io import las, ply
 from scanqa.io.atomic import atomic_path
+from scanqa.io.guard import MAX_TEXT_BYTES, loads_json_object, regular_file
 
-#: First-line prefix of a CSV point table that carries scanqa's metadata.
+#: First-line prefix of a CSV point table that carries scanqa's metadata (read only).
 CSV_META = "# scanqa-meta "
+#: Suffix added to a CSV file's name for its metadata sidecar.
+CSV_SIDECAR = ".json"
 
 log = logging.getLogger(__name__)
 
@@ -33,12 +40,20 @@ def _frame(xyz: np.ndarray, attributes: dict):
                          **attributes})
 
 
+def csv_sidecar(path: str | os.PathLike) -> Path:
+    """The metadata sidecar of a CSV point table (``cloud.csv`` -> ``cloud.csv.json``)."""
+    path = Path(path)
+    return path.with_name(path.name + CSV_SIDECAR)
+
+
 def _write_csv(path: Path, xyz: np.ndarray, attributes: dict, metadata: dict | None) -> Path:
     frame = _frame(xyz, attributes)
-    with atomic_path(path) as tmp, open(tmp, "w", encoding="utf-8", newline="") as fh:
-        if metadata:
-            fh.write(CSV_META + json.dumps(metadata, allow_nan=False) + "\n")
-        frame.to_csv(fh, index=False, float_format="%.9g")
+    side = csv_sidecar(path)
+    text = json.dumps(metadata or {}, allow_nan=False, indent=1, sort_keys=True) + "\n"
+    with atomic_path(path) as tmp, atomic_path(side) as tmp_side:
+        with open(tmp, "w", encoding="utf-8", newline="") as fh:
+            frame.to_csv(fh, index=False, float_format="%.9g")
+        tmp_side.write_text(text, encoding="utf-8")
     return path
 
 
@@ -83,23 +98,24 @@ def _write_parquet(path: Path, xyz: np.ndarray, attributes: dict,
 def _read_table(path: Path) -> tuple[np.ndarray, dict, dict]:
     import pandas as pd
 
-    metadata = {}
+    metadata: object = {}
     try:
         if path.suffix.lower() == ".csv":
             with open(path, encoding="utf-8") as fh:
                 first = fh.readline()
                 if first.startswith(CSV_META):
-                    metadata = json.loads(first[len(CSV_META):])
+                    metadata = loads_json_object(first[len(CSV_META):],
+                                                 f"{path}: the first line")
                 else:
                     fh.seek(0)
                 frame = pd.read_csv(fh)
+            metadata = _sidecar(path) or metadata
         else:
             frame = pd.read_parquet(path)
             metadata = dict(frame.attrs.get("scanqa", {}))
-    except (OSError, ValueError, ImportError) as err:
-        raise InputError(f"cannot read point table {path}: {err}") from None
-    if not isinstance(metadata, dict):
-        raise InputError(f"{path}: the '{CSV_META.strip()}' line must hold a JSON object")
+    except (OSError, ValueError, ImportError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read point table {path}: {' '.join(str(err).split())}"
+                         ) from None
     missing = {"x_mm", "y_mm", "z_mm"} - set(frame.columns)
     if missing:
         raise InputError(f"{path}: missing columns {sorted(missing)}")
@@ -108,11 +124,34 @@ def _read_table(path: Path) -> tuple[np.ndarray, dict, dict]:
         values = pd.to_numeric(frame[c], errors="coerce").to_numpy(float)
         if c in ("x_mm", "y_mm", "z_mm") or np.isfinite(values).any() \
                 or not frame[c].notna().any():
+            _check_cells(path, str(c), values, frame[c].notna().to_numpy())
             columns[str(c)] = values
         else:
             log.info(f"{path}: column {c!r} is not numeric; left out")
     xyz = np.stack([columns.pop(c) for c in ("x_mm", "y_mm", "z_mm")], -1)
     return xyz, columns, metadata
+
+
+def _sidecar(path: Path) -> dict:
+    """The metadata of a CSV's sidecar, or {} when it has none."""
+    side = csv_sidecar(path)
+    if not side.exists():
+        return {}
+    regular_file(side, "point-table metadata", MAX_TEXT_BYTES)
+    try:
+        text = side.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as err:
+        raise InputError(f"cannot read point-table metadata {side}: {err}") from None
+    return loads_json_object(text, f"point-table metadata {side}")
+
+
+def _check_cells(path: Path, column: str, values: np.ndarray, filled: np.ndarray) -> None:
+    """A numeric column's cells are numbers or empty (NaN); text is an error."""
+    bad = np.flatnonzero(np.isnan(values) & filled)
+    if bad.size:
+        raise InputError(f"{path}: column {column!r}, row {bad[0] + 1} (line {bad[0] + 2}) "
+                         f"and {bad.size - 1} more: not a number (write a number, or leave "
+                         "the cell empty for no value)")
 
 
 WRITERS = {".ply": ply.write_ply, ".las": las.write_las, ".csv": _write_csv,

@@ -18,6 +18,8 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
+from scanqa.io.guard import check_size, regular_file
+from scanqa.io.npzfile import load_npy, load_npz
 
 #: File suffixes written by :func:`write_image` (lower case).
 IMAGE_SUFFIXES = (".png", ".tif", ".tiff", ".bmp")
@@ -61,16 +63,32 @@ def read_image(path: str | os.PathLike, channel: str = "") -> np.ndarray:
     if p.suffix.lower() in STACK_SUFFIXES:
         raise InputError(f"cannot read image {p}: {p.suffix} files are stacks (name them "
                          "with stack = ... instead of files = [...])")
+    if not p.exists():
+        raise InputError(f"image file {p} does not exist (check the files list)")
+    regular_file(p, "image file")
     try:
         with Image.open(p) as img:
+            _check_dimensions(img, p)
             mode = img.mode
             data = _pil_array(img, mode, channel, p)
     except FileNotFoundError:
         raise InputError(f"image file {p} does not exist (check the files list)") from None
-    except (OSError, UnidentifiedImageError, ValueError, SyntaxError) as err:
+    except (OSError, UnidentifiedImageError, ValueError, SyntaxError, EOFError,
+            Image.DecompressionBombError, MemoryError) as err:
         raise InputError(f"cannot read image {p}: {err} (is it an image file Pillow "
                          "reads, e.g. PNG, TIFF, BMP?)") from None
     return _checked_image(p, mode, data)
+
+
+def _check_dimensions(img, path: Path) -> None:
+    """Refuse the size an image's header declares before its pixels are decoded."""
+    width, height = img.size
+    planes = len(img.getbands())
+    if width <= 0 or height <= 0:
+        raise InputError(f"image {path}: its header declares {width} x {height} px")
+    # Pillow decodes into 4 bytes per band at most (modes I and F)
+    check_size(width * height * planes * 4, f"image {path}",
+               f"its header declares {width} x {height} px of {planes} band(s)")
 
 
 def is_lossy(path: str | os.PathLike) -> bool:
@@ -84,9 +102,10 @@ def is_lossy(path: str | os.PathLike) -> bool:
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(path) as img:
+        with Image.open(regular_file(path, "image file")) as img:
             return img.format in LOSSY_FORMATS
-    except (OSError, UnidentifiedImageError, ValueError):
+    except (OSError, UnidentifiedImageError, ValueError, InputError, SyntaxError, EOFError,
+            Image.DecompressionBombError):
         return False
 
 
@@ -150,29 +169,33 @@ def read_stack(path: str | os.PathLike, key: str = "") -> np.ndarray:
     p = Path(path)
     if p.suffix.lower() not in STACK_SUFFIXES:
         raise InputError(f"cannot read stack {p}: suffix must be .npy or .npz")
-    try:
-        if p.suffix.lower() == ".npy":
-            data = np.load(p, allow_pickle=False)
-        else:
-            data = _npz_member(p, key)
-    except FileNotFoundError:
-        raise InputError(f"stack file {p} does not exist (check the stack entry)") from None
-    except (OSError, ValueError, EOFError) as err:
-        raise InputError(f"cannot read stack {p}: {err}") from None
+    if not p.exists():
+        raise InputError(f"stack file {p} does not exist (check the stack entry)")
+    if p.suffix.lower() == ".npy":
+        data = load_npy(p, "image stack")
+    else:
+        data = _npz_member(p, key)
     return _checked_stack(p, key, data)
 
 
 def _npz_member(path: Path, key: str) -> np.ndarray:
-    """One array of a .npz file, chosen by key (or the only one)."""
-    with np.load(path, allow_pickle=False) as npz:
-        names = list(npz.files)
-        if not key and len(names) == 1:
-            key = names[0]
-        if key not in names:
-            hint = "name one with stack_key" if not key else "check stack_key"
-            raise InputError(f"stack {path} has no array {key!r} (arrays: "
-                             f"{', '.join(names) or 'none'}; {hint})")
-        return npz[key]
+    """One array of a .npz file, chosen by key (or the only one); the archive is read
+    by :func:`scanqa.io.npzfile.load_npz`, which checks sizes before decompressing."""
+    import zipfile
+
+    try:
+        with zipfile.ZipFile(regular_file(path, "image stack")) as archive:
+            names = [n[:-4] for n in archive.namelist() if n.endswith(".npy")]
+    except (OSError, zipfile.BadZipFile, ValueError, EOFError) as err:
+        raise InputError(f"cannot read image stack {path}: damaged or not an .npz file "
+                         f"({err})") from None
+    if not key and len(names) == 1:
+        key = names[0]
+    if key not in names:
+        hint = "name one with stack_key" if not key else "check stack_key"
+        raise InputError(f"stack {path} has no array {key!r} (arrays: "
+                         f"{', '.join(names) or 'none'}; {hint})")
+    return load_npz(path, "image stack", keys=[key])[key]
 
 
 def _checked_stack(path: Path, key: str, data: np.ndarray) -> np.ndarray:

@@ -21,6 +21,7 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
+from scanqa.io.guard import loads_json_object
 
 #: Coordinate resolution of the LAS export [m] (0.1 um).
 LAS_SCALE_M = 1e-7
@@ -96,10 +97,9 @@ def read_las(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray]
     for vlr in las.header.vlrs:
         if vlr.user_id == META_USER_ID and vlr.record_id == 1:
             try:
-                metadata = json.loads(bytes(vlr.record_data).decode())
-            except (UnicodeDecodeError, json.JSONDecodeError) as err:
+                text = bytes(vlr.record_data).decode()
+            except UnicodeDecodeError as err:
                 raise InputError(f"{path}: scanqa metadata record is not JSON ({err})"
                                  ) from None
-    if not isinstance(metadata, dict):
-        raise InputError(f"{path}: scanqa metadata record must be a JSON object")
+            metadata = loads_json_object(text, f"{path}: the scanqa metadata record")
     return xyz, extra, metadata

@@ -6,6 +6,12 @@ artefact only); per ``[[block]]``:
 ``id`` (int), ``nominal_height_mm``, ``region_mm = [x_min, x_max, y_min, y_max]`` (the
 top face seen along Z, scanner frame [mm]) and optional ``top_z_mm``. This module reads
 and checks the file; :mod:`scanqa.qa.layout` turns it into the QA's types.
+
+Limits (a value outside them is an error naming the block and the field, never a silent
+result): at least two blocks (the QA measures steps between blocks); ``id`` an integer
+in [0, 2^31); ``nominal_height_mm`` in (0, :data:`MAX_HEIGHT_MM`] (the longest gauge
+blocks of ISO 3650); coordinates within :data:`MAX_COORD_MM` of the origin; ``[base]``
+holds ``region_mm`` and ``normal`` only.
 """
 
 from __future__ import annotations
@@ -22,6 +28,13 @@ from scanqa.io.tomlfile import read_toml
 FORMAT = "scanqa-gauge-layout/1"
 _TOP = ("format", "name", "frame", "base_z_mm", "base", "block", "paper_comparison")
 _BLOCK = ("id", "nominal_height_mm", "region_mm", "top_z_mm")
+_BASE = ("region_mm", "normal")
+#: Largest nominal height accepted [mm] (ISO 3650 gauge blocks end at 1000 mm).
+MAX_HEIGHT_MM = 1000.0
+#: Largest |coordinate| of a region, a top or the base [mm].
+MAX_COORD_MM = 1e5
+#: Block ids lie in [0, MAX_ID) (they are stored as 32-bit integers per point).
+MAX_ID = 2**31
 
 
 def _err(path, msg: str) -> InputError:
@@ -54,6 +67,10 @@ def read_layout_file(path: str | os.PathLike) -> dict:
     raw = data.get("block", [])
     if not isinstance(raw, list) or not raw:
         raise _err(path, "no [[block]] entries")
+    if len(raw) < 2:
+        raise _err(path, "holds one [[block]]; the QA measures height steps between "
+                         "blocks, so a layout needs at least two")
+    _check_top(path, data)
     blocks = [_block(path, i, b) for i, b in enumerate(raw)]
     ids = [b["id"] for b in blocks]
     if len(set(ids)) != len(ids):
@@ -66,10 +83,42 @@ def read_layout_file(path: str | os.PathLike) -> dict:
             "paper_comparison": paper}
 
 
-def _number(value: object) -> bool:
-    """A finite TOML number (not a bool)."""
+def _number(value: object, limit: float = MAX_COORD_MM) -> bool:
+    """A finite TOML number (not a bool) with |value| <= limit."""
     return isinstance(value, (int, float)) and not isinstance(value, bool) \
-        and math.isfinite(value)
+        and math.isfinite(value) and abs(value) <= limit
+
+
+def _check_top(path, data: dict) -> None:
+    """name, frame, base_z_mm and the [base] table."""
+    for key in ("name", "frame"):
+        if key in data and not isinstance(data[key], str):
+            raise _err(path, f"{key} must be a string, got {data[key]!r}")
+    if "base_z_mm" in data and not _number(data["base_z_mm"]):
+        raise _err(path, f"base_z_mm must be a finite number within {MAX_COORD_MM:g} mm, "
+                         f"got {data['base_z_mm']!r}")
+    base = data.get("base")
+    if base is None:
+        return
+    if not isinstance(base, dict):
+        raise _err(path, f"[base] must be a table, got {base!r}")
+    unknown = sorted(set(base) - set(_BASE))
+    if unknown:
+        raise _err(path, f"[base]: unknown key {unknown[0]!r} (known: {', '.join(_BASE)})")
+    region, normal = base.get("region_mm"), base.get("normal")
+    if region is not None and not _region(region):
+        raise _err(path, "[base]: region_mm must be [x_min, x_max, y_min, y_max] of finite "
+                         f"numbers with min < max [mm], got {region!r}")
+    if normal is not None and not (isinstance(normal, list) and len(normal) == 3
+                                   and all(_number(v, 1.0) for v in normal)
+                                   and any(v != 0 for v in normal)):
+        raise _err(path, f"[base]: normal must be a unit vector [x, y, z], got {normal!r}")
+
+
+def _region(region: object) -> bool:
+    return (isinstance(region, list) and len(region) == 4
+            and all(_number(v) for v in region)
+            and region[0] < region[1] and region[2] < region[3])
 
 
 def _check_overlap(path, blocks: list[dict]) -> None:
@@ -89,14 +138,13 @@ def _block(path, i: int, table: dict) -> dict:
     if unknown:
         raise _err(path, f"{where}: unknown key {unknown[0]!r}")
     bid, h, region = table.get("id"), table.get("nominal_height_mm"), table.get("region_mm")
-    if not isinstance(bid, int) or isinstance(bid, bool):
-        raise _err(path, f"{where}: id must be an integer, got {bid!r}")
-    if not _number(h) or not h > 0:
+    if not isinstance(bid, int) or isinstance(bid, bool) or not 0 <= bid < MAX_ID:
+        raise _err(path, f"{where}: id must be an integer from 0 to {MAX_ID - 1}, got "
+                         f"{bid!r}")
+    if not _number(h, MAX_HEIGHT_MM) or not h > 0:
         raise _err(path, f"{where} (id {bid}): nominal_height_mm must be > 0 mm and finite, "
-                         f"got {h!r}")
-    if (not isinstance(region, list) or len(region) != 4
-            or not all(_number(v) for v in region)
-            or not (region[0] < region[1] and region[2] < region[3])):
+                         f"at most {MAX_HEIGHT_MM:g} mm, got {h!r}")
+    if not _region(region):
         raise _err(path, f"{where} (id {bid}): region_mm must be [x_min, x_max, y_min, y_max] "
                          f"of finite numbers with min < max [mm], got {region!r}")
     top = table.get("top_z_mm")

@@ -21,6 +21,7 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
+from scanqa.io.guard import loads_json_object
 
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
 RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
@@ -439,11 +440,4 @@ def _read_ascii(fh, element: _Element, remaining: int, path: Path) -> np.ndarray
 
 
 def _metadata(text: str, path: Path) -> dict:
-    try:
-        meta = json.loads(text)
-    except json.JSONDecodeError as err:
-        raise InputError(f"{path}: the scanqa-meta header comment is not valid JSON ({err}); "
-                         "delete that header line or write the cloud again") from None
-    if not isinstance(meta, dict):
-        raise InputError(f"{path}: the scanqa-meta header comment must be a JSON object")
-    return meta
+    return loads_json_object(text, f"{path}: the scanqa-meta header comment")

@@ -10,6 +10,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from scanqa.errors import InputError, ScanQAError
+from scanqa.io.guard import MAX_TEXT_BYTES, regular_file
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -33,16 +34,72 @@ def read_toml(path: str | os.PathLike, what: str, error: type[ScanQAError] = Inp
         Message used when the file does not exist (default: "cannot read ...").
     """
     p = Path(path)
+    if not p.exists() and not p.is_symlink():
+        raise error(missing or f"cannot read {what} {p}: No such file or directory")
     try:
+        regular_file(p, what, MAX_TEXT_BYTES)
         raw = p.read_bytes()
-    except FileNotFoundError:
-        raise error(missing or f"cannot read {what} {p}: No such file or directory") from None
+    except InputError as err:
+        raise error(str(err)) from None
     except OSError as err:
         raise error(f"cannot read {what} {p}: {err.strerror}") from None
+    return loads_toml(raw, p, error)
+
+
+def loads_toml(raw: bytes, where: str | os.PathLike, error: type[ScanQAError] = InputError
+               ) -> dict:
+    """Parse TOML bytes; every failure (bad syntax, not UTF-8, nesting deeper than
+    :data:`MAX_DEPTH`) is one ``error`` naming ``where``."""
     try:
-        return tomllib.loads(raw.decode("utf-8"))
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as err:
-        raise error(f"{p} is not valid TOML: {err}") from None
+        text = raw.decode("utf-8")
+    except UnicodeDecodeError as err:
+        raise error(f"{where} is not valid TOML: {err}") from None
+    depth = _nesting(text)
+    if depth > MAX_DEPTH:
+        raise error(f"{where} is not valid scanqa TOML: arrays or inline tables nested "
+                    f"{depth} deep (scanqa reads at most {MAX_DEPTH}; a damaged file?)")
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise error(f"{where} is not valid TOML: {err}") from None
+    except RecursionError:  # pragma: no cover - _nesting bounds the depth first
+        raise error(f"{where} is not valid scanqa TOML: nested too deeply") from None
+
+
+#: Deepest nesting of arrays and inline tables read (scanqa's formats use 2).
+MAX_DEPTH = 32
+
+
+def _nesting(text: str) -> int:
+    """Deepest nesting of ``[`` and ``{`` in values, skipping strings and comments (an
+    upper bound: a table header ``[a]`` counts 1, ``[[a]]`` 2)."""
+    if text.count("[") + text.count("{") <= MAX_DEPTH:
+        return 0
+    depth = deepest = 0
+    quote = ""
+    i, n = 0, len(text)
+    while i < n:
+        c = text[i]
+        if quote:
+            if c == "\\" and quote[0] == '"':
+                i += 1
+            elif text.startswith(quote, i):
+                i += len(quote) - 1
+                quote = ""
+        elif c in "\"'":
+            quote = c * 3 if text.startswith(c * 3, i) else c
+            i += len(quote) - 1
+        elif c == "#":
+            j = text.find("\n", i)
+            i = n if j < 0 else j
+            continue
+        elif c in "[{":
+            depth += 1
+            deepest = max(deepest, depth)
+        elif c in "]}":
+            depth = max(depth - 1, 0)
+        i += 1
+    return deepest
 
 
 def known_table(table: object, name: str, keys, fail: Callable[[str], Exception]

@@ -54,21 +54,29 @@ from scanqa.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
-from scanqa.qa.budget import Budget, Component, type_b
+from scanqa.qa.budget import Budget, Component, coverage_factor, type_b
 from scanqa.qa.layout import BlockSpec, Layout
 from scanqa.qa.planes import PlaneFit, fit_plane
+from scanqa.qa.verdict import decide, verdict
 
 #: Tile size of the noise-correlation estimate [mm]: at least twice the correlation length
 #: of the noise (~0.5-1 mm for the paper's scanner at 8 um pixels).
 TILE_MM = 2.0
 #: Fewest tiles (with 3 points or more) for a noise-correlation estimate.
 MIN_TILES = 8
+#: Fewest points of a block whose steps are decided: below, the plane is fitted and shown
+#: but the block is flagged "too_few_points" and its steps are not evaluated (the
+#: relative uncertainty of its std, 1/sqrt(2(n - 3)), exceeds 14 %, and MIN_TILES tiles
+#: of 3 points cannot be had).
+MIN_POINTS = 30
 #: Block status values, in the order they are checked.
 STATUSES = ("no_points", "too_few_points", "degenerate", "outside_volume", "model_invalid",
             "ok")
 #: A block is flagged when more than this fraction of its points lie outside the
 #: calibrated volume or the model's validity [-].
 MAX_FLAGGED_FRACTION = 0.05
+#: Tolerance T on a height difference when none is given [um]; the verdict says so.
+DEFAULT_TOLERANCE_UM = 20.0
 #: Decisions of a step: ISO 14253-1's three, and none for a step not evaluated.
 DECISIONS = ("pass", "fail", "undecided", "not evaluated")
 
@@ -171,24 +179,22 @@ class StepResult:
 
     @property
     def decision(self) -> str:
-        """ISO 14253-1: "pass", "fail" or "undecided"; "not evaluated" for a step with a
-        flagged block."""
+        """ISO 14253-1 (:func:`scanqa.qa.verdict.decide`, the one rule): "pass", "fail"
+        or "undecided"; "not evaluated" for a step with a flagged block or a NaN."""
         if not self.evaluated:
             return "not evaluated"
-        e, big_u, t = abs(self.error_um), self.expanded_um, self.tolerance_um
-        if not (math.isfinite(e) and math.isfinite(big_u)):
-            return "undecided"
-        if e <= t - big_u:
-            return "pass"
-        return "fail" if e > t + big_u else "undecided"
+        return decide(self.error_um, self.expanded_um, self.tolerance_um)
 
     def row(self) -> dict:
+        """The step's table row: ``decision`` (ISO 14253-1 against T) and ``within_U``
+        (|error| <= U, a check of the uncertainty statement) are separate columns."""
         nu = self.budget.nu_eff if self.budget is not None else math.nan
         return {"block_a": self.block_a, "block_b": self.block_b,
                 "nominal_diff_mm": self.nominal_diff_mm,
                 "measured_diff_mm": self.measured_diff_mm, "error_um": self.error_um,
                 "u_um": self.u_um, "nu_eff": nu, "U_um": self.expanded_um, "k": self.k,
-                "tolerance_um": self.tolerance_um, "pass": self.decision,
+                "tolerance_um": self.tolerance_um, "decision": self.decision,
+                "within_U": ("yes" if self.within_u else "no") if self.evaluated else "",
                 "evaluated": self.evaluated}
 
 
@@ -228,7 +234,10 @@ class QAResult:
         ratios = [b.ratio for b in self.blocks if b.status == "ok" and math.isfinite(b.ratio)]
         decisions = {d: sum(s.decision == d for s in self.steps) for d in DECISIONS}
         return {
-            "format": "scanqa-qa-summary/2",
+            "format": "scanqa-qa-summary/3",
+            "verdict": verdict(s.decision for s in self.steps)["verdict"],
+            "tolerance_um": self.settings.get("tolerance_um"),
+            "tolerance_source": self.settings.get("tolerance_source", "given"),
             "settings": self.settings,
             "model": self.cloud.model if self.cloud is not None else {},
             "sigma_source": (self.cloud.metadata.get("sigma_source")
@@ -322,7 +331,26 @@ def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
         res.status, res.message = "degenerate", str(err)
         return res
     _fill_block(res, fit, idx, xyz, attrs, tile_mm)
+    if res.status == "ok" and res.n_points < MIN_POINTS:
+        res.status = "too_few_points"
+        res.message = (f"block {spec.block_id}: only {res.n_points} points (fewer than "
+                       f"{MIN_POINTS}): flagged, its steps are not evaluated")
     return res
+
+
+def check_sigmas(attrs: dict) -> None:
+    """A predicted sigma is > 0 and finite, or NaN (no prediction): 0, negative or
+    infinite values are refused, not read as "no prediction"."""
+    name = random_sigma_name(attrs)
+    if name is None:
+        return
+    sig = np.asarray(attrs[name], dtype=float)
+    bad = np.flatnonzero(np.isinf(sig) | (sig <= 0))
+    if bad.size:
+        raise InputError(f"the cloud's {name} holds {bad.size} values that are 0, "
+                         f"negative or infinite (first: point {bad[0]}, {sig[bad[0]]!r} um); "
+                         "a predicted sigma must be > 0, or NaN where there is none "
+                         "(annotate the scan again)")
 
 
 def _robust_std(r: np.ndarray) -> float:
@@ -548,6 +576,21 @@ def _no_block_message(xyz: np.ndarray, layout: Layout, margin_mm: float) -> str:
             f"{regions[:, 3].max():.4g} mm.{hint}")
 
 
+def coverage_notes(steps: list[StepResult]) -> list[str]:
+    """A note per evaluated step whose stated k covers clearly less than 95.45 % at its
+    effective degrees of freedom (the t-distribution's k is > 5 % larger)."""
+    notes = []
+    for s in steps:
+        if s.budget is None or not s.evaluated or s.budget.k_rule == WELCH_SATTERTHWAITE:
+            continue
+        k_t = coverage_factor(s.budget.nu_eff)
+        if math.isfinite(k_t) and k_t > 1.05 * s.k:
+            notes.append(f"step {s.block_a}-{s.block_b}: nu_eff = {s.budget.nu_eff:.3g}, for "
+                         f"which k = {s.k:g} covers less than 95 % (the t-distribution gives "
+                         f"k = {k_t:.3g}); give --k welch-satterthwaite to use it")
+    return notes
+
+
 def coverage_rule(k: float | str | None, budget: BudgetInputs | None) -> float | str:
     """The coverage factor to use: ``k`` when given (a number > 0 or
     "welch-satterthwaite"), else the budget file's, else 2."""
@@ -562,7 +605,7 @@ def coverage_rule(k: float | str | None, budget: BudgetInputs | None) -> float |
 
 def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | None = None,
            margin_mm: float = 1.0, outlier_k: float | None = None,
-           tolerance_um: float = 20.0, k: float | str | None = None, knn: int = 16,
+           tolerance_um: float | None = None, k: float | str | None = None, knn: int = 16,
            tile_mm: float = TILE_MM, budget: BudgetInputs | None = None) -> QAResult:
     """Gauge-block QA of an annotated cloud.
 
@@ -580,8 +623,9 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
         Edge margin removed from every region [mm].
     outlier_k : float, optional
         Reject points beyond this many robust std from the first plane fit [-].
-    tolerance_um : float
-        Tolerance T on each height difference [um].
+    tolerance_um : float, optional
+        Tolerance T on each height difference [um]; default :data:`DEFAULT_TOLERANCE_UM`,
+        and then the settings, the summary and the verdict line say it was the default.
     k : float or "welch-satterthwaite", optional
         Coverage factor of the expanded uncertainty [-], stated, or from each step's
         effective degrees of freedom; default the budget file's ``[coverage] k``, else 2.
@@ -597,6 +641,8 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     -------
     QAResult
     """
+    tolerance_source = "given" if tolerance_um is not None else "default"
+    tolerance_um = DEFAULT_TOLERANCE_UM if tolerance_um is None else tolerance_um
     _check_settings(margin_mm, outlier_k, tolerance_um, knn, tile_mm)
     k = coverage_rule(k, budget)
     xyz, attrs = np.asarray(cloud.xyz, dtype=float), cloud.attributes
@@ -604,6 +650,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
         raise InputError(f"the cloud has no points with finite coordinates ({len(xyz)} "
                          "points): nothing to measure")
     notes = []
+    check_sigmas(attrs)
     has_pred = random_sigma_name(attrs) is not None
     if not has_pred:
         notes.append("the cloud has no sigma attributes: the predicted-std column is missing "
@@ -620,6 +667,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     n_planes = (cloud.metadata.get("table") or {}).get("n_planes")
     steps = [step_between(a, b, k, tolerance_um, budget, n_planes)
              for a, b in itertools.pairwise(ordered) if a.fit is not None and b.fit is not None]
+    notes += coverage_notes(steps)
     if budget is None:
         notes.append("Type B inputs (gauge-block certificates, temperature, stage scale, "
                      "flatness of the calibration flat) are not included: no budget file "
@@ -631,6 +679,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
             block_id[b.index] = b.block_id
             residual[b.index] = b.fit.residuals
     settings = {"margin_mm": margin_mm, "outlier_k": outlier_k, "tolerance_um": tolerance_um,
+                "tolerance_source": tolerance_source,
                 "k": k, "budget": budget.source if budget is not None else None,
                 "max_flagged_fraction": MAX_FLAGGED_FRACTION, "knn": knn, "tile_mm": tile_mm,
                 "layout": layout.source, "paper_comparison": layout.paper_comparison}

@@ -110,6 +110,7 @@ from scanqa.qa.sphere import (
     minimum_zone_sphere,
     sight_noise_bias,
 )
+from scanqa.qa.verdict import decide
 
 #: Fraction of the points the guideline lets be removed before a form range [-].
 DROP_FRACTION = 0.003
@@ -231,36 +232,6 @@ class FlatTest:
     zone: ZonePlane
     kept: np.ndarray  # (n,) bool over the input points
     f: Quantity
-
-
-def decide(value: float, expanded: float, mpe: float) -> str:
-    """ISO 14253-1 decision of a test value against an MPE.
-
-    Parameters
-    ----------
-    value : float
-        Test value E [mm].
-    expanded : float
-        Its expanded uncertainty U [mm].
-    mpe : float
-        Maximum permissible error [mm].
-
-    Returns
-    -------
-    str
-        "pass" when |E| <= MPE - U, "fail" when |E| > MPE + U, "undecided" between,
-        "not evaluated" when any input is NaN.
-
-    Examples
-    --------
-    >>> decide(0.375, 0.125, 0.5), decide(0.625, 0.125, 0.5), decide(0.5, 0.125, 0.5)
-    ('pass', 'undecided', 'undecided')
-    """
-    if not (math.isfinite(value) and math.isfinite(expanded) and math.isfinite(mpe)):
-        return "not evaluated"
-    if abs(value) <= mpe - expanded:
-        return "pass"
-    return "fail" if abs(value) > mpe + expanded else "undecided"
 
 
 def quantity(name: str, value: float, u: float, mpe: float, k: float = 2.0,

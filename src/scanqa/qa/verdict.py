@@ -9,12 +9,52 @@ shows what it rests on.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Iterable
 
 #: The decisions a verdict counts.
 DECISIONS = ("pass", "fail", "undecided", "not evaluated")
 #: The verdicts, worst first.
 VERDICTS = ("FAIL", "UNDECIDED", "INCOMPLETE", "NOT EVALUATED", "PASS")
+
+
+def decide(value: float, expanded: float, limit: float) -> str:
+    """The ISO 14253-1 decision of a measured deviation against a limit: the one rule of
+    every scanqa QA (gauge-block steps against a tolerance T, VDI/VDE 2634-2 quantities
+    against an MPE).
+
+    Parameters
+    ----------
+    value : float
+        The measured deviation E (an error, a test value) [any length unit].
+    expanded : float
+        Its expanded uncertainty U [same unit].
+    limit : float
+        The tolerance or maximum permissible error [same unit].
+
+    Returns
+    -------
+    str
+        "pass" when |E| <= limit - U (conformance proven), "fail" when |E| > limit + U
+        (non-conformance proven), "undecided" between, and "not evaluated" when any input
+        is NaN or infinite (nothing can be decided).
+
+    Examples
+    --------
+    >>> decide(0.375, 0.125, 0.5), decide(0.625, 0.125, 0.5), decide(0.5, 0.125, 0.5)
+    ('pass', 'undecided', 'undecided')
+    >>> decide(float("nan"), 0.1, 0.5)
+    'not evaluated'
+    """
+    if not (math.isfinite(value) and math.isfinite(expanded) and math.isfinite(limit)):
+        return "not evaluated"
+    if abs(value) <= limit - expanded:
+        return "pass"
+    return "fail" if abs(value) > limit + expanded else "undecided"
+
+
+#: Exit status of ``scanqa qa --strict`` per verdict (2 stays an error of the input).
+EXIT_STATUS = {"PASS": 0, "FAIL": 1, "UNDECIDED": 3, "INCOMPLETE": 3, "NOT EVALUATED": 3}
 
 
 def verdict(decisions: Iterable[str]) -> dict:

@@ -26,7 +26,7 @@ BLOCK_COLUMNS = ("block_id", "nominal_height_mm", "n_points", "measured_std_um",
                  "measured_std_u_um", "predicted_std_um", "ratio", "flatness_um",
                  "mean_attenuation", "in_volume_fraction", "model_valid_fraction", "status")
 STEP_COLUMNS = ("block_a", "block_b", "nominal_diff_mm", "measured_diff_mm", "error_um",
-                "u_um", "nu_eff", "U_um", "k", "tolerance_um", "pass")
+                "u_um", "nu_eff", "U_um", "k", "tolerance_um", "decision", "within_U")
 BUDGET_COLUMNS = ("component", "type", "source", "u", "unit", "c_um_per_unit",
                   "contribution_um", "dof")
 #: The block table of the report: main columns (fit a 1400 px screen and the page) and
@@ -42,19 +42,27 @@ LABELS = {"block_id": "block", "nominal_height_mm": "height [mm]", "n_points": "
           "in_volume_fraction": "in volume", "noise_corr_factor": "kappa",
           "block_a": "a", "block_b": "b", "nominal_diff_mm": "nominal [mm]",
           "measured_diff_mm": "measured [mm]", "error_um": "error [um]", "u_um": "u [um]",
-          "U_um": "U [um]", "tolerance_um": "T [um]", "pass": "decision"}
+          "U_um": "U [um]", "tolerance_um": "T [um]", "decision": "decision",
+          "within_U": "|error| <= U"}
 
 
 def csv_text(rows: list[dict], columns: tuple) -> str:
-    """Rows as CSV text with the given columns (NaN as an empty cell)."""
+    """Rows as CSV text with the given columns (NaN as an empty cell), written by the
+    ``csv`` module: a cell holding a comma, a quote or a line break is quoted, so every
+    row has one cell per column for any CSV reader."""
+    import csv
+    import io
+
     def cell(v):
         if isinstance(v, float):
             return "" if not math.isfinite(v) else f"{v:.6g}"
         return str(v)
 
-    lines = [",".join(columns)]
-    lines += [",".join(cell(r[c]) for c in columns) for r in rows]
-    return "\n".join(lines) + "\n"
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(columns)
+    writer.writerows([cell(r[c]) for c in columns] for r in rows)
+    return buf.getvalue()
 
 
 def write_outputs(result: QAResult, out_dir: str | os.PathLike,
@@ -138,8 +146,11 @@ def _summary_section(page: Page, result: QAResult, info: dict) -> None:
         + (f" ({100 * frac:.0f} %)" if frac is not None else "")
         + f". Decisions: {dec['pass']} pass, {dec['fail']} fail, {dec['undecided']} "
         f"undecided, {dec['not evaluated']} not evaluated.")
-    page.paragraph(f"Edge margin {result.settings['margin_mm']:g} mm; tolerance "
-                   f"{result.settings['tolerance_um']:g} um; {_k_text(result.settings['k'])}; "
+    default = " (the default; give --tolerance)" if result.settings.get(
+        "tolerance_source") == "default" else ""
+    page.paragraph(f"Edge margin {result.settings['margin_mm']:g} mm; tolerance T "
+                   f"{result.settings['tolerance_um']:g} um{default}; "
+                   f"{_k_text(result.settings['k'])}; "
                    "decision rule ISO 14253-1 (pass when |error| <= T - U, fail when "
                    "|error| > T + U); a block is flagged when more than "
                    f"{100 * result.settings['max_flagged_fraction']:g} % of its points lie "
