@@ -109,6 +109,10 @@ BAD_INPUTS = {
     "patterns": ["sim", "--config", "nope.toml"],
     "batch": ["nothing/*", "--calibration", "t.npz", "--config", "c.toml", "--out", "o"],
     "campaign": ["nope.toml", "--out", "o"],
+    "characterize-board": ["nope_pose", "nope_pose2", "--calibration", "nope.xml", "--config",
+                           "calib/slstudio_example.toml", "--out", "o"],
+    "characterize-repeats": ["nope_a", "nope_b", "--out", "o"],
+    "compare": ["nope.ply", "nope.stl", "--out", "o"],
 }
 
 

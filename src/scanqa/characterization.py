@@ -134,8 +134,10 @@ class Characterization:
         return select(self.fits)
 
     def apply_to(self, config: ScannerConfig) -> ScannerConfig:
-        """``config`` with the model the data supported (:attr:`best`)."""
-        return self.best.apply_to(config)
+        """``config`` with the model the data supported (:attr:`best`), saying so in
+        ``[model] characterised_by``."""
+        return self.best.apply_to(config).replace_model(
+            characterised_by=f"scanqa characterize: the {self.experiment} sweep")
 
     def model_std(self, fit: VariantFit, config: ScannerConfig) -> np.ndarray:
         """sigma_p * s_O of a fit at every position [projector px]."""
@@ -421,8 +423,10 @@ class JointCharacterization:
         return select(self.fits)
 
     def apply_to(self, config: ScannerConfig) -> ScannerConfig:
-        """``config`` with the model the data supported (:attr:`best`)."""
-        return self.best.apply_to(config)
+        """``config`` with the model the data supported (:attr:`best`), saying so in
+        ``[model] characterised_by``."""
+        return self.best.apply_to(config).replace_model(
+            characterised_by=f"scanqa characterize: the {self.experiment} sweeps")
 
     @property
     def experiment(self) -> str:
