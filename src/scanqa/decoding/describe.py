@@ -1,0 +1,517 @@
+"""``scanqa describe``: the pattern description of existing captures, inferred from them.
+
+The frames are split into sets by :mod:`scanqa.decoding.frames`; this module measures
+what each set codes and checks the guess with scanqa's decoder:
+
+* the direction of a set is that of its fringe slope (along the camera rows: vertical
+  fringes, projector columns; along the columns: rows);
+* the sign of a phase set's shifts is the sign of its phase slope for shifts
+  ``+2 pi k / N``, assuming that the projector coordinate grows with the camera
+  coordinate (the camera beside the projector, neither mirrored); with a Gray code, the
+  Gray code's own direction decides;
+* period ratios come from the phase slopes of two sets on the same image segments
+  (:func:`scanqa.decoding.frames.frequency_ratio`), a phase set's period in Gray cells
+  from its slope against the decoded Gray cell;
+* the absolute scale needs the projector size along the coded direction: phase sets
+  are taken to repeat a whole number of times over it (``P = W / n``, the fewest that
+  fit, e.g. a coarse set of one period over the panel or a heterodyne triple whose
+  beat covers it); a Gray code is taken to need all its bits (``2**bits`` cells of
+  whole pixels cover the panel, ``2**(bits-1)`` do not), with cells no wider than the
+  cells actually seen allow;
+* the candidates the measurement leaves open are decoded (on every fourth row) and
+  the one that decodes most pixels is kept; the others are reported.
+
+Everything the frames cannot tell is said in the written file as a question.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from scanqa.decoding import frames as fr
+from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, ReferenceSet
+from scanqa.decoding.decoder import decode_images
+from scanqa.errors import ConfigError, InputError
+
+#: Rows of the frames used by the decoding check (every n-th) [-].
+CHECK_ROW_STEP = 4
+#: Largest count of fringes over the panel searched for phase-only codings [-].
+MAX_FRINGES = 256
+
+
+@dataclass(frozen=True)
+class SetNote:
+    """What is known about one set: how sure, what was assumed, what is asked."""
+
+    name: str
+    sure: str
+    notes: tuple = ()
+    questions: tuple = ()
+
+
+@dataclass(frozen=True)
+class Description:
+    """The inferred description of one coded direction.
+
+    Attributes
+    ----------
+    desc : PatternDescription
+        The sets with their frame files, ready to write.
+    set_notes : tuple of SetNote
+        One per set of ``desc.sets``.
+    valid_share : float
+        Share of the lit pixels the decoding check decoded [-].
+    notes, questions : tuple of str
+        About the whole description.
+    """
+
+    desc: PatternDescription
+    set_notes: tuple
+    valid_share: float
+    notes: tuple = ()
+    questions: tuple = ()
+
+
+@dataclass
+class _Group:
+    """Working state of one direction while it is described."""
+
+    orientation: str
+    width_px: int | None
+    runs: list
+    levels: tuple = ()
+    notes: list = field(default_factory=list)
+    questions: list = field(default_factory=list)
+
+
+def describe_frames(images: np.ndarray, names: list[str], width_px: int | None = None,
+                    height_px: int | None = None) -> list[Description]:
+    """Infer the pattern description(s) of a sequence of camera frames.
+
+    Parameters
+    ----------
+    images : (K, H, W) array
+        The frames in projection order [DN].
+    names : list of str
+        File name of each frame, as the description should list it.
+    width_px, height_px : int, optional
+        Projector size [px]: the coded range of vertical (columns) and horizontal
+        (rows) fringes.
+
+    Returns
+    -------
+    list of Description
+        One per coded direction (columns first).
+
+    Raises
+    ------
+    InputError
+        When fewer than 2 frames are given or no set is found.
+    """
+    if images.ndim != 3 or images.shape[0] < 2 or len(names) != images.shape[0]:
+        raise InputError(f"describe needs at least 2 frames of one size with a name "
+                         f"each, got {images.shape[0] if images.ndim == 3 else 0}")
+    data = images.astype(np.float32)
+    norm = fr.normalise(data)
+    refs = fr.reference_frames(norm)
+    levels = tuple(fr.frame_level(norm, k) for k in refs)
+    if refs:
+        lo = np.mean([data[k] for k, v in zip(refs, levels, strict=True) if v == "black"], 0)
+        hi = np.mean([data[k] for k, v in zip(refs, levels, strict=True) if v == "white"], 0)
+        norm = fr.normalise(data, lo, hi)
+    runs = fr.split_runs(data, norm, refs)
+    coded = [r for r in runs if r.kind != "reference"]
+    if not coded:
+        raise InputError("no phase set or Gray code found among the frames (only uniform "
+                         "frames?)")
+    out = []
+    for orientation, size in (("vertical", width_px), ("horizontal", height_px)):
+        group = [r for r in coded if r.orientation == orientation]
+        if group:
+            ref = [r for r in runs if r.kind == "reference"]
+            out.append(_describe_group(images, data, norm, names,
+                                       _Group(orientation, size, ref + group, levels)))
+    return out
+
+
+def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
+                    names: list[str], group: _Group) -> Description:
+    """Sets, scale and the decoding check of one direction."""
+    axis = 1 if group.orientation == "vertical" else 0
+    phase = [r for r in group.runs if r.kind == "phase"]
+    grays = [r for r in group.runs if r.kind == "gray"]
+    ref = next((r for r in group.runs if r.kind == "reference"), None)
+    notes: dict[str, SetNote] = {}
+    gray = _gray_layout(norm, grays, axis, group, notes) if grays else None
+    if len(grays) > 1:
+        group.questions.append(f"{len(grays)} separate runs of binary frames were found; "
+                               "only the first is used as the Gray code - are the others "
+                               "part of it?")
+    direction = 1.0
+    cells = None
+    if gray is not None:
+        cells = _gray_cells(data, norm, gray, ref)
+        direction = _slope_sign(cells, norm.lit, axis)
+        if direction < 0:
+            group.questions.append("the Gray code's cells grow against the camera axis: "
+                                   "is the projector image mirrored? (x_p then runs the "
+                                   "other way)")
+    zs = [fr.phasor(data[list(r.frames)]) for r in phase]
+    signs = [direction * _sign(fr.phase_frequency(z, axis)) for z in zs]
+    candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group)
+    stacks_for = _stacks_factory(images, group, phase, gray, ref)
+    best, share, tried = None, -1.0, []
+    for desc in candidates:
+        desc = _with_signs(desc, signs)
+        got = _check(desc, stacks_for(desc), norm.lit)
+        tried.append((desc, got))
+        if got > share + 1e-3:
+            best, share = desc, got
+    if best is None:
+        raise InputError(f"no consistent description of the {group.orientation} sets was "
+                         f"found ({'; '.join(group.questions) or 'nothing decoded'})")
+    best = _with_files(best, names, group, phase, gray, ref)
+    _alternatives(best, tried, share, group)
+    set_notes = _set_notes(best, phase, gray, ref, signs, direction, notes, group)
+    return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions))
+
+
+# --------------------------------------------------------------------------- Gray code
+
+@dataclass(frozen=True)
+class _Gray:
+    """A Gray run read as a code: bit frames MSB first, inverse frames, layout."""
+
+    run: fr.Run
+    bits: int
+    inverse: str
+    order: tuple  # frame indices in the file order the decoder reads
+
+
+def _gray_layout(norm: fr.Normalised, grays: list, axis: int, group: _Group,
+                 notes: dict) -> _Gray:
+    """Bits, inverse layout and bit order of the first Gray run."""
+    run = grays[0]
+    frames = list(run.frames)
+    corr = fr.correlations(norm, frames)
+    count = len(frames)
+    half = count // 2
+    inverse = "none"
+    if count % 2 == 0 and all(corr[2 * i, 2 * i + 1] < -0.5 for i in range(half)):
+        inverse = "interleaved"
+    elif count % 2 == 0 and all(corr[i, i + half] < -0.5 for i in range(half)):
+        inverse = "grouped"
+    bits = count if inverse == "none" else half
+    plain = {"none": frames, "interleaved": frames[0::2], "grouped": frames[:half]}[inverse]
+    edges = [fr.gradient_energy(norm.n[k], norm.lit)[1 - axis] for k in plain]
+    rising = np.polyfit(np.arange(bits), edges, 1)[0] >= 0 if bits > 1 else True
+    if not rising:  # least significant bit first: list the files MSB first
+        group.notes.append("the Gray bits come least significant first (their stripes get "
+                           "coarser frame by frame); the files are listed MSB first")
+    order = _gray_order(frames, inverse, rising)
+    return _Gray(run, bits, inverse, tuple(order))
+
+
+def _gray_order(frames: list, inverse: str, msb_first: bool) -> list:
+    """Frame indices in the decoder's order (MSB first, the layout kept)."""
+    half = len(frames) // 2
+    if inverse == "none":
+        return frames if msb_first else frames[::-1]
+    if inverse == "interleaved":
+        pairs = [frames[2 * i:2 * i + 2] for i in range(half)]
+        pairs = pairs if msb_first else pairs[::-1]
+        return [k for p in pairs for k in p]
+    plain, inv = frames[:half], frames[half:]
+    return plain + inv if msb_first else plain[::-1] + inv[::-1]
+
+
+def _gray_cells(data: np.ndarray, norm: fr.Normalised, gray: _Gray, ref) -> np.ndarray:
+    """Cell index of every pixel from the Gray frames (NaN where unlit) [cells]."""
+    order = list(gray.order)
+    if gray.inverse == "interleaved":
+        plain, inv = order[0::2], order[1::2]
+    elif gray.inverse == "grouped":
+        plain, inv = order[:gray.bits], order[gray.bits:]
+    else:
+        plain, inv = order, None
+    if inv is not None:
+        bits = [data[p] > data[q] for p, q in zip(plain, inv, strict=True)]
+    else:
+        bits = [norm.n[p] > 0.5 for p in plain]
+    code = np.zeros(data.shape[1:], np.int64)
+    binary = np.zeros_like(code)
+    for b in bits:  # reflected Gray to binary: b_i = g_i xor b_(i-1)
+        binary = binary ^ b.astype(np.int64)
+        code = (code << 1) | binary
+    return np.where(norm.lit, code.astype(np.float64), np.nan)
+
+
+def _slope_sign(cells: np.ndarray, lit: np.ndarray, axis: int) -> float:
+    """+1 when the cell index grows along the camera axis, -1 when it falls."""
+    d = np.diff(cells, axis=axis)
+    d = d[np.isfinite(d) & (np.abs(d) <= 2)]
+    return 1.0 if d.sum() >= 0 else -1.0
+
+
+def _sign(value: float) -> float:
+    return -1.0 if value < 0 else 1.0
+
+
+# ------------------------------------------------------------------- periods and cells
+
+@dataclass(frozen=True)
+class _Scale:
+    """The measured scale: periods (or cells) and what was assumed to get them."""
+
+    width_px: int
+    periods: tuple  # one per phase run [projector px]
+    cell_px: float | None
+    evidence: str
+    question: str = ""
+
+
+def _candidates(data, norm, phase, zs, gray, cells, axis, group) -> list:
+    """Descriptions the measurement leaves open (decoded later to choose)."""
+    usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
+                                for z in zs], axis=0) if zs else norm.lit
+    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group) if gray is not None
+              else _phase_scales(phase, zs, axis, usable, group))
+    out = []
+    for scale in scales:
+        try:
+            out.append(_build(scale, phase, gray, group))
+        except ConfigError:
+            continue
+    return out
+
+
+def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
+    """Phase sets alone: whole numbers of fringes over the panel, fewest first."""
+    if group.width_px is None:
+        raise InputError(f"the projector size along the {group.orientation} fringes is "
+                         f"needed to state periods in projector pixels (the frames give "
+                         f"only period ratios): give --projector-"
+                         f"{'width' if group.orientation == 'vertical' else 'height'}")
+    ratios = _ratios(phase, zs, axis, usable)  # coarsest period over each period
+    out = []
+    for t in range(1, MAX_FRINGES + 1):
+        counts = [t * r for r in ratios]
+        whole = [max(1, round(c)) for c in counts]
+        if all(abs(c - w) <= 0.03 * c + 0.05 for c, w in zip(counts, whole, strict=True)):
+            out.extend(_variants(whole, group.width_px, ratios))
+        if len(out) >= 6:
+            break
+    return out
+
+
+def _ratios(phase, zs, axis, usable) -> list[float]:
+    """Period of the coarsest set over each set's period [-] (1 for the coarsest)."""
+    slopes = [abs(fr.phase_frequency(z, axis)) for z in zs]
+    finest = int(np.argmax(slopes))
+    rel = []
+    for i, z in enumerate(zs):
+        if i == finest:
+            rel.append(1.0)
+            continue
+        r, _ = fr.frequency_ratio(zs[finest], z, axis, usable, len(phase[i].frames))
+        rel.append(abs(r) if math.isfinite(r) else slopes[i] / slopes[finest])
+    coarsest = min(rel)
+    return [r / coarsest for r in rel]
+
+
+def _variants(whole: list[int], width: int, ratios: list[float]) -> list[_Scale]:
+    """The fringe counts found, and the finest one and one fewer or more."""
+    fine = int(np.argmax(whole))
+    out = []
+    for delta in (0, -1, 1):
+        n = list(whole)
+        n[fine] += delta
+        if n[fine] < 1 or (delta and n[fine] in n[:fine] + n[fine + 1:]):
+            continue
+        evidence = (f"{', '.join(f'{c:.3f}' for c in ratios)} times the coarsest "
+                    f"frequency measured; taken as {', '.join(map(str, n))} fringes over "
+                    f"the {width} px given")
+        out.append(_Scale(width, tuple(width / k for k in n), None, evidence))
+    return out
+
+
+def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
+    """A Gray code: whole-pixel cells that cover the panel; periods in cells."""
+    count = 2 ** gray.bits
+    seen, edge = _cells_seen(cells, count)
+    width = group.width_px
+    if width is None:
+        width = int(count)
+        group.questions.append(f"the projector size was not given: cells of 1 px assumed "
+                               f"({count} px coded, as OpenCV's GrayCodePattern); give "
+                               f"--projector-{'width' if axis == 1 else 'height'}")
+    cell, evidence = _cell_width(width, gray.bits, seen, edge, group)
+    ratios = []
+    for z, run in zip(zs, phase, strict=True):
+        zg = np.exp(2j * np.pi * np.nan_to_num(cells) / count)
+        r, _ = fr.frequency_ratio(z, zg, axis, usable & np.isfinite(cells), len(run.frames))
+        ratios.append(abs(r) * count)  # period in cells
+    periods = [p * cell for p in ratios]
+    snapped = [float(round(p)) if abs(p - round(p)) <= 0.03 * p else p for p in periods]
+    out = [_Scale(width, tuple(snapped), cell, evidence)]
+    if snapped != periods:
+        out.append(_Scale(width, tuple(periods), cell, evidence))
+    return out
+
+
+def _cells_seen(cells: np.ndarray, count: int) -> tuple[int, bool]:
+    """Cells up to the last well-populated one, and whether the panel's edge was seen.
+
+    At the panel's far edge the last cell is a full line of pixels across the image (as
+    many as a typical cell); at an object's silhouette the last cells thin out.
+    """
+    codes = cells[np.isfinite(cells)].astype(np.int64)
+    if codes.size == 0:
+        return count, False
+    hist = np.bincount(codes, minlength=count)
+    typical = float(np.median(hist[hist > 0]))
+    top = int(np.flatnonzero(hist >= 0.1 * typical).max())
+    edge = top + 1 < count and hist[max(top - 1, 0):top + 1].sum() >= 0.5 * typical
+    return top + 1, bool(edge)
+
+
+def _cell_width(width: int, bits: int, seen: int, edge: bool, group) -> tuple[float, str]:
+    """Cell width from the panel size, the bits and the cells seen [px], and why."""
+    count = 2 ** bits
+    lo, hi = width / count, width / (count / 2)
+    whole = [c for c in range(max(1, math.ceil(lo - 1e-9)), math.floor(hi) + 1)
+             if lo - 1e-9 <= c < hi and c <= width / seen * 1.02]
+    evidence = (f"{bits} bits cover {width} px with cells of {lo:.4g} to {hi:.4g} px; "
+                f"cells 0..{seen - 1} seen")
+    if edge and width / seen >= lo - 1e-9:
+        target = width / seen  # the panel's edge seen: the cells fill the width
+        cell = min(whole, key=lambda c: abs(c - target)) if whole else target
+        return float(cell), evidence + ", the last one at the panel's edge"
+    if not whole:
+        return lo, evidence
+    cell = float(whole[0])
+    if len(whole) > 1:
+        others = ", ".join(f"{c:g}" for c in whole[1:])
+        group.questions.append(
+            f"cell_px = {cell:g} is the finest whole-pixel cell that covers the {width} px "
+            f"with {bits} bits; the panel's edge was not seen, and cells of {others} px "
+            f"would fit the {seen} cells seen too - which one was projected?")
+    return cell, evidence
+
+
+def _build(scale: _Scale, phase, gray, group) -> PatternDescription:
+    """The description of one candidate (files still empty, sets in reading order)."""
+    sets: list = []
+    ref = next((r for r in group.runs if r.kind == "reference"), None)
+    if ref is not None:
+        sets.append(ReferenceSet("white_black", group.levels))
+    if gray is not None:
+        sets.append(GrayCodeSet("gray", gray.bits, cell_px=scale.cell_px,
+                                inverse=gray.inverse, orientation=group.orientation))
+    for run, period in zip(phase, scale.periods, strict=True):
+        sets.append(PhaseSet(_phase_name(period, sets), float(period), len(run.frames),
+                             orientation=group.orientation))
+    desc = PatternDescription(int(scale.width_px), tuple(sets),
+                              description=f"scanqa describe: {scale.evidence}")
+    return desc
+
+
+def _phase_name(period: float, sets: list) -> str:
+    """``p<period>`` (3 decimals at most), unique among the sets."""
+    name = f"p{float(f'{period:.3f}'):g}"
+    taken = {s.name for s in sets}
+    return name if name not in taken else f"{name}_{len(sets)}"
+
+
+def _with_signs(desc: PatternDescription, signs: list[float]) -> PatternDescription:
+    """The phase sets' shifts with the measured signs (in phase-run order)."""
+    sets, i = [], 0
+    for s in desc.sets:
+        if isinstance(s, PhaseSet):
+            shifts = tuple(signs[i] * 2 * math.pi * k / s.steps for k in range(s.steps))
+            s = replace(s, shifts_rad=tuple(0.0 if v == 0 else v for v in shifts))
+            i += 1
+        sets.append(s)
+    return replace(desc, sets=tuple(sets))
+
+
+def _frame_lists(group: _Group, phase: list, gray: _Gray | None, ref) -> list[list[int]]:
+    """Frame indices of every set of a built description, in its set order."""
+    lists = [list(ref.frames)] if ref is not None else []
+    if gray is not None:
+        lists.append(list(gray.order))
+    return lists + [list(r.frames) for r in phase]
+
+
+def _stacks_factory(images, group, phase, gray, ref):
+    """Stacks (every CHECK_ROW_STEP-th row) in the set order of the built descriptions."""
+    lists = _frame_lists(group, phase, gray, ref)
+    stacks = [np.ascontiguousarray(images[idx][:, ::CHECK_ROW_STEP]) for idx in lists]
+    return lambda desc: stacks
+
+
+def _check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
+    """Share of the lit pixels (of the rows checked) that decode valid [-]."""
+    from scanqa.errors import ScanQAError
+
+    try:
+        pm = decode_images(desc, stacks)
+    except ScanQAError:
+        return -1.0
+    lit_rows = lit[::CHECK_ROW_STEP]
+    return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
+
+
+def _with_files(desc, names, group, phase, gray, ref) -> PatternDescription:
+    """The chosen description with the frame file names of every set."""
+    lists = _frame_lists(group, phase, gray, ref)
+    sets = tuple(replace(s, files=tuple(names[k] for k in idx))
+                 for s, idx in zip(desc.sets, lists, strict=True))
+    return replace(desc, sets=sets)
+
+
+def _alternatives(best: PatternDescription, tried: list, share: float,
+                  group: _Group) -> None:
+    """Candidates that decode nearly as well as the chosen one become a question."""
+    def periods(d):
+        return ", ".join(f"{s.period_px:g}" for s in d.sets if isinstance(s, PhaseSet))
+
+    close = [d for d, got in tried if d is not best and got >= 0.9 * share and share > 0
+             and periods(d) != periods(best)]
+    for d in close[:2]:
+        group.questions.append(f"periods {periods(d)} px decode nearly as many pixels as "
+                               f"the chosen {periods(best)} px: which were projected?")
+    if share < 0.3:
+        group.questions.append(f"only {100 * max(share, 0):.0f} % of the lit pixels decode: "
+                               "is a set missing or misread?")
+
+
+def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
+    """How sure each set is and what it assumes."""
+    out = []
+    phase_sets = [s for s in desc.sets if isinstance(s, PhaseSet)]
+    for s in desc.sets:
+        if isinstance(s, ReferenceSet):
+            out.append(SetNote(s.name, "sure", ("uniform frames at the end of the sequence: "
+                                                + ", ".join(s.levels),)))
+        elif isinstance(s, GrayCodeSet):
+            out.append(SetNote(s.name, "sure" if not group.questions else "likely", (
+                f"{s.bits} bits, most significant first; inverse frames: {s.inverse}",
+                "reflected Gray code assumed (the only one the decoder reads)")))
+    for s, sign in zip(phase_sets, signs, strict=True):
+        way = "negative" if sign < 0 else "positive"
+        basis = ("the Gray code's direction" if gray is not None else
+                 "the assumption that the projector coordinate grows along the camera's "
+                 + ("rows" if s.orientation == "vertical" else "columns"))
+        asks = () if gray is not None else (
+            f"periods are known relative to each other only: is the projector "
+            f"{desc.projector_width_px} px along this direction, with the coarsest "
+            "pattern repeating a whole number of times over it?",)
+        out.append(SetNote(s.name, "likely" if asks else "sure", (
+            f"{s.steps} steps, shifts {way} 2 pi k / {s.steps} (from the phase slope and "
+            f"{basis})",), asks))
+    order = {n.name: n for n in out}
+    return tuple(order[s.name] for s in desc.sets)

@@ -1,0 +1,332 @@
+"""What each captured frame is: the frame analysis behind ``scanqa describe``.
+
+Camera frames of an unknown coding are split into runs that form one set each, from
+the frames alone (:mod:`scanqa.decoding.describe` turns the runs into a
+``patterns.toml``):
+
+* every frame is normalised per pixel, ``n = (I - lo) / (hi - lo)`` with ``lo``, ``hi``
+  the darkest and brightest sample of the pixel over all frames (over the black and
+  white frames once they are known), which removes the albedo;
+* uniform frames at the start or the end of the sequence - nearly 1 or nearly 0
+  everywhere - are the white and black references (a Gray bit inside the sequence may
+  look uniform on a small object, so only the ends are searched);
+* a run of N >= 3 frames whose mean is uniform while each frame is not, and whose
+  frame-to-frame correlations follow ``cos(2 pi (j - k) / N)``, is an N-step phase set
+  (the offsets ``A`` of its frames add up, the fringes cancel);
+* what is left are Gray-code frames, split where their orientation changes; a bit and
+  its inverse are anti-correlated (their sum is uniform).
+
+Frames are assumed to be grouped by set (in the order given, or sorted by name); a set
+whose frames are spread among other sets is not recognised.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanqa.errors import InputError
+
+#: Largest number of steps searched for a phase set [-].
+MAX_STEPS = 16
+#: Mean-to-frame fringe ratio below which a run of frames sums to a uniform image [-].
+UNIFORM_RATIO = 0.35
+#: Largest departure of a frame-pair correlation from cos(2 pi (j - k) / N) [-] (lenient:
+#: a coarse set seen over a fraction of its period correlates less than a full cycle).
+CORRELATION_TOLERANCE = 0.5
+#: Correlation below which two frames are a pattern and its inverse [-].
+INVERSE_CORRELATION = -0.9
+#: A frame is a white (black) reference when this share of its lit pixels is above
+#: 1 - LEVEL_MARGIN (below LEVEL_MARGIN) in normalised units [-].
+LEVEL_SHARE, LEVEL_MARGIN = 0.95, 0.3
+
+
+@dataclass(frozen=True)
+class Normalised:
+    """Frames normalised per pixel, and where they are lit.
+
+    Attributes
+    ----------
+    n : (K, H, W) float32
+        ``(I - lo) / (hi - lo)``, 0.5 where unlit [-].
+    lit : (H, W) bool
+        Pixels whose brightest and darkest sample differ well above the noise.
+    """
+
+    n: np.ndarray
+    lit: np.ndarray
+
+
+@dataclass(frozen=True)
+class Run:
+    """A run of frames that forms one set.
+
+    Attributes
+    ----------
+    kind : str
+        "phase", "gray" or "reference".
+    frames : tuple of int
+        Frame indices in the sequence, in the given order.
+    orientation : str
+        "vertical" (fringes vary along the camera rows: projector columns) or
+        "horizontal"; empty for references.
+    anisotropy : float
+        Ratio of the fringe gradient along the orientation to that across it [-]
+        (how clearly the orientation was seen; 1 means undecided).
+    """
+
+    kind: str
+    frames: tuple
+    orientation: str = ""
+    anisotropy: float = 1.0
+
+
+def normalise(images: np.ndarray, lo: np.ndarray | None = None,
+              hi: np.ndarray | None = None) -> Normalised:
+    """Per-pixel normalised frames and the lit mask.
+
+    Parameters
+    ----------
+    images : (K, H, W) float
+        Camera frames [DN].
+    lo, hi : (H, W) float, optional
+        Dark and bright level of each pixel [DN]; default the darkest and brightest
+        sample over the frames.
+
+    Returns
+    -------
+    Normalised
+        The frames in [0, 1] (about) and the lit pixels.
+    """
+    lo = images.min(axis=0) if lo is None else lo
+    hi = images.max(axis=0) if hi is None else hi
+    span = (hi - lo).astype(np.float32)
+    top = float(np.percentile(span, 99.5))
+    if not top > 0:
+        raise InputError("the frames do not change: every pixel has the same value in "
+                         "every frame (is this a pattern sequence?)")
+    lit = span > max(0.15 * top, 1e-6)
+    n = np.where(lit, (images - lo) / np.where(lit, span, 1.0), 0.5).astype(np.float32)
+    return Normalised(n, lit)
+
+
+def frame_level(norm: Normalised, k: int) -> str:
+    """"white", "black" or "" for frame k (uniform frames only)."""
+    values = norm.n[k][norm.lit]
+    if np.mean(values > 1 - LEVEL_MARGIN) >= LEVEL_SHARE:
+        return "white"
+    if np.mean(values < LEVEL_MARGIN) >= LEVEL_SHARE:
+        return "black"
+    return ""
+
+
+def reference_frames(norm: Normalised) -> tuple[int, ...]:
+    """Indices of the uniform frames at the start and at the end of the sequence."""
+    count = norm.n.shape[0]
+    levels = [frame_level(norm, k) for k in range(count)]
+    start = next((k for k in range(count) if not levels[k]), count)
+    end = next((k for k in range(count - 1, start - 1, -1) if not levels[k]), start - 1)
+    found = tuple(range(start)) + tuple(range(end + 1, count))
+    kinds = {levels[k] for k in found}
+    return found if kinds == {"white", "black"} else ()
+
+
+def _sample(norm: Normalised, frames, limit: int = 400_000) -> np.ndarray:
+    """(len(frames), S) normalised values at up to ``limit`` lit pixels."""
+    idx = np.flatnonzero(norm.lit)
+    if idx.size > limit:
+        idx = idx[:: idx.size // limit + 1]
+    return np.stack([norm.n[k].ravel()[idx] for k in frames]).astype(np.float64)
+
+
+def correlations(norm: Normalised, frames) -> np.ndarray:
+    """(F, F) correlation of the normalised frames over the lit pixels [-]."""
+    values = _sample(norm, frames)
+    values -= values.mean(axis=1, keepdims=True)
+    scale = np.sqrt((values ** 2).sum(axis=1))
+    return (values @ values.T) / np.outer(scale, scale).clip(1e-12)
+
+
+def uniform_ratio(norm: Normalised, frames) -> float:
+    """Fringe contrast of the mean of ``frames`` relative to that of one frame [-].
+
+    Near 0 when the frames' fringes cancel in their sum (a phase set, a bit and its
+    inverse), near 1 for unrelated frames.
+    """
+    values = _sample(norm, frames)
+    return float(values.mean(axis=0).std() / max(values.std(axis=1).mean(), 1e-12))
+
+
+def is_phase_run(norm: Normalised, frames) -> bool:
+    """True when ``frames`` look like one N-step phase set (N = len(frames) >= 3)."""
+    steps = len(frames)
+    if steps < 3 or uniform_ratio(norm, frames) > UNIFORM_RATIO:
+        return False
+    corr = correlations(norm, frames)
+    k = np.arange(steps)
+    expected = np.cos(2 * np.pi * (k[:, None] - k[None, :]) / steps)
+    inverse = (corr < INVERSE_CORRELATION) & (expected > -0.99)  # a bit and its inverse
+    return bool(np.abs(corr - expected).max() <= CORRELATION_TOLERANCE and not inverse.any())
+
+
+def gradient_energy(frame: np.ndarray, lit: np.ndarray) -> tuple[float, float]:
+    """Mean absolute difference between neighbours along rows and along columns [-]."""
+    du = np.abs(np.diff(frame, axis=1))[lit[:, 1:] & lit[:, :-1]]
+    dv = np.abs(np.diff(frame, axis=0))[lit[1:] & lit[:-1]]
+    return float(du.mean()) if du.size else 0.0, float(dv.mean()) if dv.size else 0.0
+
+
+def phasor(images: np.ndarray) -> np.ndarray:
+    """Temporal DFT bin 1 of an N-step set, ``sum_k I_k exp(-2 pi i k / N)`` [DN].
+
+    Its angle is the fringe phase for shifts +2 pi k / N (minus the phase for shifts
+    -2 pi k / N); its magnitude is N B / 2.
+    """
+    steps = images.shape[0]
+    weights = np.exp(-2j * np.pi * np.arange(steps) / steps).astype(np.complex64)
+    return np.tensordot(weights, images.astype(np.float32), axes=1)
+
+
+def phase_frequency(z: np.ndarray, axis: int) -> float:
+    """Mean fringe frequency of a phasor map along a camera axis [rad/camera px].
+
+    The angle of ``sum z[i + 1] conj(z[i])`` along ``axis`` (1: rows, u; 0: columns,
+    v): a modulation-weighted mean of the local frequency, signed (positive where the
+    phase grows with the camera coordinate).
+    """
+    a = np.moveaxis(z, axis, -1)
+    return float(np.angle(np.sum(a[..., 1:] * np.conj(a[..., :-1]))))
+
+
+def orientation_of(du: float, dv: float) -> tuple[str, float]:
+    """"vertical" when the fringes vary along the rows more than along the columns."""
+    if du >= dv:
+        return "vertical", du / max(dv, 1e-12)
+    return "horizontal", dv / max(du, 1e-12)
+
+
+def phase_orientation(z: np.ndarray) -> tuple[str, float]:
+    """Orientation of a phase set from its phase slope along u and along v."""
+    return orientation_of(abs(phase_frequency(z, 1)), abs(phase_frequency(z, 0)))
+
+
+def split_runs(images: np.ndarray, norm: Normalised, references: tuple) -> list[Run]:
+    """The sequence as runs of phase sets, Gray frames and the references.
+
+    Parameters
+    ----------
+    images : (K, H, W) float
+        Camera frames [DN].
+    norm : Normalised
+        The frames normalised (by the references when there are).
+    references : tuple of int
+        Indices of the white and black frames.
+
+    Returns
+    -------
+    list of Run
+        In sequence order (the reference run first); Gray runs are split where the
+        orientation changes.
+    """
+    runs = [Run("reference", tuple(references))] if references else []
+    rest = [k for k in range(images.shape[0]) if k not in references]
+    loose: list[int] = []
+    i = 0
+    while i < len(rest):
+        steps = next((n for n in range(3, min(MAX_STEPS, len(rest) - i) + 1)
+                      if _contiguous(rest[i:i + n]) and is_phase_run(norm, rest[i:i + n])),
+                     0)
+        if not steps:
+            loose.append(rest[i])
+            i += 1
+            continue
+        runs.extend(_gray_runs(norm, loose))
+        loose = []
+        frames = tuple(rest[i:i + steps])
+        orient, aniso = phase_orientation(phasor(images[list(frames)]))
+        runs.append(Run("phase", frames, orient, aniso))
+        i += steps
+    runs.extend(_gray_runs(norm, loose))
+    return runs
+
+
+def _contiguous(frames) -> bool:
+    return all(b == a + 1 for a, b in itertools.pairwise(frames))
+
+
+def _gray_runs(norm: Normalised, frames: list[int]) -> list[Run]:
+    """Gray frames split into runs of one orientation (uncertain frames join a run)."""
+    if not frames:
+        return []
+    seen = [orientation_of(*gradient_energy(norm.n[k], norm.lit)) for k in frames]
+    clear = [o if a > 1.3 else "" for o, a in seen]
+    for i, o in enumerate(clear):  # an unclear frame (a coarse bit) takes its pair's
+        if not o:
+            clear[i] = next((clear[j] for j in _neighbours(i, len(frames)) if clear[j]),
+                            seen[i][0])
+    runs, start = [], 0
+    for i in range(1, len(frames) + 1):
+        if i == len(frames) or clear[i] != clear[start] or frames[i] != frames[i - 1] + 1:
+            part = frames[start:i]
+            aniso = math.exp(np.mean([math.log(seen[j][1]) for j in range(start, i)]))
+            runs.append(Run("gray", tuple(part), clear[start], aniso))
+            start = i
+    return runs
+
+
+def _neighbours(i: int, count: int) -> list[int]:
+    """Indices ordered by distance from i (excluding i)."""
+    return sorted((j for j in range(count) if j != i), key=lambda j: (abs(j - i), -j))
+
+
+def frequency_ratio(z_fine: np.ndarray, z_coarse: np.ndarray, axis: int,
+                    usable: np.ndarray, steps: int = 3) -> tuple[float, int]:
+    """Ratio of the coarse set's phase slope to the fine set's, on the same segments.
+
+    Over segments of L pixels along ``axis`` (L about 1/``steps`` of a coarse fringe, so
+    that the phase error a nonlinear projector leaves, periodic in 2 pi / steps, cancels
+    between the segment's ends),
+    the coarse phase change is compared with the fine phase unwrapped along the segment
+    (its neighbour differences added up); segments crossing an unlit or a masked pixel
+    are left out, and segments whose ratio departs by more than 10 % from the median
+    (a depth step on the way) too. Same segments, same weights: no bias from where the
+    modulation is high.
+
+    Parameters
+    ----------
+    z_fine, z_coarse : (H, W) complex
+        Phasors of the two sets (:func:`phasor`).
+    axis : int
+        1 along the rows (u), 0 along the columns (v).
+    usable : (H, W) bool
+        Pixels whose phasors are trusted.
+
+    Returns
+    -------
+    ratio : float
+        Coarse over fine phase slope, i.e. fine period over coarse period [-] (NaN when
+        too few segments).
+    segments : int
+        Segments used.
+    """
+    zf, zc, ok = (np.moveaxis(a, axis, -1) for a in (z_fine, z_coarse, usable))
+    step = np.angle(zf[..., 1:] * np.conj(zf[..., :-1]))
+    pair_ok = ok[..., 1:] & ok[..., :-1]
+    slope = abs(phase_frequency(z_coarse, axis))
+    length = int(np.clip(round(2 * math.pi / steps / max(slope, 1e-9)), 8,
+                         zf.shape[-1] // 3))
+    csum = np.concatenate([np.zeros((*step.shape[:-1], 1)), np.cumsum(step, -1)], -1)
+    bad = np.concatenate([np.zeros((*step.shape[:-1], 1)), np.cumsum(~pair_ok, -1)], -1)
+    fine = csum[..., length:] - csum[..., :-length]
+    clean = (bad[..., length:] - bad[..., :-length]) == 0
+    coarse = np.angle(zc[..., length:] * np.conj(zc[..., :-length]))
+    keep = clean & (np.abs(fine) > 1.0)
+    if keep.sum() < 50:
+        return math.nan, int(keep.sum())
+    r = coarse[keep] / fine[keep]
+    med = np.median(r)
+    near = np.abs(r - med) <= 0.1 * abs(med)
+    return float(coarse[keep][near].sum() / fine[keep][near].sum()), int(near.sum())
