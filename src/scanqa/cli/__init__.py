@@ -34,6 +34,7 @@ COMMAND_MODULES = (
     "scanqa.cli.qa",
     "scanqa.cli.demo",
     "scanqa.cli.patterns",
+    "scanqa.cli.describe",
     "scanqa.cli.decode",
     "scanqa.cli.simulate",
     "scanqa.cli.batch",

@@ -295,31 +295,38 @@ def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
                          f"needed to state periods in projector pixels (the frames give "
                          f"only period ratios): give --projector-"
                          f"{'width' if group.orientation == 'vertical' else 'height'}")
-    ratios = _ratios(phase, zs, axis, usable)  # coarsest period over each period
-    out = []
-    for t in range(1, MAX_FRINGES + 1):
+    ratios, spreads = _ratios(phase, zs, axis, usable)  # coarsest period / each period
+    chosen = []
+    for t in range(1, MAX_FRINGES + 1):  # fewest fringes that fit the measured ratios
         counts = [t * r for r in ratios]
-        whole = [max(1, round(c)) for c in counts]
-        if all(abs(c - w) <= 0.03 * c + 0.05 for c, w in zip(counts, whole, strict=True)):
-            out.extend(_variants(whole, group.width_px, ratios))
-        if len(out) >= 6:
+        if all(abs(c - max(1, round(c))) <= 3 * sd * c + 0.02
+               for c, sd in zip(counts, spreads, strict=True)):
+            chosen.append([max(1, round(c)) for c in counts])
+        if len(chosen) == 3:
             break
+    out = []
+    for i, whole in enumerate(chosen):
+        found = _variants(whole, group.width_px, ratios)
+        out.extend(found if i == 0 else found[:1])
     return out
 
 
-def _ratios(phase, zs, axis, usable) -> list[float]:
-    """Period of the coarsest set over each set's period [-] (1 for the coarsest)."""
+def _ratios(phase, zs, axis, usable) -> tuple[list[float], list[float]]:
+    """Period of the coarsest set over each set's period [-] (1 for the coarsest), and
+    the relative uncertainty of each [-]."""
     slopes = [abs(fr.phase_frequency(z, axis)) for z in zs]
     finest = int(np.argmax(slopes))
-    rel = []
+    rel, spread = [], []
     for i, z in enumerate(zs):
-        if i == finest:
-            rel.append(1.0)
-            continue
-        r, _ = fr.frequency_ratio(zs[finest], z, axis, usable, len(phase[i].frames))
-        rel.append(abs(r) if math.isfinite(r) else slopes[i] / slopes[finest])
-    coarsest = min(rel)
-    return [r / coarsest for r in rel]
+        r, sd = (1.0, 0.0) if i == finest else fr.frequency_ratio(
+            zs[finest], z, axis, usable, len(phase[i].frames))
+        if not math.isfinite(r):
+            r, sd = slopes[i] / slopes[finest], 0.1
+        rel.append(abs(r))
+        spread.append(sd)
+    coarsest = int(np.argmin(rel))
+    return ([r / rel[coarsest] for r in rel],
+            [math.hypot(sd, spread[coarsest]) for sd in spread])
 
 
 def _variants(whole: list[int], width: int, ratios: list[float]) -> list[_Scale]:
@@ -352,7 +359,8 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
     ratios = []
     for z, run in zip(zs, phase, strict=True):
         zg = np.exp(2j * np.pi * np.nan_to_num(cells) / count)
-        r, _ = fr.frequency_ratio(z, zg, axis, usable & np.isfinite(cells), len(run.frames))
+        r, _ = fr.frequency_ratio(z, zg, axis, usable & np.isfinite(cells),
+                                  len(run.frames))
         ratios.append(abs(r) * count)  # period in cells
     periods = [p * cell for p in ratios]
     snapped = [float(round(p)) if abs(p - round(p)) <= 0.03 * p else p for p in periods]
@@ -506,12 +514,13 @@ def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
         basis = ("the Gray code's direction" if gray is not None else
                  "the assumption that the projector coordinate grows along the camera's "
                  + ("rows" if s.orientation == "vertical" else "columns"))
-        asks = () if gray is not None else (
-            f"periods are known relative to each other only: is the projector "
-            f"{desc.projector_width_px} px along this direction, with the coarsest "
-            "pattern repeating a whole number of times over it?",)
-        out.append(SetNote(s.name, "likely" if asks else "sure", (
+        out.append(SetNote(s.name, "sure" if gray is not None else "likely", (
             f"{s.steps} steps, shifts {way} 2 pi k / {s.steps} (from the phase slope and "
-            f"{basis})",), asks))
+            f"{basis})",)))
+    if phase_sets and gray is None:
+        group.questions.append(
+            f"the frames give period ratios only: is the projector "
+            f"{desc.projector_width_px} px along this direction, and does every pattern "
+            "repeat a whole number of times over it (the periods assume both)?")
     order = {n.name: n for n in out}
     return tuple(order[s.name] for s in desc.sets)

@@ -283,7 +283,7 @@ def _neighbours(i: int, count: int) -> list[int]:
 
 
 def frequency_ratio(z_fine: np.ndarray, z_coarse: np.ndarray, axis: int,
-                    usable: np.ndarray, steps: int = 3) -> tuple[float, int]:
+                    usable: np.ndarray, steps: int = 3) -> tuple[float, float]:
     """Ratio of the coarse set's phase slope to the fine set's, on the same segments.
 
     Over segments of L pixels along ``axis`` (L about 1/``steps`` of a coarse fringe, so
@@ -309,24 +309,34 @@ def frequency_ratio(z_fine: np.ndarray, z_coarse: np.ndarray, axis: int,
     ratio : float
         Coarse over fine phase slope, i.e. fine period over coarse period [-] (NaN when
         too few segments).
-    segments : int
-        Segments used.
+    spread : float
+        Relative standard deviation of the ratio between four bands of the image
+        across ``axis`` (a measure of its uncertainty, systematic effects included) [-].
     """
     zf, zc, ok = (np.moveaxis(a, axis, -1) for a in (z_fine, z_coarse, usable))
-    step = np.angle(zf[..., 1:] * np.conj(zf[..., :-1]))
     pair_ok = ok[..., 1:] & ok[..., :-1]
     slope = abs(phase_frequency(z_coarse, axis))
-    length = int(np.clip(round(2 * math.pi / steps / max(slope, 1e-9)), 8,
-                         zf.shape[-1] // 3))
-    csum = np.concatenate([np.zeros((*step.shape[:-1], 1)), np.cumsum(step, -1)], -1)
-    bad = np.concatenate([np.zeros((*step.shape[:-1], 1)), np.cumsum(~pair_ok, -1)], -1)
-    fine = csum[..., length:] - csum[..., :-length]
+    cycle = 2 * math.pi / steps / max(slope, 1e-9)  # the error's period [camera px]
+    length = int(np.clip(round(cycle * math.ceil(16 / cycle)), 8, zf.shape[-1] // 3))
+    fine, coarse = (_unwrapped_change(z, length) for z in (zf, zc))
+    bad = np.concatenate([np.zeros((*pair_ok.shape[:-1], 1)), np.cumsum(~pair_ok, -1)], -1)
     clean = (bad[..., length:] - bad[..., :-length]) == 0
-    coarse = np.angle(zc[..., length:] * np.conj(zc[..., :-length]))
     keep = clean & (np.abs(fine) > 1.0)
     if keep.sum() < 50:
-        return math.nan, int(keep.sum())
-    r = coarse[keep] / fine[keep]
-    med = np.median(r)
-    near = np.abs(r - med) <= 0.1 * abs(med)
-    return float(coarse[keep][near].sum() / fine[keep][near].sum()), int(near.sum())
+        return math.nan, math.nan
+    med = np.median(coarse[keep] / fine[keep])
+    keep &= np.abs(coarse - med * fine) <= 0.1 * abs(med * fine)
+    ratio = float(coarse[keep].sum() / fine[keep].sum())
+    bands = [b for b in np.array_split(np.arange(keep.shape[0]), 4)
+             if keep[b].sum() >= 20]
+    parts = [coarse[b][keep[b]].sum() / fine[b][keep[b]].sum() for b in bands]
+    spread = float(np.std(parts) / abs(ratio)) if len(parts) > 1 else 0.05
+    return ratio, max(spread, 1e-4)
+
+
+def _unwrapped_change(z: np.ndarray, length: int) -> np.ndarray:
+    """Phase change over ``length`` pixels along the last axis, neighbour steps added
+    (the end-point difference where no step slips) [rad]."""
+    step = np.angle(z[..., 1:] * np.conj(z[..., :-1]))
+    csum = np.concatenate([np.zeros((*step.shape[:-1], 1)), np.cumsum(step, -1)], -1)
+    return csum[..., length:] - csum[..., :-length]
