@@ -296,19 +296,25 @@ def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
                          f"only period ratios): give --projector-"
                          f"{'width' if group.orientation == 'vertical' else 'height'}")
     ratios, spreads = _ratios(phase, zs, axis, usable)  # coarsest period / each period
-    chosen = []
-    for t in range(1, MAX_FRINGES + 1):  # fewest fringes that fit the measured ratios
+    loose, score = [], {}
+    for t in range(1, MAX_FRINGES + 1):
         counts = [t * r for r in ratios]
-        if all(abs(c - max(1, round(c))) <= 3 * sd * c + 0.02
-               for c, sd in zip(counts, spreads, strict=True)):
-            chosen.append([max(1, round(c)) for c in counts])
-        if len(chosen) == 3:
-            break
-    out = []
-    for i, whole in enumerate(chosen):
-        found = _variants(whole, group.width_px, ratios)
-        out.extend(found if i == 0 else found[:1])
-    return out
+        gaps = [abs(c - max(1, round(c))) for c in counts]
+        if all(g <= 0.03 * c + 0.05 for g, c in zip(gaps, counts, strict=True)):
+            loose.append(t)  # within 3 %: what a real scene's bias allows
+            score[t] = max(g / (c * max(sd, 2e-4))
+                           for g, c, sd in zip(gaps, counts, spreads, strict=True))
+    if not loose:
+        return []
+    best = sorted(loose, key=lambda t: (score[t], t))[:3]  # in measured spreads
+    out = []  # the best fit first: it is kept when decoding cannot tell
+    for t in best:
+        if t != loose[0]:
+            out.extend(_variants([max(1, round(t * r)) for r in ratios], group.width_px,
+                                 ratios)[:1])
+    fewest = _variants([max(1, round(loose[0] * r)) for r in ratios], group.width_px,
+                       ratios)
+    return (fewest + out) if best[0] == loose[0] else (out[:1] + fewest + out[1:])
 
 
 def _ratios(phase, zs, axis, usable) -> tuple[list[float], list[float]]:
