@@ -10,6 +10,7 @@ calseq2..6 were not looked at before these tests ran.
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -88,8 +89,21 @@ def test_skull_gray(tmp_path, capsys):
     assert _same_decode(out, hand) > 0.14  # test_decoding_real: 14.4 %
 
 
+def _same_sets(described, hand) -> None:
+    """The same sets, frames, periods (0.1 %) and shifts: the decoder gets the same input."""
+    ours, theirs = load_patterns(described), load_patterns(hand)
+    assert ours.projector_width_px == theirs.projector_width_px
+    for a, b in zip(ours.sets, theirs.sets, strict=True):
+        assert [Path(f).name for f in a.files] == [Path(f).name for f in b.files]
+        assert (a.steps, a.orientation) == (b.steps, b.orientation)
+        assert a.period_px == pytest.approx(b.period_px, rel=1e-3)
+        np.testing.assert_allclose(a.shifts_rad, b.shifts_rad, atol=1e-9)
+
+
 @pytest.mark.parametrize("pose", range(1, 7))
 def test_calibration_poses_in_both_directions(tmp_path, capsys, pose):
+    """Pose 1 is decoded both ways; poses 2-6 are compared set by set (equal sets
+    decode equally), which keeps the suite short."""
     folder = SLSTUDIO / "calibration" / f"calseq{pose}"
     out, rows, said = _describe(folder, tmp_path, capsys)
     assert rows is not None, said
@@ -97,5 +111,8 @@ def test_calibration_poses_in_both_directions(tmp_path, capsys, pose):
                                                         "vertical", ".png"))
     lines = _hand(tmp_path, "rows", 1140, _phase_pair(folder, 6, 71.25, 1140.0,
                                                       "horizontal", ".png"))
-    assert _same_decode(out, columns) > 0.3
-    assert _same_decode(rows, lines) > 0.3
+    _same_sets(out, columns)
+    _same_sets(rows, lines)
+    if pose == 1:
+        assert _same_decode(out, columns) > 0.3
+        assert _same_decode(rows, lines) > 0.3

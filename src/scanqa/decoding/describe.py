@@ -18,7 +18,7 @@ what each set codes and checks the guess with scanqa's decoder:
   beat covers it); a Gray code is taken to need all its bits (``2**bits`` cells of
   whole pixels cover the panel, ``2**(bits-1)`` do not), with cells no wider than the
   cells actually seen allow;
-* the candidates the measurement leaves open are decoded (on every fourth row) and
+* the candidates the measurement leaves open are decoded (on about 200 rows) and
   the one that decodes most pixels is kept; the others are reported.
 
 Everything the frames cannot tell is said in the written file as a question.
@@ -36,8 +36,8 @@ from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, Re
 from scanqa.decoding.decoder import decode_images
 from scanqa.errors import ConfigError, InputError
 
-#: Rows of the frames used by the decoding check (every n-th) [-].
-CHECK_ROW_STEP = 4
+#: Rows the decoding check reads at most (every n-th row of a larger frame) [-].
+CHECK_ROWS = 200
 #: Largest count of fringes over the panel searched for phase-only codings [-].
 MAX_FRINGES = 256
 
@@ -66,6 +66,8 @@ class Description:
         Share of the lit pixels the decoding check decoded [-].
     notes, questions : tuple of str
         About the whole description.
+    rows : int
+        Rows of the frames [camera px].
     """
 
     desc: PatternDescription
@@ -73,6 +75,7 @@ class Description:
     valid_share: float
     notes: tuple = ()
     questions: tuple = ()
+    rows: int = 0
 
 
 @dataclass
@@ -176,7 +179,8 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     best = _with_files(best, names, group, phase, gray, ref)
     _alternatives(best, tried, share, group)
     set_notes = _set_notes(best, phase, gray, ref, signs, direction, notes, group)
-    return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions))
+    return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions),
+                       images.shape[1])
 
 
 # --------------------------------------------------------------------------- Gray code
@@ -460,10 +464,16 @@ def _frame_lists(group: _Group, phase: list, gray: _Gray | None, ref) -> list[li
     return lists + [list(r.frames) for r in phase]
 
 
+def row_step(rows: int) -> int:
+    """Every how many rows the decoding check reads a frame of ``rows`` rows [-]."""
+    return max(1, rows // CHECK_ROWS)
+
+
 def _stacks_factory(images, group, phase, gray, ref):
-    """Stacks (every CHECK_ROW_STEP-th row) in the set order of the built descriptions."""
+    """Stacks (every ``row_step``-th row) in the set order of the built descriptions."""
     lists = _frame_lists(group, phase, gray, ref)
-    stacks = [np.ascontiguousarray(images[idx][:, ::CHECK_ROW_STEP]) for idx in lists]
+    step = row_step(images.shape[1])
+    stacks = [np.ascontiguousarray(images[idx][:, ::step]) for idx in lists]
     return lambda desc: stacks
 
 
@@ -475,7 +485,7 @@ def _check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
         pm = decode_images(desc, stacks)
     except ScanQAError:
         return -1.0
-    lit_rows = lit[::CHECK_ROW_STEP]
+    lit_rows = lit[::row_step(lit.shape[0])]
     return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
 
 
@@ -493,8 +503,12 @@ def _alternatives(best: PatternDescription, tried: list, share: float,
     def periods(d):
         return ", ".join(f"{s.period_px:g}" for s in d.sets if isinstance(s, PhaseSet))
 
+    def differ(d):  # by more than the 0.1 % a period is stated to
+        return any(abs(a.period_px / b.period_px - 1) > 1e-3 for a, b in
+                   zip(d.sets, best.sets, strict=True) if isinstance(a, PhaseSet))
+
     close = [d for d, got in tried if d is not best and got >= 0.9 * share and share > 0
-             and periods(d) != periods(best)]
+             and differ(d)]
     for d in close[:2]:
         group.questions.append(f"periods {periods(d)} px decode nearly as many pixels as "
                                f"the chosen {periods(best)} px: which were projected?")

@@ -7,9 +7,9 @@ the frames alone (:mod:`scanqa.decoding.describe` turns the runs into a
 * every frame is normalised per pixel, ``n = (I - lo) / (hi - lo)`` with ``lo``, ``hi``
   the darkest and brightest sample of the pixel over all frames (over the black and
   white frames once they are known), which removes the albedo;
-* uniform frames at the start or the end of the sequence - nearly 1 or nearly 0
-  everywhere - are the white and black references (a Gray bit inside the sequence may
-  look uniform on a small object, so only the ends are searched);
+* uniform frames - nearly 1 or nearly 0 everywhere - at the start or the end of the
+  sequence, or a white and a black frame side by side anywhere, are the references (a
+  lone Gray bit may look uniform on a small object);
 * a run of N >= 3 frames whose mean is uniform while each frame is not, and whose
   frame-to-frame correlations follow ``cos(2 pi (j - k) / N)``, is an N-step phase set
   (the offsets ``A`` of its frames add up, the fringes cancel);
@@ -124,14 +124,26 @@ def frame_level(norm: Normalised, k: int) -> str:
 
 
 def reference_frames(norm: Normalised) -> tuple[int, ...]:
-    """Indices of the uniform frames at the start and at the end of the sequence."""
+    """Indices of the white and black frames: runs of uniform frames at the start or the
+    end of the sequence, or runs holding both a white and a black frame anywhere (a
+    lone uniform frame inside the sequence is taken for a Gray bit that a small object
+    sees on one side of its edges). Empty unless both levels are found."""
     count = norm.n.shape[0]
     levels = [frame_level(norm, k) for k in range(count)]
-    start = next((k for k in range(count) if not levels[k]), count)
-    end = next((k for k in range(count - 1, start - 1, -1) if not levels[k]), start - 1)
-    found = tuple(range(start)) + tuple(range(end + 1, count))
-    kinds = {levels[k] for k in found}
-    return found if kinds == {"white", "black"} else ()
+    found: list[int] = []
+    k = 0
+    while k < count:
+        if not levels[k]:
+            k += 1
+            continue
+        end = k
+        while end + 1 < count and levels[end + 1]:
+            end += 1
+        run = range(k, end + 1)
+        if k == 0 or end == count - 1 or {levels[i] for i in run} == {"white", "black"}:
+            found.extend(run)
+        k = end + 1
+    return tuple(found) if {levels[k] for k in found} == {"white", "black"} else ()
 
 
 def _sample(norm: Normalised, frames, limit: int = 400_000) -> np.ndarray:
