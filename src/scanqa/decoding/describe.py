@@ -523,11 +523,12 @@ def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
     phase_sets = [s for s in desc.sets if isinstance(s, PhaseSet)]
     for s in desc.sets:
         if isinstance(s, ReferenceSet):
-            out.append(SetNote(s.name, "sure", ("uniform frames at the end of the sequence: "
-                                                + ", ".join(s.levels),)))
+            out.append(SetNote(s.name, "sure", ("uniform frames: " + ", ".join(s.levels),)))
         elif isinstance(s, GrayCodeSet):
+            cell = desc.description.removeprefix("scanqa describe: ")
             out.append(SetNote(s.name, "sure" if not group.questions else "likely", (
                 f"{s.bits} bits, most significant first; inverse frames: {s.inverse}",
+                f"cell_px = {s.cell_px:g}: {cell}",
                 "reflected Gray code assumed (the only one the decoder reads)")))
     for s, sign in zip(phase_sets, signs, strict=True):
         way = "negative" if sign < 0 else "positive"

@@ -95,7 +95,7 @@ def description_text(d: Description, source: str, frames: int) -> str:
     head = _comment([
         f"Written by 'scanqa describe' from the {frames} frames of {source}: the "
         f"{'columns (x_p)' if d.desc.orientation == 'vertical' else 'rows (y_p)'}.",
-        f"Checked with scanqa's decoder on every {_nth(d.rows)} row: "
+        f"Checked with scanqa's decoder on every {_nth(d.rows)}: "
         f"{100 * d.valid_share:.0f} % of the lit pixels decode.",
         *d.notes]) + _questions(d.questions)
     parts = body.split("[[set]]\n")
@@ -108,7 +108,7 @@ def description_text(d: Description, source: str, frames: int) -> str:
 
 def _nth(rows: int) -> str:
     step = row_step(rows)
-    return {1: "", 2: "2nd ", 3: "3rd "}.get(step, f"{step}th ") + ""
+    return {1: "row", 2: "2nd row", 3: "3rd row"}.get(step, f"{step}th row")
 
 
 def _comment(lines: Sequence[str]) -> str:
