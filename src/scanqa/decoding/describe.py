@@ -164,6 +164,7 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
                                    "other way)")
     zs = [fr.phasor(data[list(r.frames)]) for r in phase]
     signs = [direction * _sign(fr.phase_frequency(z, axis)) for z in zs]
+    _ask_about_runs(group, phase, zs, axis, names)
     candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group)
     stacks_for = _stacks_factory(images, group, phase, gray, ref)
     best, share, tried = None, -1.0, []
@@ -258,6 +259,28 @@ def _slope_sign(cells: np.ndarray, lit: np.ndarray, axis: int) -> float:
     d = np.diff(cells, axis=axis)
     d = d[np.isfinite(d) & (np.abs(d) <= 2)]
     return 1.0 if d.sum() >= 0 else -1.0
+
+
+def _ask_about_runs(group: _Group, phase: list, zs: list, axis: int,
+                    names: list[str]) -> None:
+    """Questions for runs whose direction or shift sign the frames barely show."""
+    for run in group.runs:
+        if run.kind != "reference" and run.anisotropy < 1.5:
+            group.questions.append(
+                f"frames {_frame_range(run.frames, names)} vary almost as much along the rows as "
+                f"along the columns (ratio {run.anisotropy:.2f}): are they "
+                f"{'columns' if group.orientation == 'vertical' else 'rows'} as assumed?")
+    for run, z in zip(phase, zs, strict=True):
+        along, across = (abs(fr.phase_frequency(z, a)) for a in (axis, 1 - axis))
+        if along < 3 * max(across, 1e-6) and along < 1e-3:
+            group.questions.append(
+                f"the phase of frames {_frame_range(run.frames, names)} hardly changes across the "
+                "image: the sign of their shifts is a guess - which way do they run?")
+
+
+def _frame_range(frames, names: list[str]) -> str:
+    first, last = names[frames[0]], names[frames[-1]]
+    return f"{first}..{last}" if len(frames) > 1 else first
 
 
 def _sign(value: float) -> float:
