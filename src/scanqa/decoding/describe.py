@@ -205,9 +205,9 @@ def _gray_layout(norm: fr.Normalised, grays: list, axis: int, group: _Group,
     count = len(frames)
     half = count // 2
     inverse = "none"
-    if count % 2 == 0 and all(corr[2 * i, 2 * i + 1] < -0.5 for i in range(half)):
+    if count % 2 == 0 and _paired([corr[2 * i, 2 * i + 1] for i in range(half)]):
         inverse = "interleaved"
-    elif count % 2 == 0 and all(corr[i, i + half] < -0.5 for i in range(half)):
+    elif count % 2 == 0 and _paired([corr[i, i + half] for i in range(half)]):
         inverse = "grouped"
     bits = count if inverse == "none" else half
     plain = {"none": frames, "interleaved": frames[0::2], "grouped": frames[:half]}[inverse]
@@ -218,6 +218,12 @@ def _gray_layout(norm: fr.Normalised, grays: list, axis: int, group: _Group,
                            "coarser frame by frame); the files are listed MSB first")
     order = _gray_order(frames, inverse, rising)
     return _Gray(run, bits, inverse, tuple(order))
+
+
+def _paired(corr: list[float]) -> bool:
+    """Bits and inverses: every pair anti-correlated, most of them strongly (the finest
+    bits may be washed out by the projector's blur)."""
+    return bool(max(corr) < -0.2 and np.median(corr) < -0.6)
 
 
 def _gray_order(frames: list, inverse: str, msb_first: bool) -> list:

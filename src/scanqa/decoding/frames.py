@@ -275,7 +275,7 @@ def _gray_runs(norm: Normalised, frames: list[int]) -> list[Run]:
         return []
     seen = [orientation_of(*gradient_energy(norm.n[k], norm.lit)) for k in frames]
     clear = [o if a > 1.3 else "" for o, a in seen]
-    for i, o in enumerate(clear):  # an unclear frame (a coarse bit) takes its pair's
+    for i, o in enumerate(clear):  # an unclear frame (a coarse bit) takes its followers'
         if not o:
             clear[i] = next((clear[j] for j in _neighbours(i, len(frames)) if clear[j]),
                             seen[i][0])
@@ -290,8 +290,9 @@ def _gray_runs(norm: Normalised, frames: list[int]) -> list[Run]:
 
 
 def _neighbours(i: int, count: int) -> list[int]:
-    """Indices ordered by distance from i (excluding i)."""
-    return sorted((j for j in range(count) if j != i), key=lambda j: (abs(j - i), -j))
+    """The later indices by distance from i, then the earlier ones: an unclear frame is
+    usually a coarse bit, and a Gray code runs from its coarse bits to its fine ones."""
+    return sorted((j for j in range(count) if j != i), key=lambda j: (j < i, abs(j - i)))
 
 
 def frequency_ratio(z_fine: np.ndarray, z_coarse: np.ndarray, axis: int,
