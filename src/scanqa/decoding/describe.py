@@ -18,7 +18,7 @@ what each set codes and checks the guess with scanqa's decoder:
   beat covers it); a Gray code is taken to need all its bits (``2**bits`` cells of
   whole pixels cover the panel, ``2**(bits-1)`` do not), with cells no wider than the
   cells actually seen allow;
-* the candidates the measurement leaves open are decoded (on about 200 rows) and
+* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels) and
   the one that decodes most pixels is kept; the others are reported.
 
 Everything the frames cannot tell is said in the written file as a question.
@@ -36,8 +36,8 @@ from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, Re
 from scanqa.decoding.decoder import decode_images
 from scanqa.errors import ConfigError, InputError
 
-#: Rows the decoding check reads at most (every n-th row of a larger frame) [-].
-CHECK_ROWS = 200
+#: Rows and columns the decoding check reads at most (every n-th of a larger frame) [-].
+CHECK_ROWS, CHECK_COLUMNS = 200, 400
 #: Largest count of fringes over the panel searched for phase-only codings [-].
 MAX_FRINGES = 256
 
@@ -66,8 +66,8 @@ class Description:
         Share of the lit pixels the decoding check decoded [-].
     notes, questions : tuple of str
         About the whole description.
-    rows : int
-        Rows of the frames [camera px].
+    checked : tuple of int
+        Rows and columns of the sample the decoding check read [camera px].
     """
 
     desc: PatternDescription
@@ -75,7 +75,7 @@ class Description:
     valid_share: float
     notes: tuple = ()
     questions: tuple = ()
-    rows: int = 0
+    checked: tuple = ()
 
 
 @dataclass
@@ -180,8 +180,10 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     best = _with_files(best, names, group, phase, gray, ref)
     _alternatives(best, tried, share, group)
     set_notes = _set_notes(best, phase, gray, ref, signs, direction, notes, group)
+    sample = (len(range(0, images.shape[1], row_step(images.shape[1]))),
+              len(range(0, images.shape[2], _column_step(images.shape[2]))))
     return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions),
-                       images.shape[1])
+                       sample)
 
 
 # --------------------------------------------------------------------------- Gray code
@@ -498,11 +500,15 @@ def row_step(rows: int) -> int:
     return max(1, rows // CHECK_ROWS)
 
 
+def _column_step(columns: int) -> int:
+    return max(1, columns // CHECK_COLUMNS)
+
+
 def _stacks_factory(images, group, phase, gray, ref):
     """Stacks (every ``row_step``-th row) in the set order of the built descriptions."""
     lists = _frame_lists(group, phase, gray, ref)
-    step = row_step(images.shape[1])
-    stacks = [np.ascontiguousarray(images[idx][:, ::step]) for idx in lists]
+    step, cstep = row_step(images.shape[1]), _column_step(images.shape[2])
+    stacks = [np.ascontiguousarray(images[idx][:, ::step, ::cstep]) for idx in lists]
     return lambda desc: stacks
 
 
@@ -514,7 +520,7 @@ def _check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
         pm = decode_images(desc, stacks)
     except ScanQAError:
         return -1.0
-    lit_rows = lit[::row_step(lit.shape[0])]
+    lit_rows = lit[::row_step(lit.shape[0]), ::_column_step(lit.shape[1])]
     return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
 
 

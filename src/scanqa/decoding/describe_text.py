@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.decoding.describe import Description, row_step
+from scanqa.decoding.describe import Description
 from scanqa.errors import InputError
 from scanqa.io.images import read_image
 from scanqa.io.patterns import dumps_patterns
@@ -95,8 +95,8 @@ def description_text(d: Description, source: str, frames: int) -> str:
     head = _comment([
         f"Written by 'scanqa describe' from the {frames} frames of {source}: the "
         f"{'columns (x_p)' if d.desc.orientation == 'vertical' else 'rows (y_p)'}.",
-        f"Checked with scanqa's decoder on every {_nth(d.rows)}: "
-        f"{100 * d.valid_share:.0f} % of the lit pixels decode.",
+        f"Checked with scanqa's decoder on a {d.checked[0]} x {d.checked[1]} px sample of "
+        f"the frames: {100 * d.valid_share:.0f} % of its lit pixels decode.",
         *d.notes]) + _questions(d.questions)
     parts = body.split("[[set]]\n")
     out = [head + parts[0]]
@@ -104,11 +104,6 @@ def description_text(d: Description, source: str, frames: int) -> str:
         lines = [f"{note.name}: {note.sure}. " + " ".join(f"{n}." for n in note.notes)]
         out.append(_comment(lines) + _questions(note.questions) + "[[set]]\n" + part)
     return "".join(out)
-
-
-def _nth(rows: int) -> str:
-    step = row_step(rows)
-    return {1: "row", 2: "2nd row", 3: "3rd row"}.get(step, f"{step}th row")
 
 
 def _comment(lines: Sequence[str]) -> str:
