@@ -154,30 +154,43 @@ def _sample(norm: Normalised, frames, limit: int = 400_000) -> np.ndarray:
     return np.stack([norm.n[k].ravel()[idx] for k in frames]).astype(np.float64)
 
 
-def correlations(norm: Normalised, frames) -> np.ndarray:
-    """(F, F) correlation of the normalised frames over the lit pixels [-]."""
-    values = _sample(norm, frames)
+def covariance(norm: Normalised) -> np.ndarray:
+    """(K, K) covariance of the normalised frames over (a sample of) the lit pixels [-]."""
+    values = _sample(norm, range(norm.n.shape[0]))
     values -= values.mean(axis=1, keepdims=True)
-    scale = np.sqrt((values ** 2).sum(axis=1))
-    return (values @ values.T) / np.outer(scale, scale).clip(1e-12)
+    return (values @ values.T) / values.shape[1]
 
 
-def uniform_ratio(norm: Normalised, frames) -> float:
+def correlations(norm: Normalised, frames, cov: np.ndarray | None = None) -> np.ndarray:
+    """(F, F) correlation of the normalised frames over the lit pixels [-].
+
+    ``cov`` is :func:`covariance` of ``norm`` when already computed.
+    """
+    c = (covariance(norm) if cov is None else cov)[np.ix_(list(frames), list(frames))]
+    scale = np.sqrt(np.diag(c))
+    return c / np.outer(scale, scale).clip(1e-12)
+
+
+def uniform_ratio(norm: Normalised, frames, cov: np.ndarray | None = None) -> float:
     """Fringe contrast of the mean of ``frames`` relative to that of one frame [-].
 
     Near 0 when the frames' fringes cancel in their sum (a phase set, a bit and its
-    inverse), near 1 for unrelated frames.
+    inverse), near 1 for unrelated frames: ``std(mean_J n) / mean_J std(n_j)``, from
+    the covariance (``var(mean) = sum_jk C_jk / N**2``).
     """
-    values = _sample(norm, frames)
-    return float(values.mean(axis=0).std() / max(values.std(axis=1).mean(), 1e-12))
+    idx = list(frames)
+    c = (covariance(norm) if cov is None else cov)[np.ix_(idx, idx)]
+    spread = math.sqrt(max(c.sum(), 0.0)) / len(idx)
+    return float(spread / max(np.sqrt(np.diag(c)).mean(), 1e-12))
 
 
-def is_phase_run(norm: Normalised, frames) -> bool:
+def is_phase_run(norm: Normalised, frames, cov: np.ndarray | None = None) -> bool:
     """True when ``frames`` look like one N-step phase set (N = len(frames) >= 3)."""
     steps = len(frames)
-    if steps < 3 or uniform_ratio(norm, frames) > UNIFORM_RATIO:
+    cov = covariance(norm) if cov is None else cov
+    if steps < 3 or uniform_ratio(norm, frames, cov) > UNIFORM_RATIO:
         return False
-    corr = correlations(norm, frames)
+    corr = correlations(norm, frames, cov)
     k = np.arange(steps)
     expected = np.cos(2 * np.pi * (k[:, None] - k[None, :]) / steps)
     inverse = (corr < INVERSE_CORRELATION) & (expected > -0.99)  # a bit and its inverse
@@ -245,12 +258,13 @@ def split_runs(images: np.ndarray, norm: Normalised, references: tuple) -> list[
     """
     runs = [Run("reference", tuple(references))] if references else []
     rest = [k for k in range(images.shape[0]) if k not in references]
+    cov = covariance(norm)
     loose: list[int] = []
     i = 0
     while i < len(rest):
         steps = next((n for n in range(3, min(MAX_STEPS, len(rest) - i) + 1)
-                      if _contiguous(rest[i:i + n]) and is_phase_run(norm, rest[i:i + n])),
-                     0)
+                      if _contiguous(rest[i:i + n])
+                      and is_phase_run(norm, rest[i:i + n], cov)), 0)
         if not steps:
             loose.append(rest[i])
             i += 1
