@@ -244,3 +244,19 @@ def test_opencv_gray_code_in_both_directions_with_two_periods_each(tmp_path, cap
         assert pm.valid[inside].mean() > 0.9
         err = np.abs(pm.xp - truth)[pm.valid & inside]
         assert np.percentile(err, 99) < 1.0  # no fringe-order error (periods >= 16 px)
+
+
+def test_gray_bits_captured_least_significant_first_are_listed_msb_first(tmp_path):
+    folder = tmp_path / "scan"
+    assert main(["patterns", str(folder), "--width", "456", "--height", "16",
+                 "--gray-cell", "2", "--reference"]) == 0
+    _capture(folder, True)
+    written = load_patterns(folder)
+    ref, gray = written.sets
+    out = tmp_path / "d.toml"
+    assert main(["describe", str(folder), "--projector-width", "456", "--frames",
+                 ",".join([*ref.files, *gray.files[::-1]]), "--out", str(out),
+                 "--quiet"]) == 0
+    got = load_patterns(out).gray_set
+    assert [Path(f).name for f in got.files] == list(gray.files) and got.cell_px == 2.0
+    assert "least significant first" in out.read_text()
