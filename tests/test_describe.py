@@ -260,3 +260,18 @@ def test_gray_bits_captured_least_significant_first_are_listed_msb_first(tmp_pat
     got = load_patterns(out).gray_set
     assert [Path(f).name for f in got.files] == list(gray.files) and got.cell_px == 2.0
     assert "least significant first" in out.read_text()
+
+
+def test_inverse_frames_captured_before_their_bits_are_put_back_in_place(tmp_path):
+    folder = tmp_path / "scan"
+    assert main(["patterns", str(folder), "--width", "456", "--height", "16",
+                 "--gray-cell", "2", "--gray-inverse", "interleaved"]) == 0
+    _capture(folder, True)
+    gray = load_patterns(folder).gray_set
+    swapped = [f for i in range(gray.bits) for f in gray.files[2 * i:2 * i + 2][::-1]]
+    out = tmp_path / "d.toml"
+    assert main(["describe", str(folder), "--projector-width", "456", "--frames",
+                 ",".join(swapped), "--out", str(out), "--quiet"]) == 0
+    got = load_patterns(out).gray_set
+    assert [Path(f).name for f in got.files] == list(gray.files)
+    assert "inverse frame comes before the bit" in re.sub(r"\n#\s*", " ", out.read_text())

@@ -34,6 +34,14 @@ import numpy as np
 from scanqa.decoding import frames as fr
 from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, ReferenceSet
 from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.describe_gray import (
+    GrayRun,
+    cell_width,
+    cells_seen,
+    gray_layout,
+    read_gray,
+    slope_sign,
+)
 from scanqa.errors import ConfigError, InputError
 
 #: Rows and columns the decoding check reads at most (every n-th of a larger frame) [-].
@@ -148,7 +156,7 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     grays = [r for r in group.runs if r.kind == "gray"]
     ref = next((r for r in group.runs if r.kind == "reference"), None)
     notes: dict[str, SetNote] = {}
-    gray = _gray_layout(norm, grays, axis, group, notes) if grays else None
+    gray = gray_layout(norm, grays, axis, group, notes) if grays else None
     if len(grays) > 1:
         group.questions.append(f"{len(grays)} separate runs of binary frames were found; "
                                "only the first is used as the Gray code - are the others "
@@ -156,8 +164,8 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     direction = 1.0
     cells = None
     if gray is not None:
-        cells = _gray_cells(data, norm, gray, ref)
-        direction = _slope_sign(cells, norm.lit, axis)
+        gray, cells = read_gray(data, norm, gray, axis, group)
+        direction = slope_sign(cells, norm.lit, axis)
         if direction < 0:
             group.questions.append("the Gray code's cells grow against the camera axis: "
                                    "is the projector image mirrored? (x_p then runs the "
@@ -184,89 +192,6 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
               len(range(0, images.shape[2], _column_step(images.shape[2]))))
     return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions),
                        sample)
-
-
-# --------------------------------------------------------------------------- Gray code
-
-@dataclass(frozen=True)
-class _Gray:
-    """A Gray run read as a code: bit frames MSB first, inverse frames, layout."""
-
-    run: fr.Run
-    bits: int
-    inverse: str
-    order: tuple  # frame indices in the file order the decoder reads
-
-
-def _gray_layout(norm: fr.Normalised, grays: list, axis: int, group: _Group,
-                 notes: dict) -> _Gray:
-    """Bits, inverse layout and bit order of the first Gray run."""
-    run = grays[0]
-    frames = list(run.frames)
-    corr = fr.correlations(norm, frames)
-    count = len(frames)
-    half = count // 2
-    inverse = "none"
-    if count % 2 == 0 and _paired([corr[2 * i, 2 * i + 1] for i in range(half)]):
-        inverse = "interleaved"
-    elif count % 2 == 0 and _paired([corr[i, i + half] for i in range(half)]):
-        inverse = "grouped"
-    bits = count if inverse == "none" else half
-    plain = {"none": frames, "interleaved": frames[0::2], "grouped": frames[:half]}[inverse]
-    edges = [fr.gradient_energy(norm.n[k], norm.lit)[1 - axis] for k in plain]
-    rising = np.polyfit(np.arange(bits), edges, 1)[0] >= 0 if bits > 1 else True
-    if not rising:  # least significant bit first: list the files MSB first
-        group.notes.append("the Gray bits come least significant first (their stripes get "
-                           "coarser frame by frame); the files are listed MSB first")
-    order = _gray_order(frames, inverse, rising)
-    return _Gray(run, bits, inverse, tuple(order))
-
-
-def _paired(corr: list[float]) -> bool:
-    """Bits and inverses: every pair anti-correlated, most of them strongly (the finest
-    bits may be washed out by the projector's blur)."""
-    return bool(max(corr) < -0.2 and np.median(corr) < -0.6)
-
-
-def _gray_order(frames: list, inverse: str, msb_first: bool) -> list:
-    """Frame indices in the decoder's order (MSB first, the layout kept)."""
-    half = len(frames) // 2
-    if inverse == "none":
-        return frames if msb_first else frames[::-1]
-    if inverse == "interleaved":
-        pairs = [frames[2 * i:2 * i + 2] for i in range(half)]
-        pairs = pairs if msb_first else pairs[::-1]
-        return [k for p in pairs for k in p]
-    plain, inv = frames[:half], frames[half:]
-    return plain + inv if msb_first else plain[::-1] + inv[::-1]
-
-
-def _gray_cells(data: np.ndarray, norm: fr.Normalised, gray: _Gray, ref) -> np.ndarray:
-    """Cell index of every pixel from the Gray frames (NaN where unlit) [cells]."""
-    order = list(gray.order)
-    if gray.inverse == "interleaved":
-        plain, inv = order[0::2], order[1::2]
-    elif gray.inverse == "grouped":
-        plain, inv = order[:gray.bits], order[gray.bits:]
-    else:
-        plain, inv = order, None
-    if inv is not None:
-        bits = [data[p] > data[q] for p, q in zip(plain, inv, strict=True)]
-    else:
-        bits = [norm.n[p] > 0.5 for p in plain]
-    code = np.zeros(data.shape[1:], np.int64)
-    binary = np.zeros_like(code)
-    for b in bits:  # reflected Gray to binary: b_i = g_i xor b_(i-1)
-        binary = binary ^ b.astype(np.int64)
-        code = (code << 1) | binary
-    return np.where(norm.lit, code.astype(np.float64), np.nan)
-
-
-def _slope_sign(cells: np.ndarray, lit: np.ndarray, axis: int) -> float:
-    """+1 when the cell index grows along the camera axis, -1 when it falls."""
-    d = np.diff(cells, axis=axis)
-    d = d[np.isfinite(d) & (np.abs(d) <= 2)]
-    return 1.0 if d.sum() >= 0 else -1.0
 
 
 def _ask_about_runs(group: _Group, phase: list, zs: list, axis: int,
@@ -389,14 +314,14 @@ def _variants(whole: list[int], width: int, ratios: list[float]) -> list[_Scale]
 def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
     """A Gray code: whole-pixel cells that cover the panel; periods in cells."""
     count = 2 ** gray.bits
-    seen, edge = _cells_seen(cells, count)
+    seen, edge = cells_seen(cells, count)
     width = group.width_px
     if width is None:
         width = int(count)
         group.questions.append(f"the projector size was not given: cells of 1 px assumed "
                                f"({count} px coded, as OpenCV's GrayCodePattern); give "
                                f"--projector-{'width' if axis == 1 else 'height'}")
-    cell, evidence = _cell_width(width, gray.bits, seen, edge, group)
+    cell, evidence = cell_width(width, gray.bits, seen, edge, group)
     ratios = []
     for z, run in zip(zs, phase, strict=True):
         zg = np.exp(2j * np.pi * np.nan_to_num(cells) / count)
@@ -409,46 +334,6 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
     if snapped != periods:
         out.append(_Scale(width, tuple(periods), cell, evidence))
     return out
-
-
-def _cells_seen(cells: np.ndarray, count: int) -> tuple[int, bool]:
-    """Cells up to the last well-populated one, and whether the panel's edge was seen.
-
-    At the panel's far edge the last cell is a full line of pixels across the image (as
-    many as a typical cell); at an object's silhouette the last cells thin out.
-    """
-    codes = cells[np.isfinite(cells)].astype(np.int64)
-    if codes.size == 0:
-        return count, False
-    hist = np.bincount(codes, minlength=count)
-    typical = float(np.median(hist[hist > 0]))
-    top = int(np.flatnonzero(hist >= 0.1 * typical).max())
-    edge = top + 1 < count and hist[max(top - 1, 0):top + 1].sum() >= 0.5 * typical
-    return top + 1, bool(edge)
-
-
-def _cell_width(width: int, bits: int, seen: int, edge: bool, group) -> tuple[float, str]:
-    """Cell width from the panel size, the bits and the cells seen [px], and why."""
-    count = 2 ** bits
-    lo, hi = width / count, width / (count / 2)
-    whole = [c for c in range(max(1, math.ceil(lo - 1e-9)), math.floor(hi) + 1)
-             if lo - 1e-9 <= c < hi and c <= width / seen * 1.02]
-    evidence = (f"{bits} bits cover {width} px with cells of {lo:.4g} to {hi:.4g} px; "
-                f"cells 0..{seen - 1} seen")
-    if edge and width / seen >= lo - 1e-9:
-        target = width / seen  # the panel's edge seen: the cells fill the width
-        cell = min(whole, key=lambda c: abs(c - target)) if whole else target
-        return float(cell), evidence + ", the last one at the panel's edge"
-    if not whole:
-        return lo, evidence
-    cell = float(whole[0])
-    if len(whole) > 1:
-        others = ", ".join(f"{c:g}" for c in whole[1:])
-        group.questions.append(
-            f"cell_px = {cell:g} is the finest whole-pixel cell that covers the {width} px "
-            f"with {bits} bits; the panel's edge was not seen, and cells of {others} px "
-            f"would fit the {seen} cells seen too - which one was projected?")
-    return cell, evidence
 
 
 def _build(scale: _Scale, phase, gray, group) -> PatternDescription:
@@ -487,7 +372,7 @@ def _with_signs(desc: PatternDescription, signs: list[float]) -> PatternDescript
     return replace(desc, sets=tuple(sets))
 
 
-def _frame_lists(group: _Group, phase: list, gray: _Gray | None, ref) -> list[list[int]]:
+def _frame_lists(group: _Group, phase: list, gray: GrayRun | None, ref) -> list[list[int]]:
     """Frame indices of every set of a built description, in its set order."""
     lists = [list(ref.frames)] if ref is not None else []
     if gray is not None:
