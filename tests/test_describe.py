@@ -275,3 +275,24 @@ def test_inverse_frames_captured_before_their_bits_are_put_back_in_place(tmp_pat
     got = load_patterns(out).gray_set
     assert [Path(f).name for f in got.files] == list(gray.files)
     assert "inverse frame comes before the bit" in re.sub(r"\n#\s*", " ", out.read_text())
+
+
+def test_four_steps_captured_out_of_order_get_their_shifts_in_frame_order(tmp_path):
+    folder = tmp_path / "scan"
+    assert main(["patterns", str(folder), "--width", "640", "--height", "16",
+                 "--periods", "640,40", "--steps", "4", "--gamma", "1.5"]) == 0
+    _capture(folder, True)
+    sets = load_patterns(folder).phase_sets
+    order = [f for s in sets for f in (s.files[0], s.files[1], s.files[3], s.files[2])]
+    out = tmp_path / "d.toml"
+    assert main(["describe", str(folder), "--projector-width", "640", "--frames",
+                 ",".join(order), "--out", str(out), "--quiet"]) == 0
+    for s in load_patterns(out).phase_sets:
+        # frames 0, 1, 3, 2 of a 4-step set: shifts 0, pi/2, 3 pi/2, pi (in [0, 2 pi));
+        # the order 0, 2, 1, 3 is read as two Gray bits with their inverses (the same
+        # correlations), see frames.step_order
+        np.testing.assert_allclose(s.shifts_rad, [0.0, math.pi / 2, 3 * math.pi / 2,
+                                                  math.pi], atol=1e-9)
+    assert "out of order: k = 0, 1, 3, 2" in re.sub(r"\n#\s*", " ", out.read_text())
+    assert [s.period_px for s in load_patterns(out).phase_sets] == \
+        pytest.approx([640.0, 40.0], rel=1e-3)

@@ -170,14 +170,14 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
             group.questions.append("the Gray code's cells grow against the camera axis: "
                                    "is the projector image mirrored? (x_p then runs the "
                                    "other way)")
-    zs = [fr.phasor(data[list(r.frames)]) for r in phase]
+    zs = [fr.phasor(data[list(r.frames)], r.order) for r in phase]
     signs = [direction * _sign(fr.phase_frequency(z, axis)) for z in zs]
     _ask_about_runs(group, phase, zs, axis, names)
     candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group)
     stacks_for = _stacks_factory(images, group, phase, gray, ref)
     best, share, tried = None, -1.0, []
     for desc in candidates:
-        desc = _with_signs(desc, signs)
+        desc = _with_signs(desc, signs, [r.order for r in phase])
         got = _check(desc, stacks_for(desc), norm.lit)
         tried.append((desc, got))
         if got > share + 1e-3:
@@ -327,6 +327,11 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
         zg = np.exp(2j * np.pi * np.nan_to_num(cells) / count)
         r, _ = fr.frequency_ratio(z, zg, axis, usable & np.isfinite(cells),
                                   len(run.frames))
+        if not math.isfinite(r):
+            group.questions.append(f"the period of frames {run.frames[0]}.. could not be "
+                                   "measured against the Gray code (too few clean image "
+                                   "segments): what is it?")
+            return []
         ratios.append(abs(r) * count)  # period in cells
     periods = [p * cell for p in ratios]
     snapped = [float(round(p)) if abs(p - round(p)) <= 0.03 * p else p for p in periods]
@@ -360,12 +365,16 @@ def _phase_name(period: float, sets: list) -> str:
     return name if name not in taken else f"{name}_{len(sets)}"
 
 
-def _with_signs(desc: PatternDescription, signs: list[float]) -> PatternDescription:
-    """The phase sets' shifts with the measured signs (in phase-run order)."""
+def _with_signs(desc: PatternDescription, signs: list[float],
+                orders: list[tuple]) -> PatternDescription:
+    """The phase sets' shifts with the measured signs and step orders (in run order)."""
     sets, i = [], 0
     for s in desc.sets:
         if isinstance(s, PhaseSet):
-            shifts = tuple(signs[i] * 2 * math.pi * k / s.steps for k in range(s.steps))
+            steps = orders[i] or range(s.steps)
+            shifts = tuple(signs[i] * 2 * math.pi * k / s.steps for k in steps)
+            if orders[i]:  # out of order: stated in [0, 2 pi), whatever the sign
+                shifts = tuple(v % (2 * math.pi) for v in shifts)
             s = replace(s, shifts_rad=tuple(0.0 if v == 0 else v for v in shifts))
             i += 1
         sets.append(s)
@@ -450,8 +459,12 @@ def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
                 f"{s.bits} bits, most significant first; inverse frames: {s.inverse}",
                 f"cell_px = {s.cell_px:g}: {cell}",
                 "reflected Gray code assumed (the only one the decoder reads)")))
-    for s, sign in zip(phase_sets, signs, strict=True):
+    for s, sign, run in zip(phase_sets, signs, phase, strict=True):
         way = "negative" if sign < 0 else "positive"
+        if run.order:
+            ks = [round(v * s.steps / (2 * math.pi)) % s.steps for v in s.shifts_rad]
+            way = (f"out of order: k = {', '.join(map(str, ks))} in frame order (from the "
+                   "frames' correlations), i.e. positive")
         basis = ("the Gray code's direction" if gray is not None else
                  "the assumption that the projector coordinate grows along the camera's "
                  + ("rows" if s.orientation == "vertical" else "columns"))

@@ -76,12 +76,16 @@ class Run:
     anisotropy : float
         Ratio of the fringe gradient along the orientation to that across it [-]
         (how clearly the orientation was seen; 1 means undecided).
+    order : tuple of int
+        For a phase set, the step m_k of each frame (its shift is 2 pi m_k / N up to
+        the sign); empty for frames in step order.
     """
 
     kind: str
     frames: tuple
     orientation: str = ""
     anisotropy: float = 1.0
+    order: tuple = ()
 
 
 def normalise(images: np.ndarray, lo: np.ndarray | None = None,
@@ -184,17 +188,55 @@ def uniform_ratio(norm: Normalised, frames, cov: np.ndarray | None = None) -> fl
     return float(spread / max(np.sqrt(np.diag(c)).mean(), 1e-12))
 
 
-def is_phase_run(norm: Normalised, frames, cov: np.ndarray | None = None) -> bool:
-    """True when ``frames`` look like one N-step phase set (N = len(frames) >= 3)."""
+def is_phase_run(norm: Normalised, frames, cov: np.ndarray | None = None,
+                 order=None) -> bool:
+    """True when ``frames`` look like one N-step phase set (N = len(frames) >= 3) whose
+    frames have the steps ``order`` (default 0, 1, ..., N - 1)."""
     steps = len(frames)
     cov = covariance(norm) if cov is None else cov
     if steps < 3 or uniform_ratio(norm, frames, cov) > UNIFORM_RATIO:
         return False
+    return _order_misfit(correlations(norm, frames, cov), order) <= CORRELATION_TOLERANCE
+
+
+def _order_misfit(corr: np.ndarray, order=None) -> float:
+    """Largest departure of the correlations from cos(2 pi (m_j - m_k) / N) [-] (inf
+    when two frames are a pattern and its inverse but not half a cycle apart)."""
+    steps = corr.shape[0]
+    m = np.arange(steps) if order is None else np.asarray(order)
+    expected = np.cos(2 * np.pi * (m[:, None] - m[None, :]) / steps)
+    if ((corr < INVERSE_CORRELATION) & (expected > -0.99)).any():  # a bit and its inverse
+        return math.inf
+    return float(np.abs(corr - expected).max())
+
+
+def step_order(norm: Normalised, frames, cov: np.ndarray) -> tuple | None:
+    """Steps of 4 to 6 frames whose fringes cancel but come in another order than their
+    shifts (e.g. 0, pi, pi/2, 3 pi/2): the order whose correlations fit best, the first
+    frame at step 0 and the second at a step below N/2 (the other sign is the same
+    order mirrored, left to the phase slope), if the frames are not binary and do not
+    come as pattern-inverse pairs (0, pi, pi/2, 3 pi/2 cannot be told from two Gray
+    bits with their inverses); None when none fits."""
+    steps = len(frames)
+    if not 4 <= steps <= 6 or uniform_ratio(norm, frames, cov) > UNIFORM_RATIO:
+        return None
     corr = correlations(norm, frames, cov)
-    k = np.arange(steps)
-    expected = np.cos(2 * np.pi * (k[:, None] - k[None, :]) / steps)
-    inverse = (corr < INVERSE_CORRELATION) & (expected > -0.99)  # a bit and its inverse
-    return bool(np.abs(corr - expected).max() <= CORRELATION_TOLERANCE and not inverse.any())
+    best = min((p for p in itertools.permutations(range(1, steps))
+                if p[0] <= steps / 2), key=lambda p: _order_misfit(corr, (0, *p)))
+    order = (0, *best)
+    if _order_misfit(corr, order) > CORRELATION_TOLERANCE:
+        return None
+    # Gray bits with interleaved inverses correlate the same way (b0, ~b0, b1, ~b1 as
+    # steps 0, 2, 1, 3) - and two blurred bits of a Gray code are a quadrature pair:
+    # such an order is left to the Gray code. Binary frames are not a phase set either
+    # (a third of a sinusoid's samples lie in the middle half of its range, a few per
+    # cent of a binary frame's)
+    if all((order[2 * j] - order[2 * j + 1]) % steps == steps // 2
+           for j in range(steps // 2)):
+        return None
+    values = _sample(norm, frames)
+    middle = float(np.mean((values > 0.25) & (values < 0.75)))
+    return order if middle > 0.15 else None
 
 
 def gradient_energy(frame: np.ndarray, lit: np.ndarray) -> tuple[float, float]:
@@ -204,14 +246,16 @@ def gradient_energy(frame: np.ndarray, lit: np.ndarray) -> tuple[float, float]:
     return float(du.mean()) if du.size else 0.0, float(dv.mean()) if dv.size else 0.0
 
 
-def phasor(images: np.ndarray) -> np.ndarray:
-    """Temporal DFT bin 1 of an N-step set, ``sum_k I_k exp(-2 pi i k / N)`` [DN].
+def phasor(images: np.ndarray, order=()) -> np.ndarray:
+    """Temporal DFT bin 1 of an N-step set, ``sum_k I_k exp(-2 pi i m_k / N)`` [DN].
 
-    Its angle is the fringe phase for shifts +2 pi k / N (minus the phase for shifts
-    -2 pi k / N); its magnitude is N B / 2.
+    Its angle is the fringe phase for shifts +2 pi m_k / N (minus the phase for shifts
+    -2 pi m_k / N); its magnitude is N B / 2. ``order`` gives the steps m_k (default
+    0, 1, ..., N - 1).
     """
     steps = images.shape[0]
-    weights = np.exp(-2j * np.pi * np.arange(steps) / steps).astype(np.complex64)
+    m = np.asarray(order) if len(order) else np.arange(steps)
+    weights = np.exp(-2j * np.pi * m / steps).astype(np.complex64)
     return np.tensordot(weights, images.astype(np.float32), axes=1)
 
 
@@ -262,9 +306,7 @@ def split_runs(images: np.ndarray, norm: Normalised, references: tuple) -> list[
     loose: list[int] = []
     i = 0
     while i < len(rest):
-        steps = next((n for n in range(3, min(MAX_STEPS, len(rest) - i) + 1)
-                      if _contiguous(rest[i:i + n])
-                      and is_phase_run(norm, rest[i:i + n], cov)), 0)
+        steps, order = _phase_at(norm, rest[i:], cov)
         if not steps:
             loose.append(rest[i])
             i += 1
@@ -272,11 +314,25 @@ def split_runs(images: np.ndarray, norm: Normalised, references: tuple) -> list[
         runs.extend(_gray_runs(norm, loose))
         loose = []
         frames = tuple(rest[i:i + steps])
-        orient, aniso = phase_orientation(phasor(images[list(frames)]))
-        runs.append(Run("phase", frames, orient, aniso))
+        orient, aniso = phase_orientation(phasor(images[list(frames)], order))
+        runs.append(Run("phase", frames, orient, aniso, order))
         i += steps
     runs.extend(_gray_runs(norm, loose))
     return runs
+
+
+def _phase_at(norm: Normalised, rest: list, cov: np.ndarray) -> tuple[int, tuple]:
+    """Steps and step order of the phase set that starts ``rest`` ((0, ()) for none)."""
+    for n in range(3, min(MAX_STEPS, len(rest)) + 1):
+        frames = rest[:n]
+        if not _contiguous(frames):
+            break
+        if is_phase_run(norm, frames, cov):
+            return n, ()
+        order = step_order(norm, frames, cov)
+        if order is not None:
+            return n, order
+    return 0, ()
 
 
 def _contiguous(frames) -> bool:
@@ -356,8 +412,11 @@ def frequency_ratio(z_fine: np.ndarray, z_coarse: np.ndarray, axis: int,
     ratio = float(coarse[keep].sum() / fine[keep].sum())
     bands = [b for b in np.array_split(np.arange(keep.shape[0]), 4)
              if keep[b].sum() >= 20]
-    parts = [coarse[b][keep[b]].sum() / fine[b][keep[b]].sum() for b in bands]
-    spread = float(np.std(parts) / abs(ratio)) if len(parts) > 1 else 0.05
+    parts = [coarse[b][keep[b]].sum() / fine[b][keep[b]].sum() for b in bands
+             if abs(fine[b][keep[b]].sum()) > 0]
+    spread = float(np.std(parts) / abs(ratio)) if len(parts) > 1 and ratio else 0.05
+    if not math.isfinite(ratio):
+        return math.nan, math.nan
     return ratio, max(spread, 1e-4)
 
 
