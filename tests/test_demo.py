@@ -97,6 +97,7 @@ BAD_INPUTS = {
     "volume": ["--config", "nope.toml"],
     "flatten": ["--config", "nope.toml"],
     "decode": ["nope_dir", "--out", "x.npz"],
+    "describe": ["nope_dir", "--projector-width", "1824"],
     "sweep-manifest": ["nope_folder", "--stage-mm", "1,2,3"],
     "calibrate": ["nope.toml", "--config", "calib/paper_scanner.toml", "--out", "t.npz"],
     "annotate": ["nope.npz", "--table", "t.npz", "--config", "calib/paper_scanner.toml",

@@ -33,6 +33,7 @@ COMMAND_MODULES = (
     "scanqa.cli.compare",
     "scanqa.cli.demo",
     "scanqa.cli.patterns",
+    "scanqa.cli.describe",
     "scanqa.cli.decode",
     "scanqa.cli.simulate",
     "scanqa.cli.characterize_board",

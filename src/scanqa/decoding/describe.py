@@ -1,0 +1,480 @@
+"""``scanqa describe``: the pattern description of existing captures, inferred from them.
+
+The frames are split into sets by :mod:`scanqa.decoding.frames`; this module measures
+what each set codes and checks the guess with scanqa's decoder:
+
+* the direction of a set is that of its fringe slope (along the camera rows: vertical
+  fringes, projector columns; along the columns: rows);
+* the sign of a phase set's shifts is the sign of its phase slope for shifts
+  ``+2 pi k / N``, assuming that the projector coordinate grows with the camera
+  coordinate (the camera beside the projector, neither mirrored); with a Gray code, the
+  Gray code's own direction decides;
+* period ratios come from the phase slopes of two sets on the same image segments
+  (:func:`scanqa.decoding.frames.frequency_ratio`), a phase set's period in Gray cells
+  from its slope against the decoded Gray cell;
+* the absolute scale needs the projector size along the coded direction: phase sets
+  are taken to repeat a whole number of times over it (``P = W / n``, the fewest that
+  fit, e.g. a coarse set of one period over the panel or a heterodyne triple whose
+  beat covers it); a Gray code is taken to need all its bits (``2**bits`` cells of
+  whole pixels cover the panel, ``2**(bits-1)`` do not), with cells no wider than the
+  cells actually seen allow;
+* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels) and
+  the one that decodes most pixels is kept; the others are reported.
+
+Everything the frames cannot tell is said in the written file as a question.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from scanqa.decoding import frames as fr
+from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, ReferenceSet
+from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.describe_gray import (
+    GrayRun,
+    cell_width,
+    cells_seen,
+    gray_layout,
+    read_gray,
+    slope_sign,
+)
+from scanqa.errors import ConfigError, InputError
+
+#: Rows and columns the decoding check reads at most (every n-th of a larger frame) [-].
+CHECK_ROWS, CHECK_COLUMNS = 200, 400
+#: Largest count of fringes over the panel searched for phase-only codings [-].
+MAX_FRINGES = 256
+
+
+@dataclass(frozen=True)
+class SetNote:
+    """What is known about one set: how sure, what was assumed, what is asked."""
+
+    name: str
+    sure: str
+    notes: tuple = ()
+    questions: tuple = ()
+
+
+@dataclass(frozen=True)
+class Description:
+    """The inferred description of one coded direction.
+
+    Attributes
+    ----------
+    desc : PatternDescription
+        The sets with their frame files, ready to write.
+    set_notes : tuple of SetNote
+        One per set of ``desc.sets``.
+    valid_share : float
+        Share of the lit pixels the decoding check decoded [-].
+    notes, questions : tuple of str
+        About the whole description.
+    checked : tuple of int
+        Rows and columns of the sample the decoding check read [camera px].
+    """
+
+    desc: PatternDescription
+    set_notes: tuple
+    valid_share: float
+    notes: tuple = ()
+    questions: tuple = ()
+    checked: tuple = ()
+
+
+@dataclass
+class _Group:
+    """Working state of one direction while it is described."""
+
+    orientation: str
+    width_px: int | None
+    runs: list
+    levels: tuple = ()
+    notes: list = field(default_factory=list)
+    questions: list = field(default_factory=list)
+
+
+def describe_frames(images: np.ndarray, names: list[str], width_px: int | None = None,
+                    height_px: int | None = None) -> list[Description]:
+    """Infer the pattern description(s) of a sequence of camera frames.
+
+    Parameters
+    ----------
+    images : (K, H, W) array
+        The frames in projection order [DN].
+    names : list of str
+        File name of each frame, as the description should list it.
+    width_px, height_px : int, optional
+        Projector size [px]: the coded range of vertical (columns) and horizontal
+        (rows) fringes.
+
+    Returns
+    -------
+    list of Description
+        One per coded direction (columns first).
+
+    Raises
+    ------
+    InputError
+        When fewer than 2 frames are given or no set is found.
+    """
+    if images.ndim != 3 or images.shape[0] < 2 or len(names) != images.shape[0]:
+        raise InputError(f"describe needs at least 2 frames of one size with a name "
+                         f"each, got {images.shape[0] if images.ndim == 3 else 0}")
+    data = images.astype(np.float32)
+    norm = fr.normalise(data)
+    refs = fr.reference_frames(norm)
+    levels = tuple(fr.frame_level(norm, k) for k in refs)
+    if refs:
+        lo = np.mean([data[k] for k, v in zip(refs, levels, strict=True) if v == "black"], 0)
+        hi = np.mean([data[k] for k, v in zip(refs, levels, strict=True) if v == "white"], 0)
+        norm = fr.normalise(data, lo, hi)
+    runs = fr.split_runs(data, norm, refs)
+    coded = [r for r in runs if r.kind != "reference"]
+    if not coded:
+        raise InputError("no phase set or Gray code found among the frames (only uniform "
+                         "frames?)")
+    out = []
+    for orientation, size in (("vertical", width_px), ("horizontal", height_px)):
+        group = [r for r in coded if r.orientation == orientation]
+        if group:
+            ref = [r for r in runs if r.kind == "reference"]
+            out.append(_describe_group(images, data, norm, names,
+                                       _Group(orientation, size, ref + group, levels)))
+    return out
+
+
+def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
+                    names: list[str], group: _Group) -> Description:
+    """Sets, scale and the decoding check of one direction."""
+    axis = 1 if group.orientation == "vertical" else 0
+    phase = [r for r in group.runs if r.kind == "phase"]
+    grays = [r for r in group.runs if r.kind == "gray"]
+    ref = next((r for r in group.runs if r.kind == "reference"), None)
+    notes: dict[str, SetNote] = {}
+    gray = gray_layout(norm, grays, axis, group, notes) if grays else None
+    if len(grays) > 1:
+        group.questions.append(f"{len(grays)} separate runs of binary frames were found; "
+                               "only the first is used as the Gray code - are the others "
+                               "part of it?")
+    direction = 1.0
+    cells = None
+    if gray is not None:
+        gray, cells = read_gray(data, norm, gray, axis, group)
+        direction = slope_sign(cells, norm.lit, axis)
+        if direction < 0:
+            group.questions.append("the Gray code's cells grow against the camera axis: "
+                                   "is the projector image mirrored? (x_p then runs the "
+                                   "other way)")
+    zs = [fr.phasor(data[list(r.frames)], r.order) for r in phase]
+    signs = [direction * _sign(fr.phase_frequency(z, axis)) for z in zs]
+    _ask_about_runs(group, phase, zs, axis, names)
+    candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group)
+    stacks_for = _stacks_factory(images, group, phase, gray, ref)
+    best, share, tried = None, -1.0, []
+    for desc in candidates:
+        desc = _with_signs(desc, signs, [r.order for r in phase])
+        got = _check(desc, stacks_for(desc), norm.lit)
+        tried.append((desc, got))
+        if got > share + 1e-3:
+            best, share = desc, got
+    if best is None:
+        raise InputError(f"no consistent description of the {group.orientation} sets was "
+                         f"found ({'; '.join(group.questions) or 'nothing decoded'})")
+    best = _with_files(best, names, group, phase, gray, ref)
+    _alternatives(best, tried, share, group)
+    set_notes = _set_notes(best, phase, gray, ref, signs, direction, notes, group)
+    sample = (len(range(0, images.shape[1], row_step(images.shape[1]))),
+              len(range(0, images.shape[2], _column_step(images.shape[2]))))
+    return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions),
+                       sample)
+
+
+def _ask_about_runs(group: _Group, phase: list, zs: list, axis: int,
+                    names: list[str]) -> None:
+    """Questions for runs whose direction or shift sign the frames barely show."""
+    for run in group.runs:
+        if run.kind != "reference" and run.anisotropy < 1.5:
+            group.questions.append(
+                f"frames {_frame_range(run.frames, names)} vary almost as much along the rows as "
+                f"along the columns (ratio {run.anisotropy:.2f}): are they "
+                f"{'columns' if group.orientation == 'vertical' else 'rows'} as assumed?")
+    for run, z in zip(phase, zs, strict=True):
+        along, across = (abs(fr.phase_frequency(z, a)) for a in (axis, 1 - axis))
+        if along < 3 * max(across, 1e-6) and along < 1e-3:
+            group.questions.append(
+                f"the phase of frames {_frame_range(run.frames, names)} hardly changes across the "
+                "image: the sign of their shifts is a guess - which way do they run?")
+
+
+def _frame_range(frames, names: list[str]) -> str:
+    first, last = names[frames[0]], names[frames[-1]]
+    return f"{first}..{last}" if len(frames) > 1 else first
+
+
+def _sign(value: float) -> float:
+    return -1.0 if value < 0 else 1.0
+
+
+# ------------------------------------------------------------------- periods and cells
+
+@dataclass(frozen=True)
+class _Scale:
+    """The measured scale: periods (or cells) and what was assumed to get them."""
+
+    width_px: int
+    periods: tuple  # one per phase run [projector px]
+    cell_px: float | None
+    evidence: str
+    question: str = ""
+
+
+def _candidates(data, norm, phase, zs, gray, cells, axis, group) -> list:
+    """Descriptions the measurement leaves open (decoded later to choose)."""
+    usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
+                                for z in zs], axis=0) if zs else norm.lit
+    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group) if gray is not None
+              else _phase_scales(phase, zs, axis, usable, group))
+    out = []
+    for scale in scales:
+        try:
+            out.append(_build(scale, phase, gray, group))
+        except ConfigError:
+            continue
+    return out
+
+
+def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
+    """Phase sets alone: whole numbers of fringes over the panel, fewest first."""
+    if group.width_px is None:
+        raise InputError(f"the projector size along the {group.orientation} fringes is "
+                         f"needed to state periods in projector pixels (the frames give "
+                         f"only period ratios): give --projector-"
+                         f"{'width' if group.orientation == 'vertical' else 'height'}")
+    ratios, spreads = _ratios(phase, zs, axis, usable)  # coarsest period / each period
+    loose, score = [], {}
+    for t in range(1, MAX_FRINGES + 1):
+        counts = [t * r for r in ratios]
+        gaps = [abs(c - max(1, round(c))) for c in counts]
+        if all(g <= 0.03 * c + 0.05 for g, c in zip(gaps, counts, strict=True)):
+            loose.append(t)  # within 3 %: what a real scene's bias allows
+            score[t] = max(g / (c * max(sd, 2e-4))
+                           for g, c, sd in zip(gaps, counts, spreads, strict=True))
+    if not loose:
+        return []
+    best = sorted(loose, key=lambda t: (score[t], t))[:3]  # in measured spreads
+    out = []  # the best fit first: it is kept when decoding cannot tell
+    for t in best:
+        if t != loose[0]:
+            out.extend(_variants([max(1, round(t * r)) for r in ratios], group.width_px,
+                                 ratios)[:1])
+    fewest = _variants([max(1, round(loose[0] * r)) for r in ratios], group.width_px,
+                       ratios)
+    return (fewest + out) if best[0] == loose[0] else (out[:1] + fewest + out[1:])
+
+
+def _ratios(phase, zs, axis, usable) -> tuple[list[float], list[float]]:
+    """Period of the coarsest set over each set's period [-] (1 for the coarsest), and
+    the relative uncertainty of each [-]."""
+    slopes = [abs(fr.phase_frequency(z, axis)) for z in zs]
+    finest = int(np.argmax(slopes))
+    rel, spread = [], []
+    for i, z in enumerate(zs):
+        r, sd = (1.0, 0.0) if i == finest else fr.frequency_ratio(
+            zs[finest], z, axis, usable, len(phase[i].frames))
+        if not math.isfinite(r):
+            r, sd = slopes[i] / slopes[finest], 0.1
+        rel.append(abs(r))
+        spread.append(sd)
+    coarsest = int(np.argmin(rel))
+    return ([r / rel[coarsest] for r in rel],
+            [math.hypot(sd, spread[coarsest]) for sd in spread])
+
+
+def _variants(whole: list[int], width: int, ratios: list[float]) -> list[_Scale]:
+    """The fringe counts found, and the finest one and one fewer or more."""
+    fine = int(np.argmax(whole))
+    out = []
+    for delta in (0, -1, 1):
+        n = list(whole)
+        n[fine] += delta
+        if n[fine] < 1 or (delta and n[fine] in n[:fine] + n[fine + 1:]):
+            continue
+        evidence = (f"{', '.join(f'{c:.3f}' for c in ratios)} times the coarsest "
+                    f"frequency measured; taken as {', '.join(map(str, n))} fringes over "
+                    f"the {width} px given")
+        out.append(_Scale(width, tuple(width / k for k in n), None, evidence))
+    return out
+
+
+def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
+    """A Gray code: whole-pixel cells that cover the panel; periods in cells."""
+    count = 2 ** gray.bits
+    seen, edge = cells_seen(cells, count)
+    width = group.width_px
+    if width is None:
+        width = int(count)
+        group.questions.append(f"the projector size was not given: cells of 1 px assumed "
+                               f"({count} px coded, as OpenCV's GrayCodePattern); give "
+                               f"--projector-{'width' if axis == 1 else 'height'}")
+    cell, evidence = cell_width(width, gray.bits, seen, edge, group)
+    ratios = []
+    for z, run in zip(zs, phase, strict=True):
+        zg = np.exp(2j * np.pi * np.nan_to_num(cells) / count)
+        r, _ = fr.frequency_ratio(z, zg, axis, usable & np.isfinite(cells),
+                                  len(run.frames))
+        if not math.isfinite(r):
+            group.questions.append(f"the period of frames {run.frames[0]}.. could not be "
+                                   "measured against the Gray code (too few clean image "
+                                   "segments): what is it?")
+            return []
+        ratios.append(abs(r) * count)  # period in cells
+    periods = [p * cell for p in ratios]
+    snapped = [float(round(p)) if abs(p - round(p)) <= 0.03 * p else p for p in periods]
+    out = [_Scale(width, tuple(snapped), cell, evidence)]
+    if snapped != periods:
+        out.append(_Scale(width, tuple(periods), cell, evidence))
+    return out
+
+
+def _build(scale: _Scale, phase, gray, group) -> PatternDescription:
+    """The description of one candidate (files still empty, sets in reading order)."""
+    sets: list = []
+    ref = next((r for r in group.runs if r.kind == "reference"), None)
+    if ref is not None:
+        sets.append(ReferenceSet("white_black", group.levels))
+    if gray is not None:
+        sets.append(GrayCodeSet("gray", gray.bits, cell_px=scale.cell_px,
+                                inverse=gray.inverse, orientation=group.orientation))
+    for run, period in zip(phase, scale.periods, strict=True):
+        sets.append(PhaseSet(_phase_name(period, sets), float(period), len(run.frames),
+                             orientation=group.orientation))
+    desc = PatternDescription(int(scale.width_px), tuple(sets),
+                              description=f"scanqa describe: {scale.evidence}")
+    return desc
+
+
+def _phase_name(period: float, sets: list) -> str:
+    """``p<period>`` (3 decimals at most), unique among the sets."""
+    name = f"p{float(f'{period:.3f}'):g}"
+    taken = {s.name for s in sets}
+    return name if name not in taken else f"{name}_{len(sets)}"
+
+
+def _with_signs(desc: PatternDescription, signs: list[float],
+                orders: list[tuple]) -> PatternDescription:
+    """The phase sets' shifts with the measured signs and step orders (in run order)."""
+    sets, i = [], 0
+    for s in desc.sets:
+        if isinstance(s, PhaseSet):
+            steps = orders[i] or range(s.steps)
+            shifts = tuple(signs[i] * 2 * math.pi * k / s.steps for k in steps)
+            if orders[i]:  # out of order: stated in [0, 2 pi), whatever the sign
+                shifts = tuple(v % (2 * math.pi) for v in shifts)
+            s = replace(s, shifts_rad=tuple(0.0 if v == 0 else v for v in shifts))
+            i += 1
+        sets.append(s)
+    return replace(desc, sets=tuple(sets))
+
+
+def _frame_lists(group: _Group, phase: list, gray: GrayRun | None, ref) -> list[list[int]]:
+    """Frame indices of every set of a built description, in its set order."""
+    lists = [list(ref.frames)] if ref is not None else []
+    if gray is not None:
+        lists.append(list(gray.order))
+    return lists + [list(r.frames) for r in phase]
+
+
+def row_step(rows: int) -> int:
+    """Every how many rows the decoding check reads a frame of ``rows`` rows [-]."""
+    return max(1, rows // CHECK_ROWS)
+
+
+def _column_step(columns: int) -> int:
+    return max(1, columns // CHECK_COLUMNS)
+
+
+def _stacks_factory(images, group, phase, gray, ref):
+    """Stacks (every ``row_step``-th row) in the set order of the built descriptions."""
+    lists = _frame_lists(group, phase, gray, ref)
+    step, cstep = row_step(images.shape[1]), _column_step(images.shape[2])
+    stacks = [np.ascontiguousarray(images[idx][:, ::step, ::cstep]) for idx in lists]
+    return lambda desc: stacks
+
+
+def _check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
+    """Share of the lit pixels (of the rows checked) that decode valid [-]."""
+    from scanqa.errors import ScanQAError
+
+    try:
+        pm = decode_images(desc, stacks)
+    except ScanQAError:
+        return -1.0
+    lit_rows = lit[::row_step(lit.shape[0]), ::_column_step(lit.shape[1])]
+    return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
+
+
+def _with_files(desc, names, group, phase, gray, ref) -> PatternDescription:
+    """The chosen description with the frame file names of every set."""
+    lists = _frame_lists(group, phase, gray, ref)
+    sets = tuple(replace(s, files=tuple(names[k] for k in idx))
+                 for s, idx in zip(desc.sets, lists, strict=True))
+    return replace(desc, sets=sets)
+
+
+def _alternatives(best: PatternDescription, tried: list, share: float,
+                  group: _Group) -> None:
+    """Candidates that decode nearly as well as the chosen one become a question."""
+    def periods(d):
+        return ", ".join(f"{s.period_px:g}" for s in d.sets if isinstance(s, PhaseSet))
+
+    def differ(d):  # by more than the 0.1 % a period is stated to
+        return any(abs(a.period_px / b.period_px - 1) > 1e-3 for a, b in
+                   zip(d.sets, best.sets, strict=True) if isinstance(a, PhaseSet))
+
+    close = [d for d, got in tried if d is not best and got >= 0.9 * share and share > 0
+             and differ(d)]
+    for d in close[:2]:
+        group.questions.append(f"periods {periods(d)} px decode nearly as many pixels as "
+                               f"the chosen {periods(best)} px: which were projected?")
+    if share < 0.3:
+        group.questions.append(f"only {100 * max(share, 0):.0f} % of the lit pixels decode: "
+                               "is a set missing or misread?")
+
+
+def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
+    """How sure each set is and what it assumes."""
+    out = []
+    phase_sets = [s for s in desc.sets if isinstance(s, PhaseSet)]
+    for s in desc.sets:
+        if isinstance(s, ReferenceSet):
+            out.append(SetNote(s.name, "sure", ("uniform frames: " + ", ".join(s.levels),)))
+        elif isinstance(s, GrayCodeSet):
+            cell = desc.description.removeprefix("scanqa describe: ")
+            out.append(SetNote(s.name, "sure" if not group.questions else "likely", (
+                f"{s.bits} bits, most significant first; inverse frames: {s.inverse}",
+                f"cell_px = {s.cell_px:g}: {cell}",
+                "reflected Gray code assumed (the only one the decoder reads)")))
+    for s, sign, run in zip(phase_sets, signs, phase, strict=True):
+        way = "negative" if sign < 0 else "positive"
+        if run.order:
+            ks = [round(v * s.steps / (2 * math.pi)) % s.steps for v in s.shifts_rad]
+            way = (f"out of order: k = {', '.join(map(str, ks))} in frame order (from the "
+                   "frames' correlations), i.e. positive")
+        basis = ("the Gray code's direction" if gray is not None else
+                 "the assumption that the projector coordinate grows along the camera's "
+                 + ("rows" if s.orientation == "vertical" else "columns"))
+        out.append(SetNote(s.name, "sure" if gray is not None else "likely", (
+            f"{s.steps} steps, shifts {way} 2 pi k / {s.steps} (from the phase slope and "
+            f"{basis})",)))
+    if phase_sets and gray is None:
+        group.questions.append(
+            f"the frames give period ratios only: is the projector "
+            f"{desc.projector_width_px} px along this direction, and does every pattern "
+            "repeat a whole number of times over it (the periods assume both)?")
+    order = {n.name: n for n in out}
+    return tuple(order[s.name] for s in desc.sets)
