@@ -156,7 +156,7 @@ def test_cloudcompare_reads_every_attribute(cfg, table, tmp_path):
 
 
 def _read_las_by_spec(path):
-    """Independent LAS 1.4 reader (point format 6 + float extra bytes), from the spec.
+    """Independent LAS 1.4 reader (point format 7 + float extra bytes), from the spec.
 
     Debian 12's CloudCompare is built without LAS support and PDAL is not packaged, so
     the LAS export is checked against the ASPRS LAS 1.4 R15 layout directly, not through
@@ -173,8 +173,8 @@ def _read_las_by_spec(path):
     origin = struct.unpack_from("<3d", raw, 155)
     n_points, = struct.unpack_from("<Q", raw, 247)
     global_encoding, = struct.unpack_from("<H", raw, 6)
-    assert fmt == 6 and global_encoding & 16  # bit 4: the CRS is OGC WKT
-    names, pos, wkt = [], header_size, b""
+    assert fmt == 7 and global_encoding & 16  # bit 4: the CRS is OGC WKT
+    names, descriptions, pos, wkt = [], {}, header_size, b""
     for _ in range(n_vlr):
         user = raw[pos + 2:pos + 18].rstrip(b"\0")
         rec_id, length = struct.unpack_from("<HH", raw, pos + 18)
@@ -183,26 +183,43 @@ def _read_las_by_spec(path):
                 base = pos + 54 + 192 * d
                 assert raw[base + 2] == 9  # data type 9: float
                 names.append(raw[base + 4:base + 36].rstrip(b"\0").decode())
+                # the description: 32 bytes after 4 + 32 + 4 + 5 x 24 bytes of the record
+                descriptions[names[-1]] = raw[base + 160:base + 192].rstrip(b"\0").decode()
         if user == b"LASF_Projection" and rec_id == 2112:
             wkt = raw[pos + 54:pos + 54 + length].rstrip(b"\0")
         pos += 54 + length
-    dtype = np.dtype([("xyz", "<i4", 3), ("base", "V18")] + [(n, "<f4") for n in names])
+    # format 7: X Y Z (3 x i4), intensity (u2), 16 bytes to the RGB (3 x u2)
+    dtype = np.dtype([("xyz", "<i4", 3), ("intensity", "<u2"), ("base", "V16"),
+                      ("rgb", "<u2", 3)] + [(n, "<f4") for n in names])
     assert dtype.itemsize == rec_len
     pts = np.frombuffer(raw, dtype=dtype, count=n_points, offset=offset_points)
     xyz = pts["xyz"] * np.array(scale) + np.array(origin)
-    return xyz, {n: pts[n] for n in names}, wkt.decode()
+    extra = {"intensity": pts["intensity"], "rgb": pts["rgb"], "descriptions": descriptions}
+    return xyz, {n: pts[n] for n in names}, wkt.decode(), extra
 
 
 def test_las_extra_bytes_follow_the_spec(cfg, table, tmp_path):
     cloud = annotate(scan(cfg)[0], table, cfg)
     path = cloud.write(tmp_path / "cloud.las")
-    xyz, attrs, wkt = _read_las_by_spec(path)
+    xyz, attrs, wkt, extra = _read_las_by_spec(path)
     # LAS holds metres (GIS tools assume it), on a 0.1 um integer grid
     np.testing.assert_allclose(xyz * 1e3, cloud.xyz, atol=1e-4)
     assert 'UNIT["metre",1]' in wkt and wkt.startswith("LOCAL_CS[")
     assert list(attrs) == list(cloud.attributes)
     for name, values in cloud.attributes.items():
         np.testing.assert_array_equal(attrs[name], values, err_msg=name)
+    # every dimension says its unit; intensity and grey RGB follow the fringe offset
+    desc = extra["descriptions"]
+    assert desc["sigma_total_um"] == "sigma_total [um]" and desc["s_o"] == "s_o [-]"
+    assert desc["offset_dn"] == "offset [DN]" and desc["s_t_um_px"] == "s_t [um/px]"
+    off = cloud.attributes["offset_dn"].astype(float)
+    np.testing.assert_allclose(extra["intensity"], np.clip(np.rint(
+        off * 65535 / np.percentile(off, 99.9)), 0, 65535))
+    assert (extra["rgb"] == extra["intensity"][:, None]).all()
+    import laspy  # and the library most LAS users read with sees the same descriptions
+
+    dims = laspy.read(str(path)).point_format.extra_dimensions
+    assert {d.name: d.description for d in dims}["sigma_random_um"] == "sigma_random [um]"
 
 
 def test_keep_invalid_and_counts(cfg, table):

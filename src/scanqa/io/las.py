@@ -3,9 +3,10 @@
 LAS coordinates are in metres (the LAS convention; GIS tools assume it), stored as scaled
 integers with a 0.1 um scale. The file declares its unit and frame in an OGC WKT
 coordinate system (a local engineering CRS, "scanqa scanner frame", unit metre), as LAS
-1.4 requires for point format 6. Every attribute is a float32 extra-bytes dimension named
-as in the PLY export (units in the names, e.g. ``sigma_model_um``). scanqa's metadata
-travels in a variable-length record (user id ``scanqa``, record 1, JSON).
+1.4 requires for point formats 6-10 (format 7 here: with RGB). Every attribute is a
+float32 extra-bytes dimension named as in the PLY export (units in the names, e.g.
+``sigma_model_um``, and in each dimension's description). scanqa's metadata travels in
+a variable-length record (user id ``scanqa``, record 1, JSON).
 
 In memory and in the rest of scanqa lengths stay millimetres: :func:`write_las` takes mm
 and :func:`read_las` returns mm.
@@ -43,7 +44,11 @@ def _laspy():
 
 def write_las(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray],
               metadata: dict | None = None) -> Path:
-    """Write a LAS 1.4 file (point format 6) with float32 extra bytes, atomically.
+    """Write a LAS 1.4 file (point format 7) with float32 extra bytes, atomically.
+
+    Every extra-byte dimension carries a description with its unit (:func:`describe`);
+    with an ``offset_dn`` attribute, intensity and a grey RGB show the fringe offset (the
+    scene's brightness) in viewers that colour by them (CloudCompare).
 
     Parameters
     ----------
@@ -58,7 +63,7 @@ def write_las(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
     """
     laspy = _laspy()
     xyz_m = np.asarray(xyz, dtype=float) * 1e-3
-    header = laspy.LasHeader(point_format=6, version="1.4")
+    header = laspy.LasHeader(point_format=7, version="1.4")
     header.scales = np.full(3, LAS_SCALE_M)
     header.offsets = (np.floor(np.nanmin(xyz_m, axis=0) * 100) / 100 if len(xyz_m)
                       else np.zeros(3))
@@ -71,14 +76,45 @@ def write_las(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
     for name in attributes:
         if len(name) > 32:
             raise InputError(f"LAS extra-byte names are limited to 32 characters: {name!r}")
-        header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.float32))
+        header.add_extra_dim(laspy.ExtraBytesParams(name=name, type=np.float32,
+                                                    description=describe(name)))
     las = laspy.LasData(header)
     las.x, las.y, las.z = xyz_m[:, 0], xyz_m[:, 1], xyz_m[:, 2]
+    if INTENSITY_SOURCE in attributes:
+        grey = grey_levels(attributes[INTENSITY_SOURCE])
+        las.intensity = grey
+        las.red = las.green = las.blue = grey
     for name, values in attributes.items():
         las[name] = np.asarray(values, dtype=np.float32)
     with atomic_path(path, suffix=".las") as tmp:
         las.write(str(tmp))
     return Path(path)
+
+
+#: Unit of an attribute by the suffix of its name (scanqa's naming rule).
+UNIT_SUFFIXES = {"_um": "um", "_mm": "mm", "_dn": "DN", "_px": "px", "_um_px": "um/px"}
+#: The attribute that gives each point's intensity and grey RGB (the fringe offset).
+INTENSITY_SOURCE = "offset_dn"
+
+
+def describe(name: str) -> str:
+    """The LAS extra-byte description of an attribute: its name with the unit its suffix
+    names, in brackets (``[-]`` for none), within LAS's 32 characters."""
+    unit, stem = "-", name
+    for suffix, u in sorted(UNIT_SUFFIXES.items(), key=lambda kv: -len(kv[0])):
+        if name.endswith(suffix):
+            unit, stem = u, name[:-len(suffix)]
+            break
+    return f"{stem} [{unit}]"[:31]
+
+
+def grey_levels(values: np.ndarray) -> np.ndarray:
+    """16-bit grey levels of a per-point level (the fringe offset [DN]): scaled so that
+    the 99.9th percentile is 65535; NaN and negative values are 0."""
+    v = np.nan_to_num(np.asarray(values, dtype=float), nan=0.0)
+    top = np.percentile(v, 99.9) if v.size else 0.0
+    scale = 65535.0 / top if top > 0 else 0.0
+    return np.clip(np.rint(v * scale), 0, 65535).astype(np.uint16)
 
 
 def read_las(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:
