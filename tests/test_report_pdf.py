@@ -24,7 +24,7 @@ from .test_gauge import LAYOUT, synthetic_cloud
 from .test_qa_artefacts import BAR_A, BAR_B, CENTRE, ball, bar_cloud, cloud_of
 
 REQUIRE_CLIENTS = os.environ.get("SCANQA_REQUIRE_CLIENTS") == "1"
-HEADER_LABELS = ("Date", "scanqa version", "Scanner config", "Calibration",
+HEADER_LABELS = ("Report id", "Date", "scanqa version", "Scanner config", "Calibration",
                  "Artefact certificate", "Data", "Operator", "Notes")
 
 
@@ -107,6 +107,10 @@ def test_pdf_renders_and_holds_every_section(poppler, reports, which, tmp_path):
     first = pdf_text(pdf, "-f", "1", "-l", "1")
     assert re.search(r"\b(PASS|FAIL|UNDECIDED|INCOMPLETE|NOT EVALUATED) ", first)
     assert "Operator" in first
+    # a lab signs it: the report id and the approval block on page 1
+    report_id = re.search(r"SQA-[0-9a-f]{12}", (folder / "report.html").read_text()).group()
+    assert report_id in first
+    assert re.search(r"Prepared Ada Tester.*Reviewed.*Approved", first)
 
 
 def test_the_artefact_pdf_names_the_certificate_and_the_calibration(poppler, reports):

@@ -38,9 +38,17 @@ class ReportHeader:
     operator: str
     notes: str
 
+    @property
+    def report_id(self) -> str:
+        """``SQA-`` and a hash of every field: the same inputs, date and operator give the
+        same id, and any change gives another."""
+        fields = {k: getattr(self, k) for k in self.__dataclass_fields__}
+        return f"SQA-{content_hash(fields)}"
+
     def items(self) -> list[tuple[str, str]]:
         """(label, value) pairs in display order."""
-        return [("Date", self.date), ("scanqa version", self.version),
+        return [("Report id", self.report_id), ("Date", self.date),
+                ("scanqa version", self.version),
                 ("Scanner config", f"{self.config} (sha256 {self.config_hash})"
                  if self.config_hash else self.config),
                 ("Calibration", f"{self.table} (sha256 {self.table_hash})"

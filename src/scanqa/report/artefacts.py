@@ -73,6 +73,7 @@ def render(result: ArtefactQAResult, header: ReportHeader) -> str:
     page.banner(result.verdict(), "decisions (ISO 14253-1)")
     page.sigma_source(result.sigma_source)
     page.header_block(header.items())
+    page.approval_block(header.operator)
     _results(page, result)
     _form(page, result)
     _spacing(page, result)

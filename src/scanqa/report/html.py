@@ -109,6 +109,17 @@ class Page:
                        for k, v in items)
         self.parts.append(f'<table class="header" id="header">{rows}</table>')
 
+    def approval_block(self, prepared_by: str = "") -> None:
+        """Prepared / reviewed / approved, each with name, date and signature to fill in
+        (the preparer's name when the command line gave it)."""
+        rows = "".join(
+            f"<tr><th>{role}</th><td>{html.escape(name)}</td><td></td><td></td></tr>"
+            for role, name in (("Prepared", prepared_by), ("Reviewed", ""),
+                               ("Approved", "")))
+        self.parts.append('<table class="header approval" id="approval"><tr><th></th>'
+                          "<th>Name</th><th>Date</th><th>Signature</th></tr>"
+                          f"{rows}</table>")
+
     def heading(self, text: str, anchor: str = "") -> None:
         ident = f' id="{html.escape(anchor)}"' if anchor else ""
         self.headings.append(text)

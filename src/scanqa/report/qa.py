@@ -111,6 +111,7 @@ def render(result: QAResult, header: ReportHeader | None = None) -> str:
     page.sigma_source(result.summary()["sigma_source"])
     if header is not None:
         page.header_block(header.items())
+        page.approval_block(header.operator)
     info = result.summary()
     _summary_section(page, result, info)
     _table3_section(page, result)
