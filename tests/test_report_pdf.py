@@ -111,6 +111,9 @@ def test_pdf_renders_and_holds_every_section(poppler, reports, which, tmp_path):
     report_id = re.search(r"SQA-[0-9a-f]{12}", (folder / "report.html").read_text()).group()
     assert report_id in first
     assert re.search(r"Prepared Ada Tester.*Reviewed.*Approved", first)
+    # the plots are vector (SVG; dense scatters rasterised inside them)
+    page_html = (folder / "report.html").read_text(encoding="utf-8")
+    assert "data:image/svg+xml;base64," in page_html and "data:image/png" not in page_html
 
 
 def test_the_artefact_pdf_names_the_certificate_and_the_calibration(poppler, reports):

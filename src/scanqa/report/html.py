@@ -1,5 +1,5 @@
 """A tiny self-contained HTML writer: a verdict banner, a header block, sections,
-tables (with their secondary columns folded) and embedded PNG figures.
+tables (with their secondary columns folded) and embedded SVG figures.
 
 Rendering only; every number shown is computed elsewhere. The same page is the PDF
 (:mod:`scanqa.report.pdf` prints it with WeasyPrint): the print rules in the style
@@ -48,15 +48,25 @@ table{font-size:8pt}td,th{padding:1px 4px}}
 """
 
 
+#: Collections with more marks than this are drawn as an embedded raster inside the SVG
+#: (axes, text and lines stay vector; a scatter of 10^5 points would make the page huge).
+MAX_VECTOR_MARKS = 5000
+
+
 def figure_data_uri(fig, dpi: int = 100) -> str:
-    """PNG of a matplotlib figure as a data: URI (and close the figure)."""
+    """SVG of a matplotlib figure as a data: URI (and close the figure): vector axes,
+    text and curves, dense scatters and images rasterised at ``dpi`` inside it."""
     import matplotlib.pyplot as plt
 
+    for ax in fig.axes:
+        for coll in ax.collections:
+            if len(coll.get_offsets()) > MAX_VECTOR_MARKS:
+                coll.set_rasterized(True)
     buf = io.BytesIO()
     fig.tight_layout()
-    fig.savefig(buf, format="png", dpi=dpi)
+    fig.savefig(buf, format="svg", dpi=dpi, metadata={"Date": None})
     plt.close(fig)
-    return "data:image/png;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
+    return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
 
 def _cell(value: object) -> str:
