@@ -6,8 +6,10 @@ PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
+DEMO_STAMP := $(VENV)/.installed-demo
+WHEEL_VENV := build/wheel-venv
 
-.PHONY: demo test docs bench lint fuzz mutate setup syslibs syslibs-test clean
+.PHONY: demo test docs bench lint fuzz mutate setup syslibs syslibs-test clean wheel-check
 
 setup: $(STAMP)
 
@@ -23,7 +25,14 @@ $(STAMP): pyproject.toml | syslibs
 	@$(BIN)/python -m pip install --quiet -e '.[test]'
 	@touch $(STAMP)
 
-demo: syslibs $(STAMP)
+# make demo installs the package alone (no test, docs or cluster tools)
+$(DEMO_STAMP): pyproject.toml | syslibs
+	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
+	@$(BIN)/python -m pip install --quiet --upgrade pip
+	@$(BIN)/python -m pip install --quiet -e .
+	@touch $(DEMO_STAMP)
+
+demo: syslibs $(DEMO_STAMP)
 	@$(BIN)/scanqa demo $(DEMO_ARGS)
 
 # SCANQA_REQUIRE_CLIENTS=1: the round-trip tests through CloudCompare fail, not skip,
@@ -31,6 +40,19 @@ demo: syslibs $(STAMP)
 test: syslibs-test $(STAMP)
 	@SCANQA_REQUIRE_CLIENTS=1 $(BIN)/python -m pytest -q $(PYTEST_ARGS)
 	@$(MAKE) --no-print-directory docs
+	@$(MAKE) --no-print-directory wheel-check
+
+# The package as a lab installs it: sdist and wheel built, the wheel installed without
+# extras into a fresh venv, and the demo run from it (on the repository's sample_data).
+wheel-check: $(STAMP)
+	@rm -rf build/dist build/wheel-demo $(WHEEL_VENV) && mkdir -p build
+	@$(BIN)/python -m build --sdist --wheel --outdir build/dist . > build/build.log 2>&1 \
+		|| (tail -20 build/build.log; exit 1)
+	@$(PYTHON) -m venv $(WHEEL_VENV)
+	@$(WHEEL_VENV)/bin/python -m pip install --quiet build/dist/scanqa-*.whl
+	@$(WHEEL_VENV)/bin/scanqa demo --out build/wheel-demo > build/wheel-demo.log 2>&1 \
+		|| (tail -20 build/wheel-demo.log; exit 1)
+	@echo "wheel: $$(ls build/dist) built; installed without extras; scanqa demo ran (build/wheel-demo)"
 
 # The documentation site (docs/): warnings are errors, so a broken reference, a malformed
 # docstring or a module missing from docs/api.rst fails the build.
