@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--z-max", type=number(), default=None, help="far plane [mm]")
     p.add_argument("--step", type=number(gt=0, unit="mm"), default=1.0,
                    help="voxel size [mm] (default 1)")
+    p.add_argument("--coc-max", type=number(gt=0, unit="mm"), default=None,
+                   help="also require the camera's image-side circle of confusion c_c "
+                        "(Eq. 14) <= this [mm]; Fig. 6 draws 0.030 as a band (default: off)")
     add_output_arguments(p)
     p.set_defaults(func=run_volume)
 
@@ -130,8 +133,10 @@ def run_curve(args: argparse.Namespace) -> int:
 def run_volume(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     plot = output_path(args.plot)
-    vol = design.usable_volume(config, args.level, args.z_min, args.z_max, args.step)
-    row = {"level": vol.level, "z_min_mm": vol.z_min_mm, "z_max_mm": vol.z_max_mm,
+    vol = design.usable_volume(config, args.level, args.z_min, args.z_max, args.step,
+                               coc_max_mm=args.coc_max)
+    row = {"level": vol.level, "coc_max_mm": vol.coc_max_mm, "z_min_mm": vol.z_min_mm,
+           "z_max_mm": vol.z_max_mm,
            "step_mm": vol.step_mm, "total_mm3": vol.total_mm3, "usable_mm3": vol.usable_mm3,
            "fraction": vol.fraction}
     if plot:
