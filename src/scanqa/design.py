@@ -300,22 +300,44 @@ def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | Non
     total = usable = 0
     per_slab = max(1, SLAB_VOXELS // (xs.size * ys.size))
     for k in range(0, zs.size, per_slab):  # slabs of planes bound the memory
-        inside, good = _slice_masks(xs[None, None, :], ys[None, :, None],
+        inside, good = volume_masks(xs[None, None, :], ys[None, :, None],
                                     zs[k:k + per_slab, None, None], config, level, period_px,
                                     coc_max_mm)
         total += int(inside.sum())
         usable += int((inside & good).sum())
-    inside, good = _slice_masks(xs[None, :], np.zeros((1, 1)), zs[:, None], config, level,
+    inside, good = volume_masks(xs[None, :], np.zeros((1, 1)), zs[:, None], config, level,
                                 period_px, coc_max_mm)
     return UsableVolume(level, z_min, z_max, step, total * step**3, usable * step**3,
                         xs, zs, np.array(inside), inside & good, coc_max_mm)
 
 
-def _slice_masks(x: np.ndarray, y: np.ndarray, z: float | np.ndarray, config: ScannerConfig,
+def volume_masks(x: np.ndarray, y: np.ndarray, z: float | np.ndarray, config: ScannerConfig,
                  level: float, period_px: float | None, coc_max_mm: float | None
                  ) -> tuple[np.ndarray, np.ndarray]:
     """Inside both frusta, and usable, on the grid x, y, z broadcast together.
 
+    Parameters
+    ----------
+    x, y, z : ndarray
+        Voxel centres in the scanner frame, broadcastable, e.g. (1, 1, nx), (1, ny, 1) and
+        (nz, 1, 1) [mm].
+    config : ScannerConfig
+        Scanner config.
+    level : float
+        Combined attenuation threshold A_c A_p [-].
+    period_px : float or None
+        Fringe period [projector px]; None for the working period.
+    coc_max_mm : float or None
+        Largest image-side circle of confusion c_c (Eq. 14) [mm]; None for no limit.
+
+    Returns
+    -------
+    inside, usable : ndarray of bool
+        Of the broadcast shape; ``usable`` is the model's verdict alone (and it with
+        ``inside`` is the usable volume).
+
+    Notes
+    -----
     The model depends on a voxel only through Z_c and Z_p. On a plane Z_c is fixed, and
     when the projector sits in the XZ plane (the usual layout) Z_p varies along X only,
     so a plane takes one row of model evaluations instead of one per voxel; otherwise

@@ -1,4 +1,5 @@
-"""Design tools: ``scanqa dof``, ``curve``, ``volume`` and ``flatten`` (parsing only)."""
+"""Design tools: ``scanqa dof``, ``curve``, ``volume``, ``flatten`` and ``scanqa design page``
+(parsing only)."""
 
 from __future__ import annotations
 
@@ -67,6 +68,30 @@ def register(sub: argparse._SubParsersAction) -> None:
                               "--plot flat.png --csv")
     _add_range(p)
     p.set_defaults(func=run_flatten)
+
+    p = sub.add_parser("design", formatter_class=_FMT,
+                       help="the design page: reconfigure a scanner and see its volumes live",
+                       epilog="example:\n  scanqa design page --config calib/paper_scanner.toml")
+    actions = p.add_subparsers(dest="design_command", metavar="ACTION",
+                               parser_class=type(p))
+    page = actions.add_parser("page", formatter_class=_FMT,
+                              help="serve the design page locally (Sect. 5.1, Fig. 6)",
+                              epilog="example:\n  scanqa design page --config "
+                                     "calib/paper_scanner.toml --port 8765")
+    add_config_argument(page)
+    page.add_argument("--level", type=number(gt=0), default=0.49,
+                      help="combined attenuation threshold A_c*A_p to start with [-] "
+                           "(default 0.49, Fig. 6)")
+    page.add_argument("--coc-max", type=number(gt=0, unit="mm"), default=0.030,
+                      help="camera circle-of-confusion threshold to start with [mm] "
+                           "(default 0.030, Fig. 6)")
+    page.add_argument("--host", default="127.0.0.1",
+                      help="interface to serve on (default 127.0.0.1: this machine only)")
+    page.add_argument("--port", type=number(int, ge=0), default=8765,
+                      help="TCP port (default 8765; 0: any free one)")
+    page.add_argument("--no-browser", action="store_true",
+                      help="do not open the page in the default browser")
+    page.set_defaults(func=run_page)
 
 
 def _add_range(p: argparse.ArgumentParser) -> None:
@@ -152,3 +177,23 @@ def run_flatten(args: argparse.Namespace) -> int:
     return _tabular(args, lambda c: design.flatten_curve(c, *_range(args, c.camera.focus_mm),
                                                          args.period),
                     _columns_to_rows, lambda res, path, c: plots.plot_flatten(res, path))
+
+
+def run_page(args: argparse.Namespace) -> int:
+    from scanqa import designapp  # plotly only when the page is served
+
+    server = designapp.make_server(config_from_args(args), args.host, args.port,
+                                   args.level, args.coc_max)
+    url = f"http://{args.host}:{server.server_address[1]}/"
+    emit(f"scanqa design page: {url} (Ctrl-C stops it)")
+    if not args.no_browser:
+        import webbrowser
+
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+    return 0

@@ -1,0 +1,329 @@
+"""The design page (``scanqa design page``): its HTML and the Plotly figures of a view.
+
+Rendering only: :func:`view_payload` turns a :class:`scanqa.rig.RigView` (computed by the
+model chain in Python) into Plotly figure dicts and the numbers, and :func:`page_html`
+writes the page whose script sends the inputs to the local server and draws what comes
+back with plotly.js. The script computes nothing of the model.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import math
+
+import numpy as np
+
+from scanqa.rig import SETTINGS, RigView
+
+_CAM, _PROJ = "#1f77b4", "#9467bd"
+
+
+def _outline(corners: np.ndarray) -> list[np.ndarray]:
+    """x, y, z lists of a closed quadrilateral outline."""
+    loop = np.vstack([corners, corners[:1]])
+    return [loop[:, i] for i in range(3)]
+
+
+def _lines(points: np.ndarray, name: str, color: str, dash: str = "solid",
+           width: float = 3.0) -> dict:
+    return {"type": "scatter3d", "mode": "lines", "name": name, "x": _list(points[0]),
+            "y": _list(points[1]), "z": _list(points[2]), "hoverinfo": "name",
+            "line": {"color": color, "dash": dash, "width": width}}
+
+
+def _pyramid_trace(pyr: np.ndarray, name: str, color: str) -> dict:
+    """Edges of a view pyramid (apex, then four base corners) as one polyline, NaN-split."""
+    apex, base = pyr[0], pyr[1:]
+    seg = [np.vstack([apex, c, [np.nan] * 3]) for c in base]
+    pts = np.vstack([*seg, base, base[:1]])
+    return _lines([pts[:, 0], pts[:, 1], pts[:, 2]], name, color)
+
+
+def _quad(corners: np.ndarray, name: str, color: str, opacity: float) -> dict:
+    return {"type": "mesh3d", "name": name, "showlegend": True, "x": _list(corners[:, 0]),
+            "y": _list(corners[:, 1]), "z": _list(corners[:, 2]), "i": [0, 0],
+            "j": [1, 2], "k": [2, 3], "color": color, "opacity": opacity, "hoverinfo": "name"}
+
+
+def _iso(view: RigView, lowest: float, name: str, color: str, opacity: float) -> dict:
+    """An isosurface of the picture grid; the page expands the axes to points (``grid``)."""
+    return {"type": "isosurface", "name": name, "showlegend": True, "showscale": False,
+            "isomin": lowest, "isomax": 2.0, "surface": {"count": 1},
+            "caps": {"x": {"show": True}, "y": {"show": True}, "z": {"show": True}},
+            "colorscale": [[0, color], [1, color]], "opacity": opacity,
+            "hoverinfo": "name", "grid": True}
+
+
+def scene_figure(view: RigView) -> dict:
+    """The 3D drawing of Fig. 6: pyramids, focus planes, band, clip planes, volumes."""
+    data = [_pyramid_trace(view.camera_pyramid, "Cam (view pyramid)", _CAM),
+            _pyramid_trace(view.projector_pyramid, "Proj (view pyramid)", _PROJ),
+            _quad(view.camera_focus_plane, "camera focus plane", _CAM, 0.15),
+            _quad(view.projector_focus_plane, "projector focus plane", _PROJ, 0.15)]
+    for k, plane in enumerate(view.coc_planes):
+        trace = _lines(_outline(plane), f"c_c < {view.coc_max_mm * 1e3:g} um band", "red",
+                       "dash")
+        trace["showlegend"] = k == 0
+        trace["legendgroup"] = "coc"
+        data.append(trace)
+    for k, plane in enumerate(view.clip_planes):
+        trace = _lines(_outline(plane), "near / far planes", "blue", "dot", 2.0)
+        trace["showlegend"] = k == 0
+        trace["legendgroup"] = "clip"
+        data.append(trace)
+    c = view.axes_crossing
+    data.append({"type": "scatter3d", "mode": "markers", "name": "axes crossing",
+                 "x": [float(c[0])], "y": [float(c[1])], "z": [float(c[2])],
+                 "marker": {"color": "black", "size": 4}})
+    data.append(_iso(view, 0.5, "total volume", "#f2d024", 0.15))
+    data.append(_iso(view, 1.5, f"usable volume (A_c A_p >= {view.level:g})", "#d9480f", 0.7))
+    layout = {"uirevision": "keep", "margin": {"l": 0, "r": 0, "t": 30, "b": 0},
+              "title": {"text": "scanner and reconstruction volumes (Fig. 6)"},
+              "legend": {"x": 0, "y": 1},
+              "scene": {"aspectmode": "data", "xaxis": {"title": {"text": "X [mm]"}},
+                        "yaxis": {"title": {"text": "Y [mm]"}, "autorange": "reversed"},
+                        "zaxis": {"title": {"text": "Z [mm]"}},
+                        "camera": {"up": {"x": 0, "y": -1, "z": 0},
+                                   "eye": {"x": 1.6, "y": -0.9, "z": -0.6}}}}
+    return {"data": data, "layout": layout}
+
+
+def curve_figure(view: RigView) -> dict:
+    """The W curve (sigma on the camera axis) over the attenuations, with the usable depth,
+    the camera depth of field and the circle-of-confusion band."""
+    cv = view.curve
+    z, ok = cv["z_mm"], cv["model_valid"]
+    combined = cv["attenuation_camera"] * cv["attenuation_projector"]
+    data = [
+        _xy(z, np.where(ok, cv["sigma_um"], np.nan), "sigma (model valid) [um]", "black",
+            "y"),
+        _xy(z, np.where(ok, np.nan, cv["sigma_um"]), "sigma (r > 1/2) [um]", "#999999", "y"),
+        _xy(z, cv["attenuation_camera"], "A_c", _CAM, "y2"),
+        _xy(z, cv["attenuation_projector"], "A_p", _PROJ, "y2"),
+        _xy(z, combined, "A_c A_p", "#d9480f", "y2"),
+    ]
+    n = view.numbers
+    shapes = [_band(n["usable_near_mm"], n["usable_far_mm"], "#d9480f", 0.12),
+              _band(view.camera_dof.near_mm, view.camera_dof.far_mm, _CAM, 0.06),
+              _vline(n["coc_near_mm"], "red"), _vline(n["coc_far_mm"], "red"),
+              {"type": "line", "xref": "paper", "x0": 0, "x1": 1, "yref": "y2",
+               "y0": view.level, "y1": view.level, "line": {"dash": "dot", "color": "#d9480f"}}]
+    layout = {"margin": {"l": 50, "r": 10, "t": 30, "b": 40}, "uirevision": "keep",
+              "title": {"text": "W curve on the camera axis"},
+              "xaxis": {"title": {"text": "Z [mm]"}},
+              "yaxis": {"title": {"text": "sigma [um]"}, "domain": [0.42, 1.0],
+                        "rangemode": "tozero"},
+              "yaxis2": {"title": {"text": "attenuation [-]"}, "domain": [0, 0.36],
+                         "range": [0, 1.02]},
+              "legend": {"orientation": "h", "y": -0.2},
+              "shapes": [s for s in shapes if s is not None]}
+    return {"data": data, "layout": layout}
+
+
+def _xy(x: np.ndarray, y: np.ndarray, name: str, color: str, axis: str) -> dict:
+    return {"type": "scatter", "mode": "lines", "name": name, "x": _list(x), "y": _list(y),
+            "yaxis": axis, "line": {"color": color}}
+
+
+def _band(lo: float, hi: float, color: str, opacity: float) -> dict | None:
+    if not (math.isfinite(lo) and math.isfinite(hi)):
+        return None
+    return {"type": "rect", "xref": "x", "yref": "paper", "x0": lo, "x1": hi, "y0": 0,
+            "y1": 1, "fillcolor": color, "opacity": opacity, "line": {"width": 0}}
+
+
+def _vline(x: float, color: str) -> dict | None:
+    if not math.isfinite(x):
+        return None
+    return {"type": "line", "xref": "x", "yref": "paper", "x0": x, "x1": x, "y0": 0, "y1": 1,
+            "line": {"color": color, "dash": "dash", "width": 1}}
+
+
+def _list(values) -> list:
+    """JSON-ready floats: NaN and inf become null (Plotly breaks lines there)."""
+    arr = np.asarray(values, dtype=float)
+    return [round(v, 4) if math.isfinite(v) else None for v in arr.tolist()]
+
+
+def view_payload(view: RigView, settings: dict) -> dict:
+    """Everything one redraw needs: both figures, the grid, the numbers, the settings."""
+    dof = {"camera_near_mm": view.camera_dof.near_mm, "camera_far_mm": view.camera_dof.far_mm,
+           "projector_near_mm": view.projector_dof.near_mm,
+           "projector_far_mm": view.projector_dof.far_mm}
+    return {"scene": scene_figure(view), "curve": curve_figure(view),
+            "grid": {"x": _list(view.grid_x), "y": _list(view.grid_y),
+                     "z": _list(view.grid_z),
+                     "value": "".join(map(str, view.grid_value.ravel().tolist()))},
+            "numbers": {**view.numbers, "usable_mm3": view.volume.usable_mm3,
+                        "total_mm3": view.volume.total_mm3, "step_mm": view.volume.step_mm,
+                        **{k: float(v) for k, v in dof.items()}},
+            "settings": settings, "coc_cuts_volume": view.coc_cuts_volume}
+
+
+def dumps_payload(payload: dict) -> str:
+    """JSON text; non-finite numbers become null (JSON has no NaN)."""
+    return json.dumps(_clean(payload), allow_nan=False)
+
+
+def _clean(obj):
+    if isinstance(obj, (float, np.floating)):
+        return float(obj) if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_clean(v) for v in obj]
+    return obj
+
+
+#: The numbers panel: payload key, label, unit, decimals.
+NUMBERS = (("usable_cm3", "usable volume", "cm^3", 3), ("total_cm3", "total volume", "cm^3", 3),
+           ("usable_fraction", "usable / total", "", 4),
+           ("usable_depth_mm", "usable depth on the camera axis", "mm", 1),
+           ("usable_near_mm", "  from", "mm", 1), ("usable_far_mm", "  to", "mm", 1),
+           ("sigma_focus_um", "sigma at camera focus", "um", 2),
+           ("sigma_near_um", "sigma at the near end", "um", 2),
+           ("sigma_far_um", "sigma at the far end", "um", 2),
+           ("camera_near_mm", "camera depth of field from", "mm", 1),
+           ("camera_far_mm", "  to", "mm", 1),
+           ("projector_near_mm", "projector depth of field from (Z_p)", "mm", 1),
+           ("projector_far_mm", "  to", "mm", 1),
+           ("coc_near_mm", "c_c band from", "mm", 2), ("coc_far_mm", "  to", "mm", 2))
+
+
+def _inputs_html(settings: dict) -> str:
+    rows = []
+    for key, spec in SETTINGS.items():
+        unit = f" [{spec.unit}]" if spec.unit else ""
+        attrs = f'min="{spec.low:g}" max="{spec.high:g}" step="{spec.step:g}" ' \
+                f'value="{settings[key]:.6g}"'
+        rows.append(f'<label>{html.escape(spec.label)}{html.escape(unit)}<br>'
+                    f'<input type="range" id="{key}" data-key="{key}" {attrs}> '
+                    f'<input type="number" id="{key}-n" data-key="{key}" {attrs}></label>')
+    return "\n".join(rows)
+
+
+def _numbers_html() -> str:
+    rows = [f'<tr><td>{html.escape(label)}</td><td id="n-{key}" data-decimals="{dec}">'
+            f'</td><td>{html.escape(unit)}</td></tr>' for key, label, unit, dec in NUMBERS]
+    return "<table id=\"numbers\">" + "".join(rows) + "</table>"
+
+
+def page_html(settings: dict, title: str) -> str:
+    """The design page: inputs, the two figures, the numbers; plotly.js from the server."""
+    return _PAGE.replace("{{TITLE}}", html.escape(title)) \
+        .replace("{{INPUTS}}", _inputs_html(settings)).replace("{{NUMBERS}}", _numbers_html())
+
+
+_PAGE = """<!DOCTYPE html>
+<html lang="en"><head><meta charset="utf-8">
+<title>scanqa design: {{TITLE}}</title>
+<script src="/plotly.min.js"></script>
+<style>
+body { font-family: sans-serif; margin: 0; display: flex; height: 100vh; }
+#side { width: 330px; overflow-y: auto; padding: 8px; font-size: 13px;
+        border-right: 1px solid #ccc; }
+#side label { display: block; margin-bottom: 6px; }
+#side input[type=range] { width: 200px; vertical-align: middle; }
+#side input[type=number] { width: 80px; }
+#main { flex: 1; display: flex; flex-direction: column; }
+#scene { flex: 3; min-height: 300px; }
+#curve { flex: 2; min-height: 220px; }
+#numbers td { padding: 1px 4px; } #numbers td:nth-child(2) { text-align: right; }
+#error { color: #b00; white-space: pre-wrap; }
+</style></head>
+<body>
+<div id="side">
+<h3>{{TITLE}}</h3>
+{{INPUTS}}
+<label><input type="checkbox" id="coc_cuts_volume"> cut the usable volume to the c_c band
+(Fig. 6 does not)</label>
+<p><button id="export">export config TOML</button>
+<label>load config TOML <input type="file" id="load" accept=".toml"></label></p>
+<div id="error"></div>
+{{NUMBERS}}
+<p>redraw: <span id="redraw-ms">-</span> ms (model <span id="model-ms">-</span> ms)</p>
+</div>
+<div id="main"><div id="scene"></div><div id="curve"></div></div>
+<script>
+"use strict";
+var busy = false, pending = false, redraws = 0;
+function settings() {
+  var out = {};
+  document.querySelectorAll('input[type=range]').forEach(function (el) {
+    out[el.dataset.key] = parseFloat(el.value); });
+  return out;
+}
+function setInputs(s) {
+  Object.keys(s).forEach(function (k) {
+    var a = document.getElementById(k), b = document.getElementById(k + '-n');
+    if (a) { a.value = s[k]; b.value = Number(s[k]).toPrecision(6); } });
+}
+function expand(grid, trace) {  // the grid's axes to one point per voxel, x fastest
+  var nx = grid.x.length, ny = grid.y.length, nz = grid.z.length, n = nx * ny * nz;
+  var x = new Float32Array(n), y = new Float32Array(n), z = new Float32Array(n),
+      v = new Float32Array(n), i = 0;
+  for (var c = 0; c < nz; c++) for (var b = 0; b < ny; b++) for (var a = 0; a < nx; a++) {
+    x[i] = grid.x[a]; y[i] = grid.y[b]; z[i] = grid.z[c];
+    v[i] = grid.value.charCodeAt(i) - 48; i++; }
+  trace.x = x; trace.y = y; trace.z = z; trace.value = v; delete trace.grid;
+}
+function show(numbers) {
+  document.querySelectorAll('#numbers td[id]').forEach(function (td) {
+    var v = numbers[td.id.slice(2)];
+    td.textContent = (v === null || v === undefined) ? 'n/a'
+      : Number(v).toFixed(parseInt(td.dataset.decimals, 10)); });
+}
+function redraw() {
+  if (busy) { pending = true; return; }
+  busy = true; pending = false;
+  var t0 = performance.now();
+  var body = JSON.stringify({settings: settings(),
+    coc_cuts_volume: document.getElementById('coc_cuts_volume').checked});
+  fetch('/api/view', {method: 'POST', body: body}).then(function (r) {
+    return r.json().then(function (p) { return {ok: r.ok, p: p}; }); })
+  .then(function (res) {
+    var p = res.p;
+    if (!res.ok) { document.getElementById('error').textContent = p.error; return; }
+    document.getElementById('error').textContent = '';
+    p.scene.data.forEach(function (t) { if (t.grid) expand(p.grid, t); });
+    return Promise.all([Plotly.react('scene', p.scene.data, p.scene.layout),
+                        Plotly.react('curve', p.curve.data, p.curve.layout)])
+      .then(function () {
+        show(p.numbers);
+        var ms = performance.now() - t0;
+        redraws += 1;
+        var el = document.getElementById('redraw-ms');
+        el.textContent = ms.toFixed(0); el.dataset.ms = ms; el.dataset.count = redraws;
+        document.getElementById('model-ms').textContent = p.model_ms.toFixed(0);
+      });
+  }).catch(function (e) { document.getElementById('error').textContent = String(e); })
+  .finally(function () { busy = false; if (pending) redraw(); });
+}
+document.querySelectorAll('#side input[data-key]').forEach(function (el) {
+  el.addEventListener('input', function () {
+    var other = el.type === 'range' ? el.id + '-n' : el.dataset.key;
+    document.getElementById(other).value = el.value;
+    if (el.type === 'range') redraw(); });
+  el.addEventListener('change', function () { redraw(); });
+});
+document.getElementById('coc_cuts_volume').addEventListener('change', redraw);
+document.getElementById('export').addEventListener('click', function () {
+  fetch('/api/export', {method: 'POST', body: JSON.stringify({settings: settings()})})
+  .then(function (r) { return r.text(); }).then(function (text) {
+    var a = document.createElement('a');
+    a.href = URL.createObjectURL(new Blob([text], {type: 'application/toml'}));
+    a.download = 'scanner.toml'; a.click(); });
+});
+document.getElementById('load').addEventListener('change', function (ev) {
+  var f = ev.target.files[0]; if (!f) return;
+  f.text().then(function (text) {
+    return fetch('/api/load', {method: 'POST', body: text}); })
+  .then(function (r) { return r.json(); }).then(function (p) {
+    if (p.error) { document.getElementById('error').textContent = p.error; return; }
+    setInputs(p.settings); redraw(); });
+});
+redraw();
+</script>
+</body></html>
+"""
