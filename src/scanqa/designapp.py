@@ -93,6 +93,8 @@ def _handler(state: DesignState, title: str) -> type[BaseHTTPRequestHandler]:
             if self.path in ("/", "/index.html"):
                 page = designpage.page_html(state.settings, title)
                 self._send(200, page.encode(), "text/html; charset=utf-8")
+            elif self.path == "/favicon.ico":
+                self._send(204, b"", "image/x-icon")
             elif self.path == "/plotly.min.js":
                 self._send(200, _plotly_js(), "text/javascript", cache=True)
             else:

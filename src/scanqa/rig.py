@@ -22,6 +22,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import linprog
+from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from scanqa import design, optics
 from scanqa.config import ScannerConfig, config_from_dict
@@ -153,10 +155,11 @@ def config_toml_dict(config: ScannerConfig) -> dict:
 class RigView:
     """Everything the design page shows for one config and thresholds.
 
-    Points are (n, 3) arrays in the scanner frame [mm]; ``grid_x``, ``grid_y``,
-    ``grid_z`` are the axes of a coarse voxel grid for the picture and ``grid_value`` its
-    (nz, ny, nx) classes (0 outside both frusta, 1 inside, 2 usable); the numbers come
-    from ``volume``, the 1 mm grid of ``scanqa volume``.
+    Points are (n, 3) arrays in the scanner frame [mm]. ``total_mesh`` (the convex
+    intersection of the pyramids and the near and far planes) and ``usable_mesh`` (the
+    boundary of the usable voxels of a coarse grid) are (vertices (n, 3) [mm], triangles
+    (m, 3)) for the picture; the numbers come from ``volume``, the 1 mm grid of
+    ``scanqa volume``.
     """
 
     level: float
@@ -170,10 +173,8 @@ class RigView:
     coc_planes: np.ndarray
     clip_planes: np.ndarray
     axes_crossing: np.ndarray
-    grid_x: np.ndarray
-    grid_y: np.ndarray
-    grid_z: np.ndarray
-    grid_value: np.ndarray
+    total_mesh: tuple[np.ndarray, np.ndarray]
+    usable_mesh: tuple[np.ndarray, np.ndarray]
     curve: dict
     camera_dof: design.DepthOfField
     projector_dof: design.DepthOfField
@@ -196,7 +197,7 @@ def rig_view(config: ScannerConfig, level: float = 0.49, coc_max_mm: float = 0.0
     coc_cuts_volume : bool
         Also cut the usable volume to the band (Fig. 6 does not).
     picture_voxels : int
-        About how many voxels the picture's coarse grid has [-].
+        About how many voxels the picture's coarse grid of the usable volume has [-].
 
     Returns
     -------
@@ -210,14 +211,15 @@ def rig_view(config: ScannerConfig, level: float = 0.49, coc_max_mm: float = 0.0
     cam_dof = design.camera_dof(config, level, config.fringes.working_period_px)
     proj_dof = design.projector_dof(config, level, config.fringes.working_period_px)
     band = design.coc_band(config, coc_max_mm)
-    gx, gy, gz, value = _picture_grid(config, vol, cut, picture_voxels)
+    total_mesh = _hull_mesh(config, z_lo, z_hi)
+    usable_mesh = _usable_mesh(config, vol, cut, picture_voxels)
     return RigView(
         level, coc_max_mm, coc_cuts_volume, vol,
         _pyramid(config, "camera", z_hi), _pyramid(config, "projector", z_hi),
         _camera_plane(config, config.camera.focus_mm), _projector_plane(config),
         np.stack([_camera_plane(config, min(z, z_hi)) for z in band]),
         np.stack([_camera_plane(config, z) for z in (z_lo, z_hi)]),
-        config.axes_crossing_mm, gx, gy, gz, value, curve, cam_dof, proj_dof,
+        config.axes_crossing_mm, total_mesh, usable_mesh, curve, cam_dof, proj_dof,
         _numbers(config, vol, curve, level, cut, band))
 
 
@@ -255,10 +257,72 @@ def _pyramid(config: ScannerConfig, device: str, z_far: float) -> np.ndarray:
     return np.vstack([config.projector.position_mm, _projector_corners(config, reach)])
 
 
-def _picture_grid(config: ScannerConfig, vol: design.UsableVolume, cut: float | None,
-                  voxels: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """A coarse grid over the volume's box: its axes xs, ys, zs [mm] and a (nz, ny, nx)
-    value, 0 outside, 1 inside both frusta, 2 usable."""
+def _hull_mesh(config: ScannerConfig, z_lo: float, z_hi: float
+               ) -> tuple[np.ndarray, np.ndarray]:
+    """The total volume as a triangle mesh: the intersection of both view pyramids and
+    the near and far planes, a convex polyhedron (vertices (n, 3) [mm], triangles (m, 3)).
+    """
+    planes = [_side_planes(np.zeros(3), _camera_plane(config, 1.0)),
+              _side_planes(np.asarray(config.projector.position_mm, dtype=float),
+                           _projector_corners(config, 1.0))]
+    halfspaces = np.vstack([*planes, [[0, 0, -1, z_lo], [0, 0, 1, -z_hi]]])
+    norms = np.linalg.norm(halfspaces[:, :3], axis=1)
+    res = linprog([0, 0, 0, -1], A_ub=np.hstack([halfspaces[:, :3], norms[:, None]]),
+                  b_ub=-halfspaces[:, 3], bounds=[(None, None)] * 3 + [(0, None)])
+    if not res.success or res.x[3] <= 1e-6:  # the pyramids do not meet in the range
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=int)
+    verts = HalfspaceIntersection(halfspaces, res.x[:3]).intersections
+    return verts, ConvexHull(verts).simplices
+
+
+def _side_planes(apex: np.ndarray, corners: np.ndarray) -> np.ndarray:
+    """(4, 4) halfspaces n . q + d <= 0 of a pyramid's sides, normals pointing out."""
+    out = []
+    centre = apex + (corners - apex).mean(axis=0)
+    for a, b in zip(corners, np.roll(corners, -1, axis=0), strict=True):
+        n = np.cross(a - apex, b - apex)
+        n = n if n @ (centre - apex) < 0 else -n
+        out.append([*n, -n @ apex])
+    return np.asarray(out)
+
+
+def _voxel_surface(mask: np.ndarray, xs: np.ndarray, ys: np.ndarray, zs: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """The boundary faces of a (nz, ny, nx) voxel mask as a triangle mesh [mm]."""
+    pad = np.pad(mask, 1)
+    step = (xs[1] - xs[0]) if xs.size > 1 else 1.0
+    origin = np.array([xs[0], ys[0], zs[0]]) - 1.5 * step  # of the padded grid's corner
+    quads = []
+    for axis in range(3):  # faces between neighbours along z, y, x of the (z, y, x) grid
+        diff = np.diff(pad.astype(np.int8), axis=axis)
+        for idx in np.argwhere(diff != 0):
+            quads.append(_face(idx, axis))
+    if not quads:
+        return np.zeros((0, 3)), np.zeros((0, 3), dtype=int)
+    corners = np.asarray(quads, dtype=float)[..., ::-1]  # (z, y, x) -> (x, y, z)
+    verts = origin + step * corners.reshape(-1, 3)
+    k = 4 * np.arange(len(quads))[:, None]
+    tris = np.vstack([k + np.array([0, 1, 2]), k + np.array([0, 2, 3])])
+    return verts, tris
+
+
+def _face(idx: np.ndarray, axis: int) -> list:
+    """The four corners (z, y, x in padded voxel units) of the face after voxel idx."""
+    base = idx.astype(float)
+    base[axis] += 1.0
+    a, b = [d for d in range(3) if d != axis]
+    out = []
+    for da, db in ((0, 0), (1, 0), (1, 1), (0, 1)):
+        c = base.copy()
+        c[a] += da
+        c[b] += db
+        out.append(c)
+    return out
+
+
+def _usable_mesh(config: ScannerConfig, vol: design.UsableVolume, cut: float | None,
+                 voxels: int) -> tuple[np.ndarray, np.ndarray]:
+    """The usable volume on a coarse grid of about ``voxels`` cubes, as its boundary mesh."""
     x_lo, x_hi = vol.slice_x_mm[0], vol.slice_x_mm[-1]
     half_y = design._half_extent(config, vol.z_max_mm)[1]
     box = (x_hi - x_lo) * 2 * half_y * (vol.z_max_mm - vol.z_min_mm)
@@ -268,8 +332,7 @@ def _picture_grid(config: ScannerConfig, vol: design.UsableVolume, cut: float | 
     zs = np.arange(vol.z_min_mm, vol.z_max_mm + step, step)
     inside, good = design.volume_masks(xs[None, None, :], ys[None, :, None],
                                        zs[:, None, None], config, vol.level, None, cut)
-    value = inside.astype(np.int8) + (inside & good)
-    return xs, ys, zs, value
+    return _voxel_surface(inside & good, xs, ys, zs)
 
 
 def _numbers(config: ScannerConfig, vol: design.UsableVolume, curve: dict, level: float,

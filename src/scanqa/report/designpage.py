@@ -46,13 +46,14 @@ def _quad(corners: np.ndarray, name: str, color: str, opacity: float) -> dict:
             "j": [1, 2], "k": [2, 3], "color": color, "opacity": opacity, "hoverinfo": "name"}
 
 
-def _iso(view: RigView, lowest: float, name: str, color: str, opacity: float) -> dict:
-    """An isosurface of the picture grid; the page expands the axes to points (``grid``)."""
-    return {"type": "isosurface", "name": name, "showlegend": True, "showscale": False,
-            "isomin": lowest, "isomax": 2.0, "surface": {"count": 1},
-            "caps": {"x": {"show": True}, "y": {"show": True}, "z": {"show": True}},
-            "colorscale": [[0, color], [1, color]], "opacity": opacity,
-            "hoverinfo": "name", "grid": True}
+def _mesh(mesh: tuple[np.ndarray, np.ndarray], name: str, color: str, opacity: float
+          ) -> dict:
+    """A triangle mesh (vertices (n, 3) [mm], triangles (m, 3)) as a Plotly mesh3d."""
+    verts, tris = mesh
+    return {"type": "mesh3d", "name": name, "showlegend": True, "x": _list(verts[:, 0]),
+            "y": _list(verts[:, 1]), "z": _list(verts[:, 2]), "i": tris[:, 0].tolist(),
+            "j": tris[:, 1].tolist(), "k": tris[:, 2].tolist(), "color": color,
+            "opacity": opacity, "flatshading": True, "hoverinfo": "name"}
 
 
 def scene_figure(view: RigView) -> dict:
@@ -76,8 +77,10 @@ def scene_figure(view: RigView) -> dict:
     data.append({"type": "scatter3d", "mode": "markers", "name": "axes crossing",
                  "x": [float(c[0])], "y": [float(c[1])], "z": [float(c[2])],
                  "marker": {"color": "black", "size": 4}})
-    data.append(_iso(view, 0.5, "total volume", "#f2d024", 0.15))
-    data.append(_iso(view, 1.5, f"usable volume (A_c A_p >= {view.level:g})", "#d9480f", 0.7))
+    data.append(_mesh(view.total_mesh, "total volume", "#f2d024", 0.2))
+    usable = f"usable volume (A_c A_p >= {view.level:g}" \
+        + (f", c_c <= {view.coc_max_mm:g} mm)" if view.coc_cuts_volume else ")")
+    data.append(_mesh(view.usable_mesh, usable, "#d9480f", 0.8))
     layout = {"uirevision": "keep", "margin": {"l": 0, "r": 0, "t": 30, "b": 0},
               "title": {"text": "scanner and reconstruction volumes (Fig. 6)"},
               "legend": {"x": 0, "y": 1},
@@ -95,6 +98,8 @@ def curve_figure(view: RigView) -> dict:
     cv = view.curve
     z, ok = cv["z_mm"], cv["model_valid"]
     combined = cv["attenuation_camera"] * cv["attenuation_projector"]
+    valid = cv["sigma_um"][ok & np.isfinite(cv["sigma_um"])]
+    top = float(valid.max()) if valid.size else 0.0
     data = [
         _xy(z, np.where(ok, cv["sigma_um"], np.nan), "sigma (model valid) [um]", "black",
             "y"),
@@ -113,7 +118,7 @@ def curve_figure(view: RigView) -> dict:
               "title": {"text": "W curve on the camera axis"},
               "xaxis": {"title": {"text": "Z [mm]"}},
               "yaxis": {"title": {"text": "sigma [um]"}, "domain": [0.42, 1.0],
-                        "rangemode": "tozero"},
+                        "range": [0, 1.5 * top if top > 0 else 1.0]},
               "yaxis2": {"title": {"text": "attenuation [-]"}, "domain": [0, 0.36],
                          "range": [0, 1.02]},
               "legend": {"orientation": "h", "y": -0.2},
@@ -147,14 +152,11 @@ def _list(values) -> list:
 
 
 def view_payload(view: RigView, settings: dict) -> dict:
-    """Everything one redraw needs: both figures, the grid, the numbers, the settings."""
+    """Everything one redraw needs: both figures, the numbers, the settings."""
     dof = {"camera_near_mm": view.camera_dof.near_mm, "camera_far_mm": view.camera_dof.far_mm,
            "projector_near_mm": view.projector_dof.near_mm,
            "projector_far_mm": view.projector_dof.far_mm}
     return {"scene": scene_figure(view), "curve": curve_figure(view),
-            "grid": {"x": _list(view.grid_x), "y": _list(view.grid_y),
-                     "z": _list(view.grid_z),
-                     "value": "".join(map(str, view.grid_value.ravel().tolist()))},
             "numbers": {**view.numbers, "usable_mm3": view.volume.usable_mm3,
                         "total_mm3": view.volume.total_mm3, "step_mm": view.volume.step_mm,
                         **{k: float(v) for k, v in dof.items()}},
@@ -192,14 +194,17 @@ NUMBERS = (("usable_cm3", "usable volume", "cm^3", 3), ("total_cm3", "total volu
 
 
 def _inputs_html(settings: dict) -> str:
+    """A slider (snapped to the setting's step) and an exact number box per setting."""
     rows = []
     for key, spec in SETTINGS.items():
         unit = f" [{spec.unit}]" if spec.unit else ""
-        attrs = f'min="{spec.low:g}" max="{spec.high:g}" step="{spec.step:g}" ' \
-                f'value="{settings[key]:.6g}"'
+        rng = f'min="{spec.low:g}" max="{spec.high:g}"'
+        value = f'value="{settings[key]:.6g}"'
         rows.append(f'<label>{html.escape(spec.label)}{html.escape(unit)}<br>'
-                    f'<input type="range" id="{key}" data-key="{key}" {attrs}> '
-                    f'<input type="number" id="{key}-n" data-key="{key}" {attrs}></label>')
+                    f'<input type="range" id="{key}" data-key="{key}" {rng} '
+                    f'step="{spec.step:g}" {value}> '
+                    f'<input type="number" id="{key}-n" data-key="{key}" {rng} step="any" '
+                    f'{value}></label>')
     return "\n".join(rows)
 
 
@@ -211,8 +216,10 @@ def _numbers_html() -> str:
 
 def page_html(settings: dict, title: str) -> str:
     """The design page: inputs, the two figures, the numbers; plotly.js from the server."""
+    exact = json.dumps({k: float(v) for k, v in settings.items()}).replace("<", "\\u003c")
     return _PAGE.replace("{{TITLE}}", html.escape(title)) \
-        .replace("{{INPUTS}}", _inputs_html(settings)).replace("{{NUMBERS}}", _numbers_html())
+        .replace("{{INPUTS}}", _inputs_html(settings)).replace("{{NUMBERS}}", _numbers_html()) \
+        .replace("{{SETTINGS}}", exact)
 
 
 _PAGE = """<!DOCTYPE html>
@@ -248,25 +255,13 @@ body { font-family: sans-serif; margin: 0; display: flex; height: 100vh; }
 <script>
 "use strict";
 var busy = false, pending = false, redraws = 0;
-function settings() {
-  var out = {};
-  document.querySelectorAll('input[type=range]').forEach(function (el) {
-    out[el.dataset.key] = parseFloat(el.value); });
-  return out;
-}
+var current = {{SETTINGS}};  // exact values: an input only replaces the one it changes
+function settings() { return Object.assign({}, current); }
 function setInputs(s) {
+  current = Object.assign({}, s);
   Object.keys(s).forEach(function (k) {
     var a = document.getElementById(k), b = document.getElementById(k + '-n');
     if (a) { a.value = s[k]; b.value = Number(s[k]).toPrecision(6); } });
-}
-function expand(grid, trace) {  // the grid's axes to one point per voxel, x fastest
-  var nx = grid.x.length, ny = grid.y.length, nz = grid.z.length, n = nx * ny * nz;
-  var x = new Float32Array(n), y = new Float32Array(n), z = new Float32Array(n),
-      v = new Float32Array(n), i = 0;
-  for (var c = 0; c < nz; c++) for (var b = 0; b < ny; b++) for (var a = 0; a < nx; a++) {
-    x[i] = grid.x[a]; y[i] = grid.y[b]; z[i] = grid.z[c];
-    v[i] = grid.value.charCodeAt(i) - 48; i++; }
-  trace.x = x; trace.y = y; trace.z = z; trace.value = v; delete trace.grid;
 }
 function show(numbers) {
   document.querySelectorAll('#numbers td[id]').forEach(function (td) {
@@ -286,7 +281,6 @@ function redraw() {
     var p = res.p;
     if (!res.ok) { document.getElementById('error').textContent = p.error; return; }
     document.getElementById('error').textContent = '';
-    p.scene.data.forEach(function (t) { if (t.grid) expand(p.grid, t); });
     return Promise.all([Plotly.react('scene', p.scene.data, p.scene.layout),
                         Plotly.react('curve', p.curve.data, p.curve.layout)])
       .then(function () {
@@ -304,8 +298,10 @@ document.querySelectorAll('#side input[data-key]').forEach(function (el) {
   el.addEventListener('input', function () {
     var other = el.type === 'range' ? el.id + '-n' : el.dataset.key;
     document.getElementById(other).value = el.value;
-    if (el.type === 'range') redraw(); });
-  el.addEventListener('change', function () { redraw(); });
+    if (el.type === 'range') { current[el.dataset.key] = parseFloat(el.value); redraw(); } });
+  el.addEventListener('change', function () {
+    var v = parseFloat(el.value);
+    if (isFinite(v)) { current[el.dataset.key] = v; redraw(); } });
 });
 document.getElementById('coc_cuts_volume').addEventListener('change', redraw);
 document.getElementById('export').addEventListener('click', function () {
