@@ -300,10 +300,10 @@ def _voxel_surface(mask: np.ndarray, xs: np.ndarray, ys: np.ndarray, zs: np.ndar
     if not quads:
         return np.zeros((0, 3)), np.zeros((0, 3), dtype=int)
     corners = np.asarray(quads, dtype=float)[..., ::-1]  # (z, y, x) -> (x, y, z)
-    verts = origin + step * corners.reshape(-1, 3)
-    k = 4 * np.arange(len(quads))[:, None]
-    tris = np.vstack([k + np.array([0, 1, 2]), k + np.array([0, 2, 3])])
-    return verts, tris
+    corners, index = np.unique(corners.reshape(-1, 3), axis=0, return_inverse=True)
+    k = index.reshape(-1, 4)  # shared corners once: a quarter of the vertices to send
+    tris = np.vstack([k[:, [0, 1, 2]], k[:, [0, 2, 3]]])
+    return origin + step * corners, tris
 
 
 def _face(idx: np.ndarray, axis: int) -> list:

@@ -147,8 +147,11 @@ def _vline(x: float, color: str) -> dict | None:
 
 def _list(values) -> list:
     """JSON-ready floats: NaN and inf become null (Plotly breaks lines there)."""
-    arr = np.asarray(values, dtype=float)
-    return [round(v, 4) if math.isfinite(v) else None for v in arr.tolist()]
+    arr = np.round(np.asarray(values, dtype=float), 4)
+    finite = np.isfinite(arr)
+    if finite.all():
+        return arr.tolist()
+    return [v if ok else None for v, ok in zip(arr.tolist(), finite.tolist(), strict=True)]
 
 
 def view_payload(view: RigView, settings: dict) -> dict:
@@ -257,6 +260,7 @@ body { font-family: sans-serif; margin: 0; display: flex; height: 100vh; }
 var busy = false, pending = false, redraws = 0;
 var current = {{SETTINGS}};  // exact values: an input only replaces the one it changes
 function settings() { return Object.assign({}, current); }
+window.scanqaBusy = function () { return busy || pending; };  // for tests and benchmarks
 function setInputs(s) {
   current = Object.assign({}, s);
   Object.keys(s).forEach(function (k) {
@@ -300,8 +304,9 @@ document.querySelectorAll('#side input[data-key]').forEach(function (el) {
     document.getElementById(other).value = el.value;
     if (el.type === 'range') { current[el.dataset.key] = parseFloat(el.value); redraw(); } });
   el.addEventListener('change', function () {
-    var v = parseFloat(el.value);
-    if (isFinite(v)) { current[el.dataset.key] = v; redraw(); } });
+    var v = parseFloat(el.value);  // a slider's change follows its input: no second redraw
+    if (isFinite(v) && v !== current[el.dataset.key]) { current[el.dataset.key] = v; redraw(); }
+  });
 });
 document.getElementById('coc_cuts_volume').addEventListener('change', redraw);
 document.getElementById('export').addEventListener('click', function () {
