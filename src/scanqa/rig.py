@@ -275,6 +275,16 @@ def _hull_mesh(config: ScannerConfig, z_lo: float, z_hi: float
     return verts, ConvexHull(verts).simplices
 
 
+def pyramid_halfspaces(config: ScannerConfig, z_far: float) -> list[np.ndarray]:
+    """The camera's and the projector's view pyramids up to the far plane z_far, each as
+    (5, 4) halfspaces n . q + d <= 0 (four sides and the far plane) [mm]."""
+    cam = _side_planes(np.zeros(3), _camera_plane(config, 1.0))
+    proj_pos = np.asarray(config.projector.position_mm, dtype=float)
+    proj = _side_planes(proj_pos, _projector_corners(config, 1.0))
+    far = [0.0, 0.0, 1.0, -z_far]
+    return [np.vstack([cam, far]), np.vstack([proj, far])]
+
+
 def _side_planes(apex: np.ndarray, corners: np.ndarray) -> np.ndarray:
     """(4, 4) halfspaces n . q + d <= 0 of a pyramid's sides, normals pointing out."""
     out = []

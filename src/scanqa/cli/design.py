@@ -93,6 +93,25 @@ def register(sub: argparse._SubParsersAction) -> None:
                       help="do not open the page in the default browser")
     page.set_defaults(func=run_page)
 
+    opt = actions.add_parser("optimise", formatter_class=_FMT,
+                             help="search the settings for the largest usable volume that "
+                                  "covers a box at a sigma, clear of obstacles",
+                             epilog="example:\n  scanqa design optimise --config "
+                                    "calib/paper_scanner.toml --spec "
+                                    "benchmarks/design_specs/obstacle.toml --out best.toml")
+    add_config_argument(opt)
+    opt.add_argument("--spec", required=True, metavar="SPEC.toml",
+                     help='design spec (format = "scanqa-design-spec/1": cover box, '
+                          "sigma_max_um, [limits], [[obstacles]]; see docs/cli.rst)")
+    opt.add_argument("--out", default=None, metavar="FILE.toml",
+                     help="write the best configuration's scanner config here")
+    opt.add_argument("--open", action="store_true",
+                     help="then serve the best configuration in the design page")
+    opt.add_argument("--port", type=number(int, ge=0), default=8765,
+                     help="design page port with --open (default 8765)")
+    add_output_arguments(opt)
+    opt.set_defaults(func=run_optimise)
+
 
 def _add_range(p: argparse.ArgumentParser) -> None:
     add_config_argument(p)
@@ -196,4 +215,41 @@ def run_page(args: argparse.Namespace) -> int:
         pass
     finally:
         server.server_close()
+    return 0
+
+
+def run_optimise(args: argparse.Namespace) -> int:
+    from scanqa import optimisation, rig
+    from scanqa.io.atomic import write_text
+    from scanqa.io.tomlfile import dumps_toml
+
+    config = config_from_args(args)
+    spec = optimisation.load_spec(args.spec)
+    out, plot = output_path(args.out), output_path(args.plot)
+    res = optimisation.optimise(config, spec)
+    best = res.config
+    focus = best.camera.focus_mm
+    curve = design.axis_curve(best, 0.9 * focus, 1.1 * focus, 0.5)
+    if out:
+        write_text(out, "# found by scanqa design optimise --spec " + args.spec + "\n"
+                          + dumps_toml(rig.config_toml_dict(best)))
+    if plot:
+        plots.plot_curve(curve, plot, focus)
+    row = {**res.values, "usable_mm3": res.usable_mm3, "evaluations": res.evaluations}
+    if args.json:
+        emit(json.dumps(row, indent=1))
+    else:
+        emit(format_rows([row], False, args.csv))
+    if args.open:
+        from scanqa import designapp
+
+        server = designapp.make_server(best, "127.0.0.1", args.port, spec.level)
+        emit(f"scanqa design page: http://127.0.0.1:{server.server_address[1]}/ "
+             "(Ctrl-C stops it)")
+        try:
+            server.serve_forever()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            server.server_close()
     return 0
