@@ -388,7 +388,7 @@ def coc_band(config: ScannerConfig, coc_max_mm: float) -> tuple[float, float]:
     --------
     >>> from scanqa.config import load_config
     >>> [round(z, 2) for z in coc_band(load_config("calib/paper_scanner.toml"), 0.030)]
-    [446.34, 453.73]
+    [446.26, 453.82]
     """
     if not coc_max_mm > 0:
         raise RangeError(f"coc_max_mm must be > 0 mm, got {coc_max_mm!r}")
