@@ -119,3 +119,23 @@ def test_rig_view_draws_the_scanner(paper_config):
     assert n["usable_near_mm"] < paper_config.camera.focus_mm < n["usable_far_mm"]
     assert view.camera_pyramid.shape == view.projector_pyramid.shape == (5, 3)
     assert uverts.size and n["coc_near_mm"] < 450.0 < n["coc_far_mm"]
+
+
+def test_cli_serves_the_page_until_interrupted(capsys, monkeypatch):
+    served = []
+
+    def interrupted(server, *args, **kwargs):
+        served.append(server.state.settings)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(designapp.ThreadingHTTPServer, "serve_forever", interrupted)
+    assert main(["design", "page", "--config", str(PAPER_CONFIG), "--port", "0",
+                 "--no-browser", "--level", "0.36"]) == 0
+    assert "scanqa design page: http://127.0.0.1:" in capsys.readouterr().out
+    assert served[0]["level"] == 0.36 and served[0]["coc_max_mm"] == 0.030
+
+
+def test_cli_refuses_a_level_outside_the_page_range(capsys):
+    assert main(["design", "page", "--config", str(PAPER_CONFIG), "--port", "0",
+                 "--no-browser", "--level", "1.5"]) == 2
+    assert "level must be in [0.05, 0.95]" in capsys.readouterr().err
