@@ -55,6 +55,19 @@ def test_optimiser_reaches_the_grid_optimum_with_fewer_evaluations(paper_config,
     assert vol.usable_mm3 == found.usable_mm3
 
 
+def test_worst_sigma_objective_against_the_grid(paper_config, tmp_path):
+    path = tmp_path / "sigma.toml"
+    path.write_text(SPEC.replace("level = 0.49", 'objective = "worst_sigma"\nlevel = 0.49')
+                    + OBSTACLE)
+    spec = optimisation.load_spec(path)
+    found = optimisation.optimise(paper_config, spec)
+    grid = optimisation.grid_search(paper_config, spec, 10)
+    assert found.worst_sigma_um <= 1.02 * grid.worst_sigma_um
+    assert found.evaluations < grid.evaluations
+    sigma = optics.predict(spec.cover.samples(), found.config).sigma
+    assert found.worst_sigma_um == pytest.approx(1e3 * sigma.max(), rel=1e-12)
+
+
 def test_feasible_checks_sigma_in_the_cover_box(paper_config, spec_path):
     spec = optimisation.load_spec(spec_path)
     pts = spec.cover.samples()
@@ -91,6 +104,8 @@ def test_cli_writes_a_config_that_gives_the_reported_volume(capsys, tmp_path, sp
     (SPEC.replace("angle_deg", "bogus"), "limits.bogus is not a scanner setting"),
     (SPEC.replace("[cover]", "[cover_]"), "missing or malformed key 'cover'"),
     (SPEC.replace("sigma_max_um = 8.0", "sigma_max_um = 0.1"), "no configuration"),
+    (SPEC.replace("level = 0.49", 'objective = "fast"\nlevel = 0.49'),
+     "objective must be one of"),
 ])
 def test_bad_specs(paper_config, tmp_path, text, message):
     path = tmp_path / "bad.toml"

@@ -3,7 +3,8 @@
 A design spec names the volume the scanner must cover (a box in the scanner frame), the
 largest sigma allowed in it, the settings that may vary and their limits (the names of
 :data:`scanqa.rig.SETTINGS`) and obstacles, boxes that no view pyramid may cross. The
-optimiser maximises the usable volume (:func:`scanqa.design.usable_volume`) over the
+optimiser maximises the usable volume (:func:`scanqa.design.usable_volume`), or with
+``objective = "worst_sigma"`` minimises the largest sigma over the box, over the
 settings among the configurations that cover the box at that sigma and clear the
 obstacles: a coarse grid of the box of limits, then a compass search (pattern search
 with halving steps) from the best feasible point. Every evaluation runs the one model
@@ -12,6 +13,7 @@ chain; :class:`Evaluator` counts them.
 Spec (TOML)::
 
     format = "scanqa-design-spec/1"
+    objective = "usable_volume"       # or "worst_sigma" (default "usable_volume")
     level = 0.49                      # combined attenuation threshold A_c A_p [-]
     sigma_max_um = 3.0                # largest sigma on the line of sight in the box [um]
     step_mm = 2.0                     # voxel size of the usable volume [mm]
@@ -41,6 +43,9 @@ from scanqa.errors import InputError, ScanQAError
 from scanqa.io.tomlfile import read_toml
 
 SPEC_FORMAT = "scanqa-design-spec/1"
+#: What the search maximises: the usable volume, or minus the largest sigma over the
+#: cover box (its points of :meth:`Box.samples`).
+OBJECTIVES = ("usable_volume", "worst_sigma")
 
 
 @dataclass(frozen=True)
@@ -73,6 +78,7 @@ class DesignSpec:
     level: float = 0.49
     step_mm: float = 2.0
     source: str = "<spec>"
+    objective: str = "usable_volume"
 
     def __post_init__(self) -> None:
         if not self.limits:
@@ -84,6 +90,9 @@ class DesignSpec:
             if not lo < hi:
                 raise InputError(f"limits.{key} needs low < high, got [{lo}, {hi}] "
                                  f"({self.source})")
+        if self.objective not in OBJECTIVES:
+            raise InputError(f"objective must be one of {', '.join(OBJECTIVES)}, got "
+                             f"{self.objective!r} ({self.source})")
         if not self.sigma_max_um > 0 or not 0 < self.level < 1 or not self.step_mm > 0:
             raise InputError(f"sigma_max_um and step_mm must be > 0 and level in (0, 1) "
                              f"({self.source})")
@@ -101,7 +110,8 @@ def load_spec(path: str | os.PathLike) -> DesignSpec:
             float(data["sigma_max_um"]), limits,
             tuple(Box(tuple(o["min_mm"]), tuple(o["max_mm"]))
                   for o in data.get("obstacles", [])),
-            float(data.get("level", 0.49)), float(data.get("step_mm", 2.0)), str(path))
+            float(data.get("level", 0.49)), float(data.get("step_mm", 2.0)), str(path),
+            str(data.get("objective", "usable_volume")))
     except (KeyError, TypeError, IndexError, ValueError) as err:
         raise InputError(f"{path}: missing or malformed key {err} (see scanqa.optimisation)"
                          ) from None
@@ -109,7 +119,8 @@ def load_spec(path: str | os.PathLike) -> DesignSpec:
 
 @dataclass
 class Evaluator:
-    """The spec's objective at settings: usable volume [mm^3], or -inf when infeasible.
+    """The spec's objective at settings, -inf when infeasible: the usable volume [mm^3]
+    or minus the worst sigma in the cover box [um].
 
     ``calls`` counts model evaluations (each a usable volume and the checks); repeated
     settings are served from a cache and not counted.
@@ -138,7 +149,14 @@ class Evaluator:
             return -np.inf
         if not feasible(config, self.spec):
             return -np.inf
+        if self.spec.objective == "worst_sigma":
+            return -worst_sigma_um(config, self.spec)
         return design.usable_volume(config, self.spec.level, step=self.spec.step_mm).usable_mm3
+
+
+def worst_sigma_um(config: ScannerConfig, spec: DesignSpec) -> float:
+    """The largest sigma along the line of sight over the cover box's samples [um]."""
+    return float(np.max(optics.predict(spec.cover.samples(), config).sigma)) * 1e3
 
 
 def feasible(config: ScannerConfig, spec: DesignSpec) -> bool:
@@ -170,17 +188,27 @@ def crosses(config: ScannerConfig, box: Box, z_far: float) -> bool:
 
 @dataclass(frozen=True)
 class OptimisationResult:
-    """The best settings found, their usable volume [mm^3], and the evaluations used."""
+    """The best settings found, the evaluations used, the config, and its usable volume
+    [mm^3] and worst sigma in the cover box [um] (whichever the objective was)."""
 
     values: dict
-    usable_mm3: float
     evaluations: int
     config: ScannerConfig
+    usable_mm3: float
+    worst_sigma_um: float
+
+
+def _result(config: ScannerConfig, spec: DesignSpec, ev: Evaluator, values: dict
+            ) -> OptimisationResult:
+    best = rig.apply_settings(config, ev.settings(values))
+    vol = design.usable_volume(best, spec.level, step=spec.step_mm)
+    return OptimisationResult(values, ev.calls, best, vol.usable_mm3,
+                              worst_sigma_um(best, spec))
 
 
 def optimise(config: ScannerConfig, spec: DesignSpec, coarse: int = 3,
              min_step: float = 1 / 64, budget: int = 200) -> OptimisationResult:
-    """Maximise the usable volume over the spec's settings (module notes).
+    """Maximise the spec's objective over its settings (module notes).
 
     Parameters
     ----------
@@ -203,7 +231,7 @@ def optimise(config: ScannerConfig, spec: DesignSpec, coarse: int = 3,
 
     Raises
     ------
-    RangeError
+    InputError
         When no configuration the search visited meets the spec.
     """
     names = list(spec.limits)
@@ -234,8 +262,7 @@ def optimise(config: ScannerConfig, spec: DesignSpec, coarse: int = 3,
                          "threshold while clearing the obstacles; widen [limits], enlarge "
                          "sigma_max_um or shrink [cover]")
     values = dict(zip(names, (lo + best_u * (hi - lo)).tolist(), strict=True))
-    return OptimisationResult(values, best, ev.calls,
-                              rig.apply_settings(config, ev.settings(values)))
+    return _result(config, spec, ev, values)
 
 
 def grid_search(config: ScannerConfig, spec: DesignSpec, points: int
@@ -252,5 +279,4 @@ def grid_search(config: ScannerConfig, spec: DesignSpec, points: int
             best_values, best = values, score
     if best_values is None:
         raise InputError("no grid point meets the spec")
-    return OptimisationResult(best_values, best, ev.calls,
-                              rig.apply_settings(config, ev.settings(best_values)))
+    return _result(config, spec, ev, best_values)

@@ -235,7 +235,8 @@ def run_optimise(args: argparse.Namespace) -> int:
                           + dumps_toml(rig.config_toml_dict(best)))
     if plot:
         plots.plot_curve(curve, plot, focus)
-    row = {**res.values, "usable_mm3": res.usable_mm3, "evaluations": res.evaluations}
+    row = {**res.values, "usable_mm3": res.usable_mm3, "worst_sigma_um": res.worst_sigma_um,
+           "evaluations": res.evaluations}
     if args.json:
         emit(json.dumps(row, indent=1))
     else:
