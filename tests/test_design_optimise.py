@@ -121,3 +121,20 @@ def test_box_samples_hold_the_corners():
     np.testing.assert_array_equal(pts.max(axis=0), [1, 2, 3])
     with pytest.raises(InputError, match="min_mm < max_mm"):
         optimisation.Box((0.0, 0.0, 0.0), (0.0, 1.0, 1.0))
+
+
+def test_cli_opens_the_best_configuration_in_the_page(capsys, monkeypatch, spec_path):
+    from scanqa import designapp
+
+    served = []
+
+    def interrupted(server, *args, **kwargs):
+        served.append(server.state.config)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(designapp.ThreadingHTTPServer, "serve_forever", interrupted)
+    assert main(["design", "optimise", "--config", str(PAPER_CONFIG), "--spec",
+                 str(spec_path), "--open", "--port", "0", "--json"]) == 0
+    out = capsys.readouterr().out
+    row = json.loads(out[:out.index("scanqa design page:")])
+    assert served[0].camera.f_number == pytest.approx(row["camera_f_number"])
