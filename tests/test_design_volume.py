@@ -21,7 +21,7 @@ def reference_counts(config, level, step, coc_max=None):
     """(total, usable) voxel counts of the grid usable_volume uses, one voxel at a time."""
     focus = config.camera.focus_mm
     zs = design._z_grid(0.75 * focus, 1.25 * focus, step)
-    half = design._half_extent(config, 1.25 * focus)
+    half = design.field_half_extent(config, 1.25 * focus)
     xs = np.arange(-half[0], half[0] + step, step)
     ys = np.arange(-half[1], half[1] + step, step)
     z, y, x = np.meshgrid(zs, ys, xs, indexing="ij")

@@ -293,7 +293,7 @@ def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | Non
     z_min = 0.75 * focus if z_min is None else z_min
     z_max = 1.25 * focus if z_max is None else z_max
     zs = _z_grid(z_min, z_max, step)
-    half_w = _half_extent(config, z_max)
+    half_w = field_half_extent(config, z_max)
     _check_voxels(half_w, zs.size, step)
     xs = np.arange(-half_w[0], half_w[0] + step, step)
     ys = np.arange(-half_w[1], half_w[1] + step, step)
@@ -419,8 +419,9 @@ def _check_voxels(half_w: tuple[float, float], n_z: int, step: float) -> None:
                      f"in all): use a step of at least {need * 1.01:.3g} mm")
 
 
-def _half_extent(config: ScannerConfig, z: float) -> tuple[float, float]:
-    """Half width and height of the camera's field of view at range z [mm]."""
+def field_half_extent(config: ScannerConfig, z: float) -> tuple[float, float]:
+    """Half width and height of the camera's field of view at range z, plus 1 mm of
+    margin: the box :func:`usable_volume` grids [mm]."""
     cam = config.camera
     scale = z / cam.principal_distance_px
     return (0.5 * cam.width_px * scale + 1.0, 0.5 * cam.height_px * scale + 1.0)

@@ -334,7 +334,7 @@ def _usable_mesh(config: ScannerConfig, vol: design.UsableVolume, cut: float | N
                  voxels: int) -> tuple[np.ndarray, np.ndarray]:
     """The usable volume on a coarse grid of about ``voxels`` cubes, as its boundary mesh."""
     x_lo, x_hi = vol.slice_x_mm[0], vol.slice_x_mm[-1]
-    half_y = design._half_extent(config, vol.z_max_mm)[1]
+    half_y = design.field_half_extent(config, vol.z_max_mm)[1]
     box = (x_hi - x_lo) * 2 * half_y * (vol.z_max_mm - vol.z_min_mm)
     step = (box / voxels) ** (1 / 3)
     xs = np.arange(x_lo, x_hi + step, step)
