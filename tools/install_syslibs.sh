@@ -4,7 +4,9 @@
 #                             pango (WeasyPrint prints the reports' PDF with it)
 #   install_syslibs.sh test   also the real clients the tests read our files with:
 #                             CloudCompare (command line, headless under xvfb-run),
-#                             chromium (the HTML reports), poppler-utils (the PDF reports)
+#                             chromium (the HTML reports, and the design page, which
+#                             Playwright drives through this very binary: no browser
+#                             download), poppler-utils (the PDF reports)
 set -e
 missing=""
 lib() {  # lib SONAME PACKAGE: add PACKAGE when the shared library SONAME is missing

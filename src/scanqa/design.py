@@ -208,6 +208,7 @@ class UsableVolume:
     slice_z_mm: np.ndarray
     slice_inside: np.ndarray
     slice_usable: np.ndarray
+    coc_max_mm: float | None = None
 
     @property
     def fraction(self) -> float:
@@ -215,26 +216,49 @@ class UsableVolume:
         return self.usable_mm3 / self.total_mm3 if self.total_mm3 > 0 else float("nan")
 
 
-def _in_frusta(points: np.ndarray, config: ScannerConfig) -> np.ndarray:
-    """Whether points project inside both the camera sensor and the projector panel."""
+def _in_frusta(x: np.ndarray, y: np.ndarray, z: np.ndarray | float,
+               config: ScannerConfig) -> np.ndarray:
+    """Whether points (x, y, z broadcast together, scanner frame [mm]) project inside both
+    the camera sensor and the projector panel.
+
+    Each term is computed on the smallest shape it depends on (the camera's u on x and
+    z, v on y and z) before the masks are combined, so that a slice costs a few passes.
+    """
     cam, proj = config.camera, config.projector
-    z = points[..., 2]
     with np.errstate(divide="ignore", invalid="ignore"):
-        u = cam.principal_distance_px * points[..., 0] / z + cam.principal_point_px[0]
-        v = cam.principal_distance_px * points[..., 1] / z + cam.principal_point_px[1]
-        qp = optics.to_projector_frame(points, config)
-        xp = proj.principal_distance_px * qp[..., 0] / qp[..., 2] + proj.principal_point_px[0]
-        yp = proj.principal_distance_px * qp[..., 1] / qp[..., 2] + proj.principal_point_px[1]
-    in_cam = (z > 0) & (u >= -0.5) & (u <= cam.width_px - 0.5) \
-        & (v >= -0.5) & (v <= cam.height_px - 0.5)
-    in_proj = (qp[..., 2] > 0) & (xp >= -0.5) & (xp <= proj.width_px - 0.5) \
+        u = cam.principal_distance_px * x / z + cam.principal_point_px[0]
+        v = cam.principal_distance_px * y / z + cam.principal_point_px[1]
+        rot, pos = _rotation(config), proj.position_mm
+        d = (x - pos[0], y - pos[1], z - pos[2])
+        qp = [_dot(rot[j], d) for j in range(3)]
+        xp = proj.principal_distance_px * qp[0] / qp[2] + proj.principal_point_px[0]
+        yp = proj.principal_distance_px * qp[1] / qp[2] + proj.principal_point_px[1]
+    in_cam = (np.asarray(z) > 0) & ((u >= -0.5) & (u <= cam.width_px - 0.5)) \
+        & ((v >= -0.5) & (v <= cam.height_px - 0.5))
+    in_proj = (qp[2] > 0) & (xp >= -0.5) & (xp <= proj.width_px - 0.5) \
         & (yp >= -0.5) & (yp <= proj.height_px - 0.5)
     return in_cam & in_proj
 
 
+def _rotation(config: ScannerConfig) -> np.ndarray:
+    """The projector's rotation, computed once per pose (the optics module caches it)."""
+    return optics._rotation(config.projector)
+
+
+def _dot(row: np.ndarray, d: tuple) -> np.ndarray:
+    """row . d for broadcastable components, skipping exact zeros of ``row`` (a projector
+    in the XZ plane has no Y in its x and z axes, so they stay functions of x and z)."""
+    terms = [r * c for r, c in zip(row, d, strict=True) if r != 0.0]
+    out = terms[0]
+    for t in terms[1:]:
+        out = out + t
+    return out
+
+
 def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | None = None,
                   z_max: float | None = None, step: float = 1.0,
-                  period_px: float | None = None) -> UsableVolume:
+                  period_px: float | None = None, coc_max_mm: float | None = None
+                  ) -> UsableVolume:
     """Usable reconstruction volume (Sect. 5.1, Fig. 6).
 
     The total volume is the intersection of the camera and projector frusta between
@@ -253,6 +277,10 @@ def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | Non
         Voxel size [mm].
     period_px : float, optional
         Fringe period [projector px]; default the working period.
+    coc_max_mm : float, optional
+        Also require the camera's image-side circle of confusion c_c (Eq. 14) to stay at
+        or below this [mm]; Fig. 6 draws c_c < 0.030 mm as a band but does not cut the
+        usable volume with it, so the default is None.
 
     Returns
     -------
@@ -265,24 +293,115 @@ def usable_volume(config: ScannerConfig, level: float = 0.49, z_min: float | Non
     z_min = 0.75 * focus if z_min is None else z_min
     z_max = 1.25 * focus if z_max is None else z_max
     zs = _z_grid(z_min, z_max, step)
-    half_w = _half_extent(config, z_max)
+    half_w = field_half_extent(config, z_max)
     _check_voxels(half_w, zs.size, step)
     xs = np.arange(-half_w[0], half_w[0] + step, step)
     ys = np.arange(-half_w[1], half_w[1] + step, step)
     total = usable = 0
-    for z in zs:  # one plane at a time keeps memory at one XY slice
-        x, y = np.meshgrid(xs, ys, indexing="xy")
-        pts = np.stack([x, y, np.full_like(x, z)], axis=-1)
-        inside = _in_frusta(pts, config)
+    per_slab = max(1, SLAB_VOXELS // (xs.size * ys.size))
+    for k in range(0, zs.size, per_slab):  # slabs of planes bound the memory
+        inside, good = volume_masks(xs[None, None, :], ys[None, :, None],
+                                    zs[k:k + per_slab, None, None], config, level, period_px,
+                                    coc_max_mm)
         total += int(inside.sum())
-        usable += int((inside & _usable(pts, config, level, period_px)).sum())
-    x, z = np.meshgrid(xs, zs, indexing="xy")
-    pts = np.stack([x, np.zeros_like(x), z], axis=-1)
-    inside = _in_frusta(pts, config)
+        usable += int((inside & good).sum())
+    inside, good = volume_masks(xs[None, :], np.zeros((1, 1)), zs[:, None], config, level,
+                                period_px, coc_max_mm)
     return UsableVolume(level, z_min, z_max, step, total * step**3, usable * step**3,
-                        xs, zs, inside, inside & _usable(pts, config, level, period_px))
+                        xs, zs, np.array(inside), inside & good, coc_max_mm)
 
 
+def volume_masks(x: np.ndarray, y: np.ndarray, z: float | np.ndarray, config: ScannerConfig,
+                 level: float, period_px: float | None, coc_max_mm: float | None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Inside both frusta, and usable, on the grid x, y, z broadcast together.
+
+    Parameters
+    ----------
+    x, y, z : ndarray
+        Voxel centres in the scanner frame, broadcastable, e.g. (1, 1, nx), (1, ny, 1) and
+        (nz, 1, 1) [mm].
+    config : ScannerConfig
+        Scanner config.
+    level : float
+        Combined attenuation threshold A_c A_p [-].
+    period_px : float or None
+        Fringe period [projector px]; None for the working period.
+    coc_max_mm : float or None
+        Largest image-side circle of confusion c_c (Eq. 14) [mm]; None for no limit.
+
+    Returns
+    -------
+    inside, usable : ndarray of bool
+        Of the broadcast shape; ``usable`` is the model's verdict alone (and it with
+        ``inside`` is the usable volume).
+
+    Notes
+    -----
+    The model depends on a voxel only through Z_c and Z_p. On a plane Z_c is fixed, and
+    when the projector sits in the XZ plane (the usual layout) Z_p varies along X only,
+    so a plane takes one row of model evaluations instead of one per voxel; otherwise
+    every voxel is evaluated.
+    """
+    shape = np.broadcast_shapes(np.shape(x), np.shape(y), np.shape(z))
+    inside = np.broadcast_to(_in_frusta(x, y, z, config), shape)
+    rz, pos = _rotation(config)[2], config.projector.position_mm
+    z_p = _dot(rz, (x - pos[0], y - pos[1], z - pos[2]))
+    z_c, z_p = np.broadcast_arrays(np.asarray(z, dtype=float), z_p)
+    good = _usable_at(z_c, z_p, config, level, period_px, coc_max_mm)
+    return inside, np.broadcast_to(good, shape)
+
+
+def _usable_at(z_c: np.ndarray, z_p: np.ndarray, config: ScannerConfig, level: float,
+               period_px: float | None, coc_max_mm: float | None) -> np.ndarray:
+    """A_c A_p >= level (and c_c <= coc_max_mm when given) at distances Z_c, Z_p [mm]."""
+    terms = optics.optical_terms(z_c, z_p, config, period_px)
+    good = terms.attenuation_camera * terms.attenuation_projector >= level
+    if coc_max_mm is not None:
+        good &= camera_image_blur(z_c, config) <= coc_max_mm
+    return good
+
+
+def camera_image_blur(z_c: np.ndarray, config: ScannerConfig) -> np.ndarray:
+    """The camera's circle of confusion in the image, c_c(Z_c) (Eq. 14) [mm]."""
+    cam = config.camera
+    return optics.image_blur_diameter(z_c, cam.focal_mm, cam.focus_mm, cam.aperture_mm)
+
+
+def coc_band(config: ScannerConfig, coc_max_mm: float) -> tuple[float, float]:
+    """The camera ranges where c_c(Z_c) <= coc_max_mm (Eq. 14; Fig. 6's red lines) [mm].
+
+    Parameters
+    ----------
+    config : ScannerConfig
+        Scanner config.
+    coc_max_mm : float
+        Largest image-side circle of confusion [mm]; Fig. 6 uses 0.030.
+
+    Returns
+    -------
+    (near, far) : tuple of float
+        Solving f Phi |Z - Z'| = c Z' (Z - f) for Z on either side of focus; far is inf
+        when the blur never reaches c behind focus [mm].
+
+    Examples
+    --------
+    >>> from scanqa.config import load_config
+    >>> [round(z, 2) for z in coc_band(load_config("calib/paper_scanner.toml"), 0.030)]
+    [446.26, 453.82]
+    """
+    if not coc_max_mm > 0:
+        raise RangeError(f"coc_max_mm must be > 0 mm, got {coc_max_mm!r}")
+    cam = config.camera
+    f, phi, zf, c = cam.focal_mm, cam.aperture_mm, cam.focus_mm, coc_max_mm
+    near = zf * f * (phi + c) / (f * phi + c * zf)
+    far = zf * f * (phi - c) / (f * phi - c * zf) if f * phi > c * zf else np.inf
+    return float(near), float(far)
+
+
+#: Voxels :func:`usable_volume` evaluates at once: a slab of whole planes, ~40 MB of
+#: temporaries, few enough numpy calls that their overhead does not dominate.
+SLAB_VOXELS = 500_000
 #: Largest XY slice and whole grid :func:`usable_volume` evaluates [voxels]: ~100 MB of
 #: temporaries per slice, a few minutes in all.
 MAX_SLICE_VOXELS, MAX_VOXELS = 4_000_000, 200_000_000
@@ -300,14 +419,9 @@ def _check_voxels(half_w: tuple[float, float], n_z: int, step: float) -> None:
                      f"in all): use a step of at least {need * 1.01:.3g} mm")
 
 
-def _usable(points: np.ndarray, config: ScannerConfig, level: float,
-            period_px: float | None) -> np.ndarray:
-    pred = optics.predict(points, config, period_px=period_px)
-    return pred.attenuation_camera * pred.attenuation_projector >= level
-
-
-def _half_extent(config: ScannerConfig, z: float) -> tuple[float, float]:
-    """Half width and height of the camera's field of view at range z [mm]."""
+def field_half_extent(config: ScannerConfig, z: float) -> tuple[float, float]:
+    """Half width and height of the camera's field of view at range z, plus 1 mm of
+    margin: the box :func:`usable_volume` grids [mm]."""
     cam = config.camera
     scale = z / cam.principal_distance_px
     return (0.5 * cam.width_px * scale + 1.0, 0.5 * cam.height_px * scale + 1.0)

@@ -1,4 +1,5 @@
-"""Design tools: ``scanqa dof``, ``curve``, ``volume`` and ``flatten`` (parsing only)."""
+"""Design tools: ``scanqa dof``, ``curve``, ``volume``, ``flatten`` and ``scanqa design page``
+(parsing only)."""
 
 from __future__ import annotations
 
@@ -55,6 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--z-max", type=number(), default=None, help="far plane [mm]")
     p.add_argument("--step", type=number(gt=0, unit="mm"), default=1.0,
                    help="voxel size [mm] (default 1)")
+    p.add_argument("--coc-max", type=number(gt=0, unit="mm"), default=None,
+                   help="also require the camera's image-side circle of confusion c_c "
+                        "(Eq. 14) <= this [mm]; Fig. 6 draws 0.030 as a band (default: off)")
     add_output_arguments(p)
     p.set_defaults(func=run_volume)
 
@@ -64,6 +68,49 @@ def register(sub: argparse._SubParsersAction) -> None:
                               "--plot flat.png --csv")
     _add_range(p)
     p.set_defaults(func=run_flatten)
+
+    p = sub.add_parser("design", formatter_class=_FMT,
+                       help="the design page: reconfigure a scanner and see its volumes live",
+                       epilog="example:\n  scanqa design page --config calib/paper_scanner.toml")
+    actions = p.add_subparsers(dest="design_command", metavar="ACTION",
+                               parser_class=type(p))
+    page = actions.add_parser("page", formatter_class=_FMT,
+                              help="serve the design page locally (Sect. 5.1, Fig. 6)",
+                              epilog="example:\n  scanqa design page --config "
+                                     "calib/paper_scanner.toml --port 8765")
+    add_config_argument(page)
+    page.add_argument("--level", type=number(gt=0), default=0.49,
+                      help="combined attenuation threshold A_c*A_p to start with [-] "
+                           "(default 0.49, Fig. 6)")
+    page.add_argument("--coc-max", type=number(gt=0, unit="mm"), default=0.030,
+                      help="camera circle-of-confusion threshold to start with [mm] "
+                           "(default 0.030, Fig. 6)")
+    page.add_argument("--host", default="127.0.0.1",
+                      help="interface to serve on (default 127.0.0.1: this machine only)")
+    page.add_argument("--port", type=number(int, ge=0), default=8765,
+                      help="TCP port (default 8765; 0: any free one)")
+    page.add_argument("--no-browser", action="store_true",
+                      help="do not open the page in the default browser")
+    page.set_defaults(func=run_page)
+
+    opt = actions.add_parser("optimise", formatter_class=_FMT,
+                             help="search the settings for the largest usable volume that "
+                                  "covers a box at a sigma, clear of obstacles",
+                             epilog="example:\n  scanqa design optimise --config "
+                                    "calib/paper_scanner.toml --spec "
+                                    "benchmarks/design_specs/obstacle.toml --out best.toml")
+    add_config_argument(opt)
+    opt.add_argument("--spec", required=True, metavar="SPEC.toml",
+                     help='design spec (format = "scanqa-design-spec/1": cover box, '
+                          "sigma_max_um, [limits], [[obstacles]]; see docs/cli.rst)")
+    opt.add_argument("--out", default=None, metavar="FILE.toml",
+                     help="write the best configuration's scanner config here")
+    opt.add_argument("--open", action="store_true",
+                     help="then serve the best configuration in the design page")
+    opt.add_argument("--port", type=number(int, ge=0), default=8765,
+                     help="design page port with --open (default 8765)")
+    add_output_arguments(opt)
+    opt.set_defaults(func=run_optimise)
 
 
 def _add_range(p: argparse.ArgumentParser) -> None:
@@ -130,8 +177,10 @@ def run_curve(args: argparse.Namespace) -> int:
 def run_volume(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     plot = output_path(args.plot)
-    vol = design.usable_volume(config, args.level, args.z_min, args.z_max, args.step)
-    row = {"level": vol.level, "z_min_mm": vol.z_min_mm, "z_max_mm": vol.z_max_mm,
+    vol = design.usable_volume(config, args.level, args.z_min, args.z_max, args.step,
+                               coc_max_mm=args.coc_max)
+    row = {"level": vol.level, "coc_max_mm": vol.coc_max_mm, "z_min_mm": vol.z_min_mm,
+           "z_max_mm": vol.z_max_mm,
            "step_mm": vol.step_mm, "total_mm3": vol.total_mm3, "usable_mm3": vol.usable_mm3,
            "fraction": vol.fraction}
     if plot:
@@ -147,3 +196,61 @@ def run_flatten(args: argparse.Namespace) -> int:
     return _tabular(args, lambda c: design.flatten_curve(c, *_range(args, c.camera.focus_mm),
                                                          args.period),
                     _columns_to_rows, lambda res, path, c: plots.plot_flatten(res, path))
+
+
+def run_page(args: argparse.Namespace) -> int:
+    from scanqa import designapp  # plotly only when the page is served
+
+    server = designapp.make_server(config_from_args(args), args.host, args.port,
+                                   args.level, args.coc_max)
+    url = f"http://{args.host}:{server.server_address[1]}/"
+    emit(f"scanqa design page: {url} (Ctrl-C stops it)")
+    if not args.no_browser:
+        import webbrowser
+
+        webbrowser.open(url)
+    try:
+        server.serve_forever()
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.server_close()
+    return 0
+
+
+def run_optimise(args: argparse.Namespace) -> int:
+    from scanqa import optimisation, rig
+    from scanqa.io.atomic import write_text
+    from scanqa.io.tomlfile import dumps_toml
+
+    config = config_from_args(args)
+    spec = optimisation.load_spec(args.spec)
+    out, plot = output_path(args.out), output_path(args.plot)
+    res = optimisation.optimise(config, spec)
+    best = res.config
+    focus = best.camera.focus_mm
+    curve = design.axis_curve(best, 0.9 * focus, 1.1 * focus, 0.5)
+    if out:
+        write_text(out, "# found by scanqa design optimise --spec " + args.spec + "\n"
+                          + dumps_toml(rig.config_toml_dict(best)))
+    if plot:
+        plots.plot_curve(curve, plot, focus)
+    row = {**res.values, "usable_mm3": res.usable_mm3, "worst_sigma_um": res.worst_sigma_um,
+           "evaluations": res.evaluations}
+    if args.json:
+        emit(json.dumps(row, indent=1))
+    else:
+        emit(format_rows([row], False, args.csv))
+    if args.open:
+        from scanqa import designapp
+
+        server = designapp.make_server(best, "127.0.0.1", args.port, spec.level)
+        emit(f"scanqa design page: http://127.0.0.1:{server.server_address[1]}/ "
+             "(Ctrl-C stops it)")
+        try:
+            server.serve_forever()
+        except KeyboardInterrupt:
+            pass
+        finally:
+            server.server_close()
+    return 0
