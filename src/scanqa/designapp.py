@@ -65,7 +65,7 @@ class DesignState:
 
     def load(self, text: str) -> dict:
         """Make a config TOML the page's config; its settings (thresholds kept)."""
-        data = loads_toml(text, "loaded scanner config", ConfigError)
+        data = loads_toml(text.encode("utf-8"), "the loaded scanner config", ConfigError)
         config = config_from_dict(data, source="<loaded TOML>")
         with self._lock:
             self.config = config

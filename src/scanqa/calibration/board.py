@@ -4,7 +4,7 @@ from the decoded phase, in the projector.
 A pose is one placement of a flat chessboard, scanned with fringes in both directions
 (columns, x_p, and rows, y_p). Its camera corners are found by OpenCV in the mean of the
 finest column set (the offset image, the board as a camera sees it under uniform light);
-its projector corners come from local homographies (Moreno and Taubin [1]): around each
+its projector corners come from local homographies (Moreno and Taubin [1]_): around each
 camera corner the decoded (x_p, y_p) of the valid pixels within ``window_px`` are fitted
 by a homography of the camera pixels, (x_p, y_p, 1) ~ H (u, v, 1), and the corner is
 mapped through it. The board is flat, so within the window the camera-to-projector map

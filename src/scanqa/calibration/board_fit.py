@@ -12,7 +12,7 @@ out: calibrate on the others, then (a) the held-out pose's projector corners pre
 from its camera corners (its board pose found by ``solvePnP`` with the held-out
 calibration's camera) and (b) the RMS of its dense triangulated points about their
 fitted plane. The calibrations left one pose out also give the jackknife covariance of
-the parameters [1] (:mod:`scanqa.calibration.uncertainty`).
+the parameters [1]_ (:mod:`scanqa.calibration.uncertainty`).
 
 References
 ----------

@@ -102,14 +102,6 @@ def _nesting(text: str) -> int:
     return deepest
 
 
-def loads_toml(text: str, what: str, error: type[ScanQAError] = InputError) -> dict:
-    """Parse TOML text (e.g. a file a browser uploaded), raising one clear ``error``."""
-    try:
-        return tomllib.loads(text)
-    except tomllib.TOMLDecodeError as err:
-        raise error(f"the {what} is not valid TOML: {err}") from None
-
-
 def known_table(table: object, name: str, keys, fail: Callable[[str], Exception]
                 ) -> dict | None:
     """An optional ``[name]`` sub-table holding only ``keys`` (a copy), or None when
