@@ -64,7 +64,9 @@ def figure_data_uri(fig, dpi: int = 100) -> str:
                 coll.set_rasterized(True)
     buf = io.BytesIO()
     fig.tight_layout()
-    fig.savefig(buf, format="svg", dpi=dpi, metadata={"Date": None})
+    # a fixed salt for the SVG's element ids: the same figure gives the same bytes
+    with plt.rc_context({"svg.hashsalt": "scanqa"}):
+        fig.savefig(buf, format="svg", dpi=dpi, metadata={"Date": None})
     plt.close(fig)
     return "data:image/svg+xml;base64," + base64.b64encode(buf.getvalue()).decode("ascii")
 
