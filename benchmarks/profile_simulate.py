@@ -21,9 +21,9 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-from bench_simulate import _config  # noqa: E402
+from bench_simulate import _config
 
-from scanqa.simulator.experiments import run_experiment  # noqa: E402
+from scanqa.simulator.experiments import run_experiment
 
 
 def main() -> int:

@@ -487,11 +487,16 @@ def render_marker_frame(config: ScannerConfig, acq: Acquisition) -> np.ndarray:
 def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage,
             harmonic: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Disc-averaged complex fringe M(pi d h / P) exp(i h 2 pi x_p / P) of lit samples,
-    as its real and imaginary parts (the angle in float64, the parts float32) [-]."""
+    as its real and imaginary parts, float32 [-].
+
+    The fringe's phase is reduced to one period in float64 before the float32 cosine
+    (a phase error of ~1e-6 rad instead of ~1e-4 rad at the panel's edge).
+    """
     contrast = np.where(pts.lit, table(np.pi * d_panel * harmonic / period), 0.0)
-    angle = (2.0 * np.pi * harmonic / period) * np.where(pts.lit, pts.x_p, 0.0)
-    return ((contrast * np.cos(angle)).astype(np.float32),
-            (contrast * np.sin(angle)).astype(np.float32))
+    cycles = np.where(pts.lit, pts.x_p, 0.0) * (harmonic / period)
+    angle = ((cycles - np.floor(cycles)) * (2.0 * np.pi)).astype(np.float32)
+    contrast = contrast.astype(np.float32)
+    return contrast * np.cos(angle), contrast * np.sin(angle)
 
 
 #: Harmonics of a gamma-distorted fringe that the renderer keeps.
