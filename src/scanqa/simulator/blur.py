@@ -83,7 +83,7 @@ def _layer_samples(diameter: np.ndarray, hit: np.ndarray
     lam = layer_coord(diameter.ravel()[flat])
     i0 = np.floor(lam).astype(np.int64)
     frac = lam - i0
-    order = np.argsort(i0, kind="stable")
+    order = np.argsort(i0.astype(np.int16), kind="stable")  # a radix sort: < 2**15 layers
     flat, i0, frac = flat[order], i0[order], frac[order]
     levels = np.unique(i0)
     start = np.searchsorted(i0, levels, side="left")
