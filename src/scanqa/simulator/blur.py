@@ -80,14 +80,16 @@ def _layer_samples(diameter: np.ndarray, hit: np.ndarray
                    ) -> list[tuple[int, np.ndarray, np.ndarray]]:
     """(ladder index, flat sample indices, weights) of every non-empty layer."""
     flat = np.flatnonzero(hit)
+    if flat.size == 0:
+        return []
     lam = layer_coord(diameter.ravel()[flat])
     i0 = np.floor(lam).astype(np.int64)
     frac = lam - i0
     order = np.argsort(i0.astype(np.int16), kind="stable")  # a radix sort: < 2**15 layers
     flat, i0, frac = flat[order], i0[order], frac[order]
-    levels = np.unique(i0)
-    start = np.searchsorted(i0, levels, side="left")
-    stop = np.searchsorted(i0, levels, side="right")
+    start = np.flatnonzero(np.diff(i0, prepend=i0[:1] - 1))  # i0 is sorted
+    stop = np.append(start[1:], i0.size)
+    levels = i0[start]
     parts: dict[int, list] = {}
     for lev, a, b in zip(levels.tolist(), start, stop, strict=True):
         parts.setdefault(lev, []).append((flat[a:b], 1.0 - frac[a:b]))

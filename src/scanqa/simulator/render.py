@@ -112,7 +112,7 @@ def _geometry(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndar
     origins, dirs = devices.camera_rays(config, acq.camera, u, v)
     hits = acq.scene.cast(origins, dirs)
     world = origins + hits.t[..., None] * dirs
-    z_c = acq.camera.to_device(world)[..., 2]
+    z_c = (world - acq.camera.centre) @ acq.camera.rotation[2]  # device Z only
     x_p, y_p, z_p = devices.project_to_projector(config, acq.projector, world)
     lit, shade = _lighting(config, acq, world, hits.normals, hits.hit, x_p, y_p, z_p)
     return _Points(hits.hit, world, z_c, x_p, y_p, z_p, lit, shade)
@@ -127,8 +127,8 @@ def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
     dist = np.linalg.norm(to_proj, axis=-1)
     with np.errstate(invalid="ignore", divide="ignore"):
         towards_cam = np.einsum("...i,...i->...", normals, acq.camera.centre - world)
-        normals = np.where((towards_cam < 0)[..., None], -normals, normals)  # two-sided
         shade = np.einsum("...i,...i->...", normals, to_proj) / dist
+        shade = np.where(towards_cam < 0, -shade, shade)  # two-sided (the normal flipped)
         on_panel = ((z_p > 0) & (x_p >= -0.5) & (x_p <= proj.width_px - 0.5)
                     & (y_p >= -0.5) & (y_p <= proj.height_px - 0.5))
     lit = hit & on_panel & (shade > 0)
