@@ -1,9 +1,11 @@
 """Benchmark: one simulated gauge-block scan (12 patterns) at 640 x 512 and 2448 x 2048.
 
 Each size runs in its own process so that the peak resident memory (ru_maxrss) is that
-of one scan. The 640 x 512 camera is the paper's sensor binned to the same field of view
-(pixel 30.6 um); the 2448 x 2048 one is the paper's. Targets (issue 4): under 15 s and
-under 8 GB.
+of one scan; ``cpu_seconds`` (user + system, every thread, imports included) is the
+measure to compare on a loaded machine, where the wall time depends on the others. The
+640 x 512 camera is the paper's sensor binned to the same field of view (pixel 30.6 um);
+the 2448 x 2048 one is the paper's. Targets: under 15 s (issue 4); 60 s and 2.5 GB at
+2448 x 2048 on 2 cores (issue 31).
 
     .venv/bin/python benchmarks/bench_simulate.py            # both sizes
     .venv/bin/python benchmarks/bench_simulate.py 640        # one size
@@ -22,8 +24,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 SIZES = {"640": (640, 512), "2448": (2448, 2048)}
-#: Issue 4: the small scan must be fast, the full-size one must stay in memory bounds.
-TARGETS = {"640": "target < 15 s", "2448": "target < 8 GB"}
+#: Issue 4: the small scan must be fast; issue 31: the full-size one <= 60 s, <= 2.5 GB.
+TARGETS = {"640": "target < 15 s", "2448": "target <= 60 s, <= 2.5 GB"}
 
 
 def _config(width: int, height: int):
@@ -46,11 +48,12 @@ def run_one(key: str) -> dict:
         t0 = time.perf_counter()
         run_experiment("gauge-blocks", config, tmp, repeats=1)
         seconds = time.perf_counter() - t0
-    peak_mb = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    usage = resource.getrusage(resource.RUSAGE_SELF)
     return {"size": f"{config.camera.width_px} x {config.camera.height_px}",
             "pixel_um": config.camera.pixel_um, "patterns": 12,
-            "seconds": round(seconds, 2), "peak_rss_mb": round(peak_mb, 1),
-            "target": TARGETS[key]}
+            "seconds": round(seconds, 2), "cpu_seconds": round(usage.ru_utime
+                                                               + usage.ru_stime, 1),
+            "peak_rss_mb": round(usage.ru_maxrss / 1024.0, 1), "target": TARGETS[key]}
 
 
 def main(argv: list[str]) -> int:

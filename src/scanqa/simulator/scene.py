@@ -121,17 +121,27 @@ class Scene:
         import open3d as o3d
 
         shape = np.shape(directions)[:-1]
-        o = np.ascontiguousarray(np.broadcast_to(origins, np.shape(directions))).reshape(-1, 3)
-        d = np.ascontiguousarray(directions, dtype=np.float64).reshape(-1, 3)
-        rays = np.concatenate([o, d], axis=1).astype(np.float32)
+        d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+        origins = np.asarray(origins, dtype=np.float64)
+        single = origins.ndim == 1 or not any(origins.strides[:-1])  # one shared origin
+        o = origins[(0,) * (origins.ndim - 1)][None, :] if single else np.broadcast_to(
+            origins, np.shape(directions)).reshape(-1, 3)
+        rays = np.empty((d.shape[0], 6), np.float32)
+        rays[:, :3], rays[:, 3:] = o, d
         ans = self._raycast.cast_rays(o3d.core.Tensor(rays))
+        del rays
         face = ans["primitive_ids"].numpy().astype(np.int64)
         hit = np.isfinite(ans["t_hit"].numpy()) & (face != np.iinfo(np.uint32).max)
         face = np.where(hit, face, -1)
-        n = np.where(hit[:, None], self._n[np.maximum(face, 0)], np.nan)
-        v0 = self._v[self._f[np.maximum(face, 0), 0]]
+        safe = np.maximum(face, 0)
+        n = np.where(hit[:, None], self._n[safe], np.nan)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = np.einsum("ij,ij->i", n, v0 - o) / np.einsum("ij,ij->i", n, d)
+            if single and len(self._f) < len(d):  # n . (v0 - o) once per face, not per ray
+                offset = np.einsum("ij,ij->i", self._n, self._v[self._f[:, 0]] - o)
+                num = np.where(hit, offset[safe], np.nan)
+            else:
+                num = np.einsum("ij,ij->i", n, self._v[self._f[safe, 0]] - o)
+            t = num / np.einsum("ij,ij->i", n, d)
         t = np.where(hit, t, np.nan)
         return Hits(t.reshape(shape), hit.reshape(shape), n.reshape(*shape, 3),
                     face.reshape(shape))
