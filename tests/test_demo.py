@@ -114,6 +114,7 @@ BAD_INPUTS = {
                            "calib/slstudio_example.toml", "--out", "o"],
     "characterize-repeats": ["nope_a", "nope_b", "--out", "o"],
     "compare": ["nope.ply", "nope.stl", "--out", "o"],
+    "design": ["optimise", "--spec", "nope.toml", "--config", "nope.toml"],
 }
 
 
