@@ -28,7 +28,6 @@ from the measured ``B`` of each pixel.
 from __future__ import annotations
 
 import hashlib
-import json
 import math
 from dataclasses import dataclass, field
 
@@ -364,13 +363,6 @@ def summary(poses: list[PoseResidual], law: NoiseLaw, held_out: list[dict],
                        "ripple_amplitude_um": p.ripple_amplitude_um,
                        "squares": int(p.squares["n"].size)} for p in poses],
             "held_out": held_out}
-
-
-def write_summary(path, data: dict) -> None:
-    """Write the summary JSON (plain floats)."""
-    from scanqa.io.atomic import write_text
-
-    write_text(path, json.dumps(data, indent=1))
 
 
 def characterize_board(poses: dict, calibration: Calibration, inner: tuple[int, int],
