@@ -87,7 +87,10 @@ def _handler(state: DesignState, title: str) -> type[BaseHTTPRequestHandler]:
             self.send_header("Content-Length", str(len(body)))
             self.send_header("Cache-Control", "max-age=86400" if cache else "no-store")
             self.end_headers()
-            self.wfile.write(body)
+            try:
+                self.wfile.write(body)
+            except (BrokenPipeError, ConnectionResetError):
+                pass  # the browser went away (a reload, a closed tab): nothing to answer
 
         def do_GET(self) -> None:
             if self.path in ("/", "/index.html"):
