@@ -155,6 +155,18 @@ def test_cloudcompare_reads_every_attribute(cfg, table, tmp_path):
                                    equal_nan=True, err_msg=name)
 
 
+def test_cloudcompare_loads_the_csv_with_every_point(cfg, table, tmp_path):
+    """The cloud CSV is a plain table (metadata in its sidecar): CloudCompare loads every
+    point and every column (it names the columns Scalar_field..., its CSV reader ignores
+    header names in silent mode)."""
+    cloud = annotate(scan(cfg)[0], table, cfg)
+    path = cloud.write(tmp_path / "cloud.csv")
+    header, data = _cloudcompare_asc(path, tmp_path)
+    assert header[:3] == ["X", "Y", "Z"] and len(header) == 3 + len(cloud.attributes)
+    assert data.shape == (len(cloud), 3 + len(cloud.attributes))
+    np.testing.assert_allclose(data[:, :3], cloud.xyz, atol=1e-4)  # float32 in CloudCompare
+
+
 def _read_las_by_spec(path):
     """Independent LAS 1.4 reader (point format 7 + float extra bytes), from the spec.
 
