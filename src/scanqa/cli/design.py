@@ -203,9 +203,14 @@ def run_page(args: argparse.Namespace) -> int:
 
     server = designapp.make_server(config_from_args(args), args.host, args.port,
                                    args.level, args.coc_max)
-    url = f"http://{args.host}:{server.server_address[1]}/"
+    return _serve(server, args.host, open_browser=not args.no_browser)
+
+
+def _serve(server, host: str, open_browser: bool) -> int:
+    """Say where the design page is, open it if asked, serve it until Ctrl-C."""
+    url = f"http://{host}:{server.server_address[1]}/"
     emit(f"scanqa design page: {url} (Ctrl-C stops it)")
-    if not args.no_browser:
+    if open_browser:
         import webbrowser
 
         webbrowser.open(url)
@@ -245,12 +250,5 @@ def run_optimise(args: argparse.Namespace) -> int:
         from scanqa import designapp
 
         server = designapp.make_server(best, "127.0.0.1", args.port, spec.level)
-        emit(f"scanqa design page: http://127.0.0.1:{server.server_address[1]}/ "
-             "(Ctrl-C stops it)")
-        try:
-            server.serve_forever()
-        except KeyboardInterrupt:
-            pass
-        finally:
-            server.server_close()
+        return _serve(server, "127.0.0.1", open_browser=False)
     return 0
