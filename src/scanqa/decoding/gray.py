@@ -119,18 +119,7 @@ def decode_gray(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
     GrayDecode
         Cells, undecidable and edge pixels, threshold and weakest contrast.
     """
-    f = frames.astype(np.float64)
-    plain, inverse = gray.frame_order()
-    bits = f[plain]
-    var = sample_variance(bits, sensor, quantised)
-    if inverse is not None:
-        diff = bits - f[inverse]
-        var = var + sample_variance(f[inverse], sensor, quantised)
-        mid = 0.5 * (bits + f[inverse]).mean(axis=0)
-    else:
-        mid, mid_var = threshold
-        diff = bits - mid
-        var = var + mid_var
+    diff, var, mid = _bit_contrast(gray, frames, sensor, quantised, threshold)
     weak = diff * diff < min_sigma * min_sigma * var
     cell, edge = _edge_rule(diff > 0, weak)
     magnitude = np.abs(diff)
@@ -138,6 +127,21 @@ def decode_gray(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
     contrast = np.where(np.isfinite(contrast), contrast, magnitude.min(axis=0))
     first, span = _spans(cell, edge, weak)
     return GrayDecode(cell, weak.any(axis=0) & ~edge, edge, mid, contrast, span, first)
+
+
+def _bit_contrast(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
+                  quantised: bool, threshold) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each bit frame against its inverse (or the reference threshold): the difference
+    [DN], its variance [DN^2] and the mid level [DN] per pixel."""
+    f = frames.astype(np.float64)
+    plain, inverse = gray.frame_order()
+    bits = f[plain]
+    var = sample_variance(bits, sensor, quantised)
+    if inverse is not None:
+        var = var + sample_variance(f[inverse], sensor, quantised)
+        return bits - f[inverse], var, 0.5 * (bits + f[inverse]).mean(axis=0)
+    mid, mid_var = threshold
+    return bits - mid, var + mid_var, mid
 
 
 def _spans(cell: np.ndarray, edge: np.ndarray, weak: np.ndarray
@@ -219,16 +223,7 @@ def bit_resolution(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
     greys them; a finer bit's contrast falls with its stripe width as the blur's
     transfer function does, and where it falls below the noise the bit reads noise.
     """
-    f = frames.astype(np.float64)
-    plain, inverse = gray.frame_order()
-    bits = f[plain]
-    var = sample_variance(bits, sensor, quantised)
-    if inverse is not None:
-        diff = bits - f[inverse]
-        var = var + sample_variance(f[inverse], sensor, quantised)
-    else:
-        diff = bits - threshold[0]
-        var = var + threshold[1]
+    diff, var, _ = _bit_contrast(gray, frames, sensor, quantised, threshold)
     decidable = diff * diff > min_sigma * min_sigma * var
     lit = decidable[0]
     if not lit.any():
