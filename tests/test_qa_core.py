@@ -289,3 +289,81 @@ def test_flatness_error_of_an_exact_plane():
     for bad in (0.0, -1.0, NAN, INF):
         with pytest.raises(InputError, match="noise-correlation factor must be > 0"):
             vdi.flatness_error(pts, 0.01, correlation=bad)
+
+
+FULL = Spec("full", {"PF": Mpe(11.0), "PS": Mpe(7.0), "SD": Mpe(20.0, 1000.0), "F": Mpe(13.0)},
+            sphere=SphereCertificate(25.0, 2.0, 2.0, form_um=3.0),
+            ball_bar=BallBarCertificate(300.0, 3.0, 3.0))
+NO_CERT = Spec("mpe only", {"PF": Mpe(11.0), "PS": Mpe(7.0), "SD": Mpe(20.0, 1000.0),
+                            "F": Mpe(13.0)})
+
+
+def test_each_quantity_carries_its_name_mpe_and_defaults():
+    """Names, the MPE each reads from the spec (PF 11, PS 7, SD 20 + L / 1000, F 13 um),
+    the default k = 2 and the point counts, with and without certificates."""
+    pts = _sphere([5.0, -3.0, 300.0], 12.5, 1000)
+    t = vdi.probing_errors(pts, None, FULL)
+    assert (t.pf.name, t.ps.name) == ("PF", "PS") and t.pf.k == t.ps.k == 2.0
+    assert (t.pf.mpe, t.ps.mpe) == pytest.approx((0.011, 0.007))
+    assert t.ps.n_points == 1000 and t.ps.n_dropped == 3 and t.ps.decided_with == "test"
+    assert t.kept.shape == (1000,) and t.zone.width >= 0.0
+    bare = vdi.probing_errors(pts, None, NO_CERT)
+    assert (bare.ps.name, bare.ps.k, bare.ps.n_points) == ("PS", 2.0, 1000)
+    assert bare.ps.mpe == pytest.approx(0.007) and math.isnan(bare.ps.u)
+    assert "no sphere certificate" in bare.ps.note and bare.ps.decision == "not evaluated"
+    pa = _sphere([-150.0, 0.0, 500.0], 12.7, 600, seed=1)
+    pb = _sphere([150.0, 0.0, 500.0], 12.7, 600, seed=2)
+    for first, second in ((pa, pb), (pb, pa)):  # ball a is the one of smaller x either way
+        bar = vdi.sphere_spacing_error(first, second, spec=FULL)
+        assert bar.bar.sphere_a.centre[0] == pytest.approx(-150.0)
+        assert bar.sd.k == 2.0 and bar.sd.name == "SD"
+    sd = vdi.sphere_spacing_error(pa, pb, spec=NO_CERT).sd
+    assert (sd.name, sd.k, sd.n_points) == ("SD", 2.0, 1200)
+    assert sd.mpe == pytest.approx(0.020) and sd.decision == "not evaluated"
+    rng = np.random.default_rng(3)
+    xy = rng.uniform(-20, 20, (500, 2))
+    flat = np.column_stack([xy, 400.0 + 0.01 * xy[:, 0]])
+    f = vdi.flatness_error(flat, 0.002, FULL)
+    assert f.f.name == "F" and f.f.k == 2.0 and f.f.mpe == pytest.approx(0.013)
+    assert f.f.n_dropped == 1 and f.kept.sum() == 499 and f.plane is not None
+    assert f.f.u == pytest.approx(math.sqrt(vdi.predicted_range(
+        vdi.normal_sigma(flat, 0.002, f.plane.normal), 1)[1] ** 2))  # no flat certificate
+
+
+def test_messages_name_the_artefact():
+    with pytest.raises(InputError, match=r"^flat: 9 points, a fit needs at least 10"):
+        vdi.flatness_error(np.random.default_rng(0).normal(size=(9, 3)))
+    line = np.column_stack([np.arange(20.0), np.zeros(20), np.full(20, 400.0)])
+    with pytest.raises(InputError, match=r"^flat: the points are collinear"):
+        vdi.flatness_error(line)
+    with pytest.raises(InputError, match=r"^sphere: 4 points"):
+        vdi.probing_errors(_sphere([0, 0, 300], 10.0, 4))
+    good = _sphere([150.0, 0.0, 500.0], 12.7, 300)
+    with pytest.raises(InputError, match=r"^ball bar, ball a: 4 points"):
+        vdi.sphere_spacing_error(_sphere([-150.0, 0.0, 500.0], 12.7, 4), good)
+    with pytest.raises(InputError, match=r"^bar 7, ball b: 4 points"):
+        vdi.sphere_spacing_error(good, _sphere([160.0, 0.0, 500.0], 12.7, 4), where="bar 7")
+
+
+def test_sigmas_and_correlation_reach_the_sphere_fits():
+    """The per-point sigmas along the radial normals and the correlation factor enter
+    u(R) (u grows as sqrt(kappa)); with sigmas along the line of sight, a bias is
+    predicted (view_origin None: none)."""
+    pts = _sphere([0.0, 0.0, 300.0], 12.5, 1500, seed=4)
+    spec = Spec("s", {"PS": Mpe(7.0)}, sphere=SphereCertificate(25.0, 0.0, 2.0))
+    one = vdi.probing_errors(pts, 0.01, spec, drop_fraction=0.0)
+    four = vdi.probing_errors(pts, 0.01, spec, drop_fraction=0.0, correlation=4.0)
+    assert four.ps.u == pytest.approx(2.0 * one.ps.u, rel=1e-9)
+    assert one.ps.u > 0 and one.ps.bias != 0.0
+    flat_out = vdi.probing_errors(pts, 0.01, spec, drop_fraction=0.0, view_origin=None)
+    assert flat_out.ps.bias == 0.0 and flat_out.ps.u > one.ps.u  # sigma along the normal
+    a = _sphere([-150.0, 0.0, 500.0], 12.7, 800, seed=5)
+    b = _sphere([150.0, 0.0, 500.0], 12.7, 800, seed=6)
+    bar_spec = Spec("s", {"SD": Mpe(20.0, 1000.0)}, ball_bar=BallBarCertificate(300.0, 0.0, 2.0))
+    s1 = vdi.sphere_spacing_error(a, b, 0.01, 0.01, bar_spec)
+    s4 = vdi.sphere_spacing_error(a, b, 0.01, 0.01, bar_spec, correlation=4.0)
+    assert s4.sd.u == pytest.approx(2.0 * s1.sd.u, rel=1e-9) and s1.sd.u > 0
+    s_none = vdi.sphere_spacing_error(a, b, 0.01, 0.01, bar_spec, view_origin=None)
+    assert s_none.sd.bias == 0.0 and s_none.sd.u != s1.sd.u
+    only_b = vdi.sphere_spacing_error(a, b, None, 0.01, bar_spec)
+    assert 0 < only_b.sd.u < s1.sd.u  # ball a without sigmas: its exact fit adds nothing
