@@ -141,19 +141,19 @@ def auto_layout(kind: str, spec: Spec | None, diameter_mm: float | None = None,
     """
     kind = kind.replace("-", "_")
     if kind not in KINDS:
-        raise InputError(f"--artefact must be one of sphere, ball-bar, flat, got {kind!r}")
+        raise InputError(f"kind must be one of sphere, ball-bar, flat, got {kind!r}")
     if kind == "flat":
         return ArtefactLayout("found by RANSAC", (ArtefactSpec("flat", "flat"),))
     cert = None if spec is None else (spec.sphere if kind == "sphere" else spec.ball_bar)
     d = diameter_mm or (None if cert is None else cert.diameter_mm)
     if not d:
         raise InputError(f"finding a {kind.replace('_', ' ')} needs its nominal diameter: "
-                         "give --diameter or a spec whose certificate has diameter_mm")
+                         "give diameter_mm or a spec whose certificate has diameter_mm")
     if kind == "sphere":
         return ArtefactLayout("found by RANSAC", (ArtefactSpec("sphere", "sphere", d),))
     dist = distance_mm or (None if cert is None else cert.distance_mm)
     if not dist:
-        raise InputError("finding a ball bar needs its nominal distance: give --distance "
+        raise InputError("finding a ball bar needs its nominal distance: give distance_mm "
                          "or a spec with a [ball_bar] certificate")
     return ArtefactLayout("found by RANSAC", (ArtefactSpec("ball_bar", "ball bar", d, dist),))
 
