@@ -79,8 +79,8 @@ def noise_correlation(jac: np.ndarray, residuals: np.ndarray, coords: np.ndarray
         kappa_j = [B (K / (K - p)) sum_c S_c S_c^T B]_jj / [B sum_i s_i s_i^T B]_jj,
 
     S_c the sum of the scores of tile c, clipped at 1: the cluster-robust sandwich
-    variance over the heteroscedasticity-robust one (both in Sect. II-III of [1]). The
-    small-sample factor K / (K - p) is scanqa's choice (the CR1 factor of [1] is
+    variance over the heteroscedasticity-robust one (both in [1]_). The
+    small-sample factor K / (K - p) is scanqa's choice (the CR1 factor of [1]_ is
     K / (K - 1) (n - 1) / (n - p)).
 
     References
