@@ -1,7 +1,7 @@
 # scanqa: two commands do everything on a fresh Debian machine (as root).
 #   make demo   - set up .venv, install what is missing, run the demo
 #   make test   - same set-up, then the whole test suite and the docs build
-#   make mutate - mutation testing of optics, the gauge-block QA and the table lookup
+#   make mutate - mutation testing of optics, the QA core and the table lookup
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
@@ -64,7 +64,8 @@ lint: $(STAMP)
 	@$(BIN)/ruff check src tests benchmarks
 
 # Mutation testing (docs/mutation.rst, config in pyproject.toml [tool.mutmut]): every mutant
-# of optics.py, qa/blocks.py, qa/planes.py and calibration/lookup.py runs the fast tests
+# of optics.py, the QA core (qa/blocks, results, correlation, planes, vdi2634, verdict,
+# budget) and calibration/lookup.py runs the fast tests
 # that call it; then the kill rate per module (fails below 85 %) and every survivor.
 # About 25 min on 2 cores; MUTATE_JOBS sets the parallel workers. Results in mutants/.
 MUTATE_JOBS ?= 2

@@ -3,6 +3,7 @@ the model curve and the per-point fields, each against a value worked out here."
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -13,6 +14,7 @@ from scanqa.errors import InputError
 from scanqa.qa import blocks
 from scanqa.qa.blocks import StepResult, analyse_block, run_qa
 from scanqa.qa.layout import BlockSpec, Layout
+from scanqa.qa.results import finite
 
 from .model_reference import reference_point
 
@@ -116,8 +118,8 @@ def test_rows_and_summary_have_their_documented_names():
 
 def test_nan_becomes_null_in_the_summary():
     step = StepResult(1, 2, 1.0, math.nan, math.inf, 2.0, 20.0)
-    assert blocks._finite(math.nan) is None and blocks._finite(math.inf) is None
-    assert blocks._finite(1.5) == 1.5 and blocks._finite("ok") == "ok"
+    assert finite(math.nan) is None and finite(math.inf) is None
+    assert finite(1.5) == 1.5 and finite("ok") == "ok"
     assert step.row()["decision"] == "not evaluated"  # a NaN decides nothing (issue 27)
 
 
@@ -265,8 +267,7 @@ def test_annotated_cloud_carries_the_per_point_fields():
     outside = res.block_id < 0
     assert np.isnan(res.residual_um[outside]).all() and np.isnan(res.local_std_um[outside]).all()
     assert np.isfinite(res.residual_um[~outside]).all()
-    res.cloud = None
-    assert res.annotated_cloud() is None
+    assert dataclasses.replace(res, cloud=None).annotated_cloud() is None
 
 
 def _result(blocks_, steps, cloud=None):
@@ -278,9 +279,10 @@ def test_summary_counts_at_the_boundaries():
     """An error of exactly U is within U (and, with T - U above it, a pass); a step that is
     not evaluated counts only as such; ratios come from "ok" blocks only; the model is the
     cloud's."""
-    ok1, ok2, out = (blocks.BlockResult(i, 10.0 - i) for i in (1, 2, 3))
-    for b, measured, status in ((ok1, 3.0, "ok"), (ok2, 2.5, "ok"), (out, 9.0, "model_invalid")):
-        b.measured_std_um, b.predicted_std_um, b.status = measured, 2.0, status
+    ok1, ok2, out = (blocks.BlockResult(i, 10.0 - i, measured_std_um=measured,
+                                        predicted_std_um=2.0, status=status)
+                     for i, measured, status in ((1, 3.0, "ok"), (2, 2.5, "ok"),
+                                                 (3, 9.0, "model_invalid")))
     steps = [StepResult(1, 2, 0.0, 2**-8, 1000 * 2**-9, 2.0, 20.0),   # |e| = U = 3.90625 um
              StepResult(2, 3, 0.0, 2**-8, 1.0, 2.0, 20.0, evaluated=False)]  # block 3 flagged
     cloud = AnnotatedCloud(np.zeros((1, 3)), {}, metadata={"model": {"gamma": 3.0}})
@@ -292,7 +294,7 @@ def test_summary_counts_at_the_boundaries():
     assert info["budgets"] == [] and info["type_b_included"] is False
     assert info["max_abs_ratio_deviation"] == 0.5  # 3.0 / 2.0 (not the 4.5 of block 3)
     assert info["model"] == {"gamma": 3.0}
-    ok1.predicted_std_um = math.nan  # a block without a prediction has no ratio
+    ok1 = dataclasses.replace(ok1, predicted_std_um=math.nan)  # no prediction, no ratio
     assert _result([ok1, ok2], steps).summary()["max_abs_ratio_deviation"] == 0.25
 
 
@@ -495,12 +497,11 @@ def test_table_variance_needs_a_positive_correlation_length_on_both_blocks():
     from scanqa.qa.planes import PlaneFit
 
     def block(bid, centroid, corr, sig):
-        res = blocks.BlockResult(bid, 10.0)
-        res.fit = PlaneFit(np.asarray(centroid, float), np.array([0.0, 0.0, -1.0]),
-                           np.zeros(3), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
-        res.spread_mm, res.table_corr_mm, res.table_sigma_um = (3.0, 4.0), corr, sig
-        res.u_plane = np.zeros((3, 3))
-        return res
+        fit = PlaneFit(np.asarray(centroid, float), np.array([0.0, 0.0, -1.0]),
+                       np.zeros(3), np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+        return blocks.BlockResult(bid, 10.0, fit=fit, spread_mm=(3.0, 4.0),
+                                  table_corr_mm=corr, table_sigma_um=sig,
+                                  u_plane=np.zeros((3, 3)))
 
     for ca, cb in ((0.0, 1.0), (1.0, 0.0), (-1.0, 1.0)):
         a, b = block(2, (-8.0, -12.0, 443.65), ca, 5.0), block(3, (8.0, -12.0, 456.35), cb, 3.0)

@@ -21,8 +21,9 @@ import pytest
 from scanqa.cloud import AnnotatedCloud
 from scanqa.qa import blocks
 from scanqa.qa.blocks import BlockResult, StepResult, analyse_block, run_qa, step_between
+from scanqa.qa.correlation import noise_correlation
 from scanqa.qa.layout import BlockSpec, Layout
-from scanqa.qa.planes import PlaneFit, fit_plane
+from scanqa.qa.planes import PlaneFit, fit_plane, plane_design
 
 # two blocks of the paper's artefact (calib/gauge_blocks_paper.toml, blocks 2 and 3)
 BLOCK_A = BlockSpec(2, 25.40, (-14.0, -2.0, -21.0, -3.0), 443.65)
@@ -103,14 +104,11 @@ def test_table_term_without_correlation_length_is_a_shift_per_block():
 
 def _block(block_id, centroid, spread, corr, sigma_tab_um, u_plane=None, height=10.0):
     """A BlockResult with a horizontal plane facing the camera (axes X and Y)."""
-    res = BlockResult(block_id, height)
-    res.fit = PlaneFit(np.asarray(centroid, float), np.array([0.0, 0.0, -1.0]), np.zeros(3),
-                       np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
-    res.spread_mm = spread
-    res.table_corr_mm = corr
-    res.table_sigma_um = sigma_tab_um
-    res.u_plane = np.zeros((3, 3)) if u_plane is None else u_plane
-    return res
+    fit = PlaneFit(np.asarray(centroid, float), np.array([0.0, 0.0, -1.0]), np.zeros(3),
+                   np.array([[1.0, 0.0, 0.0], [0.0, 1.0, 0.0]]))
+    return BlockResult(block_id, height, fit=fit, spread_mm=spread, table_corr_mm=corr,
+                       table_sigma_um=sigma_tab_um,
+                       u_plane=np.zeros((3, 3)) if u_plane is None else u_plane)
 
 
 def test_step_uncertainty_hand_values():
@@ -162,9 +160,9 @@ def test_missing_correlation_length_takes_each_block_as_one_patch(which):
     a = _block(2, (-8.0, -12.0, 443.65), (3.0, 4.0), 2.0, 5.0)
     b = _block(3, (8.0, -12.0, 456.35), (2.0, 5.0), 1.0, 3.0)
     if which in ("a", "both"):
-        a.table_corr_mm = math.nan
+        a = dataclasses.replace(a, table_corr_mm=math.nan)
     if which in ("b", "both"):
-        b.table_corr_mm = math.nan
+        b = dataclasses.replace(b, table_corr_mm=math.nan)
     np.testing.assert_allclose(step_between(a, b, 2.0, 20.0).u_um, math.hypot(5.0, 3.0),
                                rtol=1e-12)
 
@@ -284,8 +282,8 @@ def test_noise_correlation_matches_a_loop_per_tile_sandwich():
     _, pid = np.unique(patch, axis=0, return_inverse=True)
     pts[:, 2] += rng.normal(0.0, 5e-3, pid.max() + 1)[pid.ravel()]
     fit = fit_plane(pts)
-    a = blocks._design(pts, fit)
-    kappa, n_tiles = blocks.noise_correlation(a, np.linalg.inv(a.T @ a), fit.residuals, 2.0)
+    a = plane_design(pts, fit)
+    kappa, n_tiles = noise_correlation(a, fit.residuals, a[:, 1:], 2.0)
     v_tiles, tiles = _sandwich_by_tiles(pts, fit.residuals, 2.0)
     v_points, _ = _sandwich_by_tiles(pts, fit.residuals, None)
     np.testing.assert_allclose(kappa, np.maximum(1.0, v_tiles / v_points), rtol=1e-9)
@@ -293,7 +291,7 @@ def test_noise_correlation_matches_a_loop_per_tile_sandwich():
     assert np.all(kappa > 3.0)  # 9 points share a draw
     # a factor below 1 is clipped: alternating residuals cancel within every tile
     alt = np.where(np.arange(len(pts)) % 2 == 0, 1e-3, -1e-3)
-    kappa, _ = blocks.noise_correlation(a, np.linalg.inv(a.T @ a), alt, 2.0)
+    kappa, _ = noise_correlation(a, alt, a[:, 1:], 2.0)
     np.testing.assert_array_equal(kappa, 1.0)
 
 
@@ -312,8 +310,8 @@ def test_noise_correlation_needs_eight_tiles_of_three_points():
                     for k, (x, y) in enumerate(pattern[:n])]
         pts = np.array(pts)
         fit = fit_plane(pts)
-        a = blocks._design(pts, fit)
-        return blocks.noise_correlation(a, np.linalg.inv(a.T @ a), fit.residuals, 2.0)
+        a = plane_design(pts, fit)
+        return noise_correlation(a, fit.residuals, a[:, 1:], 2.0)
 
     kappa, n = run(3, 0)
     assert n == 8 and np.isfinite(kappa).all()
@@ -432,9 +430,9 @@ def _budget_blocks(n_tiles_a: int = 13, n_tiles_b: int = 23):
     u_b = np.diag([9.0e-6, 1.0, 1.0])
     a = _block(2, (-8.0, -12.0, 443.65), (3.0, 4.0), math.nan, 1.2, u_a, height=25.4)
     b = _block(3, (8.0, -14.0, 456.35), (2.0, 5.0), math.nan, 1.6, u_b, height=12.7)
-    for blk, tiles in ((a, n_tiles_a), (b, n_tiles_b)):
-        blk.n_tiles, blk.noise_corr, blk.n_points, blk.status = tiles, (1.5, 1, 1), 500, "ok"
-    return a, b
+    return tuple(dataclasses.replace(blk, n_tiles=tiles, noise_corr=(1.5, 1, 1), n_points=500,
+                                     status="ok")
+                 for blk, tiles in ((a, n_tiles_a), (b, n_tiles_b)))
 
 
 def test_budget_type_a_terms_and_their_degrees_of_freedom():
@@ -469,15 +467,15 @@ def test_budget_dof_of_unmeasured_noise_correlation_and_std_u():
     term has n - 3 dof, and the measured std's u is s / sqrt(2 (n - 3)); with a factor
     kappa, n / kappa - 3 (at least 1 either way)."""
     a, b = _budget_blocks(n_tiles_a=8, n_tiles_b=4)
-    b.noise_corr = (math.nan,) * 3
+    b = dataclasses.replace(b, noise_corr=(math.nan,) * 3)
     step = step_between(a, b, 2.0, 20.0)
     assert [c.dof for c in step.budget.components] == [5.0, 497.0, math.inf]
-    a.measured_std_um = b.measured_std_um = 6.0
+    a, b = (dataclasses.replace(x, measured_std_um=6.0) for x in (a, b))
     np.testing.assert_allclose(a.std_u_um, 6.0 / math.sqrt(2 * (500 / 1.5 - 3)), rtol=1e-12)
     np.testing.assert_allclose(b.std_u_um, 6.0 / math.sqrt(2 * 497), rtol=1e-12)
-    a.n_tiles, a.n_points = 2, 2
+    a = dataclasses.replace(a, n_tiles=2, n_points=2)
     assert a.noise_dof == 1.0 and a.std_u_um == 6.0 / math.sqrt(2.0)
-    b.n_points = 3
+    b = dataclasses.replace(b, n_points=3)
     assert b.noise_dof == 1.0
 
 
@@ -485,14 +483,13 @@ def test_welch_satterthwaite_coverage_factor():
     """k = t_0.975(nu_eff): one term with 10 dof (the others zero) gives nu_eff = 10 and
     Student's table value 2.228; two equal terms of 10 dof give 20 and 2.086."""
     a, b = _budget_blocks()
-    b.u_plane = np.zeros((3, 3))
-    a.table_sigma_um = b.table_sigma_um = 0.0
+    a = dataclasses.replace(a, table_sigma_um=0.0)
+    b = dataclasses.replace(b, table_sigma_um=0.0, u_plane=np.zeros((3, 3)))
     step = step_between(a, b, "welch-satterthwaite", 20.0)
     np.testing.assert_allclose(step.budget.nu_eff, 10.0, rtol=1e-12)
     np.testing.assert_allclose(step.k, 2.228139, rtol=1e-6)
     np.testing.assert_allclose(step.expanded_um, 2.228139 * 2.0, rtol=1e-6)
-    b.u_plane = np.diag([4.0e-6, 0.0, 0.0])
-    b.n_tiles = 13
+    b = dataclasses.replace(b, u_plane=np.diag([4.0e-6, 0.0, 0.0]), n_tiles=13)
     step = step_between(a, b, "welch-satterthwaite", 20.0)
     np.testing.assert_allclose(step.budget.nu_eff, 20.0, rtol=1e-12)
     np.testing.assert_allclose(step.k, 2.085963, rtol=1e-6)
@@ -546,14 +543,14 @@ def test_coverage_rule_and_bad_k():
 
 def test_flagged_blocks_name_themselves_in_the_step_note():
     a, b = _budget_blocks()
-    a.status = "model_invalid"
+    a = dataclasses.replace(a, status="model_invalid")
     step = step_between(a, b, 2.0, 20.0)
     assert (step.evaluated, step.note) == (False, "not evaluated: block 2 flagged")
-    b.status = "outside_volume"
+    b = dataclasses.replace(b, status="outside_volume")
     step = step_between(a, b, 2.0, 20.0)
     assert step.note == "not evaluated: block 2 and 3 flagged"
     assert step.decision == "not evaluated" and step.row()["evaluated"] is False
-    a.status = "ok"
+    a = dataclasses.replace(a, status="ok")
     assert step_between(a, b, 2.0, 20.0).note == "not evaluated: block 3 flagged"
 
 

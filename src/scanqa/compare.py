@@ -27,6 +27,7 @@ import numpy as np
 
 from scanqa.cloud import AnnotatedCloud
 from scanqa.errors import InputError
+from scanqa.qa.verdict import decide
 
 #: Attributes a comparison adds to the cloud (units in the names).
 COMPARE_ATTRIBUTES = ("deviation_um", "u_deviation_um", "U_deviation_um", "significance",
@@ -89,13 +90,23 @@ def _num(value: float) -> float | None:
 
 
 def _verdict(dev_um: np.ndarray, big_u_um: np.ndarray, tol_um: float) -> str:
-    """ISO 14253-1 on the worst point: pass when every |dev| <= T - U, fail when some
-    |dev| > T + U, else undecided."""
+    """ISO 14253-1 (:func:`scanqa.qa.verdict.decide`) on the worst points: fail when the
+    point farthest beyond T + U fails, pass when the point nearest to T - U passes (then
+    every point does), else undecided; a non-finite point is never a pass."""
     if dev_um.size == 0:
         return "not evaluated"
-    if np.any(np.abs(dev_um) > tol_um + big_u_um):
-        return "fail"
-    return "pass" if np.all(np.abs(dev_um) <= tol_um - big_u_um) else "undecided"
+    dev_um, big_u_um = np.broadcast_arrays(np.asarray(dev_um, float),
+                                           np.asarray(big_u_um, float))
+    ok = np.isfinite(dev_um) & np.isfinite(big_u_um)
+    if ok.any():
+        worst = np.flatnonzero(ok)[np.argmax(np.abs(dev_um[ok]) - big_u_um[ok])]
+        if decide(dev_um[worst], big_u_um[worst], tol_um) == "fail":
+            return "fail"
+    if not ok.all():
+        return "undecided"
+    nearest = int(np.argmax(np.abs(dev_um) + big_u_um))
+    return "pass" if decide(dev_um[nearest], big_u_um[nearest], tol_um) == "pass" \
+        else "undecided"
 
 
 def compare_to_cloud(cloud: AnnotatedCloud, reference: AnnotatedCloud, k: float = 2.0,

@@ -185,9 +185,19 @@ def run(args: argparse.Namespace) -> int:
     return _run_blocks(args, clouds[0][1], config, header, out)
 
 
+def _auto_layout(args, spec):
+    """:func:`auto_layout` with the library's parameter names turned into the flags."""
+    try:
+        return auto_layout(args.artefact, spec, args.diameter, args.distance)
+    except InputError as err:
+        text = str(err).replace("kind must", "--artefact must").replace(
+            "give diameter_mm or", "give --diameter or").replace(
+            "give distance_mm", "give --distance")
+        raise InputError(text) from None
+
+
 def _run_artefacts(args, clouds, spec, header, out) -> int:
-    layout = auto_layout(args.artefact, spec, args.diameter, args.distance) if args.auto \
-        else load_artefact_layout(args.layout)
+    layout = _auto_layout(args, spec) if args.auto else load_artefact_layout(args.layout)
     if args.k == "welch-satterthwaite" or args.budget:
         raise InputError("--k welch-satterthwaite and --budget apply to gauge blocks; the "
                          "artefact tests take a number for --k (default 2)")

@@ -59,16 +59,15 @@ correlation cells the ball's seen area covers (at least 1).
 
 Noise correlation. Neighbouring points share noise (blur); the fits' covariances from
 the per-point sigmas are scaled per parameter by a factor kappa >= 1 measured on the
-artefact itself, as for gauge blocks (:func:`scanqa.qa.blocks.noise_correlation`): the
-cluster-robust covariance with cubes of ``tile_mm`` as clusters over the one with every
-point its own cluster.
+artefact itself, as for gauge blocks (:func:`scanqa.qa.correlation.noise_correlation`):
+the cluster-robust covariance with cubes of ``tile_mm`` as clusters over the one with
+every point its own cluster; 1 when too few tiles hold 3 points.
 """
 
 from __future__ import annotations
 
 import math
 import os
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -77,205 +76,33 @@ from scanqa.errors import InputError
 from scanqa.io.artefacts import read_artefact_layout
 from scanqa.io.spec import Spec
 from scanqa.qa.ballbar import find_ball_bar
-from scanqa.qa.blocks import noise_correlation
-from scanqa.qa.planes import fit_plane
+from scanqa.qa.correlation import noise_correlation
+from scanqa.qa.planes import fit_plane, plane_design
 from scanqa.qa.ransac import find_spheres, ransac_plane, ransac_sphere
-from scanqa.qa.sphere import MIN_COVERAGE, MIN_POINTS, algebraic_sphere
-from scanqa.qa.vdi2634 import (
-    DROP_FRACTION,
-    BallBarTest,
-    FlatTest,
-    Quantity,
-    SphereTest,
-    flatness_error,
-    probing_errors,
-    sphere_spacing_error,
+from scanqa.qa.results import (
+    OBLIQUE,
+    ArtefactLayout,
+    ArtefactQAResult,
+    ArtefactResult,
+    ArtefactSpec,
+    Options,
+    Selection,
 )
-from scanqa.qa.verdict import verdict
+from scanqa.qa.sphere import MIN_POINTS, algebraic_sphere
+from scanqa.qa.vdi2634 import flatness_error, probing_errors, sphere_spacing_error
+
+__all__ = ["KINDS", "OBLIQUE", "ArtefactLayout", "ArtefactQAResult", "ArtefactResult",
+           "ArtefactSpec", "Options", "Selection", "auto_layout", "evaluate_ball_bar",
+           "evaluate_flat", "evaluate_sphere", "load_artefact_layout", "oblique_factor",
+           "point_sigma", "run_artefact_qa", "select_ball_bar", "select_flat",
+           "select_sphere", "table_uncertainty", "tile_correlation"]
 
 #: Kinds of artefact, as in layouts and ``--artefact``.
 KINDS = ("sphere", "ball_bar", "flat")
-#: How per-point sigmas are scaled for oblique views (module notes).
-OBLIQUE = ("decoder", "modulation", "none")
 #: Incidence within which a point counts as facing the scanner (oblique-sigma reference) [deg].
 FRONTAL_DEG = 20.0
-#: Fewest tiles with 3 points or more for a noise-correlation estimate [-].
-MIN_TILES = 8
 #: How far a flat may lie from its approximate plane and rectangle [mm].
 FLAT_SEARCH_MM = 5.0
-
-
-@dataclass(frozen=True)
-class ArtefactSpec:
-    """One artefact of a layout (lengths [mm]; vectors None when not given)."""
-
-    kind: str
-    id: str
-    diameter_mm: float = math.nan
-    distance_mm: float = math.nan
-    centre_mm: tuple | None = None
-    centre_b_mm: tuple | None = None
-    normal: tuple | None = None
-    size_mm: tuple | None = None
-    bar_diameter_mm: float = math.nan
-    scan: str = ""
-
-    def applies_to(self, scan: str) -> bool:
-        """Whether this artefact is in the scan named ``scan`` (module notes)."""
-        return not self.scan or not scan or scan.startswith(self.scan)
-
-
-@dataclass(frozen=True)
-class ArtefactLayout:
-    """Artefacts of one or more scans."""
-
-    name: str
-    artefacts: tuple[ArtefactSpec, ...]
-    source: str = ""
-
-
-@dataclass(frozen=True)
-class Options:
-    """Point selection and evaluation settings (module notes; lengths [mm], angles [deg])."""
-
-    k: float = 2.0
-    drop_fraction: float = DROP_FRACTION
-    sd_drop_fraction: float = 0.0
-    max_incidence_deg: float = 70.0
-    shell_mm: float | None = None
-    margin_mm: float = 1.0
-    mount_margin_deg: float = 10.0
-    min_coverage: float = MIN_COVERAGE
-    oblique: str = "decoder"
-    tile_mm: float = 2.0
-    decide_with: str = "test"
-
-    def __post_init__(self) -> None:
-        if not 0 < self.max_incidence_deg <= 90:
-            raise InputError(f"max_incidence_deg must be in (0, 90] deg, got "
-                             f"{self.max_incidence_deg!r}")
-        if self.oblique not in OBLIQUE:
-            raise InputError(f"oblique must be one of {', '.join(OBLIQUE)}, got "
-                             f"{self.oblique!r}")
-        if not (self.tile_mm > 0 and self.margin_mm >= 0 and self.k > 0):
-            raise InputError("tile_mm and k must be > 0 and margin_mm >= 0")
-
-    def row(self) -> dict:
-        return {k: getattr(self, k) for k in self.__dataclass_fields__}
-
-
-@dataclass(frozen=True)
-class Selection:
-    """Which points an artefact's quantities rest on and what each step removed."""
-
-    index: np.ndarray
-    counts: dict
-
-
-@dataclass(frozen=True)
-class ArtefactResult:
-    """The quantities of one artefact in one scan."""
-
-    spec: ArtefactSpec
-    scan: str
-    quantities: tuple[Quantity, ...]
-    selections: tuple[Selection, ...]
-    test: SphereTest | BallBarTest | FlatTest = field(repr=False)
-    u_table: float = 0.0
-    kappa: float = 1.0
-    points: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)), repr=False)
-
-    def rows(self) -> list[dict]:
-        """One report row per quantity (lengths in um)."""
-        zone = getattr(self.test, "zone", None)
-        return [{"scan": self.scan, "artefact": self.spec.id, "kind": self.spec.kind,
-                 **q.row(), "noise_corr_factor": self.kappa,
-                 "minimum_zone_um": 1e3 * zone.width if zone is not None
-                 and q.name in ("PF", "F") else math.nan} for q in self.quantities]
-
-    def budget(self) -> list[dict]:
-        """Each quantity's uncertainty budget: standard uncertainties [um] by component
-        (module notes of this module and of :mod:`scanqa.qa.vdi2634`)."""
-        out = []
-        for q in self.quantities:
-            if not math.isfinite(q.u):
-                continue
-            for component, u, how in self._components(q):
-                out.append({"scan": self.scan, "artefact": self.spec.id,
-                            "quantity": q.name, "component": component,
-                            "u_um": 1e3 * u, "enters": how})
-            out.append({"scan": self.scan, "artefact": self.spec.id, "quantity": q.name,
-                        "component": f"U = {q.k:g} u + |bias|", "u_um": 1e3 * q.expanded,
-                        "enters": "expanded"})
-        return out
-
-    def _components(self, q: Quantity) -> list[tuple[str, float, str]]:
-        kappa = f"noise-correlation factor {self.kappa:.2f} included"
-        if q.name in ("PF", "F"):
-            return [("noise of the points: spread of the range over scans", q.u_points, kappa),
-                     ("artefact form (certified, rectangular)", q.u_artefact, "test")]
-        if q.name == "PS":
-            fit = self.test.fit
-            return [("noise of the points: 2 u(R) of the fit", 2 * fit.u_radius, kappa),
-                    ("calibration table's own error: 2 u(R)", 2 * self.u_table, "quadrature"),
-                    ("certificate of the diameter", q.u_artefact, "test"),
-                    ("bias of the fit from line-of-sight noise", abs(q.bias), "linear")]
-        return [("noise of the points: both centres along the bar",
-                 self.test.bar.u_distance, kappa),
-                ("calibration table's own error: both balls", math.sqrt(2) * self.u_table,
-                 "quadrature"),
-                ("certificate of the distance", q.u_artefact, "test"),
-                ("bias of the fits from line-of-sight noise", abs(q.bias), "linear")]
-
-    def residuals(self) -> tuple[np.ndarray, np.ndarray]:
-        """The selected points [mm] and their distances from the fitted sphere(s) or
-        plane [mm] (the points the 0.3 % rule dropped included)."""
-        t, pts = self.test, self.points
-        if isinstance(t, FlatTest):
-            return pts, (pts - t.plane.centroid) @ t.plane.normal
-        fits = [t.fit] if isinstance(t, SphereTest) else [t.bar.sphere_a, t.bar.sphere_b]
-        d = np.stack([np.linalg.norm(pts - f.centre, axis=1) - f.radius for f in fits])
-        return pts, d[np.argmin(np.abs(d), axis=0), np.arange(len(pts))]
-
-
-@dataclass(frozen=True)
-class ArtefactQAResult:
-    """Every artefact's result over one or more scans, with settings and notes."""
-
-    results: tuple[ArtefactResult, ...]
-    options: Options
-    spec: Spec | None
-    layout: ArtefactLayout
-    notes: tuple[str, ...] = ()
-    #: where the scans' per-point sigmas come from (the first scan with a warning, else
-    #: the first scan; :func:`scanqa.annotation.sigma_source`), None when unknown
-    sigma_source: dict | None = None
-
-    def quantities(self) -> list[Quantity]:
-        return [q for r in self.results for q in r.quantities]
-
-    def rows(self) -> list[dict]:
-        return [row for r in self.results for row in r.rows()]
-
-    def verdict(self) -> dict:
-        """The overall verdict and the count of each decision (:mod:`scanqa.qa.verdict`)."""
-        return verdict([q.decision for q in self.quantities()])
-
-    def summary(self) -> dict:
-        """A JSON-ready summary: verdict, rows, selections, settings, notes."""
-        def clean(v):
-            return None if isinstance(v, float) and not math.isfinite(v) else v
-
-        return {"verdict": self.verdict(), "layout": self.layout.source,
-                "spec": None if self.spec is None else {"name": self.spec.name,
-                                                        "source": self.spec.source},
-                "quantities": [{k: clean(v) for k, v in row.items()} for row in self.rows()],
-                "selections": [{"scan": r.scan, "artefact": r.spec.id,
-                                "ball": "ab"[i] if len(r.selections) == 2 else "",
-                                **s.counts} for r in self.results
-                               for i, s in enumerate(r.selections)],
-                "options": self.options.row(), "sigma_source": self.sigma_source,
-                "notes": list(self.notes)}
 
 
 # --------------------------------------------------------------------------- layouts
@@ -314,19 +141,19 @@ def auto_layout(kind: str, spec: Spec | None, diameter_mm: float | None = None,
     """
     kind = kind.replace("-", "_")
     if kind not in KINDS:
-        raise InputError(f"--artefact must be one of sphere, ball-bar, flat, got {kind!r}")
+        raise InputError(f"kind must be one of sphere, ball-bar, flat, got {kind!r}")
     if kind == "flat":
         return ArtefactLayout("found by RANSAC", (ArtefactSpec("flat", "flat"),))
     cert = None if spec is None else (spec.sphere if kind == "sphere" else spec.ball_bar)
     d = diameter_mm or (None if cert is None else cert.diameter_mm)
     if not d:
         raise InputError(f"finding a {kind.replace('_', ' ')} needs its nominal diameter: "
-                         "give --diameter or a spec whose certificate has diameter_mm")
+                         "give diameter_mm or a spec whose certificate has diameter_mm")
     if kind == "sphere":
         return ArtefactLayout("found by RANSAC", (ArtefactSpec("sphere", "sphere", d),))
     dist = distance_mm or (None if cert is None else cert.distance_mm)
     if not dist:
-        raise InputError("finding a ball bar needs its nominal distance: give --distance "
+        raise InputError("finding a ball bar needs its nominal distance: give distance_mm "
                          "or a spec with a [ball_bar] certificate")
     return ArtefactLayout("found by RANSAC", (ArtefactSpec("ball_bar", "ball bar", d, dist),))
 
@@ -577,23 +404,11 @@ def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -
 
 def tile_correlation(tile_mm: float):
     """A noise-correlation callable for :func:`scanqa.qa.sphere.fit_sphere`: kappa per
-    parameter from cubes of ``tile_mm`` as clusters (module notes); 1 with too few."""
+    parameter with cubes of ``tile_mm`` as clusters
+    (:func:`scanqa.qa.correlation.noise_correlation`), 1 with too few tiles."""
     def kappa(points: np.ndarray, jac: np.ndarray, res: np.ndarray) -> np.ndarray:
-        key = np.floor((points - points.min(axis=0)) / tile_mm).astype(np.int64)
-        _, tile = np.unique(key, axis=0, return_inverse=True)
-        tile = tile.ravel()
-        counts = np.bincount(tile)
-        if np.sum(counts >= 3) < MIN_TILES:
-            return np.ones(jac.shape[1])
-        bread = np.linalg.inv(jac.T @ jac)
-        score = jac * res[:, None]
-        per = np.stack([np.bincount(tile, weights=score[:, j]) for j in range(jac.shape[1])],
-                       axis=1)
-        k_tiles = counts.size
-        meat_t = per.T @ per * k_tiles / (k_tiles - jac.shape[1])
-        v_t = np.diag(bread @ meat_t @ bread)
-        v_p = np.diag(bread @ (score.T @ score) @ bread)
-        return np.maximum(1.0, v_t / v_p)
+        factor, _ = noise_correlation(jac, res, points, tile_mm)
+        return np.where(np.isfinite(factor), factor, 1.0)
     return kappa
 
 
@@ -670,10 +485,8 @@ def evaluate_flat(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
     plane = fit_plane(pts, f"flat {art.id!r}")
     normals = np.broadcast_to(plane.normal, pts.shape)
     sig = point_sigma(cloud, sel.index, normals, options)
-    d = pts - plane.centroid
-    design = np.column_stack([np.ones(len(pts)), d @ plane.axes[0], d @ plane.axes[1]])
-    kappa, _ = noise_correlation(design, np.linalg.inv(design.T @ design), plane.residuals,
-                                 options.tile_mm)
+    design = plane_design(pts, plane)
+    kappa, _ = noise_correlation(design, plane.residuals, design[:, 1:], options.tile_mm)
     k0 = float(kappa[0]) if np.isfinite(kappa[0]) else 1.0
     test = flatness_error(pts, sig, spec, options.k, options.drop_fraction, k0,
                           decide_with=options.decide_with)

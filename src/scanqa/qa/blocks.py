@@ -42,10 +42,10 @@ non-conformance when |error| > T + U ("fail"), otherwise "undecided".
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import math
 import numbers
-from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -55,15 +55,15 @@ from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
 from scanqa.qa.budget import Budget, Component, coverage_factor, type_b
+from scanqa.qa.correlation import MIN_TILES, TILE_MM, noise_correlation
 from scanqa.qa.layout import BlockSpec, Layout
-from scanqa.qa.planes import PlaneFit, fit_plane
-from scanqa.qa.verdict import decide, verdict
+from scanqa.qa.planes import PlaneFit, fit_plane, plane_design
+from scanqa.qa.results import BlockResult, QAResult, StepResult
 
-#: Tile size of the noise-correlation estimate [mm]: at least twice the correlation length
-#: of the noise (~0.5-1 mm for the paper's scanner at 8 um pixels).
-TILE_MM = 2.0
-#: Fewest tiles (with 3 points or more) for a noise-correlation estimate.
-MIN_TILES = 8
+__all__ = ["MIN_TILES", "TILE_MM", "BlockResult", "QAResult", "StepResult",
+           "analyse_block", "check_sigmas", "cloud_config", "coverage_notes",
+           "coverage_rule", "local_std", "model_curve", "noise_correlation", "run_qa",
+           "step_between"]
 #: Fewest points of a block whose steps are decided: below, the plane is fitted and shown
 #: but the block is flagged "too_few_points" and its steps are not evaluated (the
 #: relative uncertainty of its std, 1/sqrt(2(n - 3)), exceeds 14 %, and MIN_TILES tiles
@@ -77,216 +77,6 @@ STATUSES = ("no_points", "too_few_points", "degenerate", "outside_volume", "mode
 MAX_FLAGGED_FRACTION = 0.05
 #: Tolerance T on a height difference when none is given [um]; the verdict says so.
 DEFAULT_TOLERANCE_UM = 20.0
-#: Decisions of a step: ISO 14253-1's three, and none for a step not evaluated.
-DECISIONS = ("pass", "fail", "undecided", "not evaluated")
-
-
-@dataclass
-class BlockResult:
-    """Per-block QA numbers (lengths in mm, standard deviations in um)."""
-
-    block_id: int
-    nominal_height_mm: float
-    n_points: int = 0
-    measured_std_um: float = math.nan
-    predicted_std_um: float = math.nan
-    flatness_um: float = math.nan
-    mean_attenuation: float = math.nan
-    in_volume_fraction: float = math.nan
-    model_valid_fraction: float = math.nan
-    mean_z_mm: float = math.nan
-    outliers: int = 0
-    status: str = "no_points"
-    message: str = ""
-    fit: PlaneFit | None = field(default=None, repr=False)
-    index: np.ndarray | None = field(default=None, repr=False)
-    u_plane: np.ndarray | None = field(default=None, repr=False)  # (3, 3) covariance
-    sigma_n: np.ndarray | None = field(default=None, repr=False)
-    table_sigma_um: float = math.nan
-    table_corr_mm: float = math.nan  # correlation length of the table's errors [mm]
-    spread_mm: tuple = (math.nan, math.nan)  # std of the points along the plane axes [mm]
-    #: noise-correlation factor of the plane's (offset, slope_1, slope_2) variances [-]
-    noise_corr: tuple = (math.nan, math.nan, math.nan)
-    n_tiles: int = 0
-
-    @property
-    def ratio(self) -> float:
-        """Measured / predicted std [-] (NaN without a positive prediction)."""
-        if not self.predicted_std_um > 0:
-            return math.nan
-        return self.measured_std_um / self.predicted_std_um
-
-    @property
-    def noise_dof(self) -> float:
-        """Degrees of freedom of the block's noise terms: K - 3 for K tiles, or n - 3 for
-        n independent points when the correlation factor could not be measured [-]."""
-        n = self.n_tiles if math.isfinite(self.noise_corr[0]) else self.n_points
-        return float(max(n - 3, 1))
-
-    @property
-    def std_u_um(self) -> float:
-        """Standard uncertainty of the measured std (Type A): s / sqrt(2 nu) with nu the
-        effective count of independent points n / kappa, less 3 for the plane [um]."""
-        kappa = self.noise_corr[0] if math.isfinite(self.noise_corr[0]) else 1.0
-        nu = max(self.n_points / kappa - 3.0, 1.0)
-        return self.measured_std_um / math.sqrt(2.0 * nu)
-
-    def row(self) -> dict:
-        return {"block_id": self.block_id, "nominal_height_mm": self.nominal_height_mm,
-                "n_points": self.n_points, "measured_std_um": self.measured_std_um,
-                "measured_std_u_um": self.std_u_um,
-                "predicted_std_um": self.predicted_std_um, "ratio": self.ratio,
-                "flatness_um": self.flatness_um, "mean_attenuation": self.mean_attenuation,
-                "in_volume_fraction": self.in_volume_fraction,
-                "model_valid_fraction": self.model_valid_fraction, "status": self.status,
-                "noise_corr_factor": self.noise_corr[0], "n_tiles": self.n_tiles}
-
-
-@dataclass(frozen=True)
-class StepResult:
-    """Height difference between two blocks (mm and um as named).
-
-    ``u_um`` and ``k`` are the budget's (:mod:`scanqa.qa.budget`); ``evaluated`` is False
-    when a block of the pair is flagged (``note`` says which), and then the step gets no
-    decision. The error is measured - reference, the reference being the nominal
-    difference with the budget's thermal correction.
-    """
-
-    block_a: int
-    block_b: int
-    nominal_diff_mm: float
-    measured_diff_mm: float
-    u_um: float
-    k: float
-    tolerance_um: float
-    budget: Budget | None = field(default=None, repr=False, compare=False)
-    evaluated: bool = True
-    note: str = ""
-
-    @property
-    def error_um(self) -> float:
-        correction = self.budget.correction_um if self.budget is not None else 0.0
-        return 1e3 * (self.measured_diff_mm - self.nominal_diff_mm) - correction
-
-    @property
-    def expanded_um(self) -> float:
-        return self.k * self.u_um
-
-    @property
-    def within_u(self) -> bool:
-        """|error| <= U (only meaningful for an evaluated step)."""
-        return abs(self.error_um) <= self.expanded_um
-
-    @property
-    def decision(self) -> str:
-        """ISO 14253-1 (:func:`scanqa.qa.verdict.decide`, the one rule): "pass", "fail"
-        or "undecided"; "not evaluated" for a step with a flagged block or a NaN."""
-        if not self.evaluated:
-            return "not evaluated"
-        return decide(self.error_um, self.expanded_um, self.tolerance_um)
-
-    def row(self) -> dict:
-        """The step's table row: ``decision`` (ISO 14253-1 against T) and ``within_U``
-        (|error| <= U, a check of the uncertainty statement) are separate columns."""
-        nu = self.budget.nu_eff if self.budget is not None else math.nan
-        return {"block_a": self.block_a, "block_b": self.block_b,
-                "nominal_diff_mm": self.nominal_diff_mm,
-                "measured_diff_mm": self.measured_diff_mm, "error_um": self.error_um,
-                "u_um": self.u_um, "nu_eff": nu, "U_um": self.expanded_um, "k": self.k,
-                "tolerance_um": self.tolerance_um, "decision": self.decision,
-                "within_U": ("yes" if self.within_u else "no") if self.evaluated else "",
-                "evaluated": self.evaluated}
-
-
-@dataclass
-class QAResult:
-    """Everything the QA computed; the report layer only renders it.
-
-    ``cloud`` is the cloud the QA ran on; ``curve`` the model's uncertainty curve on the
-    camera axis over the blocks' depths (:func:`scanqa.design.axis_curve`), from the model
-    that gave the cloud's sigmas, or None when that model is unknown.
-    """
-
-    blocks: list[BlockResult]
-    steps: list[StepResult]
-    block_id: np.ndarray       # (n,) per point, -1 outside every block
-    residual_um: np.ndarray    # (n,) per point, NaN outside blocks
-    local_std_um: np.ndarray   # (n,) per point
-    has_prediction: bool
-    notes: list[str]
-    settings: dict
-    cloud: AnnotatedCloud | None = field(default=None, repr=False)
-    curve: dict | None = field(default=None, repr=False)
-
-    def steps_evaluated(self) -> list[StepResult]:
-        """Steps between two blocks whose status is "ok" (the others get no decision)."""
-        return [s for s in self.steps if s.evaluated]
-
-    def summary(self) -> dict:
-        """JSON-ready summary: settings, every block and step with its budget, the counts.
-
-        Every count is over the tables it sits beside: ``steps_evaluated`` +
-        ``steps_not_evaluated`` = the number of steps, ``decisions`` counts the steps'
-        ``pass`` column, ``steps_error_within_U`` the evaluated steps with |error| <= U.
-        """
-        evaluated = self.steps_evaluated()
-        within = [s for s in evaluated if s.within_u]
-        ratios = [b.ratio for b in self.blocks if b.status == "ok" and math.isfinite(b.ratio)]
-        decisions = {d: sum(s.decision == d for s in self.steps) for d in DECISIONS}
-        return {
-            "format": "scanqa-qa-summary/3",
-            "verdict": verdict(s.decision for s in self.steps)["verdict"],
-            "tolerance_um": self.settings.get("tolerance_um"),
-            "tolerance_source": self.settings.get("tolerance_source", "given"),
-            "settings": self.settings,
-            "model": self.cloud.model if self.cloud is not None else {},
-            "sigma_source": (self.cloud.metadata.get("sigma_source")
-                             if self.cloud is not None else None),
-            "has_prediction": self.has_prediction,
-            "blocks": [{k: _finite(v) for k, v in b.row().items()} for b in self.blocks],
-            "blocks_ok": sum(b.status == "ok" for b in self.blocks),
-            "blocks_flagged": sum(b.status != "ok" for b in self.blocks),
-            "steps": [{k: _finite(v) for k, v in s.row().items()} for s in self.steps],
-            "budgets": [{"block_a": s.block_a, "block_b": s.block_b,
-                         **_json(s.budget.summary())}
-                        for s in self.steps if s.budget is not None],
-            "type_b_included": self.type_b_included,
-            "steps_evaluated": len(evaluated),
-            "steps_not_evaluated": len(self.steps) - len(evaluated),
-            "steps_error_within_U": len(within),
-            "fraction_within_U": len(within) / len(evaluated) if evaluated else None,
-            "decisions": decisions,
-            "max_abs_ratio_deviation": max((abs(r - 1) for r in ratios), default=None),
-            "notes": list(self.notes),
-        }
-
-    @property
-    def type_b_included(self) -> bool:
-        return bool(self.steps) and all(s.budget is not None and s.budget.type_b_included
-                                        for s in self.steps)
-
-    def annotated_cloud(self) -> AnnotatedCloud | None:
-        """The cloud with the per-point QA fields ``qa_block_id``, ``qa_residual_um`` and
-        ``qa_local_std_um`` added (None when the result holds no cloud)."""
-        if self.cloud is None:
-            return None
-        return self.cloud.with_attributes(qa_block_id=self.block_id,
-                                          qa_residual_um=self.residual_um,
-                                          qa_local_std_um=self.local_std_um)
-
-
-def _finite(v):
-    """NaN and inf become None (JSON null)."""
-    return v if not isinstance(v, float) or math.isfinite(v) else None
-
-
-def _json(value):
-    """``_finite`` applied through dicts and lists."""
-    if isinstance(value, dict):
-        return {k: _json(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_json(v) for v in value]
-    return _finite(value)
 
 
 def _attr(attrs: dict, name: str, idx: np.ndarray, default: float = math.nan) -> np.ndarray:
@@ -310,31 +100,31 @@ def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
     """Plane fit and statistics of one block (see module notes)."""
     res = BlockResult(spec.block_id, spec.nominal_height_mm)
     idx = _select(xyz, spec, margin, z_window)
-    res.n_points = int(idx.size)
     if idx.size == 0:
-        res.message = (f"block {spec.block_id}: no points inside its region after the "
-                       f"{margin:g} mm edge margin (occluded, outside the calibrated volume "
-                       "or a wrong layout?)")
-        return res
+        return dataclasses.replace(res, message=(
+            f"block {spec.block_id}: no points inside its region after the {margin:g} mm "
+            "edge margin (occluded, outside the calibrated volume or a wrong layout?)"))
     if idx.size < 3:
-        res.status = "too_few_points"
-        res.message = f"block {spec.block_id}: only {idx.size} points, a plane needs 3"
-        return res
+        return dataclasses.replace(res, n_points=int(idx.size), status="too_few_points",
+                                   message=f"block {spec.block_id}: only {idx.size} points, "
+                                   "a plane needs 3")
+    outliers, n_selected = 0, int(idx.size)
     try:
         fit = fit_plane(xyz[idx], f"block {spec.block_id}")
         if outlier_k:
             keep = np.abs(fit.residuals) <= outlier_k * _robust_std(fit.residuals)
-            res.outliers = int((~keep).sum())
+            outliers = int((~keep).sum())
             idx = idx[keep]
             fit = fit_plane(xyz[idx], f"block {spec.block_id}")
     except InputError as err:
-        res.status, res.message = "degenerate", str(err)
-        return res
-    _fill_block(res, fit, idx, xyz, attrs, tile_mm)
+        return dataclasses.replace(res, n_points=n_selected, outliers=outliers,
+                                   status="degenerate", message=str(err))
+    res = dataclasses.replace(res, outliers=outliers,
+                              **_block_fields(spec.block_id, fit, idx, xyz, attrs, tile_mm))
     if res.status == "ok" and res.n_points < MIN_POINTS:
-        res.status = "too_few_points"
-        res.message = (f"block {spec.block_id}: only {res.n_points} points (fewer than "
-                       f"{MIN_POINTS}): flagged, its steps are not evaluated")
+        res = dataclasses.replace(res, status="too_few_points", message=(
+            f"block {spec.block_id}: only {res.n_points} points (fewer than {MIN_POINTS}): "
+            "flagged, its steps are not evaluated"))
     return res
 
 
@@ -357,84 +147,58 @@ def _robust_std(r: np.ndarray) -> float:
     return float(1.4826 * np.median(np.abs(r - np.median(r)))) or float(np.std(r)) or 1e-12
 
 
-def _fill_block(res: BlockResult, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray,
-                attrs: dict, tile_mm: float) -> None:
+def _block_fields(block_id: int, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray,
+                  attrs: dict, tile_mm: float) -> dict:
+    """The :class:`BlockResult` fields of a block with a plane (module notes)."""
     n = idx.size
     pts = xyz[idx]
     los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(los @ fit.normal)
     sig = _attr(attrs, random_sigma_name(attrs) or "sigma_model_um", idx) * 1e-3 * cos
     sig[~(sig > 0)] = np.nan  # a zero, negative or NaN sigma predicts nothing
-    res.n_points, res.fit, res.index = n, fit, idx
-    res.measured_std_um = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
-    res.flatness_um = 1e3 * float(np.ptp(fit.residuals))
-    res.predicted_std_um = 1e3 * float(np.sqrt(np.nanmean(sig**2))) if np.isfinite(sig).any() \
-        else math.nan
+    out = {"n_points": n, "fit": fit, "index": idx}
+    out["measured_std_um"] = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
+    out["flatness_um"] = 1e3 * float(np.ptp(fit.residuals))
+    out["predicted_std_um"] = 1e3 * float(np.sqrt(np.nanmean(sig**2))) \
+        if np.isfinite(sig).any() else math.nan
     att = _attr(attrs, "att_camera", idx) * _attr(attrs, "att_projector", idx)
-    res.mean_attenuation = float(np.nanmean(att)) if np.isfinite(att).any() else math.nan
-    res.in_volume_fraction = float(np.mean(_attr(attrs, "in_volume", idx, 1.0)))
-    res.model_valid_fraction = float(np.mean(_attr(attrs, "model_valid", idx, 1.0)))
-    res.mean_z_mm = float(pts[:, 2].mean())
+    out["mean_attenuation"] = float(np.nanmean(att)) if np.isfinite(att).any() else math.nan
+    out["in_volume_fraction"] = float(np.mean(_attr(attrs, "in_volume", idx, 1.0)))
+    out["model_valid_fraction"] = float(np.mean(_attr(attrs, "model_valid", idx, 1.0)))
+    out["mean_z_mm"] = float(pts[:, 2].mean())
     tab = _attr(attrs, "sigma_table_um", idx, 0.0) * cos
-    res.table_sigma_um = float(np.sqrt(np.nanmean(tab**2))) if np.isfinite(tab).any() else 0.0
+    out["table_sigma_um"] = float(np.sqrt(np.nanmean(tab**2))) if np.isfinite(tab).any() \
+        else 0.0
     corr = _attr(attrs, "table_corr_mm", idx)
-    res.table_corr_mm = float(np.nanmedian(corr)) if np.isfinite(corr).any() else math.nan
+    out["table_corr_mm"] = float(np.nanmedian(corr)) if np.isfinite(corr).any() else math.nan
     d = pts - fit.centroid
-    res.spread_mm = (float(np.std(d @ fit.axes[0])), float(np.std(d @ fit.axes[1])))
+    out["spread_mm"] = (float(np.std(d @ fit.axes[0])), float(np.std(d @ fit.axes[1])))
     # per-point sigma along the normal: predicted where available, else measured
-    res.sigma_n = np.where(np.isfinite(sig), sig, res.measured_std_um * 1e-3)
-    a = _design(pts, fit)
+    out["sigma_n"] = np.where(np.isfinite(sig), sig, out["measured_std_um"] * 1e-3)
+    a = plane_design(pts, fit)
     bread = np.linalg.inv(a.T @ a)
-    kappa, res.n_tiles = noise_correlation(a, bread, fit.residuals, tile_mm)
-    res.noise_corr = tuple(float(v) for v in kappa)
+    kappa, out["n_tiles"] = noise_correlation(a, fit.residuals, a[:, 1:], tile_mm, bread)
+    out["noise_corr"] = tuple(float(v) for v in kappa)
     scale = np.sqrt(np.where(np.isfinite(kappa), kappa, 1.0))
     # plane covariance from the per-point sigmas, scaled by the noise correlation
-    res.u_plane = bread @ (a.T * res.sigma_n**2) @ a @ bread * np.outer(scale, scale)
-    res.status = ("outside_volume" if res.in_volume_fraction < 1.0 - MAX_FLAGGED_FRACTION
-                  else "model_invalid" if res.model_valid_fraction < 1.0 - MAX_FLAGGED_FRACTION
-                  else "ok")
-    if res.status != "ok":
-        what = "the calibrated volume" if res.status == "outside_volume" else \
-            "the model's validity (a blur ratio > 1/2)"
-        frac = res.in_volume_fraction if res.status == "outside_volume" else \
-            res.model_valid_fraction
-        res.message = (f"block {res.block_id}: {100 * (1 - frac):.0f} % of its points lie "
-                       f"outside {what} (more than {100 * MAX_FLAGGED_FRACTION:g} %): "
-                       "flagged, its steps are not evaluated")
+    out["u_plane"] = bread @ (a.T * out["sigma_n"]**2) @ a @ bread * np.outer(scale, scale)
+    return {**out, **_block_status(block_id, out["in_volume_fraction"],
+                                   out["model_valid_fraction"])}
 
 
-def _design(pts: np.ndarray, fit: PlaneFit) -> np.ndarray:
-    """Columns 1, s_1, s_2 (in-plane coordinates about the centroid [mm]) of the plane's
-    (offset, slope_1, slope_2) parameters."""
-    d = pts - fit.centroid
-    return np.column_stack([np.ones(len(pts)), d @ fit.axes[0], d @ fit.axes[1]])
-
-
-def noise_correlation(a: np.ndarray, bread: np.ndarray, residuals: np.ndarray,
-                      tile_mm: float = TILE_MM) -> tuple[np.ndarray, int]:
-    """Noise-correlation factor kappa of the plane's (offset, slope_1, slope_2) [-] and the
-    number of tiles it was measured with (module notes).
-
-    kappa_j = (sandwich variance of parameter j with the residuals summed per tile,
-    small-sample corrected by K / (K - 3) for K tiles) / (the same with one point per
-    tile), clipped at 1. NaN when fewer than ``MIN_TILES`` tiles hold 3 points or more.
-    ``a`` is the fit's design (:func:`_design`), ``bread`` inv(a^T a), ``residuals`` the
-    fit's residuals [mm].
-    """
-    d = a[:, 1:]
-    key = np.floor((d - d.min(axis=0)) / tile_mm).astype(np.int64)
-    _, tile = np.unique(key[:, 0] * (key[:, 1].max() + 1) + key[:, 1], return_inverse=True)
-    counts = np.bincount(tile)
-    n_tiles = int(np.sum(counts >= 3))
-    if n_tiles < MIN_TILES:
-        return np.full(3, np.nan), n_tiles
-    score = a * residuals[:, None]
-    per_tile = np.stack([np.bincount(tile, weights=score[:, j]) for j in range(3)], axis=1)
-    meat_tiles = per_tile.T @ per_tile * counts.size / (counts.size - 3)
-    meat_points = score.T @ score
-    v_tiles = np.diag(bread @ meat_tiles @ bread)
-    v_points = np.diag(bread @ meat_points @ bread)
-    return np.maximum(1.0, v_tiles / v_points), n_tiles
+def _block_status(block_id: int, in_volume: float, model_valid: float) -> dict:
+    """``status`` and ``message`` of a block from its in-volume and model-valid fractions."""
+    if in_volume < 1.0 - MAX_FLAGGED_FRACTION:
+        status, what, frac = "outside_volume", "the calibrated volume", in_volume
+    elif model_valid < 1.0 - MAX_FLAGGED_FRACTION:
+        status, what, frac = ("model_invalid", "the model's validity (a blur ratio > 1/2)",
+                              model_valid)
+    else:
+        return {"status": "ok"}
+    return {"status": status,
+            "message": (f"block {block_id}: {100 * (1 - frac):.0f} % of its points lie "
+                        f"outside {what} (more than {100 * MAX_FLAGGED_FRACTION:g} %): "
+                        "flagged, its steps are not evaluated")}
 
 
 def step_between(a: BlockResult, b: BlockResult, k: float | str | None, tolerance_um: float,

@@ -47,3 +47,23 @@ def fit_plane(points: np.ndarray, where: str = "points") -> PlaneFit:
     if np.dot(n, -c) < 0:  # towards the camera at the origin
         n = -n
     return PlaneFit(c, n, (pts - c) @ n, vt[:2])
+
+
+def plane_design(points: np.ndarray, fit: PlaneFit) -> np.ndarray:
+    """The design of a plane's (offset, slope_1, slope_2) parameters at the points.
+
+    Parameters
+    ----------
+    points : (n, 3) float
+        Points [mm].
+    fit : PlaneFit
+        The plane.
+
+    Returns
+    -------
+    (n, 3) float
+        Columns 1, s_1, s_2: in-plane coordinates about the centroid along ``fit.axes``
+        [-], [mm], [mm].
+    """
+    d = np.asarray(points, dtype=float) - fit.centroid
+    return np.column_stack([np.ones(len(d)), d @ fit.axes[0], d @ fit.axes[1]])

@@ -114,8 +114,6 @@ from scanqa.qa.verdict import decide
 
 #: Fraction of the points the guideline lets be removed before a form range [-].
 DROP_FRACTION = 0.003
-#: Decision values.
-DECISIONS = ("pass", "fail", "undecided", "not evaluated")
 #: Which expanded uncertainty the decisions use (module notes).
 DECIDE_WITH = ("test", "total")
 #: The quantities and their names.
@@ -142,7 +140,7 @@ class Quantity:
     mpe : float
         Maximum permissible error [mm]; NaN when the spec gives none.
     decision : str
-        One of :data:`DECISIONS`.
+        One of :data:`scanqa.qa.verdict.DECISIONS`.
     predicted : float
         Predicted value from the per-point sigmas [mm] (PF, F), else NaN.
     length : float
