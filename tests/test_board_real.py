@@ -60,9 +60,11 @@ def patterns(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def poses(patterns):
-    """The six poses, decoded once (about 25 s on two busy cores)."""
+    """The six poses, decoded once (about 25 s on two busy cores), the corner grid found
+    in the frames (only the square size is given)."""
     cols, rows = (load_patterns(p) for p in patterns)
-    return [decode_pose(CALIBRATION / f"calseq{k}", cols, rows, BOARD) for k in range(1, 7)]
+    return [decode_pose(CALIBRATION / f"calseq{k}", cols, rows, BOARD.square_mm)
+            for k in range(1, 7)]
 
 
 @pytest.fixture(scope="module")
@@ -73,6 +75,7 @@ def slstudio_poses(poses):
 
 def test_every_corner_is_found_and_decoded(poses):
     for pose in poses:
+        assert pose.board == BOARD  # 9 x 13 found in the frames, as SLStudio's dialog says
         assert pose.camera_px.shape == (117, 2)
         assert np.isfinite(pose.projector_px).all()
         # inside the panel
@@ -143,7 +146,7 @@ def test_skull_against_slstudio_within_the_calibration_sigma(slstudio_poses, tmp
 def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys):
     out = tmp_path / "board.xml"
     poses = [str(CALIBRATION / f"calseq{k}") for k in (1, 3, 6)]
-    assert main(["calibrate", "--board", "9x13", "--square-mm", "10", "--patterns",
+    assert main(["calibrate", "--square-mm", "10", "--patterns",  # grid from the frames
                  *patterns, *poses, "--out", str(out), "-q"]) == 0
     cal = load_opencv_calibration(out)
     assert cal.covariance is not None and cal.covariance.shape == (24, 24)
@@ -159,8 +162,12 @@ def test_cli_refuses_a_board_without_its_size(patterns, tmp_path, capsys):
     code = main(["calibrate", "--board", "9x13", str(CALIBRATION / "calseq1"), "--out",
                  str(tmp_path / "x.xml")])
     assert code == 2
-    assert "--board needs --square-mm and --patterns" in capsys.readouterr().err
+    assert "needs --square-mm and --patterns" in capsys.readouterr().err
     code = main(["calibrate", "--board", "9x13", "--square-mm", "10", "--patterns",
                  *patterns, str(CALIBRATION / "calseq1"), "--out", str(tmp_path / "x.npz")])
     assert code == 2
     assert "is an OpenCV file" in capsys.readouterr().err
+    code = main(["calibrate", "--board", "9x12", "--square-mm", "10", "--patterns",
+                 *patterns, str(CALIBRATION / "calseq1"), "--out", str(tmp_path / "x.xml")])
+    assert code == 2  # the check: the frames show 9 x 13
+    assert "9 x 13 inner corners, --board says 9 x 12" in capsys.readouterr().err

@@ -141,7 +141,7 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
 
 
 def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,
-                    rows: PatternDescription, board: Board, model: str = "k1",
+                    rows: PatternDescription, board: Board | float, model: str = "k1",
                     held_out: bool = False, reference: OpenCVCalibration | None = None,
                     progress=None) -> BoardCalibration:
     """Decode board poses and calibrate from them (what ``scanqa calibrate --board`` does).
@@ -153,8 +153,10 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
     columns, rows : PatternDescription
         The projected patterns (:func:`scanqa.calibration.board.decode_pose`); the
         projector panel is ``columns.projector_width_px`` x ``rows.projector_width_px``.
-    board : Board
-        The chessboard.
+    board : Board or float
+        The chessboard, or its square size [mm]: the corner grid is then found in the
+        frames (:func:`scanqa.calibration.board.corner_grid`) and must be the same in
+        every pose.
     model : str
         Lens model (``MODELS``).
     held_out : bool
@@ -175,12 +177,25 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
         if progress:
             progress(f"pose {poses[-1].name}: {np.isfinite(poses[-1].projector_px).all(1).sum()}"
                      f" of {len(poses[-1].camera_px)} corners in the projector")
+    board = _one_board(poses)
     panel = (columns.projector_width_px, rows.projector_width_px)
     result = calibrate_board(poses, board, panel, model)
     ref = None if reference is None else from_opencv(reference)
     return replace(result, comparison=compare(result.data, reference) if reference else {},
                    held_out=tuple(hold_out(poses, board, panel, model, ref)
                                   if held_out and len(poses) >= 3 else ()))
+
+
+def _one_board(poses: list[BoardPose]) -> Board:
+    """The board all poses show, or an error naming the two that differ."""
+    first = poses[0]
+    for pose in poses[1:]:
+        if pose.board != first.board:
+            raise InputError(
+                f"pose {pose.name} shows a {pose.board.rows} x {pose.board.columns} corner "
+                f"grid, pose {first.name} {first.board.rows} x {first.board.columns}: one "
+                "board for all poses (is the whole board in view in each?)")
+    return first.board
 
 
 def _fit(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
