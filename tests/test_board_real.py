@@ -9,8 +9,10 @@ centre), poses 1, 3-6: RMS camera 0.295 px (SLStudio 0.282), projector 0.317 px 
 stereo 0.356 px (0.422); focal lengths +0.41 % (camera) and +0.14 % (projector);
 rotation 0.42 deg; baseline direction 0.57 deg, length +0.58 %. Each pose left out:
 plane RMS 0.157, 0.246, 0.229, 0.296, 0.213 mm (calibration.xml: 0.157, 0.251, 0.235,
-0.295, 0.222 mm). skull_2x3 triangulated with both: median |dXYZ| 1.09 mm, calibration
-sigma (jackknife over the five poses) 3.3-3.6 mm.
+0.295, 0.222 mm). skull_2x3 triangulated with both: median |dXYZ| 1.07 mm, calibration
+sigma (jackknife over the five poses) 3.0-4.3 mm, median |dXYZ| / sigma 0.32. The
+camera's RMS and the baseline direction miss issue 25's bounds because the board is not
+flat (test_the_camera_residual_is_the_boards, docs/calibration.rst).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 import pytest
 
 from scanqa.calibration.board import Board, decode_pose
-from scanqa.calibration.board_fit import calibrate_board, compare, hold_out
+from scanqa.calibration.board_fit import board_flatness, calibrate_board, compare, hold_out
 from scanqa.calibration.parametric import from_opencv, load_opencv_calibration
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode_pattern_dir
@@ -88,8 +90,8 @@ def test_against_slstudio_calibration(slstudio_poses):
     diff = compare(ours, ref)
     assert ours.errors["proj_error"] <= ref.errors["proj_error"]  # 0.317 vs 0.463 px
     assert ours.errors["stereo_error"] <= ref.errors["stereo_error"]  # 0.356 vs 0.422 px
-    # the camera's RMS is 5 % above SLStudio's 0.282 px (measured 0.295 px): its corner
-    # detector is not OpenCV's findChessboardCornersSB; short of issue 25's bound
+    # the camera's RMS is 5 % above SLStudio's 0.282 px (measured 0.295 px), short of
+    # issue 25's bound: the board is not flat (test_the_camera_residual_is_the_boards)
     assert ours.errors["cam_error"] <= 1.1 * ref.errors["cam_error"]
     assert abs(diff["camera_focal_rel"]) < 0.01  # measured +0.41 %
     assert abs(diff["projector_focal_rel"]) < 0.01  # measured +0.14 %
@@ -99,6 +101,22 @@ def test_against_slstudio_calibration(slstudio_poses):
     # baseline direction is larger, see the report's parameter_std)
     assert diff["baseline_deg"] < 0.7
     assert slstudio_poses.flagged == []
+
+
+def test_the_camera_residual_is_the_boards(poses):
+    """The camera's 0.295 px is not its lens model nor its corner detector: calibration.xml's
+    own camera on our corners gives 0.297 px, the full model k1 k2 p1 p2 k3 with a free
+    principal point 0.282 px, corners from other frame averages move by 0.04 px RMS; the
+    residuals of a corner agree between similar poses (correlation 0.95 for 3 and 6).
+    With the board's corners released the camera fits to 0.158 px, and the board so
+    measured by the camera lowers the projector's RMS from 0.317 to 0.252 px: the
+    projector sees the same departure from flatness through the phase."""
+    shape = board_flatness([poses[k] for k in (0, 2, 3, 4, 5)], BOARD, PANEL)
+    assert shape["camera_rms_released_px"] < 0.6 * shape["camera_rms_px"]  # 0.158 / 0.295
+    # independent: the projector's corners never saw the board's texture (0.252 / 0.317)
+    assert shape["projector_rms_camera_board_px"] < 0.9 * shape["projector_rms_px"]
+    assert 0.03 < shape["out_of_plane_mm"] < 0.3  # measured 0.089 mm
+    assert shape["in_plane_mm"] < 0.3  # measured 0.086 mm
 
 
 def test_sequence_2_is_not_off(poses):
@@ -140,7 +158,11 @@ def test_skull_against_slstudio_within_the_calibration_sigma(slstudio_poses, tmp
     ok = np.isfinite(diff) & np.isfinite(sigma)
     assert ok.mean() > 0.99
     assert 0.5 < np.median(diff[ok]) < 1.5  # measured 1.09 mm at ~390 mm
-    assert np.mean(diff[ok] <= 2 * sigma[ok]) >= 0.9  # measured 100 % (sigma 3.3-3.6 mm)
+    assert np.mean(diff[ok] <= 2 * sigma[ok]) >= 0.9  # measured 100 % (sigma 3.0-4.3 mm)
+    # and conservative: the median difference is 0.32 sigma (100 % within 1 sigma). The
+    # jackknife over five poses in two clusters (two near, three far) spreads the focal
+    # lengths by 20 px where one fit's Jacobian says 3.5 px
+    assert np.median(diff[ok] / sigma[ok]) < 0.5
 
 
 def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys):

@@ -376,3 +376,57 @@ def compare(ours: OpenCVCalibration, reference: OpenCVCalibration) -> dict:
         "errors_px": dict(ours.errors), "reference_errors_px": dict(reference.errors),
         "reference": reference.source,
     }
+
+
+def board_flatness(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
+                   model: str = "k1") -> dict:
+    """How far the board departs from its ideal flat grid, seen by camera and projector.
+
+    The camera is calibrated with the board's corner positions released (OpenCV's
+    ``calibrateCameraRO``, Strobl and Hirzinger [2]_: every corner's 3-D position on the
+    board fitted with the lens, the first, the last of the first row and the last corner
+    holding the gauge). The board so measured by the camera is then given to the
+    projector's calibration: if the projector's RMS drops too, the camera's residuals
+    come from the board (printing, a bent panel) and not from its lens model or its
+    corner detector, since the projector's corners come from the decoded phase, not the
+    board's texture.
+
+    Parameters
+    ----------
+    poses, board, projector_size, model
+        As :func:`calibrate_board`.
+
+    Returns
+    -------
+    dict
+        ``camera_rms_px`` and ``camera_rms_released_px`` (the camera's RMS with the ideal
+        and the fitted board), ``projector_rms_px`` and ``projector_rms_camera_board_px``
+        (the projector's with the ideal board and with the camera's), and
+        ``in_plane_mm`` and ``out_of_plane_mm`` (RMS of the fitted board's departure
+        from the ideal grid [mm]).
+
+    References
+    ----------
+    .. [2] K. H. Strobl and G. Hirzinger, "More accurate pinhole camera calibration with
+       imperfect planar target", ICCV Workshops 2011, pp. 1068-1075.
+    """
+    import cv2
+
+    cam_flags, proj_flags = _flags()[model]
+    obj, cam, proj = _points(poses, board)
+    if any(len(o) != len(board.object_points) for o in obj):
+        raise InputError("the board's shape needs every corner decoded in every pose")
+    size = poses[0].camera_size
+    e_c = cv2.calibrateCamera(obj, cam, size, None, None, flags=cam_flags)[0]
+    e_r, *_, fitted = cv2.calibrateCameraRO(obj, cam, size, board.columns - 1, None, None,
+                                            flags=cam_flags)[:6]
+    fitted = fitted.reshape(-1, 3).astype(np.float32)
+    e_p, kp_m, kp = cv2.calibrateCamera(obj, proj, tuple(projector_size), None, None,
+                                        flags=proj_flags)[:3]
+    e_b = cv2.calibrateCamera([fitted] * len(proj), proj, tuple(projector_size), kp_m, kp,
+                              flags=proj_flags | cv2.CALIB_USE_INTRINSIC_GUESS)[0]
+    dev = fitted - board.object_points
+    return {"camera_rms_px": float(e_c), "camera_rms_released_px": float(e_r),
+            "projector_rms_px": float(e_p), "projector_rms_camera_board_px": float(e_b),
+            "in_plane_mm": float(np.sqrt(np.mean(np.sum(dev[:, :2] ** 2, axis=1)))),
+            "out_of_plane_mm": float(np.sqrt(np.mean(dev[:, 2] ** 2)))}
