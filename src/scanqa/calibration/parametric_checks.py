@@ -1,20 +1,18 @@
 """Checks of a parametric calibration: the model itself, and a scan or scanner config
 against it (:mod:`scanqa.calibration.parametric` calls them; each raises one
-:class:`~scanqa.errors.InputError` naming the file and the field)."""
+:class:`~scanqa.errors.InputError` naming the file and the field). ``cal`` is a
+:class:`~scanqa.calibration.parametric.ParametricCalibration` throughout (not imported
+here: the model imports its checks)."""
 
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 import numpy as np
 
+from scanqa.config import ScannerConfig
+from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
-
-if TYPE_CHECKING:
-    from scanqa.calibration.parametric import ParametricCalibration
-    from scanqa.config import ScannerConfig
-    from scanqa.decoding.phasemap import PhaseMap
 
 #: A config's projector position may differ from the calibration's by this much [mm].
 POSITION_TOLERANCE_MM = 1.0
@@ -24,7 +22,7 @@ AXIS_TOLERANCE_DEG = 0.5
 ORIENTATIONS = ("vertical", "horizontal")
 
 
-def check_calibration(cal: ParametricCalibration) -> None:
+def check_calibration(cal) -> None:
     """Raise one :class:`InputError` naming the file and field of an implausible model."""
     where = cal.source or "the parametric calibration"
     if cal.orientation not in ORIENTATIONS:
@@ -49,7 +47,7 @@ def check_calibration(cal: ParametricCalibration) -> None:
                          f"{lo!r}, {hi!r}")
 
 
-def _check_pose(cal: ParametricCalibration, where: str) -> None:
+def _check_pose(cal, where: str) -> None:
     """R must be a rotation (to float32 precision) and T a non-zero baseline."""
     r, t = np.asarray(cal.rotation, float), np.asarray(cal.translation, float)
     if r.shape != (3, 3) or not np.isfinite(r).all():
@@ -64,7 +62,7 @@ def _check_pose(cal: ParametricCalibration, where: str) -> None:
                          f"{t.tolist()}")
 
 
-def check_scan(cal: ParametricCalibration, config: ScannerConfig, phase_map: PhaseMap,
+def check_scan(cal, config: ScannerConfig, phase_map: PhaseMap,
                source: str = "scan") -> None:
     """Raise unless a scan and a scanner config describe the calibrated scanner.
 
@@ -97,7 +95,7 @@ def check_scan(cal: ParametricCalibration, config: ScannerConfig, phase_map: Pha
     check_config(cal, config)
 
 
-def check_config(cal: ParametricCalibration, config: ScannerConfig) -> None:
+def check_config(cal, config: ScannerConfig) -> None:
     """Raise unless the config's sizes and projector pose match the calibration's
     (:func:`check_scan`)."""
     where = cal.source or "the parametric calibration"
