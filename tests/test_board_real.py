@@ -178,6 +178,9 @@ def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys
     # OpenCV's std of f from one fit is far below the jackknife's over poses
     assert 0 < report["parameter_std_fit"]["camera_fx"] < report["parameter_std"]["camera_fx"]
     assert "Reprojection RMS per pose" in (tmp_path / "board_report.html").read_text()
+    flat = report["board_flatness"]  # three poses: the board's shape shows there too
+    assert flat["camera_rms_released_px"] < flat["camera_rms_px"]
+    assert "Is the board flat?" in (tmp_path / "board_report.html").read_text()
 
 
 def test_cli_refuses_a_board_without_its_size(patterns, tmp_path, capsys):

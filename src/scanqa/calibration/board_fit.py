@@ -90,6 +90,8 @@ class BoardCalibration:
     fit_std : dict
         OpenCV's std of each lens parameter from its fit (Jacobian, residuals as white
         noise) [px, -], for comparison with the jackknife's.
+    flatness : dict
+        :func:`board_flatness` of the poses; empty when a corner was not decoded.
     """
 
     data: OpenCVCalibration
@@ -98,6 +100,7 @@ class BoardCalibration:
     held_out: tuple = field(default=())
     comparison: dict = field(default_factory=dict)
     fit_std: dict = field(default_factory=dict)
+    flatness: dict = field(default_factory=dict)
 
     @property
     def flagged(self) -> list[str]:
@@ -181,9 +184,11 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
     panel = (columns.projector_width_px, rows.projector_width_px)
     result = calibrate_board(poses, board, panel, model)
     ref = None if reference is None else from_opencv(reference)
+    complete = all(np.isfinite(p.projector_px).all() for p in poses)
     return replace(result, comparison=compare(result.data, reference) if reference else {},
                    held_out=tuple(hold_out(poses, board, panel, model, ref)
-                                  if held_out and len(poses) >= 3 else ()))
+                                  if held_out and len(poses) >= 3 else ()),
+                   flatness=board_flatness(poses, board, panel, model) if complete else {})
 
 
 def _one_board(poses: list[BoardPose]) -> Board:
@@ -401,7 +406,8 @@ def board_flatness(poses: list[BoardPose], board: Board, projector_size: tuple[i
     dict
         ``camera_rms_px`` and ``camera_rms_released_px`` (the camera's RMS with the ideal
         and the fitted board), ``projector_rms_px`` and ``projector_rms_camera_board_px``
-        (the projector's with the ideal board and with the camera's), and
+        (the projector's with the ideal board and with the camera's; NaN when OpenCV
+        will not start from a principal point outside the panel), and
         ``in_plane_mm`` and ``out_of_plane_mm`` (RMS of the fitted board's departure
         from the ideal grid [mm]).
 
@@ -423,8 +429,11 @@ def board_flatness(poses: list[BoardPose], board: Board, projector_size: tuple[i
     fitted = fitted.reshape(-1, 3).astype(np.float32)
     e_p, kp_m, kp = cv2.calibrateCamera(obj, proj, tuple(projector_size), None, None,
                                         flags=proj_flags)[:3]
-    e_b = cv2.calibrateCamera([fitted] * len(proj), proj, tuple(projector_size), kp_m, kp,
-                              flags=proj_flags | cv2.CALIB_USE_INTRINSIC_GUESS)[0]
+    try:  # OpenCV refuses a starting principal point outside the panel (an offset lens)
+        e_b = cv2.calibrateCamera([fitted] * len(proj), proj, tuple(projector_size), kp_m,
+                                  kp, flags=proj_flags | cv2.CALIB_USE_INTRINSIC_GUESS)[0]
+    except cv2.error:
+        e_b = np.nan
     dev = fitted - board.object_points
     return {"camera_rms_px": float(e_c), "camera_rms_released_px": float(e_r),
             "projector_rms_px": float(e_p), "projector_rms_camera_board_px": float(e_b),
