@@ -10,7 +10,13 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose
 
-from scanqa.calibration.board import Board, BoardPose, find_corners, projector_corners
+from scanqa.calibration.board import (
+    Board,
+    BoardPose,
+    corner_grid,
+    find_corners,
+    projector_corners,
+)
 from scanqa.calibration.board_fit import calibrate_board, compare
 from scanqa.calibration.parametric import from_opencv
 from scanqa.calibration.uncertainty import jackknife_covariance, pack, unpack
@@ -164,6 +170,10 @@ def test_corners_of_a_rendered_board():
         found = found[::-1]  # the board is symmetric under a half turn
     assert_allclose(found, truth, atol=0.1)  # sub-pixel on a clean rendering
     assert find_corners(np.full((400, 500), 100.0), BOARD) is None
+    # the grid drawn, found with no size given (short side first), either way round
+    assert corner_grid(image) == (BOARD.rows, BOARD.columns)
+    assert corner_grid(image.T) == (BOARD.rows, BOARD.columns)
+    assert corner_grid(np.full((400, 500), 100.0)) is None
 
 
 def test_jackknife_covariance_by_hand():

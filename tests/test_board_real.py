@@ -9,8 +9,10 @@ centre), poses 1, 3-6: RMS camera 0.295 px (SLStudio 0.282), projector 0.317 px 
 stereo 0.356 px (0.422); focal lengths +0.41 % (camera) and +0.14 % (projector);
 rotation 0.42 deg; baseline direction 0.57 deg, length +0.58 %. Each pose left out:
 plane RMS 0.157, 0.246, 0.229, 0.296, 0.213 mm (calibration.xml: 0.157, 0.251, 0.235,
-0.295, 0.222 mm). skull_2x3 triangulated with both: median |dXYZ| 1.09 mm, calibration
-sigma (jackknife over the five poses) 3.3-3.6 mm.
+0.295, 0.222 mm). skull_2x3 triangulated with both: median |dXYZ| 1.07 mm, calibration
+sigma (jackknife over the five poses) 3.0-4.3 mm, median |dXYZ| / sigma 0.32. The
+camera's RMS and the baseline direction miss issue 25's bounds because the board is not
+flat (test_the_camera_residual_is_the_boards, docs/calibration.rst).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ import numpy as np
 import pytest
 
 from scanqa.calibration.board import Board, decode_pose
-from scanqa.calibration.board_fit import calibrate_board, compare, hold_out
+from scanqa.calibration.board_fit import board_flatness, calibrate_board, compare, hold_out
 from scanqa.calibration.parametric import from_opencv, load_opencv_calibration
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode_pattern_dir
@@ -60,9 +62,11 @@ def patterns(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def poses(patterns):
-    """The six poses, decoded once (about 25 s on two busy cores)."""
+    """The six poses, decoded once (about 25 s on two busy cores), the corner grid found
+    in the frames (only the square size is given)."""
     cols, rows = (load_patterns(p) for p in patterns)
-    return [decode_pose(CALIBRATION / f"calseq{k}", cols, rows, BOARD) for k in range(1, 7)]
+    return [decode_pose(CALIBRATION / f"calseq{k}", cols, rows, BOARD.square_mm)
+            for k in range(1, 7)]
 
 
 @pytest.fixture(scope="module")
@@ -73,6 +77,7 @@ def slstudio_poses(poses):
 
 def test_every_corner_is_found_and_decoded(poses):
     for pose in poses:
+        assert pose.board == BOARD  # 9 x 13 found in the frames, as SLStudio's dialog says
         assert pose.camera_px.shape == (117, 2)
         assert np.isfinite(pose.projector_px).all()
         # inside the panel
@@ -85,8 +90,8 @@ def test_against_slstudio_calibration(slstudio_poses):
     diff = compare(ours, ref)
     assert ours.errors["proj_error"] <= ref.errors["proj_error"]  # 0.317 vs 0.463 px
     assert ours.errors["stereo_error"] <= ref.errors["stereo_error"]  # 0.356 vs 0.422 px
-    # the camera's RMS is 5 % above SLStudio's 0.282 px (measured 0.295 px): its corner
-    # detector is not OpenCV's findChessboardCornersSB; short of issue 25's bound
+    # the camera's RMS is 5 % above SLStudio's 0.282 px (measured 0.295 px), short of
+    # issue 25's bound: the board is not flat (test_the_camera_residual_is_the_boards)
     assert ours.errors["cam_error"] <= 1.1 * ref.errors["cam_error"]
     assert abs(diff["camera_focal_rel"]) < 0.01  # measured +0.41 %
     assert abs(diff["projector_focal_rel"]) < 0.01  # measured +0.14 %
@@ -96,6 +101,22 @@ def test_against_slstudio_calibration(slstudio_poses):
     # baseline direction is larger, see the report's parameter_std)
     assert diff["baseline_deg"] < 0.7
     assert slstudio_poses.flagged == []
+
+
+def test_the_camera_residual_is_the_boards(poses):
+    """The camera's 0.295 px is not its lens model nor its corner detector: calibration.xml's
+    own camera on our corners gives 0.297 px, the full model k1 k2 p1 p2 k3 with a free
+    principal point 0.282 px, corners from other frame averages move by 0.04 px RMS; the
+    residuals of a corner agree between similar poses (correlation 0.95 for 3 and 6).
+    With the board's corners released the camera fits to 0.158 px, and the board so
+    measured by the camera lowers the projector's RMS from 0.317 to 0.252 px: the
+    projector sees the same departure from flatness through the phase."""
+    shape = board_flatness([poses[k] for k in (0, 2, 3, 4, 5)], BOARD, PANEL)
+    assert shape["camera_rms_released_px"] < 0.6 * shape["camera_rms_px"]  # 0.158 / 0.295
+    # independent: the projector's corners never saw the board's texture (0.252 / 0.317)
+    assert shape["projector_rms_camera_board_px"] < 0.9 * shape["projector_rms_px"]
+    assert 0.03 < shape["out_of_plane_mm"] < 0.3  # measured 0.089 mm
+    assert shape["in_plane_mm"] < 0.3  # measured 0.086 mm
 
 
 def test_sequence_2_is_not_off(poses):
@@ -137,13 +158,17 @@ def test_skull_against_slstudio_within_the_calibration_sigma(slstudio_poses, tmp
     ok = np.isfinite(diff) & np.isfinite(sigma)
     assert ok.mean() > 0.99
     assert 0.5 < np.median(diff[ok]) < 1.5  # measured 1.09 mm at ~390 mm
-    assert np.mean(diff[ok] <= 2 * sigma[ok]) >= 0.9  # measured 100 % (sigma 3.3-3.6 mm)
+    assert np.mean(diff[ok] <= 2 * sigma[ok]) >= 0.9  # measured 100 % (sigma 3.0-4.3 mm)
+    # and conservative: the median difference is 0.32 sigma (100 % within 1 sigma). The
+    # jackknife over five poses in two clusters (two near, three far) spreads the focal
+    # lengths by 20 px where one fit's Jacobian says 3.5 px
+    assert np.median(diff[ok] / sigma[ok]) < 0.5
 
 
 def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys):
     out = tmp_path / "board.xml"
     poses = [str(CALIBRATION / f"calseq{k}") for k in (1, 3, 6)]
-    assert main(["calibrate", "--board", "9x13", "--square-mm", "10", "--patterns",
+    assert main(["calibrate", "--square-mm", "10", "--patterns",  # grid from the frames
                  *patterns, *poses, "--out", str(out), "-q"]) == 0
     cal = load_opencv_calibration(out)
     assert cal.covariance is not None and cal.covariance.shape == (24, 24)
@@ -153,14 +178,21 @@ def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys
     # OpenCV's std of f from one fit is far below the jackknife's over poses
     assert 0 < report["parameter_std_fit"]["camera_fx"] < report["parameter_std"]["camera_fx"]
     assert "Reprojection RMS per pose" in (tmp_path / "board_report.html").read_text()
+    flat = report["board_flatness"]  # three poses: the board's shape shows there too
+    assert flat["camera_rms_released_px"] < flat["camera_rms_px"]
+    assert "Is the board flat?" in (tmp_path / "board_report.html").read_text()
 
 
 def test_cli_refuses_a_board_without_its_size(patterns, tmp_path, capsys):
     code = main(["calibrate", "--board", "9x13", str(CALIBRATION / "calseq1"), "--out",
                  str(tmp_path / "x.xml")])
     assert code == 2
-    assert "--board needs --square-mm and --patterns" in capsys.readouterr().err
+    assert "needs --square-mm and --patterns" in capsys.readouterr().err
     code = main(["calibrate", "--board", "9x13", "--square-mm", "10", "--patterns",
                  *patterns, str(CALIBRATION / "calseq1"), "--out", str(tmp_path / "x.npz")])
     assert code == 2
     assert "is an OpenCV file" in capsys.readouterr().err
+    code = main(["calibrate", "--board", "9x12", "--square-mm", "10", "--patterns",
+                 *patterns, str(CALIBRATION / "calseq1"), "--out", str(tmp_path / "x.xml")])
+    assert code == 2  # the check: the frames show 9 x 13
+    assert "9 x 13 inner corners, --board says 9 x 12" in capsys.readouterr().err

@@ -97,6 +97,8 @@ class BoardPose:
         Decoded projector column and row in the crop [projector px]; NaN where masked.
     camera_size : (int, int)
         Camera (width, height) [px].
+    board : Board or None
+        The board the corners belong to (its corner grid as found in the frames).
     """
 
     name: str
@@ -106,6 +108,43 @@ class BoardPose:
     xp: np.ndarray
     yp: np.ndarray
     camera_size: tuple
+    board: Board | None = None
+
+
+def _grey(image: np.ndarray) -> np.ndarray:
+    """8-bit copy of an image stretched to its 99.5th percentile (dark captures too)."""
+    image = np.nan_to_num(np.asarray(image, dtype=float))
+    top = np.percentile(image, 99.5)
+    return np.clip(image * (255.0 / top if top > 0 else 1.0), 0, 255).astype(np.uint8)
+
+
+def corner_grid(image: np.ndarray) -> tuple[int, int] | None:
+    """The inner-corner grid (rows, columns) of the chessboard in an image, or None.
+
+    Parameters
+    ----------
+    image : (H, W) float
+        The board under uniform light [DN], any range.
+
+    Returns
+    -------
+    (int, int) or None
+        Inner corners along the board's short and long side [-] (rows <= columns).
+
+    Notes
+    -----
+    ``cv2.findChessboardCornersSBWithMeta`` with ``CALIB_CB_LARGER`` looks for a 4 x 4
+    grid of saddle points at half size and grows it to every square it can follow;
+    its meta array has the shape of the whole grid it found. No board size is given.
+    """
+    import cv2
+
+    small = cv2.resize(_grey(image), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    found, _, meta = cv2.findChessboardCornersSBWithMeta(
+        small, (4, 4), flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_LARGER)
+    if not found or meta is None:
+        return None
+    return int(min(meta.shape)), int(max(meta.shape))
 
 
 def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
@@ -133,9 +172,7 @@ def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
     """
     import cv2
 
-    image = np.nan_to_num(np.asarray(image, dtype=float))
-    top = np.percentile(image, 99.5)
-    grey = np.clip(image * (255.0 / top if top > 0 else 1.0), 0, 255).astype(np.uint8)
+    grey = _grey(image)
     size, flags = (board.columns, board.rows), cv2.CALIB_CB_EXHAUSTIVE
     small = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
     found, rough = cv2.findChessboardCornersSB(small, size, flags=flags)
@@ -189,7 +226,7 @@ def projector_corners(camera_px: np.ndarray, xp: np.ndarray, yp: np.ndarray,
 
 
 def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
-                rows: PatternDescription, board: Board,
+                rows: PatternDescription, board: Board | float,
                 window_px: int = WINDOW_PX) -> BoardPose:
     """Find and decode one board pose.
 
@@ -201,8 +238,9 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
         What was projected: vertical fringes (x_p) and horizontal ones (y_p, with
         ``projector_width_px`` the panel's height); their file names are read in
         ``folder``.
-    board : Board
-        The chessboard.
+    board : Board or float
+        The chessboard; or its square size [mm], the corner grid then found in the
+        frames (:func:`corner_grid`). A Board's grid is checked against the frames.
     window_px : int
         Half-width of the local homographies [camera px].
 
@@ -213,7 +251,8 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
     Raises
     ------
     InputError
-        The descriptions have the wrong orientations, or no board is found.
+        The descriptions have the wrong orientations, no board is found, or the board
+        found is not the one given.
     """
     where = Path(folder)
     if columns.orientation != "vertical" or rows.orientation != "horizontal":
@@ -224,9 +263,10 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
               for d in (columns, rows)]
     finest = columns.sets.index(columns.phase_sets[-1])
     image = np.asarray(stacks[0][finest], dtype=float).mean(axis=0)
+    board = _board_in(image, board, where)
     corners = find_corners(image, board)
     if corners is None:
-        raise InputError(f"{where}: no {board.columns} x {board.rows} chessboard found "
+        raise InputError(f"{where}: no {board.rows} x {board.columns} chessboard found "
                          "(check the board's corner counts and that the board is lit)")
     crop = _crop(corners, image.shape, CROP_MARGIN_PX)
     u0, v0, u1, v1 = crop
@@ -234,7 +274,23 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
             for desc, stack in zip((columns, rows), stacks, strict=True)]
     proj = projector_corners(corners, *maps, offset=(u0, v0), window_px=window_px)
     return BoardPose(where.name, corners, proj, crop, maps[0], maps[1],
-                     (image.shape[1], image.shape[0]))
+                     (image.shape[1], image.shape[0]), board)
+
+
+def _board_in(image: np.ndarray, board: Board | float, where: Path) -> Board:
+    """The board of a pose: its grid found in the image, checked against ``board`` when
+    that is a Board."""
+    grid = corner_grid(image)
+    if isinstance(board, Board):
+        if grid is not None and grid != (board.rows, board.columns):
+            raise InputError(f"{where}: the frames show a chessboard of {grid[0]} x "
+                             f"{grid[1]} inner corners, --board says {board.rows} x "
+                             f"{board.columns}: fix --board or leave it out")
+        return board
+    if grid is None:
+        raise InputError(f"{where}: no chessboard found in the frames (check that the "
+                         "whole board is in view and lit)")
+    return Board(grid[0], grid[1], float(board))
 
 
 def _crop(corners: np.ndarray, shape: tuple[int, int], margin: int

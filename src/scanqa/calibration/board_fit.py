@@ -90,6 +90,8 @@ class BoardCalibration:
     fit_std : dict
         OpenCV's std of each lens parameter from its fit (Jacobian, residuals as white
         noise) [px, -], for comparison with the jackknife's.
+    flatness : dict
+        :func:`board_flatness` of the poses; empty when a corner was not decoded.
     """
 
     data: OpenCVCalibration
@@ -98,6 +100,7 @@ class BoardCalibration:
     held_out: tuple = field(default=())
     comparison: dict = field(default_factory=dict)
     fit_std: dict = field(default_factory=dict)
+    flatness: dict = field(default_factory=dict)
 
     @property
     def flagged(self) -> list[str]:
@@ -141,7 +144,7 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
 
 
 def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,
-                    rows: PatternDescription, board: Board, model: str = "k1",
+                    rows: PatternDescription, board: Board | float, model: str = "k1",
                     held_out: bool = False, reference: OpenCVCalibration | None = None,
                     progress=None) -> BoardCalibration:
     """Decode board poses and calibrate from them (what ``scanqa calibrate --board`` does).
@@ -153,8 +156,10 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
     columns, rows : PatternDescription
         The projected patterns (:func:`scanqa.calibration.board.decode_pose`); the
         projector panel is ``columns.projector_width_px`` x ``rows.projector_width_px``.
-    board : Board
-        The chessboard.
+    board : Board or float
+        The chessboard, or its square size [mm]: the corner grid is then found in the
+        frames (:func:`scanqa.calibration.board.corner_grid`) and must be the same in
+        every pose.
     model : str
         Lens model (``MODELS``).
     held_out : bool
@@ -175,12 +180,27 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
         if progress:
             progress(f"pose {poses[-1].name}: {np.isfinite(poses[-1].projector_px).all(1).sum()}"
                      f" of {len(poses[-1].camera_px)} corners in the projector")
+    board = _one_board(poses)
     panel = (columns.projector_width_px, rows.projector_width_px)
     result = calibrate_board(poses, board, panel, model)
     ref = None if reference is None else from_opencv(reference)
+    complete = all(np.isfinite(p.projector_px).all() for p in poses)
     return replace(result, comparison=compare(result.data, reference) if reference else {},
                    held_out=tuple(hold_out(poses, board, panel, model, ref)
-                                  if held_out and len(poses) >= 3 else ()))
+                                  if held_out and len(poses) >= 3 else ()),
+                   flatness=board_flatness(poses, board, panel, model) if complete else {})
+
+
+def _one_board(poses: list[BoardPose]) -> Board:
+    """The board all poses show, or an error naming the two that differ."""
+    first = poses[0]
+    for pose in poses[1:]:
+        if pose.board != first.board:
+            raise InputError(
+                f"pose {pose.name} shows a {pose.board.rows} x {pose.board.columns} corner "
+                f"grid, pose {first.name} {first.board.rows} x {first.board.columns}: one "
+                "board for all poses (is the whole board in view in each?)")
+    return first.board
 
 
 def _fit(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
@@ -361,3 +381,61 @@ def compare(ours: OpenCVCalibration, reference: OpenCVCalibration) -> dict:
         "errors_px": dict(ours.errors), "reference_errors_px": dict(reference.errors),
         "reference": reference.source,
     }
+
+
+def board_flatness(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
+                   model: str = "k1") -> dict:
+    """How far the board departs from its ideal flat grid, seen by camera and projector.
+
+    The camera is calibrated with the board's corner positions released (OpenCV's
+    ``calibrateCameraRO``, Strobl and Hirzinger [2]_: every corner's 3-D position on the
+    board fitted with the lens, the first, the last of the first row and the last corner
+    holding the gauge). The board so measured by the camera is then given to the
+    projector's calibration: if the projector's RMS drops too, the camera's residuals
+    come from the board (printing, a bent panel) and not from its lens model or its
+    corner detector, since the projector's corners come from the decoded phase, not the
+    board's texture.
+
+    Parameters
+    ----------
+    poses, board, projector_size, model
+        As :func:`calibrate_board`.
+
+    Returns
+    -------
+    dict
+        ``camera_rms_px`` and ``camera_rms_released_px`` (the camera's RMS with the ideal
+        and the fitted board), ``projector_rms_px`` and ``projector_rms_camera_board_px``
+        (the projector's with the ideal board and with the camera's; NaN when OpenCV
+        will not start from a principal point outside the panel), and
+        ``in_plane_mm`` and ``out_of_plane_mm`` (RMS of the fitted board's departure
+        from the ideal grid [mm]).
+
+    References
+    ----------
+    .. [2] K. H. Strobl and G. Hirzinger, "More accurate pinhole camera calibration with
+       imperfect planar target", ICCV Workshops 2011, pp. 1068-1075.
+    """
+    import cv2
+
+    cam_flags, proj_flags = _flags()[model]
+    obj, cam, proj = _points(poses, board)
+    if any(len(o) != len(board.object_points) for o in obj):
+        raise InputError("the board's shape needs every corner decoded in every pose")
+    size = poses[0].camera_size
+    e_c = cv2.calibrateCamera(obj, cam, size, None, None, flags=cam_flags)[0]
+    e_r, *_, fitted = cv2.calibrateCameraRO(obj, cam, size, board.columns - 1, None, None,
+                                            flags=cam_flags)[:6]
+    fitted = fitted.reshape(-1, 3).astype(np.float32)
+    e_p, kp_m, kp = cv2.calibrateCamera(obj, proj, tuple(projector_size), None, None,
+                                        flags=proj_flags)[:3]
+    try:  # OpenCV refuses a starting principal point outside the panel (an offset lens)
+        e_b = cv2.calibrateCamera([fitted] * len(proj), proj, tuple(projector_size), kp_m,
+                                  kp, flags=proj_flags | cv2.CALIB_USE_INTRINSIC_GUESS)[0]
+    except cv2.error:
+        e_b = np.nan
+    dev = fitted - board.object_points
+    return {"camera_rms_px": float(e_c), "camera_rms_released_px": float(e_r),
+            "projector_rms_px": float(e_p), "projector_rms_camera_board_px": float(e_b),
+            "in_plane_mm": float(np.sqrt(np.mean(np.sum(dev[:, :2] ** 2, axis=1)))),
+            "out_of_plane_mm": float(np.sqrt(np.mean(dev[:, 2] ** 2)))}

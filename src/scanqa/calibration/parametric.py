@@ -50,6 +50,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa.calibration.lookup import TableLookup, check_rows, empty_lookup
+from scanqa.calibration.parametric_checks import (  # noqa: F401 (importable from here)
+    AXIS_TOLERANCE_DEG,
+    ORIENTATIONS,
+    POSITION_TOLERANCE_MM,
+    check_calibration,
+    check_config,
+    check_scan,
+)
 from scanqa.calibration.uncertainty import calibration_sigma_mm
 from scanqa.chunks import row_bands, run_bands
 from scanqa.config import ScannerConfig
@@ -64,15 +72,9 @@ TOLERANCE_PX = 1e-9
 TOLERANCE_NORMALISED = 1e-13
 #: Newton iterations after which a point that has not converged is out of volume.
 MAX_ITERATIONS = 20
-#: A config's projector position may differ from the calibration's by this much [mm].
-POSITION_TOLERANCE_MM = 1.0
-#: A config's projector axis may differ from the calibration's by this much [deg].
-AXIS_TOLERANCE_DEG = 0.5
 #: Points solved at once: the ~20 temporaries of a piece stay in a core's cache (twice
 #: as fast on 2448 x 2048 as pieces of a whole band of 16384).
 PIECE_POINTS = 8192
-#: Fringe orientations: "vertical" fringes code x_p, "horizontal" ones y_p.
-ORIENTATIONS = ("vertical", "horizontal")
 
 
 @dataclass(frozen=True, eq=False)
@@ -492,110 +494,6 @@ def _depth(cal: ParametricCalibration, sol: _Solution, xp: np.ndarray, ok: np.nd
               & (xp >= -0.5) & (xp <= sizes[p] - 0.5)
               & (sol.secondary >= -0.5) & (sol.secondary <= sizes[1 - p] - 0.5))
     return t, dt_dxp, inside
-
-
-# --------------------------------------------------------------------------- checks
-
-
-def check_calibration(cal: ParametricCalibration) -> None:
-    """Raise one :class:`InputError` naming the file and field of an implausible model."""
-    where = cal.source or "the parametric calibration"
-    if cal.orientation not in ORIENTATIONS:
-        raise InputError(f"{where}: orientation must be one of {ORIENTATIONS}, got "
-                         f"{cal.orientation!r}")
-    for name, lens, mat, dist in (("camera", cal.camera, "Kc", "kc"),
-                                  ("projector", cal.projector, "Kp", "kp")):
-        k = np.asarray(lens.matrix, dtype=float)
-        if k.shape != (3, 3) or not np.isfinite(k).all() or k[1, 0] != 0 \
-                or not np.allclose(k[2], [0, 0, 1]) or k[0, 0] <= 0 or k[1, 1] <= 0:
-            raise InputError(f"{where}: {mat} must be a camera matrix [[fx, s, cx], [0, fy, "
-                             f"cy], [0, 0, 1]] with fx, fy > 0 [px], got {k.tolist()}")
-        if np.shape(lens.distortion) != (5,) or not np.isfinite(lens.distortion).all():
-            raise InputError(f"{where}: {dist} must be 5 finite numbers k1 k2 p1 p2 k3")
-        if min(lens.width_px, lens.height_px) < 1:
-            raise InputError(f"{where}: the {name} size must be >= 1 px, got "
-                             f"{lens.width_px} x {lens.height_px}")
-    _check_pose(cal, where)
-    lo, hi = (*cal.depth_range_mm, math.nan, math.nan)[:2]
-    if len(cal.depth_range_mm) != 2 or not (0 <= lo < hi):
-        raise InputError(f"{where}: the depth range must satisfy 0 <= near < far [mm], got "
-                         f"{lo!r}, {hi!r}")
-
-
-def _check_pose(cal: ParametricCalibration, where: str) -> None:
-    """R must be a rotation (to float32 precision) and T a non-zero baseline."""
-    r, t = np.asarray(cal.rotation, float), np.asarray(cal.translation, float)
-    if r.shape != (3, 3) or not np.isfinite(r).all():
-        raise InputError(f"{where}: Rp must be a finite 3 x 3 rotation")
-    off = float(np.abs(r @ r.T - np.eye(3)).max())
-    if off > 1e-4 or np.linalg.det(r) <= 0:
-        raise InputError(f"{where}: Rp is not a rotation (|R R^T - I| = {off:.2g}, det = "
-                         f"{np.linalg.det(r):.4g}); check that the file holds the "
-                         "camera-to-projector rotation, not a Rodrigues vector")
-    if t.shape != (3,) or not np.isfinite(t).all() or np.linalg.norm(t) == 0:
-        raise InputError(f"{where}: Tp must be a non-zero translation of 3 numbers [mm], got "
-                         f"{t.tolist()}")
-
-
-def check_scan(cal: ParametricCalibration, config: ScannerConfig, phase_map: PhaseMap,
-               source: str = "scan") -> None:
-    """Raise unless a scan and a scanner config describe the calibrated scanner.
-
-    Checked, each with its own message naming both values: the scan's image size
-    against the calibration's camera (``frameWidth`` x ``frameHeight``); the scan's fringe
-    orientation and coded range against the projector panel (``screenResX`` for
-    vertical fringes, ``screenResY`` for horizontal); the config's camera and projector
-    sizes; and the config's projector position and axis against -R^T T and R^T e_z
-    (within :data:`POSITION_TOLERANCE_MM`, :data:`AXIS_TOLERANCE_DEG`; the model's Z_p
-    comes from the config's pose). The config's projector has no roll: the model uses
-    only Z_p, which roll does not change.
-    """
-    where = cal.source or "the parametric calibration"
-    h, w = phase_map.xp.shape
-    if (w, h) != (cal.width_px, cal.height_px):
-        raise InputError(f"{source} is {w} x {h} px but the calibration {where} is for a "
-                         f"{cal.width_px} x {cal.height_px} px camera (frameWidth x "
-                         "frameHeight): use the calibration of this camera")
-    if phase_map.orientation != cal.orientation:
-        raise InputError(f"{source} has {phase_map.orientation} fringes but the calibration "
-                         f"{where} was loaded for {cal.orientation} ones")
-    p = 0 if cal.orientation == "vertical" else 1
-    panel = (cal.projector.width_px, cal.projector.height_px)[p]
-    if phase_map.projector_width_px and phase_map.projector_width_px != panel:
-        key = ("screenResX", "screenResY")[p]
-        raise InputError(f"{source} codes {('x_p', 'y_p')[p]} over "
-                         f"{phase_map.projector_width_px} projector px but the calibration "
-                         f"{where} has a projector panel of {panel} px ({key}): the "
-                         "patterns were made for another projector")
-    check_config(cal, config)
-
-
-def check_config(cal: ParametricCalibration, config: ScannerConfig) -> None:
-    """Raise unless the config's sizes and projector pose match the calibration's
-    (:func:`check_scan`)."""
-    where = cal.source or "the parametric calibration"
-    for name, lens, keys in (("camera", cal.camera, "frameWidth x frameHeight"),
-                             ("projector", cal.projector, "screenResX x screenResY")):
-        mine = getattr(config, name)
-        if (mine.width_px, mine.height_px) != (lens.width_px, lens.height_px):
-            raise InputError(f"config {config.source}: {name}.width_px x height_px is "
-                             f"{mine.width_px} x {mine.height_px} but the calibration {where} "
-                             f"has {lens.width_px} x {lens.height_px} ({keys})")
-    pos = np.asarray(config.projector.position_mm, dtype=float)
-    dist = float(np.linalg.norm(pos - cal.projector_position_mm))
-    if dist > POSITION_TOLERANCE_MM:
-        raise InputError(f"config {config.source}: projector.position_mm is {pos.tolist()} but "
-                         f"the calibration {where} puts the projector at "
-                         f"{np.round(cal.projector_position_mm, 4).tolist()} mm (-Rp^T Tp), "
-                         f"{dist:.1f} mm away; 'scanqa init --calibration' writes the pose")
-    axis = np.subtract(config.projector.look_at_mm, pos)
-    angle = math.degrees(math.acos(np.clip(axis @ cal.projector_axis / np.linalg.norm(axis),
-                                           -1.0, 1.0)))
-    if angle > AXIS_TOLERANCE_DEG:
-        raise InputError(f"config {config.source}: the projector axis (look_at_mm - "
-                         f"position_mm) is {angle:.2f} deg off the calibration's (Rp^T e_z "
-                         f"of {where}); put look_at_mm on the axis "
-                         f"{np.round(cal.projector_axis, 6).tolist()}")
 
 
 # --------------------------------------------------------------------------- loading

@@ -36,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="build a weighted nonparametric calibration table from a plane sweep",
         epilog="examples:\n  scanqa calibrate sample_data/calibration_sweep/sweep.toml "
                "--config sample_data/sample_scanner.toml#sample --out table.npz\n"
-               "  scanqa calibrate --board 9x13 --square-mm 10 --patterns columns.toml "
+               "  scanqa calibrate --square-mm 10 --patterns columns.toml "
                "rows.toml calseq1 calseq3 calseq4 --out calibration.xml\n\n"
                "writes the table (or calibration) and, beside it, <stem>_report.html and "
                "<stem>_report.json")
@@ -46,7 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_config_argument(p, required=False)
     add_model_argument(p)
     p.add_argument("--out", required=True, metavar="TABLE.npz",
-                   help="table file to write (with --board: the OpenCV calibration, .xml)")
+                   help="table file to write (with --square-mm: the OpenCV calibration, "
+                        ".xml)")
     p.add_argument("--weights", choices=WEIGHT_MODES, default="model",
                    help="sample weights: optics model (default), decoder sigma_xp, or none")
     p.add_argument("--cell", type=number(int, ge=1, unit="px"), default=None, metavar="PX",
@@ -60,10 +61,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "or the config's pinhole (for comparison)")
     board = p.add_argument_group("board calibration (docs/calibration.rst, 'From a board')")
     board.add_argument("--board", metavar="ROWSxCOLS", type=_board_size, default=None,
-                       help="inner corners (saddle points) of the chessboard, e.g. 9x13: "
-                            "calibrate camera and projector from board poses")
+                       help="inner corners (saddle points) the chessboard must have, e.g. "
+                            "9x13 (optional: the grid is found in the frames; this checks it)")
     board.add_argument("--square-mm", type=number(gt=0, unit="mm"), default=None,
-                       metavar="MM", help="side of a board square [mm]")
+                       metavar="MM", help="side of a board square [mm]: calibrate camera "
+                                          "and projector from board poses")
     board.add_argument("--patterns", nargs=2, metavar=("COLUMNS.toml", "ROWS.toml"),
                        help="patterns.toml of the column (vertical) and row (horizontal) "
                             "fringes; their file names are read in each pose folder")
@@ -88,11 +90,11 @@ def _board_size(text: str) -> tuple[int, int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.board is not None:
+    if args.board is not None or args.square_mm is not None or args.patterns is not None:
         return run_board(args)
     if len(args.sweep) != 1 or args.config is None:
         raise InputError("a table is built from one sweep (SWEEP) and --config; board "
-                         "poses need --board ROWSxCOLS")
+                         "poses need --square-mm and --patterns")
     args.sweep = args.sweep[0]
     config = config_from_args(args)
     out = check_out_dir(args.out)
@@ -117,14 +119,16 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_board(args: argparse.Namespace) -> int:
-    """``--board``: decode the poses, calibrate, write the file and its reports."""
+    """Board poses: decode them, calibrate, write the file and its reports."""
     if args.square_mm is None or args.patterns is None:
-        raise InputError("--board needs --square-mm and --patterns COLUMNS.toml ROWS.toml")
+        raise InputError("a board calibration needs --square-mm and --patterns "
+                         "COLUMNS.toml ROWS.toml")
     out = check_out_dir(args.out)
     if not is_opencv_file(out):
         raise InputError(f"--out {out}: a board calibration is an OpenCV file (.xml, .yml, "
                          ".yaml or .json)")
-    board = Board(args.board[0], args.board[1], args.square_mm)
+    board = (args.square_mm if args.board is None
+             else Board(args.board[0], args.board[1], args.square_mm))
     reference = read_opencv_calibration(args.reference) if args.reference else None
     result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns), board,
                              args.lens_model, args.hold_out, reference, progress=log.info)

@@ -34,6 +34,8 @@ def summary(result: BoardCalibration) -> dict:
         "parameter_std_fit": dict(result.fit_std),
         "held_out": list(result.held_out),
         "comparison": dict(result.comparison),
+        "board_flatness": {k: v if np.isfinite(v) else None  # JSON has no NaN
+                           for k, v in result.flatness.items()},
     }
 
 
@@ -77,6 +79,19 @@ def render(result: BoardCalibration) -> str:
                    + [{"quantity": f"{k} [px]: ours / reference",
                        "value": f"{v:.3f} / {comp['reference_errors_px'].get(k, float('nan')):.3f}"}
                       for k, v in comp["errors_px"].items()])
+    if info["board_flatness"]:
+        flat = result.flatness
+        page.heading("Is the board flat?", "flatness")
+        page.paragraph(
+            f"With every corner's position on the board fitted as well, the camera's RMS "
+            f"goes from {flat['camera_rms_px']:.3f} to {flat['camera_rms_released_px']:.3f} "
+            f"px, the board departing from its flat grid by {flat['out_of_plane_mm']:.3f} mm "
+            f"out of plane and {flat['in_plane_mm']:.3f} mm in plane (RMS). Given that "
+            f"board, the projector's RMS goes from {flat['projector_rms_px']:.3f} to "
+            f"{flat['projector_rms_camera_board_px']:.3f} px (nan: OpenCV would not refit "
+            "it): when it drops too, the residuals come from the board (a bent panel, the "
+            "print), not from a lens model or the corner detector, and a flatter board is "
+            "what lowers them.")
     if info["parameter_std"]:
         page.heading("Parameter standard deviations", "std")
         page.paragraph("jackknife: from the calibrations that left one pose out (what enters "
