@@ -231,34 +231,43 @@ def filter_phase(stack: np.ndarray, shifts_rad: Sequence[float], phase_map: Phas
         modulation, for ``sigma_xp`` [-].
     """
     bank = bank or default_bank()
-    n = stack.shape[0]
+    n, height, width = stack.shape
     fit = ShiftFit.from_shifts(shifts_rad)
     rows = fit.rows[1:].astype(np.float32)
-    c, s = (rows @ stack.reshape(n, -1).astype(np.float32)).reshape(2, *stack.shape[1:])
+    c, s = (rows @ stack.reshape(n, -1).astype(np.float32)).reshape(2, height, width)
     use = phase_map.valid & np.isfinite(phase_map.xp)
-    weight = use.astype(np.float32)
-    todo = use & np.isfinite(level) & (level > 0)
-    t = np.where(todo, level, 0.0)
+    weighted = np.stack([use.astype(np.float32), c * use, s * use])
+    todo = np.flatnonzero(use & np.isfinite(level) & (level > 0))
+    t = level.flat[todo]
     k = np.minimum(np.floor(t).astype(int), len(bank.kernels) - 2)
     w = (t - k).astype(np.float32)
-    cf, sf = np.zeros_like(c), np.zeros_like(s)
-    for lev in np.unique(np.concatenate([k[todo], k[todo] + 1])):
-        share = np.where(k == lev, 1 - w, 0) + np.where(k + 1 == lev, w, 0)
-        share = np.where(todo, share, 0).astype(np.float32)
-        if not share.any():
-            continue
-        den = _convolve(weight, bank.kernels[lev])
-        with np.errstate(invalid="ignore", divide="ignore"):
-            cf += share * _convolve(c * weight, bank.kernels[lev]) / den
-            sf += share * _convolve(s * weight, bank.kernels[lev]) / den
-    shift = (np.arctan2(-sf, cf) - np.arctan2(-s, c)) / TWO_PI
-    shift -= np.rint(shift)
-    xp = np.where(todo, phase_map.xp + shift * phase_map.period_px, phase_map.xp)
-    nea = bank.nea_px2(t)
+    cs = np.zeros((2, todo.size), np.float32)
+    for lev in np.unique(np.concatenate([k, k + 1])):
+        sel = np.flatnonzero((k == lev) | (k + 1 == lev))
+        share = np.where(k[sel] == lev, 1 - w[sel], w[sel])
+        cs[:, sel] += share * _filtered_at(weighted, bank.kernels[lev], todo[sel], width)
+    xp = phase_map.xp.copy()
+    shift = (np.arctan2(-cs[1], cs[0]) - np.arctan2(-s.flat[todo], c.flat[todo])) / TWO_PI
+    xp.flat[todo] += (shift - np.rint(shift)) * phase_map.period_px
+    gain = np.ones((height, width))
     with np.errstate(invalid="ignore", divide="ignore"):
-        fall = np.hypot(cf, sf) / np.hypot(c, s)
-        gain = np.where(todo, 1.0 / (np.sqrt(nea) * fall), 1.0)
+        fall = np.hypot(cs[0], cs[1]) / np.hypot(c.flat[todo], s.flat[todo])
+        gain.flat[todo] = 1.0 / (np.sqrt(bank.nea_px2(t)) * fall)
     return xp, gain
+
+
+def _filtered_at(weighted: np.ndarray, kernel: np.ndarray, index: np.ndarray, width: int
+                 ) -> np.ndarray:
+    """Normalised convolution (C w * K / w * K, S w * K / w * K) at the flat ``index``,
+    computed on the band of rows that holds them [-]."""
+    r = kernel.shape[0] // 2
+    r0, r1 = int(index.min()) // width, int(index.max()) // width + 1
+    b0, b1 = max(r0 - r, 0), min(r1 + r, weighted.shape[1])
+    local = index - b0 * width
+    den, cw, sw = (_convolve(np.ascontiguousarray(x[b0:b1]), kernel).ravel()[local]
+                   for x in weighted)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.stack([cw / den, sw / den])
 
 
 def _convolve(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:

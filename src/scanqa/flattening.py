@@ -46,10 +46,12 @@ References
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy import ndimage
 
 from scanqa import optics
 from scanqa.annotation import sigma_source
@@ -72,7 +74,9 @@ from scanqa.filterbank import (
 #: least MIN_BIN_MM wide (the model's sigma changes over millimetres, not microns).
 MAX_BINS, MIN_BIN_PIXELS, MIN_BIN_MM = 24, 200, 2.0
 #: Samples per level of the continuous level index when solving for the filter.
-_SUBSTEPS = 16
+_SUBSTEPS = 8
+#: Pixels whose range is computed, about: the rest take their nearest sample's filter.
+SAMPLED_PIXELS = 250_000
 
 
 @dataclass(frozen=True)
@@ -102,9 +106,9 @@ class PixelNoise:
         return np.hypot(self.scene_mm, self.sensor_mm)
 
 
-def pixel_noise(phase_map: PhaseMap, calibration: Calibration, config: ScannerConfig
-                ) -> PixelNoise:
-    """Range, noise parts and kernel terms of every decoded pixel inside the volume.
+def pixel_noise(phase_map: PhaseMap, calibration: Calibration, config: ScannerConfig,
+                stride: int = 1) -> PixelNoise:
+    """Range, noise parts and kernel terms of the decoded pixels inside the volume.
 
     Parameters
     ----------
@@ -114,21 +118,27 @@ def pixel_noise(phase_map: PhaseMap, calibration: Calibration, config: ScannerCo
         Table or parametric calibration of the scanner.
     config : ScannerConfig
         Optics and ``[model]`` (the sigma source, gamma and the readings).
+    stride : int
+        Every ``stride``-th pixel along rows and columns [-] (the range changes slowly
+        against the filter's size; a parametric triangulation of every pixel would cost
+        more than the decode).
 
     Returns
     -------
     PixelNoise
-        Over the pixels with a finite point.
+        Over the sampled pixels with a finite point; ``index`` is their flat index in
+        the image.
     """
     calibration.check_scan(config, phase_map)
-    look = calibration.apply_image(phase_map.xp)
-    xyz = look.xyz.reshape(-1, 3)
-    index = np.flatnonzero(np.isfinite(xyz).all(axis=1))
+    grid = np.zeros(phase_map.xp.shape, bool)
+    grid[::stride, ::stride] = True
+    index = np.flatnonzero(grid & np.isfinite(phase_map.xp))
+    look = calibration.apply_rows(phase_map.xp, 0, index)
+    finite = np.isfinite(look.xyz).all(axis=-1)
+    index, q, s_t = index[finite], look.xyz[finite], look.s_t[finite]
     if index.size == 0:
         raise InputError("the scan has no point inside the calibrated volume: nothing to "
                          "flatten (check the calibration and the decoding mask)")
-    q = xyz[index]
-    s_t = look.s_t.reshape(-1)[index]
     origin = sigma_source(config, phase_map)
     scene, sensor = _noise_parts(origin, phase_map, config, q, s_t, index)
     z = q[:, 2]
@@ -252,7 +262,7 @@ def _bins(z: np.ndarray) -> np.ndarray:
     return edges
 
 
-def _sample(sel: np.ndarray, size: int = 2000) -> np.ndarray:
+def _sample(sel: np.ndarray, size: int = 500) -> np.ndarray:
     """At most ``size`` evenly spaced members of an index array."""
     return sel if sel.size <= size else sel[np.linspace(0, sel.size - 1, size).astype(int)]
 
@@ -290,7 +300,8 @@ def plan(noise: PixelNoise, config: ScannerConfig, target_um: float | None = Non
         raise InputError(f"too few points to flatten ({noise.z_mm.size}; at least "
                          f"{MIN_BIN_PIXELS // 2} with a finite sigma are needed)")
     grid = np.linspace(0.0, bank.top, int(bank.top) * _SUBSTEPS + 1)
-    curves = [_bin_curve(noise, _sample(m), grid, config, bank) for m in members]
+    finite = np.isfinite(noise.sigma_mm) & np.isfinite(noise.period_cam_px)
+    curves = [_bin_curve(noise, _sample(m[finite[m]]), grid, config, bank) for m in members]
     before = np.array([c[0] for c in curves])
     target = float(np.min(before)) if target_um is None else 1e-3 * target_um
     levels, reach = zip(*(_solve(c, grid, target) for c in curves), strict=True)
@@ -317,7 +328,7 @@ def _bin_curve(noise: PixelNoise, sel: np.ndarray, grid: np.ndarray, config: Sca
     g_scene, g_sensor = reduction(noise.noise_area_px2[sel][None, :], m_f,
                                   grid[:, None], config, bank, transfer=True)
     after = np.hypot(noise.scene_mm[sel] * g_scene, noise.sensor_mm[sel] * g_sensor)
-    return np.nanmedian(after, axis=1)
+    return np.median(after, axis=1)
 
 
 def _solve(curve: np.ndarray, grid: np.ndarray, target: float) -> tuple[float, bool]:
@@ -346,11 +357,15 @@ class FlattenedScan:
     curve : FlattenCurve
         The filter against range.
     level : (H, W) float
-        Filter level per pixel, NaN where no point [-].
+        Filter level per pixel, NaN where not decoded [-].
     sigma_mm, sigma_flat_mm : (H, W) float
-        Random sigma before and (predicted) after filtering [mm].
+        Random sigma before and (predicted) after filtering [mm], on the sampled pixels
+        (every ``stride``-th along rows and columns; NaN elsewhere).
     lateral_resolution_mm : (H, W) float
-        Camera kernel plus digital filter on the object, as a disc diameter [mm].
+        Camera kernel plus digital filter on the object, as a disc diameter [mm], on the
+        sampled pixels.
+    stride : int
+        Sampling of the range [px].
     """
 
     phase_map: PhaseMap
@@ -359,6 +374,7 @@ class FlattenedScan:
     sigma_mm: np.ndarray
     sigma_flat_mm: np.ndarray
     lateral_resolution_mm: np.ndarray
+    stride: int = 1
 
 
 def flatten(desc: PatternDescription, stacks: Sequence[np.ndarray], phase_map: PhaseMap,
@@ -395,26 +411,43 @@ def flatten(desc: PatternDescription, stacks: Sequence[np.ndarray], phase_map: P
         raise InputError("flattening filters the finest phase set, which fuse_periods mixes "
                          "with the others: decode without --fuse-periods to flatten")
     bank = bank or default_bank()
-    noise = pixel_noise(phase_map, calibration, config)
-    curve = plan(noise, config, target_um, bank)
     shape = phase_map.xp.shape
-    level = np.full(shape, np.nan)
-    level.flat[noise.index] = curve.level_at(noise.z_mm)
+    stride = max(1, round(math.sqrt(phase_map.xp.size / SAMPLED_PIXELS)))
+    noise = pixel_noise(phase_map, calibration, config, stride)
+    curve = plan(noise, config, target_um, bank)
+    level = _level_map(shape, stride, noise, curve, phase_map.valid)
     working = desc.phase_sets[-1]
     stack = stacks[[s.name for s in desc.sets].index(working.name)]
     xp, gain = filter_phase(stack, working.shifts_rad, phase_map, level, bank)
     g_scene, g_sensor = reduction(noise.noise_area_px2, noise.period_cam_px,
-                                  level.flat[noise.index], config, bank)
+                                  curve.level_at(noise.z_mm), config, bank)
     sigma, flat, lateral = (np.full(shape, np.nan) for _ in range(3))
     sigma.flat[noise.index] = noise.sigma_mm
     flat.flat[noise.index] = np.hypot(noise.scene_mm * g_scene, noise.sensor_mm * g_sensor)
     lateral.flat[noise.index] = 4 * noise.footprint_mm * np.sqrt(
-        noise.optics_moment_px2 + bank.moment_px2(level.flat[noise.index]))
+        noise.optics_moment_px2 + bank.moment_px2(curve.level_at(noise.z_mm)))
     sensor_gain = np.where(np.isfinite(level), gain, 1.0)
     prov = {**phase_map.provenance, "flatten": curve.as_dict()}
     out = replace(phase_map, xp=xp, sigma_xp=(phase_map.sigma_xp * sensor_gain).astype(
         np.float32), provenance=prov)
-    return FlattenedScan(out, curve, level, sigma, flat, lateral)
+    return FlattenedScan(out, curve, level, sigma, flat, lateral, stride)
+
+
+def _level_map(shape: tuple, stride: int, noise: PixelNoise, curve: FlattenCurve,
+               valid: np.ndarray) -> np.ndarray:
+    """Filter level of every valid pixel: that of the nearest sampled pixel [-]."""
+    coarse = np.full(shape, np.nan)
+    coarse.flat[noise.index] = curve.level_at(noise.z_mm)
+    coarse = coarse[::stride, ::stride]
+    missing = np.isnan(coarse)
+    if missing.all():
+        return np.full(shape, np.nan)
+    if missing.any():
+        near = ndimage.distance_transform_edt(missing, return_distances=False,
+                                              return_indices=True)
+        coarse = coarse[tuple(near)]
+    full = np.repeat(np.repeat(coarse, stride, axis=0), stride, axis=1)[:shape[0], :shape[1]]
+    return np.where(valid, full, np.nan)
 
 
 #: Attributes a flattened cloud adds, with units in their names.
