@@ -32,7 +32,7 @@ from scanqa.config import ScannerConfig, load_config
 from scanqa.decoding.decoder import decode_images
 from scanqa.errors import InputError
 from scanqa.filterbank import FilterBank, default_bank, disc_kernel
-from scanqa.flattening import flatten, plan, pixel_noise
+from scanqa.flattening import flatten, pixel_noise, plan
 from tests.conftest import ROOT
 from tests.synth_sweep import sweep
 
@@ -148,7 +148,7 @@ def test_disc_kernel_areas_and_transfer_follow_eq_11():
 
 
 def test_bad_target_and_gray_only_scans_are_refused(rig):
-    cfg, cal, desc = rig
+    cfg, cal, _ = rig
     from scanqa.decoding.phasemap import PhaseMap
 
     xp = np.full((W, W), 600.0)
