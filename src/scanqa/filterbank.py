@@ -237,22 +237,29 @@ def filter_phase(stack: np.ndarray, shifts_rad: Sequence[float], phase_map: Phas
     c, s = (rows @ stack.reshape(n, -1).astype(np.float32)).reshape(2, height, width)
     use = phase_map.valid & np.isfinite(phase_map.xp)
     weighted = np.stack([use.astype(np.float32), c * use, s * use])
-    todo = np.flatnonzero(use & np.isfinite(level) & (level > 0))
+    todo = np.flatnonzero(use & (level > 0))  # NaN > 0 is False
     t = level.flat[todo]
-    k = np.minimum(np.floor(t).astype(int), len(bank.kernels) - 2)
+    k = np.minimum(t.astype(np.int8), len(bank.kernels) - 2)  # floor: t >= 0
     w = (t - k).astype(np.float32)
+    order = np.argsort(k, kind="stable")  # a radix sort of small integers
+    bounds = np.searchsorted(k[order], np.arange(len(bank.kernels) + 1))
     cs = np.zeros((2, todo.size), np.float32)
-    for lev in np.unique(np.concatenate([k, k + 1])):
-        sel = np.flatnonzero((k == lev) | (k + 1 == lev))
-        share = np.where(k[sel] == lev, 1 - w[sel], w[sel])
-        cs[:, sel] += share * _filtered_at(weighted, bank.kernels[lev], todo[sel], width)
+    for lev in range(len(bank.kernels)):
+        lower = order[bounds[lev]:bounds[lev + 1]]  # k == lev: weight 1 - w
+        upper = order[bounds[lev - 1]:bounds[lev]] if lev else order[:0]  # k + 1 == lev
+        sel = np.concatenate([lower, upper])
+        if sel.size:
+            share = np.concatenate([1 - w[lower], w[upper]])
+            cs[:, sel] += share * _filtered_at(weighted, bank.kernels[lev], todo[sel], width)
     xp = phase_map.xp.copy()
-    shift = (np.arctan2(-cs[1], cs[0]) - np.arctan2(-s.flat[todo], c.flat[todo])) / TWO_PI
+    c0, s0 = c.flat[todo], s.flat[todo]
+    shift = (np.arctan2(-cs[1], cs[0]) - np.arctan2(-s0, c0)) / TWO_PI
     xp.flat[todo] += (shift - np.rint(shift)) * phase_map.period_px
     gain = np.ones((height, width))
+    grid = np.linspace(0.0, bank.top, 64 * int(bank.top) + 1)
     with np.errstate(invalid="ignore", divide="ignore"):
-        fall = np.hypot(cs[0], cs[1]) / np.hypot(c.flat[todo], s.flat[todo])
-        gain.flat[todo] = 1.0 / (np.sqrt(bank.nea_px2(t)) * fall)
+        fall = np.hypot(cs[0], cs[1]) / np.hypot(c0, s0)
+        gain.flat[todo] = 1.0 / (np.sqrt(np.interp(t, grid, bank.nea_px2(grid))) * fall)
     return xp, gain
 
 

@@ -143,7 +143,7 @@ def pixel_noise(phase_map: PhaseMap, calibration: Calibration, config: ScannerCo
     scene, sensor = _noise_parts(origin, phase_map, config, q, s_t, index)
     z = q[:, 2]
     return PixelNoise(index, z, scene, sensor, camera_noise_area_px2(z, config),
-                      fringe_period_image(phase_map).reshape(-1)[index],
+                      fringe_period_at(phase_map, *np.divmod(index, phase_map.xp.shape[1])),
                       z / config.camera.principal_distance_px,
                       optics_moment_px2(z, config), origin["random"])
 
@@ -163,11 +163,20 @@ def _noise_parts(origin: dict, phase_map: PhaseMap, config: ScannerConfig, q: np
     return np.zeros_like(sigma), sigma
 
 
-def fringe_period_image(phase_map: PhaseMap) -> np.ndarray:
-    """The working fringe's period in the camera image, P / |grad x_p| [camera px]."""
-    gy, gx = np.gradient(phase_map.xp)
+def fringe_period_at(phase_map: PhaseMap, rows: np.ndarray, cols: np.ndarray
+                     ) -> np.ndarray:
+    """The working fringe's period in the camera image at pixels (rows, cols),
+    P / |grad x_p| with central differences (one-sided at the border) [camera px]."""
+    xp = phase_map.xp
+    h, w = xp.shape
+
+    def slope(a: np.ndarray, b: np.ndarray, axis: int) -> np.ndarray:
+        lo, hi = np.maximum(a - 1, 0), np.minimum(a + 1, (h, w)[axis] - 1)
+        pick = (lambda i: xp[i, b]) if axis == 0 else (lambda i: xp[b, i])
+        return (pick(hi) - pick(lo)) / np.maximum(hi - lo, 1)
+
     with np.errstate(invalid="ignore", divide="ignore"):
-        return phase_map.period_px / np.hypot(gx, gy)
+        return phase_map.period_px / np.hypot(slope(rows, cols, 0), slope(cols, rows, 1))
 
 
 @dataclass(frozen=True)
@@ -488,7 +497,7 @@ def flattened_attributes(attributes: dict, xyz: np.ndarray, phase_map: PhaseMap,
     z = xyz[:, 2]
     level = curve.level_at(z)
     u, v = attributes["pixel_u"].astype(int), attributes["pixel_v"].astype(int)
-    period = fringe_period_image(phase_map)[v, u]
+    period = fringe_period_at(phase_map, v, u)
     model = config.model
     g_scene, g_sensor = reduction(camera_noise_area_px2(z, config), period, level, config,
                                   bank)
