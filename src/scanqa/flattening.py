@@ -1,6 +1,6 @@
-"""Uniform performance (Sect. 5.2, Fig. 7): flatten the range uncertainty of a decoded scan
-with a digital filter whose size depends on each point's range, and say what it costs in
-lateral resolution.
+"""Uniform performance (Sect. 5.2, Fig. 7 of [1]_): flatten the range uncertainty of a
+decoded scan with a digital filter whose size depends on each point's range, and say what
+it costs in lateral resolution.
 
 The scan is decoded once; each pixel's range comes from the calibration (a table or a
 parametric model). The per-point random sigma - the source the cloud would use
@@ -29,7 +29,7 @@ noise sources of docs/noise_model.rst:
   "one"``) and N_a = N_o + NEA - 1 (second moments of convolved kernels add; the pixel
   is counted once);
 * both are divided by the filter's transfer m_f at the fringe period in the camera image
-  (the fringe amplitude falls, Eq. 11), P_cam = P / |grad x_p|.
+  (the fringe amplitude falls, Eq. 11), P_cam = P / norm(grad x_p).
 
 A board noise law or the image estimate is all sensor part. A point's lateral resolution
 is the diameter 4 s of the camera-side kernel on the object, s^2 the per-axis second
@@ -166,7 +166,7 @@ def _noise_parts(origin: dict, phase_map: PhaseMap, config: ScannerConfig, q: np
 def fringe_period_at(phase_map: PhaseMap, rows: np.ndarray, cols: np.ndarray
                      ) -> np.ndarray:
     """The working fringe's period in the camera image at pixels (rows, cols),
-    P / |grad x_p| with central differences (one-sided at the border) [camera px]."""
+    P / norm(grad x_p) with central differences (one-sided at the border) [camera px]."""
     xp = phase_map.xp
     h, w = xp.shape
 
