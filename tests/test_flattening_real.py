@@ -171,3 +171,36 @@ def test_flatten_flags_are_checked_before_any_work(tmp_path, capsys):
                  "--flatten"])
     assert code == 2
     assert "give --calibration FILE and --config FILE" in capsys.readouterr().err
+
+
+def test_decode_flatten_writes_a_map_that_annotate_reads_back(tmp_path, capsys):
+    """Real: `scanqa decode --flatten` keeps the curve in the phase map; `scanqa annotate`
+    of that map gives the same flattened attributes as `annotate --flatten` (same
+    sigma_flat_um per pixel within float32 rounding)."""
+    frames = [SLSTUDIO / "skull_2x3" / f"frameSeq_{i:02d}.bmp" for i in range(6)]
+    folder = _folder(tmp_path, "skull", frames)
+    cal = str(SLSTUDIO / "calibration" / "calibration.xml")
+    phase = tmp_path / "phase.npz"
+    assert main(["decode", str(folder), "--out", str(phase), "--flatten", "--calibration",
+                 cal, "--config", str(CONFIG)]) == 0
+    assert main(["annotate", str(phase), "--calibration", cal, "--config", str(CONFIG),
+                 "--out", str(tmp_path / "a.ply")]) == 0
+    assert main(["annotate", str(folder), "--calibration", cal, "--config", str(CONFIG),
+                 "--out", str(tmp_path / "b.ply"), "--flatten"]) == 0
+    capsys.readouterr()
+    a, b = read_cloud(tmp_path / "a.ply"), read_cloud(tmp_path / "b.ply")
+    assert len(a) == len(b)
+    for name in ("sigma_flat_um", "lateral_resolution_mm", "filter_diameter_px"):
+        np.testing.assert_allclose(a.attributes[name], b.attributes[name], rtol=1e-4,
+                                   equal_nan=True, err_msg=name)
+    # and the flattened x_p moved: the points differ from an unflattened decode's
+    assert main(["annotate", str(folder), "--calibration", cal, "--config", str(CONFIG),
+                 "--out", str(tmp_path / "c.ply")]) == 0
+    plain = read_cloud(tmp_path / "c.ply")
+    assert "sigma_flat_um" not in plain.attributes
+    ids = [c.attributes["pixel_v"].astype(int) * 1688 + c.attributes["pixel_u"].astype(int)
+           for c in (plain, b)]
+    common, ia, ib = np.intersect1d(*ids, return_indices=True)
+    assert common.size > 0.9 * len(b)
+    moved = np.abs(plain.xyz[ia, 2] - b.xyz[ib, 2])
+    assert np.median(moved) > 1e-3  # mm: the filter moved the points (sigma ~200 um)
