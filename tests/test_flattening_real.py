@@ -28,7 +28,9 @@ from scanqa.io.patterns import dumps_patterns
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 
-# slow: real 2.3 MP captures decoded, flattened and split about their planes (~50 s)
+# slow: real 2.3 MP captures decoded, flattened and split about their planes: ~80 s for
+# the file on the shared 2 cores (board poses 37 s, skull through the CLI 24 s, decode
+# then annotate 12 s)
 pytestmark = [needs_slstudio, pytest.mark.slow]
 
 SHIFTS = [0.0, -2 * math.pi / 3, -4 * math.pi / 3]
