@@ -19,6 +19,7 @@ LAYERS = {
     "scanqa.config": 2, "scanqa.cloud": 2, "scanqa.provenance": 2,
     "scanqa.optics": 3,
     "scanqa.decoding": 4, "scanqa.design": 4, "scanqa.noisefit": 4, "scanqa.rig": 4,
+    "scanqa.filterbank": 4, "scanqa.flattening": 6,
     "scanqa.calibration": 5, "scanqa.optimisation": 5,
     "scanqa.annotation": 6, "scanqa.characterization": 6, "scanqa.qa": 6,
     "scanqa.boardnoise": 6, "scanqa.compare": 6,

@@ -6,7 +6,18 @@ import argparse
 import logging
 from dataclasses import replace
 
-from scanqa.cli.common import emit, output_path
+from scanqa.cli.common import (
+    add_calibration_argument,
+    add_config_argument,
+    add_model_argument,
+    emit,
+    output_path,
+)
+from scanqa.cli.flatten_args import (
+    add_flatten_arguments,
+    check_flatten_args,
+    flatten_from_args,
+)
 from scanqa.decoding.decoder import (
     decode_images,
     load_pattern_dir,
@@ -35,6 +46,12 @@ examples:
   scanqa decode scans/plane_010 --out scans/plane_010/phase.npz
   scanqa decode scans/flat --out flat.npz --measure-response projector_response.toml
   scanqa decode scans/part --out part.npz --response projector_response.toml
+  scanqa decode scans/part --out part.npz --flatten --calibration table.npz --config scanner.toml
+
+--flatten (paper Sect. 5.2) filters the finest phase set with a disc whose size depends
+on each pixel's range, so that the random sigma is the same at every range; it needs the
+calibration (for the range) and the config (for the model). The trade-off - sigma and
+lateral resolution against range - is printed and kept in the phase map's provenance.
 """
 
 
@@ -60,6 +77,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--fuse-periods", action="store_true",
                    help="fuse every period into x_p by inverse variance (default: the "
                         "finest period alone; systematic differences bias a fusion)")
+    add_flatten_arguments(p)
+    add_calibration_argument(p, required=False, when=" (with --flatten)")
+    add_config_argument(p, required=False)
+    add_model_argument(p)
     p.set_defaults(func=run)
 
 
@@ -67,6 +88,8 @@ def run(args: argparse.Namespace) -> int:
     """Load, (measure,) decode, write, and print the summary."""
     out = output_path(args.out)
     measure_out = output_path(args.measure_response)
+    check_flatten_args(args)
+    output_path(args.tradeoff)
     progress = _progress  # through the scanqa logger: -q/--quiet silence it
     desc, stacks = load_pattern_dir(args.pattern_dir, progress)
     if args.fuse_periods:
@@ -80,6 +103,7 @@ def run(args: argparse.Namespace) -> int:
         response = named_response(desc, args.response)
     phase_map = decode_images(desc, stacks, progress=progress, notes=[note] if note else [],
                               response=response)
+    phase_map = flatten_from_args(args, desc, stacks, phase_map)
     if measure_out is not None:
         save_response(measure_out, response)
         for table in response.tables:

@@ -1,0 +1,111 @@
+"""Benchmark: flattening (paper Sect. 5.2) of a 2448 x 2048 (5 MP) scan against its decode.
+
+A tilted flat (Z from about 435 to 465 mm across the image, so the filter changes over
+the frame) seen by the paper's f/11 scanner at full resolution, 3 periods x 4 steps,
+12-bit images with Gaussian noise; x_p from the config's pinhole geometry. The config's
+model is the one the simulated sweeps select (docs/noise_model.rst). Reported: the decode
+time, the flatten time (range from a parametric pinhole calibration, plan, filter) and
+their ratio; the acceptance asks for flatten <= 2x decode. The first call of a
+parametric calibration computes the camera's ray grid, which 'scanqa annotate' needs
+anyway: it is timed apart ("ray grid").
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_flatten.py [--rows 2048 --cols 2448]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def _config(rows: int, cols: int):
+    from scanqa.config import ScannerConfig, load_config
+
+    base = load_config(ROOT / "calib" / "paper_scanner.toml", profile="f11")
+    cfg = ScannerConfig(replace(base.camera, width_px=cols, height_px=rows), base.projector,
+                        base.fringes, base.model, base.simulator, base.name, base.source)
+    return cfg.replace_model(gamma=2.37, sigma_p_px=0.0261, sensor_sigma_p_px=0.0062,
+                             filter_floor="one", filter_form="sum",
+                             noise_reading="two_source", characterised_by="simulated sweeps")
+
+
+def _pinhole(cfg):
+    from scanqa.calibration.parametric import Lens, ParametricCalibration
+
+    cam, proj = cfg.camera, cfg.projector
+    f, fp = cam.principal_distance_px, proj.principal_distance_px
+    kc = np.array([[f, 0, cam.principal_point_px[0]], [0, f, cam.principal_point_px[1]],
+                   [0, 0, 1.0]])
+    kp = np.array([[fp, 0, proj.principal_point_px[0]], [0, fp, proj.principal_point_px[1]],
+                   [0, 0, 1.0]])
+    rot = proj.rotation
+    return ParametricCalibration(Lens(kc, np.zeros(5), cam.width_px, cam.height_px),
+                                 Lens(kp, np.zeros(5), proj.width_px, proj.height_px), rot,
+                                 -rot @ np.asarray(proj.position_mm), "vertical")
+
+
+def _tilted_xp(cfg) -> np.ndarray:
+    """x_p of the flat Z = 450 + 0.25 X (about 435-465 mm over the field) [px]."""
+    from scanqa import optics
+
+    cam = cfg.camera
+    v, u = np.indices((cam.height_px, cam.width_px), dtype=float)
+    f = cam.principal_distance_px
+    dx, dy = (u - cam.principal_point_px[0]) / f, (v - cam.principal_point_px[1]) / f
+    t = 450.0 / (1.0 - 0.25 * dx)  # Z of the ray's hit: Z = 450 + 0.25 Z dx
+    q = np.stack([dx * t, dy * t, t], axis=-1)
+    qp = optics.to_projector_frame(q, cfg)
+    return cfg.projector.principal_distance_px * qp[..., 0] / qp[..., 2] \
+        + cfg.projector.principal_point_px[0]
+
+
+def main() -> None:
+    from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
+    from scanqa.decoding.decoder import decode_images
+    from scanqa.decoding.patternset import synthesize_images
+    from scanqa.flattening import flatten
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--rows", type=int, default=2048)
+    parser.add_argument("--cols", type=int, default=2448)
+    args = parser.parse_args()
+    cfg = _config(args.rows, args.cols)
+    sets = tuple(PhaseSet(f"p{p:g}", p, 4) for p in (1280.0, 80.0, 5.0))
+    desc = PatternDescription(1280, sets, sensor=SensorModel(bit_depth=12, gain_e_per_dn=4.0,
+                                                             read_noise_e=8.0))
+    rng = np.random.default_rng(0)
+    stacks = [np.clip(np.rint(s + rng.normal(0.0, 3.0, s.shape)), 0, 4095).astype(np.uint16)
+              for s in synthesize_images(desc, _tilted_xp(cfg), 1500.0, 1000.0)]
+    cal = _pinhole(cfg)
+    t0 = time.perf_counter()
+    cal.image_grid  # noqa: B018 - the ray grid, shared with annotate
+    t1 = time.perf_counter()
+    pm = decode_images(desc, stacks)
+    t2 = time.perf_counter()
+    flat = flatten(desc, stacks, pm, cal, cfg)
+    t3 = time.perf_counter()
+    decode_s, flatten_s = t2 - t1, t3 - t2
+    size = f"{args.cols} x {args.rows}"
+    print(f"RESULT decode {size}: {decode_s:.2f} s")
+    print(f"RESULT flatten {size}: {flatten_s:.2f} s ({flatten_s / decode_s:.2f}x the decode; "
+          "the acceptance allows 2x)")
+    print(json.dumps({"image": f"{args.cols} x {args.rows}", "decode_s": round(decode_s, 2),
+                      "flatten_s": round(flatten_s, 2), "ray_grid_s": round(t1 - t0, 2),
+                      "flatten_over_decode": round(flatten_s / decode_s, 2),
+                      "target_um": round(flat.curve.target_um, 2),
+                      "filter_px_range": [round(float(np.min(flat.curve.filter_diameter_px)), 2),
+                                          round(float(np.max(flat.curve.filter_diameter_px)),
+                                                2)]}))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,287 @@
+"""The digital filters of flattening (Sect. 5.2 of [1]_): a bank of disc kernels, what
+a filter does to the two noise sources and to the fringe, and its application to the
+quadrature components of a phase set.
+
+A pixel's filter is a blend of two neighbouring discs of the bank, indexed by a
+continuous level t; the blend's noise-equivalent area NEA = 1 / sum(K^2), second moment
+and transfer at a fringe period follow exactly from those of the two discs.
+:mod:`scanqa.flattening` chooses the level of every pixel.
+
+References
+----------
+.. [1] M.-A. Drouin, F. Blais, G. Godin, "Characterizing the impact of optically induced
+   blurring of a high-resolution phase-shift 3D scanner", Machine Vision and
+   Applications 28, 2017.
+"""
+
+from __future__ import annotations
+
+import functools
+import itertools
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanqa import optics
+from scanqa.config import ScannerConfig
+from scanqa.decoding.demodulate import TWO_PI, ShiftFit
+from scanqa.decoding.phasemap import PhaseMap
+
+#: Diameters of the disc filters in the bank [camera px]; a pixel between two of them
+#: gets the blend of the two, whose noise-equivalent area and transfer are exact.
+LEVEL_DIAMETERS_PX = (0.0, 1.2, 1.6, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0,
+                      12.0, 14.0, 16.0)
+
+def disc_kernel(diameter_px: float, oversample: int = 8) -> np.ndarray:
+    """A disc of the given diameter on the pixel grid, anti-aliased, of unit sum.
+
+    Parameters
+    ----------
+    diameter_px : float
+        Disc diameter [camera px]; 0 gives the identity [[1]].
+    oversample : int
+        Sub-samples per pixel and axis for the coverage [-].
+
+    Returns
+    -------
+    (k, k) float64
+        Each cell's share of the disc's area, k odd [-].
+
+    Examples
+    --------
+    >>> float(disc_kernel(0.0).sum()), disc_kernel(3.0).shape
+    (1.0, (3, 3))
+    """
+    if not diameter_px > 0:
+        return np.ones((1, 1))
+    half = int(np.ceil(diameter_px / 2.0 - 0.5))
+    sub = (np.arange(oversample) + 0.5) / oversample - 0.5
+    cells = np.arange(-half, half + 1)
+    u = (cells[:, None] + sub[None, :]).ravel()
+    inside = (u[:, None] ** 2 + u[None, :] ** 2 <= diameter_px ** 2 / 4.0).astype(float)
+    n = cells.size
+    cover = inside.reshape(n, oversample, n, oversample).sum(axis=(1, 3))
+    return cover / cover.sum()
+
+
+@dataclass(frozen=True)
+class FilterBank:
+    """The disc filters and their exact properties, indexed by a continuous level t.
+
+    t in [0, L - 1]; between levels k and k + 1 the kernel is (1 - w) K_k + w K_{k+1}
+    with w = t - k, whose sum of squares, second moment and transfer follow exactly.
+    """
+
+    diameters_px: tuple
+    kernels: tuple
+    sum_sq: np.ndarray
+    cross: np.ndarray
+    moments: np.ndarray
+
+    @classmethod
+    def build(cls, diameters_px: Sequence[float] = LEVEL_DIAMETERS_PX) -> FilterBank:
+        kernels = tuple(disc_kernel(d) for d in diameters_px)
+        size = max(k.shape[0] for k in kernels)
+        padded = [np.pad(k, (size - k.shape[0]) // 2) for k in kernels]
+        x = np.arange(size) - size // 2
+        sum_sq = np.array([(k * k).sum() for k in padded])
+        cross = np.array([(a * b).sum() for a, b in itertools.pairwise(padded)])
+        moment = np.array([(k * x[None, :] ** 2).sum() for k in padded])
+        return cls(tuple(float(d) for d in diameters_px), kernels, sum_sq, cross, moment)
+
+    @property
+    def top(self) -> float:
+        """The largest level index [-]."""
+        return float(len(self.kernels) - 1)
+
+    def _split(self, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        t = np.clip(np.asarray(t, dtype=float), 0.0, self.top)
+        k = np.minimum(np.floor(t).astype(int), len(self.kernels) - 2)
+        return k, t - k
+
+    def nea_px2(self, t: np.ndarray) -> np.ndarray:
+        """Noise-equivalent area 1 / sum(K^2) of the blended kernel [px^2]."""
+        k, w = self._split(t)
+        sq = (1 - w) ** 2 * self.sum_sq[k] + 2 * w * (1 - w) * self.cross[k] \
+            + w ** 2 * self.sum_sq[k + 1]
+        return 1.0 / sq
+
+    def moment_px2(self, t: np.ndarray) -> np.ndarray:
+        """Per-axis second moment of the blended kernel [px^2]."""
+        k, w = self._split(t)
+        return (1 - w) * self.moments[k] + w * self.moments[k + 1]
+
+    def transfer(self, t: np.ndarray, period_px: np.ndarray) -> np.ndarray:
+        """Amplitude transfer of the blended kernel for a fringe of ``period_px`` along
+        an image axis (the disc is isotropic to the sampling) [-]."""
+        k, w = self._split(t)
+        p = np.asarray(period_px, dtype=float)
+        return (1 - w) * self.level_transfer(k, p) + w * self.level_transfer(k + 1, p)
+
+    def level_transfer(self, k: np.ndarray, p: np.ndarray) -> np.ndarray:
+        """Transfer of the bank's kernels ``k`` (int) at fringe periods ``p`` [px] [-]."""
+        out = np.empty(np.broadcast_shapes(np.shape(k), np.shape(p)))
+        k, p = np.broadcast_arrays(k, p)
+        for level in np.unique(k):
+            kern = self.kernels[level]
+            x = np.arange(kern.shape[0]) - kern.shape[0] // 2
+            line = kern.sum(axis=0)
+            sel = k == level
+            out[sel] = (line[None, :] * np.cos(TWO_PI * x[None, :] / p[sel][:, None])).sum(1)
+        return out
+
+
+@functools.lru_cache(maxsize=1)
+def default_bank() -> FilterBank:
+    """The bank of :data:`LEVEL_DIAMETERS_PX`, built once."""
+    return FilterBank.build()
+
+
+def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarray,
+              config: ScannerConfig, bank: FilterBank | None = None, transfer: bool = False
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """Factors by which the filter at level t scales the scene and sensor parts [-].
+
+    Parameters
+    ----------
+    noise_area_px2 : array_like
+        Noise-equivalent area of the camera's own kernel N_o
+        (:func:`scanqa.optics.camera_noise_area`) [px^2].
+    period_cam_px : array_like
+        Fringe period in the image [camera px] (or, with ``transfer``, the filter's
+        transfer m_f [-]).
+    t : array_like
+        Level index in the filter bank [-].
+    config : ScannerConfig
+        Its ``[model] gamma``: the scene noise's correlation area is gamma^2 [px^2].
+    bank : FilterBank, optional
+        Default :func:`default_bank`.
+    transfer : bool
+        ``period_cam_px`` is already the filter's transfer m_f [-].
+
+    Returns
+    -------
+    scene, sensor : ndarray
+        sqrt((g^2 + N_o) / (g^2 + N_o + NEA - 1)) / m_f and 1 / (sqrt(NEA) m_f) [-].
+
+    Notes
+    -----
+    Noise correlated over an area g^2 and filtered by kernels of noise-equivalent areas
+    that add (second moments of near-Gaussian kernels add, docs/noise_model.rst) keeps
+    the variance share g^2 / (g^2 + N); the digital filter adds NEA - 1 to N (the pixel
+    is already in N_o). This is the smooth form of F^2 = max(1, N / g^2) that the sum
+    form of Eq. 17 floors; with the paper's product form gamma is not a correlation
+    area and the scene factor is only approximate.
+    """
+    bank = bank or default_bank()
+    nea = bank.nea_px2(t)
+    m_f = period_cam_px if transfer else bank.transfer(t, period_cam_px)
+    corr = config.model.gamma ** 2 + np.asarray(noise_area_px2, dtype=float)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return np.sqrt(corr / (corr + nea - 1.0)) / m_f, 1.0 / (np.sqrt(nea) * m_f)
+
+
+def camera_noise_area_px2(z_mm: np.ndarray, config: ScannerConfig) -> np.ndarray:
+    """The camera kernel's noise-equivalent area N_o at range ``z_mm`` (pixel, defocus
+    disc, Airy disc; :func:`scanqa.optics.camera_noise_area`) [px^2]."""
+    cam, model = config.camera, config.model
+    pixel = cam.pixel_um * 1e-3
+    b_d = optics.diffraction_blur_area(
+        optics.airy_diameter(model.wavelength_nm * 1e-6, cam.f_number), pixel)
+    c_image = optics.image_blur_diameter(z_mm, cam.focal_mm, cam.focus_mm, cam.aperture_mm)
+    return optics.camera_noise_area(c_image, pixel, b_d)
+
+
+def optics_moment_px2(z_mm: np.ndarray, config: ScannerConfig) -> np.ndarray:
+    """Per-axis second moment of the camera's own kernel at range ``z_mm``: pixel box
+    1/12, defocus disc c_c^2 / 16 and Airy disc d^2 / 16 [px^2]."""
+    cam, model = config.camera, config.model
+    pixel = cam.pixel_um * 1e-3
+    c_image = optics.image_blur_diameter(z_mm, cam.focal_mm, cam.focus_mm, cam.aperture_mm)
+    airy = optics.airy_diameter(model.wavelength_nm * 1e-6, cam.f_number)
+    return 1.0 / 12.0 + ((c_image / pixel) ** 2 + (airy / pixel) ** 2) / 16.0
+
+
+def filter_phase(stack: np.ndarray, shifts_rad: Sequence[float], phase_map: PhaseMap,
+                 level: np.ndarray, bank: FilterBank | None = None
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """x_p with the working set's quadrature components filtered at each pixel's level.
+
+    Parameters
+    ----------
+    stack : (N, H, W) array
+        The working set's frames [DN].
+    shifts_rad : sequence of float
+        Their phase shifts [rad].
+    phase_map : PhaseMap
+        The unfiltered decode (its x_p gives the fringe order, its mask the pixels that
+        take part).
+    level : (H, W) float
+        Filter level per pixel, NaN to leave a pixel alone [-].
+    bank : FilterBank, optional
+        Default :func:`default_bank`.
+
+    Returns
+    -------
+    xp : (H, W) float64
+        Filtered x_p [projector px].
+    gain : (H, W) float
+        The sensor-noise factor 1 / (sqrt(NEA) m_f) with m_f measured as the fall of the
+        modulation, for ``sigma_xp`` [-].
+    """
+    bank = bank or default_bank()
+    n, height, width = stack.shape
+    fit = ShiftFit.from_shifts(shifts_rad)
+    rows = fit.rows[1:].astype(np.float32)
+    c, s = (rows @ stack.reshape(n, -1).astype(np.float32)).reshape(2, height, width)
+    use = phase_map.valid & np.isfinite(phase_map.xp)
+    weighted = np.stack([use.astype(np.float32), c * use, s * use])
+    todo = np.flatnonzero(use & (level > 0))  # NaN > 0 is False
+    t = level.flat[todo]
+    k = np.minimum(t.astype(np.int8), len(bank.kernels) - 2)  # floor: t >= 0
+    w = (t - k).astype(np.float32)
+    order = np.argsort(k, kind="stable")  # a radix sort of small integers
+    bounds = np.searchsorted(k[order], np.arange(len(bank.kernels) + 1))
+    cs = np.zeros((2, todo.size), np.float32)
+    for lev in range(len(bank.kernels)):
+        lower = order[bounds[lev]:bounds[lev + 1]]  # k == lev: weight 1 - w
+        upper = order[bounds[lev - 1]:bounds[lev]] if lev else order[:0]  # k + 1 == lev
+        sel = np.concatenate([lower, upper])
+        if sel.size:
+            share = np.concatenate([1 - w[lower], w[upper]])
+            cs[:, sel] += share * _filtered_at(weighted, bank.kernels[lev], todo[sel], width)
+    xp = phase_map.xp.copy()
+    c0, s0 = c.flat[todo], s.flat[todo]
+    shift = (np.arctan2(-cs[1], cs[0]) - np.arctan2(-s0, c0)) / TWO_PI
+    xp.flat[todo] += (shift - np.rint(shift)) * phase_map.period_px
+    gain = np.ones((height, width))
+    grid = np.linspace(0.0, bank.top, 64 * int(bank.top) + 1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        fall = np.hypot(cs[0], cs[1]) / np.hypot(c0, s0)
+        gain.flat[todo] = 1.0 / (np.sqrt(np.interp(t, grid, bank.nea_px2(grid))) * fall)
+    return xp, gain
+
+
+def _filtered_at(weighted: np.ndarray, kernel: np.ndarray, index: np.ndarray, width: int
+                 ) -> np.ndarray:
+    """Normalised convolution (C w * K / w * K, S w * K / w * K) at the flat ``index``,
+    computed on the band of rows that holds them [-]."""
+    r = kernel.shape[0] // 2
+    r0, r1 = int(index.min()) // width, int(index.max()) // width + 1
+    b0, b1 = max(r0 - r, 0), min(r1 + r, weighted.shape[1])
+    local = index - b0 * width
+    den, cw, sw = (_convolve(np.ascontiguousarray(x[b0:b1]), kernel).ravel()[local]
+                   for x in weighted)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.stack([cw / den, sw / den])
+
+
+def _convolve(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``image`` (float32) convolved with a symmetric kernel, edges reflected."""
+    if kernel.size == 1:
+        return image
+    import cv2
+
+    return cv2.filter2D(image, cv2.CV_32F, kernel.astype(np.float32),
+                        borderType=cv2.BORDER_REFLECT)
