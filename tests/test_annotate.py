@@ -146,11 +146,12 @@ def test_cloudcompare_reads_every_attribute(cfg, table, tmp_path):
     cloud = annotate(scans[0], table, cfg, repeats=scans[1:])
     path = cloud.write(tmp_path / "cloud.ply")
     header, data = _cloudcompare_asc(path, tmp_path)
-    assert header[:3] == ["X", "Y", "Z"]
-    assert header[3:] == list(cloud.attributes)  # every attribute, under its own name
+    # the grey colour and intensity of the fringe offset (tests/test_cloud_display.py)
+    assert header[:6] == ["X", "Y", "Z", "R", "G", "B"] and header[-1] == "intensity"
+    assert header[6:-1] == list(cloud.attributes)  # every attribute, under its own name
     # CloudCompare keeps coordinates in float32: 0.03 um resolution at 450 mm
     np.testing.assert_allclose(data[:, :3], cloud.xyz, atol=1e-4)
-    for i, name in enumerate(header[3:], start=3):
+    for i, name in enumerate(header[6:-1], start=6):
         np.testing.assert_allclose(data[:, i], cloud.attributes[name], rtol=1e-6,
                                    equal_nan=True, err_msg=name)
 

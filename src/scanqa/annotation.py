@@ -322,9 +322,10 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
         values["sigma_meas_um"] = 1e3 * inputs["std"]
         values["n_repeats"] = inputs["count"]
     # attributes as rows of one block, then written record by record in one pass
-    block = np.empty((len(out.dtype.names) - 3, out.size), dtype=np.float32)
-    for row, name in zip(block, out.dtype.names[3:], strict=True):
-        row[...] = values[name[len(ply.PREFIX):]]
+    names = ply.attribute_names(out.dtype)
+    block = np.empty((len(names), out.size), dtype=np.float32)
+    for row, name in zip(block, names, strict=True):
+        row[...] = values[name]
     ply.attribute_block(out)[...] = block.T
     return int((~pred.valid).sum())
 

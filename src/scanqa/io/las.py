@@ -110,11 +110,48 @@ def describe(name: str) -> str:
 
 def grey_levels(values: np.ndarray) -> np.ndarray:
     """16-bit grey levels of a per-point level (the fringe offset [DN]): scaled so that
-    the 99.9th percentile is 65535; NaN and negative values are 0."""
-    v = np.nan_to_num(np.asarray(values, dtype=float), nan=0.0)
-    top = np.percentile(v, 99.9) if v.size else 0.0
-    scale = 65535.0 / top if top > 0 else 0.0
-    return np.clip(np.rint(v * scale), 0, 65535).astype(np.uint16)
+    the 99.9th percentile is 65535 (:func:`top_level`); NaN and negative values are 0."""
+    v = np.nan_to_num(np.array(values, dtype=float), nan=0.0, copy=False)
+    top = top_level(v, 0.999)
+    v *= 65535.0 / top if top > 0 else 0.0
+    np.clip(np.rint(v, out=v), 0, 65535, out=v)
+    return v.astype(np.uint16)
+
+
+def top_level(values: np.ndarray, fraction: float) -> float:
+    """The ``fraction`` quantile of finite values, as ``np.percentile`` (linear between
+    order statistics) gives it, for fractions near 1: the two order statistics are
+    selected among the values above a threshold taken from every 16th value, which
+    leaves ~0.3 % of a cloud to sort instead of all of it (0.2 s for 5 M points).
+
+    Parameters
+    ----------
+    values : (n,) float ndarray
+        Values without NaN.
+    fraction : float
+        Quantile in [0, 1] [-].
+
+    Returns
+    -------
+    float
+        The quantile; 0 for no values.
+    """
+    n = values.size
+    if n == 0:
+        return 0.0
+    pos = (n - 1) * fraction
+    k = int(np.floor(pos))
+    k1 = min(k + 1, n - 1)
+    need = n - k  # values at or above the k-th smallest
+    sample = np.sort(values[::16])
+    j = max(0, sample.size - 2 * (need // 16 + 1) - 64)  # a margin below the quantile
+    cut = sample[j]
+    above = values[values >= cut]
+    if above.size < need:  # the sample misled us: select among all values
+        above = values
+    order = np.partition(above, [above.size - need, above.size - n + k1])
+    a, b = float(order[above.size - need]), float(order[above.size - n + k1])
+    return a + (b - a) * (pos - k)
 
 
 def read_las(path: str | os.PathLike) -> tuple[np.ndarray, dict[str, np.ndarray], dict]:

@@ -6,6 +6,12 @@ properties as scalar fields, and it first matches property names by substring fo
 colours and normals (RED, GREEN, BLUE, NX, NY, NZ, INTENSITY, GRAY, GREY), so
 :func:`check_attribute_name` refuses names that contain any of those. Open3D's tensor
 reader (``open3d.t.io.read_point_cloud``) loads the same properties under their names.
+
+A cloud with an ``offset_dn`` attribute (the fringe offset, the scene's brightness) also
+carries display fields that viewers colour by: ``float intensity`` (the 16-bit grey level
+the LAS export stores as intensity, [-]) and a grey ``uchar red, green, blue`` (its top 8
+bits) with ``alpha`` 255. They are derived, not data: a header comment
+(:data:`DISPLAY_COMMENT`) marks them, and :func:`read_ply` leaves them out again.
 """
 
 from __future__ import annotations
@@ -22,6 +28,7 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
 from scanqa.io.guard import loads_json_object
+from scanqa.io.las import INTENSITY_SOURCE, grey_levels
 
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
 RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
@@ -36,6 +43,12 @@ log = logging.getLogger(__name__)
 #: abort on header lines longer than ~1 kB.
 META_COMMENT = "comment scanqa-meta"
 META_CHUNK = 160
+#: Display fields written after the attributes of a cloud with an ``offset_dn``
+#: attribute: 8 bytes, so that records stay whole 4-byte words.
+DISPLAY_FIELDS = (("intensity", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
+                  ("alpha", "u1"))
+#: Header comment that marks the display fields as derived from ``scalar_offset_dn``.
+DISPLAY_COMMENT = "comment scanqa-display intensity red green blue alpha"
 
 
 def check_attribute_name(name: str) -> None:
@@ -63,11 +76,19 @@ def vertex_dtype(names) -> np.dtype:
     Returns
     -------
     numpy.dtype
-        Packed little-endian ``x, y, z`` (float64, [mm]) and one float32 field
-        ``scalar_<name>`` per attribute.
+        Packed little-endian ``x, y, z`` (float64, [mm]), one float32 field
+        ``scalar_<name>`` per attribute and, with an ``offset_dn`` attribute, the
+        :data:`DISPLAY_FIELDS` (filled by :func:`write_ply`).
     """
+    names = list(names)
+    display = list(DISPLAY_FIELDS) if INTENSITY_SOURCE in names else []
     return np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
-                    + [(PREFIX + name, "<f4") for name in names])
+                    + [(PREFIX + name, "<f4") for name in names] + display)
+
+
+def attribute_names(dtype: np.dtype) -> list[str]:
+    """The attribute names of a record layout (:func:`vertex_dtype`), in file order."""
+    return [name[len(PREFIX):] for name in dtype.names[3:] if name.startswith(PREFIX)]
 
 
 def vertex_views(records: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -92,7 +113,7 @@ def vertex_views(records: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]
     arrays; :func:`write_ply` recognises them and writes the records as they are, with
     one ``tofile`` and no second copy of the cloud.
     """
-    names = [name[len(PREFIX):] for name in records.dtype.names[3:]]
+    names = attribute_names(records.dtype)
     if records.dtype != vertex_dtype(names):
         raise ValueError(f"records must have the layout of vertex_dtype, got {records.dtype}")
     xyz = np.ndarray((records.size, 3), dtype="<f8", buffer=records,
@@ -115,7 +136,7 @@ def attribute_block(records: np.ndarray) -> np.ndarray:
         attributes in one sequential pass (cheaper than k strided field writes).
     """
     words = records.view(np.float32).reshape(records.size, records.itemsize // 4)
-    return words[:, 6:]
+    return words[:, 6:6 + len(attribute_names(records.dtype))]
 
 
 def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray],
@@ -143,8 +164,10 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
 
     Notes
     -----
-    Arrays from :func:`vertex_views` are written straight from their record array;
-    any others are packed into records one chunk at a time.
+    Arrays from :func:`vertex_views` are written straight from their record array (its
+    display fields filled in place); any others are packed into records one chunk at a
+    time. With an ``offset_dn`` attribute and no colours of its own, the cloud gets the
+    display fields of the module notes.
     """
     xyz = np.asarray(xyz, dtype="<f8")
     n = xyz.shape[0]
@@ -159,6 +182,10 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
         text = json.dumps(metadata, allow_nan=False, separators=(",", ":"))
         header += [f"{META_COMMENT} {text[i:i + META_CHUNK]}"
                    for i in range(0, len(text), META_CHUNK)]
+    grey = None
+    if "intensity" in dtype.names:
+        header.append(DISPLAY_COMMENT)
+        grey = grey_levels(attributes[INTENSITY_SOURCE])
     header.append(f"element vertex {n}")
     header += [f"property {_TYPE_NAMES[dtype[f].str[1:]]} {f}" for f in dtype.names]
     header.append("end_header")
@@ -166,10 +193,25 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
     with atomic_path(path, suffix=".ply") as tmp, open(tmp, "wb") as fh:
         fh.write(("\n".join(header) + "\n").encode("ascii"))
         if rec is not None:
+            if grey is not None:
+                _fill_display(rec, grey)
             rec.tofile(fh)
         else:
-            _write_records(fh, xyz, attributes, dtype)
+            _write_records(fh, xyz, attributes, dtype, grey)
     return Path(path)
+
+
+def _fill_display(records: np.ndarray, grey: np.ndarray) -> None:
+    """Write the display fields of records (:data:`DISPLAY_FIELDS`, the last 8 bytes)
+    from 16-bit grey levels: intensity, and red = green = blue = the top 8 bits, alpha
+    255, as one little-endian word per record."""
+    words = records.view(np.uint32).reshape(records.size, records.itemsize // 4)
+    words[:, -2] = grey.astype(np.float32).view(np.uint32)
+    rgba = grey.astype(np.uint32)
+    rgba >>= 8
+    rgba *= 0x010101
+    rgba += 0xFF000000
+    words[:, -1] = rgba
 
 
 #: PLY type name of each numpy type code written.
@@ -190,6 +232,8 @@ def _file_dtype(attributes: dict[str, np.ndarray]) -> np.dtype:
         code = values.dtype.str[1:] if values.dtype.kind in "uif" else ""
         keep = name in STANDARD_PROPERTIES and code in _TYPE_NAMES
         fields.append((_field(name), "<" + code if keep else "<f4"))
+    if INTENSITY_SOURCE in attributes and not set(STANDARD_PROPERTIES[3:]) & set(attributes):
+        fields += DISPLAY_FIELDS  # colours of its own win over the derived grey
     return np.dtype(fields)
 
 
@@ -219,8 +263,9 @@ _WRITE_CHUNK = 1 << 16
 
 
 def _write_records(fh, xyz: np.ndarray, attributes: dict[str, np.ndarray],
-                   dtype: np.dtype) -> None:
-    """Pack separate arrays into records and write them, one chunk at a time."""
+                   dtype: np.dtype, grey: np.ndarray | None) -> None:
+    """Pack separate arrays into records and write them, one chunk at a time (with the
+    display fields from the grey levels ``grey`` where given)."""
     buf = np.empty(min(len(xyz), _WRITE_CHUNK), dtype=dtype)
     for a in range(0, len(xyz), _WRITE_CHUNK):
         part = buf[:min(_WRITE_CHUNK, len(xyz) - a)]
@@ -228,6 +273,8 @@ def _write_records(fh, xyz: np.ndarray, attributes: dict[str, np.ndarray],
         part["x"], part["y"], part["z"] = xyz[a:b, 0], xyz[a:b, 1], xyz[a:b, 2]
         for name, values in attributes.items():
             part[_field(name)] = values[a:b]
+        if grey is not None:
+            _fill_display(part, grey[a:b])
         part.tofile(fh)
 
 
@@ -277,7 +324,7 @@ def read_ply(path: str | os.PathLike
     try:
         size = path.stat().st_size
         with open(path, "rb") as fh:
-            fmt, elements, metadata = _read_header(fh, path)
+            fmt, elements, metadata, derived = _read_header(fh, path)
             data = _read_vertices(fh, fmt, elements, size - fh.tell(), path)
     except OSError as err:
         raise InputError(f"cannot read point cloud {path}: {err.strerror or err}") from None
@@ -286,14 +333,16 @@ def read_ply(path: str | os.PathLike
         raise InputError(f"{path}: PLY vertices have no x, y, z properties (found "
                          f"{', '.join(names) or 'none'})")
     xyz = np.stack([data["x"], data["y"], data["z"]], -1).astype(float)
-    return xyz, _attributes(data, path), metadata
+    return xyz, _attributes(data, path, derived), metadata
 
 
-def _attributes(data: np.ndarray, path: Path) -> dict[str, np.ndarray]:
-    """The vertex properties other than x, y, z under the names scanqa gives them."""
+def _attributes(data: np.ndarray, path: Path, derived: tuple = ()
+                ) -> dict[str, np.ndarray]:
+    """The vertex properties other than x, y, z (and the display fields ``derived``)
+    under the names scanqa gives them."""
     attrs, left_out = {}, []
     for prop in data.dtype.names:
-        if prop in ("x", "y", "z"):
+        if prop in ("x", "y", "z", *derived):
             continue
         name = prop[len(PREFIX):] if prop.startswith(PREFIX) else prop
         try:
@@ -312,11 +361,12 @@ def _attributes(data: np.ndarray, path: Path) -> dict[str, np.ndarray]:
     return attrs
 
 
-def _read_header(fh, path: Path) -> tuple[str, list[_Element], dict]:
-    """(format, elements, metadata) of a PLY header; the file is left at the data."""
+def _read_header(fh, path: Path) -> tuple[str, list[_Element], dict, tuple]:
+    """(format, elements, metadata, derived display fields) of a PLY header; the file is
+    left at the data."""
     if fh.readline(MAX_HEADER_LINE).rstrip(b"\r\n") != b"ply":
         raise InputError(f"{path} is not a PLY file (no 'ply' first line)")
-    fmt, elements, meta = None, [], []
+    fmt, elements, meta, derived = None, [], [], ()
     while fh.tell() < MAX_HEADER:
         line = fh.readline(MAX_HEADER_LINE)
         if not line:
@@ -327,13 +377,16 @@ def _read_header(fh, path: Path) -> tuple[str, list[_Element], dict]:
         if text.startswith(META_COMMENT + " "):
             meta.append(text[len(META_COMMENT) + 1:])
             continue
+        if text == DISPLAY_COMMENT:
+            derived = tuple(name for name, _ in DISPLAY_FIELDS)
+            continue
         parts = text.split()
         if not parts or parts[0] in ("comment", "obj_info"):
             continue
         if parts[0] == "end_header":
             if fmt is None:
                 raise InputError(f"{path}: PLY header has no format line")
-            return fmt, elements, _metadata("".join(meta), path) if meta else {}
+            return fmt, elements, _metadata("".join(meta), path) if meta else {}, derived
         fmt = _header_line(parts, fmt, elements, path)
     raise InputError(f"{path}: PLY header longer than {MAX_HEADER} bytes")
 
