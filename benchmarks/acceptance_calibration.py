@@ -50,10 +50,10 @@ from scipy.optimize import least_squares  # noqa: E402
 from scanqa.calibration.parametric import Lens, ParametricCalibration  # noqa: E402
 from scanqa.calibration.sweep import calibrate, marker_geometry  # noqa: E402
 from scanqa.calibration.sweep_fit import SweepGeometry, plane_to_camera  # noqa: E402
-from scanqa.config import ScannerConfig, load_config  # noqa: E402
 from scanqa.decoding.decoder import decode  # noqa: E402
 from scanqa.io.manifest import read_manifest  # noqa: E402
 from scanqa.io.sweep import Sweep, load_sweep  # noqa: E402
+from scanqa.model.config import ScannerConfig, load_config  # noqa: E402
 from scanqa.simulator.experiments import run_experiment  # noqa: E402
 
 SAMPLE = ROOT / "sample_data" / "sample_scanner.toml"

@@ -31,9 +31,9 @@ sys.path.insert(0, str(HERE))
 def main() -> None:
     from bench_flatten import _config, _pinhole
 
-    from scanqa import design
     from scanqa.decoding.decoder import decode_images
-    from scanqa.flattening import flatten
+    from scanqa.model import design
+    from scanqa.runs.flattening import flatten
     from scanqa.simulator import experiments, render, scene
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -25,10 +25,10 @@ sys.path.insert(0, str(ROOT))
 
 from tests.synth_sweep import plane_truth, small_camera, sweep  # noqa: E402
 
-from scanqa.annotation import annotate  # noqa: E402
 from scanqa.calibration.build import build_table  # noqa: E402
-from scanqa.config import load_config  # noqa: E402
 from scanqa.decoding.phasemap import PhaseMap  # noqa: E402
+from scanqa.model.config import load_config  # noqa: E402
+from scanqa.runs.annotation import annotate  # noqa: E402
 
 
 def main() -> int:

@@ -25,11 +25,11 @@ ROOT = Path(__file__).resolve().parents[1]
 SAMPLE = ROOT / "sample_data"
 CONFIG = f"{SAMPLE / 'sample_scanner.toml'}#sample"
 
-from scanqa.batch import prepare, resolve_scans, run_batch  # noqa: E402
 from scanqa.calibration.sweep import calibrate  # noqa: E402
-from scanqa.campaign import load_campaign, run_campaign  # noqa: E402
 from scanqa.cluster import EngineOptions  # noqa: E402
-from scanqa.config import load_config  # noqa: E402
+from scanqa.model.config import load_config  # noqa: E402
+from scanqa.runs.batch import prepare, resolve_scans, run_batch  # noqa: E402
+from scanqa.runs.campaign import load_campaign, run_campaign  # noqa: E402
 
 
 def _line(what: str, n: int, result, serial_s: float | None = None) -> str:

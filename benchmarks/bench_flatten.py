@@ -28,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def _config(rows: int, cols: int):
-    from scanqa.config import ScannerConfig, load_config
+    from scanqa.model.config import ScannerConfig, load_config
 
     base = load_config(ROOT / "calib" / "paper_scanner.toml", profile="f11")
     cfg = ScannerConfig(replace(base.camera, width_px=cols, height_px=rows), base.projector,
@@ -55,7 +55,7 @@ def _pinhole(cfg):
 
 def _tilted_xp(cfg) -> np.ndarray:
     """x_p of the flat Z = 450 + 0.25 X (about 435-465 mm over the field) [px]."""
-    from scanqa import optics
+    from scanqa.model import optics
 
     cam = cfg.camera
     v, u = np.indices((cam.height_px, cam.width_px), dtype=float)
@@ -72,7 +72,7 @@ def main() -> None:
     from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
     from scanqa.decoding.decoder import decode_images
     from scanqa.decoding.patternset import synthesize_images
-    from scanqa.flattening import flatten
+    from scanqa.runs.flattening import flatten
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=2048)

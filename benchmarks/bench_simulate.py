@@ -29,7 +29,7 @@ TARGETS = {"640": "target < 15 s", "2448": "target <= 60 s, <= 2.5 GB"}
 
 
 def _config(width: int, height: int):
-    from scanqa.config import CameraConfig, ScannerConfig, load_config
+    from scanqa.model.config import CameraConfig, ScannerConfig, load_config
 
     base = load_config(ROOT / "calib" / "paper_scanner.toml")
     scale = base.camera.width_px / width

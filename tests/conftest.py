@@ -6,7 +6,7 @@ from pathlib import Path
 
 import pytest
 
-from scanqa.config import ScannerConfig, load_config
+from scanqa.model.config import ScannerConfig, load_config
 
 ROOT = Path(__file__).resolve().parents[1]
 PAPER_CONFIG = ROOT / "calib" / "paper_scanner.toml"

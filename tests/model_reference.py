@@ -1,6 +1,6 @@
 """An independent scalar version of the defocus model (Eqs. 1-19 of Drouin et al. 2017).
 
-:func:`reference_point` re-derives every quantity of :func:`scanqa.optics.predict` for one
+:func:`reference_point` re-derives every quantity of :func:`scanqa.model.optics.predict` for one
 point with the `math` module only: J1 from its power series (Abramowitz & Stegun 9.1.10)
 instead of scipy, the projector axis and principal distance by hand from the pose and
 Eq. 3 instead of the config's properties, and the triangulation scale from the angle of

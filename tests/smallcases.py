@@ -16,12 +16,12 @@ import numpy as np
 
 from scanqa.calibration.build import build_table
 from scanqa.calibration.table import save_table
-from scanqa.config import ScannerConfig, load_config
 from scanqa.decoding.phasemap import PhaseMap, save_phase_map
 from scanqa.io.cloud import write_cloud
 from scanqa.io.images import read_image
 from scanqa.io.ply import write_ply
 from scanqa.io.tomlfile import dumps_toml, tomllib
+from scanqa.model.config import ScannerConfig, load_config
 
 from .synth_sweep import plane_truth, small_camera, sweep
 

@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 
 from scanqa.calibration.parametric import Lens, ParametricCalibration
-from scanqa.config import ScannerConfig
 from scanqa.decoding.phasemap import PhaseMap
+from scanqa.model.config import ScannerConfig
 
 #: Camera distortion k1 k2 p1 p2 k3: ~5 px at the corners of a 400 x 300 px image.
 CAMERA_DISTORTION = np.array([-0.12, 0.05, 4e-4, -3e-4, 0.01])

@@ -11,9 +11,9 @@ from dataclasses import replace
 
 import numpy as np
 
-from scanqa import optics
 from scanqa.calibration.build import PlaneObservation
-from scanqa.config import ScannerConfig
+from scanqa.model import optics
+from scanqa.model.config import ScannerConfig
 
 
 def small_camera(config: ScannerConfig, width: int = 192, height: int = 128) -> ScannerConfig:

@@ -10,8 +10,6 @@ import subprocess
 import numpy as np
 import pytest
 
-from scanqa import optics
-from scanqa.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 from scanqa.calibration.build import build_table
 from scanqa.calibration.table import save_table
 from scanqa.cli import main
@@ -19,6 +17,8 @@ from scanqa.decoding.phasemap import PhaseMap, save_phase_map
 from scanqa.errors import InputError
 from scanqa.io.cloud import read_cloud
 from scanqa.io.ply import RESERVED_SUBSTRINGS, check_attribute_name
+from scanqa.model import optics
+from scanqa.runs.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
 from .conftest import PAPER_CONFIG
 from .synth_sweep import plane_truth, small_camera, sweep
@@ -254,7 +254,7 @@ def test_bad_inputs(cfg, table, tmp_path, capsys):
     moved = cfg.replace_model()  # same model; change the projector pose instead
     from dataclasses import replace
 
-    from scanqa.config import ScannerConfig
+    from scanqa.model.config import ScannerConfig
 
     proj = replace(moved.projector, position_mm=(150.0, 0.0, 0.0))
     wrong = ScannerConfig(cfg.camera, proj, cfg.fringes, cfg.model, source="wrong.toml")

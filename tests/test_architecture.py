@@ -16,17 +16,18 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
 LAYERS = {
     "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.progress": 0, "scanqa._version": 0,
     "scanqa.io": 1,
-    "scanqa.config": 2, "scanqa.cloud": 2, "scanqa.provenance": 2,
-    "scanqa.optics": 3,
-    "scanqa.decoding": 4, "scanqa.design": 4, "scanqa.noisefit": 4, "scanqa.rig": 4,
-    "scanqa.filterbank": 4, "scanqa.flattening": 6,
-    "scanqa.calibration": 5, "scanqa.optimisation": 5,
-    "scanqa.annotation": 6, "scanqa.characterization": 6, "scanqa.qa": 6,
-    "scanqa.boardnoise": 6, "scanqa.compare": 6,
+    "scanqa.model.config": 2, "scanqa.model.cloud": 2, "scanqa.provenance": 2,
+    "scanqa.model.optics": 3,
+    "scanqa.decoding": 4, "scanqa.model.design": 4, "scanqa.model.noisefit": 4,
+    "scanqa.model.rig": 4,
+    "scanqa.runs.filterbank": 4, "scanqa.runs.flattening": 6,
+    "scanqa.calibration": 5, "scanqa.runs.optimisation": 5,
+    "scanqa.runs.annotation": 6, "scanqa.model.characterization": 6, "scanqa.qa": 6,
+    "scanqa.runs.boardnoise": 6, "scanqa.qa.compare": 6,
     "scanqa.simulator": 6,
     "scanqa.report": 7,
-    "scanqa.demo": 8, "scanqa.batch": 8, "scanqa.cluster": 8, "scanqa.campaign": 8,
-    "scanqa.designapp": 8,
+    "scanqa.runs.demo": 8, "scanqa.runs.batch": 8, "scanqa.cluster": 8, "scanqa.runs.campaign": 8,
+    "scanqa.runs.designapp": 8,
     "scanqa": 8,
     "scanqa.cli": 9, "scanqa.__main__": 9,
 }
@@ -121,11 +122,13 @@ def test_the_test_can_see_a_cycle_and_an_upward_import(tmp_path, monkeypatch):
     (pkg / "io").mkdir(parents=True)
     (pkg / "__init__.py").write_text("")
     (pkg / "io" / "__init__.py").write_text("")
-    (pkg / "io" / "a.py").write_text("from scanqa.optics import x\n")
-    (pkg / "optics.py").write_text("from scanqa.io import a\n")
+    (pkg / "io" / "a.py").write_text("from scanqa.model.optics import x\n")
+    (pkg / "model").mkdir()
+    (pkg / "model" / "__init__.py").write_text("")
+    (pkg / "model" / "optics.py").write_text("from scanqa.io import a\n")
     monkeypatch.setattr(sys.modules[__name__], "SRC", pkg)
     deps = graph()
-    assert ("scanqa.optics", 1, ("x",)) in deps["scanqa.io.a"]
+    assert ("scanqa.model.optics", 1, ("x",)) in deps["scanqa.io.a"]
     with pytest.raises(AssertionError, match="layer 1 -> 3"):
         test_no_import_runs_upwards()
     with pytest.raises(pytest.fail.Exception, match="import cycle"):

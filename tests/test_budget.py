@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from scanqa.cli import main
-from scanqa.cloud import AnnotatedCloud
 from scanqa.errors import InputError
 from scanqa.io.cloud import write_cloud
+from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.blocks import MAX_FLAGGED_FRACTION, run_qa
 from scanqa.qa.budget import coverage_factor, load_budget, welch_satterthwaite
 

@@ -8,8 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 
-from scanqa.annotation import annotate
 from scanqa.calibration.uncertainty import pack, unpack
+from scanqa.runs.annotation import annotate
 from tests.synth_parametric import (
     camera_rays,
     layout_scene,

@@ -1,4 +1,5 @@
-"""Tests of scanqa.characterization on small simulated sweeps (closed loop with known optics)."""
+"""Tests of scanqa.model.characterization on small simulated sweeps (closed loop with known
+optics)."""
 
 from __future__ import annotations
 
@@ -7,16 +8,16 @@ import json
 import numpy as np
 import pytest
 
-from scanqa import optics
-from scanqa.characterization import (
+from scanqa.cli import main
+from scanqa.errors import InputError
+from scanqa.model import optics
+from scanqa.model.characterization import (
     JointCharacterization,
     characterize_sweep,
     characterize_sweeps,
     measured_dof,
 )
-from scanqa.cli import main
-from scanqa.errors import InputError
-from scanqa.noisefit import JOINT_VARIANTS, SINGLE_SWEEP_VARIANTS
+from scanqa.model.noisefit import JOINT_VARIANTS, SINGLE_SWEEP_VARIANTS
 from scanqa.report.characterization import write_characterization
 from scanqa.simulator.experiments import run_experiment
 

@@ -12,10 +12,10 @@ from numpy.testing import assert_allclose
 
 from scanqa.calibration.parametric import check_config, load_opencv_calibration
 from scanqa.cli import main
-from scanqa.cloud import read_cloud
-from scanqa.config import load_config
 from scanqa.decoding.phasemap import save_phase_map
 from scanqa.errors import ConfigError
+from scanqa.model.cloud import read_cloud
+from scanqa.model.config import load_config
 from scanqa.qa.layout import load_layout
 from tests.conftest import ROOT
 from tests.synth_parametric import (

@@ -12,10 +12,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanqa.annotation import annotate
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.io.las import grey_levels, top_level
 from scanqa.io.ply import DISPLAY_COMMENT, read_ply, write_ply
+from scanqa.runs.annotation import annotate
 
 from .synth_sweep import plane_truth
 from .test_annotate import H, W, _cloudcompare_asc, cfg, table  # noqa: F401 - fixtures

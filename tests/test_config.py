@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from scanqa.config import ScannerConfig, config_from_dict, load_config
 from scanqa.errors import ConfigError
+from scanqa.model.config import ScannerConfig, config_from_dict, load_config
 
 from .conftest import PAPER_CONFIG
 

@@ -8,7 +8,7 @@ import json
 import pytest
 
 from scanqa.cli import build_parser, main
-from scanqa.config import load_config
+from scanqa.model.config import load_config
 
 from .conftest import ROOT
 
@@ -143,7 +143,7 @@ def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     wrote: a real --full run takes about 40 minutes)."""
     import shutil
 
-    from scanqa import demo
+    from scanqa.runs import demo
     from scanqa.simulator import experiments
 
     calls = []
@@ -184,7 +184,7 @@ def test_demo_runs_a_sphere_test_beside_the_blocks(demo_out):
 def test_demo_characterises_the_calibration_sweep_without_device_sweeps(tmp_path):
     """Issue 15: a rigid scanner's data set has no camera or projector sweep; the demo
     then characterises from the sweep it calibrates with."""
-    from scanqa.demo import check_data
+    from scanqa.runs.demo import check_data
 
     for name in ("calibration_sweep", "gauge_blocks"):
         (tmp_path / name).symlink_to(ROOT / "sample_data" / name)

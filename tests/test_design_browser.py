@@ -19,8 +19,8 @@ import threading
 
 import pytest
 
-from scanqa import designapp
 from scanqa.cli import main
+from scanqa.runs import designapp
 
 from .conftest import PAPER_CONFIG
 

@@ -12,9 +12,10 @@ import json
 import numpy as np
 import pytest
 
-from scanqa import design, optics, optimisation
 from scanqa.cli import main
 from scanqa.errors import InputError
+from scanqa.model import design, optics
+from scanqa.runs import optimisation
 
 from .conftest import PAPER_CONFIG
 
@@ -124,7 +125,7 @@ def test_box_samples_hold_the_corners():
 
 
 def test_cli_opens_the_best_configuration_in_the_page(capsys, monkeypatch, spec_path):
-    from scanqa import designapp
+    from scanqa.runs import designapp
 
     served = []
 

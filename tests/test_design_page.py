@@ -14,9 +14,10 @@ import urllib.request
 
 import pytest
 
-from scanqa import designapp, rig
 from scanqa.cli import main
 from scanqa.errors import InputError
+from scanqa.model import rig
+from scanqa.runs import designapp
 
 from .conftest import PAPER_CONFIG
 

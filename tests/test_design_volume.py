@@ -1,8 +1,8 @@
 """The usable volume (Sect. 5.1, Fig. 6) against a voxel-by-voxel evaluation.
 
-:func:`scanqa.design.usable_volume` evaluates the model once per distinct (Z_c, Z_p) pair
+:func:`scanqa.model.design.usable_volume` evaluates the model once per distinct (Z_c, Z_p) pair
 and broadcasts the frusta tests; the reference here stacks every voxel centre, projects
-it with the pinhole camera and projector and calls :func:`scanqa.optics.predict` on each,
+it with the pinhole camera and projector and calls :func:`scanqa.model.optics.predict` on each,
 as the function did before it was made fast enough for the design page.
 """
 
@@ -13,8 +13,8 @@ import dataclasses
 import numpy as np
 import pytest
 
-from scanqa import design, optics
 from scanqa.errors import RangeError
+from scanqa.model import design, optics
 
 
 def reference_counts(config, level, step, coc_max=None):

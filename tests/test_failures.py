@@ -118,8 +118,8 @@ def test_read_only_filesystem(inputs, tmp_path, capsys, monkeypatch):
 def test_demo_and_characterize_publish_together_or_not_at_all(tmp_path, capsys, monkeypatch):
     """A failure in the demo's third stage, after the characterisation was written (or in
     characterize's plots, after its summary), leaves no folder."""
-    from scanqa import demo
     from scanqa.report import characterization as report
+    from scanqa.runs import demo
 
     def fail(*args, **kwargs):
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
@@ -546,7 +546,7 @@ def test_characterize_uses_or_checks_the_manifest_config(tmp_path, capsys):
     assert main(["characterize", str(SAMPLE / "camera_sweep"), "--out", str(tmp_path / "b"),
                  "-q"]) == 0
     best = json.loads((tmp_path / "b" / "summary.json").read_text())["best_variant"]
-    from scanqa.config import load_config
+    from scanqa.model.config import load_config
 
     profile = load_config(SAMPLE / "sample_scanner.toml", profile="sample").model
     assert best["noise_reading"] == profile.noise_reading

@@ -25,14 +25,14 @@ import trimesh
 from scipy.optimize import curve_fit
 from scipy.special import erf, j1
 
-from scanqa import design
 from scanqa.calibration.build import build_table
 from scanqa.calibration.parametric import Lens, ParametricCalibration
-from scanqa.config import ScannerConfig, load_config
 from scanqa.decoding.decoder import decode_images
 from scanqa.errors import InputError
-from scanqa.filterbank import FilterBank, default_bank, disc_kernel
-from scanqa.flattening import flatten, pixel_noise, plan
+from scanqa.model import design
+from scanqa.model.config import ScannerConfig, load_config
+from scanqa.runs.filterbank import FilterBank, default_bank, disc_kernel
+from scanqa.runs.flattening import flatten, pixel_noise, plan
 from tests.conftest import ROOT
 from tests.synth_sweep import sweep
 
@@ -156,7 +156,7 @@ def test_bad_target_and_gray_only_scans_are_refused(rig):
                   mask=np.zeros((W, W), np.uint8), sigma_xp=np.full((W, W), 0.01),
                   period_px=5.0, projector_width_px=1280)
     noise = pixel_noise(pm, cal, cfg)
-    with pytest.raises(InputError, match="--target-um must be a sigma > 0"):
+    with pytest.raises(InputError, match="target must be a sigma > 0"):
         plan(noise, cfg, -1.0)
     gray_only = SimpleNamespace(phase_sets=(), source="gray/patterns.toml")
     with pytest.raises(InputError, match="has no phase set"):

@@ -4,7 +4,7 @@ decoder's image estimate (calib/slstudio_example.toml has no characterisation).
 
 Board poses calseq1..6 (321-403 mm): flattened to one common target, the lowest sigma the
 six scans allow. Measured: each pose's random scatter about its plane per square
-(:func:`scanqa.boardnoise.pose_residual`, independent of the flattening code), bright and
+(:func:`scanqa.runs.boardnoise.pose_residual`, independent of the flattening code), bright and
 dark squares apart, against the flattened per-pixel prediction. Nothing is tuned on these
 captures.
 """
@@ -17,14 +17,14 @@ import math
 import numpy as np
 import pytest
 
-from scanqa import boardnoise
 from scanqa.calibration.parametric import load_opencv_calibration
 from scanqa.cli import main
-from scanqa.cloud import read_cloud
-from scanqa.config import load_config
 from scanqa.decoding.decoder import decode_images, load_pattern_dir
-from scanqa.flattening import flatten, pixel_noise, plan
 from scanqa.io.patterns import dumps_patterns
+from scanqa.model.cloud import read_cloud
+from scanqa.model.config import load_config
+from scanqa.runs import boardnoise
+from scanqa.runs.flattening import flatten, pixel_noise, plan
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 

@@ -9,15 +9,15 @@ import json
 import numpy as np
 import pytest
 
-from scanqa import boardnoise
-from scanqa.annotation import annotate
 from scanqa.calibration.parametric import ParametricCalibration
-from scanqa.characterization import apply_fitted_model
 from scanqa.cli import main
-from scanqa.config import load_config
 from scanqa.decoding.decoder import decode
 from scanqa.decoding.imagenoise import phase_sigma_px
 from scanqa.errors import InputError
+from scanqa.model.characterization import apply_fitted_model
+from scanqa.model.config import load_config
+from scanqa.runs import boardnoise
+from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 
 SAMPLE = ROOT / "sample_data"

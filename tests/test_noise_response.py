@@ -205,7 +205,7 @@ def test_a_response_without_the_finest_set_is_refused(tmp_path):
 def test_simulated_projector_gamma_is_corrected_in_closed_loop():
     """Simulated: a gamma 2.2 projector, measured on a plane at 450 mm, checked on one at
     446 mm (another scan, another noise stream) against the simulator's truth."""
-    from scanqa.config import load_config
+    from scanqa.model.config import load_config
     from scanqa.simulator import experiments, render, scene
     from tests.conftest import ROOT
 

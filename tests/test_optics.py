@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import j1
 
-from scanqa import design, optics
+from scanqa.model import design, optics
 
 from .model_reference import reference_point
 

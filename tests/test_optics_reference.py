@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanqa import optics
+from scanqa.model import optics
 
 from .model_reference import FLOORS, FORMS, READINGS, attenuation, reference_point
 

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanqa import design
+from scanqa.model import design
 
 LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81, 0.90)
 TABLE1_PREDICTED = {  # Table 1, camera depth of field [mm]

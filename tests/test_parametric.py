@@ -13,8 +13,6 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
-from scanqa import optics
-from scanqa.annotation import annotate
 from scanqa.calibration.base import Calibration, load_calibration
 from scanqa.calibration.build import build_table
 from scanqa.calibration.parametric import (
@@ -25,8 +23,10 @@ from scanqa.calibration.parametric import (
 )
 from scanqa.errors import InputError
 from scanqa.io.opencv import OpenCVCalibration
+from scanqa.model import optics
 from scanqa.qa.blocks import run_qa
 from scanqa.qa.layout import load_layout
+from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 from tests.synth_parametric import (

@@ -12,10 +12,10 @@ import pytest
 from numpy.testing import assert_allclose
 
 from scanqa.cli import main
-from scanqa.cloud import AnnotatedCloud
 from scanqa.errors import InputError
 from scanqa.io.cloud import write_cloud
 from scanqa.io.spec import BallBarCertificate, FlatCertificate, Mpe, Spec, SphereCertificate
+from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.artefacts import (
     ArtefactLayout,
     ArtefactSpec,

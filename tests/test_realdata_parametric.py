@@ -33,11 +33,11 @@ from PIL import Image
 from scipy.io import loadmat
 from scipy.ndimage import map_coordinates
 
-from scanqa.annotation import annotate
 from scanqa.calibration.parametric import load_opencv_calibration
-from scanqa.config import load_config
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
+from scanqa.model.config import load_config
+from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 from tests.synth_parametric import phase_map

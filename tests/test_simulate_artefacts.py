@@ -12,11 +12,11 @@ import pytest
 import trimesh
 
 from scanqa.cli import main
-from scanqa.config import load_config
 from scanqa.errors import InputError
 from scanqa.io.artefacts import read_artefact_layout
 from scanqa.io.spec import read_spec
 from scanqa.io.tomlfile import read_toml
+from scanqa.model.config import load_config
 from scanqa.simulator import scene
 from scanqa.simulator.experiments import artefact_geometry
 

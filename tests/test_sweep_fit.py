@@ -12,7 +12,7 @@ import pytest
 
 from scanqa.calibration.sweep_fit import fit_sweep_geometry, pixel_locking
 from scanqa.calibration.target import Detection
-from scanqa.config import load_config
+from scanqa.model.config import load_config
 from scanqa.simulator import devices
 
 from .test_target import REALISM as BASE

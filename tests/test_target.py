@@ -17,9 +17,9 @@ from scanqa.calibration.sweep import calibrate, check_scale, check_sweep
 from scanqa.calibration.sweep_fit import fit_sweep_geometry
 from scanqa.calibration.target import ChessboardSpec, Detection, detect_chessboard
 from scanqa.cli import main
-from scanqa.config import load_config
 from scanqa.errors import InputError
 from scanqa.io.sweep import load_sweep, read_stage_readings
+from scanqa.model.config import load_config
 from scanqa.simulator import devices, render, texture
 from scanqa.simulator.experiments import acquisition, build_positions
 

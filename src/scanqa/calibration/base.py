@@ -8,7 +8,7 @@ Two calibrations turn decoded phase into metric points:
   projector with lens distortion from an OpenCV calibration (``.xml``, ``.yml``,
   ``.yaml``, ``.json``, :func:`~scanqa.calibration.parametric.load_opencv_calibration`).
 
-Both satisfy :class:`Calibration`; :func:`scanqa.annotation.annotate` accepts either.
+Both satisfy :class:`Calibration`; :func:`scanqa.runs.annotation.annotate` accepts either.
 """
 
 from __future__ import annotations
@@ -22,10 +22,10 @@ import numpy as np
 from scanqa.calibration.lookup import TableLookup
 from scanqa.calibration.parametric import load_opencv_calibration
 from scanqa.calibration.table import load_table
-from scanqa.config import ScannerConfig
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.opencv import is_opencv_file
+from scanqa.model.config import ScannerConfig
 
 
 @runtime_checkable

@@ -284,8 +284,8 @@ def _board_in(image: np.ndarray, board: Board | float, where: Path) -> Board:
     if isinstance(board, Board):
         if grid is not None and grid != (board.rows, board.columns):
             raise InputError(f"{where}: the frames show a chessboard of {grid[0]} x "
-                             f"{grid[1]} inner corners, --board says {board.rows} x "
-                             f"{board.columns}: fix --board or leave it out")
+                             f"{grid[1]} inner corners, the board given says {board.rows} x "
+                             f"{board.columns}: fix the board's corner count or leave it out")
         return board
     if grid is None:
         raise InputError(f"{where}: no chessboard found in the frames (check that the "

@@ -37,7 +37,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa import optics
 from scanqa._version import __version__
 from scanqa.calibration.node_model import (
     MIN_PHASE_CHANGE_PX,  # noqa: F401 (importable from here)
@@ -52,8 +51,9 @@ from scanqa.calibration.node_model import (
 from scanqa.calibration.shear import eval_shear, fit_shear
 from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
-from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
+from scanqa.model import optics
+from scanqa.model.config import ScannerConfig
 from scanqa.progress import Progress
 
 log = logging.getLogger(__name__)

@@ -60,10 +60,10 @@ from scanqa.calibration.parametric_checks import (  # noqa: F401 (importable fro
 )
 from scanqa.calibration.uncertainty import calibration_sigma_mm
 from scanqa.chunks import row_bands, run_bands
-from scanqa.config import ScannerConfig
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.opencv import OpenCVCalibration, read_opencv_calibration
+from scanqa.model.config import ScannerConfig
 
 #: Convergence of the projector Newton iteration: |x_p(Q) - x_p| [projector px].
 TOLERANCE_PX = 1e-9

@@ -10,9 +10,9 @@ import math
 
 import numpy as np
 
-from scanqa.config import ScannerConfig
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
+from scanqa.model.config import ScannerConfig
 
 #: A config's projector position may differ from the calibration's by this much [mm].
 POSITION_TOLERANCE_MM = 1.0

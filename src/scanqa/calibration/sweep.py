@@ -21,17 +21,17 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa import optics
 from scanqa.calibration.build import BuildReport, PlaneObservation, build_table, check_camera_size
 from scanqa.calibration.sweep_fit import SweepGeometry, fit_sweep_geometry
 from scanqa.calibration.table import CalibrationTable
 from scanqa.calibration.target import ChessboardSpec, detect_chessboard
-from scanqa.config import ScannerConfig, first_difference
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.images import read_image
 from scanqa.io.sweep import SCANNER_FIELDS, Sweep, load_sweep, read_lateral
 from scanqa.io.tomlfile import read_toml
+from scanqa.model import optics
+from scanqa.model.config import ScannerConfig, first_difference
 
 __all__ = ["Sweep", "calibrate", "check_sweep", "iter_observations", "load_sweep",
            "marker_geometry"]

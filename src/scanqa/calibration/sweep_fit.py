@@ -31,8 +31,8 @@ import numpy as np
 
 from scanqa.calibration.parametric import Lens
 from scanqa.calibration.target import Detection
-from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
+from scanqa.model.config import ScannerConfig
 
 #: Half-width of the 95 % profile interval within which the sweep must pin the principal
 #: point for it to count as fitted [px] (else it is held at the sensor centre).

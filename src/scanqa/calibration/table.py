@@ -20,10 +20,10 @@ import numpy as np
 from scanqa.calibration import lookup
 from scanqa.calibration.lookup import TableLookup
 from scanqa.calibration.shear import N_TERMS as SHEAR_TERMS
-from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io import table as table_file
+from scanqa.model.config import ScannerConfig, config_from_dict
 
 #: Version of the table file this scanqa writes and reads.
 TABLE_FORMAT = table_file.FORMAT

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import argparse
 
-from scanqa.annotation import annotate
 from scanqa.cli.common import (
     add_calibration_argument,
     add_config_argument,
@@ -25,6 +24,7 @@ from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
 from scanqa.io.cloud import WRITERS, check_format
+from scanqa.runs.annotation import annotate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -67,7 +67,7 @@ def run(args: argparse.Namespace) -> int:
     repeats = [_scan(args, r) for r in args.repeats]
     cloud = annotate(scan, calibration, config, repeats, args.keep_invalid, source=args.scan)
     if "flatten" in scan.provenance:
-        from scanqa.flattening import flattened_attributes
+        from scanqa.runs.flattening import flattened_attributes
 
         cloud = cloud.with_attributes(**flattened_attributes(cloud.attributes, cloud.xyz,
                                                              scan, config))

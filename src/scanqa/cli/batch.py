@@ -117,8 +117,8 @@ def _finish(result, out: str) -> int:
 
 
 def run_batch(args: argparse.Namespace) -> int:
-    from scanqa.batch import BatchSettings, prepare, resolve_scans
-    from scanqa.batch import run_batch as run
+    from scanqa.runs.batch import BatchSettings, prepare, resolve_scans
+    from scanqa.runs.batch import run_batch as run
 
     if args.depth_range_mm is not None and len(args.depth_range_mm) != 2:
         raise InputError(f"--depth-range-mm takes NEAR,FAR [mm], got {args.depth_range_mm}")
@@ -134,8 +134,8 @@ def run_batch(args: argparse.Namespace) -> int:
 
 
 def run_campaign(args: argparse.Namespace) -> int:
-    from scanqa.campaign import load_campaign
-    from scanqa.campaign import run_campaign as run
+    from scanqa.runs.campaign import load_campaign
+    from scanqa.runs.campaign import run_campaign as run
 
     campaign = load_campaign(args.campaign, args.out, seed=args.seed)
     return _finish(run(campaign, _options(args)), args.out)

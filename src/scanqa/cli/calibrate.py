@@ -130,8 +130,13 @@ def run_board(args: argparse.Namespace) -> int:
     board = (args.square_mm if args.board is None
              else Board(args.board[0], args.board[1], args.square_mm))
     reference = read_opencv_calibration(args.reference) if args.reference else None
-    result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns), board,
-                             args.lens_model, args.hold_out, reference, progress=log.info)
+    try:
+        result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns),
+                                 board, args.lens_model, args.hold_out, reference,
+                                 progress=log.info)
+    except InputError as err:   # the library speaks of the board given; the CLI of --board
+        raise InputError(str(err).replace("the board given", "--board").replace(
+            "the board's corner count", "--board")) from None
     stem = out.with_suffix("").name
     with staged_dir(out.parent) as stage:
         write_opencv_calibration(stage / out.name, result.data)

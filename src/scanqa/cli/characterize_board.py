@@ -1,6 +1,6 @@
 """``scanqa characterize-board`` and ``characterize-repeats``: a real scanner's noise
 from its calibration board's poses, or from repeated captures of one pose (parsing
-only; :mod:`scanqa.boardnoise`)."""
+only; :mod:`scanqa.runs.boardnoise`)."""
 
 from __future__ import annotations
 
@@ -65,9 +65,9 @@ def _board(text: str) -> tuple[int, int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from scanqa.boardnoise import characterize_board, digest
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
+    from scanqa.runs.boardnoise import characterize_board, digest
 
     inner = _board(args.board)
     config = config_from_args(args)
@@ -95,9 +95,9 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_repeats(args: argparse.Namespace) -> int:
-    from scanqa.boardnoise import characterize_repeats, digest
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
+    from scanqa.runs.boardnoise import characterize_repeats, digest
 
     scans = [decode(s) for s in args.scans]
     shapes = {s.xp.shape for s in scans}

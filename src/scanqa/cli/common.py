@@ -14,10 +14,10 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 
 from scanqa.calibration.base import Calibration, load_calibration
-from scanqa.config import ScannerConfig, load_config
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError, OutputError
 from scanqa.io.atomic import check_out_dir
+from scanqa.model.config import ScannerConfig, load_config
 
 
 def verbosity_parent() -> argparse.ArgumentParser:
@@ -76,7 +76,7 @@ def warn(text: str) -> None:
 
 def warn_sigma(clouds) -> None:
     """Warn once per distinct message about clouds whose sigmas are not characterised
-    (:attr:`scanqa.cloud.AnnotatedCloud.sigma_warning`)."""
+    (:attr:`scanqa.model.cloud.AnnotatedCloud.sigma_warning`)."""
     for text in dict.fromkeys(c.sigma_warning for c in clouds if c.sigma_warning):
         warn(text)
 
@@ -120,7 +120,7 @@ def config_from_args(args: argparse.Namespace) -> ScannerConfig:
     """Load the config named by ``--config``/``--profile`` (and ``--model`` if given)."""
     config = load_config(args.config, profile=args.profile)
     if getattr(args, "model", None):
-        from scanqa.characterization import apply_fitted_model
+        from scanqa.model.characterization import apply_fitted_model
 
         config = apply_fitted_model(config, args.model)
     return config

@@ -1,5 +1,5 @@
 """``scanqa compare``: an annotated cloud against a reference cloud or mesh (parsing only;
-:mod:`scanqa.compare`)."""
+:mod:`scanqa.qa.compare`)."""
 
 from __future__ import annotations
 
@@ -41,21 +41,24 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from scanqa.cloud import read_cloud
-    from scanqa.compare import compare_to_cloud, compare_to_mesh
+    from scanqa.model.cloud import read_cloud
+    from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
     from scanqa.report.compare import write_outputs
 
     cloud = read_cloud(args.cloud)
     warn_sigma([cloud])
     tol = None if args.tolerance_um is None else 1e-3 * args.tolerance_um
     ref_sigma = 1e-3 * args.reference_sigma_um
-    if Path(args.reference).suffix.lower() in MESH_SUFFIXES:
-        result = compare_to_mesh(cloud, _mesh(args.reference), args.k, ref_sigma,
-                                 args.max_distance_mm, tol, name=args.reference)
-    else:
-        result = compare_to_cloud(cloud, read_cloud(args.reference), args.k,
-                                  args.neighbours, ref_sigma, args.max_distance_mm,
-                                  tolerance_mm=tol, name=args.reference)
+    try:
+        if Path(args.reference).suffix.lower() in MESH_SUFFIXES:
+            result = compare_to_mesh(cloud, _mesh(args.reference), args.k, ref_sigma,
+                                     args.max_distance_mm, tol, name=args.reference)
+        else:
+            result = compare_to_cloud(cloud, read_cloud(args.reference), args.k,
+                                      args.neighbours, ref_sigma, args.max_distance_mm,
+                                      tolerance_mm=tol, name=args.reference)
+    except InputError as err:   # the library names its parameter; the CLI names the flag
+        raise InputError(str(err).replace("max_distance_mm", "--max-distance-mm")) from None
     info = write_outputs(result, args.out)
     emit(f"{info['compared']} of {info['points']} points compared: median deviation "
          f"{info['median_deviation_um']:.1f} um, RMS {info['rms_deviation_um']:.1f} um, "

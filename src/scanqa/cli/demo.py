@@ -6,9 +6,9 @@ import argparse
 import time
 
 from scanqa.cli.common import emit
-from scanqa.config import load_config
-from scanqa.demo import run_demo, summary_lines
+from scanqa.model.config import load_config
 from scanqa.report.characterization import characterization_lines
+from scanqa.runs.demo import run_demo, summary_lines
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -8,7 +8,6 @@ import json
 
 import numpy as np
 
-from scanqa import design
 from scanqa.cli.common import (
     add_config_argument,
     add_output_arguments,
@@ -19,6 +18,7 @@ from scanqa.cli.common import (
     number,
     output_path,
 )
+from scanqa.model import design
 from scanqa.report import design as plots
 
 _FMT = argparse.RawDescriptionHelpFormatter
@@ -199,7 +199,7 @@ def run_flatten(args: argparse.Namespace) -> int:
 
 
 def run_page(args: argparse.Namespace) -> int:
-    from scanqa import designapp  # plotly only when the page is served
+    from scanqa.runs import designapp  # plotly only when the page is served
 
     server = designapp.make_server(config_from_args(args), args.host, args.port,
                                    args.level, args.coc_max)
@@ -224,9 +224,10 @@ def _serve(server, host: str, open_browser: bool) -> int:
 
 
 def run_optimise(args: argparse.Namespace) -> int:
-    from scanqa import optimisation, rig
     from scanqa.io.atomic import write_text
     from scanqa.io.tomlfile import dumps_toml
+    from scanqa.model import rig
+    from scanqa.runs import optimisation
 
     config = config_from_args(args)
     spec = optimisation.load_spec(args.spec)
@@ -247,7 +248,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     else:
         emit(format_rows([row], False, args.csv))
     if args.open:
-        from scanqa import designapp
+        from scanqa.runs import designapp
 
         server = designapp.make_server(best, "127.0.0.1", args.port, spec.level)
         return _serve(server, "127.0.0.1", open_browser=False)

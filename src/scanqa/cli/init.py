@@ -10,7 +10,7 @@ from scanqa.calibration.parametric import load_opencv_calibration
 from scanqa.cli.common import emit, float_list
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, write_text
-from scanqa.onboarding import placeholders, scanner_config_text
+from scanqa.runs.onboarding import placeholders, scanner_config_text
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -7,7 +7,6 @@ import argparse
 import math
 from pathlib import Path
 
-from scanqa.annotation import annotate
 from scanqa.cli.common import (
     add_calibration_argument,
     add_config_argument,
@@ -18,13 +17,13 @@ from scanqa.cli.common import (
     number,
     warn_sigma,
 )
-from scanqa.cloud import AnnotatedCloud, read_cloud
-from scanqa.config import ScannerConfig
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io.artefacts import FORMAT as ARTEFACT_FORMAT
 from scanqa.io.artefacts import layout_format
 from scanqa.io.spec import read_spec
+from scanqa.model.cloud import AnnotatedCloud, read_cloud
+from scanqa.model.config import ScannerConfig
 from scanqa.provenance import build_header, certificate_text, describe_paths
 from scanqa.qa.artefacts import Options, auto_layout, load_artefact_layout, run_artefact_qa
 from scanqa.qa.blocks import run_qa
@@ -34,6 +33,7 @@ from scanqa.qa.layout import load_layout
 from scanqa.qa.verdict import EXIT_STATUS
 from scanqa.report import artefacts as artefact_report
 from scanqa.report import qa as qa_report
+from scanqa.runs.annotation import annotate
 
 _EPILOG = """examples:
   scanqa qa cloud.ply --layout calib/gauge_blocks_paper.toml --out qa/

@@ -104,7 +104,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.characterization import characterize_sweeps, sweep_config, sweep_folder
+    from scanqa.model.characterization import characterize_sweeps, sweep_config, sweep_folder
     from scanqa.report.characterization import characterization_lines, write_characterization
 
     config = config_from_args(args) if args.config else sweep_config(args.sweep[0])

@@ -71,10 +71,10 @@ import os
 
 import numpy as np
 
-from scanqa.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.errors import InputError
 from scanqa.io.artefacts import read_artefact_layout
 from scanqa.io.spec import Spec
+from scanqa.model.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.qa.ballbar import find_ball_bar
 from scanqa.qa.correlation import noise_correlation
 from scanqa.qa.planes import fit_plane, plane_design

@@ -49,11 +49,11 @@ import numbers
 
 import numpy as np
 
-from scanqa import design
-from scanqa.cloud import AnnotatedCloud, random_sigma_name
-from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
+from scanqa.model import design
+from scanqa.model.cloud import AnnotatedCloud, random_sigma_name
+from scanqa.model.config import ScannerConfig, config_from_dict
 from scanqa.qa.budget import Budget, Component, coverage_factor, type_b
 from scanqa.qa.correlation import MIN_TILES, TILE_MM, noise_correlation
 from scanqa.qa.layout import BlockSpec, Layout
@@ -264,7 +264,7 @@ def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
 
 def model_curve(blocks: list[BlockResult], config: ScannerConfig) -> dict | None:
     """The model's uncertainty curve on the camera axis over the blocks' depths, +- 5 mm
-    (:func:`scanqa.design.axis_curve`), or None when no block has points."""
+    (:func:`scanqa.model.design.axis_curve`), or None when no block has points."""
     zs = [b.mean_z_mm for b in blocks if math.isfinite(b.mean_z_mm)]
     return design.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25) if zs else None
 
@@ -272,7 +272,7 @@ def model_curve(blocks: list[BlockResult], config: ScannerConfig) -> dict | None
 def cloud_config(cloud: AnnotatedCloud, config: ScannerConfig | None, notes: list[str]
                  ) -> ScannerConfig | None:
     """The config whose model gave the cloud's sigmas: the one in the cloud's metadata
-    (written by :func:`scanqa.annotation.annotate`), else ``config``."""
+    (written by :func:`scanqa.runs.annotation.annotate`), else ``config``."""
     stored = cloud.metadata.get("config")
     if not stored:
         return config
@@ -377,7 +377,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     ----------
     cloud : AnnotatedCloud
         Points in the scanner frame [mm] with the attributes of
-        :func:`scanqa.annotation.annotate` (any may be missing).
+        :func:`scanqa.runs.annotation.annotate` (any may be missing).
     layout : Layout
         Blocks with nominal heights and regions.
     config : ScannerConfig, optional

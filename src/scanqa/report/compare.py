@@ -1,5 +1,5 @@
 """The comparison report: the statistics, a colour map of the deviations and of their
-significance, and a histogram (rendering only; :mod:`scanqa.compare` computes)."""
+significance, and a histogram (rendering only; :mod:`scanqa.qa.compare` computes)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.compare import Comparison
 from scanqa.io.atomic import staged_dir, write_text
+from scanqa.qa.compare import Comparison
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 

@@ -2,7 +2,7 @@
 
 It forms images from physics (ray casting, numerical defocus integration, noise before
 and after the camera blur, sensor) and never draws noise from the closed-form sigma of
-:mod:`scanqa.optics`; agreement with the model is a measured result
+:mod:`scanqa.model.optics`; agreement with the model is a measured result
 (``scanqa characterize``).
 
 Main entry points: :func:`run_experiment` (write an experiment folder),

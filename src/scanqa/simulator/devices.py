@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanqa.config import ScannerConfig
 from scanqa.errors import InputError
+from scanqa.model.config import ScannerConfig
 
 
 @dataclass(frozen=True)

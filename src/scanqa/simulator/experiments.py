@@ -47,7 +47,6 @@ from pathlib import Path
 import numpy as np
 
 from scanqa._version import __version__
-from scanqa.config import ScannerConfig
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 from scanqa.decoding.patternset import write_pattern_set
 from scanqa.errors import InputError
@@ -55,6 +54,7 @@ from scanqa.io.atomic import atomic_path, make_out_dir, staged_dir, write_text
 from scanqa.io.images import write_image
 from scanqa.io.sweep import scanner_table, target_table
 from scanqa.io.tomlfile import dumps_toml as dump_toml
+from scanqa.model.config import ScannerConfig
 from scanqa.progress import Progress
 from scanqa.simulator import devices, render, scene, texture
 from scanqa.simulator.render import Acquisition

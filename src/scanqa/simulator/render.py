@@ -37,9 +37,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanqa.chunks import row_bands, run_bands
-from scanqa.config import ScannerConfig
 from scanqa.decoding.coding import PatternDescription, PhaseSet
 from scanqa.errors import InputError
+from scanqa.model.config import ScannerConfig
 from scanqa.simulator import devices
 from scanqa.simulator.blur import BlurPlan, blur, blur_plan
 from scanqa.simulator.devices import Pose, Window

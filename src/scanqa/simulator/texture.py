@@ -26,7 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanqa.calibration.target import ChessboardSpec
-from scanqa.config import ScannerConfig
+from scanqa.model.config import ScannerConfig
 from scanqa.simulator import devices
 from scanqa.simulator.devices import Pose
 from scanqa.simulator.scene import Scene, flat_target

@@ -5,8 +5,8 @@ f-numbers, focus distances, baseline and convergence angle, fringe period, pixel
 the two thresholds) laid over a scanner config; :func:`rig_view` turns a config and the
 thresholds into everything the page draws - the view pyramids, the focus planes, the
 circle-of-confusion band, the total and usable volume, the W curve, the depth of field
-and the numbers - by the one model chain (:mod:`scanqa.design`, :mod:`scanqa.optics`).
-The usable volume is :func:`scanqa.design.usable_volume` at its default 1 mm voxels, so
+and the numbers - by the one model chain (:mod:`scanqa.model.design`, :mod:`scanqa.model.optics`).
+The usable volume is :func:`scanqa.model.design.usable_volume` at its default 1 mm voxels, so
 the page's number is ``scanqa volume``'s.
 
 References
@@ -25,9 +25,9 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
-from scanqa import design, optics
-from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import InputError
+from scanqa.model import design, optics
+from scanqa.model.config import ScannerConfig, config_from_dict
 
 
 @dataclass(frozen=True)

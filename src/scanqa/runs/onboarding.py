@@ -1,7 +1,7 @@
 """Files a new user would otherwise write by hand: a commented scanner config.
 
 :func:`scanner_config_text` writes the TOML that ``scanqa init`` saves: every key of
-:mod:`scanqa.config` with its unit and meaning in a comment, filled where the inputs
+:mod:`scanqa.model.config` with its unit and meaning in a comment, filled where the inputs
 allow and the placeholder ``"MEASURE"`` elsewhere (loading a config that still holds one
 fails with a message naming the key).
 
@@ -13,7 +13,7 @@ no roll about that axis, and needs none: the model uses only the depth Z_p along
 axis, and the triangulation comes from the calibration. Focal lengths in mm need the
 pixel pitch ([px] -> [mm]); with it, each focal length is the one whose thin-lens image
 distance at the focus distance equals the calibrated f_x (the config's principal
-distance, :attr:`~scanqa.config.CameraConfig.principal_distance_px`), so config and
+distance, :attr:`~scanqa.model.config.CameraConfig.principal_distance_px`), so config and
 calibration agree. Unless given, focus distances are ASSUMED to be where the two axes
 cross, and say so.
 """
@@ -28,8 +28,8 @@ import numpy as np
 from scipy.optimize import brentq
 
 from scanqa.calibration.parametric import ParametricCalibration
-from scanqa.config import PLACEHOLDER, ProjectorConfig
 from scanqa.errors import InputError
+from scanqa.model.config import PLACEHOLDER, ProjectorConfig
 
 #: Model parameters written when nothing better is known (``scanqa characterize`` fits
 #: sigma_p and gamma; the wavelength is the projector's light).
@@ -82,7 +82,7 @@ def camera_focal_mm(fx_px: float, pixel_um: float, focus_mm: float) -> float:
 def projector_focal_mm(fx_px: float, pitch_um: float, focus_mm: float) -> float:
     """Focal length [mm] that gives the projector config a principal distance of
     ``fx_px`` [px] at ``focus_mm`` [mm] with pitch ``pitch_um`` [um]
-    (:attr:`scanqa.config.ProjectorConfig.principal_distance_px`, Eq. 3)."""
+    (:attr:`scanqa.model.config.ProjectorConfig.principal_distance_px`, Eq. 3)."""
     def excess(f: float) -> float:
         cfg = ProjectorConfig(f, 1.0, pitch_um, 1, 1, focus_mm, (0.0, 0.0, 0.0),
                               (0.0, 0.0, 1.0))
@@ -119,7 +119,7 @@ def scanner_config_text(cal: ParametricCalibration | None = None,
     Returns
     -------
     str
-        The TOML text; it loads with :func:`scanqa.config.load_config` once every
+        The TOML text; it loads with :func:`scanqa.model.config.load_config` once every
         ``"MEASURE"`` placeholder is replaced.
     """
     for key, value in (("pixel_um", pixel_um), ("pitch_um", pitch_um),

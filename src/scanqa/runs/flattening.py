@@ -4,10 +4,10 @@ it costs in lateral resolution.
 
 The scan is decoded once; each pixel's range comes from the calibration (a table or a
 parametric model). The per-point random sigma - the source the cloud would use
-(:func:`scanqa.annotation.sigma_source`: the characterised model, a board's noise law or
+(:func:`scanqa.runs.annotation.sigma_source`: the characterised model, a board's noise law or
 the decoder's own image estimate) - is binned by range; its median per bin is the curve
 to flatten, and the target is its lowest value (the flattest sigma the volume allows, as
-:func:`scanqa.design.flatten_curve` takes it) unless one is given. For every bin the
+:func:`scanqa.model.design.flatten_curve` takes it) unless one is given. For every bin the
 filter that brings the bin's sigma to the target is solved for, and each pixel gets the
 filter of its range.
 
@@ -53,15 +53,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import ndimage
 
-from scanqa import optics
-from scanqa.annotation import sigma_source
 from scanqa.calibration.base import Calibration
-from scanqa.config import ScannerConfig
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.imagenoise import phase_sigma_px
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
-from scanqa.filterbank import (
+from scanqa.model import optics
+from scanqa.model.config import ScannerConfig
+from scanqa.runs.annotation import sigma_source
+from scanqa.runs.filterbank import (
     FilterBank,
     camera_noise_area_px2,
     default_bank,
@@ -299,7 +299,7 @@ def plan(noise: PixelNoise, config: ScannerConfig, target_um: float | None = Non
     """
     bank = bank or default_bank()
     if target_um is not None and not (np.isfinite(target_um) and target_um > 0):
-        raise InputError(f"--target-um must be a sigma > 0 um, got {target_um!r}")
+        raise InputError(f"the flattening target must be a sigma > 0 um, got {target_um!r}")
     edges = _bins(noise.z_mm)
     which = np.clip(np.searchsorted(edges, noise.z_mm) - 1, 0, edges.size - 2)
     members = [np.flatnonzero(which == b) for b in range(edges.size - 1)]
@@ -418,7 +418,7 @@ def flatten(desc: PatternDescription, stacks: Sequence[np.ndarray], phase_map: P
                          "alone has no fringe to filter, so it cannot be flattened")
     if desc.options.fuse_periods:
         raise InputError("flattening filters the finest phase set, which fuse_periods mixes "
-                         "with the others: decode without --fuse-periods to flatten")
+                         "with the others: decode without fusing the periods to flatten")
     bank = bank or default_bank()
     shape = phase_map.xp.shape
     stride = max(1, round(math.sqrt(phase_map.xp.size / SAMPLED_PIXELS)))
@@ -471,7 +471,7 @@ def flattened_attributes(attributes: dict, xyz: np.ndarray, phase_map: PhaseMap,
     Parameters
     ----------
     attributes : dict of (n,) array
-        The cloud's attributes (:func:`scanqa.annotation.annotate` of the flattened map).
+        The cloud's attributes (:func:`scanqa.runs.annotation.annotate` of the flattened map).
     xyz : (n, 3) float
         Its points [mm].
     phase_map : PhaseMap
@@ -491,7 +491,7 @@ def flattened_attributes(attributes: dict, xyz: np.ndarray, phase_map: PhaseMap,
     """
     if "flatten" not in phase_map.provenance:
         raise InputError("the phase map was not flattened (no 'flatten' in its "
-                         "provenance): decode with --flatten, or annotate with --flatten")
+                         "provenance): decode or annotate it with flattening on")
     bank = bank or default_bank()
     curve = FlattenCurve.from_dict(phase_map.provenance["flatten"])
     z = xyz[:, 2]

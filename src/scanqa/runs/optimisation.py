@@ -2,8 +2,8 @@
 
 A design spec names the volume the scanner must cover (a box in the scanner frame), the
 largest sigma allowed in it, the settings that may vary and their limits (the names of
-:data:`scanqa.rig.SETTINGS`) and obstacles, boxes that no view pyramid may cross. The
-optimiser maximises the usable volume (:func:`scanqa.design.usable_volume`), or with
+:data:`scanqa.model.rig.SETTINGS`) and obstacles, boxes that no view pyramid may cross. The
+optimiser maximises the usable volume (:func:`scanqa.model.design.usable_volume`), or with
 ``objective = "worst_sigma"`` minimises the largest sigma over the box, over the
 settings among the configurations that cover the box at that sigma and clear the
 obstacles: a coarse grid of the box of limits, then a compass search (pattern search
@@ -37,10 +37,10 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linprog
 
-from scanqa import design, optics, rig
-from scanqa.config import ScannerConfig
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.tomlfile import read_toml
+from scanqa.model import design, optics, rig
+from scanqa.model.config import ScannerConfig
 
 SPEC_FORMAT = "scanqa-design-spec/1"
 #: What the search maximises: the usable volume, or minus the largest sigma over the
@@ -113,7 +113,7 @@ def load_spec(path: str | os.PathLike) -> DesignSpec:
             float(data.get("level", 0.49)), float(data.get("step_mm", 2.0)), str(path),
             str(data.get("objective", "usable_volume")))
     except (KeyError, TypeError, IndexError, ValueError) as err:
-        raise InputError(f"{path}: missing or malformed key {err} (see scanqa.optimisation)"
+        raise InputError(f"{path}: missing or malformed key {err} (see scanqa.runs.optimisation)"
                          ) from None
 
 
@@ -213,7 +213,7 @@ def optimise(config: ScannerConfig, spec: DesignSpec, coarse: int = 3,
     Parameters
     ----------
     config : ScannerConfig
-        The scanner the settings are laid over (:func:`scanqa.rig.apply_settings`).
+        The scanner the settings are laid over (:func:`scanqa.model.rig.apply_settings`).
     spec : DesignSpec
         Cover box, sigma threshold, limits and obstacles.
     coarse : int

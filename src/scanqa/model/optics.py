@@ -50,8 +50,8 @@ from numpy.typing import ArrayLike
 from scipy.optimize import brentq
 from scipy.special import j1
 
-from scanqa.config import ProjectorConfig, ScannerConfig
 from scanqa.errors import RangeError
+from scanqa.model.config import ProjectorConfig, ScannerConfig
 
 #: Validity limit of the disc-kernel model, r = C / omega_o (Sect. 3.1 of [1]) [-].
 VALID_RATIO = 0.5

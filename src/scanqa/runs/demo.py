@@ -17,16 +17,15 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from scanqa import design
-from scanqa.annotation import annotate
 from scanqa.calibration.sweep import calibrate
-from scanqa.characterization import characterize_sweeps, sweep_folder
-from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir, staged_dir, write_text
 from scanqa.io.manifest import read_manifest
 from scanqa.io.spec import read_spec
+from scanqa.model import design
+from scanqa.model.characterization import characterize_sweeps, sweep_folder
+from scanqa.model.config import ScannerConfig, config_from_dict
 from scanqa.progress import Progress
 from scanqa.provenance import build_header, certificate_text
 from scanqa.qa.artefacts import ArtefactQAResult, load_artefact_layout, run_artefact_qa
@@ -37,6 +36,7 @@ from scanqa.report import calibration as calibration_report
 from scanqa.report import design as design_plots
 from scanqa.report import qa as qa_report
 from scanqa.report.characterization import characterization_lines, write_characterization
+from scanqa.runs.annotation import annotate
 
 #: Simulation plan of ``--full``: (experiment, camera window, positions, repeats, folder).
 #: About 40 min on 2 cores: 14 sweep positions and 3 gauge scans at 2448 x 2048 (~2 min

@@ -37,19 +37,19 @@ from pathlib import Path
 import numpy as np
 
 from scanqa._version import __version__
-from scanqa.annotation import annotate
 from scanqa.calibration.base import load_calibration
 from scanqa.cluster import EngineOptions, EngineReport, Task, run_tasks
-from scanqa.config import ScannerConfig
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.atomic import STAGE_PREFIX, make_out_dir, staged_dir, write_text
 from scanqa.io.batchfiles import ScanEntry, default_name, read_batch_manifest, unique_scans
 from scanqa.io.opencv import is_opencv_file
+from scanqa.model.config import ScannerConfig
 from scanqa.provenance import ReportHeader, build_header, content_hash, file_hash
 from scanqa.qa.blocks import QAResult, run_qa
 from scanqa.qa.layout import Layout, load_layout
 from scanqa.report import qa as qa_report
+from scanqa.runs.annotation import annotate
 
 log = logging.getLogger(__name__)
 

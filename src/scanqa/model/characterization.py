@@ -13,9 +13,9 @@ of a rigid scanner (its ``sweep.toml``: both devices defocus together):
    nearest to focus.
 
 The measured attenuation is compared with A(C/omega_o) (Eq. 12) and the depth of field
-per level with :mod:`scanqa.design`. The phase noise is fitted by every variant of the
+per level with :mod:`scanqa.model.design`. The phase noise is fitted by every variant of the
 model where the moving devices' attenuation is at least ``min_attenuation``
-(:mod:`scanqa.noisefit`): each parameter is reported as fitted, bounded or not
+(:mod:`scanqa.model.noisefit`): each parameter is reported as fitted, bounded or not
 identifiable with its 95 % profile-likelihood interval, the variant that predicts
 held-out positions best is selected, and it is compared with a constant. One sweep
 moves one device: the other's attenuation is constant, so the "mixed" reading is only
@@ -32,14 +32,14 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa import design, optics
-from scanqa.config import ScannerConfig, config_from_dict, first_difference
 from scanqa.decoding.decoder import decode, decode_pattern_dir
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.fitted_model import read_fitted_model
 from scanqa.io.manifest import read_manifest
 from scanqa.io.sweep import load_sweep
-from scanqa.noisefit import (
+from scanqa.model import design, optics
+from scanqa.model.config import ScannerConfig, config_from_dict, first_difference
+from scanqa.model.noisefit import (
     JOINT_VARIANTS,
     SINGLE_SWEEP_VARIANTS,
     ConstantFit,

@@ -12,9 +12,9 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import brentq
 
-from scanqa import optics
-from scanqa.config import ScannerConfig
 from scanqa.errors import InputError, RangeError
+from scanqa.model import optics
+from scanqa.model.config import ScannerConfig
 
 #: The ten attenuation levels of Tables 1 and 2 [-].
 TABLE_LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81, 0.90)
@@ -386,7 +386,7 @@ def coc_band(config: ScannerConfig, coc_max_mm: float) -> tuple[float, float]:
 
     Examples
     --------
-    >>> from scanqa.config import load_config
+    >>> from scanqa.model.config import load_config
     >>> [round(z, 2) for z in coc_band(load_config("calib/paper_scanner.toml"), 0.030)]
     [446.26, 453.82]
     """

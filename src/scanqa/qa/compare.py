@@ -25,8 +25,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from scanqa.cloud import AnnotatedCloud
 from scanqa.errors import InputError
+from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.verdict import decide
 
 #: Attributes a comparison adds to the cloud (units in the names).
@@ -225,7 +225,7 @@ def _finish(cloud: AnnotatedCloud, dev: np.ndarray, normal: np.ndarray, u_ref: n
     if not np.isfinite(dev).any():
         raise InputError(f"no point of the cloud lies within reach of the {reference} "
                          "(check that both share one frame, in mm, or raise "
-                         "--max-distance-mm)")
+                         "max_distance_mm)")
     return Comparison(cloud.with_attributes(**extra), k, tolerance_mm, reference,
                       tuple(notes))
 

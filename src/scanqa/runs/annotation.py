@@ -55,18 +55,18 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from scanqa import optics
 from scanqa._version import __version__
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
 from scanqa.chunks import row_bands, run_bands
-from scanqa.cloud import AnnotatedCloud
-from scanqa.config import ScannerConfig
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io import ply
+from scanqa.model import optics
+from scanqa.model.cloud import AnnotatedCloud
+from scanqa.model.config import ScannerConfig
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",

@@ -5,7 +5,7 @@ quadrature components of a phase set.
 A pixel's filter is a blend of two neighbouring discs of the bank, indexed by a
 continuous level t; the blend's noise-equivalent area NEA = 1 / sum(K^2), second moment
 and transfer at a fringe period follow exactly from those of the two discs.
-:mod:`scanqa.flattening` chooses the level of every pixel.
+:mod:`scanqa.runs.flattening` chooses the level of every pixel.
 
 References
 ----------
@@ -23,10 +23,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanqa import optics
-from scanqa.config import ScannerConfig
 from scanqa.decoding.demodulate import TWO_PI, ShiftFit
 from scanqa.decoding.phasemap import PhaseMap
+from scanqa.model import optics
+from scanqa.model.config import ScannerConfig
 
 #: Diameters of the disc filters in the bank [camera px]; a pixel between two of them
 #: gets the blend of the two, whose noise-equivalent area and transfer are exact.
@@ -147,7 +147,7 @@ def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarr
     ----------
     noise_area_px2 : array_like
         Noise-equivalent area of the camera's own kernel N_o
-        (:func:`scanqa.optics.camera_noise_area`) [px^2].
+        (:func:`scanqa.model.optics.camera_noise_area`) [px^2].
     period_cam_px : array_like
         Fringe period in the image [camera px] (or, with ``transfer``, the filter's
         transfer m_f [-]).
@@ -184,7 +184,7 @@ def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarr
 
 def camera_noise_area_px2(z_mm: np.ndarray, config: ScannerConfig) -> np.ndarray:
     """The camera kernel's noise-equivalent area N_o at range ``z_mm`` (pixel, defocus
-    disc, Airy disc; :func:`scanqa.optics.camera_noise_area`) [px^2]."""
+    disc, Airy disc; :func:`scanqa.model.optics.camera_noise_area`) [px^2]."""
     cam, model = config.camera, config.model
     pixel = cam.pixel_um * 1e-3
     b_d = optics.diffraction_blur_area(

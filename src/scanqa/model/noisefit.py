@@ -4,7 +4,7 @@ Input: per sweep position the distances Z_c, Z_p [mm] of the flat, the measured 
 x_p [projector px] and, when the decoder gave one, its sensor-noise estimate [px]. For
 every variant of the model (:data:`SINGLE_SWEEP_VARIANTS`, :data:`JOINT_VARIANTS`) the
 free parameters are fitted by least squares on log(model / measured), so every position
-counts by its relative error; the model comes from :func:`scanqa.optics.optical_terms`,
+counts by its relative error; the model comes from :func:`scanqa.model.optics.optical_terms`,
 the one model chain.
 
 What the data identify is reported per parameter (:class:`Parameter`), from the profile
@@ -32,8 +32,8 @@ from dataclasses import dataclass, field, fields, replace
 import numpy as np
 from scipy.optimize import brentq, least_squares
 
-from scanqa import optics
-from scanqa.config import ScannerConfig
+from scanqa.model import optics
+from scanqa.model.config import ScannerConfig
 
 #: Variants (filter_floor, filter_form, noise_reading) one sweep can tell apart: the
 #: paper's readings with Eq. 17 as printed, then the two-source model with both forms.

@@ -5,7 +5,7 @@ the Plotly bundle of the installed ``plotly`` package (no network), and three JS
 endpoints run the one Python model chain:
 
 * ``POST /api/view`` ``{"settings": {...}, "coc_cuts_volume": bool}``: the figures, the
-  grid and the numbers of :func:`scanqa.rig.rig_view` (``model_ms`` is its time);
+  grid and the numbers of :func:`scanqa.model.rig.rig_view` (``model_ms`` is its time);
 * ``POST /api/export`` ``{"settings": {...}}``: the scanner config TOML every command
   reads (``--config``);
 * ``POST /api/load`` (a TOML text): makes it the page's config and returns its settings.
@@ -25,10 +25,10 @@ import threading
 import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 
-from scanqa import rig
-from scanqa.config import ScannerConfig, config_from_dict
 from scanqa.errors import ConfigError, ScanQAError
 from scanqa.io.tomlfile import dumps_toml, loads_toml
+from scanqa.model import rig
+from scanqa.model.config import ScannerConfig, config_from_dict
 from scanqa.report import designpage
 
 #: Largest request body the server reads [bytes].

@@ -30,14 +30,14 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scanqa._version import __version__
-from scanqa.batch import BatchResult, write_results
 from scanqa.cluster import EngineOptions, Task, run_tasks
-from scanqa.config import ScannerConfig, load_config
 from scanqa.decoding.coding import PatternDescription
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io.atomic import STAGE_PREFIX, make_out_dir, staged_dir, write_text
 from scanqa.io.batchfiles import CampaignRun, read_campaign
+from scanqa.model.config import ScannerConfig, load_config
 from scanqa.provenance import content_hash
+from scanqa.runs.batch import BatchResult, write_results
 from scanqa.simulator import experiments as exp
 
 log = logging.getLogger(__name__)
