@@ -57,6 +57,7 @@ wheel-check: $(STAMP)
 # The documentation site (docs/): warnings are errors, so a broken reference, a malformed
 # docstring or a module missing from docs/api.rst fails the build.
 docs: $(STAMP)
+	@rm -rf docs/api  # generated: pages of moved or deleted modules must not linger
 	@$(BIN)/python -m sphinx -W --keep-going -q -b html docs docs/_build/html
 	@echo "docs: docs/_build/html/index.html"
 
