@@ -12,7 +12,7 @@ and the pixels the decode masked as inconsistent (their fringe order, not their 
 Usage::
 
     .venv/bin/python benchmarks/acceptance_flatten_sweep.py [--size 96]
-        [--stream flat_heldout] [--first 50]
+        [--stream flat_heldout] [--first 50] [--depths 441 447 ...]
 """
 
 from __future__ import annotations
@@ -44,6 +44,8 @@ def main() -> None:
     parser.add_argument("--size", type=int, default=96)
     parser.add_argument("--stream", default="flat_heldout")
     parser.add_argument("--first", type=int, default=50)
+    parser.add_argument("--depths", type=float, nargs="+", default=DEPTHS_MM,
+                        help="flat positions [mm]")
     args = parser.parse_args()
     cfg = _config(args.size, args.size)
     cal = _pinhole(cfg)
@@ -51,10 +53,10 @@ def main() -> None:
     curve = design.axis_curve(cfg, 438.0, 466.0, 0.5)
     target = float(np.min(curve["sigma_um"][curve["model_valid"]]))
     print(f"simulated, stream {args.stream!r}, positions {args.first}-"
-          f"{args.first + len(DEPTHS_MM) - 1}, {args.size} px; target {target:.2f} um")
+          f"{args.first + len(args.depths) - 1}, {args.size} px; target {target:.2f} um")
     print("Z [mm]  inconsistent [%]  before [um]  filter [px]  after [um]  after/target  "
           "predicted [um]")
-    for i, z in enumerate(DEPTHS_MM):
+    for i, z in enumerate(args.depths):
         pos = experiments.Position(args.first + i, 0.0, 0.0, 0.0, scene.plane_scene(z))
         scans = [render.render_images(cfg, experiments.acquisition(cfg, pos, rep,
                                                                    args.stream), desc)

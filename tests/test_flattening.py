@@ -176,9 +176,10 @@ def test_bad_target_and_gray_only_scans_are_refused(rig):
 def test_flattened_flat_has_the_target_std_at_every_reachable_depth(flat_sweep):
     """Simulated, held out: before flattening the measured std spreads over the positions
     (the W curve, 1.9x here); after, the acceptance's +-10 % of the target holds at 4 of
-    the 5 positions at least and +-20 % at all (docs/flattening.rst: over 9 positions of
-    another stream, 6 within 10 %, the worst +20 % at focus, where the scene noise is
-    more correlated than gamma says), and the spread falls below 1.3x."""
+    the 5 positions at least and +-15 % at all (measured here: 1.06, 0.92, 0.94, 1.04,
+    0.98; docs/flattening.rst: over 9 positions of another stream, focus 1.01 since pixels
+    masked for their fringe order take part in the filter, the worst 11.5 % where the
+    unflattened model's sigma is off), and the spread falls below 1.3x."""
     target, rows = flat_sweep
     before = [r["before"] for r in rows]
     after = [r["after"] for r in rows]
@@ -186,7 +187,7 @@ def test_flattened_flat_has_the_target_std_at_every_reachable_depth(flat_sweep):
     assert max(after) / min(after) < 1.3, rows
     assert all(r["reachable"] for r in rows), rows
     errors = [abs(r["after"] / target - 1) for r in rows]
-    assert max(errors) <= 0.20, (target, rows)
+    assert max(errors) <= 0.15, (target, rows)  # worst on any stream now: 11.9 %
     assert sum(e <= 0.10 for e in errors) >= 4, (target, rows)
 
 
@@ -276,7 +277,7 @@ def _two_tops(z_left: float, z_right: float):
 def test_one_scan_of_two_block_tops_gets_a_filter_per_range(rig):
     """Simulated, held out: one scan holding two block tops 6 mm apart (447 and 453 mm,
     both near focus); flattened, each top's measured std is within +-10 % of the target,
-    with its own filter (measured here: 0.92 and 0.95 of the target, from 11.9 and
+    with its own filter (measured here: 0.92 and 0.92 of the target, from 11.9 and
     11.7 um, with filters of 7.8 and 8.2 px)."""
     cfg, cal, desc = rig
     target = _target_um(cfg)
