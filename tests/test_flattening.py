@@ -31,7 +31,13 @@ from scanqa.decoding.decoder import decode_images
 from scanqa.errors import InputError
 from scanqa.model import design
 from scanqa.model.config import ScannerConfig, load_config
-from scanqa.runs.filterbank import FilterBank, default_bank, disc_kernel
+from scanqa.runs.filterbank import (
+    FilterBank,
+    default_bank,
+    disc_kernel,
+    filter_phase,
+    reduction,
+)
 from scanqa.runs.flattening import flatten, pixel_noise, plan
 from tests.conftest import ROOT
 from tests.synth_sweep import sweep
@@ -170,9 +176,10 @@ def test_bad_target_and_gray_only_scans_are_refused(rig):
 def test_flattened_flat_has_the_target_std_at_every_reachable_depth(flat_sweep):
     """Simulated, held out: before flattening the measured std spreads over the positions
     (the W curve, 1.9x here); after, the acceptance's +-10 % of the target holds at 4 of
-    the 5 positions at least and +-20 % at all (docs/flattening.rst: over 9 positions of
-    another stream, 6 within 10 %, the worst +20 % at focus, where the scene noise is
-    more correlated than gamma says), and the spread falls below 1.3x."""
+    the 5 positions at least and +-15 % at all (measured here: 1.06, 0.92, 0.94, 1.04,
+    0.98; docs/flattening.rst: over 9 positions of another stream, focus 1.01 since pixels
+    masked for their fringe order take part in the filter, the worst 11.5 % where the
+    unflattened model's sigma is off), and the spread falls below 1.3x."""
     target, rows = flat_sweep
     before = [r["before"] for r in rows]
     after = [r["after"] for r in rows]
@@ -180,7 +187,7 @@ def test_flattened_flat_has_the_target_std_at_every_reachable_depth(flat_sweep):
     assert max(after) / min(after) < 1.3, rows
     assert all(r["reachable"] for r in rows), rows
     errors = [abs(r["after"] / target - 1) for r in rows]
-    assert max(errors) <= 0.20, (target, rows)
+    assert max(errors) <= 0.15, (target, rows)  # worst on any stream now: 11.9 %
     assert sum(e <= 0.10 for e in errors) >= 4, (target, rows)
 
 
@@ -270,7 +277,7 @@ def _two_tops(z_left: float, z_right: float):
 def test_one_scan_of_two_block_tops_gets_a_filter_per_range(rig):
     """Simulated, held out: one scan holding two block tops 6 mm apart (447 and 453 mm,
     both near focus); flattened, each top's measured std is within +-10 % of the target,
-    with its own filter (measured here: 0.92 and 0.95 of the target, from 11.9 and
+    with its own filter (measured here: 0.92 and 0.92 of the target, from 11.9 and
     11.7 um, with filters of 7.8 and 8.2 px)."""
     cfg, cal, desc = rig
     target = _target_um(cfg)
@@ -290,6 +297,108 @@ def test_one_scan_of_two_block_tops_gets_a_filter_per_range(rig):
         assert abs(after / target - 1) <= 0.10, (cols, before, after, target)
     levels = flats[0].level[W // 2, [half // 2, half + half // 2]]
     assert levels[0] != pytest.approx(levels[1], abs=0.05)  # two ranges, two filters
+
+
+def _fringe_stack(seed: int, size: int = 64, period_cam_px: float = 28.0):
+    """A 4-step fringe of ``period_cam_px`` along image columns with white noise, its
+    phase map (x_p from the stack's own wrapped phase, period 5 projector px) and the
+    quadrature components C, S [DN]."""
+    from scanqa.decoding.demodulate import ShiftFit
+    from scanqa.decoding.phasemap import PhaseMap
+
+    shifts = [k * math.pi / 2 for k in range(4)]
+    u = np.arange(size)[None, :] * np.ones((size, 1))
+    phi = 2 * math.pi * u / period_cam_px
+    rng = np.random.default_rng(seed)
+    stack = np.stack([1000 + 600 * np.cos(phi + d) + rng.normal(0, 20, phi.shape)
+                      for d in shifts])
+    rows = ShiftFit.from_shifts(shifts).rows[1:]
+    c, s = (rows @ stack.reshape(4, -1)).reshape(2, size, size)
+    xp = 5.0 * np.mod(np.arctan2(-s, c) / (2 * math.pi), 1.0) + 100.0
+    pm = PhaseMap(xp=xp, modulation=np.hypot(c, s), offset=np.full(xp.shape, 1000.0),
+                  mask=np.zeros(xp.shape, np.uint8), sigma_xp=np.full(xp.shape, 0.01),
+                  period_px=5.0, projector_width_px=1280)
+    return stack, shifts, pm, c, s
+
+
+def test_pixels_masked_for_their_fringe_order_still_take_part_in_the_filter():
+    """A pixel the decode masks as inconsistent (its sets disagree: a fringe-order
+    question) has a good fringe; filtering must use it. Reference: the plain convolution
+    of C and S (scipy, independent of the bank's code) with the 7 px disc, no pixel left
+    out. With 2 % of pixels masked inconsistent the filtered x_p of the valid pixels is
+    the reference's to float32 rounding; left out, a masked pixel off the kernel's
+    centre turns the sum's phase (the fringe turns across the kernel) by ~0.01 px."""
+    from scipy.signal import fftconvolve
+
+    from scanqa.decoding.phasemap import MASK_INCONSISTENT, MASK_LOW_MODULATION
+
+    stack, shifts, pm, c, s = _fringe_stack(11)
+    bank = default_bank()
+    level = np.full(pm.xp.shape, float(bank.diameters_px.index(7.0)))
+    kern = disc_kernel(7.0)
+    ref_c, ref_s = (fftconvolve(x, kern, mode="same") for x in (c, s))
+    shift = (np.arctan2(-ref_s, ref_c) - np.arctan2(-s, c)) / (2 * math.pi)
+    reference = pm.xp + (shift - np.rint(shift)) * 5.0
+    holes = np.random.default_rng(12).random(pm.xp.shape) < 0.02
+    inner = np.zeros(pm.xp.shape, bool)
+    inner[8:-8, 8:-8] = True  # away from the image border (reflected there)
+    for reason, same in ((MASK_INCONSISTENT, True), (MASK_LOW_MODULATION, False)):
+        mask = np.where(holes, reason, 0).astype(np.uint8)
+        masked = replace(pm, xp=np.where(holes, np.nan, pm.xp), mask=mask,
+                         sigma_xp=np.where(holes, np.nan, pm.sigma_xp))
+        xp, _ = filter_phase(stack, shifts, masked, level, bank)
+        err = np.abs(xp - reference)[inner & ~holes]
+        if same:
+            # tolerance: float32 C, S (~1e-7 relative) on a 5 px period
+            assert err.max() < 1e-4, err.max()
+        else:  # a low-modulation pixel's fringe is not trusted: it stays out
+            assert err.max() > 1e-3, err.max()
+
+
+def _focus_pair(index: int, size: int = 160):
+    """Two scans of a flat at focus (450 mm) by the camera's central ``size`` px, a noise
+    stream of its own; the config, calibration and coding."""
+    from scanqa.simulator import experiments, render, scene
+
+    base = _config()
+    cfg = ScannerConfig(replace(base.camera, width_px=size, height_px=size), base.projector,
+                        base.fringes, base.model, base.simulator, base.name, base.source)
+    desc = experiments.pattern_description(cfg)
+    pos = experiments.Position(index, 0.0, 0.0, 0.0, scene.plane_scene(450.0))
+    scans = [render.render_images(cfg, experiments.acquisition(cfg, pos, rep, "focus_kernel"),
+                                  desc) for rep in (0, 1)]
+    return scans, [decode_images(desc, s) for s in scans], (cfg, _pinhole(cfg), desc)
+
+
+# slow: two 160 x 160 px renders (~15 s on the shared cores): 96 px leaves 64 x 64 px
+# inside the border, whose std after a 7 px filter has a ~7 % sampling error
+@pytest.mark.slow
+def test_a_known_kernel_at_focus_reduces_the_std_as_predicted():
+    """Simulated, at focus (450 mm), where the scene noise masks ~1 % of the pixels as
+    inconsistent: two scans' x_p difference, filtered by a 7 px and a 10 px disc at
+    every pixel, against filterbank.reduction of the model's scene and sensor parts.
+    Measured on another stream ("probe30", 160 px): 0.419 / 0.438 and 0.334 / 0.349
+    (before masked pixels took part: 0.519 and 0.467, +18 % and +34 %). Tolerance
+    12 %: three times the ~4 % sampling error of the filtered std on 128 x 128 px."""
+    scans, maps, (cfg, cal, desc) = _focus_pair(93)
+    inner = (slice(16, -16),) * 2
+    diff = lambda a, b: (a - b)[inner]  # noqa: E731
+    before = np.nanstd(diff(maps[0].xp, maps[1].xp))
+    noise = pixel_noise(maps[0], cal, cfg)
+    bank = default_bank()
+    for diameter in (7.0, 10.0):
+        t = float(bank.diameters_px.index(diameter))
+        level = np.full(maps[0].xp.shape, t)
+        xps = [filter_phase(s[-1], desc.phase_sets[-1].shifts_rad, m, level, bank)[0]
+               for s, m in zip(scans, maps, strict=True)]
+        measured = np.nanstd(diff(*xps)) / before
+        g_scene, g_sensor = reduction(noise.noise_area_px2, noise.period_cam_px,
+                                      np.full(noise.z_mm.shape, t), cfg, bank)
+        predicted = np.nanmedian(np.hypot(noise.scene_mm * g_scene,
+                                          noise.sensor_mm * g_sensor)) / np.nanmedian(
+                                              noise.sigma_mm)
+        assert measured == pytest.approx(predicted, rel=0.12), (diameter, measured,
+                                                                predicted)
 
 
 def test_default_bank_is_built_once():

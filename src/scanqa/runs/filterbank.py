@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanqa.decoding.demodulate import TWO_PI, ShiftFit
-from scanqa.decoding.phasemap import PhaseMap
+from scanqa.decoding.phasemap import MASK_INCONSISTENT, MASK_OUT_OF_RANGE, PhaseMap
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
 
@@ -32,6 +32,13 @@ from scanqa.model.config import ScannerConfig
 #: gets the blend of the two, whose noise-equivalent area and transfer are exact.
 LEVEL_DIAMETERS_PX = (0.0, 1.2, 1.6, 2.0, 2.5, 3.0, 3.5, 4.0, 5.0, 6.0, 7.0, 8.0, 10.0,
                       12.0, 14.0, 16.0)
+#: Mask reasons that concern the fringe order only (the sets disagree, or the unwrapped
+#: coordinate is off the panel): the working set's quadrature components of such a pixel
+#: are as good as a valid pixel's, so they take part in the filter. Leaving them out
+#: would shift the phase of every neighbour: the fringe turns across the kernel, so a
+#: missing sample off the centre moves the phase of the kernel's sum.
+ORDER_ONLY_REASONS = (MASK_INCONSISTENT, MASK_OUT_OF_RANGE)
+
 
 def disc_kernel(diameter_px: float, oversample: int = 8) -> np.ndarray:
     """A disc of the given diameter on the pixel grid, anti-aliased, of unit sum.
@@ -215,8 +222,9 @@ def filter_phase(stack: np.ndarray, shifts_rad: Sequence[float], phase_map: Phas
     shifts_rad : sequence of float
         Their phase shifts [rad].
     phase_map : PhaseMap
-        The unfiltered decode (its x_p gives the fringe order, its mask the pixels that
-        take part).
+        The unfiltered decode (its x_p gives the fringe order; its mask the pixels that
+        take part: the valid ones and those masked for their fringe order only,
+        :data:`ORDER_ONLY_REASONS`).
     level : (H, W) float
         Filter level per pixel, NaN to leave a pixel alone [-].
     bank : FilterBank, optional
@@ -236,7 +244,8 @@ def filter_phase(stack: np.ndarray, shifts_rad: Sequence[float], phase_map: Phas
     rows = fit.rows[1:].astype(np.float32)
     c, s = (rows @ stack.reshape(n, -1).astype(np.float32)).reshape(2, height, width)
     use = phase_map.valid & np.isfinite(phase_map.xp)
-    weighted = np.stack([use.astype(np.float32), c * use, s * use])
+    part = use | np.isin(phase_map.mask, ORDER_ONLY_REASONS)
+    weighted = np.stack([part.astype(np.float32), c * part, s * part])
     todo = np.flatnonzero(use & (level > 0))  # NaN > 0 is False
     t = level.flat[todo]
     k = np.minimum(t.astype(np.int8), len(bank.kernels) - 2)  # floor: t >= 0

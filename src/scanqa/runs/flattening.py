@@ -17,8 +17,12 @@ filtering the N images with a kernel K and demodulating them is the same as filt
 and S with K, so two images are filtered instead of N. The new wrapped phase replaces the
 old one within the same fringe order (the phase moves by far less than half a period),
 so x_p keeps the unwrapping of the first decode and any projector-response correction to
-first order. The convolution is normalised by the valid pixels (a masked neighbour adds
-nothing).
+first order. The convolution is normalised by the pixels that take part: the valid ones
+and those masked for their fringe order only (sets that disagree, a coordinate off the
+panel), whose C and S are as good as a valid pixel's. A pixel left out is not neutral: the
+fringe turns across the kernel, so a missing sample off the centre turns the phase of the
+kernel's sum (by ~0.01 px for one pixel 4 px out of a 7 px disc at a 28 px fringe), and
+where the holes differ from scan to scan that is noise the filter adds.
 
 What a disc filter K of noise-equivalent area NEA = 1 / sum(K^2) [px^2] does to the two
 noise sources of docs/noise_model.rst:
