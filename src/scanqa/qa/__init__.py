@@ -15,6 +15,7 @@ Gauge blocks:
 - :mod:`~scanqa.qa.layout`: an artefact's blocks, nominal heights and regions;
 - :mod:`~scanqa.qa.blocks`: per-block and per-step QA with GUM uncertainties;
 - :mod:`~scanqa.qa.detect`: finding the blocks without a layout.
+- :mod:`~scanqa.qa.paper`: the paper's Table 3 beside scanqa's per-block numbers.
 
 VDI/VDE 2634-2 artefacts:
 
