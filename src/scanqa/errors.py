@@ -29,7 +29,7 @@ class OutputError(ScanQAError):
 
 
 class MethodError(ConfigError, ValueError):
-    """A method name (a reading, form or floor of the model) that no mapping holds.
+    """A name that no mapping holds: a reading, form or floor of the model, a decision.
 
     Also a :class:`ValueError`, which it replaced, so callers that caught that still do.
     """

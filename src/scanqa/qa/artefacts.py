@@ -389,10 +389,19 @@ def _relative(noise: np.ndarray, frontal: np.ndarray) -> np.ndarray | None:
 def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -> float:
     """Standard uncertainty of an artefact's position from the table's own errors [mm]
     (module notes); 0 when the cloud does not carry them."""
+    if not (math.isfinite(area_mm2) and area_mm2 >= 0):
+        raise InputError(f"table uncertainty: the artefact's area must be finite and >= 0 "
+                         f"mm^2, got {area_mm2!r}")
+    if np.asarray(idx).size == 0:
+        raise InputError("table uncertainty: the artefact has no points")
     attrs = cloud.attributes
     if "sigma_table_um" not in attrs:
         return 0.0
     tab = np.asarray(attrs["sigma_table_um"], float)[idx]
+    if np.any(np.isinf(tab) | (tab < 0)):
+        raise InputError("the cloud's sigma_table_um holds negative or infinite values: a "
+                         "table sigma must be >= 0 um, or NaN where there is none (annotate "
+                         "the scan again)")
     if not np.isfinite(tab).any():
         return 0.0
     rms = 1e-3 * float(np.sqrt(np.nanmean(tab**2)))
@@ -405,7 +414,17 @@ def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -
 def tile_correlation(tile_mm: float):
     """A noise-correlation callable for :func:`scanqa.qa.sphere.fit_sphere`: kappa per
     parameter with cubes of ``tile_mm`` as clusters
-    (:func:`scanqa.qa.correlation.noise_correlation`), 1 with too few tiles."""
+    (:func:`scanqa.qa.correlation.noise_correlation`), 1 with too few tiles.
+
+    Raises
+    ------
+    InputError
+        A tile edge ``tile_mm`` that is not finite and > 0 [mm].
+    """
+    if not (math.isfinite(tile_mm) and tile_mm > 0):
+        raise InputError(f"noise correlation: the tile size must be finite and > 0 mm, "
+                         f"got {tile_mm!r}")
+
     def kappa(points: np.ndarray, jac: np.ndarray, res: np.ndarray) -> np.ndarray:
         factor, _ = noise_correlation(jac, res, points, tile_mm)
         return np.where(np.isfinite(factor), factor, 1.0)

@@ -129,8 +129,12 @@ def find_ball_bar(points, diameter_mm: float, distance_mm: float | None = None,
     InputError
         Fewer than two spheres found, or two spheres at the wrong distance.
     """
-    if not diameter_mm > 0:
+    if not (math.isfinite(diameter_mm) and diameter_mm > 0):
         raise InputError(f"ball bar: the ball diameter must be > 0 mm, got {diameter_mm!r}")
+    for name, value in (("nominal distance", distance_mm), ("distance tolerance",
+                                                            distance_tol_mm)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"ball bar: the {name} must be finite and > 0 mm, got {value!r}")
     found = find_spheres(points, 2, diameter_mm / 2, what="ball bar",
                          threshold_mm=threshold_mm, seed=seed)
     found.sort(key=lambda s: s.centre[0])

@@ -97,7 +97,37 @@ def _select(xyz: np.ndarray, spec: BlockSpec, margin: float, z_window: float) ->
 def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
                   outlier_k: float | None, z_window: float = 3.0,
                   tile_mm: float = TILE_MM) -> BlockResult:
-    """Plane fit and statistics of one block (see module notes)."""
+    """Plane fit and statistics of one block (see module notes).
+
+    Parameters
+    ----------
+    xyz : (n, 3) float
+        The cloud [mm]; NaN or infinite points are left out.
+    attrs : dict
+        Its per-point attributes (``sigma_model_um`` [um] and the like).
+    spec : BlockSpec
+        The block's id, nominal height [mm] and region [mm].
+    margin : float
+        Edge margin inside the region, finite and >= 0 [mm].
+    outlier_k : float or None
+        Reject residuals beyond K robust std, finite and > 0 [-]; None: no rejection.
+    z_window : float
+        Accepted |z - top_z_mm| when the layout gives the top [mm].
+    tile_mm : float
+        Tile of the noise-correlation factor [mm].
+
+    Returns
+    -------
+    BlockResult
+        With a status; a block without points or plane carries NaN statistics. A
+        predicted sigma that is 0, negative, NaN or infinite predicts nothing (NaN).
+
+    Raises
+    ------
+    InputError
+        A margin, window or outlier K that is NaN, infinite or out of range.
+    """
+    _check_block_settings(margin, outlier_k, z_window)
     res = BlockResult(spec.block_id, spec.nominal_height_mm)
     idx = _select(xyz, spec, margin, z_window)
     if idx.size == 0:
@@ -128,6 +158,16 @@ def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
     return res
 
 
+def _check_block_settings(margin: float, outlier_k: float | None, z_window: float) -> None:
+    if not (math.isfinite(margin) and margin >= 0):
+        raise InputError(f"edge margin must be >= 0 mm, got {margin!r}")
+    if not (math.isfinite(z_window) and z_window > 0):
+        raise InputError(f"height window must be > 0 mm, got {z_window!r}")
+    if outlier_k is not None and not (math.isfinite(outlier_k) and outlier_k > 0):
+        raise InputError(f"outlier rejection K must be > 0 robust std (or not given), got "
+                         f"{outlier_k!r}")
+
+
 def check_sigmas(attrs: dict) -> None:
     """A predicted sigma is > 0 and finite, or NaN (no prediction): 0, negative or
     infinite values are refused, not read as "no prediction"."""
@@ -155,7 +195,7 @@ def _block_fields(block_id: int, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray
     los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(los @ fit.normal)
     sig = _attr(attrs, random_sigma_name(attrs) or "sigma_model_um", idx) * 1e-3 * cos
-    sig[~(sig > 0)] = np.nan  # a zero, negative or NaN sigma predicts nothing
+    sig[~((sig > 0) & np.isfinite(sig))] = np.nan  # 0, negative, NaN, inf predict nothing
     out = {"n_points": n, "fit": fit, "index": idx}
     out["measured_std_um"] = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
     out["flatness_um"] = 1e3 * float(np.ptp(fit.residuals))

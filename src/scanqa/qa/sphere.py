@@ -206,8 +206,13 @@ def algebraic_sphere(points) -> tuple[np.ndarray, float]:
         [mm]
     radius : float
         [mm]
+
+    Raises
+    ------
+    InputError
+        Fewer than 4 points, a NaN or infinite point, or points on no sphere.
     """
-    pts = np.asarray(points, dtype=float)
+    pts = check_points(points, "sphere", 4)
     m = pts.mean(axis=0)
     q = pts - m
     a = np.column_stack([2.0 * q, np.ones(len(q))])
@@ -256,8 +261,16 @@ def cap_coverage(points, centre) -> tuple[float, float, np.ndarray]:
         99th percentile of the polar angle around the cap axis [deg].
     axis : (3,) float
         Cap axis (unit mean direction) [-].
+
+    Raises
+    ------
+    InputError
+        No points, or a NaN or infinite point or centre.
     """
-    u = np.asarray(points, dtype=float) - np.asarray(centre, dtype=float)
+    centre = np.asarray(centre, dtype=float)
+    if centre.shape != (3,) or not np.isfinite(centre).all():
+        raise InputError(f"sphere: the centre must be 3 finite coordinates [mm], got {centre}")
+    u = check_points(points, "sphere", 1) - centre
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     mean = u.mean(axis=0)
     axis = mean / np.linalg.norm(mean) if np.linalg.norm(mean) > 0 else np.array([0, 0, 1.0])
@@ -297,6 +310,10 @@ def _sigma(sigma, n: int, where: str) -> np.ndarray | None:
     if not np.all(np.isfinite(s) & (s >= 0)):
         raise InputError(f"{where}: sigma must be finite and >= 0 [mm] for every point "
                          "(replace missing values, e.g. by the measured std)")
+    if n and not np.any(s > 0):
+        raise InputError(f"{where}: every sigma is 0 [mm], which would give the fit no "
+                         "uncertainty; give the points' predicted sigma, or none to take "
+                         "the residuals' scatter")
     return s
 
 
@@ -377,10 +394,25 @@ def sight_noise_bias(points, centre, radius: float, sigma, view_origin=(0.0, 0.0
     Returns
     -------
     (4,) float
-        Expected estimate minus truth of (cx, cy, cz, R) [mm], second order in sigma.
+        Expected estimate minus truth of (cx, cy, cz, R) [mm], second order in sigma;
+        0 for sigma = 0; NaN when a sigma is NaN or infinite (a bias that cannot be
+        predicted, never a number).
+
+    Raises
+    ------
+    InputError
+        Fewer than 4 points, a NaN or infinite point or centre, or a radius that is not
+        finite and > 0.
     """
-    pts = np.asarray(points, dtype=float)
+    pts = check_points(points, "sphere", 4)
+    if not (math.isfinite(radius) and radius > 0):
+        raise InputError(f"sphere: the radius must be finite and > 0 mm, got {radius!r}")
+    centre = np.asarray(centre, dtype=float)
+    if not np.isfinite(centre).all():
+        raise InputError(f"sphere: the centre must be finite [mm], got {centre}")
     sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(pts),))
+    if not np.isfinite(sig).all():
+        return np.full(4, np.nan)
     n = pts - np.asarray(centre, dtype=float)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     sight = pts - np.asarray(view_origin, dtype=float)

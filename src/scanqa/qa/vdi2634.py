@@ -244,13 +244,28 @@ def quantity(name: str, value: float, u: float, mpe: float, k: float = 2.0,
     if decide_with not in DECIDE_WITH:
         raise InputError(f"decide_with must be one of {', '.join(DECIDE_WITH)}, "
                          f"got {decide_with!r}")
+    if not (math.isfinite(k) and k > 0):
+        raise InputError(f"{name}: the coverage factor k must be finite and > 0, got {k!r}")
+    for what, v in (("u", u), ("u_artefact", u_artefact)):
+        if v < 0:  # NaN passes: a quantity that could not be measured
+            raise InputError(f"{name}: the standard uncertainty {what} must be >= 0 mm, "
+                             f"got {v!r}")
     used = k * u_artefact if decide_with == "test" else k * u + abs(bias)
     decision = decide(value, used if math.isfinite(u) else math.nan, mpe)
     if decision == "not evaluated" and not note:
-        note = "no MPE for it in the spec" if math.isfinite(value) else "not measured"
+        note = _why_not_evaluated(value, mpe)
     return Quantity(name, float(value), float(u), float(k), float(mpe), decision,
                     bias=float(bias), note=note, u_artefact=float(u_artefact),
                     decided_with=decide_with, **extra)
+
+
+def _why_not_evaluated(value: float, mpe: float) -> str:
+    """The note of a quantity nothing could be decided for."""
+    if not math.isfinite(value):
+        return "not measured"
+    if not math.isfinite(mpe):
+        return "no MPE for it in the spec"
+    return "its uncertainty is not finite (NaN or infinite u, U_test or bias)"
 
 
 def predicted_range(sigma, n_dropped: int = 0) -> tuple[float, float]:
@@ -266,9 +281,11 @@ def predicted_range(sigma, n_dropped: int = 0) -> tuple[float, float]:
     Returns
     -------
     predicted : float
-        Expected range of the kept residuals [mm] (module notes).
+        Expected range of the kept residuals [mm] (module notes); NaN when there are
+        fewer than 2 sigmas, a sigma is not finite and > 0, or ``n_dropped`` leaves
+        fewer than 2 points (no prediction, never a number).
     u : float
-        Its standard deviation over repeated scans [mm].
+        Its standard deviation over repeated scans [mm]; NaN with ``predicted``.
     """
     s = np.asarray(sigma, dtype=float).ravel()
     n, k = s.size, int(n_dropped)
@@ -310,14 +327,16 @@ def normal_sigma(points, sigma, normals, view_origin=(0.0, 0.0, 0.0)) -> np.ndar
     Returns
     -------
     (n,) float
-        sigma |l . n| [mm].
+        sigma |l . n| [mm]; NaN where sigma, a point or a normal is NaN or infinite, or
+        where a point sits at ``view_origin`` (no line of sight).
     """
     pts = np.asarray(points, dtype=float)
     sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(pts),))
     if view_origin is None:
         return sig.copy()
     los = pts - np.asarray(view_origin, dtype=float)
-    los /= np.linalg.norm(los, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a point at the origin: NaN
+        los /= np.linalg.norm(los, axis=1, keepdims=True)
     return sig * np.abs(np.sum(los * normals, axis=1))
 
 
@@ -374,6 +393,12 @@ def _form(name, residuals, sig, keep, kappa, form_um, mpe, k, decide_with) -> Qu
                     decide_with=decide_with)
 
 
+def _check_u_table(u_table: float, where: str) -> None:
+    if not (math.isfinite(u_table) and u_table >= 0):
+        raise InputError(f"{where}: the table's standard uncertainty u_table must be finite "
+                         f"and >= 0 mm, got {u_table!r}")
+
+
 def _mpe(spec: Spec | None, name: str, length_mm: float = 0.0) -> float:
     if spec is None or name not in spec.mpe:
         return math.nan
@@ -417,6 +442,7 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     -------
     SphereTest
     """
+    _check_u_table(u_table, where)
     pts, keep, sig, fit, bias = _fit_kept_sphere(points, sigma, drop_fraction, correlation,
                                                  view_origin, min_coverage, where)
     cert = None if spec is None else spec.sphere
@@ -476,6 +502,7 @@ def sphere_spacing_error(points_a, points_b, sigma_a=None, sigma_b=None,
     -------
     BallBarTest
     """
+    _check_u_table(u_table, where)
     both = sorted((_fit_kept_sphere(p, s, drop_fraction, correlation, view_origin,
                                     min_coverage, f"{where}, ball {w}")[3:]
                    for p, s, w in ((points_a, sigma_a, "a"), (points_b, sigma_b, "b"))),

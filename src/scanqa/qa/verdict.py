@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+from scanqa.errors import MethodError
+
 #: The decisions a verdict counts.
 DECISIONS = ("pass", "fail", "undecided", "not evaluated")
 #: The verdicts, worst first.
@@ -80,7 +82,7 @@ def verdict(decisions: Iterable[str]) -> dict:
     counts = dict.fromkeys(DECISIONS, 0)
     for d in decisions:
         if d not in counts:
-            raise ValueError(f"unknown decision {d!r} (known: {', '.join(DECISIONS)})")
+            raise MethodError(f"unknown decision {d!r} (known: {', '.join(DECISIONS)})")
         counts[d] += 1
     total = sum(counts.values())
     if counts["fail"]:
