@@ -222,7 +222,15 @@ def _ls_centre(pts: np.ndarray, start: np.ndarray, iterations: int = 10) -> np.n
 
 
 def select_sphere(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selection:
-    """The points PF and PS of a test sphere rest on (module notes, steps 1-3)."""
+    """The points PF and PS of a test sphere rest on (module notes, steps 1-3).
+
+    Notes
+    -----
+    The point selection of the module notes (steps 1-3, docs/artefacts.rst): within 2 R of
+    the approximate centre, |d_i - R| <= ``shell_mm`` of the RANSAC sphere, incidence
+    acos|l_i . n_i| <= ``max_incidence_deg`` (scanqa's rule; VDI/VDE 2634-2's own 0.3 %
+    rule follows in :mod:`scanqa.qa.vdi2634`).
+    """
     what = f"sphere {art.id!r}"
     shell = options.shell_mm or 0.05 * art.diameter_mm
     centre = art.centre_mm
@@ -237,7 +245,14 @@ def select_sphere(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selec
 
 def select_ball_bar(xyz: np.ndarray, art: ArtefactSpec, options: Options
                     ) -> tuple[Selection, Selection]:
-    """The points of each ball of a ball bar (module notes, steps 1-4)."""
+    """The points of each ball of a ball bar (module notes, steps 1-4).
+
+    Notes
+    -----
+    Each ball as :func:`select_sphere`, less the mounting cone of half-opening
+    asin(d / D) + ``mount_margin_deg`` around the bar's axis (module notes, steps 1-4,
+    docs/artefacts.rst); the bar's two balls as VDI/VDE 2634-2 measures SD.
+    """
     shell = options.shell_mm or 0.05 * art.diameter_mm
     if art.centre_mm is None:
         found = find_ball_bar(xyz, art.diameter_mm, art.distance_mm, threshold_mm=shell)
@@ -261,7 +276,14 @@ def select_ball_bar(xyz: np.ndarray, art: ArtefactSpec, options: Options
 
 
 def select_flat(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selection:
-    """The points F of a flat rests on (module notes, steps 1-3)."""
+    """The points F of a flat rests on (module notes, steps 1-3).
+
+    Notes
+    -----
+    Points in the flat's rectangle (or the RANSAC plane's inliers) within ``shell_mm`` of
+    its plane and ``margin_mm`` inside its edge (module notes, steps 1-3,
+    docs/artefacts.rst), on which VDI/VDE 2634-2's F is measured.
+    """
     shell = options.shell_mm or 0.5
     what = f"flat {art.id!r}"
     cand = np.arange(len(xyz))
@@ -309,7 +331,14 @@ def _inside_hull(st: np.ndarray, margin: float) -> np.ndarray:
 def point_sigma(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
                 options: Options) -> np.ndarray | None:
     """Per-point sigma along the line of sight, scaled for oblique views (module notes)
-    [mm]; None when the cloud has no ``sigma_model_um``."""
+    [mm]; None when the cloud has no ``sigma_model_um``.
+
+    Notes
+    -----
+    sigma_i = 1e-3 sigma_model,i f_i [mm]: the model's sigma (Eqs. 18-19 of the paper)
+    times the oblique-view factor f_i of :func:`oblique_factor` (module notes,
+    docs/artefacts.rst).
+    """
     attrs = cloud.attributes
     name = random_sigma_name(attrs)
     if name is None:
@@ -339,6 +368,13 @@ def oblique_factor(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
     how : {"decoder", "modulation"}
         The decoder's phase-noise sigma (sensor part) and inverse contrast (scene part),
         or 1 / modulation.
+
+    Notes
+    -----
+    f_i = sqrt(w_i f_scene,i^2 + (1 - w_i) f_sensor,i^2), w_i = s_scene,i^2 /
+    (s_scene,i^2 + s_sensor,i^2), each part's factor its noise over its median on the points
+    seen within 20 deg of their normal, with the defocus amplitude sqrt(A_c A_p) (Eq. 12 of
+    the paper) divided out. scanqa's own model (module notes, docs/artefacts.rst).
     """
     attrs = cloud.attributes
     att = np.ones(idx.size)
@@ -388,7 +424,15 @@ def _relative(noise: np.ndarray, frontal: np.ndarray) -> np.ndarray | None:
 
 def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -> float:
     """Standard uncertainty of an artefact's position from the table's own errors [mm]
-    (module notes); 0 when the cloud does not carry them."""
+    (module notes); 0 when the cloud does not carry them.
+
+    Notes
+    -----
+    u = sqrt(mean sigma_table,i^2) / sqrt(n_eff), n_eff = max(1, area / l^2) with l the
+    table's correlation length: the standard uncertainty of a mean of n_eff independent
+    errors (GUM 4.2.3, Eq. 5); scanqa's model of the table's shared error (module notes,
+    docs/artefacts.rst).
+    """
     if not (math.isfinite(area_mm2) and area_mm2 >= 0):
         raise InputError(f"table uncertainty: the artefact's area must be finite and >= 0 "
                          f"mm^2, got {area_mm2!r}")
@@ -420,6 +464,12 @@ def tile_correlation(tile_mm: float):
     ------
     InputError
         A tile edge ``tile_mm`` that is not finite and > 0 [mm].
+
+    Notes
+    -----
+    kappa_j as :func:`scanqa.qa.correlation.noise_correlation` (cluster-robust over
+    heteroscedasticity-robust variance, Cameron and Miller (2015)) with cubes of
+    ``tile_mm``; 1 where it cannot be measured.
     """
     if not (math.isfinite(tile_mm) and tile_mm > 0):
         raise InputError(f"noise correlation: the tile size must be finite and > 0 mm, "
@@ -468,7 +518,14 @@ def _plane_axes(normals: np.ndarray) -> np.ndarray:
 
 def evaluate_sphere(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
                     options: Options, scan: str = "") -> ArtefactResult:
-    """PF and PS of one test sphere (module notes)."""
+    """PF and PS of one test sphere (module notes).
+
+    Notes
+    -----
+    PF and PS of VDI/VDE 2634-2 (2012) by :func:`scanqa.qa.vdi2634.probing_errors` on the
+    selected points with their :func:`point_sigma`, :func:`tile_correlation` and
+    :func:`table_uncertainty` (docs/artefacts.rst).
+    """
     sel = select_sphere(np.asarray(cloud.xyz, float), art, options)
     pts, sig, u_tab = _ball_inputs(cloud, sel, options)
     test = probing_errors(pts, sig, spec, options.k, options.drop_fraction,
@@ -481,7 +538,13 @@ def evaluate_sphere(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
 
 def evaluate_ball_bar(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
                       options: Options, scan: str = "") -> ArtefactResult:
-    """SD of a ball bar in one position (module notes)."""
+    """SD of a ball bar in one position (module notes).
+
+    Notes
+    -----
+    SD of VDI/VDE 2634-2 (2012) by :func:`scanqa.qa.vdi2634.sphere_spacing_error` on the
+    two balls' selected points (docs/artefacts.rst).
+    """
     sel_a, sel_b = select_ball_bar(np.asarray(cloud.xyz, float), art, options)
     (pa, sa, ua), (pb, sb, ub) = (_ball_inputs(cloud, s, options) for s in (sel_a, sel_b))
     test = sphere_spacing_error(pa, pb, sa, sb, spec, options.k, options.sd_drop_fraction,
@@ -497,7 +560,13 @@ def evaluate_ball_bar(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | Non
 
 def evaluate_flat(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
                   options: Options, scan: str = "") -> ArtefactResult:
-    """F of one flat (module notes)."""
+    """F of one flat (module notes).
+
+    Notes
+    -----
+    F of VDI/VDE 2634-2 (2012) by :func:`scanqa.qa.vdi2634.flatness_error` on the selected
+    points, with the flat's noise-correlation factor (docs/artefacts.rst).
+    """
     xyz = np.asarray(cloud.xyz, float)
     sel = select_flat(xyz, art, options)
     pts = xyz[sel.index]
@@ -539,6 +608,12 @@ def run_artefact_qa(clouds, layout: ArtefactLayout, spec: Spec | None = None,
     InputError
         An artefact that is not found, has too few points or too small a cap, or a
         layout that matches none of the scans.
+
+    Notes
+    -----
+    Every artefact in every scan by :func:`evaluate_sphere`, :func:`evaluate_ball_bar` and
+    :func:`evaluate_flat`: the quantities of VDI/VDE 2634-2 (2012) with their U and
+    ISO 14253-1 decisions against the spec's MPEs (docs/artefacts.rst).
     """
     options = options or Options()
     clouds = list(clouds)

@@ -47,6 +47,12 @@ def tiles(coords: np.ndarray, tile_mm: float = TILE_MM) -> np.ndarray:
     ------
     InputError
         No coordinates, a NaN or infinite one, or a tile edge that is not finite and > 0.
+
+    Notes
+    -----
+    tile_i = cell of floor((x_i - min_j x_j) / t) per axis, t = ``tile_mm``: the clusters of
+    the cluster-robust variance of :func:`noise_correlation` (Cameron and Miller (2015),
+    J. Human Resources 50(2)).
     """
     coords = np.asarray(coords, dtype=float)
     if not (isinstance(tile_mm, (int, float, np.number)) and math.isfinite(tile_mm)

@@ -36,6 +36,13 @@ def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 
     -------
     Layout
         The blocks found; regions are the bounding boxes of their patches [mm].
+
+    Notes
+    -----
+    h_i = (p_i - c_base) . n_base, the height above the base plane (RANSAC, M. A. Fischler
+    and R. C. Bolles (1981)); peaks of the histogram of h are the tops; DBSCAN (M. Ester et
+    al. (1996)) splits each band into patches; a nominal height H matches the largest patch
+    with |h - H| <= ``match_tol_mm`` (scanqa's own rule, docs/qa.rst).
     """
     import open3d as o3d
 

@@ -124,6 +124,13 @@ def ransac_sphere(points, radius_mm: float | None = None, radius_tol_mm: float |
     Returns
     -------
     SphereCandidate or None
+
+    Notes
+    -----
+    RANSAC (M. A. Fischler and R. C. Bolles (1981), Comm. ACM 24(6), 381-395): the sphere
+    through 4 points solves |p|^2 = 2 c . p + d exactly, R = sqrt(d + |c|^2); inliers have
+    | |p - c| - R | <= ``threshold_mm``; the best is refined by the least-squares sphere
+    (ISO 10360-6) on its inliers.
     """
     pts = check_points(points, "sphere search", 4)
     rng = np.random.default_rng(seed)
@@ -175,6 +182,12 @@ def find_spheres(points, count: int, radius_mm: float | None = None, what: str =
     ------
     InputError
         Fewer than ``count`` spheres found.
+
+    Notes
+    -----
+    Repeated :func:`ransac_sphere` (M. A. Fischler and R. C. Bolles (1981)), each found
+    sphere's inliers and the points within 1.05 R of its centre removed before the next
+    search.
     """
     pts = check_points(points, what, 4)
     remaining = np.arange(len(pts))
@@ -220,6 +233,11 @@ def ransac_plane(points, threshold_mm: float = 0.1, iterations: int = 2000,
         n . p of the plane [mm].
     inliers : (m,) int
         Indices of the inliers [-].
+
+    Notes
+    -----
+    RANSAC plane (M. A. Fischler and R. C. Bolles (1981); Open3D ``segment_plane``): the
+    plane through 3 points with the most inliers |(p - q) . n| <= ``threshold_mm``.
     """
     import open3d as o3d
 

@@ -211,6 +211,12 @@ def algebraic_sphere(points) -> tuple[np.ndarray, float]:
     ------
     InputError
         Fewer than 4 points, a NaN or infinite point, or points on no sphere.
+
+    Notes
+    -----
+    The algebraic (Kasa) fit: |q_i|^2 = 2 c . q_i + d in least squares, q_i = p_i - mean(p),
+    R = sqrt(d + |c|^2) (I. Kasa (1976), IEEE Trans. Instrum. Meas. 25, 8-14). It minimises
+    the algebraic, not the orthogonal, distance; :func:`fit_sphere` starts from it.
     """
     pts = check_points(points, "sphere", 4)
     m = pts.mean(axis=0)
@@ -266,6 +272,14 @@ def cap_coverage(points, centre) -> tuple[float, float, np.ndarray]:
     ------
     InputError
         No points, or a NaN or infinite point or centre.
+
+    Notes
+    -----
+    coverage = (occupied cells) / cells^2: the unit directions u_i = (p_i - c) / |p_i - c|
+    binned into ``cells`` rings equal in cos theta and ``cells`` sectors in azimuth around
+    the cap axis, each cell 2 pi / cells^2 sr; a hemisphere holds cells^2 of them. scanqa's
+    own check (module notes, docs/artefacts.rst); for an evenly covered cap of half-opening
+    theta it tends to 1 - cos theta.
     """
     centre = np.asarray(centre, dtype=float)
     if centre.shape != (3,) or not np.isfinite(centre).all():
@@ -349,6 +363,15 @@ def fit_sphere(points, sigma=None, correlation: Correlation | None = None,
     InputError
         Too few or non-finite points, a fit that diverges, or a cap covering less than
         ``min_coverage`` of a hemisphere.
+
+    Notes
+    -----
+    The least-squares (Gaussian) sphere of ISO 10360-6 and VDI/VDE 2634-2: min over (c, R)
+    of sum_i (|p_i - c| - R)^2, Gauss-Newton from :func:`algebraic_sphere`. Its
+    covariance Cov(c, R) = B J^T diag(sigma_i^2) J B, B = (J^T J)^-1, J_i = (-u_i^T, -1),
+    the law of propagation of GUM 5.2.2 (Eq. 13) applied to the estimator linearised at the
+    solution; without sigmas s^2 B, s^2 = sum r_i^2 / (n - 4). Each variance is multiplied
+    by the noise-correlation factor kappa (module notes).
     """
     pts = check_points(points, where, max(min_points, 5))
     sig = _sigma(sigma, len(pts), where)
@@ -403,6 +426,14 @@ def sight_noise_bias(points, centre, radius: float, sigma, view_origin=(0.0, 0.0
     InputError
         Fewer than 4 points, a NaN or infinite point or centre, or a radius that is not
         finite and > 0.
+
+    Notes
+    -----
+    b = -(J^T J)^-1 sum_i E[r_i g_i], g_i = (-u_i^T, -1),
+    E[r_i g_i] = sigma_i^2 / R (-(c_i l_perp,i + s_i^2 n_i / 2)^T, -s_i^2 / 2): the
+    second-order bias of the least-squares estimator under noise along the lines of sight,
+    derived in the module notes (scanqa's own, docs/artefacts.rst), checked by Monte Carlo
+    in the tests.
     """
     pts = check_points(points, "sphere", 4)
     if not (math.isfinite(radius) and radius > 0):
@@ -481,7 +512,9 @@ def minimum_zone_sphere(points, start=None, where: str = "sphere",
     convex in general; from the least-squares centre it finds the local minimum that
     belongs to that sphere, which for points on a sphere with form errors small against
     the radius is the minimum zone. The width is never larger than the least-squares
-    range, from which it starts.
+    range, from which it starts. The criterion is the minimum-zone (Chebyshev) one that
+    ISO 12781-1:2011 gives for flatness (MZPL), here for two concentric spheres:
+    min over c of (max_i |p_i - c| - min_i |p_i - c|).
     """
     pts = check_points(points, where, 5)
     m = pts.mean(axis=0)

@@ -240,6 +240,12 @@ def quantity(name: str, value: float, u: float, mpe: float, k: float = 2.0,
     ``u`` is the combined standard uncertainty (points and artefact), ``u_artefact``
     the artefact's part; the decision uses k u_artefact (``decide_with="test"``) or
     k u + |bias| ("total"). ``note`` says what is missing when it is not evaluated.
+
+    Notes
+    -----
+    U = k u + |b| (GUM 6.2.1, with the uncorrected bias b added, module notes); the decision
+    is the ISO 14253-1 rule of :func:`scanqa.qa.verdict.decide` with U_test = k u_artefact
+    ("test", the test uncertainty of VDI/VDE 2634-2 and ISO/TS 23165) or U ("total").
     """
     if decide_with not in DECIDE_WITH:
         raise InputError(f"decide_with must be one of {', '.join(DECIDE_WITH)}, "
@@ -286,6 +292,13 @@ def predicted_range(sigma, n_dropped: int = 0) -> tuple[float, float]:
         fewer than 2 points (no prediction, never a number).
     u : float
         Its standard deviation over repeated scans [mm]; NaN with ``predicted``.
+
+    Notes
+    -----
+    PF = T(tau / N) + T((tau + E) / N), tau ~ Gamma(k + 1), E ~ Exp(mean 2), T the inverse
+    of S(q) = mean_i 2 Phi_c(q / sigma_i); mean and standard deviation by quadrature on
+    64 x 64 equal-probability nodes. scanqa's own derivation (module notes,
+    docs/artefacts.rst), checked against Monte Carlo draws in the tests.
     """
     s = np.asarray(sigma, dtype=float).ravel()
     n, k = s.size, int(n_dropped)
@@ -329,6 +342,12 @@ def normal_sigma(points, sigma, normals, view_origin=(0.0, 0.0, 0.0)) -> np.ndar
     (n,) float
         sigma |l . n| [mm]; NaN where sigma, a point or a normal is NaN or infinite, or
         where a point sits at ``view_origin`` (no line of sight).
+
+    Notes
+    -----
+    sigma_n,i = sigma_i |l_i . n_i|, l_i = (p_i - o) / |p_i - o|: the projection of a
+    displacement along the line of sight onto the normal, the sensitivity coefficient of
+    GUM 5.1.3 for a residual measured along n (module notes).
     """
     pts = np.asarray(points, dtype=float)
     sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(pts),))
@@ -441,6 +460,14 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     Returns
     -------
     SphereTest
+
+    Notes
+    -----
+    VDI/VDE 2634-2 (2012), probing error: PF = max_i r_i - min_i r_i and
+    PS = D_a - D_cert from the least-squares sphere with free radius on the points kept by
+    the 0.3 % rule. u(PS)^2 = 4 (u(R)^2 + u_table^2) + (U_cert / k_cert)^2 and
+    u(PF)^2 = kappa u_s^2 + f^2 / 3 (GUM 5.1.2 Eq. 10; rectangular form f, GUM 4.3.7);
+    u_s from :func:`predicted_range`.
     """
     _check_u_table(u_table, where)
     pts, keep, sig, fit, bias = _fit_kept_sphere(points, sigma, drop_fraction, correlation,
@@ -501,6 +528,13 @@ def sphere_spacing_error(points_a, points_b, sigma_a=None, sigma_b=None,
     Returns
     -------
     BallBarTest
+
+    Notes
+    -----
+    VDI/VDE 2634-2 (2012), sphere-spacing error: SD = L_a - L_cert, L the distance of two
+    least-squares sphere centres. u(SD)^2 = u(L)^2 + 2 u_table^2 + (U_cert / k_cert)^2
+    (GUM 5.1.2, Eq. 10; u(L) from :func:`scanqa.qa.ballbar.centre_distance`); the bias
+    b = -g . (b_a - b_b) of the centres is added to U.
     """
     _check_u_table(u_table, where)
     both = sorted((_fit_kept_sphere(p, s, drop_fraction, correlation, view_origin,
@@ -552,6 +586,14 @@ def flatness_error(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     Returns
     -------
     FlatTest
+
+    Notes
+    -----
+    VDI/VDE 2634-2 (2012), flatness measurement error: F = max_i r_i - min_i r_i from the
+    least-squares plane of the points kept by the 0.3 % rule; u(F)^2 = kappa u_s^2 + f^2 / 3
+    (rectangular form deviation f of the certificate, GUM 4.3.7; u_s from
+    :func:`predicted_range`). Every sigma 0 predicts nothing: u and the prediction are NaN
+    and nothing is decided.
     """
     pts = check_points(points, "flat", 10)
     first = fit_plane(pts, "flat")

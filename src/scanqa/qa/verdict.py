@@ -41,6 +41,13 @@ def decide(value: float, expanded: float, limit: float) -> str:
         (non-conformance proven), "undecided" between, and "not evaluated" when any input
         is NaN or infinite (nothing can be decided).
 
+    Notes
+    -----
+    ISO 14253-1:2017 default decision rule with the uncertainty zone on both sides of the
+    limit T: conformance is proven when |E| <= T - U, non-conformance when |E| > T + U,
+    anything between is undecided. E, U and T share one unit; a non-finite input decides
+    nothing.
+
     Examples
     --------
     >>> decide(0.375, 0.125, 0.5), decide(0.625, 0.125, 0.5), decide(0.5, 0.125, 0.5)
