@@ -59,10 +59,9 @@ def lookup(methods: Mapping[str, Callable], name: str, what: str) -> Callable:
     MethodError
         For a name the mapping does not hold; the message lists every name it holds.
     """
-    try:
+    if isinstance(name, str) and name in methods:
         return methods[name]
-    except (KeyError, TypeError):  # TypeError: an unhashable name
-        raise MethodError(f"{what} must be {method_names(methods)}, got {name!r}") from None
+    raise MethodError(f"{what} must be {method_names(methods)}, got {name!r}")
 
 
 def camera_noise_area(c_image: ArrayLike, pixel: float, b_d: float) -> np.ndarray:
