@@ -92,7 +92,7 @@ def camera_noise_area(c_image: ArrayLike, pixel: float, b_d: float) -> np.ndarra
 
 
 def product_filter(b_c: np.ndarray, b_d: float, gamma: float) -> np.ndarray:
-    """F_gamma = sqrt(b_c b_d) / gamma, Eq. 17 of [1]_ as printed [-].
+    """F_gamma = sqrt(b_c b_d) / gamma, Eq. 17 of the paper as printed [-].
 
     ``b_c`` is the camera blur area of Eq. 13 [px^2], ``b_d`` the diffraction blur area
     of Eq. 16 [px^2], ``gamma`` the noise correlation [-].
@@ -112,7 +112,7 @@ def sum_filter(b_c: np.ndarray, b_d: float, gamma: float) -> np.ndarray:
 
 
 def unclamped(f: np.ndarray) -> np.ndarray:
-    """F_gamma as Eq. 17 of [1]_ prints it: no floor, F may be < 1 [-]."""
+    """F_gamma as Eq. 17 of the paper prints it: no floor, F may be < 1 [-]."""
     return f
 
 
@@ -166,7 +166,7 @@ def _zeros(scene: np.ndarray) -> np.ndarray:
 
 def power_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
                   sensor_ratio: float) -> tuple[np.ndarray, np.ndarray]:
-    """s_O = 1 / (F_gamma A_p A_c), Eq. 19 of [1]_ as printed; no sensor part [-].
+    """s_O = 1 / (F_gamma A_p A_c), Eq. 19 of the paper as printed; no sensor part [-].
 
     A is the squared magnitude ratio of Eq. 12, so this divides the noise by the power
     of the fringe, not its amplitude. ``sensor_ratio`` is not used.

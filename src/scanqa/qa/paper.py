@@ -24,7 +24,7 @@ from collections.abc import Iterable
 
 from scanqa.qa.results import BlockResult
 
-#: Table 3 of [1]_: block -> (predicted, measured) std [um]; None where the text prints
+#: Table 3 of the paper: block -> (predicted, measured) std [um]; None where the text prints
 #: "Large value" (block 1, predicted) or nothing legible (block 6, measured).
 PAPER_TABLE3 = {1: (None, 22), 2: (13, 12), 3: (13, 14), 4: (15, 16), 5: (16, 16),
                 6: (17, None), 7: (21, 18), 8: (22, 20)}
@@ -52,7 +52,7 @@ def paper_ratio(block_id: int) -> float:
     Notes
     -----
     The same ratio as :attr:`BlockResult.ratio`, s_meas / s_pred, on the printed values
-    of Table 3 in Sect. 4.3 of [1]_: a model that predicts the measured std has a ratio
+    of Table 3 in Sect. 4.3 of the paper: a model that predicts the measured std has a ratio
     of 1, whatever the noise level.
 
     Examples
@@ -81,7 +81,7 @@ def paper_series(block_ids: Iterable[int]) -> tuple[list[float], list[float]]:
 
     Notes
     -----
-    The printed values of Table 3 in Sect. 4.3 of [1]_, looked up, not computed.
+    The printed values of Table 3 in Sect. 4.3 of the paper, looked up, not computed.
     """
     pairs = [PAPER_TABLE3.get(i, (None, None)) for i in block_ids]
     return ([math.nan if p is None else float(p) for p, _ in pairs],
@@ -107,7 +107,7 @@ def table3_rows(blocks: Iterable[BlockResult], paper: bool) -> list[dict]:
 
     Notes
     -----
-    Table 3 in Sect. 4.3 of [1]_, joined by block number; the ratio as
+    Table 3 in Sect. 4.3 of the paper, joined by block number; the ratio as
     :func:`paper_ratio`.
     """
     rows = []
