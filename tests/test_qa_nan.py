@@ -25,9 +25,11 @@ from scanqa.qa import (
     budget,
     compare,
     correlation,
+    detect,
     flat,
     paper,
     planes,
+    ransac,
     sphere,
     vdi2634,
     verdict,
@@ -180,7 +182,38 @@ RAISES = {
                                      r"noise-correlation factor must be > 0"),
     "flatness_error k inf": (lambda: vdi2634.flatness_error(FLAT, k=INF),
                              r"F: the coverage factor k must be finite"),
+    # searches
+    "ransac_sphere point nan": (lambda: ransac.ransac_sphere(with_value(CAP, 0, NAN), 12.7),
+                                r"sphere search: 1 of 300 points are not finite"),
+    "ransac_sphere radius nan": (lambda: ransac.ransac_sphere(CAP, NAN),
+                                 r"sphere search: the radius must be finite and > 0 mm"),
+    "ransac_sphere radius inf": (lambda: ransac.ransac_sphere(CAP, INF),
+                                 r"the radius must be finite and > 0 mm, got inf"),
+    "ransac_sphere radius 0": (lambda: ransac.ransac_sphere(CAP, 0.0),
+                               r"the radius must be finite and > 0 mm, got 0.0"),
+    "ransac_sphere threshold 0": (lambda: ransac.ransac_sphere(CAP, 12.7, threshold_mm=0.0),
+                                  r"the threshold must be finite and > 0 mm"),
+    "ransac_sphere no points": (lambda: ransac.ransac_sphere(EMPTY), r"0 points"),
+    "ransac_plane threshold nan": (lambda: ransac.ransac_plane(FLAT, NAN),
+                                   r"plane search: the threshold must be finite"),
+    "ransac_plane threshold inf": (lambda: ransac.ransac_plane(FLAT, INF),
+                                   r"plane search: the threshold must be finite"),
+    "ransac_plane point inf": (lambda: ransac.ransac_plane(with_value(FLAT, 0, INF)),
+                               r"plane search: 1 of 400 points are not finite"),
+    "detect_blocks voxel 0": (lambda: detect.detect_blocks(FLAT, {1: 10.0}, voxel_mm=0.0),
+                              r"finding blocks: the voxel size must be finite and > 0 mm"),
+    "detect_blocks height nan": (lambda: detect.detect_blocks(FLAT, {3: NAN}),
+                                 r"the nominal height of block 3 must be finite and > 0 mm"),
+    "detect_blocks no points": (lambda: detect.detect_blocks(EMPTY, {1: 10.0}),
+                                r"too few points"),
     # artefacts
+    "point_sigma inf": (lambda: artefacts.point_sigma(
+        AnnotatedCloud(CAP, {"sigma_model_um": with_value(np.full(300, 5.0), 3, INF)}),
+        np.arange(300), CAP_NORMALS, artefacts.Options()),
+        r"sigma_model_um holds 1 values that are 0, negative or infinite"),
+    "point_sigma every sigma 0": (lambda: artefacts.point_sigma(
+        AnnotatedCloud(CAP, {"sigma_model_um": np.zeros(300)}), np.arange(300), CAP_NORMALS,
+        artefacts.Options()), r"holds 300 values that are 0"),
     "table_uncertainty area nan": (
         lambda: artefacts.table_uncertainty(AnnotatedCloud(FLAT, {}), np.arange(5), NAN),
         r"area must be finite and >= 0 mm\^2, got nan"),
@@ -293,6 +326,20 @@ def test_plane_design_nan_row_for_a_nan_point():
     design = planes.plane_design(with_value(FLAT[:3], 3, NAN), fit)
     assert np.isnan(design[1, 1:]).all() and np.isfinite(design[[0, 2]]).all()
     assert planes.plane_design(EMPTY, fit).shape == (0, 3)
+
+
+def test_point_sigma_keeps_nan_and_oblique_factor_is_one_where_it_cannot_be_formed():
+    """A NaN sigma stays NaN (the fits replace it by the RMS residual); a modulation that
+    is NaN, inf or 0 gives the documented factor 1 at that point, never a number from it."""
+    cloud = AnnotatedCloud(CAP, {"sigma_model_um": with_value(np.full(300, 5.0), 3, NAN)})
+    sig = artefacts.point_sigma(cloud, np.arange(300), CAP_NORMALS,
+                                artefacts.Options(oblique="none"))
+    assert math.isnan(sig[3]) and np.allclose(np.delete(sig, 3), 0.005, rtol=1e-15)
+    for bad in (NAN, INF, 0.0):
+        mod = with_value(np.full(300, 50.0), 3, bad)
+        f = artefacts.oblique_factor(AnnotatedCloud(CAP, {"modulation_dn": mod}),
+                                     np.arange(300), CAP_NORMALS, "modulation")
+        assert f[3] == 1.0, bad
 
 
 def test_paper_ratio_nan_without_a_printed_pair():

@@ -32,6 +32,7 @@ NOT_NUMERIC = {
     "sphere.check_points": "checks an array",
     "verdict.verdict": "counts decisions",
     "paper.table3_rows": "joins rows by block number",
+    "ransac.check_positive": "refuses a bad length, returns nothing",
 }
 #: What counts as naming a source in a Notes section.
 SOURCE = re.compile(

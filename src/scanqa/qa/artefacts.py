@@ -344,6 +344,11 @@ def point_sigma(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
     if name is None:
         return None
     sig = 1e-3 * np.asarray(attrs[name], float)[idx]
+    bad = np.flatnonzero(np.isinf(sig) | (sig <= 0))
+    if bad.size:
+        raise InputError(f"the cloud's {name} holds {bad.size} values that are 0, negative "
+                         f"or infinite on the artefact's points: a predicted sigma must be "
+                         "> 0, or NaN where there is none (annotate the scan again)")
     if options.oblique == "none":
         return sig
     return sig * oblique_factor(cloud, idx, normals, options.oblique)

@@ -7,6 +7,7 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.qa.layout import BlockSpec, Layout
 from scanqa.qa.planes import fit_plane
+from scanqa.qa.ransac import check_positive
 
 
 def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 0.3,
@@ -46,6 +47,8 @@ def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 
     """
     import open3d as o3d
 
+    check_positive("finding blocks", voxel_size=voxel_mm, match_tolerance=match_tol_mm,
+                   **{f"nominal_height_of_block_{b}": h for b, h in nominal.items()})
     o3d.utility.random.seed(0)  # RANSAC: the same scan finds the same blocks
     pts = np.asarray(xyz, dtype=float)
     pts = pts[np.isfinite(pts).all(axis=1)]

@@ -98,6 +98,22 @@ def _best(sub: np.ndarray, centres: np.ndarray, radii: np.ndarray, thr: float) -
     return int(np.argmax(scores))
 
 
+def check_positive(where: str, **lengths: float | None) -> None:
+    """Refuse a length [mm] that is given but not finite and > 0, naming it.
+
+    Parameters
+    ----------
+    where : str
+        What is being searched, for the message.
+    **lengths : float or None
+        Name -> value [mm]; None (not given) passes.
+    """
+    for name, value in lengths.items():
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"{where}: the {name.replace('_', ' ')} must be finite and "
+                             f"> 0 mm, got {value!r}")
+
+
 def ransac_sphere(points, radius_mm: float | None = None, radius_tol_mm: float | None = None,
                   threshold_mm: float = 0.1, iterations: int = 1000, min_inliers: int = 50,
                   seed: int = 0) -> SphereCandidate | None:
@@ -133,6 +149,8 @@ def ransac_sphere(points, radius_mm: float | None = None, radius_tol_mm: float |
     (ISO 10360-6) on its inliers.
     """
     pts = check_points(points, "sphere search", 4)
+    check_positive("sphere search", radius=radius_mm, radius_tolerance=radius_tol_mm,
+                   threshold=threshold_mm)
     rng = np.random.default_rng(seed)
     sub = pts[rng.choice(len(pts), SCORE_POINTS, replace=False)] \
         if len(pts) > SCORE_POINTS else pts
@@ -242,6 +260,7 @@ def ransac_plane(points, threshold_mm: float = 0.1, iterations: int = 2000,
     import open3d as o3d
 
     pts = check_points(points, "plane search", 3)
+    check_positive("plane search", threshold=threshold_mm)
     o3d.utility.random.seed(seed)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     model, inl = pcd.segment_plane(distance_threshold=threshold_mm, ransac_n=3,
