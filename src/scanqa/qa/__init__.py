@@ -21,5 +21,8 @@ VDI/VDE 2634-2 artefacts:
 
 - :mod:`~scanqa.qa.ballbar`: the ball bar's two spheres and their distance;
 - :mod:`~scanqa.qa.vdi2634`: PF, PS, SD and F with their uncertainties and decisions;
-- :mod:`~scanqa.qa.artefacts`: finding each artefact in a cloud and selecting its points.
+- :mod:`~scanqa.qa.form_range`: the predicted form error (the range of the residuals);
+- :mod:`~scanqa.qa.artefacts`: finding each artefact in a cloud and selecting its points;
+- :mod:`~scanqa.qa.artefact_sigma`: the points' sigma, oblique-view factor and shared
+  errors.
 """

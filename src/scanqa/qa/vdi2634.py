@@ -35,9 +35,10 @@ Standard uncertainty u (GUM, first order) and U = k u (k = 2 by default; plus |b
   (:mod:`scanqa.qa.ballbar`).
 - PF, F: a range has no first-order propagation; u is the standard deviation of the test
   value over repeated scans predicted from the per-point sigmas (sampling of the extreme
-  residuals, :func:`predicted_range`), its variance multiplied by the noise-correlation
-  factor (the largest of the sphere's), combined with the artefact's certified form
-  deviation f as a rectangular contribution of half-width f: u^2 = kappa u_s^2 + f^2 / 3.
+  residuals, :func:`~scanqa.qa.form_range.predicted_range`), its variance multiplied by
+  the noise-correlation factor (the largest of the sphere's), combined with the
+  artefact's certified form deviation f as a rectangular contribution of half-width f:
+  u^2 = kappa u_s^2 + f^2 / 3.
 
 PS and SD also carry the predicted bias b of the least-squares spheres from noise along
 the line of sight (:func:`scanqa.qa.sphere.sight_noise_bias`; 2 b_R for PS, the centres'
@@ -48,23 +49,9 @@ Errors shared by the points of an artefact (a calibration table's own error fiel
 PS and SD when the caller gives their size (``u_table``); thermal expansion and other
 Type B terms belong to the caller's uncertainty budget.
 
-Predicted form error (PF and F) from the per-point sigmas. The residuals are Gaussian
-with standard deviations sigma_i (a mixture when they differ); S(q) = mean_i
-2 Phi_c(q / sigma_i) is the fraction of |residuals| above q and T(x) its inverse, the
-level exceeded by a fraction x. In the tail, the points ordered by decreasing |residual|
-arrive as a Poisson process in tau = N S(q) with unit rate, each on either side with
-probability 1/2. Dropping the k largest leaves the (k+1)-th, at tau ~ Gamma(k + 1), as
-one end of the kept range; the other end is the next arrival on the other side, a gap
-E ~ exponential of mean 2 later. Hence the kept range is
-
-    PF = T(tau / N) + T((tau + E) / N),   tau ~ Gamma(k + 1),  E ~ Exp(mean 2),
-
-whose mean (the prediction) and standard deviation (u_s) are computed by quadrature over
-tau and E. For equal sigmas and large N with k = 0.3 % of N this is the range of the
-central 99.7 % of a Gaussian, about 2 x 2.968 sigma; with k = 0 it is the sum of two
-independent extremes (the Gumbel case). The prediction covers noise only: the
-artefact's own form and any systematic error add to the measured range. The tests check
-it against Monte Carlo draws of the residuals.
+Predicted form error (PF and F) from the per-point sigmas: the expected range of the
+kept residuals and its standard deviation u_s,
+:func:`scanqa.qa.form_range.predicted_range` (re-exported here).
 
 Two uncertainties, two uses. U above is the uncertainty of the test value as a
 measurement of the scanner's characteristic: how far this scan's PF, PS, SD or F may lie
@@ -93,12 +80,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincinv, ndtr
 
 from scanqa.errors import InputError
 from scanqa.io.spec import Spec
 from scanqa.qa.ballbar import BallBarFit, centre_distance
 from scanqa.qa.flat import ZonePlane, minimum_zone_plane
+from scanqa.qa.form_range import predicted_range
 from scanqa.qa.planes import PlaneFit, fit_plane
 from scanqa.qa.sphere import (
     MIN_COVERAGE,
@@ -117,8 +104,6 @@ DROP_FRACTION = 0.003
 #: Which expanded uncertainty the decisions use (module notes).
 DECIDE_WITH = ("test", "total")
 #: The quantities and their names.
-#: Quadrature nodes per variable of the range prediction [-].
-_NODES = 64
 QUANTITIES = {"PF": "probing error form", "PS": "probing error size",
               "SD": "sphere-spacing error", "F": "flatness measurement error"}
 
@@ -274,54 +259,6 @@ def _why_not_evaluated(value: float, mpe: float) -> str:
     return "its uncertainty is not finite (NaN or infinite u, U_test or bias)"
 
 
-def predicted_range(sigma, n_dropped: int = 0) -> tuple[float, float]:
-    """Expected range of Gaussian residuals after dropping the largest |r|, and its std.
-
-    Parameters
-    ----------
-    sigma : (n,) float
-        Standard deviation of each residual, all n points before dropping [mm].
-    n_dropped : int
-        Points with the largest |residual| removed before the range [-].
-
-    Returns
-    -------
-    predicted : float
-        Expected range of the kept residuals [mm] (module notes); NaN when there are
-        fewer than 2 sigmas, a sigma is not finite and > 0, or ``n_dropped`` leaves
-        fewer than 2 points (no prediction, never a number).
-    u : float
-        Its standard deviation over repeated scans [mm]; NaN with ``predicted``.
-
-    Notes
-    -----
-    PF = T(tau / N) + T((tau + E) / N), tau ~ Gamma(k + 1), E ~ Exp(mean 2), T the inverse
-    of S(q) = mean_i 2 Phi_c(q / sigma_i); mean and standard deviation by quadrature on
-    64 x 64 equal-probability nodes. scanqa's own derivation (module notes,
-    docs/artefacts.rst), checked against Monte Carlo draws in the tests.
-    """
-    s = np.asarray(sigma, dtype=float).ravel()
-    n, k = s.size, int(n_dropped)
-    if n < 2 or not np.all(np.isfinite(s) & (s > 0)) or not 0 <= k < n - 1:
-        return math.nan, math.nan
-    level = _tail_level(s)
-    p = (np.arange(_NODES) + 0.5) / _NODES  # equal-probability nodes of tau and E
-    tau = gammaincinv(k + 1, p)[:, None]
-    gap = -2.0 * np.log1p(-p)[None, :]
-    r = level(tau / n) + level((tau + gap) / n)
-    return float(r.mean()), float(r.std())
-
-
-def _tail_level(s: np.ndarray):
-    """The |residual| level q at which a fraction x of the points is expected above:
-    S(q) = mean_i 2 Phi_c(q / sigma_i) = x, as a vectorised function of x."""
-    reps = np.quantile(s, (np.arange(256) + 0.5) / 256) if s.size > 256 else s
-    q = np.linspace(0.0, 14.0 * float(s.max()), 4001)
-    tail = 2.0 * np.mean(ndtr(-q[:, None] / reps[None, :]), axis=1)
-    log_tail = np.log(np.maximum(tail, 1e-300))[::-1]
-    return lambda x: np.interp(np.log(x), log_tail, q[::-1])
-
-
 def normal_sigma(points, sigma, normals, view_origin=(0.0, 0.0, 0.0)) -> np.ndarray:
     """Per-point sigma along the surface normal.
 
@@ -467,7 +404,7 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     PS = D_a - D_cert from the least-squares sphere with free radius on the points kept by
     the 0.3 % rule. u(PS)^2 = 4 (u(R)^2 + u_table^2) + (U_cert / k_cert)^2 and
     u(PF)^2 = kappa u_s^2 + f^2 / 3 (GUM 5.1.2 Eq. 10; rectangular form f, GUM 4.3.7);
-    u_s from :func:`predicted_range`.
+    u_s from :func:`~scanqa.qa.form_range.predicted_range`.
     """
     _check_u_table(u_table, where)
     pts, keep, sig, fit, bias = _fit_kept_sphere(points, sigma, drop_fraction, correlation,
@@ -592,8 +529,8 @@ def flatness_error(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     VDI/VDE 2634-2 (2012), flatness measurement error: F = max_i r_i - min_i r_i from the
     least-squares plane of the points kept by the 0.3 % rule; u(F)^2 = kappa u_s^2 + f^2 / 3
     (rectangular form deviation f of the certificate, GUM 4.3.7; u_s from
-    :func:`predicted_range`). Every sigma 0 predicts nothing: u and the prediction are NaN
-    and nothing is decided.
+    :func:`~scanqa.qa.form_range.predicted_range`). Every sigma 0 predicts nothing: u
+    and the prediction are NaN and nothing is decided.
     """
     pts = check_points(points, "flat", 10)
     first = fit_plane(pts, "flat")
