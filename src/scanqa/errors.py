@@ -26,3 +26,10 @@ class RangeError(ScanQAError):
 
 class OutputError(ScanQAError):
     """An output cannot be written: a folder in the way, a read-only or full disk."""
+
+
+class MethodError(ConfigError, ValueError):
+    """A name that no mapping holds: a reading, form or floor of the model, a decision.
+
+    Also a :class:`ValueError`, which it replaced, so callers that caught that still do.
+    """

@@ -9,7 +9,9 @@ The model in one line (Eq. 18/19)::
                / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
 
 The paper leaves readings open (docs/model.rst, "Readings"); they are explicit options,
-and the two-source noise model (docs/noise_model.rst) is a third:
+and the two-source noise model (docs/noise_model.rst) is a third. Each reading is a short
+function in a mapping of name to function in :mod:`scanqa.model.readings` (the noise
+chain of Eqs. 17 and 19), whose public names this module re-exports:
 
 * ``filter_floor``: "none" applies Eq. 17 as printed; "one" clamps F >= 1, the bound
   1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17 (filtering never amplifies noise).
@@ -17,7 +19,7 @@ and the two-source noise model (docs/noise_model.rst) is a third:
   takes F^2 as the noise-equivalent area of the camera's whole kernel - pixel, defocus
   disc and Airy disc, whose second moments add under convolution - over the noise's own
   correlation area gamma^2: F = sqrt(1 + b_disc + b_d) / gamma
-  (:func:`camera_noise_area`). The two agree in shape once the disc dominates; "sum"
+  (:func:`~scanqa.model.readings.camera_noise_area`). The two agree in shape once the disc dominates; "sum"
   stays right for pixels larger than the Airy disc (b_d << 1), where the product
   collapses.
 * ``noise_reading``: "power" divides by A, the squared magnitude ratio, as Eq. 19 is
@@ -52,6 +54,16 @@ from scipy.special import j1
 
 from scanqa.errors import RangeError
 from scanqa.model.config import ProjectorConfig, ScannerConfig
+from scanqa.model.readings import (  # noqa: F401 - re-exported: optics is the entry
+    FILTER_FLOOR_METHODS,
+    FILTER_FORM_METHODS,
+    NOISE_READING_METHODS,
+    camera_noise_area,
+    filter_factor,
+    lookup,
+    noise_scales,
+    optical_scale,
+)
 
 #: Validity limit of the disc-kernel model, r = C / omega_o (Sect. 3.1 of [1]) [-].
 VALID_RATIO = 0.5
@@ -276,128 +288,6 @@ def diffraction_blur_area(airy: float, pixel: float) -> float:
     return float(np.pi * (airy / (2.0 * pixel)) ** 2)
 
 
-def camera_noise_area(c_image: ArrayLike, pixel: float, b_d: float) -> np.ndarray:
-    """Noise-equivalent area of the camera's kernel: pixel, defocus disc and Airy disc.
-
-    Parameters
-    ----------
-    c_image : array_like
-        Image-side blur diameter c_c (Eq. 14) [mm].
-    pixel : float
-        Camera pixel size s_c [mm].
-    b_d : float
-        Diffraction blur area (Eq. 16) [px^2].
-
-    Returns
-    -------
-    ndarray
-        1 + pi (c_c / (2 s_c))^2 + b_d [px^2]: the areas add because the second moments
-        of convolved kernels do (docs/noise_model.rst); the pixel counts as its area, 1.
-
-    Examples
-    --------
-    >>> float(camera_noise_area(0.0, 0.008, 1.0))
-    2.0
-    """
-    c_image = np.asarray(c_image, dtype=float)
-    return 1.0 + np.pi * (c_image / (2.0 * pixel)) ** 2 + b_d
-
-
-def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none",
-                  form: str = "product") -> np.ndarray:
-    """Noise reduction by camera blur and diffraction, F_gamma (Eq. 17).
-
-    Parameters
-    ----------
-    b_c : array_like
-        "product": camera blur area b_c (Eq. 13); "sum": the kernel's noise-equivalent
-        area (:func:`camera_noise_area`, which already holds b_d) [px^2].
-    b_d : float
-        Diffraction blur area [px^2].
-    gamma : float
-        Spatial correlation of the noise, >= 1 [-].
-    floor : {"none", "one"}
-        "none": Eq. 17 as printed (F may be < 1); "one": F clamped to >= 1.
-    form : {"product", "sum"}
-        "product": F = sqrt(b_c b_d) / gamma, Eq. 17 as printed; "sum":
-        F = sqrt(b_c) / gamma with b_c the noise-equivalent area.
-
-    Returns
-    -------
-    ndarray
-        F_gamma [-].
-    """
-    b_c = np.asarray(b_c, dtype=float)
-    if form == "product":
-        f = np.sqrt(b_c * b_d) / gamma
-    elif form == "sum":
-        f = np.sqrt(b_c) / gamma
-    else:
-        raise ValueError(f"form must be 'product' or 'sum', got {form!r}")
-    if floor == "one":
-        return np.maximum(f, 1.0)  # propagates NaN
-    if floor != "none":
-        raise ValueError(f"floor must be 'none' or 'one', got {floor!r}")
-    return f
-
-
-def optical_scale(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
-                  reading: str = "power", sensor_ratio: float = 0.0) -> np.ndarray:
-    """The optically induced blurring scale factor, s_O (Eq. 19).
-
-    Parameters
-    ----------
-    f_gamma : array_like
-        Filter factor F_gamma [-].
-    a_p, a_c : array_like
-        Projector and camera attenuation A [-].
-    reading : {"power", "amplitude", "mixed", "two_source"}
-        "power": 1 / (F A_p A_c) as printed; "amplitude": 1 / (F sqrt(A_p A_c));
-        "mixed": 1 / (F sqrt(A_p) A_c); "two_source":
-        sqrt(1 / F^2 + rho^2) / sqrt(A_p A_c) (docs/noise_model.rst).
-    sensor_ratio : float
-        rho, the sensor's phase noise over the scene-side one at focus
-        (``sensor_sigma_p_px / sigma_p_px``); "two_source" only [-].
-
-    Returns
-    -------
-    ndarray
-        s_O [-]; inf where an attenuation is 0.
-    """
-    scene, sensor = noise_scales(f_gamma, a_p, a_c, reading, sensor_ratio)
-    return np.sqrt(scene**2 + sensor**2) if reading == "two_source" else scene
-
-
-def noise_scales(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
-                 reading: str = "power", sensor_ratio: float = 0.0
-                 ) -> tuple[np.ndarray, np.ndarray]:
-    """The scene-side and sensor parts of s_O, relative to sigma_p [-].
-
-    Parameters are those of :func:`optical_scale`. The paper's readings have no sensor
-    part (zeros); for "two_source" s_O = sqrt(scene^2 + sensor^2).
-
-    Returns
-    -------
-    scene, sensor : ndarray
-        1 / (F a) with a the reading's attenuation, and rho / sqrt(A_p A_c) [-].
-    """
-    a_p, a_c = np.asarray(a_p, dtype=float), np.asarray(a_c, dtype=float)
-    if reading == "power":
-        a = a_p * a_c
-    elif reading in ("amplitude", "two_source"):
-        a = np.sqrt(a_p * a_c)
-    elif reading == "mixed":
-        a = np.sqrt(a_p) * a_c
-    else:
-        raise ValueError("reading must be 'power', 'amplitude', 'mixed' or 'two_source', "
-                         f"got {reading!r}")
-    with np.errstate(divide="ignore"):
-        scene = 1.0 / (np.asarray(f_gamma, dtype=float) * a)
-        sensor = sensor_ratio / a if reading == "two_source" and sensor_ratio > 0 \
-            else np.zeros_like(scene)
-    return scene, sensor
-
-
 @functools.lru_cache(maxsize=16)
 def _cached_rotation(projector: ProjectorConfig) -> np.ndarray:
     rot = projector.rotation
@@ -519,9 +409,7 @@ class OpticalTerms:
         F_gamma = F_1 / gamma in both forms of Eq. 17 (``filter_base`` is F_1, the factor
         for gamma = 1 without the floor), so a fit over gamma need not re-run the optics.
         """
-        f = self.filter_base / gamma
-        if filter_floor == "one":
-            f = np.maximum(f, 1.0)
+        f = lookup(FILTER_FLOOR_METHODS, filter_floor, "floor")(self.filter_base / gamma)
         s_o = optical_scale(f, self.attenuation_projector, self.attenuation_camera,
                             noise_reading, sensor_ratio)
         beyond = (self.ratio_camera >= FIRST_ZERO_RATIO) | \

@@ -15,10 +15,14 @@ Gauge blocks:
 - :mod:`~scanqa.qa.layout`: an artefact's blocks, nominal heights and regions;
 - :mod:`~scanqa.qa.blocks`: per-block and per-step QA with GUM uncertainties;
 - :mod:`~scanqa.qa.detect`: finding the blocks without a layout.
+- :mod:`~scanqa.qa.paper`: the paper's Table 3 beside scanqa's per-block numbers.
 
 VDI/VDE 2634-2 artefacts:
 
 - :mod:`~scanqa.qa.ballbar`: the ball bar's two spheres and their distance;
 - :mod:`~scanqa.qa.vdi2634`: PF, PS, SD and F with their uncertainties and decisions;
-- :mod:`~scanqa.qa.artefacts`: finding each artefact in a cloud and selecting its points.
+- :mod:`~scanqa.qa.form_range`: the predicted form error (the range of the residuals);
+- :mod:`~scanqa.qa.artefacts`: finding each artefact in a cloud and selecting its points;
+- :mod:`~scanqa.qa.artefact_sigma`: the points' sigma, oblique-view factor and shared
+  errors.
 """

@@ -26,42 +26,8 @@ Point selection, in this order (every count is reported):
    D/3 when the layout does not give it).
 5. *The guideline's rule.* Up to 0.3 % of the points (PF, PS, F; :mod:`scanqa.qa.vdi2634`).
 
-Per-point sigma (what U and the predicted form rest on). The optics model gives each
-point's sigma along its line of sight for a surface facing the scanner (the paper's
-Eqs. 18-19). On a curved artefact the fringe signal changes where the surface turns away
-from the scanner (fringes foreshortened, light at an angle), and so does the phase
-noise, differently for its two sources:
-
-* the sensor part (shot and read noise) grows as the signal falls; the decoder knows it
-  (its sensor noise model from the measured modulation and level, ``sigma_phase_um``);
-* the scene part is proportional to the light itself, so it follows the inverse fringe
-  contrast A / B (``offset_dn`` / ``modulation_dn``), not the brightness: dimmer light
-  at an angle leaves it unchanged, a fringe attenuated by the pixel's own width (a large
-  pixel on a foreshortened fringe) raises it.
-
-Each part of the model's sigma (``sigma_scene_um``, ``sigma_sensor_um``) is scaled by
-its factor, the ratio of the point's value to its median over the points seen within
-20 deg of their normal (the part of the artefact that faces the scanner, as the model
-assumes), both with the model's defocus amplitude sqrt(A_c A_p) divided out, which the
-model already holds. Simulated: at 64 um pixels the noise along the line of sight at
-55-70 deg incidence is about 1.8 times the model's (the pixel attenuates the
-foreshortened fringe); at the paper's 8 um pixels it is 1.15 times, where the
-decoder's sigma alone says 1.4 and over-predicted the sphere's PF by 40 %; the two-part
-factor predicts PF within 4 % there (scans not among the acceptance runs). A cloud
-without the two parts or the offset (a one-source reading, an older file) is scaled by
-the decoder's sigma alone. ``oblique="modulation"`` scales by the modulation alone
-(1 / B: an upper bound), ``"none"`` keeps the model's sigma.
-
-Shared errors. The calibration table's own error (``sigma_table_um``, correlated over
-``table_corr_mm``) shifts a ball as a whole: its standard uncertainty on a radius or a
-centre coordinate is taken as the RMS sigma_table over sqrt(n_eff), n_eff the number of
-correlation cells the ball's seen area covers (at least 1).
-
-Noise correlation. Neighbouring points share noise (blur); the fits' covariances from
-the per-point sigmas are scaled per parameter by a factor kappa >= 1 measured on the
-artefact itself, as for gauge blocks (:func:`scanqa.qa.correlation.noise_correlation`):
-the cluster-robust covariance with cubes of ``tile_mm`` as clusters over the one with
-every point its own cluster; 1 when too few tiles hold 3 points.
+Per-point sigma, the oblique-view factor, the table's shared error and the noise
+correlation of an artefact's points: :mod:`scanqa.qa.artefact_sigma`.
 """
 
 from __future__ import annotations
@@ -75,6 +41,14 @@ from scanqa.errors import InputError
 from scanqa.io.artefacts import read_artefact_layout
 from scanqa.io.spec import Spec
 from scanqa.model.cloud import AnnotatedCloud, random_sigma_name
+from scanqa.qa.artefact_sigma import (
+    FRONTAL_DEG,
+    incidence_cos,
+    oblique_factor,
+    point_sigma,
+    table_uncertainty,
+    tile_correlation,
+)
 from scanqa.qa.ballbar import find_ball_bar
 from scanqa.qa.correlation import noise_correlation
 from scanqa.qa.planes import fit_plane, plane_design
@@ -91,16 +65,14 @@ from scanqa.qa.results import (
 from scanqa.qa.sphere import MIN_POINTS, algebraic_sphere
 from scanqa.qa.vdi2634 import flatness_error, probing_errors, sphere_spacing_error
 
-__all__ = ["KINDS", "OBLIQUE", "ArtefactLayout", "ArtefactQAResult", "ArtefactResult",
-           "ArtefactSpec", "Options", "Selection", "auto_layout", "evaluate_ball_bar",
-           "evaluate_flat", "evaluate_sphere", "load_artefact_layout", "oblique_factor",
-           "point_sigma", "run_artefact_qa", "select_ball_bar", "select_flat",
+__all__ = ["FRONTAL_DEG", "KINDS", "OBLIQUE", "ArtefactLayout", "ArtefactQAResult",
+           "ArtefactResult", "ArtefactSpec", "Options", "Selection", "auto_layout",
+           "evaluate_ball_bar", "evaluate_flat", "evaluate_sphere", "load_artefact_layout",
+           "oblique_factor", "point_sigma", "run_artefact_qa", "select_ball_bar", "select_flat",
            "select_sphere", "table_uncertainty", "tile_correlation"]
 
 #: Kinds of artefact, as in layouts and ``--artefact``.
 KINDS = ("sphere", "ball_bar", "flat")
-#: Incidence within which a point counts as facing the scanner (oblique-sigma reference) [deg].
-FRONTAL_DEG = 20.0
 #: How far a flat may lie from its approximate plane and rectangle [mm].
 FLAT_SEARCH_MM = 5.0
 
@@ -160,12 +132,6 @@ def auto_layout(kind: str, spec: Spec | None, diameter_mm: float | None = None,
 
 # ------------------------------------------------------------------ point selection
 
-def _incidence_cos(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """|cos| of the angle between each line of sight (from the origin) and the normal."""
-    los = points / np.linalg.norm(points, axis=1, keepdims=True)
-    return np.abs(np.sum(los * normals, axis=1))
-
-
 def _ball_points(xyz: np.ndarray, centre, diameter: float, shell: float, what: str,
                  ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Indices of the points of one ball near ``centre``, its refined centre and counts."""
@@ -198,7 +164,7 @@ def _drop_grazing(xyz: np.ndarray, idx: np.ndarray, centre: np.ndarray, options:
     c = np.asarray(centre, dtype=float)
     for _ in range(2):
         n = (pts - c) / np.linalg.norm(pts - c, axis=1, keepdims=True)
-        keep = _incidence_cos(pts, n) >= limit
+        keep = incidence_cos(pts, n) >= limit
         if keep.sum() < MIN_POINTS:
             break
         c = _ls_centre(pts[keep], c)
@@ -222,7 +188,15 @@ def _ls_centre(pts: np.ndarray, start: np.ndarray, iterations: int = 10) -> np.n
 
 
 def select_sphere(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selection:
-    """The points PF and PS of a test sphere rest on (module notes, steps 1-3)."""
+    """The points PF and PS of a test sphere rest on (module notes, steps 1-3).
+
+    Notes
+    -----
+    The point selection of the module notes (steps 1-3, docs/artefacts.rst): within 2 R of
+    the approximate centre, |d_i - R| <= ``shell_mm`` of the RANSAC sphere, incidence
+    acos|l_i . n_i| <= ``max_incidence_deg`` (scanqa's rule; VDI/VDE 2634-2's own 0.3 %
+    rule follows in :mod:`scanqa.qa.vdi2634`).
+    """
     what = f"sphere {art.id!r}"
     shell = options.shell_mm or 0.05 * art.diameter_mm
     centre = art.centre_mm
@@ -237,7 +211,14 @@ def select_sphere(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selec
 
 def select_ball_bar(xyz: np.ndarray, art: ArtefactSpec, options: Options
                     ) -> tuple[Selection, Selection]:
-    """The points of each ball of a ball bar (module notes, steps 1-4)."""
+    """The points of each ball of a ball bar (module notes, steps 1-4).
+
+    Notes
+    -----
+    Each ball as :func:`select_sphere`, less the mounting cone of half-opening
+    asin(d / D) + ``mount_margin_deg`` around the bar's axis (module notes, steps 1-4,
+    docs/artefacts.rst); the bar's two balls as VDI/VDE 2634-2 measures SD.
+    """
     shell = options.shell_mm or 0.05 * art.diameter_mm
     if art.centre_mm is None:
         found = find_ball_bar(xyz, art.diameter_mm, art.distance_mm, threshold_mm=shell)
@@ -261,7 +242,14 @@ def select_ball_bar(xyz: np.ndarray, art: ArtefactSpec, options: Options
 
 
 def select_flat(xyz: np.ndarray, art: ArtefactSpec, options: Options) -> Selection:
-    """The points F of a flat rests on (module notes, steps 1-3)."""
+    """The points F of a flat rests on (module notes, steps 1-3).
+
+    Notes
+    -----
+    Points in the flat's rectangle (or the RANSAC plane's inliers) within ``shell_mm`` of
+    its plane and ``margin_mm`` inside its edge (module notes, steps 1-3,
+    docs/artefacts.rst), on which VDI/VDE 2634-2's F is measured.
+    """
     shell = options.shell_mm or 0.5
     what = f"flat {art.id!r}"
     cand = np.arange(len(xyz))
@@ -304,114 +292,6 @@ def _inside_hull(st: np.ndarray, margin: float) -> np.ndarray:
     return dist.min(axis=1) >= margin
 
 
-# ------------------------------------------------------------- sigmas and factors
-
-def point_sigma(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
-                options: Options) -> np.ndarray | None:
-    """Per-point sigma along the line of sight, scaled for oblique views (module notes)
-    [mm]; None when the cloud has no ``sigma_model_um``."""
-    attrs = cloud.attributes
-    name = random_sigma_name(attrs)
-    if name is None:
-        return None
-    sig = 1e-3 * np.asarray(attrs[name], float)[idx]
-    if options.oblique == "none":
-        return sig
-    return sig * oblique_factor(cloud, idx, normals, options.oblique)
-
-
-def oblique_factor(cloud: AnnotatedCloud, idx: np.ndarray, normals: np.ndarray,
-                   how: str = "decoder") -> np.ndarray:
-    """How much noisier each point is than where the artefact faces the scanner [-]
-    (module notes); 1 where it cannot be formed.
-
-    Parameters
-    ----------
-    cloud : AnnotatedCloud
-        With ``sigma_phase_um`` and ``s_t_um_px`` ("decoder"; with ``offset_dn``,
-        ``modulation_dn``, ``sigma_scene_um`` and ``sigma_sensor_um`` also the two-part
-        form) or ``modulation_dn`` ("modulation"; also the fallback), and
-        ``att_camera``, ``att_projector``.
-    idx : (n,) int
-        The artefact's points [-].
-    normals : (n, 3) float
-        Their unit surface normals [-].
-    how : {"decoder", "modulation"}
-        The decoder's phase-noise sigma (sensor part) and inverse contrast (scene part),
-        or 1 / modulation.
-    """
-    attrs = cloud.attributes
-    att = np.ones(idx.size)
-    for name in ("att_camera", "att_projector"):
-        if name in attrs:
-            att = att * np.asarray(attrs[name], float)[idx]
-    amp = np.sqrt(att)  # the model's fringe amplitude from defocus, divided out below
-
-    def col(name: str) -> np.ndarray:
-        return np.asarray(attrs[name], float)[idx]
-
-    frontal = _incidence_cos(cloud.xyz[idx], normals) >= math.cos(math.radians(FRONTAL_DEG))
-    with np.errstate(invalid="ignore", divide="ignore"):
-        if how == "decoder" and "sigma_phase_um" in attrs and "s_t_um_px" in attrs:
-            sensor = _relative(col("sigma_phase_um") / col("s_t_um_px") * amp, frontal)
-            if sensor is None:
-                return np.ones(idx.size)
-            parts = ("offset_dn", "modulation_dn", "sigma_scene_um", "sigma_sensor_um")
-            if not all(k in attrs for k in parts):
-                return sensor   # an older cloud: the decoder's sigma alone
-            n2 = col("sigma_sensor_um") ** 2
-            if not np.any(n2 > 0):
-                return sensor   # a one-source reading: the decoder's sigma alone
-            scene = _relative(col("offset_dn") / col("modulation_dn") * amp, frontal)
-            if scene is None:
-                return sensor
-            s2 = col("sigma_scene_um") ** 2
-            w = s2 / (s2 + n2)
-            out = np.sqrt(w * scene**2 + (1.0 - w) * sensor**2)
-            return np.where(np.isfinite(out), out, sensor)
-        if "modulation_dn" in attrs:
-            out = _relative(amp / col("modulation_dn"), frontal)
-            return np.ones(idx.size) if out is None else out
-    return np.ones(idx.size)
-
-
-def _relative(noise: np.ndarray, frontal: np.ndarray) -> np.ndarray | None:
-    """``noise`` over its median where the artefact faces the scanner (all points when
-    fewer than 10 do); 1 where it is not finite and positive; None with < 10 usable."""
-    ok = np.isfinite(noise) & (noise > 0)
-    if ok.sum() < 10:
-        return None
-    front = ok & frontal
-    ref = float(np.median(noise[front] if front.sum() >= 10 else noise[ok]))
-    return np.where(ok, noise / ref, 1.0)
-
-
-def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -> float:
-    """Standard uncertainty of an artefact's position from the table's own errors [mm]
-    (module notes); 0 when the cloud does not carry them."""
-    attrs = cloud.attributes
-    if "sigma_table_um" not in attrs:
-        return 0.0
-    tab = np.asarray(attrs["sigma_table_um"], float)[idx]
-    if not np.isfinite(tab).any():
-        return 0.0
-    rms = 1e-3 * float(np.sqrt(np.nanmean(tab**2)))
-    corr = np.asarray(attrs.get("table_corr_mm", np.full(len(cloud), np.nan)), float)[idx]
-    c = float(np.nanmedian(corr)) if np.isfinite(corr).any() else math.nan
-    n_eff = max(1.0, area_mm2 / c**2) if math.isfinite(c) and c > 0 else 1.0
-    return rms / math.sqrt(n_eff)
-
-
-def tile_correlation(tile_mm: float):
-    """A noise-correlation callable for :func:`scanqa.qa.sphere.fit_sphere`: kappa per
-    parameter with cubes of ``tile_mm`` as clusters
-    (:func:`scanqa.qa.correlation.noise_correlation`), 1 with too few tiles."""
-    def kappa(points: np.ndarray, jac: np.ndarray, res: np.ndarray) -> np.ndarray:
-        factor, _ = noise_correlation(jac, res, points, tile_mm)
-        return np.where(np.isfinite(factor), factor, 1.0)
-    return kappa
-
-
 def _fmt(v) -> str:
     return "[" + ", ".join(f"{x:.1f}" for x in np.asarray(v, float)) + "]"
 
@@ -449,7 +329,14 @@ def _plane_axes(normals: np.ndarray) -> np.ndarray:
 
 def evaluate_sphere(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
                     options: Options, scan: str = "") -> ArtefactResult:
-    """PF and PS of one test sphere (module notes)."""
+    """PF and PS of one test sphere (module notes).
+
+    Notes
+    -----
+    PF and PS of VDI/VDE 2634-2 (2012) by :func:`scanqa.qa.vdi2634.probing_errors` on the
+    selected points with their :func:`point_sigma`, :func:`tile_correlation` and
+    :func:`table_uncertainty` (docs/artefacts.rst).
+    """
     sel = select_sphere(np.asarray(cloud.xyz, float), art, options)
     pts, sig, u_tab = _ball_inputs(cloud, sel, options)
     test = probing_errors(pts, sig, spec, options.k, options.drop_fraction,
@@ -462,7 +349,13 @@ def evaluate_sphere(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
 
 def evaluate_ball_bar(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
                       options: Options, scan: str = "") -> ArtefactResult:
-    """SD of a ball bar in one position (module notes)."""
+    """SD of a ball bar in one position (module notes).
+
+    Notes
+    -----
+    SD of VDI/VDE 2634-2 (2012) by :func:`scanqa.qa.vdi2634.sphere_spacing_error` on the
+    two balls' selected points (docs/artefacts.rst).
+    """
     sel_a, sel_b = select_ball_bar(np.asarray(cloud.xyz, float), art, options)
     (pa, sa, ua), (pb, sb, ub) = (_ball_inputs(cloud, s, options) for s in (sel_a, sel_b))
     test = sphere_spacing_error(pa, pb, sa, sb, spec, options.k, options.sd_drop_fraction,
@@ -478,7 +371,13 @@ def evaluate_ball_bar(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | Non
 
 def evaluate_flat(cloud: AnnotatedCloud, art: ArtefactSpec, spec: Spec | None,
                   options: Options, scan: str = "") -> ArtefactResult:
-    """F of one flat (module notes)."""
+    """F of one flat (module notes).
+
+    Notes
+    -----
+    F of VDI/VDE 2634-2 (2012) by :func:`scanqa.qa.vdi2634.flatness_error` on the selected
+    points, with the flat's noise-correlation factor (docs/artefacts.rst).
+    """
     xyz = np.asarray(cloud.xyz, float)
     sel = select_flat(xyz, art, options)
     pts = xyz[sel.index]
@@ -520,6 +419,12 @@ def run_artefact_qa(clouds, layout: ArtefactLayout, spec: Spec | None = None,
     InputError
         An artefact that is not found, has too few points or too small a cap, or a
         layout that matches none of the scans.
+
+    Notes
+    -----
+    Every artefact in every scan by :func:`evaluate_sphere`, :func:`evaluate_ball_bar` and
+    :func:`evaluate_flat`: the quantities of VDI/VDE 2634-2 (2012) with their U and
+    ISO 14253-1 decisions against the spec's MPEs (docs/artefacts.rst).
     """
     options = options or Options()
     clouds = list(clouds)

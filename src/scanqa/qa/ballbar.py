@@ -61,6 +61,12 @@ def centre_distance(a: SphereFit, b: SphereFit) -> tuple[float, float]:
         [mm]
     u : float
         First-order standard uncertainty from both centre covariances [mm].
+
+    Notes
+    -----
+    L = |c_a - c_b|; u(L)^2 = g^T (Cov(c_a) + Cov(c_b)) g with g = (c_a - c_b) / L, the
+    first-order law of propagation of GUM 5.1.2 (Eq. 10) for the two independently fitted
+    centres.
     """
     d = a.centre - b.centre
     length = float(np.linalg.norm(d))
@@ -91,6 +97,12 @@ def fit_ball_bar(points_a, points_b, sigma_a=None, sigma_b=None,
     Returns
     -------
     BallBarFit
+
+    Notes
+    -----
+    Two least-squares spheres (:func:`scanqa.qa.sphere.fit_sphere`) and their centre
+    distance L = |c_a - c_b| with u(L) from :func:`centre_distance` (GUM 5.1.2, Eq. 10):
+    the quantities of the sphere-spacing error SD of VDI/VDE 2634-2.
     """
     fits = [fit_sphere(p, s, correlation, min_coverage=min_coverage, where=f"ball bar sphere {w}")
             for p, s, w in ((points_a, sigma_a, "a"), (points_b, sigma_b, "b"))]
@@ -128,9 +140,20 @@ def find_ball_bar(points, diameter_mm: float, distance_mm: float | None = None,
     ------
     InputError
         Fewer than two spheres found, or two spheres at the wrong distance.
+
+    Notes
+    -----
+    RANSAC with a radius prior (:func:`scanqa.qa.ransac.find_spheres`; M. A. Fischler and
+    R. C. Bolles (1981), Comm. ACM 24(6), 381-395); the two spheres found must lie
+    |L - L_nominal| <= tol apart, tol = 2 % of L_nominal by default (scanqa's check,
+    docs/artefacts.rst).
     """
-    if not diameter_mm > 0:
+    if not (math.isfinite(diameter_mm) and diameter_mm > 0):
         raise InputError(f"ball bar: the ball diameter must be > 0 mm, got {diameter_mm!r}")
+    for name, value in (("nominal distance", distance_mm), ("distance tolerance",
+                                                            distance_tol_mm)):
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"ball bar: the {name} must be finite and > 0 mm, got {value!r}")
     found = find_spheres(points, 2, diameter_mm / 2, what="ball bar",
                          threshold_mm=threshold_mm, seed=seed)
     found.sort(key=lambda s: s.centre[0])

@@ -97,7 +97,46 @@ def _select(xyz: np.ndarray, spec: BlockSpec, margin: float, z_window: float) ->
 def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
                   outlier_k: float | None, z_window: float = 3.0,
                   tile_mm: float = TILE_MM) -> BlockResult:
-    """Plane fit and statistics of one block (see module notes)."""
+    """Plane fit and statistics of one block (see module notes).
+
+    Parameters
+    ----------
+    xyz : (n, 3) float
+        The cloud [mm]; NaN or infinite points are left out.
+    attrs : dict
+        Its per-point attributes (``sigma_model_um`` [um] and the like).
+    spec : BlockSpec
+        The block's id, nominal height [mm] and region [mm].
+    margin : float
+        Edge margin inside the region, finite and >= 0 [mm].
+    outlier_k : float or None
+        Reject residuals beyond K robust std, finite and > 0 [-]; None: no rejection.
+    z_window : float
+        Accepted |z - top_z_mm| when the layout gives the top [mm].
+    tile_mm : float
+        Tile of the noise-correlation factor [mm].
+
+    Returns
+    -------
+    BlockResult
+        With a status; a block without points or plane carries NaN statistics. A
+        predicted sigma that is 0, negative, NaN or infinite predicts nothing (NaN).
+
+    Raises
+    ------
+    InputError
+        A margin, window or outlier K that is NaN, infinite or out of range.
+
+    Notes
+    -----
+    Per block (Sect. 4.3 and Table 3 of the paper; docs/qa.rst): the least-squares plane
+    (:func:`scanqa.qa.planes.fit_plane`), the measured std s = sqrt(sum r_i^2 / (n - 3)),
+    the flatness max r_i - min r_i, the predicted std sqrt(mean sigma_n,i^2) with
+    sigma_n,i = sigma_i |l_i . n| (Eq. 18 of the paper along the normal), the plane's
+    covariance B J^T diag(sigma_n^2) J B scaled by the noise-correlation factor
+    (GUM 5.2.2, Eq. 13), and u(s) = s / sqrt(2 nu) (GUM E.4.3, Table E.1).
+    """
+    _check_block_settings(margin, outlier_k, z_window)
     res = BlockResult(spec.block_id, spec.nominal_height_mm)
     idx = _select(xyz, spec, margin, z_window)
     if idx.size == 0:
@@ -128,6 +167,16 @@ def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
     return res
 
 
+def _check_block_settings(margin: float, outlier_k: float | None, z_window: float) -> None:
+    if not (math.isfinite(margin) and margin >= 0):
+        raise InputError(f"edge margin must be >= 0 mm, got {margin!r}")
+    if not (math.isfinite(z_window) and z_window > 0):
+        raise InputError(f"height window must be > 0 mm, got {z_window!r}")
+    if outlier_k is not None and not (math.isfinite(outlier_k) and outlier_k > 0):
+        raise InputError(f"outlier rejection K must be > 0 robust std (or not given), got "
+                         f"{outlier_k!r}")
+
+
 def check_sigmas(attrs: dict) -> None:
     """A predicted sigma is > 0 and finite, or NaN (no prediction): 0, negative or
     infinite values are refused, not read as "no prediction"."""
@@ -155,7 +204,7 @@ def _block_fields(block_id: int, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray
     los = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(los @ fit.normal)
     sig = _attr(attrs, random_sigma_name(attrs) or "sigma_model_um", idx) * 1e-3 * cos
-    sig[~(sig > 0)] = np.nan  # a zero, negative or NaN sigma predicts nothing
+    sig[~((sig > 0) & np.isfinite(sig))] = np.nan  # 0, negative, NaN, inf predict nothing
     out = {"n_points": n, "fit": fit, "index": idx}
     out["measured_std_um"] = 1e3 * float(np.sqrt(np.sum(fit.residuals**2) / max(n - 3, 1)))
     out["flatness_um"] = 1e3 * float(np.ptp(fit.residuals))
@@ -209,6 +258,14 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
     ``k`` is a stated coverage factor or "welch-satterthwaite" (None: the budget file's
     ``[coverage] k``, else 2); ``inputs`` the budget file's Type B inputs; ``n_planes``
     the number of planes the calibration table was built from (its degrees of freedom).
+
+    Notes
+    -----
+    d = n_a . (c_a - c_b) (Table 4 of the paper); u from the budget's contributions in
+    quadrature (GUM 5.1.2, Eq. 10): the plane of a at c_b, sqrt(g^T U_a g) with
+    g = (1, s_1, s_2) the lever; the mean height of b, sqrt(U_b[0, 0]); the calibration
+    table; and the Type B terms. U = k u (GUM 6.2.1), k stated or t_95(nu_eff)
+    (GUM G.4.1); the decision is ISO 14253-1 against T.
     """
     fa, fb = a.fit, b.fit
     measured = float(fa.normal @ (fa.centroid - fb.centroid))
@@ -264,7 +321,13 @@ def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
 
 def model_curve(blocks: list[BlockResult], config: ScannerConfig) -> dict | None:
     """The model's uncertainty curve on the camera axis over the blocks' depths, +- 5 mm
-    (:func:`scanqa.model.design.axis_curve`), or None when no block has points."""
+    (:func:`scanqa.model.design.axis_curve`), or None when no block has points.
+
+    Notes
+    -----
+    sigma(Z) on the camera axis from Eqs. 18-19 of the paper
+    (:func:`scanqa.model.design.axis_curve`), every 0.25 mm over the blocks' depths +- 5 mm.
+    """
     zs = [b.mean_z_mm for b in blocks if math.isfinite(b.mean_z_mm)]
     return design.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25) if zs else None
 
@@ -292,7 +355,14 @@ def cloud_config(cloud: AnnotatedCloud, config: ScannerConfig | None, notes: lis
 
 def local_std(xyz: np.ndarray, residual_mm: np.ndarray, block_id: np.ndarray, k: int = 16
               ) -> np.ndarray:
-    """Std of the residuals of each point's k nearest neighbours in its block [mm]."""
+    """Std of the residuals of each point's k nearest neighbours in its block [mm].
+
+    Notes
+    -----
+    s_i = sqrt(sum_j (r_j - mean r)^2 / (k - 1)) over the k nearest neighbours j of point i
+    in its block (in X, Y): the experimental standard deviation of GUM 4.2.2, Eq. 4, per
+    neighbourhood.
+    """
     from scipy.spatial import cKDTree
 
     out = np.full(len(xyz), np.nan)
@@ -357,7 +427,13 @@ def coverage_notes(steps: list[StepResult]) -> list[str]:
 
 def coverage_rule(k: float | str | None, budget: BudgetInputs | None) -> float | str:
     """The coverage factor to use: ``k`` when given (a number > 0 or
-    "welch-satterthwaite"), else the budget file's, else 2."""
+    "welch-satterthwaite"), else the budget file's, else 2.
+
+    Notes
+    -----
+    The coverage factor of U = k u (GUM 6.2.1): a stated k, or "welch-satterthwaite" for
+    t_95(nu_eff) (GUM G.4.1), else the budget file's k, else 2 (GUM 6.3.3).
+    """
     if k is None:
         return budget.coverage_k if budget is not None and budget.coverage_k is not None \
             else 2.0
@@ -404,6 +480,12 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     Returns
     -------
     QAResult
+
+    Notes
+    -----
+    Every block by :func:`analyse_block` and every pair of successive blocks by
+    :func:`step_between` (Sect. 4.3, Tables 3 and 4 of the paper; GUM budget and
+    ISO 14253-1 decision, docs/qa.rst).
     """
     tolerance_source = "given" if tolerance_um is not None else "default"
     tolerance_um = DEFAULT_TOLERANCE_UM if tolerance_um is None else tolerance_um

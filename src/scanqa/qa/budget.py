@@ -112,14 +112,26 @@ class Budget:
 
 def welch_satterthwaite(parts: list[tuple[float, float]]) -> float:
     """nu_eff = u^4 / sum(u_i^4 / nu_i) of (contribution [um], dof) pairs; inf when every
-    contribution with a finite dof is zero."""
+    contribution with a finite dof is zero.
+
+    Notes
+    -----
+    nu_eff = u_c^4 / sum_i (c_i u_i)^4 / nu_i, the Welch-Satterthwaite formula of GUM G.4.1
+    (Eq. G.2b); a term whose nu_i is not finite and > 0 counts as infinite dof.
+    """
     u2 = sum(c * c for c, _ in parts)
     denom = sum(c**4 / nu for c, nu in parts if math.isfinite(nu) and nu > 0)
     return math.inf if denom == 0.0 else u2 * u2 / denom
 
 
 def coverage_factor(nu: float, coverage: float = COVERAGE) -> float:
-    """Student's t quantile for a two-sided ``coverage`` interval with nu dof [-]."""
+    """Student's t quantile for a two-sided ``coverage`` interval with nu dof [-].
+
+    Notes
+    -----
+    k = t_p(nu), Student's t quantile at p = (1 + coverage) / 2 (GUM G.3, Table G.2);
+    nu infinite gives the normal quantile, 1.96 at 95 %.
+    """
     q = 0.5 + 0.5 * coverage
     return float(student_t.ppf(q, nu)) if math.isfinite(nu) else float(student_t.ppf(q, 1e9))
 
@@ -132,7 +144,17 @@ def load_budget(path: str | os.PathLike) -> BudgetInputs:
 def type_b(inputs: BudgetInputs | None, height_a_mm: float, height_b_mm: float
            ) -> tuple[list[Component], float]:
     """The Type B components of a step between blocks of nominal lengths L_a, L_b, and
-    the thermal correction of its reference value [um] (module notes)."""
+    the thermal correction of its reference value [um] (module notes).
+
+    Notes
+    -----
+    Type B standard uncertainties (GUM 4.3), each |c_i| u_i with infinite dof: the
+    certificates' u_i = (U_0 + U_1 L_i) / k_cert (GUM 4.3.3), c = 1 per block; the
+    temperature with c = alpha d_nom for dT and c = d_nom dT for alpha; the stage scale
+    with c = d_nom; the calibration flat's form F as the difference of two uniforms on
+    [0, F], u = F / sqrt(6) (GUM 4.3.7). The reference is corrected by d_nom alpha dT
+    (module notes, docs/uncertainty_budget.rst).
+    """
     if inputs is None:
         return [], 0.0
     d = height_a_mm - height_b_mm

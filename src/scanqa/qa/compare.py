@@ -135,6 +135,13 @@ def compare_to_cloud(cloud: AnnotatedCloud, reference: AnnotatedCloud, k: float 
         Tolerance on |deviation| for the verdict [mm].
     name : str
         The reference, for the summary.
+
+    Notes
+    -----
+    d_i = (p_i - c_i) . n_i to the plane of the ``neighbours`` nearest reference points;
+    u_i^2 = (sigma_i |l_i . n_i|)^2 + u_ref,i^2 with u_ref,i the reference sigma over
+    sqrt(neighbours) (GUM 5.1.2, Eq. 10), U_i = k u_i and significance |d_i| / U_i, the
+    level of detection of M3C2 with precision maps (docs/compare.rst).
     """
     from scipy.spatial import cKDTree
 
@@ -171,7 +178,14 @@ def compare_to_mesh(cloud: AnnotatedCloud, mesh, k: float = 2.0,
                     reference_sigma_mm: float = 0.0, max_distance_mm: float = 1.0,
                     tolerance_mm: float | None = None, name: str = "reference mesh"
                     ) -> Comparison:
-    """Deviations of ``cloud`` from a trimesh mesh along the closest face's normal."""
+    """Deviations of ``cloud`` from a trimesh mesh along the closest face's normal.
+
+    Notes
+    -----
+    d_i = (p_i - f_i) . n_i to the closest face (foot f_i, face normal n_i);
+    u_i^2 = (sigma_i |l_i . n_i|)^2 + sigma_ref^2 (GUM 5.1.2, Eq. 10), U_i = k u_i,
+    significance |d_i| / U_i (docs/compare.rst).
+    """
     import open3d as o3d  # its ray-casting scene: closest points on millions of faces
 
     _check(cloud, k, 3, reference_sigma_mm, max_distance_mm, tolerance_mm)
@@ -235,6 +249,13 @@ def _check(cloud: AnnotatedCloud, k: float, neighbours: int, ref_sigma: float,
     if "sigma_total_um" not in cloud.attributes:
         raise InputError("the cloud has no sigma_total_um: compare needs the scan's own "
                          "per-point sigma (annotate it with scanqa annotate)")
+    sig = np.asarray(cloud.attributes["sigma_total_um"], dtype=float)
+    bad = np.flatnonzero(np.isinf(sig) | (sig <= 0))
+    if bad.size:
+        raise InputError(f"the cloud's sigma_total_um holds {bad.size} values that are 0, "
+                         f"negative or infinite (first: point {bad[0]}, {sig[bad[0]]!r} um); "
+                         "a sigma must be > 0, or NaN where there is none (annotate the scan "
+                         "again)")
     checks = (("k", k, 0.0), ("max distance", max_distance, 0.0))
     for what, value, bound in checks:
         if not (math.isfinite(value) and value > bound):

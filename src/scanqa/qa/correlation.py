@@ -15,7 +15,11 @@ VDI/VDE 2634-2 artefacts their points (cubes); the factor is the same function.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+
+from scanqa.errors import InputError
 
 #: Tile size of the noise-correlation estimate [mm]: at least twice the correlation length
 #: of the noise (~0.5-1 mm for the paper's scanner at 8 um pixels).
@@ -38,7 +42,27 @@ def tiles(coords: np.ndarray, tile_mm: float = TILE_MM) -> np.ndarray:
     -------
     (n,) int
         Tile labels 0 .. K - 1, in lexicographic order of the cells [-].
+
+    Raises
+    ------
+    InputError
+        No coordinates, a NaN or infinite one, or a tile edge that is not finite and > 0.
+
+    Notes
+    -----
+    tile_i = cell of floor((x_i - min_j x_j) / t) per axis, t = ``tile_mm``: the clusters of
+    the cluster-robust variance of :func:`noise_correlation` (Cameron and Miller (2015),
+    J. Human Resources 50(2)).
     """
+    coords = np.asarray(coords, dtype=float)
+    if not (isinstance(tile_mm, (int, float, np.number)) and math.isfinite(tile_mm)
+            and tile_mm > 0):
+        raise InputError(f"noise correlation: the tile size must be finite and > 0 mm, "
+                         f"got {tile_mm!r}")
+    if coords.ndim != 2 or len(coords) == 0 or not np.isfinite(coords).all():
+        raise InputError(f"noise correlation: the tile coordinates must be a non-empty "
+                         f"(n, d) array of finite values [mm], got shape {coords.shape} with "
+                         f"{int(np.sum(~np.isfinite(coords)))} not finite")
     key = np.floor((coords - coords.min(axis=0)) / tile_mm).astype(np.int64)
     _, tile = np.unique(key, axis=0, return_inverse=True)
     return tile.ravel()
@@ -67,8 +91,10 @@ def noise_correlation(jac: np.ndarray, residuals: np.ndarray, coords: np.ndarray
     -------
     kappa : (p,) float
         The factor per parameter, >= 1; NaN for every parameter when fewer than
-        :data:`MIN_TILES` tiles hold 3 points or more (the caller decides what stands
-        in: gauge blocks take the points as independent and say so, the sphere fits use 1).
+        :data:`MIN_TILES` tiles hold 3 points or more, when a residual is NaN or infinite,
+        or when every residual is 0 (no scatter to measure a factor on); the caller
+        decides what stands in: gauge blocks take the points as independent and say so,
+        the sphere fits use 1.
     n_tiles : int
         Tiles holding 3 points or more [-].
 
@@ -92,7 +118,7 @@ def noise_correlation(jac: np.ndarray, residuals: np.ndarray, coords: np.ndarray
     counts = np.bincount(tile)
     n_tiles = int(np.sum(counts >= 3))
     p = jac.shape[1]
-    if n_tiles < MIN_TILES:
+    if n_tiles < MIN_TILES or not np.isfinite(residuals).all():
         return np.full(p, np.nan), n_tiles
     bread = np.linalg.inv(jac.T @ jac) if bread is None else bread
     score = jac * residuals[:, None]
@@ -100,4 +126,5 @@ def noise_correlation(jac: np.ndarray, residuals: np.ndarray, coords: np.ndarray
     meat_tiles = per_tile.T @ per_tile * counts.size / (counts.size - p)
     v_tiles = np.diag(bread @ meat_tiles @ bread)
     v_points = np.diag(bread @ (score.T @ score) @ bread)
-    return np.maximum(1.0, v_tiles / v_points), n_tiles
+    with np.errstate(invalid="ignore", divide="ignore"):  # all residuals 0: 0 / 0 = NaN
+        return np.maximum(1.0, v_tiles / v_points), n_tiles

@@ -7,6 +7,7 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.qa.layout import BlockSpec, Layout
 from scanqa.qa.planes import fit_plane
+from scanqa.qa.ransac import check_positive
 
 
 def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 0.3,
@@ -36,9 +37,18 @@ def detect_blocks(xyz: np.ndarray, nominal: dict[int, float], voxel_mm: float = 
     -------
     Layout
         The blocks found; regions are the bounding boxes of their patches [mm].
+
+    Notes
+    -----
+    h_i = (p_i - c_base) . n_base, the height above the base plane (RANSAC, M. A. Fischler
+    and R. C. Bolles (1981)); peaks of the histogram of h are the tops; DBSCAN (M. Ester et
+    al. (1996)) splits each band into patches; a nominal height H matches the largest patch
+    with |h - H| <= ``match_tol_mm`` (scanqa's own rule, docs/qa.rst).
     """
     import open3d as o3d
 
+    check_positive("finding blocks", voxel_size=voxel_mm, match_tolerance=match_tol_mm,
+                   **{f"nominal_height_of_block_{b}": h for b, h in nominal.items()})
     o3d.utility.random.seed(0)  # RANSAC: the same scan finds the same blocks
     pts = np.asarray(xyz, dtype=float)
     pts = pts[np.isfinite(pts).all(axis=1)]

@@ -109,6 +109,12 @@ def minimum_zone_plane(points, where: str = "flat", max_iter: int = 50) -> ZoneP
     -------
     ZonePlane
         Its ``width`` is the minimum-zone flatness [mm].
+
+    Notes
+    -----
+    The minimum-zone reference plane (MZPL) of ISO 12781-1:2011: the pair of parallel
+    planes of least separation enclosing every point, min over n of (max_i p_i . n -
+    min_i p_i . n); solved as a sequence of linear programs (module notes).
     """
     pts = check_points(points, where, 4)
     ls = fit_plane(pts, where)
@@ -144,6 +150,12 @@ def flatness(points, method: str = "least_squares", where: str = "flat") -> floa
     -------
     float
         Flatness [mm].
+
+    Notes
+    -----
+    Flatness as ISO 12781-1:2011 defines it: "least_squares" is max_i r_i - min_i r_i of
+    the residuals from the least-squares plane (LSPL, the F of VDI/VDE 2634-2);
+    "minimum_zone" is the width of the minimum-zone planes (MZPL), never larger.
     """
     if method == "least_squares":
         return float(np.ptp(fit_plane(check_points(points, where, 4), where).residuals))

@@ -33,6 +33,12 @@ def fit_plane(points: np.ndarray, where: str = "points") -> PlaneFit:
     -------
     PlaneFit
         Normal oriented towards the camera (the scanner origin).
+
+    Notes
+    -----
+    The orthogonal (total) least-squares plane, the least-squares reference plane (LSPL) of
+    ISO 12781-1:2011: centroid c = mean(p_i); normal n = the right singular vector of the
+    centred points with the smallest singular value; residuals r_i = (p_i - c) . n.
     """
     pts = np.asarray(points, dtype=float)
     if pts.ndim != 2 or pts.shape[1] != 3 or pts.shape[0] < 3:
@@ -64,6 +70,12 @@ def plane_design(points: np.ndarray, fit: PlaneFit) -> np.ndarray:
     (n, 3) float
         Columns 1, s_1, s_2: in-plane coordinates about the centroid along ``fit.axes``
         [-], [mm], [mm].
+
+    Notes
+    -----
+    The plane as offset plus two slopes, h(s_1, s_2) = h_0 + a_1 s_1 + a_2 s_2 with
+    s_k = (p - c) . e_k: the design matrix J of that linear model, whose covariance
+    (J^T J)^-1 J^T Sigma J (J^T J)^-1 the QA propagates (GUM 5.2.2, Eq. 13, to first order).
     """
     d = np.asarray(points, dtype=float) - fit.centroid
     return np.column_stack([np.ones(len(d)), d @ fit.axes[0], d @ fit.axes[1]])

@@ -98,6 +98,22 @@ def _best(sub: np.ndarray, centres: np.ndarray, radii: np.ndarray, thr: float) -
     return int(np.argmax(scores))
 
 
+def check_positive(where: str, **lengths: float | None) -> None:
+    """Refuse a length [mm] that is given but not finite and > 0, naming it.
+
+    Parameters
+    ----------
+    where : str
+        What is being searched, for the message.
+    **lengths : float or None
+        Name -> value [mm]; None (not given) passes.
+    """
+    for name, value in lengths.items():
+        if value is not None and not (math.isfinite(value) and value > 0):
+            raise InputError(f"{where}: the {name.replace('_', ' ')} must be finite and "
+                             f"> 0 mm, got {value!r}")
+
+
 def ransac_sphere(points, radius_mm: float | None = None, radius_tol_mm: float | None = None,
                   threshold_mm: float = 0.1, iterations: int = 1000, min_inliers: int = 50,
                   seed: int = 0) -> SphereCandidate | None:
@@ -124,8 +140,17 @@ def ransac_sphere(points, radius_mm: float | None = None, radius_tol_mm: float |
     Returns
     -------
     SphereCandidate or None
+
+    Notes
+    -----
+    RANSAC (M. A. Fischler and R. C. Bolles (1981), Comm. ACM 24(6), 381-395): the sphere
+    through 4 points solves |p|^2 = 2 c . p + d exactly, R = sqrt(d + |c|^2); inliers have
+    | |p - c| - R | <= ``threshold_mm``; the best is refined by the least-squares sphere
+    (ISO 10360-6) on its inliers.
     """
     pts = check_points(points, "sphere search", 4)
+    check_positive("sphere search", radius=radius_mm, radius_tolerance=radius_tol_mm,
+                   threshold=threshold_mm)
     rng = np.random.default_rng(seed)
     sub = pts[rng.choice(len(pts), SCORE_POINTS, replace=False)] \
         if len(pts) > SCORE_POINTS else pts
@@ -175,6 +200,12 @@ def find_spheres(points, count: int, radius_mm: float | None = None, what: str =
     ------
     InputError
         Fewer than ``count`` spheres found.
+
+    Notes
+    -----
+    Repeated :func:`ransac_sphere` (M. A. Fischler and R. C. Bolles (1981)), each found
+    sphere's inliers and the points within 1.05 R of its centre removed before the next
+    search.
     """
     pts = check_points(points, what, 4)
     remaining = np.arange(len(pts))
@@ -220,10 +251,16 @@ def ransac_plane(points, threshold_mm: float = 0.1, iterations: int = 2000,
         n . p of the plane [mm].
     inliers : (m,) int
         Indices of the inliers [-].
+
+    Notes
+    -----
+    RANSAC plane (M. A. Fischler and R. C. Bolles (1981); Open3D ``segment_plane``): the
+    plane through 3 points with the most inliers |(p - q) . n| <= ``threshold_mm``.
     """
     import open3d as o3d
 
     pts = check_points(points, "plane search", 3)
+    check_positive("plane search", threshold=threshold_mm)
     o3d.utility.random.seed(seed)
     pcd = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(pts))
     model, inl = pcd.segment_plane(distance_threshold=threshold_mm, ransac_n=3,

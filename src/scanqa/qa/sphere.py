@@ -206,8 +206,19 @@ def algebraic_sphere(points) -> tuple[np.ndarray, float]:
         [mm]
     radius : float
         [mm]
+
+    Raises
+    ------
+    InputError
+        Fewer than 4 points, a NaN or infinite point, or points on no sphere.
+
+    Notes
+    -----
+    The algebraic (Kasa) fit: |q_i|^2 = 2 c . q_i + d in least squares, q_i = p_i - mean(p),
+    R = sqrt(d + |c|^2) (I. Kasa (1976), IEEE Trans. Instrum. Meas. 25, 8-14). It minimises
+    the algebraic, not the orthogonal, distance; :func:`fit_sphere` starts from it.
     """
-    pts = np.asarray(points, dtype=float)
+    pts = check_points(points, "sphere", 4)
     m = pts.mean(axis=0)
     q = pts - m
     a = np.column_stack([2.0 * q, np.ones(len(q))])
@@ -256,8 +267,24 @@ def cap_coverage(points, centre) -> tuple[float, float, np.ndarray]:
         99th percentile of the polar angle around the cap axis [deg].
     axis : (3,) float
         Cap axis (unit mean direction) [-].
+
+    Raises
+    ------
+    InputError
+        No points, or a NaN or infinite point or centre.
+
+    Notes
+    -----
+    coverage = (occupied cells) / cells^2: the unit directions u_i = (p_i - c) / |p_i - c|
+    binned into ``cells`` rings equal in cos theta and ``cells`` sectors in azimuth around
+    the cap axis, each cell 2 pi / cells^2 sr; a hemisphere holds cells^2 of them. scanqa's
+    own check (module notes, docs/artefacts.rst); for an evenly covered cap of half-opening
+    theta it tends to 1 - cos theta.
     """
-    u = np.asarray(points, dtype=float) - np.asarray(centre, dtype=float)
+    centre = np.asarray(centre, dtype=float)
+    if centre.shape != (3,) or not np.isfinite(centre).all():
+        raise InputError(f"sphere: the centre must be 3 finite coordinates [mm], got {centre}")
+    u = check_points(points, "sphere", 1) - centre
     u /= np.linalg.norm(u, axis=1, keepdims=True)
     mean = u.mean(axis=0)
     axis = mean / np.linalg.norm(mean) if np.linalg.norm(mean) > 0 else np.array([0, 0, 1.0])
@@ -297,6 +324,10 @@ def _sigma(sigma, n: int, where: str) -> np.ndarray | None:
     if not np.all(np.isfinite(s) & (s >= 0)):
         raise InputError(f"{where}: sigma must be finite and >= 0 [mm] for every point "
                          "(replace missing values, e.g. by the measured std)")
+    if n and not np.any(s > 0):
+        raise InputError(f"{where}: every sigma is 0 [mm], which would give the fit no "
+                         "uncertainty; give the points' predicted sigma, or none to take "
+                         "the residuals' scatter")
     return s
 
 
@@ -332,6 +363,15 @@ def fit_sphere(points, sigma=None, correlation: Correlation | None = None,
     InputError
         Too few or non-finite points, a fit that diverges, or a cap covering less than
         ``min_coverage`` of a hemisphere.
+
+    Notes
+    -----
+    The least-squares (Gaussian) sphere of ISO 10360-6 and VDI/VDE 2634-2: min over (c, R)
+    of sum_i (|p_i - c| - R)^2, Gauss-Newton from :func:`algebraic_sphere`. Its
+    covariance Cov(c, R) = B J^T diag(sigma_i^2) J B, B = (J^T J)^-1, J_i = (-u_i^T, -1),
+    the law of propagation of GUM 5.2.2 (Eq. 13) applied to the estimator linearised at the
+    solution; without sigmas s^2 B, s^2 = sum r_i^2 / (n - 4). Each variance is multiplied
+    by the noise-correlation factor kappa (module notes).
     """
     pts = check_points(points, where, max(min_points, 5))
     sig = _sigma(sigma, len(pts), where)
@@ -377,10 +417,33 @@ def sight_noise_bias(points, centre, radius: float, sigma, view_origin=(0.0, 0.0
     Returns
     -------
     (4,) float
-        Expected estimate minus truth of (cx, cy, cz, R) [mm], second order in sigma.
+        Expected estimate minus truth of (cx, cy, cz, R) [mm], second order in sigma;
+        0 for sigma = 0; NaN when a sigma is NaN or infinite (a bias that cannot be
+        predicted, never a number).
+
+    Raises
+    ------
+    InputError
+        Fewer than 4 points, a NaN or infinite point or centre, or a radius that is not
+        finite and > 0.
+
+    Notes
+    -----
+    b = -(J^T J)^-1 sum_i E[r_i g_i], g_i = (-u_i^T, -1),
+    E[r_i g_i] = sigma_i^2 / R (-(c_i l_perp,i + s_i^2 n_i / 2)^T, -s_i^2 / 2): the
+    second-order bias of the least-squares estimator under noise along the lines of sight,
+    derived in the module notes (scanqa's own, docs/artefacts.rst), checked by Monte Carlo
+    in the tests.
     """
-    pts = np.asarray(points, dtype=float)
+    pts = check_points(points, "sphere", 4)
+    if not (math.isfinite(radius) and radius > 0):
+        raise InputError(f"sphere: the radius must be finite and > 0 mm, got {radius!r}")
+    centre = np.asarray(centre, dtype=float)
+    if not np.isfinite(centre).all():
+        raise InputError(f"sphere: the centre must be finite [mm], got {centre}")
     sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(pts),))
+    if not np.isfinite(sig).all():
+        return np.full(4, np.nan)
     n = pts - np.asarray(centre, dtype=float)
     n /= np.linalg.norm(n, axis=1, keepdims=True)
     sight = pts - np.asarray(view_origin, dtype=float)
@@ -449,7 +512,9 @@ def minimum_zone_sphere(points, start=None, where: str = "sphere",
     convex in general; from the least-squares centre it finds the local minimum that
     belongs to that sphere, which for points on a sphere with form errors small against
     the radius is the minimum zone. The width is never larger than the least-squares
-    range, from which it starts.
+    range, from which it starts. The criterion is the minimum-zone (Chebyshev) one that
+    ISO 12781-1:2011 gives for flatness (MZPL), here for two concentric spheres:
+    min over c of (max_i |p_i - c| - min_i |p_i - c|).
     """
     pts = check_points(points, where, 5)
     m = pts.mean(axis=0)

@@ -35,9 +35,10 @@ Standard uncertainty u (GUM, first order) and U = k u (k = 2 by default; plus |b
   (:mod:`scanqa.qa.ballbar`).
 - PF, F: a range has no first-order propagation; u is the standard deviation of the test
   value over repeated scans predicted from the per-point sigmas (sampling of the extreme
-  residuals, :func:`predicted_range`), its variance multiplied by the noise-correlation
-  factor (the largest of the sphere's), combined with the artefact's certified form
-  deviation f as a rectangular contribution of half-width f: u^2 = kappa u_s^2 + f^2 / 3.
+  residuals, :func:`~scanqa.qa.form_range.predicted_range`), its variance multiplied by
+  the noise-correlation factor (the largest of the sphere's), combined with the
+  artefact's certified form deviation f as a rectangular contribution of half-width f:
+  u^2 = kappa u_s^2 + f^2 / 3.
 
 PS and SD also carry the predicted bias b of the least-squares spheres from noise along
 the line of sight (:func:`scanqa.qa.sphere.sight_noise_bias`; 2 b_R for PS, the centres'
@@ -48,23 +49,9 @@ Errors shared by the points of an artefact (a calibration table's own error fiel
 PS and SD when the caller gives their size (``u_table``); thermal expansion and other
 Type B terms belong to the caller's uncertainty budget.
 
-Predicted form error (PF and F) from the per-point sigmas. The residuals are Gaussian
-with standard deviations sigma_i (a mixture when they differ); S(q) = mean_i
-2 Phi_c(q / sigma_i) is the fraction of |residuals| above q and T(x) its inverse, the
-level exceeded by a fraction x. In the tail, the points ordered by decreasing |residual|
-arrive as a Poisson process in tau = N S(q) with unit rate, each on either side with
-probability 1/2. Dropping the k largest leaves the (k+1)-th, at tau ~ Gamma(k + 1), as
-one end of the kept range; the other end is the next arrival on the other side, a gap
-E ~ exponential of mean 2 later. Hence the kept range is
-
-    PF = T(tau / N) + T((tau + E) / N),   tau ~ Gamma(k + 1),  E ~ Exp(mean 2),
-
-whose mean (the prediction) and standard deviation (u_s) are computed by quadrature over
-tau and E. For equal sigmas and large N with k = 0.3 % of N this is the range of the
-central 99.7 % of a Gaussian, about 2 x 2.968 sigma; with k = 0 it is the sum of two
-independent extremes (the Gumbel case). The prediction covers noise only: the
-artefact's own form and any systematic error add to the measured range. The tests check
-it against Monte Carlo draws of the residuals.
+Predicted form error (PF and F) from the per-point sigmas: the expected range of the
+kept residuals and its standard deviation u_s,
+:func:`scanqa.qa.form_range.predicted_range` (re-exported here).
 
 Two uncertainties, two uses. U above is the uncertainty of the test value as a
 measurement of the scanner's characteristic: how far this scan's PF, PS, SD or F may lie
@@ -93,12 +80,12 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.special import gammaincinv, ndtr
 
 from scanqa.errors import InputError
 from scanqa.io.spec import Spec
 from scanqa.qa.ballbar import BallBarFit, centre_distance
 from scanqa.qa.flat import ZonePlane, minimum_zone_plane
+from scanqa.qa.form_range import predicted_range
 from scanqa.qa.planes import PlaneFit, fit_plane
 from scanqa.qa.sphere import (
     MIN_COVERAGE,
@@ -117,8 +104,6 @@ DROP_FRACTION = 0.003
 #: Which expanded uncertainty the decisions use (module notes).
 DECIDE_WITH = ("test", "total")
 #: The quantities and their names.
-#: Quadrature nodes per variable of the range prediction [-].
-_NODES = 64
 QUANTITIES = {"PF": "probing error form", "PS": "probing error size",
               "SD": "sphere-spacing error", "F": "flatness measurement error"}
 
@@ -240,56 +225,38 @@ def quantity(name: str, value: float, u: float, mpe: float, k: float = 2.0,
     ``u`` is the combined standard uncertainty (points and artefact), ``u_artefact``
     the artefact's part; the decision uses k u_artefact (``decide_with="test"``) or
     k u + |bias| ("total"). ``note`` says what is missing when it is not evaluated.
+
+    Notes
+    -----
+    U = k u + |b| (GUM 6.2.1, with the uncorrected bias b added, module notes); the decision
+    is the ISO 14253-1 rule of :func:`scanqa.qa.verdict.decide` with U_test = k u_artefact
+    ("test", the test uncertainty of VDI/VDE 2634-2 and ISO/TS 23165) or U ("total").
     """
     if decide_with not in DECIDE_WITH:
         raise InputError(f"decide_with must be one of {', '.join(DECIDE_WITH)}, "
                          f"got {decide_with!r}")
+    if not (math.isfinite(k) and k > 0):
+        raise InputError(f"{name}: the coverage factor k must be finite and > 0, got {k!r}")
+    for what, v in (("u", u), ("u_artefact", u_artefact)):
+        if v < 0:  # NaN passes: a quantity that could not be measured
+            raise InputError(f"{name}: the standard uncertainty {what} must be >= 0 mm, "
+                             f"got {v!r}")
     used = k * u_artefact if decide_with == "test" else k * u + abs(bias)
     decision = decide(value, used if math.isfinite(u) else math.nan, mpe)
     if decision == "not evaluated" and not note:
-        note = "no MPE for it in the spec" if math.isfinite(value) else "not measured"
+        note = _why_not_evaluated(value, mpe)
     return Quantity(name, float(value), float(u), float(k), float(mpe), decision,
                     bias=float(bias), note=note, u_artefact=float(u_artefact),
                     decided_with=decide_with, **extra)
 
 
-def predicted_range(sigma, n_dropped: int = 0) -> tuple[float, float]:
-    """Expected range of Gaussian residuals after dropping the largest |r|, and its std.
-
-    Parameters
-    ----------
-    sigma : (n,) float
-        Standard deviation of each residual, all n points before dropping [mm].
-    n_dropped : int
-        Points with the largest |residual| removed before the range [-].
-
-    Returns
-    -------
-    predicted : float
-        Expected range of the kept residuals [mm] (module notes).
-    u : float
-        Its standard deviation over repeated scans [mm].
-    """
-    s = np.asarray(sigma, dtype=float).ravel()
-    n, k = s.size, int(n_dropped)
-    if n < 2 or not np.all(np.isfinite(s) & (s > 0)) or not 0 <= k < n - 1:
-        return math.nan, math.nan
-    level = _tail_level(s)
-    p = (np.arange(_NODES) + 0.5) / _NODES  # equal-probability nodes of tau and E
-    tau = gammaincinv(k + 1, p)[:, None]
-    gap = -2.0 * np.log1p(-p)[None, :]
-    r = level(tau / n) + level((tau + gap) / n)
-    return float(r.mean()), float(r.std())
-
-
-def _tail_level(s: np.ndarray):
-    """The |residual| level q at which a fraction x of the points is expected above:
-    S(q) = mean_i 2 Phi_c(q / sigma_i) = x, as a vectorised function of x."""
-    reps = np.quantile(s, (np.arange(256) + 0.5) / 256) if s.size > 256 else s
-    q = np.linspace(0.0, 14.0 * float(s.max()), 4001)
-    tail = 2.0 * np.mean(ndtr(-q[:, None] / reps[None, :]), axis=1)
-    log_tail = np.log(np.maximum(tail, 1e-300))[::-1]
-    return lambda x: np.interp(np.log(x), log_tail, q[::-1])
+def _why_not_evaluated(value: float, mpe: float) -> str:
+    """The note of a quantity nothing could be decided for."""
+    if not math.isfinite(value):
+        return "not measured"
+    if not math.isfinite(mpe):
+        return "no MPE for it in the spec"
+    return "its uncertainty is not finite (NaN or infinite u, U_test or bias)"
 
 
 def normal_sigma(points, sigma, normals, view_origin=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -310,14 +277,22 @@ def normal_sigma(points, sigma, normals, view_origin=(0.0, 0.0, 0.0)) -> np.ndar
     Returns
     -------
     (n,) float
-        sigma |l . n| [mm].
+        sigma |l . n| [mm]; NaN where sigma, a point or a normal is NaN or infinite, or
+        where a point sits at ``view_origin`` (no line of sight).
+
+    Notes
+    -----
+    sigma_n,i = sigma_i |l_i . n_i|, l_i = (p_i - o) / |p_i - o|: the projection of a
+    displacement along the line of sight onto the normal, the sensitivity coefficient of
+    GUM 5.1.3 for a residual measured along n (module notes).
     """
     pts = np.asarray(points, dtype=float)
     sig = np.broadcast_to(np.asarray(sigma, dtype=float), (len(pts),))
     if view_origin is None:
         return sig.copy()
     los = pts - np.asarray(view_origin, dtype=float)
-    los /= np.linalg.norm(los, axis=1, keepdims=True)
+    with np.errstate(invalid="ignore", divide="ignore"):  # a point at the origin: NaN
+        los /= np.linalg.norm(los, axis=1, keepdims=True)
     return sig * np.abs(np.sum(los * normals, axis=1))
 
 
@@ -374,6 +349,12 @@ def _form(name, residuals, sig, keep, kappa, form_um, mpe, k, decide_with) -> Qu
                     decide_with=decide_with)
 
 
+def _check_u_table(u_table: float, where: str) -> None:
+    if not (math.isfinite(u_table) and u_table >= 0):
+        raise InputError(f"{where}: the table's standard uncertainty u_table must be finite "
+                         f"and >= 0 mm, got {u_table!r}")
+
+
 def _mpe(spec: Spec | None, name: str, length_mm: float = 0.0) -> float:
     if spec is None or name not in spec.mpe:
         return math.nan
@@ -416,7 +397,16 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     Returns
     -------
     SphereTest
+
+    Notes
+    -----
+    VDI/VDE 2634-2 (2012), probing error: PF = max_i r_i - min_i r_i and
+    PS = D_a - D_cert from the least-squares sphere with free radius on the points kept by
+    the 0.3 % rule. u(PS)^2 = 4 (u(R)^2 + u_table^2) + (U_cert / k_cert)^2 and
+    u(PF)^2 = kappa u_s^2 + f^2 / 3 (GUM 5.1.2 Eq. 10; rectangular form f, GUM 4.3.7);
+    u_s from :func:`~scanqa.qa.form_range.predicted_range`.
     """
+    _check_u_table(u_table, where)
     pts, keep, sig, fit, bias = _fit_kept_sphere(points, sigma, drop_fraction, correlation,
                                                  view_origin, min_coverage, where)
     cert = None if spec is None else spec.sphere
@@ -475,7 +465,15 @@ def sphere_spacing_error(points_a, points_b, sigma_a=None, sigma_b=None,
     Returns
     -------
     BallBarTest
+
+    Notes
+    -----
+    VDI/VDE 2634-2 (2012), sphere-spacing error: SD = L_a - L_cert, L the distance of two
+    least-squares sphere centres. u(SD)^2 = u(L)^2 + 2 u_table^2 + (U_cert / k_cert)^2
+    (GUM 5.1.2, Eq. 10; u(L) from :func:`scanqa.qa.ballbar.centre_distance`); the bias
+    b = -g . (b_a - b_b) of the centres is added to U.
     """
+    _check_u_table(u_table, where)
     both = sorted((_fit_kept_sphere(p, s, drop_fraction, correlation, view_origin,
                                     min_coverage, f"{where}, ball {w}")[3:]
                    for p, s, w in ((points_a, sigma_a, "a"), (points_b, sigma_b, "b"))),
@@ -525,6 +523,14 @@ def flatness_error(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     Returns
     -------
     FlatTest
+
+    Notes
+    -----
+    VDI/VDE 2634-2 (2012), flatness measurement error: F = max_i r_i - min_i r_i from the
+    least-squares plane of the points kept by the 0.3 % rule; u(F)^2 = kappa u_s^2 + f^2 / 3
+    (rectangular form deviation f of the certificate, GUM 4.3.7; u_s from
+    :func:`~scanqa.qa.form_range.predicted_range`). Every sigma 0 predicts nothing: u
+    and the prediction are NaN and nothing is decided.
     """
     pts = check_points(points, "flat", 10)
     first = fit_plane(pts, "flat")

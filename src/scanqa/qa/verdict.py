@@ -12,6 +12,8 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 
+from scanqa.errors import MethodError
+
 #: The decisions a verdict counts.
 DECISIONS = ("pass", "fail", "undecided", "not evaluated")
 #: The verdicts, worst first.
@@ -38,6 +40,13 @@ def decide(value: float, expanded: float, limit: float) -> str:
         "pass" when |E| <= limit - U (conformance proven), "fail" when |E| > limit + U
         (non-conformance proven), "undecided" between, and "not evaluated" when any input
         is NaN or infinite (nothing can be decided).
+
+    Notes
+    -----
+    ISO 14253-1:2017 default decision rule with the uncertainty zone on both sides of the
+    limit T: conformance is proven when |E| <= T - U, non-conformance when |E| > T + U,
+    anything between is undecided. E, U and T share one unit; a non-finite input decides
+    nothing.
 
     Examples
     --------
@@ -80,7 +89,7 @@ def verdict(decisions: Iterable[str]) -> dict:
     counts = dict.fromkeys(DECISIONS, 0)
     for d in decisions:
         if d not in counts:
-            raise ValueError(f"unknown decision {d!r} (known: {', '.join(DECISIONS)})")
+            raise MethodError(f"unknown decision {d!r} (known: {', '.join(DECISIONS)})")
         counts[d] += 1
     total = sum(counts.values())
     if counts["fail"]:

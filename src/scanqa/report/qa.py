@@ -1,6 +1,7 @@
 """The gauge-block QA report: HTML with embedded plots, CSV tables and a JSON summary.
 
-Rendering only: every number comes from :func:`scanqa.qa.blocks.run_qa`.
+Rendering only: every number comes from :func:`scanqa.qa.blocks.run_qa`, the paper's
+Table 3 beside it from :mod:`scanqa.qa.paper`.
 """
 
 from __future__ import annotations
@@ -14,14 +15,11 @@ import numpy as np
 from scanqa.io.atomic import staged_dir, write_text
 from scanqa.provenance import ReportHeader
 from scanqa.qa.blocks import QAResult
+from scanqa.qa.paper import TABLE3_COLUMNS, paper_series, table3_rows
 from scanqa.qa.verdict import verdict
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 
-#: Paper Table 3 (Drouin et al. 2017): block -> (predicted, measured) std [um]; block 1's
-#: prediction is "large value" and block 6's measured value is not legible in the text.
-PAPER_TABLE3 = {1: (None, 22), 2: (13, 12), 3: (13, 14), 4: (15, 16), 5: (16, 16),
-                6: (17, None), 7: (21, 18), 8: (22, 20)}
 BLOCK_COLUMNS = ("block_id", "nominal_height_mm", "n_points", "measured_std_um",
                  "measured_std_u_um", "predicted_std_um", "ratio", "flatness_um",
                  "mean_attenuation", "in_volume_fraction", "model_valid_fraction", "status")
@@ -38,6 +36,7 @@ BLOCK_DETAILS = ("flatness_um", "mean_attenuation", "in_volume_fraction", "noise
 LABELS = {"block_id": "block", "nominal_height_mm": "height [mm]", "n_points": "points",
           "measured_std_um": "measured std [um]", "predicted_std_um": "predicted std [um]",
           "paper_predicted_um": "paper pred. [um]", "paper_measured_um": "paper meas. [um]",
+          "paper_ratio": "paper ratio",
           "flatness_um": "flatness [um]", "mean_attenuation": "attenuation",
           "in_volume_fraction": "in volume", "noise_corr_factor": "kappa",
           "block_a": "a", "block_b": "b", "nominal_diff_mm": "nominal [mm]",
@@ -166,15 +165,8 @@ def _table3_section(page: Page, result: QAResult) -> None:
     paper = bool(result.settings.get("paper_comparison"))
     page.heading("Per block: measured vs predicted std"
                  + (" (paper Table 3)" if paper else ""), "blocks")
-    rows = []
-    for b in result.blocks:
-        row = b.row()
-        if paper:
-            pp, pm = PAPER_TABLE3.get(b.block_id, (None, None))
-            row.update(paper_predicted_um=pp if pp is not None else "large/-",
-                       paper_measured_um=pm if pm is not None else "-")
-        rows.append(row)
-    extra = ("paper_predicted_um", "paper_measured_um") if paper else ()
+    rows = table3_rows(result.blocks, paper)
+    extra = TABLE3_COLUMNS if paper else ()
     page.table(rows, [*BLOCK_MAIN, *extra], BLOCK_DETAILS, ("block_id",), LABELS)
     tile = result.settings.get("tile_mm", 2.0)
     page.paragraph("noise_corr_factor: how many points share one noise draw, measured on the "
@@ -186,12 +178,9 @@ def _table3_section(page: Page, result: QAResult) -> None:
     ax[0][0].bar(x - 0.2, [b.measured_std_um for b in result.blocks], 0.4, label="measured")
     ax[0][0].bar(x + 0.2, [b.predicted_std_um for b in result.blocks], 0.4, label="predicted")
     if paper:
-        paper_p = [PAPER_TABLE3.get(i, (None, None))[0] for i in ids]
-        ax[0][0].plot(x, [np.nan if v is None else v for v in paper_p], "k^",
-                      label="paper predicted")
-        paper_m = [PAPER_TABLE3.get(i, (None, None))[1] for i in ids]
-        ax[0][0].plot(x, [np.nan if v is None else v for v in paper_m], "kv",
-                      label="paper measured")
+        paper_p, paper_m = paper_series(ids)
+        ax[0][0].plot(x, paper_p, "k^", label="paper predicted")
+        ax[0][0].plot(x, paper_m, "kv", label="paper measured")
     ax[0][0].set_xticks(x, [str(i) for i in ids])
     ax[0][0].set(xlabel="block", ylabel="std of plane residuals [um]",
                  title="measured vs predicted std per block")

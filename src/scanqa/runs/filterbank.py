@@ -154,7 +154,7 @@ def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarr
     ----------
     noise_area_px2 : array_like
         Noise-equivalent area of the camera's own kernel N_o
-        (:func:`scanqa.model.optics.camera_noise_area`) [px^2].
+        (:func:`scanqa.model.readings.camera_noise_area`) [px^2].
     period_cam_px : array_like
         Fringe period in the image [camera px] (or, with ``transfer``, the filter's
         transfer m_f [-]).
@@ -191,7 +191,7 @@ def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarr
 
 def camera_noise_area_px2(z_mm: np.ndarray, config: ScannerConfig) -> np.ndarray:
     """The camera kernel's noise-equivalent area N_o at range ``z_mm`` (pixel, defocus
-    disc, Airy disc; :func:`scanqa.model.optics.camera_noise_area`) [px^2]."""
+    disc, Airy disc; :func:`scanqa.model.readings.camera_noise_area`) [px^2]."""
     cam, model = config.camera, config.model
     pixel = cam.pixel_um * 1e-3
     b_d = optics.diffraction_blur_area(
