@@ -20,8 +20,8 @@ chain of Eqs. 17 and 19), whose public names this module re-exports:
   disc and Airy disc, whose second moments add under convolution - over the noise's own
   correlation area gamma^2: F = sqrt(1 + b_disc + b_d) / gamma
   (:func:`~scanqa.model.readings.camera_noise_area`). The two agree in shape once the
-  disc dominates; "sum" stays right for pixels larger than the Airy disc (b_d << 1), where the product
-  collapses.
+  disc dominates; "sum" stays right for pixels larger than the Airy disc (b_d << 1),
+  where the product collapses.
 * ``noise_reading``: "power" divides by A, the squared magnitude ratio, as Eq. 19 is
   printed; "amplitude" divides by sqrt(A), which is what additive intensity noise gives;
   "mixed" divides by A_c sqrt(A_p). "two_source" is the physical model: scene-side
