@@ -53,7 +53,7 @@ def test_quiet_and_toml_path(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("breakage,match", [
-    ("unknown_key", "scanqa: unknown key set[0].colour"),
+    ("unknown_key", "patterns.toml: [[set]] 1: unknown key 'colour'"),
     ("missing_image", "scanqa: image file"),
     ("no_folder", "scanqa: no pattern description"),
 ])
