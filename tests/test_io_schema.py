@@ -229,7 +229,7 @@ def schema_docs() -> str:
     parts = [BEGIN, ""]
     for name in sorted(schema.SCHEMAS):
         parts += [schema.rst_table(schema.SCHEMAS[name]), ""]
-    return "\n".join(parts + [END])
+    return "\n".join([*parts, END])
 
 
 def test_the_docs_show_every_declared_schema():

@@ -80,7 +80,8 @@ def within(low: float, high: float, open_low: bool = False) -> Check:
     if open_low:
         return Check(f"in ({_num(low)}, {_num(high)}]",
                      lambda v: all(low < x <= high for x in _items(v)))
-    return Check(f"in [{_num(low)}, {_num(high)}]", lambda v: all(low <= x <= high for x in _items(v)))
+    return Check(f"in [{_num(low)}, {_num(high)}]",
+                 lambda v: all(low <= x <= high for x in _items(v)))
 
 
 def count(n: int, then: Check | None = None) -> Check:
