@@ -11,6 +11,7 @@ from scanqa.cli.common import (
     add_config_argument,
     add_model_argument,
     emit,
+    flags,
     output_path,
 )
 from scanqa.cli.flatten_args import (
@@ -101,8 +102,10 @@ def run(args: argparse.Namespace) -> int:
         response = replace(response, source=str(measure_out))
     else:
         response = named_response(desc, args.response)
-    phase_map = decode_images(desc, stacks, progress=progress, notes=[note] if note else [],
-                              response=response)
+    with flags({"measure one on a flat": "measure one on a flat (scanqa decode "
+                                         "--measure-response)"}):
+        phase_map = decode_images(desc, stacks, progress=progress,
+                                  notes=[note] if note else [], response=response)
     phase_map = flatten_from_args(args, desc, stacks, phase_map)
     if measure_out is not None:
         save_response(measure_out, response)

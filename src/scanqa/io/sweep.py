@@ -292,8 +292,8 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
         raise InputError(f"{len(markers)} marker frames but {len(zs)} distinct stage "
                          "readings: give one marker frame per position")
     if markers is not None and not (square_mm and square_mm > 0):
-        raise InputError("marker frames need the printed target's square size (--square-mm, "
-                         "> 0 mm)")
+        raise InputError("marker frames need the printed target's square size (square_mm "
+                         "> 0 [mm])")
     key = "phase" if decoded else "patterns"
     rows = []
     for k, z in enumerate(zs):
