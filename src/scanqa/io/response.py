@@ -41,7 +41,7 @@ SCHEMA = declare(Schema("projector response", (
                     doc="the set's frames"),
               Field("shifts_rad", "numbers", "rad", required=True, doc="the set's shifts"),
               Field("phase_error_rad", "numbers", "rad", required=True,
-                    doc="error at measured phase (i + 1/2) 2 pi / n, n >= 4, |e| < pi/2"),
+                    doc="error at measured phase (i + 1/2) 2 pi / n, n >= 4, abs(e) < pi/2"),
           ))),
 ), formats=(FORMAT,)))
 
