@@ -45,7 +45,7 @@ _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$")
 #: The batch manifest's keys (module notes).
 BATCH_SCHEMA = declare(Schema("batch manifest", (
     Field("format", "string", required=True, doc=f"{BATCH_FORMAT!r}"),
-    Field("scan", "tables", required=True, doc="one per scan (at least one)",
+    Field("scan", "tables", required=True, doc="one per scan, at least one",
           table=Schema("[[scan]]", (
               Field("path", "string", required=True,
                     doc="pattern folder or phase .npz, relative to the file"),
@@ -57,7 +57,7 @@ CAMPAIGN_SCHEMA = declare(Schema("campaign", (
     Field("format", "string", required=True, doc=f"{CAMPAIGN_FORMAT!r}"),
     Field("seed", "integer", "-", default=0, check=at_least(0),
           doc="the campaign seed (every run's seed derives from it)"),
-    Field("run", "tables", required=True, doc="one per simulation (at least one)",
+    Field("run", "tables", required=True, doc="one per simulation, at least one",
           table=Schema("[[run]]", (
               Field("name", "string", required=True,
                     doc="output folder name; with the seed it keys the noise"),

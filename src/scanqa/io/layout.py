@@ -55,7 +55,7 @@ SCHEMA = declare(Schema("gauge-block layout", (
     Field("base_z_mm", "number", "mm", check=_COORD, doc="Z of the base plate"),
     Field("base", "table", table=_BASE, doc="the base plate's region and normal"),
     Field("block", "tables", required=True, table=_BLOCK,
-          doc="one per gauge block (at least two)"),
+          doc="one per gauge block, at least two"),
     Field("paper_comparison", "boolean", default=False,
           doc="show the paper's Tables 3 and 4 (the paper's artefact only)"),
 ), formats=(FORMAT,)))

@@ -48,7 +48,7 @@ SCHEMA = declare(Schema("experiment manifest", (
     Field("config", "table", table=Schema("[config]", (), open=True),
           doc="the scanner config simulated with"),
     Field("acquisition", "tables", required=True, table=_ACQUISITION,
-          doc="one per scan (at least one)"),
+          doc="one per scan, at least one"),
 ), formats=(FORMAT,)))
 
 

@@ -71,7 +71,7 @@ SCHEMA = declare(Schema("sweep manifest", (
     Field("format", "string", required=True, doc=f"{FORMAT!r}"),
     Field("description", "string", default="", doc="free text"),
     Field("position", "tables", required=True, table=_POSITION,
-          doc="one per stage position, in increasing z_mm (at least 3)"),
+          doc="one per stage position, in increasing z_mm, at least 3"),
     Field("target", "table", table=_TARGET, doc="the printed target, with markers"),
     Field("scanner", "table", table=_SCANNER, doc="the config the images came from"),
 ), formats=(FORMAT,)))
