@@ -192,6 +192,18 @@ def test_every_io_function_that_parses_toml_validates_a_schema():
     assert [f for f in found if not f[2]] == []
 
 
+def test_the_decoder_reads_no_pattern_key_the_schema_does_not_declare():
+    """decoding.parsing keeps which set kind (and version) takes which key; every such key
+    is declared in io.patterns.SCHEMA, and its top-level keys are the declared ones."""
+    from scanqa.decoding.parsing import _SET_KEYS, _TOP_KEYS
+    from scanqa.io.patterns import SCHEMA
+
+    declared = {f.name for f in SCHEMA.field("set").table.fields}
+    used = {k for kinds in _SET_KEYS.values() for keys in kinds.values() for k in keys}
+    assert used == declared
+    assert set(_TOP_KEYS["scanqa-patterns/2"]) == {f.name for f in SCHEMA.fields}
+
+
 def test_io_schema_imports_nothing_of_scanqa_but_errors():
     tree = ast.parse((IO / "schema.py").read_text())
     imported = {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
