@@ -282,20 +282,19 @@ def declare(schema: Schema) -> Schema:
 
 
 def rst_table(schema: Schema, prefix: str = "") -> str:
-    """The schema as an RST list-table: key, type, unit, required, default, limits.
+    """The schema as an RST csv-table: key, type, unit, required, default, meaning.
 
     Keys of tables are listed after their table, as ``table.key`` (``table[].key`` for
     the entries of an array of tables).
     """
-    rows = [("key", "type", "unit", "required", "default", "meaning")]
-    rows += _rows(schema, prefix)
     title = schema.document + (
         f" (``format = {' or '.join(map(repr, schema.formats))}``)".replace("'", '"')
         if schema.formats else "")
-    out = [f".. list-table:: {title}", "   :header-rows: 1", "   :widths: 22 14 6 6 10 42", ""]
-    for row in rows:
-        out.append(f"   * - {row[0]}")
-        out += [f"     - {cell}" if cell else "     -" for cell in row[1:]]
+    out = [f".. csv-table:: {title}",
+           "   :header: key, type, unit, required, default, meaning",
+           "   :widths: 24, 14, 6, 7, 9, 40", ""]
+    for row in _rows(schema, prefix):
+        out.append("   " + ", ".join('"' + cell.replace('"', '""') + '"' for cell in row))
     return "\n".join(out) + "\n"
 
 
