@@ -22,6 +22,7 @@ from scanqa.io import schema
 from scanqa.io.artefacts import read_artefact_layout
 from scanqa.io.batchfiles import read_batch_manifest, read_campaign
 from scanqa.io.budget import read_budget_file
+from scanqa.io.designspec import read_design_spec
 from scanqa.io.layout import read_layout_file
 from scanqa.io.manifest import read_manifest
 from scanqa.io.patterns import read_patterns_file
@@ -81,6 +82,11 @@ CASES = {
         read_response_file, "response.toml", ConfigError,
         'format = "scanqa-response/1"\n[[set]]\nperiod_px = 5.0\n', "steps",
         'format = "scanqa-response/1"\ndescription = 3\n', "description"),
+    "design spec": (
+        read_design_spec, "design.toml", InputError,
+        'format = "scanqa-design-spec/1"\nsigma_max_um = 3.0\n[limits]\n', "cover",
+        'format = "scanqa-design-spec/1"\nsigma_max_um = 3.0\n[cover]\n'
+        'min_mm = [0.0, 0.0, 1.0]\nmax_mm = [1.0, 1.0]\n', "max_mm"),
     "acceptance spec": (
         read_spec, "spec.toml", InputError,
         'format = "scanqa-spec/1"\nmpe_pf_um = 1.0\n[flat]\n', "flatness_um",
@@ -94,11 +100,11 @@ def _import_io() -> None:
 
 
 def test_the_registry_names_every_toml_document():
-    """Nine io modules declare ten documents (batchfiles holds the batch manifest and
+    """Ten io modules declare eleven documents (batchfiles holds the batch manifest and
     the campaign); the scanner config is declared by its dataclasses (model/config.py)."""
     _import_io()
     assert sorted(schema.SCHEMAS) == sorted(CASES)
-    assert len(schema.SCHEMAS) == 10
+    assert len(schema.SCHEMAS) == 11
     owners = {s.document: s for s in schema.SCHEMAS.values()}
     assert all(owners[d].formats for d in CASES)  # every document has a format key
 
@@ -188,8 +194,21 @@ def test_every_io_function_that_parses_toml_validates_a_schema():
             if isinstance(node, ast.FunctionDef) and {"read_toml", "loads_toml"} & _calls(node):
                 if (path.name, node.name) not in NOT_READERS:
                     found.append((path.name, node.name, "validate" in _calls(node)))
-    assert len({f for f, _, _ in found}) == 9  # the nine document modules
+    assert len({f for f, _, _ in found}) == 10  # the ten document modules
     assert [f for f in found if not f[2]] == []
+
+
+def test_an_open_table_checks_the_value_of_every_key(tmp_path):
+    """[limits] of a design spec takes any setting name, each a [low, high] pair."""
+    path = tmp_path / "design.toml"
+    path.write_text('format = "scanqa-design-spec/1"\nsigma_max_um = 3.0\n[cover]\n'
+                    "min_mm = [0.0, 0.0, 1.0]\nmax_mm = [1.0, 1.0, 2.0]\n[limits]\n"
+                    "angle_deg = [8.0, 20.0, 30.0]\n")
+    with pytest.raises(InputError, match=r"design\.toml: limits\.angle_deg must be a list "
+                                         r"of 2 finite numbers \(\[low, high\]"):
+        read_design_spec(path)
+    for spec in sorted((ROOT / "benchmarks" / "design_specs").glob("*.toml")):
+        assert read_design_spec(spec)["limits"]
 
 
 def test_the_decoder_reads_no_pattern_key_the_schema_does_not_declare():

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 from scanqa.errors import InputError, ScanQAError
@@ -171,6 +171,9 @@ class Schema:
     name_key : str
         For the entries of an array of tables: the key that names an entry in messages
         (``[[sphere]] 2 ('S2'): ...``).
+    each : Field, optional
+        For an open table: the type, unit and limits of the value of every key not
+        declared (its name is the field's name in the docs, e.g. "SETTING").
     """
 
     document: str
@@ -178,6 +181,7 @@ class Schema:
     formats: tuple[str, ...] = ()
     open: bool = False
     name_key: str = ""
+    each: Field | None = None
 
     def field(self, name: str) -> Field:
         """The field named ``name``."""
@@ -226,10 +230,12 @@ def _check_table(schema: Schema, data: object, where: str, dotted: str,
     ("[target]: ", "[[block]] 2 (7): "), ``dotted`` the names of its values ("target.",
     or ``where`` again for the entries of an array of tables)."""
     names = [f.name for f in schema.fields]
-    if not schema.open:
-        unknown = [k for k in data if k not in names]  # type: ignore[union-attr]
-        if unknown:
-            raise fail(f"{where}unknown key {unknown[0]!r} (known: {', '.join(names)})")
+    unknown = [k for k in data if k not in names]  # type: ignore[union-attr]
+    if unknown and not schema.open:
+        raise fail(f"{where}unknown key {unknown[0]!r} (known: {', '.join(names)})")
+    if schema.each is not None:
+        for key in unknown:
+            _check_value(replace(schema.each, name=key), data[key], dotted, fail)
     for f in schema.fields:
         if f.name not in data:  # type: ignore[operator]
             if f.required:
@@ -303,12 +309,13 @@ def _rows(schema: Schema, prefix: str) -> list[tuple[str, ...]]:
     for f in schema.fields:
         limit = " ".join(x for x in (f.check.noun, f.check.text) if x) if f.check else ""
         doc = "; ".join(x for x in (f.doc, limit) if x)
-        if f.table is not None and f.table.open:
+        if f.table is not None and f.table.open and f.table.each is None:
             doc = "; ".join(x for x in (doc, "keys checked by its reader") if x)
         default = "" if f.default is None else f"``{f.default!r}``".replace("'", '"')
         rows.append((f"``{prefix}{f.name}``", f.type, f.unit, "yes" if f.required else "no",
                      default, doc))
         if f.table is not None:
             sub = f"{prefix}{f.name}[]." if "tables" in f.types else f"{prefix}{f.name}."
-            rows += _rows(f.table, sub)
+            each = () if f.table.each is None else (f.table.each,)
+            rows += _rows(replace(f.table, fields=(*f.table.fields, *each)), sub)
     return rows
