@@ -101,9 +101,9 @@ def run(args: argparse.Namespace) -> int:
                                                      f"{desc.source}")
         response = replace(response, source=str(measure_out))
     else:
-        response = named_response(desc, args.response)
-    with flags({"measure one on a flat": "measure one on a flat (scanqa decode "
-                                         "--measure-response)"}):
+        with flags(_MEASURE):
+            response = named_response(desc, args.response)
+    with flags(_MEASURE):
         phase_map = decode_images(desc, stacks, progress=progress,
                                   notes=[note] if note else [], response=response)
     phase_map = flatten_from_args(args, desc, stacks, phase_map)
@@ -117,6 +117,11 @@ def run(args: argparse.Namespace) -> int:
     first, *rest = phase_map.summary().splitlines()
     emit("\n".join([f"{first} -> {out}", *rest]))
     return 0
+
+
+#: The response's words for measuring one, in this command's.
+_MEASURE = {"measure one on a flat": "measure one with 'scanqa decode SCAN "
+                                     "--measure-response FILE' on a flat"}
 
 
 def _progress(message: str) -> None:

@@ -67,8 +67,8 @@ def read_response_file(path: str | os.PathLike) -> dict:
     """
     p = Path(path)
     data = read_toml(p, "projector response", ConfigError,
-                     missing=f"no projector response file {p} (measure one with 'scanqa "
-                             "decode SCAN --measure-response FILE' on a flat)")
+                     missing=f"no projector response file {p} (measure one on a flat "
+                             "with the same pattern set)")
     return SCHEMA.validate(data, p, ConfigError)
 
 
