@@ -108,7 +108,8 @@ def run_characterize(args: argparse.Namespace) -> int:
     from scanqa.report.characterization import characterization_lines, write_characterization
 
     with flags({"leave the config out": "leave --config out",
-                "the sweep was made with": "the sweep was made with (--config)"}):
+                "give the config the sweep was made with":
+                    "give the config the sweep was made with (--config)"}):
         config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
         result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
     default = sweep_folder(args.sweep[0]) / "characterize"
