@@ -124,10 +124,10 @@ def test_half_invalid_block_is_flagged_and_its_steps_not_evaluated(tmp_path):
 
 @pytest.mark.parametrize(("body", "message"), [
     ('format = "x"\n', "format must be 'scanqa-budget/1'"),
-    (BUDGET + "[extra]\na = 1\n", r"unknown table \[extra\]"),
+    (BUDGET + "[extra]\na = 1\n", r"unknown key 'extra' \(known: format, gauge_blocks"),
     (BUDGET.replace("flatness_um = 0.5", "flatness_mm = 0.5"), "unknown key 'flatness_mm'"),
     (BUDGET.replace("uncertainty_K = 0.2", "uncertainty_K = -0.2"),
-     r"uncertainty_K must be a number >= 0 \[K\]"),
+     r"uncertainty_K must be a finite number >= 0 \[K\]"),
     (BUDGET.replace("expansion_per_K = 11.5e-6\n", ""), "needs expansion_per_K"),
     (BUDGET + "[coverage]\nk = \"big\"\n", "k must be a number > 0 or 'welch-satterthwaite'"),
 ])

@@ -53,7 +53,7 @@ def test_quiet_and_toml_path(tmp_path, capsys):
 
 
 @pytest.mark.parametrize("breakage,match", [
-    ("unknown_key", "scanqa: unknown key set[0].colour"),
+    ("unknown_key", "patterns.toml: [[set]] 1: unknown key 'colour'"),
     ("missing_image", "scanqa: image file"),
     ("no_folder", "scanqa: no pattern description"),
 ])
@@ -73,6 +73,18 @@ def test_errors_exit_2_without_traceback_or_output(tmp_path, capsys, breakage, m
     err = capsys.readouterr().err
     assert match in err and "Traceback" not in err
     assert not out.exists()
+
+
+def test_a_missing_response_names_the_flag_that_measures_one(tmp_path, capsys):
+    """The library says how to get a response; the CLI names its own flag for it."""
+    folder = tmp_path / "scan"
+    _scan(folder)
+    assert main(["decode", str(folder), "--response", str(tmp_path / "none.toml"),
+                 "--out", str(tmp_path / "phase.npz")]) == 2
+    err = capsys.readouterr().err
+    assert "no projector response file" in err and "none.toml" in err
+    assert "'scanqa decode SCAN --measure-response FILE' on a flat" in err
+    assert "Traceback" not in err and not (tmp_path / "phase.npz").exists()
 
 
 def test_help_has_an_example(capsys):

@@ -89,7 +89,7 @@ def test_describe_refuses_too_few_frames_and_a_missing_width():
     with pytest.raises(InputError, match="at least 2 frames"):
         describe_frames(np.zeros((1, 4, 4)), ["a.png"])
     frames = np.concatenate([_phase(128.0, 3), _phase(16.0, 3)])
-    with pytest.raises(InputError, match="give --projector-width"):
+    with pytest.raises(InputError, match="give width_px"):
         describe_frames(frames, [f"f{k}.png" for k in range(6)])
 
 

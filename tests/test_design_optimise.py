@@ -103,7 +103,7 @@ def test_cli_writes_a_config_that_gives_the_reported_volume(capsys, tmp_path, sp
     (SPEC.replace("scanqa-design-spec/1", "x/1"), "format must be"),
     (SPEC.replace("angle_deg = [8.0, 25.0]", "angle_deg = [25.0, 8.0]"), "low < high"),
     (SPEC.replace("angle_deg", "bogus"), "limits.bogus is not a scanner setting"),
-    (SPEC.replace("[cover]", "[cover_]"), "missing or malformed key 'cover'"),
+    (SPEC.replace("[cover]", "[cover_]"), "unknown key 'cover_'"),
     (SPEC.replace("sigma_max_um = 8.0", "sigma_max_um = 0.1"), "no configuration"),
     (SPEC.replace("level = 0.49", 'objective = "fast"\nlevel = 0.49'),
      "objective must be one of"),

@@ -464,7 +464,8 @@ def _toml(v) -> str:
 
 
 @pytest.mark.parametrize("changes, message", [
-    ({"1__nominal_height_mm": float("inf")}, "nominal_height_mm must be > 0 mm and finite"),
+    ({"1__nominal_height_mm": float("inf")},
+     r"nominal_height_mm must be a finite number in \(0, 1000\] \[mm\]"),
     ({"2__region_mm": [-5.0, float("inf"), -5.0, 5.0]}, "region_mm must be"),
     ({"3__region_mm": [4.0, 16.0, -5.0, 5.0]}, "blocks 2 .* and 3 .* overlap"),
     ({"1__top_z_mm": "high"}, "top_z_mm must be a finite number"),
@@ -494,7 +495,7 @@ def test_wrong_toml_types(tmp_path, capsys):
     code = main(["calibrate", str(sweep), "--config", str(ROOT / "calib" /
                                                           "paper_scanner.toml"),
                  "--out", str(tmp_path / "t.npz")])
-    assert "position 1 must be a [[position]] table" in one_line_error(capsys, code)
+    assert "[[position]] must be an array of tables" in one_line_error(capsys, code)
 
 
 # ------------------------------------------------------------------ stdout

@@ -201,7 +201,8 @@ def test_bad_layouts(tmp_path):
         (text.replace("id = 2\n", "id = 1\n"), "block ids must be unique"),
         (text.replace("region_mm = [-14.000, -2.000, -21.000, -3.000]",
                       "region_mm = [-2.0, -14.0, -21.0, -3.0]"), "min < max"),
-        (text.replace("nominal_height_mm = 25.40", "nominal_height_mm = -1"), "must be > 0"),
+        (text.replace("nominal_height_mm = 25.40", "nominal_height_mm = -1"),
+         r"nominal_height_mm must be a finite number in \(0, 1000\] \[mm\]"),
         (text + "\n[extra]\n", "unknown key 'extra'"),
     ]
     for body, message in cases:

@@ -296,10 +296,12 @@ def _layout_text(blocks=((1, 20.0, "[-16.0, -6.0, -5.0, 5.0]"),
 @pytest.mark.parametrize("text, message", [
     (_layout_text(((2**63, 20.0, "[-16.0, -6.0, -5.0, 5.0]"),
                    (2, 10.0, "[-5.0, 5.0, -5.0, 5.0]"))),
-     "block 1: id must be an integer from 0 to 2147483647, got 9223372036854775808"),
+     r"\[\[block\]\] 1 \(9223372036854775808\): id must be a whole number in "
+     r"\[0, 2147483647\] \(the block's number\), got 9223372036854775808"),
     (_layout_text(((1, 1e300, "[-16.0, -6.0, -5.0, 5.0]"),
                    (2, 10.0, "[-5.0, 5.0, -5.0, 5.0]"))),
-     r"block 1 \(id 1\): nominal_height_mm must be > 0 mm and finite, at most 1000 mm"),
+     r"\[\[block\]\] 1 \(1\): nominal_height_mm must be a finite number in \(0, 1000\] "
+     r"\[mm\]"),
     (_layout_text(((1, 20.0, "[-16.0, -6.0, -5.0, 5.0]"),)), "holds one \\[\\[block\\]\\]"),
     (_layout_text(top="[base]\nregion_mm = [-45.0, 45.0, -37.5, 37.5]\nnormall = [0, 0, 1]\n"),
      r"\[base\]: unknown key 'normall' \(known: region_mm, normal\)"),

@@ -76,8 +76,10 @@ def test_the_qa_loader_keeps_kinds_and_scans(tmp_path):
     (("scanqa-artefact-layout/1", "scanqa-gauge-layout/1"), "format must be"),
     (('name = "bench"', 'name = "bench"\nunits = "mm"'), "unknown key 'units'"),
     (('id = "S2"\ndiameter_mm = 12', 'id = "S2"\ndiameter_mm = -12'),
-     r"sphere 'S2': diameter_mm must be a number > 0 \[mm\], got -12"),
-    (('id = "S2"\ndiameter_mm = 12', 'id = "S2"'), r"\[\[sphere\]\] 2: diameter_mm is missing"),
+     r"\[\[sphere\]\] 2 \('S2'\): diameter_mm must be a finite number > 0 \[mm\] "
+     r"\(nominal diameter\), got -12"),
+    (('id = "S2"\ndiameter_mm = 12', 'id = "S2"'),
+     r"\[\[sphere\]\] 2 \('S2'\): diameter_mm is missing"),
     (("centre_mm = [1.0, -2.0, 450.0]", "centre_mm = [1.0, 450.0]"),
      "centre_mm must be a list of 3 finite numbers"),
     (("centre_b_mm = [14.0, 12.0, 458.0]\n", ""), "give both centre_a_mm and centre_b_mm"),
@@ -86,9 +88,10 @@ def test_the_qa_loader_keeps_kinds_and_scans(tmp_path):
     (("normal = [0.0, 0.17, -0.98]", "normal = [0.0, 0.0, 0.0]"), "normal must not be zero"),
     (('centre_mm = [0.0, 0.0, 450.0]\nnormal', 'normal'), "normal needs centre_mm"),
     (('id = "S2"', 'id = "S1"'), "'S1' appears twice"),
-    (("size_mm = [50.0, 40.0]", "size_mm = [50.0, 0.0]"), "size_mm must be a number > 0"),
+    (("size_mm = [50.0, 40.0]", "size_mm = [50.0, 0.0]"),
+     "size_mm must be a list of 2 finite numbers > 0"),
     (('diameter_mm = 25.4\ncentre_mm', 'diameter_mm = 25.4\ncolour = 1\ncentre_mm'),
-     r"\[\[sphere\]\] 1: unknown key 'colour'"),
+     r"\[\[sphere\]\] 1 \('S1'\): unknown key 'colour'"),
 ])
 def test_each_mistake_gets_one_clear_error(tmp_path, edit, message):
     old, new = edit

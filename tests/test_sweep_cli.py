@@ -74,7 +74,8 @@ def test_calibrate_cli_writes_table_and_reports(tmp_path, capsys, paper_config,
     (lambda e: [e[0], e[0].replace("p00", "p01"), *e[2:]], "repeats z_mm = 440.0"),
     (lambda e: [e[1], e[0], *e[2:]], "increasing z_mm: position 2 \\(z_mm = 440.0\\)"),
     (lambda e: [e[0].replace("p00_r0", "nope"), *e[1:]], "nope.npz does not exist"),
-    (lambda e: [e[0].replace("z_mm = 440.0\n", ""), *e[1:]], "position 1: z_mm must be"),
+    (lambda e: [e[0].replace("z_mm = 440.0\n", ""), *e[1:]],
+     r"\[\[position\]\] 1: z_mm is missing"),
     (lambda e: [e[0] + "stage = 1\n", *e[1:]], "unknown key 'stage'"),
 ])
 def test_bad_manifests(tmp_path, paper_config, edit, message):

@@ -178,7 +178,7 @@ def run_tasks(fn: Callable[[object, object], dict], shared: object, tasks: Seque
         return {}, EngineReport("nothing left to run")
     if not options.serial and not dask_available():
         if options.scheduler:
-            raise InputError(f"--scheduler needs Dask distributed ({INSTALL_HINT})")
+            raise InputError(f"a scheduler address needs Dask distributed ({INSTALL_HINT})")
         log.info(f"{desc}: Dask is not installed ({INSTALL_HINT}): running serially, "
                  "with the same outputs")
         options = EngineOptions(serial=True)
@@ -219,8 +219,8 @@ def open_client(options: EngineOptions) -> Iterator[tuple[object, EngineReport]]
         except (OSError, TimeoutError, ValueError) as err:
             raise InputError(f"cannot reach the Dask scheduler at {options.scheduler}: "
                              f"{err} (start one with 'dask scheduler' and workers with "
-                             "'dask worker ADDRESS', or drop --scheduler to use this "
-                             "machine)") from None
+                             "'dask worker ADDRESS', or give no scheduler address to use "
+                             "this machine)") from None
         with client:
             n = len(client.scheduler_info().get("workers", {}))
             yield client, EngineReport(f"scheduler {options.scheduler} ({n} workers)",

@@ -32,7 +32,7 @@ from scanqa.calibration.parametric import ParametricCalibration, from_opencv
 from scanqa.calibration.uncertainty import jackknife_covariance, pack_opencv
 from scanqa.decoding.coding import PatternDescription
 from scanqa.errors import InputError
-from scanqa.io.opencv import OpenCVCalibration
+from scanqa.io.opencv import COVARIANCE_PARAMETERS, OpenCVCalibration
 
 
 def _flags() -> dict[str, tuple[int, int]]:
@@ -106,6 +106,17 @@ class BoardCalibration:
     def flagged(self) -> list[str]:
         """Names of the flagged poses."""
         return [p.name for p in self.poses if p.flagged]
+
+    @property
+    def parameter_std(self) -> dict | None:
+        """The jackknife std of each lens parameter (square root of the covariance's
+        diagonal, :data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`) [px, -]; None without
+        a covariance."""
+        cov = self.data.covariance
+        if cov is None:
+            return None
+        std = np.sqrt(np.clip(np.diag(cov), 0, None))
+        return dict(zip(COVARIANCE_PARAMETERS, std.tolist(), strict=True))
 
 
 def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],

@@ -207,7 +207,7 @@ def _robust_sigma(res: np.ndarray, ok: np.ndarray) -> np.ndarray:
     hi = np.take_along_axis(r, np.minimum(n // 2, r.shape[-1] - 1), -1)[..., 0]
     return np.where(n[..., 0] > 0, 1.4826 * ((lo + hi) / 2), np.nan)
 
-@dataclass
+@dataclass(frozen=True)
 class _CellStats:
     """Stage-1 output for one observation: one estimate per cell."""
 

@@ -112,7 +112,8 @@ def check_config(cal, config: ScannerConfig) -> None:
         raise InputError(f"config {config.source}: projector.position_mm is {pos.tolist()} but "
                          f"the calibration {where} puts the projector at "
                          f"{np.round(cal.projector_position_mm, 4).tolist()} mm (-Rp^T Tp), "
-                         f"{dist:.1f} mm away; 'scanqa init --calibration' writes the pose")
+                         f"{dist:.1f} mm away; a config written from this calibration "
+                         "('scanqa init' given it) has its pose")
     axis = np.subtract(config.projector.look_at_mm, pos)
     angle = math.degrees(math.acos(np.clip(axis @ cal.projector_axis / np.linalg.norm(axis),
                                            -1.0, 1.0)))

@@ -27,6 +27,7 @@ from scanqa.calibration.table import CalibrationTable
 from scanqa.calibration.target import ChessboardSpec, detect_chessboard
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
+from scanqa.io import manifest as manifest_file
 from scanqa.io.images import read_image
 from scanqa.io.sweep import SCANNER_FIELDS, Sweep, load_sweep, read_lateral
 from scanqa.io.tomlfile import read_toml
@@ -151,7 +152,9 @@ def _check_simulated(sweep: Sweep, config: ScannerConfig) -> None:
     if not manifest.is_file():
         return
     data = read_toml(manifest, "experiment manifest")
-    sim = data.get("config") if isinstance(data, dict) else None
+    if data.get("format") == manifest_file.FORMAT:  # another file of that name: not ours
+        manifest_file.SCHEMA.validate(data, manifest)
+    sim = data.get("config")
     if not isinstance(sim, dict):
         return
     diff = first_difference(config, sim, _SIMULATED_SECTIONS)

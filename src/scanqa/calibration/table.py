@@ -71,6 +71,28 @@ class CalibrationTable:
         zs = [p["z_mm"] for p in self.provenance.get("positions", [])]
         return (min(zs), max(zs)) if zs else (float("nan"), float("nan"))
 
+    @property
+    def reference_node(self) -> int:
+        """Index of the phase node nearest the shear (s = 0), where the maps are shown."""
+        return int(np.argmin(np.abs(self.s_nodes)))
+
+    def node_summary(self) -> dict:
+        """Coverage and the table's own std over its nodes.
+
+        Returns
+        -------
+        dict
+            ``covered_node_fraction`` [-] (nodes with a calibrated phase range) and the
+            median and 95th percentile of the std at :attr:`reference_node`,
+            ``table_sigma_um_median`` and ``table_sigma_um_p95`` [um] (None when no node
+            has one).
+        """
+        sig = self.sigma_node[..., self.reference_node] * 1e3
+        known = bool(np.isfinite(sig).any())
+        return {"covered_node_fraction": float(np.isfinite(self.s_lo).mean()),
+                "table_sigma_um_median": float(np.nanmedian(sig)) if known else None,
+                "table_sigma_um_p95": float(np.nanpercentile(sig, 95)) if known else None}
+
     def scanner_config(self) -> ScannerConfig:
         """The config the table was built with."""
         return config_from_dict(self.config, source="calibration table")

@@ -11,6 +11,7 @@ from scanqa.cli.common import (
     add_model_argument,
     config_from_args,
     emit,
+    flags,
     number,
     warn,
 )
@@ -130,7 +131,8 @@ def run_batch(args: argparse.Namespace) -> int:
                              report=not args.no_report, keep_invalid=args.keep_invalid)
     depth = tuple(args.depth_range_mm) if args.depth_range_mm else (0.0, float("inf"))
     ctx = prepare(config, source, args.calibration, args.out, args.layout, settings, depth)
-    return _finish(run(scans, ctx, _options(args)), args.out)
+    with flags(_SCHEDULER):
+        return _finish(run(scans, ctx, _options(args)), args.out)
 
 
 def run_campaign(args: argparse.Namespace) -> int:
@@ -138,4 +140,10 @@ def run_campaign(args: argparse.Namespace) -> int:
     from scanqa.runs.campaign import run_campaign as run
 
     campaign = load_campaign(args.campaign, args.out, seed=args.seed)
-    return _finish(run(campaign, _options(args)), args.out)
+    with flags(_SCHEDULER):
+        return _finish(run(campaign, _options(args)), args.out)
+
+
+#: The cluster's words for the scheduler address, in this command's.
+_SCHEDULER = {"a scheduler address needs": "--scheduler needs",
+              "give no scheduler address": "drop --scheduler"}

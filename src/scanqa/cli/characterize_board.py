@@ -16,6 +16,7 @@ from scanqa.cli.common import (
     calibration_from_args,
     config_from_args,
     emit,
+    flags,
 )
 from scanqa.errors import InputError
 
@@ -73,7 +74,8 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     poses = {Path(p).name or p: decode(p) for p in args.poses}
     calibration = calibration_from_args(args, config, next(iter(poses.values())))
-    result = characterize_board(poses, calibration, inner, progress=emit)
+    with flags({"check the board given": "check --board"}):
+        result = characterize_board(poses, calibration, inner, progress=emit)
     files = [f for pm in poses.values() for f in _files(pm)]
     result["noise_law"]["data_sha256"] = digest(files) if files else ""
     law = result["noise_law"]

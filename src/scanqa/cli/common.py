@@ -15,7 +15,7 @@ from pathlib import Path
 
 from scanqa.calibration.base import Calibration, load_calibration
 from scanqa.decoding.phasemap import PhaseMap
-from scanqa.errors import InputError, OutputError
+from scanqa.errors import InputError, OutputError, ScanQAError
 from scanqa.io.atomic import check_out_dir
 from scanqa.model.config import ScannerConfig, load_config
 
@@ -29,6 +29,32 @@ def verbosity_parent() -> argparse.ArgumentParser:
     group.add_argument("-q", "--quiet", action="store_true",
                        help="no progress and notes on stderr, only warnings and errors")
     return parent
+
+
+@contextlib.contextmanager
+def flags(names: dict[str, str]):
+    """Re-raise a library error in this command's words: the library names its parameter
+    (or the thing given), the CLI the flag that sets it.
+
+    Parameters
+    ----------
+    names : dict
+        Text of the library's message -> the text that replaces it (naming the flag).
+
+    Examples
+    --------
+    >>> with flags({"give width_px": "give --projector-width"}):  # doctest: +SKIP
+    ...     describe_frames(frames, names)
+    """
+    try:
+        yield
+    except ScanQAError as err:
+        text = str(err)
+        for old, new in names.items():
+            text = text.replace(old, new)
+        if text == str(err):
+            raise
+        raise type(err)(text) from None
 
 
 class StdoutClosed(Exception):

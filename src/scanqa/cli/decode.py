@@ -11,6 +11,7 @@ from scanqa.cli.common import (
     add_config_argument,
     add_model_argument,
     emit,
+    flags,
     output_path,
 )
 from scanqa.cli.flatten_args import (
@@ -100,9 +101,11 @@ def run(args: argparse.Namespace) -> int:
                                                      f"{desc.source}")
         response = replace(response, source=str(measure_out))
     else:
-        response = named_response(desc, args.response)
-    phase_map = decode_images(desc, stacks, progress=progress, notes=[note] if note else [],
-                              response=response)
+        with flags(_MEASURE):
+            response = named_response(desc, args.response)
+    with flags(_MEASURE):
+        phase_map = decode_images(desc, stacks, progress=progress,
+                                  notes=[note] if note else [], response=response)
     phase_map = flatten_from_args(args, desc, stacks, phase_map)
     if measure_out is not None:
         save_response(measure_out, response)
@@ -114,6 +117,11 @@ def run(args: argparse.Namespace) -> int:
     first, *rest = phase_map.summary().splitlines()
     emit("\n".join([f"{first} -> {out}", *rest]))
     return 0
+
+
+#: The response's words for measuring one, in this command's.
+_MEASURE = {"measure one on a flat": "measure one with 'scanqa decode SCAN "
+                                     "--measure-response FILE' on a flat"}
 
 
 def _progress(message: str) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import time
 
-from scanqa.cli.common import emit
+from scanqa.cli.common import emit, flags
 from scanqa.model.config import load_config
 from scanqa.report.characterization import characterization_lines
 from scanqa.runs.demo import run_demo, summary_lines
@@ -33,7 +33,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     t0 = time.perf_counter()
     full = load_config(args.full_config) if args.full else None
-    result = run_demo(args.out, data=args.data, full_config=full)
+    with flags({"simulate them: the full demo": "simulate them with 'scanqa demo --full'"}):
+        result = run_demo(args.out, data=args.data, full_config=full)
     emit("scanner characterised:")
     for line in characterization_lines(result.characterization):
         emit(f"  {line}")

@@ -6,7 +6,7 @@ import argparse
 import os
 from pathlib import Path
 
-from scanqa.cli.common import emit, number, output_path
+from scanqa.cli.common import emit, flags, number, output_path
 from scanqa.decoding.describe import describe_frames
 from scanqa.decoding.describe_text import description_text, frame_files, read_frames
 from scanqa.errors import InputError
@@ -63,7 +63,9 @@ def run(args: argparse.Namespace) -> int:
     out = output_path(args.out or str(Path(args.folder) / "patterns.toml"))
     images = read_frames(paths, args.channel)
     listed = [_listed(p, out.parent) for p in paths]
-    found = describe_frames(images, listed, args.projector_width, args.projector_height)
+    with flags({"give width_px": "give --projector-width",
+                "give height_px": "give --projector-height"}):
+        found = describe_frames(images, listed, args.projector_width, args.projector_height)
     targets = _targets(out, [d.desc.orientation for d in found])
     for target in targets:
         if target.exists() and not args.force:

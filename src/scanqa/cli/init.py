@@ -7,7 +7,7 @@ import argparse
 from pathlib import Path
 
 from scanqa.calibration.parametric import load_opencv_calibration
-from scanqa.cli.common import emit, float_list
+from scanqa.cli.common import emit, flags, float_list
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, write_text
 from scanqa.runs.onboarding import placeholders, scanner_config_text
@@ -54,9 +54,10 @@ def run(args: argparse.Namespace) -> int:
     cal = None
     if args.calibration:
         cal = load_opencv_calibration(args.calibration)
-    text = scanner_config_text(cal, args.pixel_um, args.pitch_um, args.camera_focus_mm,
-                               args.projector_focus_mm, args.periods,
-                               args.name or Path(out).stem)
+    with flags({"check pitch_um": "check --pitch-um"}):
+        text = scanner_config_text(cal, args.pixel_um, args.pitch_um, args.camera_focus_mm,
+                                   args.projector_focus_mm, args.periods,
+                                   args.name or Path(out).stem)
     write_text(out, text)
     left = placeholders(text)
     emit(f"{out}: scanner config written" + (

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import argparse
 
-from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list
+from scanqa.cli.common import add_config_argument, config_from_args, emit, flags, float_list
 from scanqa.decoding.projection import standard_coding, write_projector_patterns
 from scanqa.errors import ConfigError
 
@@ -64,8 +64,9 @@ def run(args: argparse.Namespace) -> int:
     """Build the coding, write the images and the patterns.toml, say what was written."""
     width, height, periods = _panel_and_periods(args)
     coded, across = (width, height) if args.orientation == "vertical" else (height, width)
-    desc = standard_coding(coded, periods, args.steps, args.gray_cell, args.gray_bits,
-                           args.gray_inverse, args.reference, args.orientation)
+    with flags({"(periods_px and/or gray_cell_px)": "(--periods and/or --gray-cell)"}):
+        desc = standard_coding(coded, periods, args.steps, args.gray_cell, args.gray_bits,
+                               args.gray_inverse, args.reference, args.orientation)
     written = write_projector_patterns(args.out_dir, desc, across, args.gamma,
                                        args.bit_depth, args.camera_suffix)
     frames = sum(s.frames for s in written.sets)

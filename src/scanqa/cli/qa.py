@@ -14,6 +14,7 @@ from scanqa.cli.common import (
     calibration_from_args,
     config_from_args,
     emit,
+    flags,
     number,
     warn_sigma,
 )
@@ -48,6 +49,10 @@ blocks.csv, steps.csv, summary.json, cloud_qa.ply; an artefact layout
 (scanqa-artefact-layout/1) or --artefact runs the VDI/VDE 2634-2 tests (PF, PS, SD, F):
 report.html, quantities.csv, budget.csv, selection.csv, summary.json; --pdf adds
 report.pdf"""
+
+
+#: The PDF writer's words for leaving the PDF out, in this command's.
+_PDF = {"or write no PDF": "or leave out --pdf"}
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -204,7 +209,8 @@ def _run_artefacts(args, clouds, spec, header, out) -> int:
     options = Options(k=2.0 if args.k is None else args.k, margin_mm=args.margin, tile_mm=args.tile,
                       max_incidence_deg=args.max_incidence, decide_with=args.decide_with)
     result = run_artefact_qa(clouds, layout, spec, options)
-    artefact_report.write_outputs(result, out, header, pdf=args.pdf)
+    with flags(_PDF):
+        artefact_report.write_outputs(result, out, header, pdf=args.pdf)
     for row in result.rows():
         emit(f"{row['scan']} {row['artefact']} {row['quantity']}: E {row['value_um']:+.1f} "
              f"um, U test {row['U_test_um']:.1f} um, MPE {row['mpe_um']:.1f} um, "
@@ -224,7 +230,8 @@ def _run_blocks(args, cloud, config, header, out) -> int:
                     outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
                     tile_mm=args.tile,
                     budget=load_budget(args.budget) if args.budget else None)
-    info = qa_report.write_outputs(result, out, header, pdf=args.pdf)
+    with flags(_PDF):
+        info = qa_report.write_outputs(result, out, header, pdf=args.pdf)
     for b in result.blocks:
         emit(f"block {b.block_id}: {b.n_points} points, measured {b.measured_std_um:.1f} um, "
              f"predicted {b.predicted_std_um:.1f} um, {b.status}")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list, number
+from scanqa.cli.common import add_config_argument, config_from_args, emit, flags, float_list, number
 
 _FMT = argparse.RawDescriptionHelpFormatter
 
@@ -107,8 +107,11 @@ def run_characterize(args: argparse.Namespace) -> int:
     from scanqa.model.characterization import characterize_sweeps, sweep_config, sweep_folder
     from scanqa.report.characterization import characterization_lines, write_characterization
 
-    config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
-    result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
+    with flags({"leave the config out": "leave --config out",
+                "give the config the sweep was made with":
+                    "give the config the sweep was made with (--config)"}):
+        config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
+        result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
     default = sweep_folder(args.sweep[0]) / "characterize"
     out = write_characterization(result, args.out or default, config)
     summary = result.summary()

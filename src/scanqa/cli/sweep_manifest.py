@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from scanqa.cli.common import add_config_argument, config_from_args, emit
+from scanqa.cli.common import add_config_argument, config_from_args, emit, flags
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
 from scanqa.io.sweep import load_sweep, read_stage_readings, scanner_table, sweep_manifest
@@ -66,7 +66,8 @@ def run(args: argparse.Namespace) -> int:
         if not markers:
             raise InputError(f"--markers {args.markers!r} matches no file in {folder}")
     scanner = scanner_table(config_from_args(args).camera) if args.config else None
-    data = sweep_manifest(captures, readings, markers, args.square_mm, decoded, scanner)
+    with flags({"(square_mm > 0 [mm])": "(--square-mm > 0 [mm])"}):
+        data = sweep_manifest(captures, readings, markers, args.square_mm, decoded, scanner)
     out = Path(args.out) if args.out else folder / "sweep.toml"
     if out.resolve().parent != folder.resolve():
         raise InputError(f"--out {out} must be in {folder}: the manifest's paths are "

@@ -82,7 +82,7 @@ def decode_images(desc: PatternDescription, images: Sequence[np.ndarray], *,
     return _phase_map(desc, run, response, images, notes)
 
 
-@dataclass(eq=False)
+@dataclass(frozen=True, eq=False)
 class _Run:
     """A decode's outputs (dict of arrays), counts, noise model and plan, the sample of
     rows the checks read, and what the checks found."""

@@ -253,8 +253,8 @@ def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
     if group.width_px is None:
         raise InputError(f"the projector size along the {group.orientation} fringes is "
                          f"needed to state periods in projector pixels (the frames give "
-                         f"only period ratios): give --projector-"
-                         f"{'width' if group.orientation == 'vertical' else 'height'}")
+                         f"only period ratios): give "
+                         f"{'width_px' if group.orientation == 'vertical' else 'height_px'}")
     ratios, spreads = _ratios(phase, zs, axis, usable)  # coarsest period / each period
     loose, score = [], {}
     for t in range(1, MAX_FRINGES + 1):

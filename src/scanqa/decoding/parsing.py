@@ -29,7 +29,7 @@ from scanqa.decoding.coding import (
     _require,
 )
 from scanqa.errors import ConfigError
-from scanqa.io.patterns import FORMAT, READ_FORMATS, read_patterns_file
+from scanqa.io.patterns import FORMAT, READ_FORMATS, SCHEMA, read_patterns_file
 
 _V1 = READ_FORMATS[0]
 _STORAGE_KEYS = ("name", "files", "stack", "stack_key")
@@ -43,10 +43,10 @@ _SET_KEYS = {
                       "orientation", *_STORAGE_KEYS),
              "reference": ("kind", "levels", *_STORAGE_KEYS)},
 }
-_TOP_KEYS = {_V1: ("format", "projector_width_px", "description", "sensor", "thresholds",
-                   "set"),
-             FORMAT: ("format", "projector_width_px", "description", "sensor", "thresholds",
-                      "decode", "set")}
+#: Top-level keys per version: the declared ones (:data:`scanqa.io.patterns.SCHEMA`),
+#: version 1 without ``[decode]``.
+_TOP_KEYS = {FORMAT: tuple(f.name for f in SCHEMA.fields)}
+_TOP_KEYS[_V1] = tuple(k for k in _TOP_KEYS[FORMAT] if k != "decode")
 _V1_THRESHOLDS = ("min_modulation_dn", "unwrap_max_residual", "unwrap_sigma_margin",
                   "gray_max_residual", "gray_min_contrast_sigma", "max_period_ratio")
 
@@ -84,6 +84,7 @@ def patterns_from_dict(data: dict, source: str = "<dict>") -> PatternDescription
     source : str
         File name used in error messages and to resolve relative image paths.
     """
+    SCHEMA.validate(data, source, ConfigError)
     try:
         return _from_dict(data, source)
     except ConfigError as err:

@@ -75,7 +75,7 @@ def standard_coding(width_px: int, periods_px: Sequence[float] = (), steps: int 
         sets.append(PhaseSet(f"p{period:g}", period, steps, orientation=orientation))
     if not any(isinstance(s, (PhaseSet, GrayCodeSet)) for s in sets):
         raise ConfigError("a coding needs phase periods or a Gray-code cell width "
-                          "(--periods and/or --gray-cell)")
+                          "(periods_px and/or gray_cell_px)")
     return PatternDescription(int(width_px), tuple(sets), description="scanqa patterns")
 
 

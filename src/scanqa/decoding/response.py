@@ -149,8 +149,8 @@ class ProjectorResponse:
             raise ConfigError(
                 f"projector response {self.source or '(given)'} has no table for the finest "
                 f"set {finest.name!r} (period {finest.period_px:g} px, {finest.steps} "
-                f"steps; it has: {have}); measure one with this pattern set (scanqa decode "
-                "--measure-response on a flat) or decode without the response")
+                f"steps; it has: {have}); measure one on a flat with this pattern set, or "
+                "decode without the response")
 
 
 def load_response(path: str | os.PathLike) -> ProjectorResponse:

@@ -42,65 +42,69 @@ import os
 from pathlib import Path
 
 from scanqa.errors import InputError
+from scanqa.io.schema import Field, Schema, count, declare, greater
 from scanqa.io.tomlfile import read_toml
 
 #: Value of the ``format`` key this version reads.
 FORMAT = "scanqa-artefact-layout/1"
+
+
+def _id() -> Field:
+    return Field("id", "string or integer", required=True, doc="the artefact's name")
+
+
+def _scan() -> Field:
+    return Field("scan", "string", default="", doc="only in scans whose name starts so")
+
+
+def _centre(name: str = "centre_mm", doc: str = "approximate centre") -> Field:
+    return Field(name, "numbers", "mm", check=count(3), doc=doc)
+
+
+_SPHERE = Schema("[[sphere]]", (
+    _id(), Field("diameter_mm", "number", "mm", required=True, check=greater(0),
+                 doc="nominal diameter"), _centre(), _scan()), name_key="id")
+_BALL_BAR = Schema("[[ball_bar]]", (
+    _id(), Field("diameter_mm", "number", "mm", required=True, check=greater(0),
+                 doc="nominal ball diameter"),
+    Field("distance_mm", "number", "mm", required=True, check=greater(0),
+          doc="nominal centre distance"),
+    _centre("centre_a_mm", "approximate centre of ball A (with centre_b_mm)"),
+    _centre("centre_b_mm", "approximate centre of ball B (with centre_a_mm)"),
+    Field("bar_diameter_mm", "number", "mm", check=greater(0),
+          doc="diameter of the bar joining the balls"), _scan()), name_key="id")
+_FLAT = Schema("[[flat]]", (
+    _id(), _centre(), Field("normal", "numbers", "-", check=count(3),
+                            doc="approximate normal (with centre_mm)"),
+    Field("size_mm", "numbers", "mm", check=count(2, greater(0)),
+          doc="extent along its in-plane axes"), _scan()), name_key="id")
+#: The artefact layout's keys (module notes).
+SCHEMA = declare(Schema("artefact layout", (
+    Field("format", "string", required=True, doc=f"{FORMAT!r}"),
+    Field("name", "string", doc="the layout's name (default: the file's stem)"),
+    Field("frame", "string", doc="informational"),
+    Field("sphere", "tables", table=_SPHERE, doc="test spheres: PF and PS"),
+    Field("ball_bar", "tables", table=_BALL_BAR, doc="a ball bar per position: SD"),
+    Field("flat", "tables", table=_FLAT, doc="optical flats: F"),
+), formats=(FORMAT,)))
 #: The artefact tables and their keys (True: required).
-KINDS = {
-    "sphere": {"id": True, "diameter_mm": True, "centre_mm": False, "scan": False},
-    "ball_bar": {"id": True, "diameter_mm": True, "distance_mm": True, "centre_a_mm": False,
-                 "centre_b_mm": False, "bar_diameter_mm": False, "scan": False},
-    "flat": {"id": True, "centre_mm": False, "normal": False, "size_mm": False,
-             "scan": False},
-}
-_TOP = ("format", "name", "frame", *KINDS)
+KINDS = {kind: {f.name: f.required for f in SCHEMA.field(kind).table.fields}
+         for kind in ("sphere", "ball_bar", "flat")}
 
 
 def _err(path, msg: str) -> InputError:
     return InputError(f"{path}: {msg}")
 
 
-def _positive(path, where: str, key: str, value) -> float:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) \
-        and math.isfinite(value) and value > 0
-    if not ok:
-        raise _err(path, f"{where}: {key} must be a number > 0 [mm], got {value!r}")
-    return float(value)
-
-
-def _vector(path, where: str, key: str, value, size: int) -> tuple[float, ...]:
-    ok = isinstance(value, list) and len(value) == size and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-        for v in value)
-    if not ok:
-        raise _err(path, f"{where}: {key} must be a list of {size} finite numbers, "
-                         f"got {value!r}")
-    return tuple(float(v) for v in value)
-
-
-def _entry(path, kind: str, i: int, table) -> dict:
-    where = f"[[{kind}]] {i + 1}"
-    if not isinstance(table, dict):
-        raise _err(path, f"{where} must be a table")
-    keys = KINDS[kind]
-    unknown = sorted(set(table) - set(keys))
-    if unknown:
-        raise _err(path, f"{where}: unknown key {unknown[0]!r} (known: {', '.join(keys)})")
-    missing = [k for k, required in keys.items() if required and k not in table]
-    if missing:
-        raise _err(path, f"{where}: {missing[0]} is missing")
+def _entry(path, kind: str, table: dict) -> dict:
+    """One artefact entry (its keys checked by :data:`SCHEMA`) as a plain dict."""
     out: dict = {"id": str(table["id"]), "scan": str(table.get("scan", ""))}
-    where = f"{kind} {out['id']!r}"
     for key in ("diameter_mm", "distance_mm", "bar_diameter_mm"):
         if key in table:
-            out[key] = _positive(path, where, key, table[key])
-    for key in ("centre_mm", "centre_a_mm", "centre_b_mm", "normal"):
-        out[key] = _vector(path, where, key, table[key], 3) if key in table else None
-    out["size_mm"] = tuple(_positive(path, where, "size_mm", v) for v in
-                           _vector(path, where, "size_mm", table["size_mm"], 2)) \
-        if "size_mm" in table else None
-    _check_entry(path, kind, where, out)
+            out[key] = float(table[key])
+    for key in ("centre_mm", "centre_a_mm", "centre_b_mm", "normal", "size_mm"):
+        out[key] = tuple(float(v) for v in table[key]) if key in table else None
+    _check_entry(path, kind, f"{kind} {out['id']!r}", out)
     return out
 
 
@@ -138,18 +142,10 @@ def read_artefact_layout(path: str | os.PathLike) -> dict:
         Unreadable file, wrong format, unknown key, no artefact, bad value, duplicate id.
     """
     path = Path(path)
-    data = read_toml(path, "artefact layout")
-    if data.get("format") != FORMAT:
-        raise _err(path, f"format must be {FORMAT!r}, got {data.get('format')!r}")
-    unknown = sorted(set(data) - set(_TOP))
-    if unknown:
-        raise _err(path, f"unknown key {unknown[0]!r} (known: {', '.join(_TOP)})")
+    data = SCHEMA.validate(read_toml(path, "artefact layout"), path)
     out: dict = {"name": str(data.get("name", path.stem)), "source": str(path)}
     for kind in KINDS:
-        raw = data.get(kind, [])
-        if not isinstance(raw, list):
-            raise _err(path, f"{kind} must be an array of tables ([[{kind}]])")
-        out[kind] = [_entry(path, kind, i, t) for i, t in enumerate(raw)]
+        out[kind] = [_entry(path, kind, t) for t in data.get(kind, [])]
     ids = [e["id"] for kind in KINDS for e in out[kind]]
     if not ids:
         raise _err(path, "no artefact: add a [[sphere]], [[ball_bar]] or [[flat]] table")

@@ -26,13 +26,14 @@ records hold paths resolved against the file's folder and plain values.
 
 from __future__ import annotations
 
-import math
 import os
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 from scanqa.errors import InputError
+from scanqa.io import manifest
+from scanqa.io.schema import Field, Schema, at_least, declare
 from scanqa.io.tomlfile import read_toml
 
 #: Value of the ``format`` key of a batch manifest.
@@ -41,6 +42,35 @@ BATCH_FORMAT = "scanqa-batch/1"
 CAMPAIGN_FORMAT = "scanqa-campaign/1"
 #: A scan's or run's name: it names an output folder, so no separators and no leading dot.
 _NAME = re.compile(r"^[A-Za-z0-9_][A-Za-z0-9_.+-]*$")
+#: The batch manifest's keys (module notes).
+BATCH_SCHEMA = declare(Schema("batch manifest", (
+    Field("format", "string", required=True, doc=f"{BATCH_FORMAT!r}"),
+    Field("scan", "tables", required=True, doc="one per scan, at least one",
+          table=Schema("[[scan]]", (
+              Field("path", "string", required=True,
+                    doc="pattern folder or phase .npz, relative to the file"),
+              Field("name", "string", doc="output folder name (default: the path's name)"),
+          ), name_key="name")),
+), formats=(BATCH_FORMAT,)))
+#: The campaign file's keys (module notes).
+CAMPAIGN_SCHEMA = declare(Schema("campaign", (
+    Field("format", "string", required=True, doc=f"{CAMPAIGN_FORMAT!r}"),
+    Field("seed", "integer", "-", default=0, check=at_least(0),
+          doc="the campaign seed (every run's seed derives from it)"),
+    Field("run", "tables", required=True, doc="one per simulation, at least one",
+          table=Schema("[[run]]", (
+              Field("name", "string", required=True,
+                    doc="output folder name; with the seed it keys the noise"),
+              Field("experiment", "string", required=True, doc="the simulated experiment"),
+              Field("config", "string", required=True,
+                    doc="scanner config, relative to the file; #PROFILE optional"),
+              Field("positions", "numbers", "mm", doc="default: the experiment's"),
+              Field("repeats", "integer", "-", check=at_least(1),
+                    doc="default: the experiment's"),
+              Field("periods_px", "numbers", "px", doc="fine periods"),
+              Field("mesh", "string", doc="the 'mesh' experiment only"),
+          ), name_key="name")),
+), formats=(CAMPAIGN_FORMAT,)))
 
 
 @dataclass(frozen=True)
@@ -89,28 +119,26 @@ def read_batch_manifest(path: str | os.PathLike) -> list[ScanEntry]:
     """
     p = Path(path)
     data = read_toml(p, "batch manifest")
-    if data.get("format") == "scanqa-simulation/1":
-        acq = data.get("acquisition")
-        items = [{"path": e.get("folder")} for e in acq if isinstance(e, dict)] \
-            if isinstance(acq, list) else []
+    if data.get("format") == manifest.FORMAT:
+        manifest.SCHEMA.validate(data, p)
+        items = [{"path": e["folder"]} for e in data["acquisition"]]
         key = "acquisition"
     elif data.get("format") == BATCH_FORMAT:
-        items, key = data.get("scan"), "scan"
+        items, key = BATCH_SCHEMA.validate(data, p)["scan"], "scan"
     else:
         raise InputError(f"{p}: format must be {BATCH_FORMAT!r} (or an experiment's "
-                         f"'scanqa-simulation/1' manifest), got {data.get('format')!r}")
-    if not isinstance(items, list) or not items:
+                         f"{manifest.FORMAT!r} manifest), got {data.get('format')!r}")
+    if not items:
         raise InputError(f"{p}: needs at least one [[{key}]] entry with a path")
     return unique_scans([_scan(p, i, item) for i, item in enumerate(items)], str(p))
 
 
-def _scan(manifest: Path, i: int, item: object) -> ScanEntry:
-    where = f"{manifest}: scan {i + 1}"
-    if not isinstance(item, dict) or not isinstance(item.get("path"), str) \
-            or not item["path"]:
-        raise InputError(f"{where}: path must be a scan folder or phase file, got "
-                         f"{item.get('path') if isinstance(item, dict) else item!r}")
-    scan = (manifest.parent / item["path"]) if not os.path.isabs(item["path"]) \
+def _scan(file: Path, i: int, item: dict) -> ScanEntry:
+    """One scan entry (its keys checked by the schema)."""
+    where = f"{file}: scan {i + 1}"
+    if not item["path"]:
+        raise InputError(f"{where}: path must be a scan folder or phase file, got ''")
+    scan = (file.parent / item["path"]) if not os.path.isabs(item["path"]) \
         else Path(item["path"])
     name = item.get("name", default_name(scan))
     return ScanEntry(check_name(name, where), scan)
@@ -138,15 +166,10 @@ def read_campaign(path: str | os.PathLike) -> tuple[int, list[CampaignRun]]:
         message names the run and the key).
     """
     p = Path(path)
-    data = read_toml(p, "campaign")
-    if data.get("format") != CAMPAIGN_FORMAT:
-        raise InputError(f"{p}: format must be {CAMPAIGN_FORMAT!r}, got "
-                         f"{data.get('format')!r}")
-    seed = data.get("seed", 0)
-    if not isinstance(seed, int) or isinstance(seed, bool) or seed < 0:
-        raise InputError(f"{p}: seed must be an integer >= 0, got {seed!r}")
-    runs = data.get("run")
-    if not isinstance(runs, list) or not runs or not all(isinstance(r, dict) for r in runs):
+    data = CAMPAIGN_SCHEMA.validate(read_toml(p, "campaign"), p)
+    seed = CAMPAIGN_SCHEMA.value(data, "seed")
+    runs = data["run"]
+    if not runs:
         raise InputError(f"{p}: needs at least one [[run]] table")
     out = [_run(p, i, r) for i, r in enumerate(runs)]
     names = [r.name for r in out]
@@ -157,40 +180,21 @@ def read_campaign(path: str | os.PathLike) -> tuple[int, list[CampaignRun]]:
     return seed, out
 
 
-def _numbers(value: object, where: str, key: str) -> tuple[float, ...] | None:
-    if value is None:
-        return None
-    ok = isinstance(value, list) and value and all(
-        isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v)
-        for v in value)
-    if not ok:
-        raise InputError(f"{where}: {key} must be a non-empty list of finite numbers, got "
-                         f"{value!r}")
-    return tuple(float(v) for v in value)
+def _numbers(value: list | None) -> tuple[float, ...] | None:
+    return None if value is None else tuple(float(v) for v in value)
 
 
 def _run(campaign: Path, i: int, run: dict) -> CampaignRun:
+    """One run (its keys checked by :data:`CAMPAIGN_SCHEMA`)."""
     where = f"{campaign}: run {i + 1}"
-    name = check_name(run.get("name"), where)
+    name = check_name(run["name"], where)
     where = f"{campaign}: run {name!r}"
     for key in ("experiment", "config"):
-        if not isinstance(run.get(key), str) or not run[key]:
-            raise InputError(f"{where}: {key} must be a string, got {run.get(key)!r}")
-    unknown = sorted(set(run) - {"name", "experiment", "config", "positions", "repeats",
-                                 "periods_px", "mesh"})
-    if unknown:
-        raise InputError(f"{where}: unknown key {unknown[0]!r} (known: name, experiment, "
-                         "config, positions, repeats, periods_px, mesh)")
-    repeats = run.get("repeats")
-    if repeats is not None and (not isinstance(repeats, int) or isinstance(repeats, bool)
-                                or repeats < 1):
-        raise InputError(f"{where}: repeats must be an integer >= 1, got {repeats!r}")
+        if not run[key]:
+            raise InputError(f"{where}: {key} must be a non-empty string, got ''")
     file, _, profile = run["config"].partition("#")
     config = str(campaign.parent / file) + (f"#{profile}" if profile else "")
     mesh = run.get("mesh")
-    if mesh is not None and not isinstance(mesh, str):
-        raise InputError(f"{where}: mesh must be a file name, got {mesh!r}")
-    return CampaignRun(name, run["experiment"], config,
-                       _numbers(run.get("positions"), where, "positions"), repeats,
-                       _numbers(run.get("periods_px"), where, "periods_px"),
+    return CampaignRun(name, run["experiment"], config, _numbers(run.get("positions")),
+                       run.get("repeats"), _numbers(run.get("periods_px")),
                        campaign.parent / mesh if mesh else None)

@@ -32,28 +32,54 @@ computed by :mod:`scanqa.qa.budget`.
 
 from __future__ import annotations
 
-import math
 import os
 from dataclasses import dataclass
 from pathlib import Path
 
 from scanqa.errors import InputError
+from scanqa.io.schema import Field, Schema, at_least, declare, greater
 from scanqa.io.tomlfile import read_toml
 
 #: Value of the ``format`` key this version reads.
 FORMAT = "scanqa-budget/1"
 #: Coverage choice that computes k from the effective degrees of freedom.
 WELCH_SATTERTHWAITE = "welch-satterthwaite"
-#: Known keys per table: name -> (unit for messages, lowest allowed value).
-_KEYS = {
-    "gauge_blocks": {"certificate_U_um": ("um", 0.0), "certificate_U_per_mm_um": ("um/mm", 0.0),
-                     "certificate_k": ("", 1e-9)},
-    "temperature": {"deviation_K": ("K", -math.inf), "uncertainty_K": ("K", 0.0),
-                    "expansion_per_K": ("1/K", -math.inf),
-                    "expansion_uncertainty_per_K": ("1/K", 0.0)},
-    "stage": {"scale_uncertainty_ppm": ("ppm", 0.0)},
-    "calibration_flat": {"flatness_um": ("um", 0.0)},
-}
+
+
+def _table(name: str, *fields: Field) -> Field:
+    return Field(name, "table", table=Schema(f"[{name}]", fields), doc=_TABLE_DOCS[name])
+
+
+_TABLE_DOCS = {"gauge_blocks": "the blocks' calibration certificate",
+               "temperature": "the blocks' temperature during the scan",
+               "stage": "the calibration stage's length scale",
+               "calibration_flat": "the calibration flat", "coverage": "the coverage factor"}
+#: The budget file's keys (module notes); every table and key is optional.
+SCHEMA = declare(Schema("uncertainty budget", (
+    Field("format", "string", required=True, doc=f"{FORMAT!r}"),
+    _table("gauge_blocks",
+           Field("certificate_U_um", "number", "um", check=at_least(0),
+                 doc="expanded uncertainty of a block's length, constant part"),
+           Field("certificate_U_per_mm_um", "number", "um/mm", check=at_least(0),
+                 doc="its length-proportional part"),
+           Field("certificate_k", "number", "-", default=2.0, check=greater(0),
+                 doc="coverage factor of those U")),
+    _table("temperature",
+           Field("deviation_K", "number", "K", doc="measured deviation from 20 degC"),
+           Field("uncertainty_K", "number", "K", check=at_least(0),
+                 doc="standard uncertainty of that deviation"),
+           Field("expansion_per_K", "number", "1/K",
+                 doc="linear expansion coefficient of the blocks"),
+           Field("expansion_uncertainty_per_K", "number", "1/K", check=at_least(0),
+                 doc="its standard uncertainty")),
+    _table("stage", Field("scale_uncertainty_ppm", "number", "ppm", check=at_least(0),
+                          doc="standard uncertainty of its scale")),
+    _table("calibration_flat", Field("flatness_um", "number", "um", check=at_least(0),
+                                     doc="peak-to-valley flatness")),
+    _table("coverage", Field("k", "number or string", "-", required=True,
+                             check=greater(0),
+                             doc=f"a stated k, or {WELCH_SATTERTHWAITE!r}")),
+), formats=(FORMAT,)))
 
 
 @dataclass(frozen=True)
@@ -88,21 +114,13 @@ def read_budget_file(path: str | os.PathLike) -> BudgetInputs:
         coefficient.
     """
     path = Path(path)
-    data = read_toml(path, "uncertainty budget")
-    if data.get("format") != FORMAT:
-        raise _err(path, f"format must be {FORMAT!r}, got {data.get('format')!r}")
+    data = SCHEMA.validate(read_toml(path, "uncertainty budget"), path)
     values: dict = {"source": str(path)}
     for table, content in data.items():
-        if table == "format":
-            continue
         if table == "coverage":
-            values["coverage_k"] = _coverage(path, content)
-            continue
-        if table not in _KEYS or not isinstance(content, dict):
-            raise _err(path, f"unknown table [{table}] (known: "
-                             f"{', '.join(sorted([*_KEYS, 'coverage']))})")
-        for key, value in content.items():
-            values[key] = _number(path, table, key, value)
+            values["coverage_k"] = _coverage(path, content["k"])
+        elif table != "format":
+            values.update({key: float(value) for key, value in content.items()})
     inputs = BudgetInputs(**values)
     thermal = (inputs.deviation_K, inputs.uncertainty_K, inputs.expansion_uncertainty_per_K)
     if any(v is not None for v in thermal) and inputs.expansion_per_K is None:
@@ -111,27 +129,9 @@ def read_budget_file(path: str | os.PathLike) -> BudgetInputs:
     return inputs
 
 
-def _number(path, table: str, key: str, value) -> float:
-    known = _KEYS[table]
-    if key not in known:
-        raise _err(path, f"[{table}] unknown key {key!r} (known: {', '.join(known)})")
-    unit, lowest = known[key]
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) \
-        and math.isfinite(value) and value >= lowest
-    if not ok:
-        rng = "a finite number" if lowest == -math.inf else f"a number >= {lowest:g}"
-        raise _err(path, f"[{table}] {key} must be {rng} [{unit}], got {value!r}")
-    return float(value)
-
-
-def _coverage(path, content) -> float | str:
-    if not isinstance(content, dict) or set(content) != {"k"}:
-        raise _err(path, "[coverage] must hold one key, k (a number or "
-                         f"{WELCH_SATTERTHWAITE!r})")
-    k = content["k"]
-    if k == WELCH_SATTERTHWAITE:
-        return k
-    if isinstance(k, bool) or not isinstance(k, (int, float)) or not k > 0:
+def _coverage(path, k) -> float | str:
+    """``[coverage] k``: a number (checked by :data:`SCHEMA`) or the one named method."""
+    if isinstance(k, str) and k != WELCH_SATTERTHWAITE:
         raise _err(path, f"[coverage] k must be a number > 0 or {WELCH_SATTERTHWAITE!r}, "
                          f"got {k!r}")
-    return float(k)
+    return k if isinstance(k, str) else float(k)

@@ -24,10 +24,26 @@ from pathlib import Path
 
 from scanqa.errors import ConfigError
 from scanqa.io.atomic import write_text
+from scanqa.io.schema import Field, Schema, declare, greater
 from scanqa.io.tomlfile import dumps_toml, read_toml
 
 #: Value of the ``format`` key written and read.
 FORMAT = "scanqa-response/1"
+#: The projector response file's keys (module notes).
+SCHEMA = declare(Schema("projector response", (
+    Field("format", "string", required=True, doc=f"{FORMAT!r}"),
+    Field("description", "string", default="", doc="free text"),
+    Field("set", "tables", required=True, doc="one table per pattern set measured",
+          table=Schema("[[set]]", (
+              Field("period_px", "number", "px", required=True, check=greater(0),
+                    doc="the set's period"),
+              Field("steps", "integer", "-", required=True, check=greater(0),
+                    doc="the set's frames"),
+              Field("shifts_rad", "numbers", "rad", required=True, doc="the set's shifts"),
+              Field("phase_error_rad", "numbers", "rad", required=True,
+                    doc="error at measured phase (i + 1/2) 2 pi / n, n >= 4, abs(e) < pi/2"),
+          ))),
+), formats=(FORMAT,)))
 
 
 def read_response_file(path: str | os.PathLike) -> dict:
@@ -41,7 +57,8 @@ def read_response_file(path: str | os.PathLike) -> dict:
     Returns
     -------
     dict
-        The parsed TOML (format checked, content not yet validated).
+        The parsed TOML, checked against :data:`SCHEMA` (the tables not yet
+        validated).
 
     Raises
     ------
@@ -50,12 +67,9 @@ def read_response_file(path: str | os.PathLike) -> dict:
     """
     p = Path(path)
     data = read_toml(p, "projector response", ConfigError,
-                     missing=f"no projector response file {p} (measure one with 'scanqa "
-                             "decode SCAN --measure-response FILE' on a flat)")
-    if data.get("format") != FORMAT:
-        raise ConfigError(f"projector response {p}: format must be {FORMAT!r}, got "
-                          f"{data.get('format')!r}")
-    return data
+                     missing=f"no projector response file {p} (measure one on a flat "
+                             "with the same pattern set)")
+    return SCHEMA.validate(data, p, ConfigError)
 
 
 def write_response_file(path: str | os.PathLike, data: dict) -> Path:

@@ -41,16 +41,56 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from scanqa.errors import InputError
-from scanqa.io.tomlfile import known_table, read_toml
+from scanqa.io.schema import Field, Schema, at_least, declare, greater
+from scanqa.io.tomlfile import read_toml
 
 #: Value of the ``format`` key this version reads.
 FORMAT = "scanqa-spec/1"
 #: MPE keys and the quantity each bounds.
 MPE_KEYS = {"mpe_pf_um": "PF", "mpe_ps_um": "PS", "mpe_sd_um": "SD", "mpe_f_um": "F"}
-_TOP = ("format", "name", *MPE_KEYS, "sphere", "ball_bar", "flat")
-_SPHERE = {"diameter_mm": True, "diameter_uncertainty_um": True, "k": False, "form_um": False}
-_BAR = {"distance_mm": True, "distance_uncertainty_um": True, "k": False, "diameter_mm": False}
-_FLAT = {"flatness_um": True}
+_CERTIFIED = "the certificate's value"
+
+
+def _mpe(key: str, doc: str) -> Field:
+    return Field(key, "number", "um", check=greater(0), doc=doc)
+
+
+def _k() -> Field:
+    return Field("k", "number", "-", default=2.0, check=greater(0),
+                 doc="coverage factor of the certified U")
+
+
+_SPHERE = Schema("[sphere]", (
+    Field("diameter_mm", "number", "mm", required=True, check=greater(0), doc=_CERTIFIED),
+    Field("diameter_uncertainty_um", "number", "um", required=True, check=greater(0),
+          doc=_CERTIFIED), _k(),
+    Field("form_um", "number", "um", check=at_least(0), doc="certified form deviation")))
+_BAR = Schema("[ball_bar]", (
+    Field("distance_mm", "number", "mm", required=True, check=greater(0), doc=_CERTIFIED),
+    Field("distance_uncertainty_um", "number", "um", required=True, check=greater(0),
+          doc=_CERTIFIED), _k(),
+    Field("diameter_mm", "number", "mm", check=greater(0), doc="nominal ball diameter")))
+_FLAT = Schema("[flat]", (
+    Field("flatness_um", "number", "um", required=True, check=at_least(0),
+          doc=_CERTIFIED),))
+#: The acceptance spec's keys (module notes); at least one MPE.
+SCHEMA = declare(Schema("acceptance spec", (
+    Field("format", "string", required=True, doc=f"{FORMAT!r}"),
+    Field("name", "string", doc="the spec's name (default: the file's stem)"),
+    _mpe("mpe_pf_um", "MPE of the probing error form PF; only mpe_sd_um may depend on the "
+                      "length"),
+    _mpe("mpe_ps_um", "MPE of the probing error size PS, applies to abs(PS)"),
+    Field("mpe_sd_um", "number or table", "um", check=greater(0),
+          doc="MPE of the sphere-spacing error SD; {a = A, b = K}: A + L/K, L in mm",
+          table=Schema("mpe_sd_um (A + L/K [um] with L in mm)", (
+              Field("a", "number", "um", required=True, check=greater(0),
+                    doc="constant part A"),
+              Field("b", "number", "-", check=greater(0), doc="length divisor K")))),
+    _mpe("mpe_f_um", "MPE of the flatness measurement error F"),
+    Field("sphere", "table", table=_SPHERE, doc="certificate of the test sphere"),
+    Field("ball_bar", "table", table=_BAR, doc="certificate of the ball bar"),
+    Field("flat", "table", table=_FLAT, doc="certificate of the flat"),
+), formats=(FORMAT,)))
 
 
 @dataclass(frozen=True)
@@ -110,37 +150,17 @@ def _err(path, msg: str) -> InputError:
     return InputError(f"{path}: {msg}")
 
 
-def _number(path, key: str, value, positive: bool = True) -> float:
-    ok = isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
-    if not ok or (value <= 0 if positive else value < 0):
-        rule = "> 0" if positive else ">= 0"
-        raise _err(path, f"{key} must be a number {rule}, got {value!r}")
-    return float(value)
-
-
-def _mpe(path, key: str, value) -> Mpe:
+def _mpe_value(value) -> Mpe:
+    """An MPE key's value (checked by :data:`SCHEMA`): a number or {a = A, b = K}."""
     if isinstance(value, dict):
-        if key != "mpe_sd_um":
-            raise _err(path, f"{key} must be a number [um]; only mpe_sd_um may depend on "
-                             "the length ({a = .., b = ..})")
-        unknown = sorted(set(value) - {"a", "b"})
-        if unknown or "a" not in value:
-            raise _err(path, f"{key} must be a number or {{a = A, b = K}} meaning A + L/K "
-                             f"[um] with L in mm, got {value!r}")
-        return Mpe(_number(path, f"{key}.a", value["a"]),
-                   _number(path, f"{key}.b", value.get("b", math.inf)))
-    return Mpe(_number(path, key, value))
+        return Mpe(float(value["a"]), float(value.get("b", math.inf)))
+    return Mpe(float(value))
 
 
-def _table(path, data: dict, name: str, keys: dict) -> dict | None:
-    table = known_table(data.get(name), name, keys, lambda msg: _err(path, msg))
-    if table is None:
-        return None
-    missing = [k for k, required in keys.items() if required and k not in table]
-    if missing:
-        raise _err(path, f"[{name}]: {missing[0]} is missing (the certificate's value)")
-    return {k: _number(path, f"{name}.{k}", v, positive=k not in ("form_um", "flatness_um"))
-            for k, v in table.items()}
+def _table(data: dict, name: str) -> dict | None:
+    """A certificate table (checked by :data:`SCHEMA`) as floats, or None."""
+    table = data.get(name)
+    return None if table is None else {k: float(v) for k, v in table.items()}
 
 
 def read_spec(path: str | os.PathLike) -> Spec:
@@ -162,19 +182,12 @@ def read_spec(path: str | os.PathLike) -> Spec:
         value.
     """
     path = Path(path)
-    data = read_toml(path, "acceptance spec")
-    if data.get("format") != FORMAT:
-        raise _err(path, f"format must be {FORMAT!r}, got {data.get('format')!r}")
-    unknown = sorted(set(data) - set(_TOP))
-    if unknown:
-        raise _err(path, f"unknown key {unknown[0]!r} (known: {', '.join(_TOP)})")
-    mpe = {q: _mpe(path, key, data[key]) for key, q in MPE_KEYS.items() if key in data}
+    data = SCHEMA.validate(read_toml(path, "acceptance spec"), path)
+    mpe = {q: _mpe_value(data[key]) for key, q in MPE_KEYS.items() if key in data}
     if not mpe:
         raise _err(path, "no MPE given: set at least one of " + ", ".join(MPE_KEYS)
                    + " (the maker's maximum permissible errors [um])")
-    sphere = _table(path, data, "sphere", _SPHERE)
-    bar = _table(path, data, "ball_bar", _BAR)
-    flat = _table(path, data, "flat", _FLAT)
+    sphere, bar, flat = (_table(data, name) for name in ("sphere", "ball_bar", "flat"))
     return Spec(name=str(data.get("name", path.stem)), mpe=mpe,
                 sphere=None if sphere is None else SphereCertificate(**sphere),
                 ball_bar=None if bar is None else BallBarCertificate(**bar),

@@ -37,18 +37,48 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.npzfile import load_npz
-from scanqa.io.tomlfile import known_table, read_toml
+from scanqa.io.schema import Field, Schema, declare, greater, one_of
+from scanqa.io.tomlfile import read_toml
 
 FORMAT = "scanqa-sweep/1"
-_TOP = ("format", "description", "position", "target", "scanner")
-_POS = ("z_mm", "phase", "patterns", "lateral", "markers")
-#: Keys of the ``[target]`` table.
-TARGET_KEYS = ("kind", "square_mm", "marker_cells")
 #: The camera fields the ``[scanner]`` table records: key -> ``camera.<field>`` of a config.
 SCANNER_FIELDS = {"camera_width_px": "width_px", "camera_height_px": "height_px",
                   "camera_pixel_um": "pixel_um", "camera_focal_mm": "focal_mm"}
+_POSITION = Schema("[[position]]", (
+    Field("z_mm", "number", "mm", required=True,
+          doc="Z of the target plane, or the stage reading with markers"),
+    Field("phase", "string or strings", doc="decoded phase files, one per repeat"),
+    Field("patterns", "string or strings", doc="or pattern folders, decoded on the fly"),
+    Field("lateral", "string", doc="file of arrays X, Y [mm] per pixel"),
+    Field("markers", "string", doc="image of the printed target at this position"),
+))
+_TARGET = Schema("[target]", (
+    Field("kind", "string", required=True, check=one_of("chessboard"),
+          doc='the printed target: kind = "chessboard"'),
+    Field("square_mm", "number", "mm", required=True, check=greater(0),
+          doc="the printed square's side"),
+    Field("marker_cells", "list", doc="[[row, column], ...] of the 3 marker cells"),
+))
+_SCANNER = Schema("[scanner]", (
+    Field("config", "string", doc="name of the scanner config"),
+    Field("camera_width_px", "integer", "px", check=greater(0), doc="camera.width_px"),
+    Field("camera_height_px", "integer", "px", check=greater(0), doc="camera.height_px"),
+    Field("camera_pixel_um", "number", "um", check=greater(0), doc="camera.pixel_um"),
+    Field("camera_focal_mm", "number", "mm", check=greater(0), doc="camera.focal_mm"),
+))
+#: The sweep manifest's keys (module notes).
+SCHEMA = declare(Schema("sweep manifest", (
+    Field("format", "string", required=True, doc=f"{FORMAT!r}"),
+    Field("description", "string", default="", doc="free text"),
+    Field("position", "tables", required=True, table=_POSITION,
+          doc="one per stage position, in increasing z_mm, at least 3"),
+    Field("target", "table", table=_TARGET, doc="the printed target, with markers"),
+    Field("scanner", "table", table=_SCANNER, doc="the config the images came from"),
+), formats=(FORMAT,)))
+#: Keys of the ``[target]`` table.
+TARGET_KEYS = tuple(f.name for f in _TARGET.fields)
 #: Keys of the ``[scanner]`` table: the config values the sweep was captured with.
-SCANNER_KEYS = ("config", *SCANNER_FIELDS)
+SCANNER_KEYS = tuple(f.name for f in _SCANNER.fields)
 
 
 @dataclass(frozen=True)
@@ -104,27 +134,22 @@ def load_sweep(path: str | os.PathLike) -> Sweep:
     path = Path(path)
     if path.is_dir():
         path = path / "sweep.toml"
-    data = read_toml(path, "sweep manifest")
-    unknown = sorted(set(data) - set(_TOP))
-    if unknown:
-        raise _err(path, f"unknown key {unknown[0]!r} (known: {', '.join(_TOP)})")
-    if data.get("format") != FORMAT:
-        raise _err(path, f"format must be {FORMAT!r}, got {data.get('format')!r}")
-    raw = data.get("position", [])
-    if not isinstance(raw, list) or len(raw) < 3:
-        n = len(raw) if isinstance(raw, list) else 0
-        raise _err(path, f"a calibration sweep needs at least 3 [[position]] entries, got {n}")
+    data = SCHEMA.validate(read_toml(path, "sweep manifest"), path)
+    raw = data["position"]
+    if len(raw) < 3:
+        raise _err(path, f"a calibration sweep needs at least 3 [[position]] entries, "
+                         f"got {len(raw)}")
     positions = tuple(_position(path, i, p) for i, p in enumerate(raw))
     _check_order(path, positions)
     target = _target(path, data.get("target"), positions)
-    scanner = known_table(data.get("scanner"), "scanner", SCANNER_KEYS,
-                          lambda msg: _err(path, msg))
-    return Sweep(path, positions, str(data.get("description", "")), target, scanner)
+    scanner = dict(data["scanner"]) if "scanner" in data else None
+    return Sweep(path, positions, SCHEMA.value(data, "description"), target, scanner)
 
 
 def _target(path: Path, table, positions: tuple[SweepPosition, ...]) -> dict | None:
-    """The ``[target]`` table, required exactly when positions name marker frames."""
-    target = known_table(table, "target", TARGET_KEYS, lambda msg: _err(path, msg))
+    """The ``[target]`` table (checked by :data:`SCHEMA`), required exactly when
+    positions name marker frames."""
+    target = None if table is None else dict(table)
     marked = [p.markers is not None for p in positions]
     if any(marked) and not all(marked):
         k = marked.index(False)
@@ -133,45 +158,30 @@ def _target(path: Path, table, positions: tuple[SweepPosition, ...]) -> dict | N
     if all(marked) and target is None:
         raise _err(path, "positions name marker frames but there is no [target] table: add "
                          "[target] kind = \"chessboard\", square_mm = <printed square> [mm]")
-    if target is not None:
-        if target.get("kind") != "chessboard":
-            raise _err(path, f"[target] kind must be 'chessboard', got {target.get('kind')!r}")
-        sq = target.get("square_mm")
-        if isinstance(sq, bool) or not isinstance(sq, (int, float)) or not sq > 0:
-            raise _err(path, f"[target] square_mm must be the printed square's side > 0 "
-                             f"[mm], got {sq!r}")
     return target
 
 
 def _position(path: Path, i: int, table: dict) -> SweepPosition:
+    """One ``[[position]]`` entry (its keys checked by :data:`SCHEMA`): files exist."""
     where = f"position {i + 1}"
-    if not isinstance(table, dict):
-        raise _err(path, f"{where} must be a [[position]] table, got {table!r}")
-    unknown = sorted(set(table) - set(_POS))
-    if unknown:
-        raise _err(path, f"{where}: unknown key {unknown[0]!r} (known: {', '.join(_POS)})")
-    z = table.get("z_mm")
-    if isinstance(z, bool) or not isinstance(z, (int, float)) or not math.isfinite(z):
-        raise _err(path, f"{where}: z_mm must be a finite number [mm], got {z!r}")
+    z = table["z_mm"]
     has_phase, has_pat = "phase" in table, "patterns" in table
     if has_phase == has_pat:
         raise _err(path, f"{where} (z_mm = {z}): give exactly one of 'phase' (decoded files) "
                          "or 'patterns' (pattern folders)")
     items = table["phase" if has_phase else "patterns"]
     items = [items] if isinstance(items, str) else items
-    if not isinstance(items, list) or not items or not all(isinstance(s, str) for s in items):
-        raise _err(path, f"{where}: list at least one file name")
     sources = tuple(path.parent / s for s in items)
     for s in sources:
         if not s.exists():
             raise _err(path, f"{where} (z_mm = {z}): {s} does not exist")
     lateral = table.get("lateral")
-    lat = path.parent / lateral if isinstance(lateral, str) else None
-    if lateral is not None and (lat is None or not lat.exists()):
+    lat = None if lateral is None else path.parent / lateral
+    if lat is not None and not lat.exists():
         raise _err(path, f"{where}: lateral file {lateral!r} does not exist")
     markers = table.get("markers")
-    mark = path.parent / markers if isinstance(markers, str) else None
-    if markers is not None and (mark is None or not mark.is_file()):
+    mark = None if markers is None else path.parent / markers
+    if mark is not None and not mark.is_file():
         raise _err(path, f"{where}: marker frame {markers!r} does not exist")
     return SweepPosition(float(z), sources, has_phase, lat, mark)
 
@@ -282,8 +292,8 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
         raise InputError(f"{len(markers)} marker frames but {len(zs)} distinct stage "
                          "readings: give one marker frame per position")
     if markers is not None and not (square_mm and square_mm > 0):
-        raise InputError("marker frames need the printed target's square size (--square-mm, "
-                         "> 0 mm)")
+        raise InputError("marker frames need the printed target's square size (square_mm "
+                         "> 0 [mm])")
     key = "phase" if decoded else "patterns"
     rows = []
     for k, z in enumerate(zs):

@@ -6,7 +6,6 @@ from __future__ import annotations
 import math
 import os
 import sys
-from collections.abc import Callable
 from pathlib import Path
 
 from scanqa.errors import InputError, ScanQAError
@@ -100,20 +99,6 @@ def _nesting(text: str) -> int:
             depth = max(depth - 1, 0)
         i += 1
     return deepest
-
-
-def known_table(table: object, name: str, keys, fail: Callable[[str], Exception]
-                ) -> dict | None:
-    """An optional ``[name]`` sub-table holding only ``keys`` (a copy), or None when
-    absent; otherwise ``fail(message)`` is raised."""
-    if table is None:
-        return None
-    if not isinstance(table, dict):
-        raise fail(f"[{name}] must be a table")
-    unknown = sorted(set(table) - set(keys))
-    if unknown:
-        raise fail(f"[{name}]: unknown key {unknown[0]!r} (known: {', '.join(keys)})")
-    return dict(table)
 
 
 def dumps_toml(data: dict) -> str:

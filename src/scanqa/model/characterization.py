@@ -453,7 +453,7 @@ def check_sweep_config(config: ScannerConfig, manifest: dict, source: Path) -> N
         raise InputError(f"config {config.source or config.name} does not match the sweep "
                          f"{source.parent}: {section}.{k} = {mine!r} but the sweep was "
                          f"made with {theirs!r}; give the sweep's config or leave "
-                         "--config out to use the one its manifest records")
+                         "the config out to use the one its manifest records")
 
 
 def sweep_folder(sweep: str | os.PathLike) -> Path:
@@ -471,7 +471,7 @@ def sweep_config(sweep_dir: str | os.PathLike) -> ScannerConfig:
     recorded = read_manifest(folder).get("config")
     if not isinstance(recorded, dict):
         raise InputError(f"{path} records no scanner config: give the config the sweep was "
-                         "made with (--config)")
+                         "made with")
     return config_from_dict(recorded, source=str(path))
 
 

@@ -57,6 +57,19 @@ class Comparison:
     reference: str
     notes: tuple[str, ...] = field(default=())
 
+    def deviation_limit_um(self, percentile: float = 99.0) -> float:
+        """Colour-scale limit of the deviation map: the ``percentile`` of |deviation| over
+        the compared points [um], 1.0 when all are 0 (NaN when none was compared).
+
+        Parameters
+        ----------
+        percentile : float
+            Percentile of |deviation| [%].
+        """
+        dev = np.asarray(self.cloud.attributes["deviation_um"], float)
+        dev = dev[np.isfinite(dev)]
+        return float(np.percentile(np.abs(dev), percentile)) or 1.0 if dev.size else math.nan
+
     def summary(self) -> dict:
         """JSON-ready statistics of the compared points [um]."""
         a = self.cloud.attributes

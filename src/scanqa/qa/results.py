@@ -197,6 +197,20 @@ class QAResult:
         """Steps between two blocks whose status is "ok" (the others get no decision)."""
         return [s for s in self.steps if s.evaluated]
 
+    def residual_limit_um(self, percentile: float = 99.0) -> float:
+        """Colour-scale limit of the residual maps: the ``percentile`` of |residual| over
+        the points in a block [um] (NaN when no point is in a block).
+
+        Parameters
+        ----------
+        percentile : float
+            Percentile of |residual| [%] (the few worst points saturate the scale).
+        """
+        sel = self.block_id >= 0
+        if not sel.any():
+            return math.nan
+        return float(np.nanpercentile(np.abs(self.residual_um[sel]), percentile))
+
     def summary(self) -> dict:
         """JSON-ready summary: settings, every block and step with its budget, the counts.
 
@@ -373,6 +387,17 @@ class ArtefactResult:
                  "quadrature"),
                 ("certificate of the distance", q.u_artefact, "test"),
                 ("bias of the fits from line-of-sight noise", abs(q.bias), "linear")]
+
+    def residual_limit_um(self, percentile: float = 99.5) -> float:
+        """Colour-scale limit of the residual map: the ``percentile`` of |residual| [um],
+        1.0 when every residual is 0.
+
+        Parameters
+        ----------
+        percentile : float
+            Percentile of |residual| [%].
+        """
+        return float(np.percentile(np.abs(self.residuals()[1]), percentile)) * 1e3 or 1.0
 
     def residuals(self) -> tuple[np.ndarray, np.ndarray]:
         """The selected points [mm] and their distances from the fitted sphere(s) or

@@ -161,7 +161,7 @@ def _residuals(page: Page, result: ArtefactQAResult) -> None:
         pts, res = r.residuals()
         fig, ax = new_figure(width=6.4, height=3.8)
         a = ax[0][0]
-        lim = float(np.percentile(np.abs(res), 99.5)) * 1e3 or 1.0
+        lim = r.residual_limit_um()
         sc = a.scatter(pts[:, 0], pts[:, 1], c=1e3 * res, s=2, cmap="RdBu_r", vmin=-lim,
                        vmax=lim)
         fig.colorbar(sc, ax=a, label="residual [um]")

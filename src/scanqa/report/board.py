@@ -6,7 +6,6 @@ from __future__ import annotations
 import numpy as np
 
 from scanqa.calibration.board_fit import FLAG_FACTOR, BoardCalibration
-from scanqa.io.opencv import COVARIANCE_PARAMETERS
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 
@@ -14,7 +13,6 @@ from scanqa.report.plots import new_figure
 def summary(result: BoardCalibration) -> dict:
     """JSON-ready summary of a board calibration."""
     data = result.data
-    cov = data.covariance
     return {
         "format": "scanqa-board-calibration-report/1",
         "model": result.model,
@@ -28,9 +26,7 @@ def summary(result: BoardCalibration) -> dict:
         "poses": [p.as_dict() for p in result.poses],
         "flagged_poses": result.flagged,
         "flag_rule": f"pose RMS > {FLAG_FACTOR:g} x the median of the other poses",
-        "parameter_std": None if cov is None else dict(zip(
-            COVARIANCE_PARAMETERS, np.sqrt(np.clip(np.diag(cov), 0, None)).tolist(),
-            strict=True)),
+        "parameter_std": result.parameter_std,
         "parameter_std_fit": dict(result.fit_std),
         "held_out": list(result.held_out),
         "comparison": dict(result.comparison),

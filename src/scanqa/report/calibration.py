@@ -12,20 +12,17 @@ from scanqa.report.plots import new_figure
 
 def summary(table: CalibrationTable, report: BuildReport) -> dict:
     """JSON-ready summary of a build."""
-    centre = np.argmin(np.abs(table.s_nodes))
-    sig = table.sigma_node[..., centre] * 1e3
-    cover = np.isfinite(table.s_lo)
+    nodes = table.node_summary()
     return {
         "format": "scanqa-calibration-report/1",
         "weights": table.weights,
         "camera_px": [table.width_px, table.height_px],
         "cell_px": table.cell_px,
         "nodes": [int(table.node_v.size), int(table.node_u.size), int(table.s_nodes.size)],
-        "covered_node_fraction": float(cover.mean()),
+        "covered_node_fraction": nodes["covered_node_fraction"],
         "z_range_mm": list(table.z_range_mm),
-        "table_sigma_um_median": float(np.nanmedian(sig)) if np.isfinite(sig).any() else None,
-        "table_sigma_um_p95": float(np.nanpercentile(sig, 95)) if np.isfinite(sig).any()
-        else None,
+        "table_sigma_um_median": nodes["table_sigma_um_median"],
+        "table_sigma_um_p95": nodes["table_sigma_um_p95"],
         **report.as_dict(),
         **({"target_geometry": table.provenance["target_geometry"]}
            if "target_geometry" in table.provenance else {}),
@@ -60,8 +57,7 @@ def render(table: CalibrationTable, report: BuildReport) -> str:
     im = ax[0][0].imshow(span, cmap="viridis")
     fig.colorbar(im, ax=ax[0][0], label="calibrated phase span [projector px]")
     ax[0][0].set(title="coverage", xlabel="node u", ylabel="node v")
-    centre = int(np.argmin(np.abs(table.s_nodes)))
-    im = ax[0][1].imshow(table.sigma_node[..., centre] * 1e3, cmap="magma")
+    im = ax[0][1].imshow(table.sigma_node[..., table.reference_node] * 1e3, cmap="magma")
     fig.colorbar(im, ax=ax[0][1], label="table sigma [um]")
     ax[0][1].set(title="table uncertainty at the reference phase", xlabel="node u")
     page.figure(fig, "left: calibrated phase span per node; right: the table's own std",

@@ -39,7 +39,8 @@ def render(result: Comparison) -> str:
     ok = np.isfinite(dev)
     if ok.any():
         page.heading("Maps", "maps")
-        page.figure(_maps(xyz[ok], dev[ok], np.asarray(a["significance"], float)[ok]),
+        page.figure(_maps(xyz[ok], dev[ok], np.asarray(a["significance"], float)[ok],
+                          result.deviation_limit_um()),
                     "deviation [um] and significance |deviation| / U over the scan (X, Y "
                     "in mm)", alt="deviation map")
     for note in result.notes:
@@ -47,9 +48,8 @@ def render(result: Comparison) -> str:
     return page.render()
 
 
-def _maps(xyz: np.ndarray, dev: np.ndarray, significance: np.ndarray):
+def _maps(xyz: np.ndarray, dev: np.ndarray, significance: np.ndarray, lim: float):
     fig, ax = new_figure(3, 1, width=4.6, height=4.0)
-    lim = float(np.percentile(np.abs(dev), 99)) or 1.0
     step = max(1, len(dev) // 200000)
     s = slice(None, None, step)
     m = ax[0, 0].scatter(xyz[s, 0], xyz[s, 1], c=dev[s], s=1, cmap="coolwarm",

@@ -34,8 +34,8 @@ def write_pdf(page_html: str, path: str | os.PathLike) -> Path:
         import weasyprint
     except (ImportError, OSError) as err:
         raise InputError(f"cannot write {path}: the PDF needs WeasyPrint and the pango "
-                         f"libraries ({err}); run tools/install_syslibs.sh, or leave out "
-                         "--pdf") from None
+                         f"libraries ({err}); run tools/install_syslibs.sh, or write no "
+                         "PDF") from None
     with atomic_path(path, suffix=".pdf") as tmp:
         weasyprint.HTML(string=page_html).write_pdf(tmp)
     return Path(path)

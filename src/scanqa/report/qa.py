@@ -216,7 +216,7 @@ def _residual_section(page: Page, result: QAResult, xyz: np.ndarray) -> None:
     fig, ax = new_figure(width=7.0, height=5.0)
     sel = result.block_id >= 0
     if sel.any():
-        lim = np.nanpercentile(np.abs(result.residual_um[sel]), 99)
+        lim = result.residual_limit_um()
         stride = max(1, int(sel.sum() // 200_000))
         idx = np.flatnonzero(sel)[::stride]
         sc = ax[0][0].scatter(xyz[idx, 0], xyz[idx, 1], c=result.residual_um[idx], s=1,

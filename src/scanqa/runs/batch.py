@@ -98,7 +98,7 @@ class ScanTask:
     path: Path
 
 
-@dataclass
+@dataclass(frozen=True)
 class BatchResult:
     """Rows in scan order, how many were skipped as complete, and what ran."""
 

@@ -150,8 +150,8 @@ def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
     corners = find_board_corners(phase_map.offset.astype(float), inner)
     if corners is None:
         raise InputError(f"{name}: no {inner[0]} x {inner[1]} chessboard found in the "
-                         "fringe offset image; check --board (inner corners per row and "
-                         "column) and that the whole board is in view")
+                         "fringe offset image; check the board given (inner corners per "
+                         "row and column) and that the whole board is in view")
     labels, bright = square_labels(corners, phase_map.offset)
     look = calibration.apply_image(phase_map.xp)
     on = (labels > 0) & np.isfinite(look.xyz).all(axis=-1)

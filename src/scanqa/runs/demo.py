@@ -52,7 +52,7 @@ DATA_FOLDERS = ("calibration_sweep", "gauge_blocks")
 log = logging.getLogger(__name__)
 
 
-@dataclass
+@dataclass(frozen=True)
 class DemoResult:
     """Paths and numbers of a demo run (``characterization`` is the summary.json)."""
 
@@ -125,7 +125,7 @@ def check_data(data: Path) -> list[Path]:
     if missing:
         raise InputError(f"demo data not found in {data}: missing {', '.join(missing)} (run "
                          "the demo from a clone of the repository, where sample_data/ holds "
-                         "them, or simulate them with 'scanqa demo --full')")
+                         "them, or simulate them: the full demo)")
     sweeps = [data / name for name in ("camera_sweep", "projector_sweep")
               if (data / name / "manifest.toml").exists()]
     return sweeps or [data / "calibration_sweep" / "sweep.toml"]
@@ -162,8 +162,7 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
             data = simulate_full(full_config, target / "data")
         with staged_dir(target) as staged:
             result = _run_stages(stage, staged, Path(data), target)
-    result.out = target
-    return result
+    return replace(result, out=target)
 
 
 def _run_stages(stage: _Stages, out: Path, data: Path, final: Path) -> DemoResult:

@@ -91,7 +91,7 @@ def projector_focal_mm(fx_px: float, pitch_um: float, focus_mm: float) -> float:
     upper = focus_mm / 4.0 * (1 - 1e-12)
     if not excess(upper) > 0:
         raise InputError(f"the projector's f_x = {fx_px:g} px times the pitch {pitch_um:g} um "
-                         f"is not a lens that can focus at {focus_mm:g} mm: check --pitch-um")
+                         f"is not a lens that can focus at {focus_mm:g} mm: check pitch_um")
     return float(brentq(excess, 1e-6, upper, xtol=1e-12))
 
 

@@ -10,7 +10,7 @@ obstacles: a coarse grid of the box of limits, then a compass search (pattern se
 with halving steps) from the best feasible point. Every evaluation runs the one model
 chain; :class:`Evaluator` counts them.
 
-Spec (TOML)::
+Spec (TOML, read by :mod:`scanqa.io.designspec`)::
 
     format = "scanqa-design-spec/1"
     objective = "usable_volume"       # or "worst_sigma" (default "usable_volume")
@@ -38,11 +38,12 @@ import numpy as np
 from scipy.optimize import linprog
 
 from scanqa.errors import InputError, ScanQAError
-from scanqa.io.tomlfile import read_toml
+from scanqa.io import designspec
+from scanqa.io.designspec import read_design_spec
 from scanqa.model import design, optics, rig
 from scanqa.model.config import ScannerConfig
 
-SPEC_FORMAT = "scanqa-design-spec/1"
+SPEC_FORMAT = designspec.FORMAT
 #: What the search maximises: the usable volume, or minus the largest sigma over the
 #: cover box (its points of :meth:`Box.samples`).
 OBJECTIVES = ("usable_volume", "worst_sigma")
@@ -99,22 +100,20 @@ class DesignSpec:
 
 
 def load_spec(path: str | os.PathLike) -> DesignSpec:
-    """Read a design spec TOML (module notes); errors name the file and the key."""
-    data = read_toml(path, "design spec")
-    if data.get("format") != SPEC_FORMAT:
-        raise InputError(f'{path}: format must be "{SPEC_FORMAT}", got {data.get("format")!r}')
-    try:
-        limits = {k: (float(v[0]), float(v[1])) for k, v in data["limits"].items()}
-        return DesignSpec(
-            Box(tuple(data["cover"]["min_mm"]), tuple(data["cover"]["max_mm"])),
-            float(data["sigma_max_um"]), limits,
-            tuple(Box(tuple(o["min_mm"]), tuple(o["max_mm"]))
-                  for o in data.get("obstacles", [])),
-            float(data.get("level", 0.49)), float(data.get("step_mm", 2.0)), str(path),
-            str(data.get("objective", "usable_volume")))
-    except (KeyError, TypeError, IndexError, ValueError) as err:
-        raise InputError(f"{path}: missing or malformed key {err} (see scanqa.runs.optimisation)"
-                         ) from None
+    """Read a design spec TOML (:mod:`scanqa.io.designspec`); errors name the file and
+    the key."""
+    data = read_design_spec(path)
+    value = designspec.SCHEMA.value
+    limits = {k: (float(v[0]), float(v[1])) for k, v in data["limits"].items()}
+    return DesignSpec(
+        _box(data["cover"]), float(data["sigma_max_um"]), limits,
+        tuple(_box(o) for o in data.get("obstacles", [])),
+        float(value(data, "level")), float(value(data, "step_mm")), str(path),
+        str(value(data, "objective")))
+
+
+def _box(table: dict) -> Box:
+    return Box(tuple(table["min_mm"]), tuple(table["max_mm"]))
 
 
 @dataclass
