@@ -135,7 +135,8 @@ def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
                     & (y_p >= -0.5) & (y_p <= proj.height_px - 0.5))
     lit = hit & on_panel & (shade > 0)
     if lit.any():
-        back = acq.scene.cast(acq.projector.centre, -to_proj[lit], normals=False,
+        back = acq.scene.cast(acq.projector.centre, world[lit] - acq.projector.centre,
+                              normals=False,
                               threads=threads)
         reach = np.zeros_like(lit)
         reach[lit] = np.nan_to_num(back.t, nan=np.inf) >= 1.0 - 1e-7
