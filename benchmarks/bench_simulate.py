@@ -9,11 +9,15 @@ the 2448 x 2048 one is the paper's. Targets: under 15 s (issue 4); 60 s and 2.5 
 
     .venv/bin/python benchmarks/bench_simulate.py            # both sizes
     .venv/bin/python benchmarks/bench_simulate.py 640        # one size
+    # side by side with an older version (its src from a git worktree), alternated:
+    .venv/bin/python benchmarks/bench_simulate.py 2448 --old /tmp/old/src --pairs 1
 """
 
 from __future__ import annotations
 
+import argparse
 import json
+import os
 import resource
 import subprocess
 import sys
@@ -56,15 +60,37 @@ def run_one(key: str) -> dict:
             "peak_rss_mb": round(usage.ru_maxrss / 1024.0, 1), "target": TARGETS[key]}
 
 
+def _child(key: str, src: str | None) -> dict:
+    env = {**os.environ, "PYTHONPATH": src} if src else None
+    out = subprocess.run([sys.executable, __file__, "--child", key], check=True,
+                         capture_output=True, text=True, env=env)
+    return json.loads(out.stdout.strip().splitlines()[-1])
+
+
 def main(argv: list[str]) -> int:
     if len(argv) == 2 and argv[0] == "--child":
         print(json.dumps(run_one(argv[1])))
         return 0
-    keys = argv or list(SIZES)
-    for key in keys:
-        out = subprocess.run([sys.executable, __file__, "--child", key], check=True,
-                             capture_output=True, text=True)
-        print(out.stdout.strip())
+    ap = argparse.ArgumentParser(description=__doc__,
+                                 formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("sizes", nargs="*", help=f"of {list(SIZES)} (default: all)")
+    ap.add_argument("--old", metavar="SRC", help="also time the scanqa of this source "
+                    "folder (e.g. a git worktree's src), alternated with this tree's")
+    ap.add_argument("--pairs", type=int, default=1, help="old/new pairs per size")
+    args = ap.parse_args(argv)
+    if set(args.sizes) - set(SIZES):
+        ap.error(f"sizes must be among {list(SIZES)}, got {args.sizes}")
+    for key in args.sizes or list(SIZES):
+        if not args.old:
+            print(json.dumps(_child(key, None)))
+            continue
+        for _ in range(args.pairs):
+            old, new = _child(key, args.old), _child(key, str(ROOT / "src"))
+            print(json.dumps({"tree": "old", **old}))
+            print(json.dumps({"tree": "new", **new}))
+            print(f"{key}: old/new CPU {old['cpu_seconds'] / new['cpu_seconds']:.2f}, "
+                  f"wall {old['seconds'] / new['seconds']:.2f}, peak memory "
+                  f"{old['peak_rss_mb']:.0f} -> {new['peak_rss_mb']:.0f} MB", flush=True)
     return 0
 
 

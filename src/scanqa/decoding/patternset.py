@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 
@@ -274,6 +275,10 @@ def _write_set(folder: Path, pset: PhaseSet | GrayCodeSet | ReferenceSet,
         return replace(pset, files=(), stack=name, stack_key="")
     suffix = "." + image_format  # one of IMAGE_SUFFIXES (checked by _check_write_args)
     names = tuple(f"{pset.name}_{k:02d}{suffix}" for k in range(pset.frames))
-    for name, frame in zip(names, stack, strict=True):
-        write_image(folder / name, frame)
+    # one frame per core: the PNG/TIFF encoders and zlib release the GIL (a 5 MP 16-bit
+    # PNG takes ~1 s to compress, the 12 frames of a scan ~12 s on one core)
+    workers = min(os.cpu_count() or 1, len(names))
+    with ThreadPoolExecutor(max_workers=workers) as pool:
+        list(pool.map(lambda item: write_image(folder / item[0], item[1]),
+                      zip(names, stack, strict=True)))
     return replace(pset, files=names, stack="", stack_key="")

@@ -192,6 +192,8 @@ def camera_rays(config: ScannerConfig, pose: Pose, u: np.ndarray, v: np.ndarray
     x, y = undistort(distortion(config, "camera"), (np.asarray(u, float) - u0) / f,
                      (np.asarray(v, float) - v0) / f)
     d_cam = np.stack(np.broadcast_arrays(x, y, 1.0), axis=-1)
+    if np.array_equal(pose.rotation, np.eye(3)):  # the same numbers, without the product
+        return np.broadcast_to(pose.centre, d_cam.shape), d_cam
     directions = d_cam @ pose.rotation
     return np.broadcast_to(pose.centre, directions.shape), directions
 

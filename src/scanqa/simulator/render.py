@@ -106,21 +106,23 @@ class _Points:
     shade: np.ndarray
 
 
-def _geometry(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndarray
-              ) -> _Points:
-    """Cast camera rays through sensor coordinates (u, v) and light the hits."""
+def _geometry(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndarray,
+              threads: int = 0) -> _Points:
+    """Cast camera rays through sensor coordinates (u, v) and light the hits (``threads``:
+    open3d's threads per cast, 1 inside a pool that runs one cast per core)."""
     origins, dirs = devices.camera_rays(config, acq.camera, u, v)
-    hits = acq.scene.cast(origins, dirs)
+    hits = acq.scene.cast(origins, dirs, threads=threads)
     world = origins + hits.t[..., None] * dirs
     z_c = (world - acq.camera.centre) @ acq.camera.rotation[2]  # device Z only
     x_p, y_p, z_p = devices.project_to_projector(config, acq.projector, world)
-    lit, shade = _lighting(config, acq, world, hits.normals, hits.hit, x_p, y_p, z_p)
+    lit, shade = _lighting(config, acq, world, hits.normals, hits.hit, x_p, y_p, z_p,
+                           threads)
     return _Points(hits.hit, world, z_c, x_p, y_p, z_p, lit, shade)
 
 
 def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
               normals: np.ndarray, hit: np.ndarray, x_p: np.ndarray, y_p: np.ndarray,
-              z_p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+              z_p: np.ndarray, threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
     """Lit mask (on the panel, facing, unshadowed) and cos of the incidence angle."""
     proj = config.projector
     to_proj = acq.projector.centre - world
@@ -133,7 +135,9 @@ def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
                     & (y_p >= -0.5) & (y_p <= proj.height_px - 0.5))
     lit = hit & on_panel & (shade > 0)
     if lit.any():
-        back = acq.scene.cast(acq.projector.centre, -to_proj[lit])
+        back = acq.scene.cast(acq.projector.centre, world[lit] - acq.projector.centre,
+                              normals=False,
+                              threads=threads)
         reach = np.zeros_like(lit)
         reach[lit] = np.nan_to_num(back.t, nan=np.inf) >= 1.0 - 1e-7
         lit &= reach
@@ -156,9 +160,12 @@ def truth_for(config: ScannerConfig, acq: Acquisition) -> Truth:
     out = {k: np.full((win.height, win.width), np.nan) for k in ("x", "y", "z", "xp", "yp", "zp")}
     out["valid"] = np.zeros((win.height, win.width), bool)
 
+    bands = row_bands(win.height, win.width, TRUTH_BAND_PX)
+    threads = 1 if len(bands) > 1 else 0
+
     def band(r0: int, r1: int) -> None:
         v, u = np.mgrid[win.v0 + r0:win.v0 + r1, win.u0:win.u0 + win.width]
-        pts = _geometry(config, acq, u.astype(float), v.astype(float))
+        pts = _geometry(config, acq, u.astype(float), v.astype(float), threads)
         cam = acq.camera.to_device(pts.world)
         for name, values, keep in (("x", cam[..., 0], pts.hit), ("y", cam[..., 1], pts.hit),
                                    ("z", cam[..., 2], pts.hit), ("xp", pts.x_p, pts.lit),
@@ -166,7 +173,7 @@ def truth_for(config: ScannerConfig, acq: Acquisition) -> Truth:
             out[name][r0:r1] = np.where(keep, values, np.nan)
         out["valid"][r0:r1] = pts.lit
 
-    run_bands(band, row_bands(win.height, win.width, TRUTH_BAND_PX))
+    run_bands(band, bands)
     return Truth(out["x"], out["y"], out["z"], out["xp"], out["yp"], out["zp"], out["valid"])
 
 
@@ -320,12 +327,15 @@ def _render_tiles(config: ScannerConfig, acq: Acquisition, desc: PatternDescript
     halo = halo_px(config, acq)
     tiles = _tiles(win)
     table = disc_average(config.simulator.projector_samples)
+    workers = min(os.cpu_count() or 1, len(tiles))
+    threads = 1 if workers > 1 else 0  # open3d's threads per cast
 
     def work(n: int) -> bool:
-        return _render_tile(config, acq, desc, win, tiles[n], halo, table, images, n)
+        return _render_tile(config, acq, desc, win, tiles[n], halo, table, images, n,
+                            threads)
 
     lit_any = False
-    with ThreadPoolExecutor(max_workers=min(os.cpu_count() or 1, len(tiles))) as pool:
+    with ThreadPoolExecutor(max_workers=workers) as pool:
         for n, lit in enumerate(pool.map(work, range(len(tiles)))):
             lit_any |= lit
             if progress:
@@ -342,18 +352,18 @@ def _check_desc(desc: PatternDescription) -> None:
 
 def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescription | None,
                  win: Window, tile: tuple, halo: int, table: DiscAverage,
-                 images: list[np.ndarray], tile_index: int) -> bool:
+                 images: list[np.ndarray], tile_index: int, threads: int = 0) -> bool:
     """Render every pattern of one tile into ``images`` (``desc`` None: the marker
     frame); True if any sample is lit."""
     sim, s = config.simulator, config.simulator.supersampling
     uu, vv = _supersample_grid(config, win, tile, halo)
-    pts = _geometry(config, acq, uu, vv)
+    pts = _geometry(config, acq, uu, vv, threads)
     if not pts.hit.any():
         return False
     airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
                        config.camera.pixel_um * 1e-3 / s)
     plan = blur_plan(np.nan_to_num(devices.camera_blur_px(config, pts.z_c)) * s, pts.hit,
-                     airy, halo * s)
+                     airy, halo * s, s)
     m = sim.modulation_ratio
     albedo = _albedo(config, acq, pts, desc is None)
     alb = 1.0 if albedo is None else albedo
@@ -442,8 +452,6 @@ class _Frame:
         The light leaving each sample is ``base + sum_h Re(q_h exp(i h delta))`` plus
         the scene noise, with ``terms`` the (h, Re q_h, Im q_h) of the fringe [e-].
         """
-        s = self.config.simulator.supersampling
-        r0, r1, c0, c1 = self.tile
         key = _stream_key(self.config, (*self.key, pattern))
         radiance = base.copy()
         for h, q_re, q_im in terms:
@@ -452,8 +460,7 @@ class _Frame:
         noise = self.noise(key)
         if noise is not None:
             radiance += noise
-        core = blur(radiance, self.plan)
-        pixels = core.reshape(r1 - r0, s, c1 - c0, s).mean(axis=(1, 3), dtype=np.float64)
+        pixels = blur(radiance, self.plan)  # the pixel means of the blurred light [e-]
         rng = np.random.Generator(np.random.PCG64(
             np.random.SeedSequence([key, self.tile_index, 7])))
         return _sensor(self.config, pixels, rng)

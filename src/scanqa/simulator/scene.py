@@ -61,12 +61,13 @@ class Hits:
     """Result of casting rays: float64 distances, hit mask, unit normals, face ids.
 
     ``t`` is the ray parameter (distance in units of the direction's length), NaN where
-    nothing is hit; ``normals`` are the hit faces' unit normals (NaN where no hit).
+    nothing is hit; ``normals`` are the hit faces' unit normals (NaN where no hit; None
+    when not asked for).
     """
 
     t: np.ndarray
     hit: np.ndarray
-    normals: np.ndarray
+    normals: np.ndarray | None
     face: np.ndarray
 
 
@@ -105,13 +106,20 @@ class Scene:
         """(2, 3) axis-aligned bounding box [mm]."""
         return np.array([self._v.min(axis=0), self._v.max(axis=0)])
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Hits:
+    def cast(self, origins: np.ndarray, directions: np.ndarray, normals: bool = True,
+             threads: int = 0) -> Hits:
         """Cast rays and return float64 hits.
 
         Parameters
         ----------
         origins, directions : (..., 3) float
             Ray origins [mm] and directions (any length) in the world frame.
+        normals : bool
+            Return the hit faces' normals (False: ``Hits.normals`` is None, which saves
+            two passes when only the distances are needed).
+        threads : int
+            Threads of open3d's ray casting (0: every core; 1 from callers that already
+            run one cast per core) [-].
 
         Returns
         -------
@@ -128,23 +136,23 @@ class Scene:
             origins, np.shape(directions)).reshape(-1, 3)
         rays = np.empty((d.shape[0], 6), np.float32)
         rays[:, :3], rays[:, 3:] = o, d
-        ans = self._raycast.cast_rays(o3d.core.Tensor(rays))
-        del rays
-        face = ans["primitive_ids"].numpy().astype(np.int64)
-        hit = np.isfinite(ans["t_hit"].numpy()) & (face != np.iinfo(np.uint32).max)
-        face = np.where(hit, face, -1)
-        safe = np.maximum(face, 0)
-        n = np.where(hit[:, None], self._n[safe], np.nan)
+        ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
+        prim = ans["primitive_ids"].numpy()
+        hit = np.isfinite(ans["t_hit"].numpy()) & (prim != np.iinfo(np.uint32).max)
+        del ans, rays
+        safe = np.where(hit, prim, 0)
+        n = self._n[safe]  # the rows of misses are discarded below
         with np.errstate(divide="ignore", invalid="ignore"):
             if single and len(self._f) < len(d):  # n . (v0 - o) once per face, not per ray
                 offset = np.einsum("ij,ij->i", self._n, self._v[self._f[:, 0]] - o)
-                num = np.where(hit, offset[safe], np.nan)
+                num = offset[safe]
             else:
                 num = np.einsum("ij,ij->i", n, self._v[self._f[safe, 0]] - o)
             t = num / np.einsum("ij,ij->i", n, d)
         t = np.where(hit, t, np.nan)
-        return Hits(t.reshape(shape), hit.reshape(shape), n.reshape(*shape, 3),
-                    face.reshape(shape))
+        face = np.where(hit, safe.astype(np.int64), -1)
+        n = np.where(hit[:, None], n, np.nan).reshape(*shape, 3) if normals else None
+        return Hits(t.reshape(shape), hit.reshape(shape), n, face.reshape(shape))
 
 
 def flat_target(centre_mm, normal, size_mm: tuple[float, float] = (160.0, 130.0),
