@@ -49,6 +49,7 @@ import numbers
 
 import numpy as np
 
+from scanqa.calibration.uncertainty import GeometryCovariance, step_sigma_mm
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
 from scanqa.model import design
@@ -62,8 +63,8 @@ from scanqa.qa.results import BlockResult, QAResult, StepResult
 
 __all__ = ["MIN_TILES", "TILE_MM", "BlockResult", "QAResult", "StepResult",
            "analyse_block", "check_sigmas", "cloud_config", "coverage_notes",
-           "coverage_rule", "local_std", "model_curve", "noise_correlation", "run_qa",
-           "step_between"]
+           "coverage_rule", "geometry_component", "local_std", "model_curve",
+           "noise_correlation", "run_qa", "step_between"]
 #: Fewest points of a block whose steps are decided: below, the plane is fitted and shown
 #: but the block is flagged "too_few_points" and its steps are not evaluated (the
 #: relative uncertainty of its std, 1/sqrt(2(n - 3)), exceeds 14 %, and MIN_TILES tiles
@@ -202,13 +203,14 @@ def _block_status(block_id: int, in_volume: float, model_valid: float) -> dict:
 
 
 def step_between(a: BlockResult, b: BlockResult, k: float | str | None, tolerance_um: float,
-                 inputs: BudgetInputs | None = None, n_planes: int | None = None
-                 ) -> StepResult:
+                 inputs: BudgetInputs | None = None, n_planes: int | None = None,
+                 geometry: Component | None = None) -> StepResult:
     """Height difference of block b relative to block a with its budget (module notes).
 
     ``k`` is a stated coverage factor or "welch-satterthwaite" (None: the budget file's
     ``[coverage] k``, else 2); ``inputs`` the budget file's Type B inputs; ``n_planes``
-    the number of planes the calibration table was built from (its degrees of freedom).
+    the number of planes the calibration table was built from (its degrees of freedom);
+    ``geometry`` the calibration-geometry line (:func:`geometry_component`), if known.
     """
     fa, fb = a.fit, b.fit
     measured = float(fa.normal @ (fa.centroid - fb.centroid))
@@ -225,6 +227,7 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
         Component("calibration table", "A", "node fits over the calibration planes, "
                   "scaled by their reduced chi-square",
                   1e3 * math.sqrt(_table_variance(a, b, g[1:])), "um", 1.0, table_dof)]
+    components += [geometry] if geometry is not None else []
     extra, correction = type_b(inputs, a.nominal_height_mm, b.nominal_height_mm)
     budget = Budget(tuple(components + extra), coverage_rule(k, inputs), inputs is not None,
                     correction)
@@ -234,6 +237,17 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
                                  "flagged")
     return StepResult(a.block_id, b.block_id, a.nominal_height_mm - b.nominal_height_mm,
                       measured, budget.u_um, budget.k, tolerance_um, budget, evaluated, note)
+
+
+def geometry_component(term: GeometryCovariance, xyz: np.ndarray, a: BlockResult,
+                       b: BlockResult) -> Component:
+    """The calibration-geometry line of a step's budget: the calibration's parameter
+    covariance carried to the height difference of blocks a and b
+    (:func:`scanqa.calibration.uncertainty.step_sigma_mm`, Eq. 3 there)."""
+    sigma = step_sigma_mm(term, xyz[a.index], xyz[b.index])
+    return Component("calibration geometry", "A", f"{term.name}: covariance carried to the "
+                     "step (depth scale x h, depth-axis tilt x lateral separation)",
+                     1e3 * sigma, "um", 1.0, term.dof)
 
 
 def _independent_patches(block: BlockResult) -> float:
@@ -370,7 +384,8 @@ def coverage_rule(k: float | str | None, budget: BudgetInputs | None) -> float |
 def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | None = None,
            margin_mm: float = 1.0, outlier_k: float | None = None,
            tolerance_um: float | None = None, k: float | str | None = None, knn: int = 16,
-           tile_mm: float = TILE_MM, budget: BudgetInputs | None = None) -> QAResult:
+           tile_mm: float = TILE_MM, budget: BudgetInputs | None = None,
+           calibration: GeometryCovariance | None = None) -> QAResult:
     """Gauge-block QA of an annotated cloud.
 
     Parameters
@@ -400,6 +415,11 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     budget : BudgetInputs, optional
         Type B inputs of a budget file (:func:`scanqa.qa.budget.load_budget`); without
         one the budgets hold the Type A terms only, and the notes say so.
+    calibration : GeometryCovariance, optional
+        The calibration's geometric parameters and covariance
+        (:func:`scanqa.calibration.uncertainty.marker_covariance` for a marker table,
+        :func:`~scanqa.calibration.uncertainty.parametric_covariance`); each step's
+        budget then has a "calibration geometry" line.
 
     Returns
     -------
@@ -429,7 +449,9 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
               for b in blocks if b.fit is not None and not np.isfinite(b.noise_corr[0])]
     ordered = sorted((b for b in blocks), key=lambda b: -b.nominal_height_mm)
     n_planes = (cloud.metadata.get("table") or {}).get("n_planes")
-    steps = [step_between(a, b, k, tolerance_um, budget, n_planes)
+    steps = [step_between(a, b, k, tolerance_um, budget, n_planes,
+                          None if calibration is None else
+                          geometry_component(calibration, xyz, a, b))
              for a, b in itertools.pairwise(ordered) if a.fit is not None and b.fit is not None]
     notes += coverage_notes(steps)
     if budget is None:
@@ -446,6 +468,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
                 "tolerance_source": tolerance_source,
                 "k": k, "budget": budget.source if budget is not None else None,
                 "max_flagged_fraction": MAX_FLAGGED_FRACTION, "knn": knn, "tile_mm": tile_mm,
+                "calibration_geometry": None if calibration is None else calibration.name,
                 "layout": layout.source, "paper_comparison": layout.paper_comparison}
     model_config = cloud_config(cloud, config, notes)
     curve = model_curve(blocks, model_config) if model_config is not None else None
