@@ -16,6 +16,7 @@ from scanqa.calibration.sweep_fit import SweepGeometry, geometry_from_summary
 from scanqa.calibration.uncertainty import (
     GeometryCovariance,
     marker_covariance,
+    parametric_covariance,
     step_sigma_mm,
 )
 from scanqa.errors import InputError
@@ -44,7 +45,7 @@ def _geometry(cov_diag: dict[int, float], beta: float = BETA) -> SweepGeometry:
 
 def _block(rng, z_mm: float, x_mm: float, y_mm: float) -> np.ndarray:
     """300 points of an 8 x 8 mm block top facing the camera at depth z [mm]."""
-    xy = rng.uniform(-4, 4, (300, 2)) + [x_mm, y_mm]
+    xy = rng.uniform(-4, 4, (300, 2)) + np.array([x_mm, y_mm])
     return np.column_stack([xy, np.full(300, z_mm)])
 
 
@@ -79,7 +80,7 @@ def test_covariance_survives_the_table_provenance():
     np.testing.assert_array_equal(back.parameters, geo.parameters)
     np.testing.assert_array_equal(back.covariance, geo.covariance)
     np.testing.assert_allclose(back.axis, geo.axis, atol=1e-15)
-    with pytest.raises(InputError, match="no parameter vector.*calibrate it again"):
+    with pytest.raises(InputError, match=r"no parameter vector.*calibrate it again"):
         geometry_from_summary({"rms_px": 0.02})
 
 
@@ -127,3 +128,23 @@ def test_budget_has_its_own_line(tmp_path):
         page = Page("budget")
         qa_report._budget_section(page, result, {"type_b_included": False})
         assert text in page.render()
+
+
+def test_parametric_baseline_length_scales_the_whole_scan(paper_config):
+    """Closed form: the baseline T scaled by s moves every point P (same camera pixel,
+    same projector pixel) to s P, since R (s P) + s T = s (R P + T) projects where R P + T
+    does. A baseline length with std u_T along T is a scale error u_T / |T| of every
+    length: u = |h| u_T / |T|."""
+    from .synth_parametric import small_scanner
+
+    cal, _ = small_scanner(paper_config)
+    t = np.asarray(cal.translation, float)
+    sigma_t = 0.05  # [mm]
+    cov = np.zeros((24, 24))
+    cov[21:, 21:] = sigma_t**2 * np.outer(t, t) / (t @ t)
+    term = parametric_covariance(cal, cov)
+    rng = np.random.default_rng(4)
+    z_c = float(np.asarray(paper_config.camera.focus_mm))  # the camera's focus [mm]
+    a, b = _block(rng, z_c - 6.0, -6.0, 2.0), _block(rng, z_c + 4.0, 7.0, -3.0)
+    want = 10.0 * sigma_t / np.linalg.norm(t)
+    np.testing.assert_allclose(step_sigma_mm(term, a, b), want, rtol=1e-6)

@@ -249,8 +249,8 @@ def _budget_section(page: Page, result: QAResult, info: dict) -> None:
         page.paragraph("Type B is not included (no budget file).", note=True)
     geometry = result.settings.get("calibration_geometry")
     page.paragraph(f"Calibration geometry: the covariance of the {geometry}, carried to "
-                   "each step." if geometry else "Calibration geometry: not included (no calibration "
-                   "covariance was given).", note=True)
+                   "each step." if geometry else "Calibration geometry: not included (no "
+                   "calibration covariance was given).", note=True)
     for s in result.steps:
         if s.budget is None:
             continue
