@@ -5,8 +5,10 @@ and its line in the GUM budget, the JSON summary and the report."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -15,6 +17,7 @@ from scanqa.calibration.parametric import Lens
 from scanqa.calibration.sweep_fit import SweepGeometry, geometry_from_summary
 from scanqa.calibration.uncertainty import (
     GeometryCovariance,
+    geometry_covariance,
     marker_covariance,
     parametric_covariance,
     step_sigma_mm,
@@ -82,6 +85,12 @@ def test_covariance_survives_the_table_provenance():
     np.testing.assert_allclose(back.axis, geo.axis, atol=1e-15)
     with pytest.raises(InputError, match=r"no parameter vector.*calibrate it again"):
         geometry_from_summary({"rms_px": 0.02})
+    # a table finds its term through its provenance; one built before the vector was
+    # kept, or without markers, has none
+    table = SimpleNamespace(provenance={"target_geometry": json.loads(json.dumps(
+        geo.summary()))})
+    np.testing.assert_array_equal(geometry_covariance(table).covariance, geo.covariance)
+    assert geometry_covariance(SimpleNamespace(provenance={"kind": "table"})) is None
 
 
 def _depth_scale_term(sigma_e: float, z0: float = 450.0) -> GeometryCovariance:
@@ -142,7 +151,8 @@ def test_parametric_baseline_length_scales_the_whole_scan(paper_config):
     sigma_t = 0.05  # [mm]
     cov = np.zeros((24, 24))
     cov[21:, 21:] = sigma_t**2 * np.outer(t, t) / (t @ t)
-    term = parametric_covariance(cal, cov)
+    term = geometry_covariance(dataclasses.replace(cal, covariance=cov))
+    assert term.name == parametric_covariance(cal, cov).name
     rng = np.random.default_rng(4)
     z_c = float(np.asarray(paper_config.camera.focus_mm))  # the camera's focus [mm]
     a, b = _block(rng, z_c - 6.0, -6.0, 2.0), _block(rng, z_c + 4.0, 7.0, -3.0)
