@@ -43,7 +43,8 @@ def _geometry(cov_diag: dict[int, float], beta: float = BETA) -> SweepGeometry:
         cov[i, i] = var
     start = SweepGeometry(Lens(np.eye(3), np.zeros(5), 306, 256), np.eye(3), np.zeros(3),
                           np.array([0.0, 0.0, 1.0]), 450.0, 0.02)
-    return SweepGeometry(**{**start.with_parameters(theta).__dict__, "covariance": cov})
+    return SweepGeometry(**{**start.with_parameters(theta).__dict__, "covariance": cov,
+                            "std": {"focal_px": math.sqrt(cov[0, 0])}})
 
 
 def _block(rng, z_mm: float, x_mm: float, y_mm: float) -> np.ndarray:
@@ -83,6 +84,7 @@ def test_covariance_survives_the_table_provenance():
     np.testing.assert_array_equal(back.parameters, geo.parameters)
     np.testing.assert_array_equal(back.covariance, geo.covariance)
     np.testing.assert_allclose(back.axis, geo.axis, atol=1e-15)
+    assert back.std == geo.std and back.stage_ref_mm == geo.stage_ref_mm
     with pytest.raises(InputError, match=r"no parameter vector.*calibrate it again"):
         geometry_from_summary({"rms_px": 0.02})
     # a table finds its term through its provenance; one built before the vector was

@@ -206,6 +206,8 @@ def geometry_from_summary(summary: dict) -> SweepGeometry:
                          axis, float(summary["stage_ref_mm"]), float(summary["rms_px"]),
                          principal_point_fitted=bool(summary["principal_point_fitted"]),
                          decentring_fitted=bool(summary["decentring_fitted"]),
+                         std=dict(summary.get("std", {})),
+                         locking_px=float(summary.get("locking_px", 0.0)),
                          parameters=theta, covariance=np.asarray(summary["covariance"], float))
 
 
