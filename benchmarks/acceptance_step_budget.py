@@ -14,7 +14,12 @@ The simulator's blocks have exactly their nominal heights, so each step's error 
 measured minus its nominal height difference.
 
 Printed per seed and pooled: evaluated steps within U, RMS(error / u), and the
-geometry term's size. Seeds are reported in the order given; say which were held out.
+geometry term's size; and the first scan of each seed again with the simulator's true
+phase in place of the decoded one, whose step errors are the calibration's alone (set
+against the table and geometry lines). Seeds are reported in the order given; say which
+were held out. ``--compare-fits`` sets the marker fits of the first two seeds against
+each other instead (chi-square of their difference; the steps moved from one fit's
+geometry to the other's).
 
 Usage::
 
@@ -132,6 +137,43 @@ def run_seed(out: Path, cfg, seed: int, scans: int, sweep_repeats: int) -> dict:
             "geometry_std": geometry.summary()["std"]}
 
 
+def compare_fits(out: Path, cfg, seeds: list[int]) -> dict:
+    """Two independent marker fits of the same scanner: their parameter difference
+    against the sum of their covariances (chi-square over the free parameters), and the
+    change of the first seed's gauge steps when its points are moved to the second fit's
+    geometry against sqrt(u_1^2 + u_2^2) of the geometry term."""
+    from scanqa.calibration.sweep import marker_geometry
+    from scanqa.calibration.uncertainty import marker_covariance, step_sigma_mm
+    from scanqa.io.sweep import load_sweep
+    from scanqa.qa.planes import fit_plane
+
+    geos = [marker_geometry(load_sweep(out / f"seed{s}" / "sweep"), cfg) for s in seeds]
+    diff = geos[1].parameters - geos[0].parameters
+    cov = geos[0].covariance + geos[1].covariance
+    free = np.diag(cov) > 0
+    chi2 = float(diff[free] @ np.linalg.solve(cov[np.ix_(free, free)], diff[free]))
+    print(f"fits of seeds {seeds}: chi-square {chi2:.2f} over {int(free.sum())} free "
+          "parameters", flush=True)
+    table, _ = calibrate(out / f"seed{seeds[0]}" / "sweep", cfg)
+    gauge = out / f"seed{seeds[0]}" / "gauge"
+    cloud = annotate(decode_pattern_dir(gauge / "p000_r0"), table, cfg, keep_invalid=True)
+    result = run_qa(cloud, load_layout(gauge / "layout.toml"))
+    xyz, blocks = np.asarray(cloud.xyz, float), {b.block_id: b for b in result.blocks}
+    terms = [marker_covariance(g) for g in geos]
+    rows = []
+    for s in (s for s in result.steps if s.evaluated):
+        a, b = xyz[blocks[s.block_a].index], xyz[blocks[s.block_b].index]
+        moved = [terms[0].move(p, geos[1].parameters) for p in (a, b)]
+        fit = fit_plane(moved[0])
+        change = fit.normal @ (fit.centroid - moved[1].mean(0)) - s.measured_diff_mm
+        u = math.hypot(*(step_sigma_mm(t, a, b) for t in terms))
+        rows.append({"step": f"{s.block_a}-{s.block_b}", "change_um": 1e3 * change,
+                     "u_um": 1e3 * u})
+        print(f"  step {rows[-1]['step']}: moved by {1e3 * change:+.4f} um, "
+              f"sqrt(u_1^2 + u_2^2) {1e3 * u:.4f} um", flush=True)
+    return {"chi2": chi2, "free": int(free.sum()), "steps": rows}
+
+
 def show(label: str, part: dict) -> None:
     print(f"{label}: {part['within']} of {part['n']} within U, RMS(error/u) "
           f"{part['rms_z']:.3f}; geometry term median {part['geometry_um_median']:.3f} um",
@@ -146,8 +188,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--sweep-repeats", type=int, default=1)
     p.add_argument("--square-mm", type=float, default=2.0)
     p.add_argument("--json", type=Path, default=None)
+    p.add_argument("--compare-fits", action="store_true",
+                   help="instead: the first two seeds' marker fits against each other")
     args = p.parse_args(argv)
     cfg = scanner(square_mm=args.square_mm)
+    if args.compare_fits:
+        compare_fits(args.out, cfg, args.seeds[:2])
+        return 0
     pooled: dict = {"without": [], "with": []}
     pooled_cal: list = []
     report = {"simulated": True, "seeds": {}}
