@@ -160,3 +160,17 @@ def test_parametric_baseline_length_scales_the_whole_scan(paper_config):
     a, b = _block(rng, z_c - 6.0, -6.0, 2.0), _block(rng, z_c + 4.0, 7.0, -3.0)
     want = 10.0 * sigma_t / np.linalg.norm(t)
     np.testing.assert_allclose(step_sigma_mm(term, a, b), want, rtol=1e-6)
+
+
+def test_a_term_that_cannot_be_computed_is_left_out_and_said():
+    """Points that do not map through the calibration (NaN) give no line, never a NaN
+    U, and a note per step."""
+    xyz, attrs, layout = synthetic_cloud(seed=5, sigma_um=0.01)
+    nowhere = GeometryCovariance("nowhere", np.zeros(1), np.eye(1),
+                                 lambda points, theta: np.full_like(points, np.nan))
+    res = run_qa(AnnotatedCloud(xyz, attrs), layout, calibration=nowhere)
+    assert all(math.isfinite(s.u_um) for s in res.steps)
+    assert not any(c.name == "calibration geometry" for s in res.steps
+                   for c in s.budget.components)
+    left_out = [n for n in res.notes if "calibration-geometry term could not be computed" in n]
+    assert len(left_out) == len(res.steps) == 7

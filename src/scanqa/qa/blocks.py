@@ -27,7 +27,10 @@ up any residual structure of the block (flatness, table errors) below the tile s
 The step's standard uncertainty u and expanded uncertainty U come from a GUM budget
 (:mod:`scanqa.qa.budget`): the Type A terms above and, from a budget file, the Type B
 terms (certificates, temperature, stage scale, flatness of the calibration flat); k is
-stated or follows from the effective degrees of freedom.
+stated or follows from the effective degrees of freedom. Given the calibration's
+parameter covariance (:func:`scanqa.calibration.uncertainty.geometry_covariance`), a
+"calibration geometry" line carries it to the step: the calibration's depth-scale error
+times the height, its depth-axis tilt error times the lateral separation.
 
 Statuses: a block is flagged "outside_volume" or "model_invalid" when more than
 :data:`MAX_FLAGGED_FRACTION` of its points lie outside the calibrated volume or outside
@@ -449,10 +452,17 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
               for b in blocks if b.fit is not None and not np.isfinite(b.noise_corr[0])]
     ordered = sorted((b for b in blocks), key=lambda b: -b.nominal_height_mm)
     n_planes = (cloud.metadata.get("table") or {}).get("n_planes")
+    pairs = [(a, b) for a, b in itertools.pairwise(ordered)
+             if a.fit is not None and b.fit is not None]
+    lines = [None if calibration is None else geometry_component(calibration, xyz, a, b)
+             for a, b in pairs]
+    notes += [f"step {a.block_id}-{b.block_id}: the calibration-geometry term could not be "
+              "computed (the blocks' points do not map through the calibration); left out"
+              for (a, b), line in zip(pairs, lines, strict=True)
+              if line is not None and not math.isfinite(line.u)]
     steps = [step_between(a, b, k, tolerance_um, budget, n_planes,
-                          None if calibration is None else
-                          geometry_component(calibration, xyz, a, b))
-             for a, b in itertools.pairwise(ordered) if a.fit is not None and b.fit is not None]
+                          line if line is not None and math.isfinite(line.u) else None)
+             for (a, b), line in zip(pairs, lines, strict=True)]
     notes += coverage_notes(steps)
     if budget is None:
         notes.append("Type B inputs (gauge-block certificates, temperature, stage scale, "
