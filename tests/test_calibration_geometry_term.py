@@ -14,10 +14,10 @@ import numpy as np
 import pytest
 
 from scanqa.calibration.parametric import Lens
+from scanqa.calibration.sweep import geometry_covariance
 from scanqa.calibration.sweep_fit import SweepGeometry, geometry_from_summary
 from scanqa.calibration.uncertainty import (
     GeometryCovariance,
-    geometry_covariance,
     marker_covariance,
     parametric_covariance,
     step_sigma_mm,

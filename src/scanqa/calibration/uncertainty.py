@@ -271,17 +271,3 @@ def step_sigma_mm(term: GeometryCovariance, points_a: np.ndarray, points_b: np.n
                  - _step(minus[0][ok_a], minus[1][ok_b])) / 2) ** 2
     return float(np.sqrt(var))
 
-
-def geometry_covariance(cal) -> GeometryCovariance | None:
-    """The :class:`GeometryCovariance` a calibration carries, or None: a marker table's
-    fit (its ``target_geometry`` provenance with the parameter vector), or a parametric
-    calibration with a covariance (a board calibration's jackknife)."""
-    covariance = getattr(cal, "covariance", None)
-    if covariance is not None and hasattr(cal, "projector"):
-        return parametric_covariance(cal, covariance)
-    summary = (getattr(cal, "provenance", None) or {}).get("target_geometry") or {}
-    if len(summary.get("parameters", [])) == 15:
-        from scanqa.calibration.sweep_fit import geometry_from_summary
-
-        return marker_covariance(geometry_from_summary(summary))
-    return None

@@ -28,7 +28,7 @@ The step's standard uncertainty u and expanded uncertainty U come from a GUM bud
 (:mod:`scanqa.qa.budget`): the Type A terms above and, from a budget file, the Type B
 terms (certificates, temperature, stage scale, flatness of the calibration flat); k is
 stated or follows from the effective degrees of freedom. Given the calibration's
-parameter covariance (:func:`scanqa.calibration.uncertainty.geometry_covariance`), a
+parameter covariance (:func:`scanqa.calibration.sweep.geometry_covariance`), a
 "calibration geometry" line carries it to the step: the calibration's depth-scale error
 times the height, its depth-axis tilt error times the lateral separation.
 
