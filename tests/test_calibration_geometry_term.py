@@ -174,3 +174,14 @@ def test_a_term_that_cannot_be_computed_is_left_out_and_said():
                    for c in s.budget.components)
     left_out = [n for n in res.notes if "calibration-geometry term could not be computed" in n]
     assert len(left_out) == len(res.steps) == 7
+
+
+def test_a_singular_fit_gives_nan_and_an_empty_covariance_zero():
+    """A covariance with inf (the fit's Jacobian was singular) gives NaN, which run_qa
+    leaves out with a note; an empty one moves nothing."""
+    rng = np.random.default_rng(6)
+    a, b = _block(rng, 440.0, -10.0, 0.0), _block(rng, 450.0, 12.0, 5.0)
+    assert math.isnan(step_sigma_mm(marker_covariance(_geometry({13: math.inf})), a, b))
+    empty = GeometryCovariance("empty", np.zeros(0), np.zeros((0, 0)),
+                               lambda points, theta: points)
+    assert step_sigma_mm(empty, a, b) == 0.0

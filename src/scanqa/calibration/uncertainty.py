@@ -1,4 +1,4 @@
-"""The uncertainty of a parametric calibration, and what it does to a triangulated point.
+"""The uncertainty of a calibration, and what it does to a triangulated point and a step.
 
 The 24 parameters (:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`: both lenses' f_x,
 f_y, c_x, c_y, k1 k2 p1 p2 k3, the rotation vector of Rp, Tp) of a board calibration get
@@ -187,8 +187,11 @@ class GeometryCovariance:
     dof: float = np.inf
 
     def axes(self) -> list[np.ndarray]:
-        """sqrt(lambda_k) e_k of the covariance's principal axes (numerical rank)."""
+        """sqrt(lambda_k) e_k of the covariance's principal axes (numerical rank); none
+        for an empty covariance."""
         cov = np.asarray(self.covariance, dtype=float)
+        if cov.size == 0:
+            return []
         lam, vec = np.linalg.eigh((cov + cov.T) / 2)
         keep = lam > RANK_TOLERANCE * max(lam.max(), 0.0)
         return [np.sqrt(value) * axis for value, axis in zip(lam[keep], vec.T[keep],
@@ -256,8 +259,11 @@ def step_sigma_mm(term: GeometryCovariance, points_a: np.ndarray, points_b: np.n
     Returns
     -------
     float
-        u_geom [mm]; NaN when a block has fewer than 3 points that move.
+        u_geom [mm]; NaN when a block has fewer than 3 points that move, or the
+        covariance is not finite (a singular fit).
     """
+    if not np.isfinite(term.covariance).all():
+        return float("nan")
     a, b = _subset(points_a), _subset(points_b)
     var = 0.0
     for step in term.axes():
