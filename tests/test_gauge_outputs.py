@@ -92,7 +92,8 @@ def test_rows_and_summary_have_their_documented_names():
     assert info["settings"] == {"margin_mm": 0.5, "outlier_k": None, "tolerance_um": 15.0,
                                 "tolerance_source": "given", "k": 3.0, "budget": None,
                                 "max_flagged_fraction": 0.05,
-                                "knn": 9, "tile_mm": 2.5, "layout": "three.toml",
+                                "knn": 9, "tile_mm": 2.5, "calibration_geometry": None,
+                                "layout": "three.toml",
                                 "paper_comparison": False}
     assert info["has_prediction"] is True and info["notes"] == res.notes == [NO_TYPE_B]
     assert info["type_b_included"] is False
@@ -348,7 +349,8 @@ def test_run_qa_defaults_and_what_it_passes_on():
     assert res.settings == {"margin_mm": 1.0, "outlier_k": None, "tolerance_um": 20.0,
                             "tolerance_source": "default", "k": 2.0, "budget": None,
                             "max_flagged_fraction": 0.05, "knn": 16,
-                            "tile_mm": 2.0, "layout": "three.toml", "paper_comparison": False}
+                            "tile_mm": 2.0, "calibration_geometry": None,
+                            "layout": "three.toml", "paper_comparison": False}
     assert all(s.k == 2.0 and s.tolerance_um == 20.0 for s in res.steps)
     resid = np.where(res.block_id >= 0, res.residual_um * 1e-3, np.nan)
     np.testing.assert_allclose(res.local_std_um,

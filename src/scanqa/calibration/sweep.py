@@ -22,9 +22,14 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.calibration.build import BuildReport, PlaneObservation, build_table, check_camera_size
-from scanqa.calibration.sweep_fit import SweepGeometry, fit_sweep_geometry
+from scanqa.calibration.sweep_fit import SweepGeometry, fit_sweep_geometry, geometry_from_summary
 from scanqa.calibration.table import CalibrationTable
 from scanqa.calibration.target import ChessboardSpec, detect_chessboard
+from scanqa.calibration.uncertainty import (
+    GeometryCovariance,
+    marker_covariance,
+    parametric_covariance,
+)
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io import manifest as manifest_file
@@ -34,8 +39,8 @@ from scanqa.io.tomlfile import read_toml
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig, first_difference
 
-__all__ = ["Sweep", "calibrate", "check_sweep", "iter_observations", "load_sweep",
-           "marker_geometry"]
+__all__ = ["Sweep", "calibrate", "check_sweep", "geometry_covariance", "iter_observations",
+           "load_sweep", "marker_geometry"]
 
 #: The images' scale may differ from the config's by this factor before it is an error
 #: (distortion and a tilted target change the local scale by a few per cent) [-].
@@ -241,3 +246,17 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
     return build_table(_checked(iter_observations(sweep, geometry), sweep, config), config,
                        weights=weights, cell_px=cell_px, min_modulation=min_modulation,
                        provenance=prov, total=sweep.observation_count())
+
+
+def geometry_covariance(cal) -> GeometryCovariance | None:
+    """The geometric parameters and covariance a calibration carries
+    (:class:`~scanqa.calibration.uncertainty.GeometryCovariance`), or None: a marker
+    table's fit (its ``target_geometry`` provenance with the parameter vector), or a
+    parametric calibration with a covariance (a board calibration's jackknife)."""
+    covariance = getattr(cal, "covariance", None)
+    if covariance is not None and hasattr(cal, "projector"):
+        return parametric_covariance(cal, covariance)
+    summary = (getattr(cal, "provenance", None) or {}).get("target_geometry") or {}
+    if len(summary.get("parameters", [])) == 15:
+        return marker_covariance(geometry_from_summary(summary))
+    return None

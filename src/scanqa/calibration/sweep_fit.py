@@ -25,7 +25,7 @@ table is built with (:mod:`scanqa.calibration.sweep`).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -87,6 +87,12 @@ class SweepGeometry:
         RMS of the pixel-locking correction applied to the corners [px].
     decentring_fitted : bool
         Whether the corners needed the tangential distortion p1, p2 (else held at 0).
+    parameters : (15,) float
+        The fitted vector (f, c_x, c_y, k1, k2, p1, p2, rotation vector, origin, the
+        axis' two angles) [px], [-], [rad], [mm], [rad]; empty when not known.
+    covariance : (15, 15) float
+        Its covariance from the fit's Jacobian and residual variance (zero rows and
+        columns for held parameters); empty when not known.
     """
 
     camera: Lens
@@ -100,6 +106,8 @@ class SweepGeometry:
     std: dict = field(default_factory=dict)
     locking_px: float = 0.0
     decentring_fitted: bool = True
+    parameters: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
 
     def translation(self, stage_mm: float) -> np.ndarray:
         """Target origin in the camera frame at a stage reading [mm]."""
@@ -119,6 +127,32 @@ class SweepGeometry:
         """Sensor coordinates of target-plane points at a stage reading: (n, 2) [px]."""
         pts = plane_to_camera(target_xy, self.rotation, self.translation(stage_mm))
         return np.stack(self.camera.project(pts), -1)
+
+    def with_parameters(self, parameters: np.ndarray) -> SweepGeometry:
+        """The same geometry with another (15,) parameter vector (``parameters``'
+        order); the fit's statistics are kept, the covariance dropped."""
+        k, dist, rot, t0, axis = _unpack(np.asarray(parameters, dtype=float))
+        cam = self.camera
+        return replace(self, camera=Lens(k, dist, cam.width_px, cam.height_px), rotation=rot,
+                       origin_mm=np.asarray(t0, float), axis=axis,
+                       parameters=np.asarray(parameters, dtype=float),
+                       covariance=np.zeros((0, 0)))
+
+    def stage_reading(self, points: np.ndarray) -> np.ndarray:
+        """The stage reading whose target plane holds each of (n, 3) points [mm]."""
+        n = self.rotation[:, 2]
+        return self.stage_ref_mm + (np.asarray(points, float) @ n - n @ self.origin_mm) / (
+            n @ self.axis)
+
+    def ray_points(self, u: np.ndarray, v: np.ndarray, stage_mm: np.ndarray) -> np.ndarray:
+        """(n, 3) points where the rays of pixels (u, v) [px] meet the target plane at
+        stage readings ``stage_mm`` [mm]; NaN where the undistortion fails."""
+        x, y, ok = self.camera.undistort(u, v)
+        n = self.rotation[:, 2]
+        depth = (np.asarray(stage_mm, float) - self.stage_ref_mm) * (n @ self.axis) + (
+            n @ self.origin_mm)
+        lam = np.where(ok, depth / (n[0] * x + n[1] * y + n[2]), np.nan)
+        return np.stack([lam * x, lam * y, lam], -1)
 
     def plane_points(self, stage_mm: float, width: int, height: int
                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -145,7 +179,36 @@ class SweepGeometry:
                 "stage_axis": [float(v) for v in self.axis],
                 "stage_tilt_deg": self.stage_tilt_deg,
                 "target_tilt_deg": self.target_tilt_deg, "rms_px": self.rms_px,
-                "locking_px": self.locking_px, "std": dict(self.std)}
+                "locking_px": self.locking_px, "std": dict(self.std),
+                "stage_ref_mm": self.stage_ref_mm,
+                "image_size_px": [self.camera.width_px, self.camera.height_px],
+                "parameters": [float(v) for v in self.parameters],
+                "covariance": [[float(v) for v in row] for row in self.covariance]}
+
+
+def geometry_from_summary(summary: dict) -> SweepGeometry:
+    """The :class:`SweepGeometry` of a :meth:`SweepGeometry.summary` (a table's
+    ``target_geometry`` provenance) with its parameters and covariance.
+
+    Raises
+    ------
+    InputError
+        The summary predates the parameter vector (a table built before it was kept).
+    """
+    if len(summary.get("parameters", [])) != 15:
+        raise InputError("the table's target_geometry holds no parameter vector (a table "
+                         "built by an older scanqa): calibrate it again to carry the "
+                         "marker fit's covariance")
+    width, height = summary["image_size_px"]
+    theta = np.asarray(summary["parameters"], float)
+    k, dist, rot, t0, axis = _unpack(theta)
+    return SweepGeometry(Lens(k, dist, int(width), int(height)), rot, np.asarray(t0, float),
+                         axis, float(summary["stage_ref_mm"]), float(summary["rms_px"]),
+                         principal_point_fitted=bool(summary["principal_point_fitted"]),
+                         decentring_fitted=bool(summary["decentring_fitted"]),
+                         std=dict(summary.get("std", {})),
+                         locking_px=float(summary.get("locking_px", 0.0)),
+                         parameters=theta, covariance=np.asarray(summary["covariance"], float))
 
 
 def _unpack(p: np.ndarray):
@@ -251,16 +314,22 @@ class _Fit:
         """Residual variance per coordinate [px^2]."""
         return self.ssr / max(self.fun.size - int(self.free.sum()), 1)
 
-    def std(self) -> np.ndarray:
-        """Standard deviations of all 15 parameters (0 where held) from the Jacobian."""
-        out = np.zeros(self.p.size)
+    def covariance(self) -> np.ndarray:
+        """(15, 15) covariance of the parameters (zero where held) from the Jacobian
+        and the residual variance; inf on the diagonal when the Jacobian is singular."""
+        out = np.zeros((self.p.size, self.p.size))
+        free = np.flatnonzero(self.free)
         try:
             cov = np.linalg.inv(self.jac.T @ self.jac) * self.variance
         except np.linalg.LinAlgError:
-            out[self.free] = np.inf
+            out[free, free] = np.inf
             return out
-        out[self.free] = np.sqrt(np.abs(np.diag(cov)))
+        out[np.ix_(free, free)] = cov
         return out
+
+    def std(self) -> np.ndarray:
+        """Standard deviations of all 15 parameters (0 where held) from the Jacobian."""
+        return np.sqrt(np.abs(np.diag(self.covariance())))
 
 
 def _solve(p: np.ndarray, free: np.ndarray, args) -> _Fit:
@@ -375,4 +444,5 @@ def _geometry(fit: _Fit, detections, stage_mm, ref, width, height,
     return SweepGeometry(Lens(k, dist, width, height), rot, np.asarray(t0, float), axis,
                          float(ref), rms, per, bool(fit.free[1]),
                          {n: float(v) for n, v in zip(names, fit.std(), strict=False)},
-                         locking_px, bool(fit.free[5]))
+                         locking_px, bool(fit.free[5]), np.array(fit.p, float),
+                         fit.covariance())

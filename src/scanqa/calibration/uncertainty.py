@@ -1,4 +1,4 @@
-"""The uncertainty of a parametric calibration, and what it does to a triangulated point.
+"""The uncertainty of a calibration, and what it does to a triangulated point and a step.
 
 The 24 parameters (:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`: both lenses' f_x,
 f_y, c_x, c_y, k1 k2 p1 p2 k3, the rotation vector of Rp, Tp) of a board calibration get
@@ -15,11 +15,31 @@ P_k+ to P_k-; the point's variance along its line of sight r = P / |P| is
 
 which is exact for a point that depends linearly on the parameters. The term is
 systematic within a scan: every scan with the same calibration shares the same error.
+
+The same covariance, carried to a height difference (:func:`step_sigma_mm`), is the
+calibration-geometry term of a gauge-block step. A calibration's error in its geometry
+moves every point of a scan the same way, so the step between two blocks sees the
+calibration's depth-scale error e times the height h, plus its error in the tilt of the
+depth axis times the blocks' lateral separation L (and the distortion residual's
+difference between the blocks); for parameters theta with covariance C, along C's
+principal axes as in Eq. 2,
+
+    u_geom^2 = sum_k ( (d(theta + sqrt(lambda_k) e_k) - d(theta - sqrt(lambda_k) e_k)) / 2 )^2   (3)
+
+with d(theta) the step measured from the blocks' points moved to where the calibration
+theta puts the same pixels and phases (:class:`GeometryCovariance`): block a's plane is
+refitted, block b's centroid moved. A rigid motion of the whole frame leaves d unchanged
+and contributes nothing. For a marker table the parameters are the marker fit's 15
+(:class:`~scanqa.calibration.sweep_fit.SweepGeometry`: camera, target tilt, stage axis):
+a point's pixel is its projection and its stage reading the target plane that holds it;
+for a parametric calibration its 24 (:data:`COVARIANCE_PARAMETERS`): pixel and phase are
+its projections into camera and projector.
 """
 
 from __future__ import annotations
 
-from dataclasses import replace
+from collections.abc import Callable
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -135,3 +155,125 @@ def calibration_sigma_mm(cal, covariance: np.ndarray, u: np.ndarray, v: np.ndarr
         minus = unpack(cal, theta - step).apply(u, v, xp, extrapolate=True).xyz
         var += (np.sum(ray * (plus - minus), axis=-1) / 2) ** 2
     return np.sqrt(var)
+
+
+#: Points of each block the step term moves (a random subset beyond) [-].
+STEP_POINTS = 400
+
+
+@dataclass(frozen=True)
+class GeometryCovariance:
+    """A calibration's geometric parameters, their covariance, and how a point moves.
+
+    Attributes
+    ----------
+    name : str
+        What the parameters are, for the budget line's source.
+    parameters : (p,) float
+        The calibration's parameter vector (its own units).
+    covariance : (p, p) float
+        Their covariance (zero rows for held parameters).
+    move : callable
+        ``move(points, theta)``: (n, 3) points of a scan in this calibration's frame [mm]
+        -> where the calibration ``theta`` puts the same pixels and phases, (n, 3) [mm].
+    dof : float
+        Degrees of freedom of the covariance (observations - parameters) [-].
+    """
+
+    name: str
+    parameters: np.ndarray
+    covariance: np.ndarray
+    move: Callable[[np.ndarray, np.ndarray], np.ndarray]
+    dof: float = np.inf
+
+    def axes(self) -> list[np.ndarray]:
+        """sqrt(lambda_k) e_k of the covariance's principal axes (numerical rank); none
+        for an empty covariance."""
+        cov = np.asarray(self.covariance, dtype=float)
+        if cov.size == 0:
+            return []
+        lam, vec = np.linalg.eigh((cov + cov.T) / 2)
+        keep = lam > RANK_TOLERANCE * max(lam.max(), 0.0)
+        return [np.sqrt(value) * axis for value, axis in zip(lam[keep], vec.T[keep],
+                                                                strict=True)]
+
+
+def marker_covariance(geometry) -> GeometryCovariance:
+    """The marker fit's 15 parameters and covariance (:mod:`~scanqa.calibration.sweep_fit`)
+    as a :class:`GeometryCovariance`: a point keeps its pixel (its projection) and its
+    stage reading (the target plane through it)."""
+
+    def move(points: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        u, v = geometry.camera.project(points)
+        return geometry.with_parameters(theta).ray_points(u, v, geometry.stage_reading(points))
+
+    return GeometryCovariance("marker fit (camera, target tilt, stage axis; 15 parameters)",
+                              np.asarray(geometry.parameters, float),
+                              np.asarray(geometry.covariance, float), move)
+
+
+def parametric_covariance(cal, covariance: np.ndarray) -> GeometryCovariance:
+    """A parametric calibration's 24 parameters (:func:`pack`) and their covariance as a
+    :class:`GeometryCovariance`: a point keeps its camera pixel and its phase (its
+    projections)."""
+    axis = 0 if cal.orientation == "vertical" else 1
+
+    def move(points: np.ndarray, theta: np.ndarray) -> np.ndarray:
+        u, v = cal.camera.project(points)
+        xp = cal.projector.project(points @ np.asarray(cal.rotation).T + cal.translation)[axis]
+        return unpack(cal, theta).apply(u, v, xp, extrapolate=True).xyz
+
+    return GeometryCovariance("parametric calibration (24 parameters)", pack(cal),
+                              np.asarray(covariance, float), move)
+
+
+def _step(points_a: np.ndarray, points_b: np.ndarray) -> float:
+    """d = n_a . (c_a - c_b), n_a block a's plane normal towards the camera [mm]."""
+    ca, cb = points_a.mean(axis=0), points_b.mean(axis=0)
+    normal = np.linalg.svd(points_a - ca, full_matrices=False)[2][2]
+    normal = -normal if normal @ ca > 0 else normal
+    return float(normal @ (ca - cb))
+
+
+def _subset(points: np.ndarray, n: int = STEP_POINTS) -> np.ndarray:
+    points = np.asarray(points, float)
+    points = points[np.isfinite(points).all(axis=1)]
+    if len(points) <= n:
+        return points
+    return points[np.random.default_rng(0).choice(len(points), n, replace=False)]
+
+
+def step_sigma_mm(term: GeometryCovariance, points_a: np.ndarray, points_b: np.ndarray
+                  ) -> float:
+    """Eq. 3: std of the step from block a's plane to block b's centroid due to the
+    calibration's geometric uncertainty.
+
+    Parameters
+    ----------
+    term : GeometryCovariance
+        The calibration's parameters, covariance and point mapping.
+    points_a, points_b : (n, 3) float
+        The blocks' points in the calibration's frame [mm] (up to :data:`STEP_POINTS`
+        of each are used).
+
+    Returns
+    -------
+    float
+        u_geom [mm]; NaN when a block has fewer than 3 points that move, or the
+        covariance is not finite (a singular fit).
+    """
+    if not np.isfinite(term.covariance).all():
+        return float("nan")
+    a, b = _subset(points_a), _subset(points_b)
+    var = 0.0
+    for step in term.axes():
+        plus = (term.move(a, term.parameters + step), term.move(b, term.parameters + step))
+        minus = (term.move(a, term.parameters - step), term.move(b, term.parameters - step))
+        ok_a = np.isfinite(plus[0]).all(1) & np.isfinite(minus[0]).all(1)
+        ok_b = np.isfinite(plus[1]).all(1) & np.isfinite(minus[1]).all(1)
+        if ok_a.sum() < 3 or ok_b.sum() < 1:
+            return float("nan")
+        var += ((_step(plus[0][ok_a], plus[1][ok_b])
+                 - _step(minus[0][ok_a], minus[1][ok_b])) / 2) ** 2
+    return float(np.sqrt(var))
+

@@ -27,7 +27,10 @@ up any residual structure of the block (flatness, table errors) below the tile s
 The step's standard uncertainty u and expanded uncertainty U come from a GUM budget
 (:mod:`scanqa.qa.budget`): the Type A terms above and, from a budget file, the Type B
 terms (certificates, temperature, stage scale, flatness of the calibration flat); k is
-stated or follows from the effective degrees of freedom.
+stated or follows from the effective degrees of freedom. Given the calibration's
+parameter covariance (:func:`scanqa.calibration.sweep.geometry_covariance`), a
+"calibration geometry" line carries it to the step: the calibration's depth-scale error
+times the height, its depth-axis tilt error times the lateral separation.
 
 Statuses: a block is flagged "outside_volume" or "model_invalid" when more than
 :data:`MAX_FLAGGED_FRACTION` of its points lie outside the calibrated volume or outside
@@ -49,6 +52,7 @@ import numbers
 
 import numpy as np
 
+from scanqa.calibration.uncertainty import GeometryCovariance, step_sigma_mm
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
 from scanqa.model import design
@@ -62,8 +66,8 @@ from scanqa.qa.results import BlockResult, QAResult, StepResult
 
 __all__ = ["MIN_TILES", "TILE_MM", "BlockResult", "QAResult", "StepResult",
            "analyse_block", "check_sigmas", "cloud_config", "coverage_notes",
-           "coverage_rule", "local_std", "model_curve", "noise_correlation", "run_qa",
-           "step_between"]
+           "coverage_rule", "geometry_component", "local_std", "model_curve",
+           "noise_correlation", "run_qa", "step_between"]
 #: Fewest points of a block whose steps are decided: below, the plane is fitted and shown
 #: but the block is flagged "too_few_points" and its steps are not evaluated (the
 #: relative uncertainty of its std, 1/sqrt(2(n - 3)), exceeds 14 %, and MIN_TILES tiles
@@ -251,21 +255,22 @@ def _block_status(block_id: int, in_volume: float, model_valid: float) -> dict:
 
 
 def step_between(a: BlockResult, b: BlockResult, k: float | str | None, tolerance_um: float,
-                 inputs: BudgetInputs | None = None, n_planes: int | None = None
-                 ) -> StepResult:
+                 inputs: BudgetInputs | None = None, n_planes: int | None = None,
+                 geometry: Component | None = None) -> StepResult:
     """Height difference of block b relative to block a with its budget (module notes).
 
     ``k`` is a stated coverage factor or "welch-satterthwaite" (None: the budget file's
     ``[coverage] k``, else 2); ``inputs`` the budget file's Type B inputs; ``n_planes``
-    the number of planes the calibration table was built from (its degrees of freedom).
+    the number of planes the calibration table was built from (its degrees of freedom);
+    ``geometry`` the calibration-geometry line (:func:`geometry_component`), if known.
 
     Notes
     -----
     d = n_a . (c_a - c_b) (Table 4 of the paper); u from the budget's contributions in
     quadrature (GUM 5.1.2, Eq. 10): the plane of a at c_b, sqrt(g^T U_a g) with
     g = (1, s_1, s_2) the lever; the mean height of b, sqrt(U_b[0, 0]); the calibration
-    table; and the Type B terms. U = k u (GUM 6.2.1), k stated or t_95(nu_eff)
-    (GUM G.4.1); the decision is ISO 14253-1 against T.
+    table; the calibration geometry; and the Type B terms. U = k u (GUM 6.2.1), k stated
+    or t_95(nu_eff) (GUM G.4.1); the decision is ISO 14253-1 against T.
     """
     fa, fb = a.fit, b.fit
     measured = float(fa.normal @ (fa.centroid - fb.centroid))
@@ -282,6 +287,7 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
         Component("calibration table", "A", "node fits over the calibration planes, "
                   "scaled by their reduced chi-square",
                   1e3 * math.sqrt(_table_variance(a, b, g[1:])), "um", 1.0, table_dof)]
+    components += [geometry] if geometry is not None else []
     extra, correction = type_b(inputs, a.nominal_height_mm, b.nominal_height_mm)
     budget = Budget(tuple(components + extra), coverage_rule(k, inputs), inputs is not None,
                     correction)
@@ -291,6 +297,17 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
                                  "flagged")
     return StepResult(a.block_id, b.block_id, a.nominal_height_mm - b.nominal_height_mm,
                       measured, budget.u_um, budget.k, tolerance_um, budget, evaluated, note)
+
+
+def geometry_component(term: GeometryCovariance, xyz: np.ndarray, a: BlockResult,
+                       b: BlockResult) -> Component:
+    """The calibration-geometry line of a step's budget: the calibration's parameter
+    covariance carried to the height difference of blocks a and b
+    (:func:`scanqa.calibration.uncertainty.step_sigma_mm`, Eq. 3 there)."""
+    sigma = step_sigma_mm(term, xyz[a.index], xyz[b.index])
+    return Component("calibration geometry", "A", f"{term.name}: covariance carried to the "
+                     "step (depth scale x h, depth-axis tilt x lateral separation)",
+                     1e3 * sigma, "um", 1.0, term.dof)
 
 
 def _independent_patches(block: BlockResult) -> float:
@@ -446,7 +463,8 @@ def coverage_rule(k: float | str | None, budget: BudgetInputs | None) -> float |
 def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | None = None,
            margin_mm: float = 1.0, outlier_k: float | None = None,
            tolerance_um: float | None = None, k: float | str | None = None, knn: int = 16,
-           tile_mm: float = TILE_MM, budget: BudgetInputs | None = None) -> QAResult:
+           tile_mm: float = TILE_MM, budget: BudgetInputs | None = None,
+           calibration: GeometryCovariance | None = None) -> QAResult:
     """Gauge-block QA of an annotated cloud.
 
     Parameters
@@ -476,6 +494,11 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     budget : BudgetInputs, optional
         Type B inputs of a budget file (:func:`scanqa.qa.budget.load_budget`); without
         one the budgets hold the Type A terms only, and the notes say so.
+    calibration : GeometryCovariance, optional
+        The calibration's geometric parameters and covariance
+        (:func:`scanqa.calibration.uncertainty.marker_covariance` for a marker table,
+        :func:`~scanqa.calibration.uncertainty.parametric_covariance`); each step's
+        budget then has a "calibration geometry" line.
 
     Returns
     -------
@@ -511,8 +534,17 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
               for b in blocks if b.fit is not None and not np.isfinite(b.noise_corr[0])]
     ordered = sorted((b for b in blocks), key=lambda b: -b.nominal_height_mm)
     n_planes = (cloud.metadata.get("table") or {}).get("n_planes")
-    steps = [step_between(a, b, k, tolerance_um, budget, n_planes)
-             for a, b in itertools.pairwise(ordered) if a.fit is not None and b.fit is not None]
+    pairs = [(a, b) for a, b in itertools.pairwise(ordered)
+             if a.fit is not None and b.fit is not None]
+    lines = [None if calibration is None else geometry_component(calibration, xyz, a, b)
+             for a, b in pairs]
+    notes += [f"step {a.block_id}-{b.block_id}: the calibration-geometry term could not be "
+              "computed (the blocks' points do not map through the calibration); left out"
+              for (a, b), line in zip(pairs, lines, strict=True)
+              if line is not None and not math.isfinite(line.u)]
+    steps = [step_between(a, b, k, tolerance_um, budget, n_planes,
+                          line if line is not None and math.isfinite(line.u) else None)
+             for (a, b), line in zip(pairs, lines, strict=True)]
     notes += coverage_notes(steps)
     if budget is None:
         notes.append("Type B inputs (gauge-block certificates, temperature, stage scale, "
@@ -528,6 +560,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
                 "tolerance_source": tolerance_source,
                 "k": k, "budget": budget.source if budget is not None else None,
                 "max_flagged_fraction": MAX_FLAGGED_FRACTION, "knn": knn, "tile_mm": tile_mm,
+                "calibration_geometry": None if calibration is None else calibration.name,
                 "layout": layout.source, "paper_comparison": layout.paper_comparison}
     model_config = cloud_config(cloud, config, notes)
     curve = model_curve(blocks, model_config) if model_config is not None else None

@@ -236,6 +236,10 @@ def _budget_section(page: Page, result: QAResult, info: dict) -> None:
                    "from the budget file (infinite degrees of freedom).", note=True)
     if not info["type_b_included"]:
         page.paragraph("Type B is not included (no budget file).", note=True)
+    geometry = result.settings.get("calibration_geometry")
+    page.paragraph(f"Calibration geometry: the covariance of the {geometry}, carried to "
+                   "each step." if geometry else "Calibration geometry: not included (no "
+                   "calibration covariance was given).", note=True)
     for s in result.steps:
         if s.budget is None:
             continue
