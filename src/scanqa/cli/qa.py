@@ -7,6 +7,7 @@ import argparse
 import math
 from pathlib import Path
 
+from scanqa.calibration.sweep import geometry_covariance
 from scanqa.cli.common import (
     add_calibration_argument,
     add_config_argument,
@@ -125,8 +126,11 @@ def _coverage(text: str) -> float | str:
 
 
 def _load(args: argparse.Namespace) -> tuple[list[tuple[str, AnnotatedCloud]],
-                                             ScannerConfig | None]:
+                                             ScannerConfig | None, object]:
+    """The clouds, the config and the calibration's geometry covariance (None without
+    --calibration, or when the calibration carries none)."""
     config = config_from_args(args) if args.config else None
+    geometry = None
     if args.calibration:
         if config is None:
             raise InputError("--calibration needs --config (the config the table was built "
@@ -134,12 +138,14 @@ def _load(args: argparse.Namespace) -> tuple[list[tuple[str, AnnotatedCloud]],
         out = []
         for c in args.cloud:
             scan = decode(c)
-            out.append((Path(c).name, annotate(scan, calibration_from_args(args, config, scan),
-                                               config, keep_invalid=True, source=c)))
+            cal = calibration_from_args(args, config, scan)
+            geometry = geometry_covariance(cal) if geometry is None else geometry
+            out.append((Path(c).name, annotate(scan, cal, config, keep_invalid=True,
+                                               source=c)))
     else:
         out = [(Path(c).stem, read_cloud(c)) for c in args.cloud]
     warn_sigma([c for _, c in out])
-    return out, config
+    return out, config, geometry
 
 
 def _heights(args: argparse.Namespace) -> dict[int, float]:
@@ -180,14 +186,14 @@ def run(args: argparse.Namespace) -> int:
     artefacts = bool(args.artefact) or (
         bool(args.layout) and not args.auto and layout_format(args.layout) == ARTEFACT_FORMAT)
     out = Path(args.out)
-    clouds, config = _load(args)
+    clouds, config, geometry = _load(args)
     header = _header(args, clouds, config, spec)
     if artefacts:
         return _run_artefacts(args, clouds, spec, header, out)
     if len(clouds) > 1:
         raise InputError(f"gauge-block QA takes one cloud, got {len(clouds)}; run it once "
                          "per scan")
-    return _run_blocks(args, clouds[0][1], config, header, out)
+    return _run_blocks(args, clouds[0][1], config, header, out, geometry)
 
 
 def _auto_layout(args, spec):
@@ -224,12 +230,13 @@ def _run_artefacts(args, clouds, spec, header, out) -> int:
     return EXIT_STATUS[v["verdict"]] if args.strict else 0
 
 
-def _run_blocks(args, cloud, config, header, out) -> int:
+def _run_blocks(args, cloud, config, header, out, geometry=None) -> int:
     layout = detect_blocks(cloud.xyz, _heights(args)) if args.auto else load_layout(args.layout)
     result = run_qa(cloud, layout, config=config, margin_mm=args.margin,
                     outlier_k=args.outliers, tolerance_um=args.tolerance, k=args.k,
                     tile_mm=args.tile,
-                    budget=load_budget(args.budget) if args.budget else None)
+                    budget=load_budget(args.budget) if args.budget else None,
+                    calibration=geometry)
     with flags(_PDF):
         info = qa_report.write_outputs(result, out, header, pdf=args.pdf)
     for b in result.blocks:
