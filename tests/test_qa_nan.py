@@ -472,20 +472,16 @@ def test_coverage_factor_nan_for_zero_or_negative_dof():
     assert budget.coverage_factor(INF) == pytest.approx(1.959964, abs=1e-6)
 
 
-LEFT_IN_BUDGET = "qa/budget.py is being changed by another engineer (issue 28 brief): fix there"
 
 
-@pytest.mark.xfail(strict=True, reason=LEFT_IN_BUDGET)
 def test_coverage_factor_of_nan_dof_is_not_the_normal_quantile():
     assert math.isnan(budget.coverage_factor(NAN))
 
 
-@pytest.mark.xfail(strict=True, reason=LEFT_IN_BUDGET)
 def test_welch_satterthwaite_of_a_nan_dof_is_nan():
     assert math.isnan(budget.welch_satterthwaite([(1.0, NAN), (1.0, 5.0)]))
 
 
-@pytest.mark.xfail(strict=True, reason=LEFT_IN_BUDGET)
 def test_coverage_factor_of_zero_coverage_is_refused():
     with pytest.raises(ScanQAError):
         budget.coverage_factor(10.0, 0.0)

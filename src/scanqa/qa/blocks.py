@@ -303,7 +303,15 @@ def geometry_component(term: GeometryCovariance, xyz: np.ndarray, a: BlockResult
                        b: BlockResult) -> Component:
     """The calibration-geometry line of a step's budget: the calibration's parameter
     covariance carried to the height difference of blocks a and b
-    (:func:`scanqa.calibration.uncertainty.step_sigma_mm`, Eq. 3 there)."""
+    (:func:`scanqa.calibration.uncertainty.step_sigma_mm`, Eq. 3 there).
+
+    Notes
+    -----
+    u_geo^2 = sum_j (d_j(+) - d_j(-))^2 / 4 over the principal axes j of the parameter
+    covariance: the step d refitted with the blocks' points moved by +- one standard
+    deviation along axis j (GUM 5.1.3, sensitivity by finite differences; the
+    propagation is docs/uncertainty_budget.rst's calibration-geometry line).
+    """
     sigma = step_sigma_mm(term, xyz[a.index], xyz[b.index])
     return Component("calibration geometry", "A", f"{term.name}: covariance carried to the "
                      "step (depth scale x h, depth-axis tilt x lateral separation)",

@@ -39,6 +39,7 @@ from dataclasses import dataclass
 
 from scipy.stats import t as student_t
 
+from scanqa.errors import RangeError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs, read_budget_file
 
 #: Coverage probability of U when k comes from the degrees of freedom.
@@ -112,13 +113,16 @@ class Budget:
 
 def welch_satterthwaite(parts: list[tuple[float, float]]) -> float:
     """nu_eff = u^4 / sum(u_i^4 / nu_i) of (contribution [um], dof) pairs; inf when every
-    contribution with a finite dof is zero.
+    contribution with a finite dof is zero; NaN when a dof is NaN (unknown).
 
     Notes
     -----
     nu_eff = u_c^4 / sum_i (c_i u_i)^4 / nu_i, the Welch-Satterthwaite formula of GUM G.4.1
-    (Eq. G.2b); a term whose nu_i is not finite and > 0 counts as infinite dof.
+    (Eq. G.2b); a term whose nu_i is infinite or not > 0 counts as infinite dof; an
+    unknown (NaN) nu_i makes nu_eff unknown rather than optimistic.
     """
+    if any(math.isnan(nu) for _, nu in parts):
+        return math.nan
     u2 = sum(c * c for c, _ in parts)
     denom = sum(c**4 / nu for c, nu in parts if math.isfinite(nu) and nu > 0)
     return math.inf if denom == 0.0 else u2 * u2 / denom
@@ -130,8 +134,13 @@ def coverage_factor(nu: float, coverage: float = COVERAGE) -> float:
     Notes
     -----
     k = t_p(nu), Student's t quantile at p = (1 + coverage) / 2 (GUM G.3, Table G.2);
-    nu infinite gives the normal quantile, 1.96 at 95 %.
+    nu infinite gives the normal quantile, 1.96 at 95 %; an unknown (NaN) nu gives NaN,
+    not the normal quantile. A coverage outside (0, 1) is refused.
     """
+    if not 0.0 < coverage < 1.0:
+        raise RangeError(f"coverage probability must lie in (0, 1), got {coverage!r}")
+    if math.isnan(nu):
+        return math.nan
     q = 0.5 + 0.5 * coverage
     return float(student_t.ppf(q, nu)) if math.isfinite(nu) else float(student_t.ppf(q, 1e9))
 
