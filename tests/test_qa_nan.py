@@ -466,8 +466,10 @@ def test_welch_satterthwaite_nan_contribution_gives_nan():
 def test_coverage_factor_nan_for_zero_or_negative_dof():
     for nu in (0.0, -3.0):
         assert math.isnan(budget.coverage_factor(nu))
-    for p in (NAN, INF):
-        assert math.isnan(budget.coverage_factor(10.0, p))
+    assert math.isnan(budget.coverage_factor(10.0, NAN))
+    for p in (INF, 1.0, -0.5):  # not a probability
+        with pytest.raises(ScanQAError, match="coverage probability"):
+            budget.coverage_factor(10.0, p)
     # infinite dof is the normal quantile: 1.959964 at 95 % (GUM G.3)
     assert budget.coverage_factor(INF) == pytest.approx(1.959964, abs=1e-6)
 

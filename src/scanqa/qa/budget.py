@@ -135,12 +135,13 @@ def coverage_factor(nu: float, coverage: float = COVERAGE) -> float:
     -----
     k = t_p(nu), Student's t quantile at p = (1 + coverage) / 2 (GUM G.3, Table G.2);
     nu infinite gives the normal quantile, 1.96 at 95 %; an unknown (NaN) nu gives NaN,
-    not the normal quantile. A coverage outside (0, 1) is refused.
+    not the normal quantile; so does an unknown coverage. A coverage outside (0, 1) is
+    refused.
     """
+    if math.isnan(nu) or math.isnan(coverage):
+        return math.nan
     if not 0.0 < coverage < 1.0:
         raise RangeError(f"coverage probability must lie in (0, 1), got {coverage!r}")
-    if math.isnan(nu):
-        return math.nan
     q = 0.5 + 0.5 * coverage
     return float(student_t.ppf(q, nu)) if math.isfinite(nu) else float(student_t.ppf(q, 1e9))
 
