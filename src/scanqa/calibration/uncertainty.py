@@ -197,6 +197,10 @@ class GeometryCovariance:
         return [np.sqrt(value) * axis for value, axis in zip(lam[keep], vec.T[keep],
                                                                 strict=True)]
 
+    def step_sigma_mm(self, points_a: np.ndarray, points_b: np.ndarray) -> float:
+        """:func:`step_sigma_mm` of this covariance (what a step's budget calls) [mm]."""
+        return step_sigma_mm(self, points_a, points_b)
+
 
 def marker_covariance(geometry) -> GeometryCovariance:
     """The marker fit's 15 parameters and covariance (:mod:`~scanqa.calibration.sweep_fit`)

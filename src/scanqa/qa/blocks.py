@@ -52,13 +52,12 @@ import numbers
 
 import numpy as np
 
-from scanqa.calibration.uncertainty import GeometryCovariance, step_sigma_mm
 from scanqa.errors import ConfigError, InputError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
 from scanqa.model import design
 from scanqa.model.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.model.config import ScannerConfig, config_from_dict
-from scanqa.qa.budget import Budget, Component, coverage_factor, type_b
+from scanqa.qa.budget import Budget, Component, StepGeometry, coverage_factor, type_b
 from scanqa.qa.correlation import MIN_TILES, TILE_MM, noise_correlation
 from scanqa.qa.layout import BlockSpec, Layout
 from scanqa.qa.planes import PlaneFit, fit_plane, plane_design
@@ -299,7 +298,7 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
                       measured, budget.u_um, budget.k, tolerance_um, budget, evaluated, note)
 
 
-def geometry_component(term: GeometryCovariance, xyz: np.ndarray, a: BlockResult,
+def geometry_component(term: StepGeometry, xyz: np.ndarray, a: BlockResult,
                        b: BlockResult) -> Component:
     """The calibration-geometry line of a step's budget: the calibration's parameter
     covariance carried to the height difference of blocks a and b
@@ -312,7 +311,7 @@ def geometry_component(term: GeometryCovariance, xyz: np.ndarray, a: BlockResult
     deviation along axis j (GUM 5.1.3, sensitivity by finite differences; the
     propagation is docs/uncertainty_budget.rst's calibration-geometry line).
     """
-    sigma = step_sigma_mm(term, xyz[a.index], xyz[b.index])
+    sigma = term.step_sigma_mm(xyz[a.index], xyz[b.index])
     return Component("calibration geometry", "A", f"{term.name}: covariance carried to the "
                      "step (depth scale x h, depth-axis tilt x lateral separation)",
                      1e3 * sigma, "um", 1.0, term.dof)
@@ -472,7 +471,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
            margin_mm: float = 1.0, outlier_k: float | None = None,
            tolerance_um: float | None = None, k: float | str | None = None, knn: int = 16,
            tile_mm: float = TILE_MM, budget: BudgetInputs | None = None,
-           calibration: GeometryCovariance | None = None) -> QAResult:
+           calibration: StepGeometry | None = None) -> QAResult:
     """Gauge-block QA of an annotated cloud.
 
     Parameters
@@ -502,7 +501,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     budget : BudgetInputs, optional
         Type B inputs of a budget file (:func:`scanqa.qa.budget.load_budget`); without
         one the budgets hold the Type A terms only, and the notes say so.
-    calibration : GeometryCovariance, optional
+    calibration : StepGeometry, optional
         The calibration's geometric parameters and covariance
         (:func:`scanqa.calibration.uncertainty.marker_covariance` for a marker table,
         :func:`~scanqa.calibration.uncertainty.parametric_covariance`); each step's

@@ -36,6 +36,7 @@ from __future__ import annotations
 import math
 import os
 from dataclasses import dataclass
+from typing import Protocol
 
 from scipy.stats import t as student_t
 
@@ -44,6 +45,20 @@ from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs, read_budget_file
 
 #: Coverage probability of U when k comes from the degrees of freedom.
 COVERAGE = 0.95
+
+
+class StepGeometry(Protocol):
+    """What a step's budget needs of a calibration's geometric uncertainty (e.g.
+    :class:`scanqa.calibration.uncertainty.GeometryCovariance`): a name for the line's
+    source, its degrees of freedom, and the std of a step between two sets of points.
+    Declared here so that QA needs nothing of the calibration package."""
+
+    name: str
+    dof: float
+
+    def step_sigma_mm(self, points_a, points_b) -> float:
+        """Std of the step from the plane of ``points_a`` to the centroid of
+        ``points_b`` (both (n, 3) [mm]) due to the calibration's geometry [mm]."""
 
 
 @dataclass(frozen=True)
