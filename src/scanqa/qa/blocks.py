@@ -308,8 +308,8 @@ def geometry_component(term: StepGeometry, xyz: np.ndarray, a: BlockResult,
     -----
     u_geo^2 = sum_j (d_j(+) - d_j(-))^2 / 4 over the principal axes j of the parameter
     covariance: the step d refitted with the blocks' points moved by +- one standard
-    deviation along axis j (GUM 5.1.3, sensitivity by finite differences; the
-    propagation is docs/uncertainty_budget.rst's calibration-geometry line).
+    deviation along axis j (GUM 5.1.3, sensitivity by finite differences;
+    docs/uncertainty_budget.rst, "The calibration geometry").
     """
     sigma = term.step_sigma_mm(xyz[a.index], xyz[b.index])
     return Component("calibration geometry", "A", f"{term.name}: covariance carried to the "
