@@ -111,8 +111,10 @@ def test_coverage_factor_from_the_t_table():
     assert bud.coverage_factor(10.0) == pytest.approx(2.228, abs=1e-3)
     assert bud.coverage_factor(INF) == pytest.approx(1.960, abs=1e-3)
     assert bud.coverage_factor(INF, 0.9545) == pytest.approx(2.0, abs=1e-3)
-    # NaN degrees of freedom are read as infinite (the normal k), as an empty budget's
-    assert bud.coverage_factor(NAN) == pytest.approx(1.960, abs=1e-3)
+    # unknown (NaN) degrees of freedom give an unknown k, not the optimistic normal k;
+    # an empty budget has infinite ones (Welch-Satterthwaite over no finite dof)
+    assert math.isnan(bud.coverage_factor(NAN))
+    assert bud.welch_satterthwaite([]) == INF
 
 
 def test_budget_combines_in_quadrature_and_picks_k():
