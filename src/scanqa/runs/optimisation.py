@@ -10,22 +10,7 @@ obstacles: a coarse grid of the box of limits, then a compass search (pattern se
 with halving steps) from the best feasible point. Every evaluation runs the one model
 chain; :class:`Evaluator` counts them.
 
-Spec (TOML, read by :mod:`scanqa.io.designspec`)::
-
-    format = "scanqa-design-spec/1"
-    objective = "usable_volume"       # or "worst_sigma" (default "usable_volume")
-    level = 0.49                      # combined attenuation threshold A_c A_p [-]
-    sigma_max_um = 3.0                # largest sigma on the line of sight in the box [um]
-    step_mm = 2.0                     # voxel size of the usable volume [mm]
-    [cover]                           # the volume to cover [mm], scanner frame
-    min_mm = [-15.0, -15.0, 440.0]
-    max_mm = [15.0, 15.0, 460.0]
-    [limits]                          # settings that vary, [low, high] in their units
-    camera_focus_mm = [400.0, 520.0]
-    angle_deg = [10.0, 25.0]
-    [[obstacles]]                     # boxes no view pyramid may cross [mm]
-    min_mm = [60.0, -100.0, 150.0]
-    max_mm = [120.0, 100.0, 200.0]
+The spec is a TOML file declared, with an example, in :mod:`scanqa.io.designspec`.
 """
 
 from __future__ import annotations
