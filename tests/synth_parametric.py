@@ -25,6 +25,23 @@ CAMERA_DISTORTION = np.array([-0.12, 0.05, 4e-4, -3e-4, 0.01])
 PROJECTOR_DISTORTION = np.array([-0.04, 0.01, -2e-4, 1e-4, 0.0])
 
 
+def config_pinhole(config: ScannerConfig, source: str = "") -> ParametricCalibration:
+    """The config's own camera and projector as a distortion-free parametric calibration
+    (intrinsics and projector pose from the config, fringes along the projector's
+    columns): the exact geometry the simulator renders with."""
+    cam, proj = config.camera, config.projector
+    f, fp = cam.principal_distance_px, proj.principal_distance_px
+    kc = np.array([[f, 0, cam.principal_point_px[0]], [0, f, cam.principal_point_px[1]],
+                   [0, 0, 1.0]])
+    kp = np.array([[fp, 0, proj.principal_point_px[0]], [0, fp, proj.principal_point_px[1]],
+                   [0, 0, 1.0]])
+    rot = proj.rotation
+    return ParametricCalibration(Lens(kc, np.zeros(5), cam.width_px, cam.height_px),
+                                 Lens(kp, np.zeros(5), proj.width_px, proj.height_px), rot,
+                                 -rot @ np.asarray(proj.position_mm), "vertical",
+                                 source=source)
+
+
 def small_scanner(config: ScannerConfig, width: int = 400, height: int = 300,
                   focal_px: float = 1300.0, orientation: str = "vertical"
                   ) -> tuple[ParametricCalibration, ScannerConfig]:

@@ -19,7 +19,7 @@ from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
 from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO
-from tests.test_noise_law import _pinhole
+from tests.synth_parametric import config_pinhole
 
 SAMPLE = ROOT / "sample_data" / "gauge_blocks"
 BLOCK2 = (-14.0, -2.0, -21.0, -3.0)  # layout.toml block 2's region (X0, X1, Y0, Y1) [mm]
@@ -28,7 +28,7 @@ BLOCK2 = (-14.0, -2.0, -21.0, -3.0)  # layout.toml block 2's region (X0, X1, Y0,
 @pytest.fixture(scope="module")
 def scan_and_truth():
     config = load_config(ROOT / "sample_data" / "sample_scanner.toml", profile="sample")
-    cloud = annotate(decode(SAMPLE / "p000_r0"), _pinhole(config), config)
+    cloud = annotate(decode(SAMPLE / "p000_r0"), config_pinhole(config), config)
     t = np.load(SAMPLE / "truth" / "p000.npz")
     truth = np.stack([t["X"], t["Y"], t["Z"]], -1)[t["valid"].astype(bool)]
     return cloud, truth

@@ -26,7 +26,6 @@ from scipy.optimize import curve_fit
 from scipy.special import erf, j1
 
 from scanqa.calibration.build import build_table
-from scanqa.calibration.parametric import Lens, ParametricCalibration
 from scanqa.decoding.decoder import decode_images
 from scanqa.errors import InputError
 from scanqa.model import design
@@ -40,6 +39,7 @@ from scanqa.runs.filterbank import (
 )
 from scanqa.runs.flattening import flatten, pixel_noise, plan
 from tests.conftest import ROOT
+from tests.synth_parametric import config_pinhole
 from tests.synth_sweep import sweep
 
 W = 96
@@ -58,26 +58,12 @@ def _config() -> ScannerConfig:
                              characterised_by="simulated sweeps (docs/noise_model.rst)")
 
 
-def _pinhole(cfg: ScannerConfig) -> ParametricCalibration:
-    cam, proj = cfg.camera, cfg.projector
-    f, fp = cam.principal_distance_px, proj.principal_distance_px
-    kc = np.array([[f, 0, cam.principal_point_px[0]], [0, f, cam.principal_point_px[1]],
-                   [0, 0, 1.0]])
-    kp = np.array([[fp, 0, proj.principal_point_px[0]], [0, fp, proj.principal_point_px[1]],
-                   [0, 0, 1.0]])
-    rot = proj.rotation
-    return ParametricCalibration(Lens(kc, np.zeros(5), cam.width_px, cam.height_px),
-                                 Lens(kp, np.zeros(5), proj.width_px, proj.height_px), rot,
-                                 -rot @ np.asarray(proj.position_mm), "vertical",
-                                 source="config pinhole")
-
-
 @pytest.fixture(scope="module")
 def rig():
     cfg = _config()
     from scanqa.simulator import experiments
 
-    return cfg, _pinhole(cfg), experiments.pattern_description(cfg)
+    return cfg, config_pinhole(cfg, "config pinhole"), experiments.pattern_description(cfg)
 
 
 def _render(rig, scene, index: int, repeat: int):
@@ -367,7 +353,8 @@ def _focus_pair(index: int, size: int = 160):
     pos = experiments.Position(index, 0.0, 0.0, 0.0, scene.plane_scene(450.0))
     scans = [render.render_images(cfg, experiments.acquisition(cfg, pos, rep, "focus_kernel"),
                                   desc) for rep in (0, 1)]
-    return scans, [decode_images(desc, s) for s in scans], (cfg, _pinhole(cfg), desc)
+    cal = config_pinhole(cfg, "config pinhole")
+    return scans, [decode_images(desc, s) for s in scans], (cfg, cal, desc)
 
 
 # slow: two 160 x 160 px renders (~15 s on the shared cores): 96 px leaves 64 x 64 px

@@ -9,7 +9,6 @@ import json
 import numpy as np
 import pytest
 
-from scanqa.calibration.parametric import ParametricCalibration
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode
 from scanqa.decoding.imagenoise import phase_sigma_px
@@ -19,6 +18,7 @@ from scanqa.model.config import load_config
 from scanqa.runs import boardnoise
 from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
+from tests.synth_parametric import config_pinhole
 
 SAMPLE = ROOT / "sample_data"
 
@@ -55,7 +55,7 @@ def test_repeats_law_holds_on_held_out_rows_and_meets_the_sweep_model(repeats, t
     law = apply_fitted_model(config, path)
     assert law.model.has_noise_law
     assert law.model.characterised_by.startswith("scanqa characterize-repeats")
-    cal = _pinhole(config)
+    cal = config_pinhole(config)
     swept = annotate(repeats[0], cal, config).attributes
     lawful = annotate(repeats[0], cal, law)
     assert lawful.metadata["sigma_source"]["random"] == "law"
@@ -63,23 +63,6 @@ def test_repeats_law_holds_on_held_out_rows_and_meets_the_sweep_model(repeats, t
     ok = np.isfinite(swept["sigma_model_um"]) & np.isfinite(a["sigma_random_um"])
     ratio = np.median(a["sigma_random_um"][ok]) / np.median(swept["sigma_model_um"][ok])
     assert 0.85 <= ratio <= 1.15, ratio
-
-
-def _pinhole(config):
-    """A distortion-free parametric calibration of the config's camera and projector (its
-    pose from the config), enough to give s_T for the comparison."""
-    from scanqa.calibration.parametric import Lens
-
-    cam, proj = config.camera, config.projector
-    f, fp = cam.principal_distance_px, proj.principal_distance_px
-    kc = np.array([[f, 0, cam.principal_point_px[0]], [0, f, cam.principal_point_px[1]],
-                   [0, 0, 1.0]])
-    kp = np.array([[fp, 0, proj.principal_point_px[0]], [0, fp, proj.principal_point_px[1]],
-                   [0, 0, 1.0]])
-    rot = proj.rotation
-    return ParametricCalibration(Lens(kc, np.zeros(5), cam.width_px, cam.height_px),
-                                 Lens(kp, np.zeros(5), proj.width_px, proj.height_px),
-                                 rot, -rot @ np.asarray(proj.position_mm))
 
 
 def test_repeats_need_two_captures_and_the_cli_writes_the_summary(repeats, tmp_path, capsys):
