@@ -52,8 +52,8 @@ def _config() -> ScannerConfig:
     base = load_config(ROOT / "calib" / "paper_scanner.toml", profile="f11")
     cfg = ScannerConfig(replace(base.camera, width_px=W, height_px=W), base.projector,
                         base.fringes, base.model, base.simulator, base.name, base.source)
-    return cfg.replace_model(gamma=2.37, sigma_p_px=0.0261, sensor_sigma_p_px=0.0062,
-                             filter_floor="one", filter_form="sum",
+    return cfg.replace_model(gamma=2.30, sigma_p_px=0.0325, sensor_sigma_p_px=0.00469,
+                             filter_floor="smooth", filter_form="sum",
                              noise_reading="two_source",
                              characterised_by="simulated sweeps (docs/noise_model.rst)")
 
