@@ -61,7 +61,7 @@ BAD_VALUES = [
     ("width_px = 2448", "width_px = 24.5", r"camera\.width_px must be a whole number"),
     ("focal_mm = 100.0", 'focal_mm = "100"', r"camera\.focal_mm must be a number"),
     ('filter_floor = "none"', 'filter_floor = "half"',
-     r"model\.filter_floor must be one of 'none', 'one', got 'half'"),
+     r"model\.filter_floor must be one of 'none', 'one', 'smooth', got 'half'"),
     ("position_mm = [140.0, 0.0, 0.0]", "position_mm = [140.0, 0.0]",
      r"projector\.position_mm must be a list of 3 numbers"),
 ]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import inspect
+import math
 import re
 
 import numpy as np
@@ -68,8 +69,21 @@ def test_unknown_name_lists_every_name(call, what):
 
 def test_unknown_floor_in_a_refit_is_refused(paper_config):
     terms = optics.optical_terms(450.0, 460.0, paper_config)
-    with pytest.raises(MethodError, match=r"floor must be 'none' or 'one', got 'half'"):
+    with pytest.raises(MethodError, match=r"floor must be 'none', 'one' or 'smooth', got 'half'"):
         terms.s_o_with(3.0, "half", "power")
+
+
+def test_smooth_floor_by_hand():
+    """F^2 = 1 + N / gamma^2 with the sum form: noise constant over cells of gamma^2
+    px^2 keeps the variance share gamma^2 / (gamma^2 + N) under a kernel of
+    noise-equivalent area N. By hand: N = 5, gamma = 2 -> sqrt(1 + 5/4) = 1.5; in focus
+    (N -> 0) F -> 1 with no kink where "one" bends (N = gamma^2: sqrt(2), not 1)."""
+    assert readings.filter_factor(5.0, 1.0, 2.0, "smooth", "sum") == pytest.approx(1.5)
+    assert readings.filter_factor(4.0, 1.0, 2.0, "smooth", "sum") == pytest.approx(math.sqrt(2))
+    assert readings.filter_factor(4.0, 1.0, 2.0, "one", "sum") == pytest.approx(1.0)
+    assert readings.filter_factor(1e-12, 1.0, 2.0, "smooth", "sum") == pytest.approx(1.0)
+    f = readings.filter_factor(np.array([[1.0], [9.0]]), 1.0, np.sqrt(3.0), "smooth", "sum")
+    np.testing.assert_allclose(f, [[2 / np.sqrt(3)], [2.0]])  # broadcasting, by hand
 
 
 @pytest.mark.parametrize("reading, scene, sensor", [

@@ -30,8 +30,9 @@ import numpy as np
 from scanqa.errors import ConfigError
 from scanqa.io.tomlfile import read_toml
 
-#: The two readings of Eq. 17 (docs/model.rst, reading (i)).
-FILTER_FLOORS = ("none", "one")
+#: The readings of Eq. 17 (docs/model.rst, reading (i)) and its smooth form
+#: (docs/noise_model.rst).
+FILTER_FLOORS = ("none", "one", "smooth")
 #: How the camera blur's filter factor F is formed: "product" is Eq. 17 as printed,
 #: sqrt(b_c b_d) / gamma; "sum" adds the areas of pixel, defocus disc and Airy disc
 #: (docs/noise_model.rst).
@@ -254,7 +255,10 @@ class ModelConfig(_Section):
     """Parameters and readings of the defocus model (paper Sect. 3; docs/noise_model.rst).
 
     ``filter_floor``: "none" applies Eq. 17 as printed, F can be < 1 (filtering amplifies
-    noise); "one" clamps F >= 1 as the paper's bound 1 <= gamma <= sqrt(b_c b_d) implies.
+    noise); "one" clamps F >= 1 as the paper's bound 1 <= gamma <= sqrt(b_c b_d) implies;
+    "smooth" takes F^2 + 1, noise correlated over gamma^2 keeping the variance share
+    gamma^2 / (gamma^2 + N) under a kernel of noise-equivalent area N (the law by which
+    flattening's filter reduces it; docs/noise_model.rst).
     ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
     takes F^2 as the noise-equivalent area of pixel, defocus disc and Airy disc together,
     (1 + b_disc + b_d) / gamma^2. ``noise_reading``: "power" divides s_O by the

@@ -388,7 +388,7 @@ def _sensor_estimate(config: ScannerConfig, data: NoiseData) -> float:
 def _initial_spec(config: ScannerConfig, floor: str, form: str, reading: str
                   ) -> tuple[_Spec, dict]:
     free, held, why = ["sigma_p"], {"gamma": config.model.gamma, "sensor": 0.0}, {}
-    if floor == "one":
+    if floor != "none":  # a floor ("one", "smooth") makes F depend on gamma in shape
         free.append("gamma")
         held.pop("gamma")
     else:

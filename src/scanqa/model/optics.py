@@ -14,7 +14,11 @@ function in a mapping of name to function in :mod:`scanqa.model.readings` (the n
 chain of Eqs. 17 and 19), whose public names this module re-exports:
 
 * ``filter_floor``: "none" applies Eq. 17 as printed; "one" clamps F >= 1, the bound
-  1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17 (filtering never amplifies noise).
+  1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17 (filtering never amplifies noise);
+  "smooth" takes F^2 + 1 instead, the curve "one" bends at F = 1: with the sum form
+  1 / F^2 = gamma^2 / (gamma^2 + N), the variance share of noise correlated over
+  gamma^2 px^2 that a kernel of noise-equivalent area N keeps (a departure from the
+  paper; docs/noise_model.rst).
 * ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
   takes F^2 as the noise-equivalent area of the camera's whole kernel - pixel, defocus
   disc and Airy disc, whose second moments add under convolution - over the noise's own

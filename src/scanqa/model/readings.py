@@ -124,10 +124,31 @@ def clamped_at_one(f: np.ndarray) -> np.ndarray:
     return np.maximum(f, 1.0)
 
 
+def smooth_floor(f: np.ndarray) -> np.ndarray:
+    """F_gamma^2 = 1 + F^2: noise correlated over gamma^2 px^2, filtered by a kernel [-].
+
+    With the sum form, F^2 = N / gamma^2 for a kernel of noise-equivalent area N [px^2]
+    (:func:`camera_noise_area`), so 1 / F_gamma^2 = gamma^2 / (gamma^2 + N): the share of
+    the variance of noise constant over cells of area gamma^2 that survives averaging
+    over N, the Gaussian form in which second moments of convolved kernels add. It is
+    the smooth curve that ``"one"`` (max(1, F)) bends at F = 1, and the law by which
+    flattening's digital filter reduces the scene noise
+    (:func:`scanqa.runs.filterbank.reduction`), so model and filter are one law. A
+    departure from the paper, whose bound under Eq. 17 only says F >= 1. NaN stays NaN.
+
+    Examples
+    --------
+    >>> float(smooth_floor(np.array(0.0))), round(float(smooth_floor(np.array(1.0))), 4)
+    (1.0, 1.4142)
+    """
+    return np.sqrt(1.0 + np.square(f))
+
+
 #: How F_gamma is formed from the blur areas (Eq. 17): name -> f(b_c, b_d, gamma).
 FILTER_FORM_METHODS: dict[str, Callable] = {"product": product_filter, "sum": sum_filter}
 #: Whether F_gamma is clamped (Eq. 17's bound): name -> f(F).
-FILTER_FLOOR_METHODS: dict[str, Callable] = {"none": unclamped, "one": clamped_at_one}
+FILTER_FLOOR_METHODS: dict[str, Callable] = {"none": unclamped, "one": clamped_at_one,
+                                               "smooth": smooth_floor}
 
 
 def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none",
@@ -143,9 +164,9 @@ def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none",
         Diffraction blur area [px^2].
     gamma : float
         Spatial correlation of the noise, >= 1 [-].
-    floor : {"none", "one"}
-        "none": Eq. 17 as printed (F may be < 1); "one": F clamped to >= 1
-        (:data:`FILTER_FLOOR_METHODS`).
+    floor : {"none", "one", "smooth"}
+        "none": Eq. 17 as printed (F may be < 1); "one": F clamped to >= 1; "smooth":
+        F^2 + 1, the smooth curve "one" bends (:data:`FILTER_FLOOR_METHODS`).
     form : {"product", "sum"}
         "product": F = sqrt(b_c b_d) / gamma, Eq. 17 as printed; "sum":
         F = sqrt(b_c) / gamma with b_c the noise-equivalent area

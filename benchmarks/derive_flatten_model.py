@@ -1,0 +1,152 @@
+"""How the flatten acceptance's noise model was chosen (simulated; docs/flattening.rst,
+"The model the filter is solved from").
+
+Everything here runs on its own noise stream (``--stream``, default "derive37"), never
+on the streams the acceptance is checked on (``flat_heldout`` 0-4 and 50-58,
+``flat_s36_heldout`` 60-68, ``flat_s37_fresh`` 70-78). Two measurements a user can make
+on their own scanner with a flat:
+
+1. *a sweep*: the flat at 49 depths over 432-468 mm (positions 100-124 and 200-223), two
+   scans each; the phase noise is the std of the two x_p maps' difference over sqrt 2,
+   the decoder's sensor estimate beside it. The two-source sum-form model is fitted with
+   the floor of Eq. 17 ("one") and with its smooth form ("smooth"), every parameter free
+   (:func:`scanqa.model.noisefit.fit_variant`), then with gamma held on a grid and
+   sigma_p, sigma_s fitted (the sweep alone pins gamma only loosely);
+2. *known discs*: two scans of the flat at 445, 450 and 455 mm (160 px, positions
+   400-402), their x_p difference filtered by discs of 4, 7 and 10 px at every pixel,
+   against :func:`scanqa.runs.filterbank.reduction` of the model's two parts for each
+   gamma of the grid: the filter's gain is what flattening relies on.
+
+The gamma that minimises the two RMS errors added in quadrature is the one the
+flatten benchmarks and tests use.
+
+Usage::
+
+    .venv/bin/python benchmarks/derive_flatten_model.py [--stream derive37]
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import least_squares
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+
+#: Gammas tried with sigma_p and sigma_s refitted [-].
+GAMMAS = (2.0, 2.1, 2.2, 2.3, 2.4)
+#: Depths of the known-disc check [mm], their positions, and the discs [px].
+DISC_DEPTHS = ((445.0, 401), (450.0, 400), (455.0, 402))
+DISCS_PX = (4.0, 7.0, 10.0)
+
+
+def _pair(cfg, desc, z: float, index: int, stream: str):
+    from scanqa.decoding.decoder import decode_images
+    from scanqa.simulator import experiments, render, scene
+
+    pos = experiments.Position(index, 0.0, 0.0, 0.0, scene.plane_scene(z))
+    scans = [render.render_images(cfg, experiments.acquisition(cfg, pos, rep, stream), desc)
+             for rep in (0, 1)]
+    return scans, [decode_images(desc, s) for s in scans]
+
+
+def sweep(cfg, stream: str):
+    """NoiseData of the flat at 49 depths (two scans each)."""
+    from scanqa.model import optics
+    from scanqa.model.noisefit import NoiseData
+    from scanqa.simulator import experiments
+
+    desc = experiments.pattern_description(cfg)
+    depths = [(z, 100 + i) for i, z in enumerate(np.arange(432.0, 468.1, 1.5))] + \
+        [(z, 200 + i) for i, z in enumerate(np.arange(432.75, 467.5, 1.5))]
+    rows = []
+    for z, index in sorted(depths):
+        _, maps = _pair(cfg, desc, float(z), index, stream)
+        ok = maps[0].valid & maps[1].valid
+        d = (maps[0].xp - maps[1].xp)[ok]
+        q = np.array([0.0, 0.0, float(z)])
+        rows.append((float(z), float(optics.projector_depth(q, cfg)),
+                     float(np.std(d)) / math.sqrt(2),
+                     float(np.sqrt(np.mean(np.square(maps[0].sigma_xp[ok]))))))
+    z_c, z_p, std, sensor = map(np.array, zip(*rows, strict=True))
+    return NoiseData(z_c, z_p, std, sensor, cfg.fringes.working_period_px)
+
+
+def fit_held_gamma(cfg, data, gamma: float) -> tuple[float, float, np.ndarray]:
+    """sigma_p, sigma_s [px] and model / measured with gamma held (log least squares)."""
+    from scanqa.model.noisefit import model_std
+
+    def ratio(x):
+        return model_std(cfg, data, "smooth", "sum", "two_source", math.exp(x[0]), gamma,
+                         math.exp(x[1])) / data.std_px
+
+    x = least_squares(lambda x: np.log(ratio(x)), np.log([0.03, 0.005])).x
+    return math.exp(x[0]), math.exp(x[1]), ratio(x)
+
+
+def disc_errors(cfg, pairs, bank) -> np.ndarray:
+    """Measured / predicted std after each known disc, per depth and disc [-]."""
+    from bench_flatten import _pinhole
+
+    from scanqa.runs.filterbank import filter_phase, reduction
+    from scanqa.runs.flattening import pixel_noise
+
+    out = []
+    inner = (slice(16, -16),) * 2
+    for (scans, maps), desc in pairs:
+        before = np.nanstd((maps[0].xp - maps[1].xp)[inner])
+        noise = pixel_noise(maps[0], _pinhole(cfg), cfg)
+        for d in DISCS_PX:
+            t = float(bank.diameters_px.index(d))
+            level = np.full(maps[0].xp.shape, t)
+            xps = [filter_phase(s[-1], desc.phase_sets[-1].shifts_rad, m, level, bank)[0]
+                   for s, m in zip(scans, maps, strict=True)]
+            measured = np.nanstd((xps[0] - xps[1])[inner]) / before
+            g_scene, g_sensor = reduction(noise.noise_area_px2, noise.period_cam_px,
+                                          np.full(noise.z_mm.shape, t), cfg, bank)
+            predicted = np.nanmedian(np.hypot(noise.scene_mm * g_scene,
+                                              noise.sensor_mm * g_sensor)) \
+                / np.nanmedian(noise.sigma_mm)
+            out.append(measured / predicted)
+    return np.array(out)
+
+
+def main() -> None:
+    from bench_flatten import _config
+
+    from scanqa.model.noisefit import fit_variant
+    from scanqa.runs.filterbank import default_bank
+    from scanqa.simulator import experiments
+
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--stream", default="derive37")
+    args = parser.parse_args()
+    cfg = _config(96, 96)
+    data = sweep(cfg, args.stream)
+    print(f"simulated, stream {args.stream!r}: sweep of {data.n} depths")
+    for floor in ("one", "smooth"):
+        fit = fit_variant(cfg, data, floor, "sum", "two_source")
+        print(f"  {fit.label}: sigma_p {fit.sigma_p_px:.4f} px, gamma {fit.gamma:.2f}, "
+              f"sigma_s {fit.sensor_sigma_p_px:.5f} px, RMS {100 * fit.rms_relative:.1f} %, "
+              f"held-out {100 * fit.cv_rms_relative:.1f} %; "
+              + ", ".join(f"{p.name} [{p.low:.4g}, {p.high:.4g}]" for p in fit.parameters))
+    big = _config(160, 160)
+    desc = experiments.pattern_description(big)
+    pairs = [(_pair(big, desc, z, i, args.stream), desc) for z, i in DISC_DEPTHS]
+    print("gamma  sigma_p [px]  sigma_s [px]  sweep RMS [%]  disc RMS [%]  combined [%]")
+    for gamma in GAMMAS:
+        sp, ss, ratio = fit_held_gamma(cfg, data, gamma)
+        model = dict(gamma=gamma, sigma_p_px=sp, sensor_sigma_p_px=ss, filter_floor="smooth")
+        discs = disc_errors(big.replace_model(**model), pairs, default_bank())
+        a, b = np.sqrt(np.mean((ratio - 1) ** 2)), np.sqrt(np.mean((discs - 1) ** 2))
+        print(f"{gamma:5.2f} {sp:13.4f} {ss:13.5f} {100 * a:14.1f} {100 * b:13.1f} "
+              f"{100 * math.hypot(a, b):13.1f}")
+
+
+if __name__ == "__main__":
+    main()
