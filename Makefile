@@ -8,6 +8,9 @@ BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 DEMO_STAMP := $(VENV)/.installed-demo
 WHEEL_VENV := build/wheel-venv
+# make test runs the suite on one process per core (at most 4: each may hold a simulated
+# scan in memory); whole test files stay on one worker, so their fixtures are built once.
+JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
 
 .PHONY: demo test docs bench lint fuzz mutate setup syslibs syslibs-test clean wheel-check
 
@@ -38,9 +41,8 @@ demo: syslibs $(DEMO_STAMP)
 # SCANQA_REQUIRE_CLIENTS=1: the round-trip tests through CloudCompare fail, not skip,
 # when the client is missing (make test installs it).
 test: syslibs-test $(STAMP)
-	@SCANQA_REQUIRE_CLIENTS=1 $(BIN)/python -m pytest -q $(PYTEST_ARGS)
-	@$(MAKE) --no-print-directory docs
-	@$(MAKE) --no-print-directory wheel-check
+	@SCANQA_REQUIRE_CLIENTS=1 $(BIN)/python -m pytest -q -n $(JOBS) --dist loadfile $(PYTEST_ARGS)
+	@$(MAKE) --no-print-directory -j2 docs wheel-check
 
 # The package as a lab installs it: sdist and wheel built, the wheel installed without
 # extras into a fresh venv, and the demo run from it (on the repository's sample_data).

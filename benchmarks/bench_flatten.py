@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import sys
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -40,19 +41,11 @@ def _config(rows: int, cols: int):
 
 
 def _pinhole(cfg):
-    from scanqa.calibration.parametric import Lens, ParametricCalibration
+    """The config's exact pinhole calibration (the geometry the simulator renders with)."""
+    sys.path.insert(0, str(ROOT))
+    from tests.synth_parametric import config_pinhole
 
-    cam, proj = cfg.camera, cfg.projector
-    f, fp = cam.principal_distance_px, proj.principal_distance_px
-    kc = np.array([[f, 0, cam.principal_point_px[0]], [0, f, cam.principal_point_px[1]],
-                   [0, 0, 1.0]])
-    kp = np.array([[fp, 0, proj.principal_point_px[0]], [0, fp, proj.principal_point_px[1]],
-                   [0, 0, 1.0]])
-    rot = proj.rotation
-    return ParametricCalibration(Lens(kc, np.zeros(5), cam.width_px, cam.height_px),
-                                 Lens(kp, np.zeros(5), proj.width_px, proj.height_px), rot,
-                                 -rot @ np.asarray(proj.position_mm), "vertical")
-
+    return config_pinhole(cfg)
 
 def _tilted_xp(cfg) -> np.ndarray:
     """x_p of the flat Z = 450 + 0.25 X (about 435-465 mm over the field) [px]."""
