@@ -243,7 +243,7 @@ def _model() -> list[tuple]:
             ("sigma_p_px", d["sigma_p_px"], "phase noise at focus before the optical scale "
              f"[projector px] {fitted}"),
             ("filter_floor", "none", 'reading of Eq. 17: "none" as printed, "one" clamps '
-             "F >= 1"),
+             'F >= 1, "smooth" takes sqrt(1 + F^2)'),
             ("noise_reading", "power", 'how attenuation enters s_O: "power" (1/A), '
              '"amplitude" (1/sqrt(A)) or "mixed"'),
             ("characterised_by", "", "where sigma_p was measured; empty = ASSUMED, so "
