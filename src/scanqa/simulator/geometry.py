@@ -140,52 +140,52 @@ def strips(tiles: list[tuple[int, int, int, int]]) -> list[list[int]]:
     return list(rows.values())
 
 
-@dataclass(frozen=True)
 class StripGeometry:
-    """The supersamples and their geometry of a whole row of tiles with its halo.
+    """The geometry of the supersamples of a whole row of tiles with its halo.
 
     Every sample is cast and lit on its own (the same numbers whatever the batch), so a
-    tile's part of a strip is exactly the geometry of the tile with its halo; computed
-    once per strip, the horizontal halos are cast once instead of by both neighbours.
+    tile's part of a strip is exactly the geometry of the tile with its halo; cast once
+    per strip, the horizontal halos are cast once instead of by both neighbours. One
+    set of buffers serves every strip of a window (allocated by the first, the tallest):
+    fresh memory is expensive to fault in, and a strip of a 5 MP scan holds ~0.45 GB.
     """
 
-    uu: np.ndarray
-    vv: np.ndarray
-    points: Points
-    halo: int
+    def __init__(self) -> None:
+        self._buffers: dict[str, np.ndarray] = {}
+        self._rows = 0
 
-    @classmethod
-    def of(cls, config: ScannerConfig, acq: Acquisition, win: Window, tile: tuple,
-           halo: int, pool: ThreadPoolExecutor, threads: int) -> StripGeometry:
-        """The strip of ``tile``'s rows over the whole window width, with the halo
-        [px] on every side, cast in column blocks on ``pool`` (``threads``: open3d's
-        threads per cast)."""
+    def cast(self, config: ScannerConfig, acq: Acquisition, win: Window, tile: tuple,
+             halo: int, pool: ThreadPoolExecutor, threads: int) -> None:
+        """Cast the strip of ``tile``'s rows over the whole window width, with the halo
+        [px] on every side, in column blocks of about a tile on ``pool`` (``threads``:
+        open3d's threads per cast); the tiles of the previous strip must be done."""
         uu, vv = supersample_grid(config, win, (tile[0], tile[1], 0, win.width), halo)
         shape = uu.shape
-        fields = {name: np.empty(shape + ((3,) if name == "world" else ()),
-                                 bool if name in ("hit", "lit") else float)
-                  for name in Points.__dataclass_fields__}
-        edges = np.linspace(0, shape[1], 2 * (os.cpu_count() or 1) + 1).astype(int)
+        if not self._buffers or self._buffers["hit"].shape[0] < shape[0]:
+            self._buffers = {name: np.empty(shape + ((3,) if name == "world" else ()),
+                                            bool if name in ("hit", "lit") else float)
+                             for name in Points.__dataclass_fields__}
+        self._rows = shape[0]
+        span = (tile[1] - tile[0] + 2 * halo) * config.simulator.supersampling
+        blocks = max(2 * (os.cpu_count() or 1), round(shape[1] / max(span, 1)))
+        edges = np.linspace(0, shape[1], blocks + 1).astype(int)
 
         def block(j: int) -> None:
             cols = slice(edges[j], edges[j + 1])
             pts = sample_geometry(config, acq, np.ascontiguousarray(uu[:, cols]),
                                   np.ascontiguousarray(vv[:, cols]), threads)
-            for name, values in fields.items():
-                values[:, cols] = getattr(pts, name)
+            for name, values in self._buffers.items():
+                values[:self._rows, cols] = getattr(pts, name)
 
-        list(pool.map(block, range(len(edges) - 1)))
-        return cls(uu, vv, Points(**fields), halo)
+        list(pool.map(block, range(blocks)))
 
-    def tile(self, config: ScannerConfig, tile: tuple
+    def tile(self, config: ScannerConfig, win: Window, tile: tuple, halo: int
              ) -> tuple[np.ndarray, np.ndarray, Points]:
-        """The samples (uu, vv) and geometry of ``tile`` with its halo, contiguous."""
+        """The samples (uu, vv) [px] and the geometry of ``tile`` (of the strip last
+        cast) with its halo [px], contiguous copies."""
         s = config.simulator.supersampling
-        cols = slice(tile[2] * s, (tile[3] + 2 * self.halo) * s)
-
-        def part(a: np.ndarray) -> np.ndarray:
-            return np.ascontiguousarray(a[:, cols])
-
-        pts = Points(**{name: part(getattr(self.points, name))
-                        for name in Points.__dataclass_fields__})
-        return part(self.uu), part(self.vv), pts
+        cols = slice(tile[2] * s, (tile[3] + 2 * halo) * s)
+        pts = Points(**{name: np.ascontiguousarray(values[:self._rows, cols])
+                        for name, values in self._buffers.items()})
+        uu, vv = supersample_grid(config, win, tile, halo)
+        return uu, vv, pts

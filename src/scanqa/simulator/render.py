@@ -259,14 +259,15 @@ def _render_tiles(config: ScannerConfig, acq: Acquisition, desc: PatternDescript
     workers = min(os.cpu_count() or 1, len(tiles))
     threads = 1 if workers > 1 else 0  # open3d's threads per cast
     lit_any, done = False, 0
+    geo = StripGeometry()
+
+    def work(n: int) -> bool:
+        return _render_tile(config, acq, desc, win, tiles[n], halo, table, images, n,
+                            threads, geo)
+
     with ThreadPoolExecutor(max_workers=workers) as pool:
         for strip in strips(tiles):
-            geo = StripGeometry.of(config, acq, win, tiles[strip[0]], halo, pool, threads)
-
-            def work(n: int, geo: StripGeometry = geo) -> bool:
-                return _render_tile(config, acq, desc, win, tiles[n], halo, table, images,
-                                    n, threads, geo)
-
+            geo.cast(config, acq, win, tiles[strip[0]], halo, pool, threads)
             for lit in pool.map(work, strip):
                 lit_any |= lit
                 done += 1
@@ -288,13 +289,13 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
                  strip: StripGeometry | None = None) -> bool:
     """Render every pattern of one tile into ``images`` (``desc`` None: the marker
     frame); True if any sample is lit. ``strip``: the geometry of the tile's row of
-    tiles, else the tile's own is cast."""
+    tiles, cast, else the tile's own is cast."""
     sim, s = config.simulator, config.simulator.supersampling
     if strip is None:
         uu, vv = supersample_grid(config, win, tile, halo)
         pts = sample_geometry(config, acq, uu, vv, threads)
     else:
-        uu, vv, pts = strip.tile(config, tile)
+        uu, vv, pts = strip.tile(config, win, tile, halo)
     if not pts.hit.any():
         return False
     airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
