@@ -37,7 +37,7 @@ from scanqa.simulator.experiments import run_experiment
 #: Rows of the docs' table: label and the (file, function) whose cumulative time it sums.
 PARTS = (
     ("render: everything per tile", (("render.py", "_render_tile"),)),
-    ("geometry: camera and shadow rays, lighting", (("geometry.py", "sample_geometry"),)),
+    ("geometry: camera and shadow rays, lighting", (("render.py", "_geometry"),)),
     ("- open3d's cast_rays", (("~", "cast_rays"),)),
     ("blur plan (split into items, kernels)", (("blur.py", "blur_plan"),)),
     ("blur of the frames (FFTs, crops, fold)", (("blur.py", "blur"),)),

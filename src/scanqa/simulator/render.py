@@ -19,9 +19,7 @@ Per pattern, in this order (docs/simulator.rst):
    noise in electrons, Gaussian read noise, full-well saturation, quantisation.
 
 The window is processed in tiles of ``TILE_PX`` pixels with a halo wide enough for the
-largest blur, so memory is bounded, on a pool of threads (one per core); the geometry of
-step 1 is cast once per row of tiles (:class:`~scanqa.simulator.geometry.StripGeometry`:
-the horizontal halos once, not by both neighbours) and each tile takes its part; every random
+largest blur, so memory is bounded, on a pool of threads (one per core); every random
 stream is keyed by (seed, stream key, pattern, tile), so the output does not depend on
 anything but the inputs (nor on the order in which the threads finish). The radiance and
 the blur are float32 (rounding ~1e-3 e- against a shot noise of ~140 e-); the geometry
@@ -44,22 +42,29 @@ from scanqa.errors import InputError
 from scanqa.model.config import ScannerConfig
 from scanqa.simulator import devices
 from scanqa.simulator.blur import BlurPlan, blur, blur_plan
-from scanqa.simulator.devices import Window
-from scanqa.simulator.geometry import (
-    Acquisition,
-    Points,
-    StripGeometry,
-    sample_geometry,
-    strips,
-    supersample_grid,
-)
+from scanqa.simulator.devices import Pose, Window
 from scanqa.simulator.optics_kernels import DiscAverage, airy_kernel, disc_average
+from scanqa.simulator.scene import Scene
 
 #: Tile size of the chunked renderer [camera px] (256: the halo of a 5 MP scan, 22 px,
 #: adds 37 % to a tile's samples instead of 80 % at 128).
 TILE_PX = 256
 #: Largest halo around a tile; blur beyond it is clipped [camera px].
 MAX_HALO_PX = 64
+
+
+@dataclass(frozen=True)
+class Acquisition:
+    """Everything one scan needs: scene, device poses and the stream key of its noise.
+
+    ``key`` is a tuple of small non-negative integers (e.g. position and repeat
+    indices) that, with the config's seed, selects independent noise.
+    """
+
+    scene: Scene
+    camera: Pose
+    projector: Pose
+    key: tuple[int, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -85,6 +90,60 @@ class Truth:
                 "yp_true": self.yp, "zp": self.zp, "valid": self.valid}
 
 
+# ------------------------------------------------------------------ geometry of points
+
+@dataclass(frozen=True)
+class _Points:
+    """Geometry of rays of one grid: camera Z, projector x_p and blur, lighting."""
+
+    hit: np.ndarray
+    world: np.ndarray
+    z_c: np.ndarray
+    x_p: np.ndarray
+    y_p: np.ndarray
+    z_p: np.ndarray
+    lit: np.ndarray
+    shade: np.ndarray
+
+
+def _geometry(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndarray,
+              threads: int = 0) -> _Points:
+    """Cast camera rays through sensor coordinates (u, v) and light the hits (``threads``:
+    open3d's threads per cast, 1 inside a pool that runs one cast per core)."""
+    origins, dirs = devices.camera_rays(config, acq.camera, u, v)
+    hits = acq.scene.cast(origins, dirs, threads=threads)
+    world = origins + hits.t[..., None] * dirs
+    z_c = (world - acq.camera.centre) @ acq.camera.rotation[2]  # device Z only
+    x_p, y_p, z_p = devices.project_to_projector(config, acq.projector, world)
+    lit, shade = _lighting(config, acq, world, hits.normals, hits.hit, x_p, y_p, z_p,
+                           threads)
+    return _Points(hits.hit, world, z_c, x_p, y_p, z_p, lit, shade)
+
+
+def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
+              normals: np.ndarray, hit: np.ndarray, x_p: np.ndarray, y_p: np.ndarray,
+              z_p: np.ndarray, threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
+    """Lit mask (on the panel, facing, unshadowed) and cos of the incidence angle."""
+    proj = config.projector
+    to_proj = acq.projector.centre - world
+    dist = np.linalg.norm(to_proj, axis=-1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        towards_cam = np.einsum("...i,...i->...", normals, acq.camera.centre - world)
+        shade = np.einsum("...i,...i->...", normals, to_proj) / dist
+        shade = np.where(towards_cam < 0, -shade, shade)  # two-sided (the normal flipped)
+        on_panel = ((z_p > 0) & (x_p >= -0.5) & (x_p <= proj.width_px - 0.5)
+                    & (y_p >= -0.5) & (y_p <= proj.height_px - 0.5))
+    lit = hit & on_panel & (shade > 0)
+    if lit.any():
+        back = acq.scene.cast(acq.projector.centre, world[lit] - acq.projector.centre,
+                              normals=False,
+                              threads=threads)
+        reach = np.zeros_like(lit)
+        reach[lit] = np.nan_to_num(back.t, nan=np.inf) >= 1.0 - 1e-7
+        lit &= reach
+    return lit, np.where(lit, shade, 0.0)
+
+
 # --------------------------------------------------------------------------- truth
 
 #: Pixels per band of :func:`truth_for` (bounds its memory: ~300 B per pixel) [-].
@@ -106,7 +165,7 @@ def truth_for(config: ScannerConfig, acq: Acquisition) -> Truth:
 
     def band(r0: int, r1: int) -> None:
         v, u = np.mgrid[win.v0 + r0:win.v0 + r1, win.u0:win.u0 + win.width]
-        pts = sample_geometry(config, acq, u.astype(float), v.astype(float), threads)
+        pts = _geometry(config, acq, u.astype(float), v.astype(float), threads)
         cam = acq.camera.to_device(pts.world)
         for name, values, keep in (("x", cam[..., 0], pts.hit), ("y", cam[..., 1], pts.hit),
                                    ("z", cam[..., 2], pts.hit), ("xp", pts.x_p, pts.lit),
@@ -149,7 +208,7 @@ def _stream_key(config: ScannerConfig, key: Sequence[int]) -> int:
     return int(seq.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
 
 
-def _noise_cells(config: ScannerConfig, pts: Points, uu: np.ndarray, vv: np.ndarray
+def _noise_cells(config: ScannerConfig, pts: _Points, uu: np.ndarray, vv: np.ndarray
                  ) -> tuple[np.ndarray, np.ndarray, float]:
     """Integer cell indices of every sample and the noise scale per cell [-].
 
@@ -209,6 +268,18 @@ def _tiles(win: Window) -> list[tuple[int, int, int, int]]:
             for r in range(0, win.height, TILE_PX) for c in range(0, win.width, TILE_PX)]
 
 
+def _supersample_grid(config: ScannerConfig, win: Window, tile: tuple, halo: int
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Sensor coordinates of the supersamples of a tile with its halo [px]."""
+    s = config.simulator.supersampling
+    r0, r1, c0, c1 = tile
+    sub = (np.arange(s) + 0.5) / s - 0.5
+    rows = (np.arange(win.v0 + r0 - halo, win.v0 + r1 + halo)[:, None] + sub).ravel()
+    cols = (np.arange(win.u0 + c0 - halo, win.u0 + c1 + halo)[:, None] + sub).ravel()
+    vv, uu = np.meshgrid(rows, cols, indexing="ij")
+    return uu, vv
+
+
 def render_images(config: ScannerConfig, acq: Acquisition, desc: PatternDescription,
            progress: Callable[[int, int], None] | None = None) -> list[np.ndarray]:
     """Render the camera images of every set of a pattern description.
@@ -258,21 +329,17 @@ def _render_tiles(config: ScannerConfig, acq: Acquisition, desc: PatternDescript
     table = disc_average(config.simulator.projector_samples)
     workers = min(os.cpu_count() or 1, len(tiles))
     threads = 1 if workers > 1 else 0  # open3d's threads per cast
-    lit_any, done = False, 0
-    geo = StripGeometry()
 
     def work(n: int) -> bool:
         return _render_tile(config, acq, desc, win, tiles[n], halo, table, images, n,
-                            threads, geo)
+                            threads)
 
+    lit_any = False
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for strip in strips(tiles):
-            geo.cast(config, acq, win, tiles[strip[0]], halo, pool, threads)
-            for lit in pool.map(work, strip):
-                lit_any |= lit
-                done += 1
-                if progress:
-                    progress(done, len(tiles))
+        for n, lit in enumerate(pool.map(work, range(len(tiles)))):
+            lit_any |= lit
+            if progress:
+                progress(n + 1, len(tiles))
     return lit_any
 
 
@@ -285,17 +352,12 @@ def _check_desc(desc: PatternDescription) -> None:
 
 def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescription | None,
                  win: Window, tile: tuple, halo: int, table: DiscAverage,
-                 images: list[np.ndarray], tile_index: int, threads: int = 0,
-                 strip: StripGeometry | None = None) -> bool:
+                 images: list[np.ndarray], tile_index: int, threads: int = 0) -> bool:
     """Render every pattern of one tile into ``images`` (``desc`` None: the marker
-    frame); True if any sample is lit. ``strip``: the geometry of the tile's row of
-    tiles, cast, else the tile's own is cast."""
+    frame); True if any sample is lit."""
     sim, s = config.simulator, config.simulator.supersampling
-    if strip is None:
-        uu, vv = supersample_grid(config, win, tile, halo)
-        pts = sample_geometry(config, acq, uu, vv, threads)
-    else:
-        uu, vv, pts = strip.tile(config, win, tile, halo)
+    uu, vv = _supersample_grid(config, win, tile, halo)
+    pts = _geometry(config, acq, uu, vv, threads)
     if not pts.hit.any():
         return False
     airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
@@ -346,7 +408,7 @@ class _CellNoise:
     scale: np.ndarray | None
 
     @classmethod
-    def of(cls, config: ScannerConfig, pts: Points, uu: np.ndarray, vv: np.ndarray,
+    def of(cls, config: ScannerConfig, pts: _Points, uu: np.ndarray, vv: np.ndarray,
            mean_level: np.ndarray) -> _CellNoise:
         """The cells of a tile's samples and the noise std at each [e-]."""
         rel = config.simulator.scene_noise_rel
@@ -404,7 +466,7 @@ class _Frame:
         return _sensor(self.config, pixels, rng)
 
 
-def _albedo(config: ScannerConfig, acq: Acquisition, pts: Points, marker: bool
+def _albedo(config: ScannerConfig, acq: Acquisition, pts: _Points, marker: bool
             ) -> np.ndarray | None:
     """Reflectance of the printed target at each sample, None for a plain scene."""
     texture = acq.scene.texture
@@ -429,7 +491,7 @@ def render_marker_frame(config: ScannerConfig, acq: Acquisition) -> np.ndarray:
     return images[0][0]
 
 
-def _phasor(pts: Points, d_panel: np.ndarray, period: float, table: DiscAverage,
+def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage,
             harmonic: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """Disc-averaged complex fringe M(pi d h / P) exp(i h 2 pi x_p / P) of lit samples,
     as its real and imaginary parts, float32 [-].
@@ -476,7 +538,7 @@ def response_harmonics(gamma: float, harmonics: int = GAMMA_HARMONICS) -> np.nda
     return coef
 
 
-def _fringe_terms(pts: Points, d_panel: np.ndarray, period: float, table: DiscAverage,
+def _fringe_terms(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage,
                   gamma: float, ambient: np.ndarray, lit_level: np.ndarray
                   ) -> tuple[np.ndarray, list]:
     """What a phase set's panel pattern puts on the scene, blurred by the projector.
