@@ -223,8 +223,9 @@ def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = 
     The same bytes as :func:`write_ply` of the records' views, without the second copy:
     a producer that fills the records here writes the file once, into the page cache,
     instead of into anonymous memory that is then copied into it. The file's space is
-    reserved before the mapping (``posix_fallocate``), so a full disk is an
-    :class:`~scanqa.errors.OutputError` here, not a fault while the records are filled.
+    reserved before the mapping (``posix_fallocate``, where the OS has it), so a full
+    disk is an :class:`~scanqa.errors.OutputError` here, not a fault while the records
+    are filled.
     """
     names = list(names)
     for name in names:
@@ -235,8 +236,9 @@ def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = 
         with open(tmp, "wb+") as fh:
             fh.write(header)
             fh.flush()
-            if n:
+            if n and hasattr(os, "posix_fallocate"):  # not on macOS: sized by the map
                 os.posix_fallocate(fh.fileno(), len(header), n * dtype.itemsize)
+            if n:
                 records = np.memmap(fh, dtype=dtype, mode="r+", offset=len(header),
                                     shape=(n,))
             else:
