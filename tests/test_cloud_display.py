@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from scanqa.decoding.phasemap import PhaseMap
+from scanqa.errors import InputError
 from scanqa.io.las import grey_levels, top_level
 from scanqa.io.ply import DISPLAY_COMMENT, read_ply, write_ply
 from scanqa.runs.annotation import annotate
@@ -28,16 +29,20 @@ def _expected_grey(offset: np.ndarray) -> np.ndarray:
 
 
 @pytest.fixture(scope="module")
-def cloud(cfg, table):  # noqa: F811 - the fixture of test_annotate
+def scan(cfg):  # noqa: F811 - the fixture of test_annotate
     """A scan whose offset varies from 20 to 1200 DN across the image (a ramp with a
     pattern, so that the grey levels take ~250 values)."""
     xp, _ = plane_truth(cfg, 447.0)
     v, u = np.mgrid[0:H, 0:W]
     offset = 20.0 + 1180.0 * (u + W * v) / (W * H - 1) + 15.0 * np.sin(u)
-    pm = PhaseMap(xp=xp, modulation=np.full(xp.shape, 400.0), offset=offset,
-                  mask=np.zeros(xp.shape, np.uint8), sigma_xp=np.full(xp.shape, 0.02),
-                  period_px=5.0, projector_width_px=1280)
-    return annotate(pm, table, cfg)
+    return PhaseMap(xp=xp, modulation=np.full(xp.shape, 400.0), offset=offset,
+                    mask=np.zeros(xp.shape, np.uint8), sigma_xp=np.full(xp.shape, 0.02),
+                    period_px=5.0, projector_width_px=1280)
+
+
+@pytest.fixture(scope="module")
+def cloud(scan, cfg, table):  # noqa: F811 - the fixture of test_annotate
+    return annotate(scan, table, cfg)
 
 
 def test_grey_levels_match_the_percentile_rule(cloud):
@@ -116,3 +121,48 @@ def test_las_and_ply_agree_on_intensity(cloud, tmp_path):
                                   pcd.point["intensity"].numpy().ravel())
     np.testing.assert_array_equal(np.asarray(las.red) >> 8,
                                   pcd.point["colors"].numpy()[:, 0])
+
+
+def test_annotating_into_the_file_writes_the_same_bytes(scan, cloud, cfg, table,  # noqa: F811
+                                                        tmp_path):
+    """annotate(out=...) fills the records inside the output file's mapping (issue 31):
+    byte for byte the file of the chunk packer, which packs separate copies of the arrays
+    and takes its grey levels from grey_levels, an independent path; the returned cloud
+    maps the published file read-only."""
+    direct = annotate(scan, table, cfg, out=tmp_path / "direct.ply")
+    packed = write_ply(tmp_path / "packed.ply", np.array(cloud.xyz),
+                       {k: np.array(v) for k, v in cloud.attributes.items()}, cloud.metadata)
+    assert (tmp_path / "direct.ply").read_bytes() == packed.read_bytes()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["direct.ply", "packed.ply"]
+    np.testing.assert_array_equal(direct.xyz, cloud.xyz)
+    assert not direct.attributes["sigma_total_um"].flags.writeable
+    # written again (the chunk packer, as the records are read-only): the same bytes
+    again = direct.write(tmp_path / "again.ply")
+    assert again.read_bytes() == packed.read_bytes()
+
+
+def test_display_of_the_file_mapping_blackens_negative_offsets(scan, cfg, table,  # noqa: F811
+                                                               tmp_path):
+    offset = scan.offset.copy()  # (a decoded pixel's offset is finite: no NaN to test)
+    offset[1::5, ::4] = -40.0
+    pm = PhaseMap(xp=scan.xp, modulation=scan.modulation, offset=offset, mask=scan.mask,
+                  sigma_xp=scan.sigma_xp, period_px=5.0, projector_width_px=1280)
+    cloud = annotate(pm, table, cfg, out=tmp_path / "c.ply")
+    o3d = pytest.importorskip("open3d")
+    pcd = o3d.t.io.read_point_cloud(str(tmp_path / "c.ply"))
+    grey = _expected_grey(cloud.attributes["offset_dn"])
+    assert (grey == 0).sum() > len(cloud) // 20
+    np.testing.assert_array_equal(pcd.point["intensity"].numpy().ravel(), grey)
+    np.testing.assert_array_equal(pcd.point["colors"].numpy()[:, 0], grey // 256)
+
+
+def test_annotating_into_a_file_refuses_other_formats_and_empty_clouds(scan, cfg, table,  # noqa: F811
+                                                                        tmp_path):
+    with pytest.raises(InputError, match=r"give a \.ply name"):
+        annotate(scan, table, cfg, out=tmp_path / "c.las")
+    far = PhaseMap(xp=np.full_like(scan.xp, 1e6), modulation=scan.modulation,
+                   offset=scan.offset, mask=scan.mask, sigma_xp=scan.sigma_xp,
+                   period_px=5.0, projector_width_px=1280)
+    with pytest.raises(InputError, match="no point lies inside the calibrated volume"):
+        annotate(far, table, cfg, out=tmp_path / "c.ply")
+    assert list(tmp_path.iterdir()) == []

@@ -65,7 +65,10 @@ def run(args: argparse.Namespace) -> int:
     if args.flatten and args.target_um is None:  # repeats flattened to the same target
         args.target_um = scan.provenance["flatten"]["target_um"]
     repeats = [_scan(args, r) for r in args.repeats]
-    cloud = annotate(scan, calibration, config, repeats, args.keep_invalid, source=args.scan)
+    # a .ply is filled while it is computed (no second copy), unless attributes follow
+    direct = out.suffix.lower() == ".ply" and "flatten" not in scan.provenance
+    cloud = annotate(scan, calibration, config, repeats, args.keep_invalid, source=args.scan,
+                     out=out if direct else None)
     if "flatten" in scan.provenance:
         from scanqa.runs.flattening import flattened_attributes
 
@@ -75,7 +78,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"{args.scan}: no point lies inside the calibrated volume; nothing "
                          "written (use --keep-invalid to extrapolate)")
     warn_sigma([cloud])
-    cloud.write(out)
+    if not direct:
+        cloud.write(out)
     emit(f"{out}: {cloud.summary()}")
     return 0
 

@@ -16,10 +16,12 @@ bits) with ``alpha`` 255. They are derived, not data: a header comment
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -28,7 +30,7 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
 from scanqa.io.guard import loads_json_object
-from scanqa.io.las import INTENSITY_SOURCE, grey_levels
+from scanqa.io.las import INTENSITY_SOURCE, grey_levels, top_level
 
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
 RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
@@ -177,28 +179,109 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
         if values.shape != (n,):
             raise InputError(f"attribute {name!r} has shape {values.shape}, expected ({n},)")
     dtype = _file_dtype(attributes)
+    rec = _records_of(xyz, attributes, dtype)
+    display = "intensity" in dtype.names
+    with atomic_path(path, suffix=".ply") as tmp, open(tmp, "wb") as fh:
+        fh.write(_header(dtype, n, metadata))
+        if rec is not None:
+            if display:
+                _fill_display_records(rec)
+            rec.tofile(fh)
+        else:
+            grey = grey_levels(attributes[INTENSITY_SOURCE]) if display else None
+            _write_records(fh, xyz, attributes, dtype, grey)
+    return Path(path)
+
+
+@contextlib.contextmanager
+def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = None
+                ) -> Iterator[np.ndarray]:
+    """Records of a new binary PLY mapped from the file itself, published on exit.
+
+    Parameters
+    ----------
+    path : str or PathLike
+        Output file; its folder must exist.
+    names : iterable of str
+        Attribute names, in file order (:func:`vertex_dtype`).
+    n : int
+        Number of vertices [-].
+    metadata : dict, optional
+        Plain JSON for the header, as :func:`write_ply` writes it.
+
+    Yields
+    ------
+    (n,) ndarray
+        Writable records in the layout of :func:`vertex_dtype`, a shared mapping of the
+        temporary file's vertex data. After the block the display fields are filled
+        (from ``offset_dn``, as :func:`write_ply` fills them), the array is made
+        read-only, and the file is renamed onto ``path``; the array stays valid (it
+        maps the published file).
+
+    Notes
+    -----
+    The same bytes as :func:`write_ply` of the records' views, without the second copy:
+    a producer that fills the records here writes the file once, into the page cache,
+    instead of into anonymous memory that is then copied into it. The file's space is
+    reserved before the mapping (``posix_fallocate``, where the OS has it), so a full
+    disk is an :class:`~scanqa.errors.OutputError` here, not a fault while the records
+    are filled.
+    """
+    names = list(names)
+    for name in names:
+        check_attribute_name(name)
+    dtype = vertex_dtype(names)
+    header = _header(dtype, n, metadata)
+    with atomic_path(path, suffix=".ply") as tmp:
+        with open(tmp, "wb+") as fh:
+            fh.write(header)
+            fh.flush()
+            if n and hasattr(os, "posix_fallocate"):  # not on macOS: sized by the map
+                os.posix_fallocate(fh.fileno(), len(header), n * dtype.itemsize)
+            if n:
+                records = np.memmap(fh, dtype=dtype, mode="r+", offset=len(header),
+                                    shape=(n,))
+            else:
+                records = np.empty(0, dtype=dtype)
+        yield records
+        if INTENSITY_SOURCE in names:
+            _fill_display_records(records)
+        records.flags.writeable = False
+
+
+def _header(dtype: np.dtype, n: int, metadata: dict | None) -> bytes:
+    """The ASCII header of a binary PLY of ``n`` records in the layout ``dtype``, with
+    ``metadata`` as comment pieces and the display comment when the records have the
+    display fields."""
     header = ["ply", "format binary_little_endian 1.0", "comment scanqa point cloud, mm"]
     if metadata:
         text = json.dumps(metadata, allow_nan=False, separators=(",", ":"))
         header += [f"{META_COMMENT} {text[i:i + META_CHUNK]}"
                    for i in range(0, len(text), META_CHUNK)]
-    grey = None
     if "intensity" in dtype.names:
         header.append(DISPLAY_COMMENT)
-        grey = grey_levels(attributes[INTENSITY_SOURCE])
     header.append(f"element vertex {n}")
     header += [f"property {_TYPE_NAMES[dtype[f].str[1:]]} {f}" for f in dtype.names]
     header.append("end_header")
-    rec = _records_of(xyz, attributes, dtype)
-    with atomic_path(path, suffix=".ply") as tmp, open(tmp, "wb") as fh:
-        fh.write(("\n".join(header) + "\n").encode("ascii"))
-        if rec is not None:
-            if grey is not None:
-                _fill_display(rec, grey)
-            rec.tofile(fh)
-        else:
-            _write_records(fh, xyz, attributes, dtype, grey)
-    return Path(path)
+    return ("\n".join(header) + "\n").encode("ascii")
+
+
+#: Records whose display fields are filled per pass of :func:`_fill_display_records`.
+_DISPLAY_CHUNK = 1 << 16
+
+
+def _fill_display_records(records: np.ndarray) -> None:
+    """Fill the display fields of records from their own ``offset_dn`` field, chunk by
+    chunk: the grey levels of :func:`scanqa.io.las.grey_levels` (the same scale and
+    rounding, element by element in float64) without its five full-size temporaries."""
+    level = records[PREFIX + INTENSITY_SOURCE]
+    top = top_level(np.nan_to_num(level, nan=0.0), 0.999)  # float32: the same order stats
+    scale = 65535.0 / top if top > 0 else 0.0
+    for a in range(0, records.size, _DISPLAY_CHUNK):
+        v = np.nan_to_num(level[a:a + _DISPLAY_CHUNK].astype(float), nan=0.0, copy=False)
+        v *= scale
+        np.clip(np.rint(v, out=v), 0, 65535, out=v)
+        _fill_display(records[a:a + _DISPLAY_CHUNK], v.astype(np.uint16))
 
 
 def _fill_display(records: np.ndarray, grey: np.ndarray) -> None:
@@ -243,11 +326,12 @@ def _address(a: np.ndarray) -> int:
 
 def _records_of(xyz: np.ndarray, attributes: dict[str, np.ndarray], dtype: np.dtype
                 ) -> np.ndarray | None:
-    """The record array (layout ``dtype``) that ``xyz`` and every attribute are exactly
-    the fields of, as :func:`vertex_views` makes them; None for any other arrays."""
+    """The writable record array (layout ``dtype``) that ``xyz`` and every attribute are
+    exactly the fields of, as :func:`vertex_views` makes them; None for any other arrays
+    (read-only records, e.g. of :func:`vertex_file`, are packed chunk by chunk)."""
     rec = xyz.base
     if not (isinstance(rec, np.ndarray) and rec.dtype == dtype and rec.ndim == 1
-            and rec.flags.c_contiguous and xyz.shape == (rec.size, 3)
+            and rec.flags.c_contiguous and rec.flags.writeable and xyz.shape == (rec.size, 3)
             and xyz.strides == (dtype.itemsize, 8) and _address(xyz) == _address(rec)):
         return None
     for name, values in attributes.items():

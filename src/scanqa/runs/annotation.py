@@ -51,7 +51,9 @@ n_repeats          -      with repeats: number of scans valid at that pixel
 
 from __future__ import annotations
 
+import os
 from collections.abc import Sequence
+from pathlib import Path
 
 import numpy as np
 
@@ -87,7 +89,7 @@ def check_compatible(table: Calibration, config: ScannerConfig, phase_map: Phase
 
 def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
              repeats: Sequence[PhaseMap] = (), keep_invalid: bool = False,
-             source: str = "scan") -> AnnotatedCloud:
+             source: str = "scan", out: str | os.PathLike | None = None) -> AnnotatedCloud:
     """Annotate a decoded scan with per-point sigmas.
 
     Parameters
@@ -108,12 +110,24 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
         Keep points outside the calibrated volume (extrapolated, flagged).
     source : str
         Name of the scan for messages.
+    out : str or PathLike, optional
+        A binary PLY (``.ply``) to write the cloud to while it is computed: the records
+        are filled inside the output file's mapping (:func:`scanqa.io.ply.vertex_file`),
+        the same bytes as :meth:`AnnotatedCloud.write` without a second copy of the
+        cloud; published atomically.
 
     Returns
     -------
     AnnotatedCloud
         Points in row-major pixel order. ``xyz`` and the attributes are views of one
-        record array in the binary PLY layout (:func:`scanqa.io.ply.vertex_views`).
+        record array in the binary PLY layout (:func:`scanqa.io.ply.vertex_views`);
+        read-only views of the written file with ``out``.
+
+    Raises
+    ------
+    InputError
+        No valid phase at all; with ``out``, a suffix other than ``.ply``, or no point
+        to write (nothing is written then).
 
     Notes
     -----
@@ -123,33 +137,45 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     the cloud; no full-size intermediate array is made.
     """
     check_compatible(table, config, phase_map, source)
+    if out is not None and Path(out).suffix.lower() != ".ply":
+        raise InputError(f"annotate writes a binary PLY while it computes (out={out}): give "
+                         "a .ply name, or write other formats with AnnotatedCloud.write")
     xp = np.asarray(phase_map.xp, dtype=float)
     bands = row_bands(*xp.shape)
     keep, kept, counts = _select(table, xp, bands, keep_invalid)
     if counts["decoder_masked"] == xp.size:
         raise InputError(f"{source} has no valid phase at all (every pixel is NaN): check the "
                          "decoding mask or the pattern images")
+    if out is not None and not counts["written"]:
+        raise InputError(f"{source}: no point lies inside the calibrated volume; nothing "
+                         f"written to {out} (keep_invalid extrapolates)")
     names = ATTRIBUTES + (REPEAT_ATTRIBUTES if repeats else ())
-    records = np.empty(counts["written"], dtype=ply.vertex_dtype(names))
     extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation,
              "offset": phase_map.offset}
     origin = sigma_source(config, phase_map)
+    meta = cloud_metadata(config, table, source)
+    meta["sigma_source"] = {k: v for k, v in origin.items() if k != "law"}
     if repeats:
         extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
     starts = np.cumsum([0, *kept])
     index = {band: i for i, band in enumerate(bands)}
 
-    def band(r0: int, r1: int) -> int:
-        i = index[(r0, r1)]
-        return _annotate_band(table, config, xp, extra, keep[i], (r0, r1), keep_invalid,
-                              records[starts[i]:starts[i + 1]], origin)
+    def fill(records: np.ndarray) -> None:
+        def band(r0: int, r1: int) -> int:
+            i = index[(r0, r1)]
+            return _annotate_band(table, config, xp, extra, keep[i], (r0, r1),
+                                  keep_invalid, records[starts[i]:starts[i + 1]], origin)
 
-    invalid = run_bands(band, bands)
-    counts["model_invalid"] = int(sum(invalid))
+        counts["model_invalid"] = int(sum(run_bands(band, bands)))
+
+    if out is None:
+        records = np.empty(counts["written"], dtype=ply.vertex_dtype(names))
+        fill(records)
+    else:
+        with ply.vertex_file(out, names, counts["written"], meta) as records:
+            fill(records)
     counts["kept_invalid"] = keep_invalid
     xyz, attributes = ply.vertex_views(records)
-    meta = cloud_metadata(config, table, source)
-    meta["sigma_source"] = {k: v for k, v in origin.items() if k != "law"}
     return AnnotatedCloud(xyz, attributes, counts, meta)
 
 
