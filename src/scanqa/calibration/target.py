@@ -202,9 +202,9 @@ def refine_corners(image: np.ndarray, points: np.ndarray, square: float = math.i
     The detector's own positions carry a bias that depends on where a corner falls
     within its pixel when the image is sharp (undersampled); smoothing first and refining
     by gradient orthogonality over a window removes most of it (on simulated frames of
-    the sample camera, 0.08 -> 0.03 px RMS in focus; see docs/calibration.rst, "The
-    marked target"); the fit removes the rest (:func:`scanqa.calibration.sweep_fit.
-    pixel_locking`).
+    the sample camera, 0.08 -> 0.03 px RMS in focus; see docs/calibration.rst,
+    "The marked target"); the fit removes the rest
+    (:func:`scanqa.calibration.sweep_fit.pixel_locking`).
 
     The smoothing and the window are held to a fraction of the square
     (:func:`refine_window`): when they reach the edges of the neighbouring squares, whose
