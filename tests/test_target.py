@@ -234,19 +234,14 @@ def test_mismatch_scanner_table(tmp_path):
 
 
 def _noise_free_frames(cfg, zs, monkeypatch) -> list[np.ndarray]:
-    """Marker frames without scene noise, shot and read noise or quantisation (the mean
-    signal in DN as float), so that the detector's error is its own bias."""
-    monkeypatch.setattr(render, "_sensor", lambda config, electrons, rng: (
-        electrons / config.simulator.gain_e_per_dn).astype(np.float32))
+    """Marker frames without scene noise, shot and read noise or quantisation: the
+    sensor returns twice the mean signal in electrons (0.5 e- steps in uint16, against a
+    contrast of 16000 e-), so that the detector's error is its own bias."""
+    monkeypatch.setattr(render, "_sensor", lambda config, electrons, rng: np.clip(
+        np.round(2.0 * electrons), 0, 65535))
     quiet = cfg.replace_simulator(scene_noise_rel=0.0)
-    frames = []
-    for pos in build_positions("calibration-sweep", quiet, zs):
-        win = devices.sensor_window(quiet)
-        images = [np.zeros((1, win.height, win.width), np.float32)]
-        render._render_tiles(quiet, acquisition(quiet, pos, 0, "calibration-sweep"), None,
-                             win, images)
-        frames.append(images[0][0])
-    return frames
+    return [render.render_marker_frame(quiet, acquisition(quiet, pos, 0, "calibration-sweep"))
+            for pos in build_positions("calibration-sweep", quiet, zs)]
 
 
 @pytest.mark.slow
@@ -259,8 +254,8 @@ def test_marker_fit_radial_profile_unbiased(cfg, monkeypatch):
     -0.057 px (3.0 std) and k2 +0.56 (7.3 std) for the true 0 (the acceptance sweep's 27
     positions f -0.029 px, k2 +0.36: the fresh seeds' mean bias, within its scatter;
     docs/calibration.rst, "The marker fit's radial bias"); now f -0.015 px (0.7 std), k2
-    +0.13 (1.6 std). Slow (9 frames rendered, 12-30 s): the bias needs a sweep's depth
-    range to show in f and k2."""
+    +0.13 (1.6 std). Slow (9 frames rendered, 28-44 s on a loaded 2-core machine): the
+    bias needs a sweep's depth range to show in f and k2."""
     fine = cfg.replace_simulator(target_square_mm=2.0, camera_cx_offset_px=5.0,
                                  camera_cy_offset_px=-3.0)
     zs = [float(z) for z in np.arange(424.0, 477.0, 6.0)]
