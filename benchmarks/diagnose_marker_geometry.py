@@ -177,7 +177,12 @@ def experiments(s: Setup) -> dict:
                          zip(NAMES, p, std, truth, strict=True) if e > 0}
         out[name] = row
     geo = sf.fit_sweep_geometry(s.detected, s.stage, s.cfg, *s.size)
-    out["as calibrate (fit_sweep_geometry)"] = s.error(s.params(geo))
+    fitted = s.params(geo)
+    out["as calibrate (fit_sweep_geometry)"] = s.error(fitted)
+    for name, idx in (("target rotation", slice(7, 10)), ("f, k1, k2", [0, 3, 4])):
+        swapped = fitted.copy()
+        swapped[idx] = truth[idx]
+        out[f"as calibrate, its {name} set to the truth (not refitted)"] = s.error(swapped)
     main, _ = s.fit(s.detected, PP_HELD)
     mixed = truth.copy()
     mixed[:7] = main[:7]
