@@ -8,9 +8,17 @@ frame, after one rigid registration (as the acceptance) and the range of the mea
 line-of-sight error over the positions (trend). A last part propagates white corner noise
 of the measured size through the fit (linearised) to the registered error.
 
+``--radial-bias`` needs no sweep: it renders the acceptance sweep's 27 marker frames
+(2 mm squares) without noise (no scene noise, the sensor's mean signal as float) and fits
+the camera to the corners found with the corner refinement's window as the detector sets
+it and with a fixed window (sigma, half window [px]); the fit's f and k2 against the
+simulator's camera are the detector's bias alone (docs/calibration.rst, "The marker fit's
+radial bias"). ``--seed N`` renders the frames with noise instead (stream N).
+
 Usage::
 
     python benchmarks/diagnose_marker_geometry.py [--sweep DIR]
+    python benchmarks/diagnose_marker_geometry.py --radial-bias [--seed N]
 
 DIR defaults to ``acceptance_calibration_data/sweep`` (simulate it with
 ``acceptance_calibration.py --simulate-only``).
@@ -169,7 +177,12 @@ def experiments(s: Setup) -> dict:
                          zip(NAMES, p, std, truth, strict=True) if e > 0}
         out[name] = row
     geo = sf.fit_sweep_geometry(s.detected, s.stage, s.cfg, *s.size)
-    out["as calibrate (fit_sweep_geometry)"] = s.error(s.params(geo))
+    fitted = s.params(geo)
+    out["as calibrate (fit_sweep_geometry)"] = s.error(fitted)
+    for name, idx in (("target rotation", slice(7, 10)), ("f, k1, k2", [0, 3, 4])):
+        swapped = fitted.copy()
+        swapped[idx] = truth[idx]
+        out[f"as calibrate, its {name} set to the truth (not refitted)"] = s.error(swapped)
     main, _ = s.fit(s.detected, PP_HELD)
     mixed = truth.copy()
     mixed[:7] = main[:7]
@@ -208,10 +221,66 @@ def propagation(s: Setup, sigma_px: float) -> dict:
     return out
 
 
+def marker_frames(cfg, seed: int | None = None) -> list[np.ndarray]:
+    """The acceptance sweep's marker frames, noise-free (``seed`` None) or with the
+    simulator's noise of stream ``seed`` [DN]."""
+    from scanqa.simulator import experiments, render
+
+    sensor = render._sensor
+    if seed is None:
+        cfg = cfg.replace_simulator(scene_noise_rel=0.0)
+        render._sensor = lambda config, e, rng: (e / config.simulator.gain_e_per_dn
+                                                 ).astype(np.float32)
+    else:
+        cfg = cfg.replace_simulator(seed=seed)
+    try:
+        frames = []
+        for pos in experiments.build_positions("calibration-sweep", cfg, acc.SWEEP_Z):
+            win = devices.sensor_window(cfg)
+            images = [np.zeros((1, win.height, win.width), np.float32)]
+            render._render_tiles(cfg, experiments.acquisition(cfg, pos, 0,
+                                                              "calibration-sweep"),
+                                 None, win, images)
+            frames.append(images[0][0])
+    finally:
+        render._sensor = sensor
+    return frames
+
+
+def radial_bias(seed: int | None) -> dict:
+    """The marker fit's f, k2 and target tilt against the truth, per refinement window."""
+    cfg = acc.scanner(square_mm=2.0)
+    frames, spec = marker_frames(cfg, seed), tg.ChessboardSpec(2.0)
+    size = (cfg.camera.width_px, cfg.camera.height_px)
+    out, rule = {}, tg.refine_window
+    for name, window in (("as the detector sets it", None), ("fixed 1.5 / 5", (1.5, 5))):
+        tg.refine_window = rule if window is None else (lambda square, w=window: w)
+        try:
+            dets = [tg.detect_chessboard(f, spec) for f in frames]
+        finally:
+            tg.refine_window = rule
+        g = sf.fit_sweep_geometry(dets, acc.SWEEP_Z, cfg, *size)
+        out[name] = {"f_error_px": float(g.camera.matrix[0, 0]
+                                         - cfg.camera.principal_distance_px),
+                     "f_std_px": g.std["focal_px"], "k2": float(g.camera.distortion[1]),
+                     "k2_std": g.std["k2"],
+                     "k1_error": float(g.camera.distortion[0] - cfg.simulator.camera_k1),
+                     "target_tilt_error_deg": g.target_tilt_deg - cfg.simulator.target_tilt_deg,
+                     "rms_px": g.rms_px}
+    return {"simulated": True, "noise": "none" if seed is None else f"seed {seed}", **out}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sweep", default="acceptance_calibration_data/sweep")
+    parser.add_argument("--radial-bias", action="store_true",
+                        help="the detector's bias of f and k2 from rendered marker frames")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="with --radial-bias: frames with noise of this stream")
     args = parser.parse_args(argv)
+    if args.radial_bias:
+        print(json.dumps(radial_bias(args.seed), indent=1))
+        return 0
     s = Setup(Path(args.sweep))
     det = detection_error(s)
     result = {"simulated": True, "detection": det, "experiments": experiments(s),

@@ -13,6 +13,7 @@ camera and the stage to the labelled corners.
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -147,24 +148,81 @@ def detect_chessboard(image: np.ndarray, spec: ChessboardSpec, source: str = ""
     mapping = _label(dots, white, grid, valid, spec, source)
     rows, cols = np.nonzero(valid)
     ij = np.array([mapping(c, r) for r, c in zip(rows, cols, strict=True)], float)
-    points, ok = refine_corners(image, grid[rows, cols])
+    points, ok = refine_corners(image, grid[rows, cols], square_px(grid, valid))
     ok &= ~spec.touches_marker(ij)
     return Detection(points[ok], ij[ok] * spec.square_mm, source)
 
 
-#: Gaussian pre-smoothing of the corner refinement [px] and its half window [px].
+#: Gaussian pre-smoothing of the corner refinement [px] and its half window [px], at
+#: most; both shrink with the board's squares (:data:`REFINE_REACH_PER_SQUARE`).
 REFINE_SIGMA_PX, REFINE_HALF_WINDOW_PX = 1.5, 5
+#: The smoothing's sigma and the half window as fractions of a square's side in the image
+#: [-]: past them the refinement reaches the edges of the neighbouring squares (below).
+REFINE_REACH_PER_SQUARE = (0.09, 0.45)
 
 
-def refine_corners(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def square_px(grid: np.ndarray, valid: np.ndarray) -> float:
+    """Median side of a square in the image: the distance between neighbouring corners
+    of the detector's grid [px].
+
+    Parameters
+    ----------
+    grid : (rows, cols, 2) float
+        The detector's corners [px].
+    valid : (rows, cols) bool
+        Which of them were found.
+    """
+    steps = [np.linalg.norm(np.diff(grid, axis=a), axis=-1)[
+        valid[1:] & valid[:-1] if a == 0 else valid[:, 1:] & valid[:, :-1]] for a in (0, 1)]
+    steps = np.concatenate(steps)
+    return float(np.median(steps)) if steps.size else math.inf
+
+
+def refine_window(square: float = math.inf) -> tuple[float, int]:
+    """The refinement's smoothing sigma [px] and half window [px] for squares of
+    ``square`` px: :data:`REFINE_SIGMA_PX` and :data:`REFINE_HALF_WINDOW_PX`, reduced to
+    :data:`REFINE_REACH_PER_SQUARE` of the square.
+
+    Examples
+    --------
+    >>> refine_window(17.9), refine_window(8.9)
+    ((1.5, 5), (0.801, 4))
+    """
+    sigma_rel, half_rel = REFINE_REACH_PER_SQUARE
+    if not math.isfinite(square):
+        return REFINE_SIGMA_PX, REFINE_HALF_WINDOW_PX
+    return (min(REFINE_SIGMA_PX, round(sigma_rel * square, 3)),
+            int(max(2, min(REFINE_HALF_WINDOW_PX, round(half_rel * square)))))
+
+
+def refine_corners(image: np.ndarray, points: np.ndarray, square: float = math.inf
+                   ) -> tuple[np.ndarray, np.ndarray]:
     """Sub-pixel corners by ``cv2.cornerSubPix`` on the image smoothed by a Gaussian.
 
     The detector's own positions carry a bias that depends on where a corner falls
-    within its pixel when the image is sharp (undersampled); smoothing by
-    :data:`REFINE_SIGMA_PX` first and refining by gradient orthogonality over
-    ``2 x REFINE_HALF_WINDOW_PX + 1`` px removes most of it (on simulated frames of the
-    sample camera, 0.08 -> 0.03 px RMS in focus; see docs/calibration.rst,
-    "The marked target").
+    within its pixel when the image is sharp (undersampled); smoothing first and refining
+    by gradient orthogonality over a window removes most of it (on simulated frames of
+    the sample camera, 0.08 -> 0.03 px RMS in focus; see docs/calibration.rst,
+    "The marked target"); the fit removes the rest
+    (:func:`scanqa.calibration.sweep_fit.pixel_locking`).
+
+    The smoothing and the window are held to a fraction of the square
+    (:func:`refine_window`): when they reach the edges of the neighbouring squares, whose
+    distances differ on the two sides of a corner wherever perspective and distortion
+    change the image's scale, each corner is pulled by the field's scale gradient - a
+    smooth error the camera fit takes for focal length and k2 (on noise-free simulated
+    frames of the sample camera with 2 mm squares of 8.4-9.5 px, sigma 1.5 px and a half
+    window of 5 px gave f -0.029 px and k2 +0.36 for the true 0; docs/calibration.rst,
+    "The marker fit's radial bias").
+
+    Parameters
+    ----------
+    image : (H, W) or (H, W, 3) array
+        The marker frame [DN].
+    points : (n, 2) float
+        Starting corners [px].
+    square : float
+        Side of a square in the image (:func:`square_px`) [px]; inf: the full window.
 
     Returns
     -------
@@ -178,9 +236,9 @@ def refine_corners(image: np.ndarray, points: np.ndarray) -> tuple[np.ndarray, n
 
     img = np.asarray(image, dtype=float)
     img = img.mean(axis=-1) if img.ndim == 3 else img
-    smooth = gaussian_filter(img, REFINE_SIGMA_PX).astype(np.float32)
+    sigma, half = refine_window(square)
+    smooth = gaussian_filter(img, sigma).astype(np.float32)
     start = np.asarray(points, np.float32).reshape(-1, 1, 2).copy()
-    half = REFINE_HALF_WINDOW_PX
     crit = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 100, 1e-4)
     out = cv2.cornerSubPix(smooth, start.copy(), (half, half), (-1, -1), crit).reshape(-1, 2)
     ok = np.hypot(*(out - start.reshape(-1, 2)).T) < 1.0
