@@ -421,7 +421,7 @@ def test_sum_form_and_two_source_hand_values():
 def test_unknown_form_floor_or_reading_is_refused():
     with pytest.raises(ValueError, match=r"^form must be 'product' or 'sum', got 'add'$"):
         optics.filter_factor(4.0, 1.0, 1.0, "none", "add")
-    with pytest.raises(ValueError, match=r"^floor must be 'none' or 'one', got 'two'$"):
+    with pytest.raises(ValueError, match=r"^floor must be 'none', 'one' or 'smooth', got 'two'$"):
         optics.filter_factor(4.0, 1.0, 1.0, "two", "sum")
     with pytest.raises(ValueError, match=r"^reading must be 'power', 'amplitude', 'mixed' or "
                                          r"'two_source', got 'cube'$"):
