@@ -131,3 +131,30 @@ def test_calibration_report_shows_the_marker_geometry(cfg, tmp_path, capsys):
     html = (tmp_path / "t_report.html").read_text()
     assert "Camera and stage from the marked target" in html
     assert f"stage tilt {geo['stage_tilt_deg']:.4f} deg" in html
+    # both of the target normal's directions, each with its std (the tilt alone is blind
+    # to a turn about the other axis)
+    assert f"toward azimuth {geo['target_tilt_azimuth_deg']:.2f} deg" in html
+    assert f"{geo['std']['target_normal_y_deg']:.4f} deg toward x / y" in html
+
+
+def test_target_normal_in_both_directions_with_its_std(cfg):
+    """The simulator turns the flat 2 deg about the camera's X axis, so its normal leans
+    toward +-y (azimuth +-90 deg) and not toward x; the fit finds both directions within
+    three of the standard deviations it reports for them, and those stds are the ones
+    of the rotation vector's covariance (at a 2 deg tilt the normal turns toward x with
+    the rotation about y and toward y with the rotation about x, to within a few %)."""
+    zs = [float(z) for z in np.arange(424.0, 477.0, 4.0)]
+    geo = fit_sweep_geometry(_sweep(cfg, 0.02, zs), zs, cfg, 306, 256)
+    sx, sy = geo.std["target_normal_x_deg"], geo.std["target_normal_y_deg"]
+    cov = geo.covariance
+    print(f"\n[sweep_fit] tilt {geo.target_tilt_deg:.5f} deg toward "
+          f"{geo.target_tilt_azimuth_deg:.3f} deg; normal std x / y {sx:.5f} / {sy:.5f} deg; "
+          f"rotation-vector std {np.degrees(np.sqrt(np.diag(cov)[7:10]))} deg")
+    assert 0 < sx < 0.05 and 0 < sy < 0.05
+    lean_x = geo.target_tilt_deg * np.cos(np.radians(geo.target_tilt_azimuth_deg))
+    lean_y = geo.target_tilt_deg * abs(np.sin(np.radians(geo.target_tilt_azimuth_deg)))
+    assert abs(lean_x) < 3 * sx
+    assert abs(lean_y - 2.0) < 3 * sy
+    rot_std = np.degrees(np.sqrt(np.diag(cov)[7:10]))
+    assert sx == pytest.approx(rot_std[1], rel=0.05)
+    assert sy == pytest.approx(rot_std[0], rel=0.05)

@@ -123,6 +123,15 @@ class SweepGeometry:
         """Angle between the target's normal and the camera axis [deg]."""
         return math.degrees(math.acos(min(1.0, abs(float(self.rotation[2, 2])))))
 
+    @property
+    def target_tilt_azimuth_deg(self) -> float:
+        """Direction in the sensor plane toward which the target's normal leans, from
+        the camera's x axis toward its y axis [deg]; with the tilt it gives both of the
+        normal's directions (the tilt alone is blind, to first order, to a turn about an
+        axis at right angles to the one it is tilted about)."""
+        n = self.rotation[:, 2] * math.copysign(1.0, float(self.rotation[2, 2]))
+        return math.degrees(math.atan2(float(n[1]), float(n[0])))
+
     def project(self, target_xy: np.ndarray, stage_mm: float) -> np.ndarray:
         """Sensor coordinates of target-plane points at a stage reading: (n, 2) [px]."""
         pts = plane_to_camera(target_xy, self.rotation, self.translation(stage_mm))
@@ -178,7 +187,8 @@ class SweepGeometry:
                 "distortion_k1_k2_p1_p2": [float(v) for v in self.camera.distortion[:4]],
                 "stage_axis": [float(v) for v in self.axis],
                 "stage_tilt_deg": self.stage_tilt_deg,
-                "target_tilt_deg": self.target_tilt_deg, "rms_px": self.rms_px,
+                "target_tilt_deg": self.target_tilt_deg,
+                "target_tilt_azimuth_deg": self.target_tilt_azimuth_deg, "rms_px": self.rms_px,
                 "locking_px": self.locking_px, "std": dict(self.std),
                 "stage_ref_mm": self.stage_ref_mm,
                 "image_size_px": [self.camera.width_px, self.camera.height_px],
@@ -441,8 +451,28 @@ def _geometry(fit: _Fit, detections, stage_mm, ref, width, height,
         per[float(s)] = float(np.sqrt(np.mean(err[start:start + n] ** 2)))
         start += n
     names = ("focal_px", "cx_px", "cy_px", "k1", "k2", "p1", "p2")
+    std = {n: float(v) for n, v in zip(names, fit.std(), strict=False)}
+    std.update(_normal_std(fit.p, fit.covariance()))
     return SweepGeometry(Lens(k, dist, width, height), rot, np.asarray(t0, float), axis,
-                         float(ref), rms, per, bool(fit.free[1]),
-                         {n: float(v) for n, v in zip(names, fit.std(), strict=False)},
+                         float(ref), rms, per, bool(fit.free[1]), std,
                          locking_px, bool(fit.free[5]), np.array(fit.p, float),
                          fit.covariance())
+
+
+def _normal_std(p: np.ndarray, covariance: np.ndarray) -> dict[str, float]:
+    """Standard deviations of the target normal's direction toward the camera's x and y
+    axes [deg], propagated from the covariance of the rotation vector (parameters 7-9)
+    through the normal's Jacobian (central differences): the small turns of the target
+    about the camera's y and x axes, which the tilt angle alone does not show."""
+    cov = np.asarray(covariance, dtype=float)
+    if cov.shape[0] < 10:
+        return {}
+    rvec, h = np.asarray(p[7:10], dtype=float), 1e-7
+    jac = np.empty((3, 3))
+    for i in range(3):
+        step = np.zeros(3)
+        step[i] = h
+        jac[:, i] = (_rodrigues(rvec + step)[:, 2] - _rodrigues(rvec - step)[:, 2]) / (2 * h)
+    var = np.diag(jac @ cov[7:10, 7:10] @ jac.T)
+    return {"target_normal_x_deg": math.degrees(math.sqrt(abs(float(var[0])))),
+            "target_normal_y_deg": math.degrees(math.sqrt(abs(float(var[1]))))}

@@ -72,8 +72,14 @@ def _geometry_section(page: Page, geo: dict) -> None:
                                     "principal_point_fitted"),
                                    ("the tangential distortion p1, p2 (held at 0)",
                                     "decentring_fitted")) if not geo.get(key, True)]
+    std = geo.get("std", {})
+    known = (f" (its normal known to {std['target_normal_x_deg']:.4f} / "
+             f"{std['target_normal_y_deg']:.4f} deg toward x / y, 1 std)"
+             if "target_normal_x_deg" in std else "")
+    lean = (f" toward azimuth {geo['target_tilt_azimuth_deg']:.2f} deg"
+            if "target_tilt_azimuth_deg" in geo else "")
     page.paragraph(f"stage tilt {geo['stage_tilt_deg']:.4f} deg, target tilt "
-                   f"{geo['target_tilt_deg']:.4f} deg, focal length "
+                   f"{geo['target_tilt_deg']:.4f} deg{lean}{known}, focal length "
                    f"{geo['focal_px']:.2f} px, corner RMS {geo['rms_px']:.3f} px. Not fitted: "
                    + ("; ".join(held) if held else "nothing") + ".")
     if not geo.get("principal_point_fitted", True) and geo.get("decentring_fitted", False):
@@ -81,7 +87,6 @@ def _geometry_section(page: Page, geo: dict) -> None:
                        "(a lens that needs p1, p2): the table's volume may be sheared by a "
                        "few um over its depth (docs/calibration.rst, 'The marked target').",
                        note=True)
-    std = geo.get("std", {})
     page.table([{"parameter": k, "value": v, "std": std.get(k, "")}
                 for k, v in (("focal_px", geo["focal_px"]),
                              ("cx_px", geo["principal_point_px"][0]),
