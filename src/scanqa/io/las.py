@@ -112,10 +112,22 @@ def grey_levels(values: np.ndarray) -> np.ndarray:
     """16-bit grey levels of a per-point level (the fringe offset [DN]): scaled so that
     the 99.9th percentile is 65535 (:func:`top_level`); NaN and negative values are 0."""
     v = np.nan_to_num(np.array(values, dtype=float), nan=0.0, copy=False)
-    top = top_level(v, 0.999)
-    v *= 65535.0 / top if top > 0 else 0.0
-    np.clip(np.rint(v, out=v), 0, 65535, out=v)
-    return v.astype(np.uint16)
+    return scaled_grey(v, grey_scale(v))
+
+
+def grey_scale(values: np.ndarray) -> float:
+    """The factor that takes a level to 16-bit grey: 65535 over the 99.9th percentile of
+    ``values`` (NaN read as 0), or 0 when that is not positive [1/DN]."""
+    top = top_level(np.nan_to_num(values, nan=0.0), 0.999)
+    return 65535.0 / top if top > 0 else 0.0
+
+
+def scaled_grey(values: np.ndarray, scale: float) -> np.ndarray:
+    """16-bit grey levels of float64 ``values`` without NaN times ``scale``
+    (:func:`grey_scale`), rounded and clipped to [0, 65535]; ``values`` is overwritten."""
+    values *= scale
+    np.clip(np.rint(values, out=values), 0, 65535, out=values)
+    return values.astype(np.uint16)
 
 
 def top_level(values: np.ndarray, fraction: float) -> float:

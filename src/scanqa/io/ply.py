@@ -30,7 +30,7 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
 from scanqa.io.guard import loads_json_object
-from scanqa.io.las import INTENSITY_SOURCE, grey_levels, top_level
+from scanqa.io.las import INTENSITY_SOURCE, grey_levels, grey_scale, scaled_grey
 
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
 RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
@@ -275,13 +275,10 @@ def _fill_display_records(records: np.ndarray) -> None:
     chunk: the grey levels of :func:`scanqa.io.las.grey_levels` (the same scale and
     rounding, element by element in float64) without its five full-size temporaries."""
     level = records[PREFIX + INTENSITY_SOURCE]
-    top = top_level(np.nan_to_num(level, nan=0.0), 0.999)  # float32: the same order stats
-    scale = 65535.0 / top if top > 0 else 0.0
+    scale = grey_scale(level)  # float32: the same order statistics
     for a in range(0, records.size, _DISPLAY_CHUNK):
         v = np.nan_to_num(level[a:a + _DISPLAY_CHUNK].astype(float), nan=0.0, copy=False)
-        v *= scale
-        np.clip(np.rint(v, out=v), 0, 65535, out=v)
-        _fill_display(records[a:a + _DISPLAY_CHUNK], v.astype(np.uint16))
+        _fill_display(records[a:a + _DISPLAY_CHUNK], scaled_grey(v, scale))
 
 
 def _fill_display(records: np.ndarray, grey: np.ndarray) -> None:
