@@ -66,7 +66,7 @@ from scanqa.qa.results import BlockResult, QAResult, StepResult
 __all__ = ["MIN_TILES", "TILE_MM", "BlockResult", "QAResult", "StepResult",
            "analyse_block", "check_sigmas", "cloud_config", "coverage_notes",
            "coverage_rule", "geometry_component", "local_std", "model_curve",
-           "noise_correlation", "run_qa", "step_between"]
+           "noise_correlation", "refuse_bad_sigmas", "run_qa", "step_between"]
 #: Fewest points of a block whose steps are decided: below, the plane is fitted and shown
 #: but the block is flagged "too_few_points" and its steps are not evaluated (the
 #: relative uncertainty of its std, 1/sqrt(2(n - 3)), exceeds 14 %, and MIN_TILES tiles
@@ -184,14 +184,19 @@ def check_sigmas(attrs: dict) -> None:
     """A predicted sigma is > 0 and finite, or NaN (no prediction): 0, negative or
     infinite values are refused, not read as "no prediction"."""
     name = random_sigma_name(attrs)
-    if name is None:
-        return
-    sig = np.asarray(attrs[name], dtype=float)
+    if name is not None:
+        refuse_bad_sigmas(attrs[name], name)
+
+
+def refuse_bad_sigmas(values: np.ndarray, name: str) -> None:
+    """Refuse a per-point sigma attribute ``name`` holding 0, negative or infinite
+    values [um]; NaN (no prediction) passes."""
+    sig = np.asarray(values, dtype=float)
     bad = np.flatnonzero(np.isinf(sig) | (sig <= 0))
     if bad.size:
         raise InputError(f"the cloud's {name} holds {bad.size} values that are 0, "
                          f"negative or infinite (first: point {bad[0]}, {sig[bad[0]]!r} um); "
-                         "a predicted sigma must be > 0, or NaN where there is none "
+                         "a sigma must be > 0, or NaN where there is none "
                          "(annotate the scan again)")
 
 

@@ -27,6 +27,7 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.model.cloud import AnnotatedCloud
+from scanqa.qa.blocks import refuse_bad_sigmas
 from scanqa.qa.verdict import decide
 
 #: Attributes a comparison adds to the cloud (units in the names).
@@ -262,13 +263,7 @@ def _check(cloud: AnnotatedCloud, k: float, neighbours: int, ref_sigma: float,
     if "sigma_total_um" not in cloud.attributes:
         raise InputError("the cloud has no sigma_total_um: compare needs the scan's own "
                          "per-point sigma (annotate it with scanqa annotate)")
-    sig = np.asarray(cloud.attributes["sigma_total_um"], dtype=float)
-    bad = np.flatnonzero(np.isinf(sig) | (sig <= 0))
-    if bad.size:
-        raise InputError(f"the cloud's sigma_total_um holds {bad.size} values that are 0, "
-                         f"negative or infinite (first: point {bad[0]}, {sig[bad[0]]!r} um); "
-                         "a sigma must be > 0, or NaN where there is none (annotate the scan "
-                         "again)")
+    refuse_bad_sigmas(cloud.attributes["sigma_total_um"], "sigma_total_um")
     checks = (("k", k, 0.0), ("max distance", max_distance, 0.0))
     for what, value, bound in checks:
         if not (math.isfinite(value) and value > bound):
