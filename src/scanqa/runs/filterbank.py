@@ -184,9 +184,12 @@ def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarr
     bank = bank or default_bank()
     nea = bank.nea_px2(t)
     m_f = period_cam_px if transfer else bank.transfer(t, period_cam_px)
-    corr = config.model.gamma ** 2 + np.asarray(noise_area_px2, dtype=float)
+    n_o = np.asarray(noise_area_px2, dtype=float)
+    gamma = config.model.gamma
     with np.errstate(divide="ignore", invalid="ignore"):
-        return np.sqrt(corr / (corr + nea - 1.0)) / m_f, 1.0 / (np.sqrt(nea) * m_f)
+        scene = (optics.filter_factor(n_o, 0.0, gamma, "smooth", "sum")
+                 / optics.filter_factor(n_o + nea - 1.0, 0.0, gamma, "smooth", "sum"))
+        return scene / m_f, 1.0 / (np.sqrt(nea) * m_f)
 
 
 def camera_noise_area_px2(z_mm: np.ndarray, config: ScannerConfig) -> np.ndarray:
