@@ -29,21 +29,16 @@ sys.path.insert(0, str(HERE))
 
 
 def main() -> None:
-    from bench_flatten import _config, _pinhole
+    from bench_flatten import rig
 
     from scanqa.decoding.decoder import decode_images
-    from scanqa.model import design
     from scanqa.runs.flattening import flatten
     from scanqa.simulator import experiments, render, scene
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--size", type=int, default=1024)
     args = parser.parse_args()
-    cfg = _config(args.size, args.size)
-    cal = _pinhole(cfg)
-    desc = experiments.pattern_description(cfg)
-    curve = design.axis_curve(cfg, 438.0, 466.0, 0.5)
-    target = float(np.min(curve["sigma_um"][curve["model_valid"]]))
+    cfg, cal, desc, target = rig(args.size)
     layout = scene.paper_gauge_layout()
     artefact = scene.gauge_block_artefact(layout)
     t0 = time.perf_counter()

@@ -32,11 +32,10 @@ DEPTHS_MM = (436.0, 441.0, 445.0, 447.0, 450.0, 452.0, 455.0, 458.0, 463.0)
 
 
 def main() -> None:
-    from bench_flatten import _config, _pinhole
+    from bench_flatten import rig
 
     from scanqa.decoding.decoder import decode_images
     from scanqa.decoding.phasemap import MASK_INCONSISTENT
-    from scanqa.model import design
     from scanqa.runs.flattening import flatten
     from scanqa.simulator import experiments, render, scene
 
@@ -47,11 +46,7 @@ def main() -> None:
     parser.add_argument("--depths", type=float, nargs="+", default=DEPTHS_MM,
                         help="flat positions [mm]")
     args = parser.parse_args()
-    cfg = _config(args.size, args.size)
-    cal = _pinhole(cfg)
-    desc = experiments.pattern_description(cfg)
-    curve = design.axis_curve(cfg, 438.0, 466.0, 0.5)
-    target = float(np.min(curve["sigma_um"][curve["model_valid"]]))
+    cfg, cal, desc, target = rig(args.size)
     print(f"simulated, stream {args.stream!r}, positions {args.first}-"
           f"{args.first + len(args.depths) - 1}, {args.size} px; target {target:.2f} um")
     print("Z [mm]  inconsistent [%]  before [um]  filter [px]  after [um]  after/target  "

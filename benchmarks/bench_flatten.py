@@ -47,6 +47,19 @@ def _pinhole(cfg):
 
     return config_pinhole(cfg)
 
+
+def rig(size: int):
+    """(config, pinhole calibration, pattern description, flattening target [um]) of a
+    ``size`` x ``size`` crop of the paper's scanner: the set-up of the flattening
+    acceptance scripts, the target being the model's lowest sigma over 438-466 mm."""
+    from scanqa.model import design
+    from scanqa.simulator import experiments
+
+    cfg = _config(size, size)
+    curve = design.axis_curve(cfg, 438.0, 466.0, 0.5)
+    target = float(np.min(curve["sigma_um"][curve["model_valid"]]))
+    return cfg, _pinhole(cfg), experiments.pattern_description(cfg), target
+
 def _tilted_xp(cfg) -> np.ndarray:
     """x_p of the flat Z = 450 + 0.25 X (about 435-465 mm over the field) [px]."""
     from scanqa.model import optics
