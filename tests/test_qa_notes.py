@@ -23,6 +23,7 @@ NOT_NUMERIC = {
     "artefacts.load_artefact_layout": "reads a layout file",
     "artefacts.auto_layout": "builds a layout from the spec's nominal values",
     "blocks.check_sigmas": "refuses bad sigmas, returns nothing",
+    "blocks.refuse_bad_sigmas": "refuses bad sigmas, returns nothing",
     "blocks.cloud_config": "chooses a config",
     "blocks.coverage_notes": "writes text",
     "budget.load_budget": "reads a budget file",
