@@ -36,10 +36,13 @@ from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
 
 #: Variants (filter_floor, filter_form, noise_reading) one sweep can tell apart: the
-#: paper's readings with Eq. 17 as printed, then the two-source model with both forms.
+#: paper's readings with Eq. 17 as printed, then the two-source model with both forms,
+#: and with the sum form's smooth floor (F^2 = 1 + N / gamma^2, the law flattening's
+#: filter follows; :func:`scanqa.model.readings.smooth_floor`).
 SINGLE_SWEEP_VARIANTS = (("none", "product", "power"), ("none", "product", "amplitude"),
                          ("one", "product", "power"), ("one", "product", "amplitude"),
-                         ("one", "product", "two_source"), ("one", "sum", "two_source"))
+                         ("one", "product", "two_source"), ("one", "sum", "two_source"),
+                         ("smooth", "sum", "two_source"))
 #: With both devices moving (a camera and a projector sweep, or a calibration sweep) the
 #: "mixed" reading is told apart from the others too.
 JOINT_VARIANTS = (*SINGLE_SWEEP_VARIANTS, ("none", "product", "mixed"),
