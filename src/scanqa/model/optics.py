@@ -400,6 +400,7 @@ class OpticalTerms:
     s_o_scene: np.ndarray | None = None
     s_o_sensor: np.ndarray | None = None
     filter_base: np.ndarray | None = None
+    object_scale: np.ndarray | None = None
 
     @property
     def within_validity(self) -> np.ndarray:
@@ -411,14 +412,53 @@ class OpticalTerms:
         """s_O at the same points for another gamma, floor or reading [-].
 
         F_gamma = F_1 / gamma in both forms of Eq. 17 (``filter_base`` is F_1, the factor
-        for gamma = 1 without the floor), so a fit over gamma need not re-run the optics.
+        for gamma = 1 without the floor), so a fit over gamma need not re-run the optics;
+        the smooth floor's gamma is scaled to each range (:func:`correlation_gamma`).
         """
-        f = lookup(FILTER_FLOOR_METHODS, filter_floor, "floor")(self.filter_base / gamma)
+        scale = 1.0 if filter_floor != "smooth" or self.object_scale is None \
+            else self.object_scale
+        f = lookup(FILTER_FLOOR_METHODS, filter_floor, "floor")(
+            self.filter_base / (gamma * scale))
         s_o = optical_scale(f, self.attenuation_projector, self.attenuation_camera,
                             noise_reading, sensor_ratio)
         beyond = (self.ratio_camera >= FIRST_ZERO_RATIO) | \
             (self.ratio_projector >= FIRST_ZERO_RATIO)
         return np.where(beyond, np.nan, s_o)
+
+
+def correlation_gamma(gamma: float, z_c: ArrayLike, config: ScannerConfig,
+                      filter_floor: str) -> np.ndarray:
+    """The noise correlation gamma at range ``z_c`` [camera px].
+
+    Parameters
+    ----------
+    gamma : float
+        ``[model] gamma``: with the smooth floor, the side of the scene noise's
+        correlation cell at the camera's focus distance [px]; otherwise the paper's
+        constant gamma [-].
+    z_c : array_like
+        Distance along the camera axis [mm].
+    config : ScannerConfig
+        Its ``camera.focus_mm``.
+    filter_floor : str
+        ``"smooth"`` scales gamma; the paper's forms keep it constant.
+
+    Returns
+    -------
+    ndarray
+        gamma focus / Z_c for the smooth floor, else gamma, broadcast to ``z_c``.
+
+    Notes
+    -----
+    Scene-side noise is fixed on the object, so its cells cover Z_focus / Z_c as many
+    camera pixels at Z_c as at focus (the pixel's footprint is Z / f). The paper's gamma
+    (Eq. 17) is one number; the smooth floor, already a departure
+    (:func:`scanqa.model.readings.smooth_floor`), follows the range (docs/flattening.rst).
+    """
+    z = np.asarray(z_c, dtype=float)
+    if filter_floor != "smooth":
+        return np.full(z.shape, float(gamma))
+    return gamma * config.camera.focus_mm / z
 
 
 def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
@@ -473,13 +513,14 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
                                 cam.pixel_um * 1e-3)
     area = b_c if form == "product" else camera_noise_area(c_image, cam.pixel_um * 1e-3, b_d)
     base = filter_factor(area, b_d, 1.0, "none", form)
-    f_gamma = filter_factor(area, b_d, model.gamma if gamma is None else gamma, floor, form)
+    gamma_z = correlation_gamma(model.gamma if gamma is None else gamma, z_c, config, floor)
+    f_gamma = filter_factor(area, b_d, gamma_z, floor, form)
     scene, sensor = noise_scales(f_gamma, a_p, a_c, reading, rho)
     beyond = (r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO)
     scene, sensor = np.where(beyond, np.nan, scene), np.where(beyond, np.nan, sensor)
     s_o = np.hypot(scene, sensor) if reading == "two_source" else scene
     return OpticalTerms(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma, s_o, floor,
-                        reading, form, scene, sensor, base)
+                        reading, form, scene, sensor, base, cam.focus_mm / z_c)
 
 
 @dataclass(frozen=True)

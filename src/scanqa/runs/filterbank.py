@@ -146,8 +146,8 @@ def default_bank() -> FilterBank:
 
 
 def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarray,
-              config: ScannerConfig, bank: FilterBank | None = None, transfer: bool = False
-              ) -> tuple[np.ndarray, np.ndarray]:
+              config: ScannerConfig, bank: FilterBank | None = None, transfer: bool = False,
+              z_mm: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
     """Factors by which the filter at level t scales the scene and sensor parts [-].
 
     Parameters
@@ -166,6 +166,10 @@ def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarr
         Default :func:`default_bank`.
     transfer : bool
         ``period_cam_px`` is already the filter's transfer m_f [-].
+    z_mm : array_like, optional
+        Range of the points along the camera axis [mm]: with the smooth floor the
+        correlation cell is fixed on the object (:func:`scanqa.model.optics.correlation_gamma`);
+        without it gamma is taken as at focus.
 
     Returns
     -------
@@ -185,7 +189,8 @@ def reduction(noise_area_px2: np.ndarray, period_cam_px: np.ndarray, t: np.ndarr
     nea = bank.nea_px2(t)
     m_f = period_cam_px if transfer else bank.transfer(t, period_cam_px)
     n_o = np.asarray(noise_area_px2, dtype=float)
-    gamma = config.model.gamma
+    gamma = config.model.gamma if z_mm is None else optics.correlation_gamma(
+        config.model.gamma, z_mm, config, config.model.filter_floor)
     with np.errstate(divide="ignore", invalid="ignore"):
         scene = (optics.filter_factor(n_o, 0.0, gamma, "smooth", "sum")
                  / optics.filter_factor(n_o + nea - 1.0, 0.0, gamma, "smooth", "sum"))

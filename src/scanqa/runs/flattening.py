@@ -341,7 +341,8 @@ def _bin_curve(noise: PixelNoise, sel: np.ndarray, grid: np.ndarray, config: Sca
     k, w = bank._split(grid)
     m_f = (1 - w)[:, None] * m_levels[k] + w[:, None] * m_levels[k + 1]
     g_scene, g_sensor = reduction(noise.noise_area_px2[sel][None, :], m_f,
-                                  grid[:, None], config, bank, transfer=True)
+                                  grid[:, None], config, bank, transfer=True,
+                                  z_mm=noise.z_mm[sel][None, :])
     after = np.hypot(noise.scene_mm[sel] * g_scene, noise.sensor_mm[sel] * g_sensor)
     return np.median(after, axis=1)
 
@@ -435,7 +436,7 @@ def flatten(desc: PatternDescription, stacks: Sequence[np.ndarray], phase_map: P
     stack = stacks[[s.name for s in desc.sets].index(working.name)]
     xp, gain = filter_phase(stack, working.shifts_rad, phase_map, level, bank)
     g_scene, g_sensor = reduction(noise.noise_area_px2, noise.period_cam_px,
-                                  curve.level_at(noise.z_mm), config, bank)
+                                  curve.level_at(noise.z_mm), config, bank, z_mm=noise.z_mm)
     sigma, flat, lateral = (np.full(shape, np.nan) for _ in range(3))
     sigma.flat[noise.index] = noise.sigma_mm
     flat.flat[noise.index] = np.hypot(noise.scene_mm * g_scene, noise.sensor_mm * g_sensor)
@@ -506,7 +507,7 @@ def flattened_attributes(attributes: dict, xyz: np.ndarray, phase_map: PhaseMap,
     period = fringe_period_at(phase_map, v, u)
     model = config.model
     g_scene, g_sensor = reduction(camera_noise_area_px2(z, config), period, level, config,
-                                  bank)
+                                  bank, z_mm=z)
     random = attributes["sigma_random_um"].astype(float)
     source = curve.source
     if source == "model":
