@@ -272,3 +272,27 @@ def test_flatten_hand_value_at_focus(paper_config):
                                2 * np.sqrt((ratio**2 - 1) / np.pi), rtol=1e-9)
     with pytest.raises(optics.RangeError, match="not valid anywhere"):
         design.flatten_curve(paper_config, 400.0, 420.0, 1.0)
+
+
+def test_smooth_floor_gamma_follows_the_range(paper_config):
+    """The smooth floor's noise cells are fixed on the object: gamma [px] at Z_c is gamma
+    x focus / Z_c (450 mm focus: 2.0 px at 450 mm, 1.0 px at 900 mm, by hand); the
+    paper's floors keep gamma; NaN in, NaN out. The fit's fast path (s_o_with) and the
+    model chain give the same s_O with it."""
+    g = optics.correlation_gamma(2.0, np.array([450.0, 900.0, np.nan]), paper_config,
+                                 "smooth")
+    np.testing.assert_allclose(g[:2], [2.0, 1.0], rtol=1e-12)  # hand values
+    assert np.isnan(g[2])
+    np.testing.assert_array_equal(
+        optics.correlation_gamma(2.0, np.array([450.0, 900.0]), paper_config, "one"), 2.0)
+    cfg = paper_config.replace_model(filter_floor="smooth", filter_form="sum",
+                                     noise_reading="two_source", sensor_sigma_p_px=0.005)
+    z_c = np.array([430.0, 450.0, 470.0])
+    z_p = z_c + 21.27
+    terms = optics.optical_terms(z_c, z_p, cfg, gamma=2.2)
+    # F^2 = 1 + (F_1 Z_c / (gamma Z_focus))^2 with F_1 the factor for gamma = 1
+    expected = np.sqrt(1.0 + (terms.filter_base * z_c / (2.2 * 450.0)) ** 2)
+    np.testing.assert_allclose(terms.filter_factor, expected, rtol=1e-12)
+    fast = optics.optical_terms(z_c, z_p, cfg, gamma=1.0).s_o_with(
+        2.2, "smooth", "two_source", 0.005 / cfg.model.sigma_p_px)
+    np.testing.assert_allclose(fast, terms.s_o, rtol=1e-12)
