@@ -1,11 +1,11 @@
 """How the flatten acceptance's noise model was chosen (simulated; docs/flattening.rst,
-"The model the filter is solved from").
+"The model the filter is solved from" and "The far end").
 
-Everything here runs on its own noise stream (``--stream``, default "derive38"; "derive37" chose the
-session-37 model), never
-on the streams the acceptance is checked on (``flat_heldout`` 0-4 and 50-58,
-``flat_s36_heldout`` 60-68, ``flat_s37_fresh`` 70-78). Two measurements a user can make
-on their own scanner with a flat:
+Everything here runs on its own noise stream (``--stream``, default "derive38";
+"derive37" chose the session-37 model), never on the streams the acceptance is checked
+on (``flat_heldout`` 0-4 and 50-58, ``flat_s36_heldout`` 60-68, ``flat_s37_fresh`` 70-78,
+``flat_s38_fresh`` 80-88, ``flat_s38_b`` 90-98, ``flat_s38_c`` 110-118 and ``flat_s38_d``
+120-128). Two measurements a user can make on their own scanner with a flat:
 
 1. *a sweep*: the flat at 49 depths over 432-468 mm (positions 100-124 and 200-223), two
    scans each; the phase noise is the std of the two x_p maps' difference over sqrt 2,
@@ -14,15 +14,16 @@ on their own scanner with a flat:
    (:func:`scanqa.model.noisefit.fit_variant`), then with gamma held on a grid and
    sigma_p, sigma_s fitted (the sweep alone pins gamma only loosely);
 2. *known discs*: two scans of the flat at 436, 445, 450, 455 and 463 mm (160 px,
-   positions 400-404), their x_p difference filtered by discs of 4, 7 and 10 px at every pixel,
-   against :func:`scanqa.runs.filterbank.reduction` of the model's two parts for each
+   positions 400-404), their x_p difference filtered by discs of 4, 7 and 10 px at every
+   pixel, against :func:`scanqa.runs.filterbank.reduction` of the model's two parts for each
    gamma of the grid: the filter's gain is what flattening relies on.
 
 Each gamma is tried with sigma_s fitted and with sigma_s held at the decoder's image-based
 estimate (measured, not fitted; session 38). Printed besides the two RMS errors: the
 flattened std / target each disc depth should end at (the disc's measured / predicted
 gain over the sweep's model / measured sigma there) and its RMS ("flat RMS"), the
-error flattening itself inherits. The choice is made on this stream only.
+error flattening itself inherits. The choice is made on this stream only; ``--cache``
+keeps the renders (about 4 min of CPU) so that the fits can be re-run.
 
 Usage::
 
