@@ -23,7 +23,7 @@ estimate (measured, not fitted; session 38). Printed besides the two RMS errors:
 flattened std / target each disc depth should end at (the disc's measured / predicted
 gain over the sweep's model / measured sigma there) and its RMS ("flat RMS"), the
 error flattening itself inherits. The choice is made on this stream only; ``--cache``
-keeps the renders (about 4 min of CPU) so that the fits can be re-run.
+keeps the renders (about 40 s of CPU) so that the fits can be re-run.
 
 Usage::
 
