@@ -374,7 +374,7 @@ def test_a_known_kernel_at_focus_reduces_the_std_as_predicted():
     Measured on another stream ("probe30", 160 px, floored model): 0.419 / 0.438 and
     0.334 / 0.349 (before masked pixels took part: 0.519 and 0.467, +18 % and +34 %);
     here, smooth model: 0.401 / 0.435 and 0.317 / 0.346 (session 38: / 0.424 and
-    / 0.336, the gain over-predicted by 5-6 %). Tolerance 12 %: three times the
+    / 0.336: measured / predicted 0.95 and 0.94). Tolerance 12 %: three times the
     ~4 % sampling error of the filtered std on 128 x 128 px."""
     scans, maps, (cfg, cal, desc) = _focus_pair(93)
     inner = (slice(16, -16),) * 2
