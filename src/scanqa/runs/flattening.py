@@ -33,8 +33,8 @@ noise sources of docs/noise_model.rst:
   moments of convolved kernels add; the pixel is counted once): the smooth form of Eq. 17
   (``filter_floor = "smooth"``, whose gamma follows the point's range,
   :func:`scanqa.model.optics.correlation_gamma`). A model with that floor gives the
-  unflattened sigma by the same law; with the floored form ("one") the plan inherits its kink near focus
-  (docs/flattening.rst);
+  unflattened sigma by the same law; with the floored form ("one") the plan inherits
+  its kink near focus (docs/flattening.rst);
 * both are divided by the filter's transfer m_f at the fringe period in the camera image
   (the fringe amplitude falls, Eq. 11), P_cam = P / norm(grad x_p).
 
