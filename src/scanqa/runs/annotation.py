@@ -162,6 +162,8 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     grey = None
 
     def fill(records: np.ndarray) -> None:
+        records = records.view(np.ndarray)  # a memmap's slices run Python hooks per view
+
         def band(r0: int, r1: int) -> int:
             i = index[(r0, r1)]
             return _annotate_band(table, config, xp, extra, keep[i], (r0, r1),
@@ -313,9 +315,8 @@ def _pick(values: np.ndarray, select: np.ndarray | None) -> np.ndarray:
 def _pixels(select: np.ndarray | None, r0: int, r1: int, width: int
             ) -> tuple[np.ndarray, np.ndarray]:
     """Pixel column and row of a band's kept pixels [camera px]."""
-    if select is None:
-        rows, cols = np.divmod(np.arange(r0 * width, r1 * width), width)
-        return cols, rows
+    if select is None:  # no integer division per pixel
+        return np.tile(np.arange(width), r1 - r0), np.repeat(np.arange(r0, r1), width)
     rows, cols = np.divmod(select, width)
     return cols, rows + r0
 
