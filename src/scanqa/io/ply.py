@@ -232,9 +232,8 @@ def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = 
         Writable records in the layout of :func:`vertex_dtype`, a shared mapping of the
         temporary file's vertex data. After the block the display fields are filled
         (from ``offset_dn``, as :func:`write_ply` fills them; unless ``display`` is
-        False), the array is made
-        read-only, and the file is renamed onto ``path``; the array stays valid (it
-        maps the published file).
+        False), the array is made read-only, and the file is renamed onto ``path``;
+        the array stays valid (it maps the published file).
 
     Notes
     -----
