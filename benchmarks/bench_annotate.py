@@ -12,6 +12,7 @@ Run: .venv/bin/python benchmarks/bench_annotate.py [--width 2448 --height 2048]
 from __future__ import annotations
 
 import argparse
+import os
 import resource
 import sys
 import tempfile
@@ -72,7 +73,8 @@ def main() -> int:
           "issue 31), "
           f"{n / (t2 - t0) / 1e6:.1f} Mpt/s, "
           f"PLY {size:.0f} MB, peak RSS {peak:.2f} GB; CPU user {cpu1.ru_utime - cpu0.ru_utime:.2f}"
-          f" s, system {cpu1.ru_stime - cpu0.ru_stime:.2f} s (page faults, page cache)")
+          f" s, system {cpu1.ru_stime - cpu0.ru_stime:.2f} s (page faults, page cache); "
+          f"load {os.getloadavg()[0]:.1f} (other jobs stretch the wall time, not the CPU)")
     return 0
 
 

@@ -17,11 +17,17 @@ import threading
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from scanqa import cluster
+from scanqa.calibration.base import load_calibration
 from scanqa.cli import main
+from scanqa.decoding.decoder import decode
 from scanqa.io.atomic import STAGE_PREFIX
+from scanqa.io.ply import read_ply, write_ply
+from scanqa.model.config import load_config
+from scanqa.runs.annotation import annotate
 
 from .conftest import ROOT
 
@@ -159,8 +165,19 @@ def test_a_bad_scan_fails_alone_and_a_rerun_resumes(table, tmp_path, capsys):
         ("good", "ok"), ("bad", "failed"), ("again", "ok")]
     assert str(tmp_path / "empty") in result[1]["error"]
     assert not (out / "scans" / "bad").exists()
-    assert (out / "scans" / "good" / "cloud.ply").is_file()
     assert int(result[0]["points"]) > 60000
+    # written while annotated (issue 31): the cloud of an in-memory annotate of the scan,
+    # written apart by write_ply's chunk packer, read back alike
+    config = load_config(SAMPLE / "sample_scanner.toml", "sample")
+    ref = annotate(decode(gauge / "p000_r0"), load_calibration(table, config), config)
+    ref_file = write_ply(tmp_path / "ref.ply", np.array(ref.xyz),
+                         {k: np.array(v) for k, v in ref.attributes.items()})
+    got_xyz, got, _ = read_ply(out / "scans" / "good" / "cloud.ply")
+    want_xyz, want, _ = read_ply(ref_file)
+    np.testing.assert_array_equal(got_xyz, want_xyz)
+    assert got.keys() == want.keys()
+    for name in want:
+        np.testing.assert_array_equal(got[name], want[name], err_msg=name)
     printed = capsys.readouterr().out
     assert "failed: bad:" in printed and "2 ok, 1 failed" in printed
     before = {p: p.stat().st_mtime_ns for p in out.rglob("*") if p.is_file()}

@@ -12,10 +12,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scanqa.chunks import row_bands
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.las import grey_levels, top_level
 from scanqa.io.ply import DISPLAY_COMMENT, read_ply, write_ply
+from scanqa.runs import annotation
 from scanqa.runs.annotation import annotate
 
 from .synth_sweep import plane_truth
@@ -166,3 +168,24 @@ def test_annotating_into_a_file_refuses_other_formats_and_empty_clouds(scan, cfg
     with pytest.raises(InputError, match="no point lies inside the calibrated volume"):
         annotate(far, table, cfg, out=tmp_path / "c.ply")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_bands_fill_the_display_of_the_kept_points_only(scan, cfg, table, monkeypatch,  # noqa: F811
+                                                        tmp_path):
+    """Each band of annotate(out=...) fills its own display fields with a grey scale
+    known before the bands run (issue 31): it must be that of the kept points' offsets
+    only. Pixels left out (outside the calibrated volume) carry offsets 10x the others,
+    which would move the 99.9th percentile; 13 bands on the pool instead of one. The
+    reference is the chunk packer of write_ply (grey_levels of the written cloud)."""
+    xp, offset = scan.xp.copy(), scan.offset.copy()
+    xp[::7, ::3], offset[::7, ::3] = 1e6, 12000.0  # far outside: left out
+    pm = PhaseMap(xp=xp, modulation=scan.modulation, offset=offset, mask=scan.mask,
+                  sigma_xp=scan.sigma_xp, period_px=5.0, projector_width_px=1280)
+    monkeypatch.setattr(annotation, "row_bands", lambda rows, size: row_bands(rows, size, 500))
+    direct = annotate(pm, table, cfg, out=tmp_path / "direct.ply")
+    assert direct.counts["out_of_volume"] == xp[::7, ::3].size
+    assert np.all(direct.attributes["offset_dn"] < 1300.0)
+    kept = annotate(pm, table, cfg)
+    packed = write_ply(tmp_path / "packed.ply", np.array(kept.xyz),
+                       {k: np.array(v) for k, v in kept.attributes.items()}, kept.metadata)
+    assert (tmp_path / "direct.ply").read_bytes() == packed.read_bytes()

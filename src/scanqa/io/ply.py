@@ -17,6 +17,7 @@ bits) with ``alpha`` 255. They are derived, not data: a header comment
 from __future__ import annotations
 
 import contextlib
+import functools
 import json
 import logging
 import os
@@ -82,7 +83,13 @@ def vertex_dtype(names) -> np.dtype:
         ``scalar_<name>`` per attribute and, with an ``offset_dn`` attribute, the
         :data:`DISPLAY_FIELDS` (filled by :func:`write_ply`).
     """
-    names = list(names)
+    return _vertex_dtype(tuple(names))
+
+
+@functools.lru_cache(maxsize=32)
+def _vertex_dtype(names: tuple[str, ...]) -> np.dtype:
+    """:func:`vertex_dtype` of a tuple of names, made once (chunked producers ask for it
+    per chunk)."""
     display = list(DISPLAY_FIELDS) if INTENSITY_SOURCE in names else []
     return np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
                     + [(PREFIX + name, "<f4") for name in names] + display)
@@ -90,7 +97,13 @@ def vertex_dtype(names) -> np.dtype:
 
 def attribute_names(dtype: np.dtype) -> list[str]:
     """The attribute names of a record layout (:func:`vertex_dtype`), in file order."""
-    return [name[len(PREFIX):] for name in dtype.names[3:] if name.startswith(PREFIX)]
+    return list(_attribute_names(dtype))
+
+
+@functools.lru_cache(maxsize=32)
+def _attribute_names(dtype: np.dtype) -> tuple[str, ...]:
+    """:func:`attribute_names`, worked out once per layout."""
+    return tuple(name[len(PREFIX):] for name in dtype.names[3:] if name.startswith(PREFIX))
 
 
 def vertex_views(records: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -194,8 +207,8 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
 
 
 @contextlib.contextmanager
-def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = None
-                ) -> Iterator[np.ndarray]:
+def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = None,
+                display: bool = True) -> Iterator[np.ndarray]:
     """Records of a new binary PLY mapped from the file itself, published on exit.
 
     Parameters
@@ -208,15 +221,19 @@ def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = 
         Number of vertices [-].
     metadata : dict, optional
         Plain JSON for the header, as :func:`write_ply` writes it.
+    display : bool
+        Fill the display fields (with an ``offset_dn`` attribute) from the records after
+        the block; False when the producer fills them itself as it writes each chunk
+        (:func:`fill_display` with :func:`display_scale`), while the chunk is in cache.
 
     Yields
     ------
     (n,) ndarray
         Writable records in the layout of :func:`vertex_dtype`, a shared mapping of the
         temporary file's vertex data. After the block the display fields are filled
-        (from ``offset_dn``, as :func:`write_ply` fills them), the array is made
-        read-only, and the file is renamed onto ``path``; the array stays valid (it
-        maps the published file).
+        (from ``offset_dn``, as :func:`write_ply` fills them; unless ``display`` is
+        False), the array is made read-only, and the file is renamed onto ``path``;
+        the array stays valid (it maps the published file).
 
     Notes
     -----
@@ -244,7 +261,7 @@ def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = 
             else:
                 records = np.empty(0, dtype=dtype)
         yield records
-        if INTENSITY_SOURCE in names:
+        if display and INTENSITY_SOURCE in names:
             _fill_display_records(records)
         records.flags.writeable = False
 
@@ -266,7 +283,7 @@ def _header(dtype: np.dtype, n: int, metadata: dict | None) -> bytes:
     return ("\n".join(header) + "\n").encode("ascii")
 
 
-#: Records whose display fields are filled per pass of :func:`_fill_display_records`.
+#: Records whose display fields are filled per pass of :func:`fill_display`.
 _DISPLAY_CHUNK = 1 << 16
 
 
@@ -274,8 +291,47 @@ def _fill_display_records(records: np.ndarray) -> None:
     """Fill the display fields of records from their own ``offset_dn`` field, chunk by
     chunk: the grey levels of :func:`scanqa.io.las.grey_levels` (the same scale and
     rounding, element by element in float64) without its five full-size temporaries."""
+    fill_display(records, grey_scale(records[PREFIX + INTENSITY_SOURCE]))
+
+
+def display_scale(levels: np.ndarray) -> float:
+    """The grey scale of the display fields of records whose ``offset_dn`` will be
+    ``levels`` [DN], known before the records are written (:func:`fill_display`).
+
+    Parameters
+    ----------
+    levels : (n,) float ndarray
+        The ``offset_dn`` of every record, in any order [DN]; rounded to float32 here,
+        as the records hold them.
+
+    Returns
+    -------
+    float
+        The factor :func:`write_ply` scales the levels by [1/DN]
+        (:func:`scanqa.io.las.grey_scale`): the same order statistics of the same
+        float32 values.
+    """
+    return grey_scale(np.asarray(levels, dtype=np.float32))
+
+
+def fill_display(records: np.ndarray, scale: float) -> None:
+    """Fill the display fields of records (:func:`vertex_dtype` with ``offset_dn``) from
+    their own ``offset_dn`` field, chunk by chunk.
+
+    Parameters
+    ----------
+    records : (n,) ndarray
+        Records in the layout of :func:`vertex_dtype`, ``offset_dn`` written.
+    scale : float
+        The grey scale of the whole cloud (:func:`display_scale`) [1/DN].
+
+    Notes
+    -----
+    The grey levels of :func:`scanqa.io.las.grey_levels` (the same scale and rounding,
+    element by element in float64) without its five full-size temporaries; a producer
+    that writes a cloud in chunks can fill each chunk's display fields as it goes.
+    """
     level = records[PREFIX + INTENSITY_SOURCE]
-    scale = grey_scale(level)  # float32: the same order statistics
     for a in range(0, records.size, _DISPLAY_CHUNK):
         v = np.nan_to_num(level[a:a + _DISPLAY_CHUNK].astype(float), nan=0.0, copy=False)
         _fill_display(records[a:a + _DISPLAY_CHUNK], scaled_grey(v, scale))

@@ -159,20 +159,25 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
         extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
     starts = np.cumsum([0, *kept])
     index = {band: i for i, band in enumerate(bands)}
+    grey = None
 
     def fill(records: np.ndarray) -> None:
+        records = records.view(np.ndarray)  # a memmap's slices run Python hooks per view
+
         def band(r0: int, r1: int) -> int:
             i = index[(r0, r1)]
             return _annotate_band(table, config, xp, extra, keep[i], (r0, r1),
-                                  keep_invalid, records[starts[i]:starts[i + 1]], origin)
+                                  keep_invalid, records[starts[i]:starts[i + 1]], origin,
+                                  grey)
 
         counts["model_invalid"] = int(sum(run_bands(band, bands)))
 
     if out is None:
         records = np.empty(counts["written"], dtype=ply.vertex_dtype(names))
         fill(records)
-    else:
-        with ply.vertex_file(out, names, counts["written"], meta) as records:
+    else:  # each band fills its display fields too, while its records are in cache
+        grey = ply.display_scale(np.asarray(phase_map.offset)[np.concatenate(keep)])
+        with ply.vertex_file(out, names, counts["written"], meta, display=False) as records:
             fill(records)
     counts["kept_invalid"] = keep_invalid
     xyz, attributes = ply.vertex_views(records)
@@ -259,9 +264,10 @@ def _json_number(value: float) -> float | None:
 
 def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
                    extra: dict, keep: np.ndarray, rows: tuple[int, int], keep_invalid: bool,
-                   out: np.ndarray, source: dict) -> int:
+                   out: np.ndarray, source: dict, grey: float | None = None) -> int:
     """Look up, model and write the kept points of image rows ``rows`` into the records
-    ``out``; returns the number outside the model's validity."""
+    ``out`` (and their display fields with the grey scale ``grey`` [1/DN], if given);
+    returns the number outside the model's validity."""
     r0, r1 = rows
     select = None if out.size == keep.size else np.flatnonzero(keep)
     look = table.apply_rows(xp[r0:r1], r0, select, extrapolate=keep_invalid)
@@ -272,7 +278,10 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
     if getattr(table, "covariance", None) is not None:  # a parametric calibration's own
         inputs["sigma_calibration"] = table.calibration_sigma_mm(*pixels, _pick(
             xp[r0:r1], select))
-    return _annotate_points(look, pixels, inputs, config, out)
+    invalid = _annotate_points(look, pixels, inputs, config, out)
+    if grey is not None:
+        ply.fill_display(out, grey)
+    return invalid
 
 
 def table_correlation_px(table: Calibration) -> float:
@@ -306,9 +315,8 @@ def _pick(values: np.ndarray, select: np.ndarray | None) -> np.ndarray:
 def _pixels(select: np.ndarray | None, r0: int, r1: int, width: int
             ) -> tuple[np.ndarray, np.ndarray]:
     """Pixel column and row of a band's kept pixels [camera px]."""
-    if select is None:
-        rows, cols = np.divmod(np.arange(r0 * width, r1 * width), width)
-        return cols, rows
+    if select is None:  # no integer division per pixel
+        return np.tile(np.arange(width), r1 - r0), np.repeat(np.arange(r0, r1), width)
     rows, cols = np.divmod(select, width)
     return cols, rows + r0
 
@@ -317,43 +325,59 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
                      out: np.ndarray) -> int:
     """Model and attributes of one band's points, written into ``out``, records in the
     layout of :func:`scanqa.io.ply.vertex_dtype`; returns the number of points outside
-    the model's validity."""
+    the model's validity.
+
+    Every attribute is computed in float64 as ever and rounded once into its float32
+    row of one block (``out=``: no float64 copy per attribute), which is then written
+    record by record in one pass.
+    """
     points = look.xyz.reshape(-1, 3)
     slope = look.slope.reshape(-1, 3)
     s_t = np.sqrt(slope[:, 0] ** 2 + slope[:, 1] ** 2 + slope[:, 2] ** 2)  # |dQ/dx_p|
     pred = optics.predict(points, config, s_t=s_t)
-    sigma = np.where(pred.valid, pred.sigma, np.nan)
+    invalid = ~pred.valid
+    n_invalid = int(invalid.sum())
+    sigma = np.where(invalid, np.nan, pred.sigma) if n_invalid else pred.sigma
     sig_tab = inputs.get("sigma_calibration", look.sigma_table.ravel())
     random = _random_sigma(inputs, sigma, s_t)
-    total = np.sqrt(random**2 + sig_tab**2 + config.model.systematic_sigma_mm**2)
     ply.vertex_views(out)[0][...] = points
-    values = {
-        "sigma_model_um": 1e3 * sigma,
-        "sigma_scene_um": 1e3 * np.where(pred.valid, pred.sigma_scene, np.nan),
-        "sigma_sensor_um": 1e3 * np.where(pred.valid, pred.sigma_sensor, np.nan),
-        "sigma_phase_um": 1e3 * s_t * inputs["sigma_xp"],
-        "sigma_table_um": 1e3 * sig_tab,
-        "sigma_random_um": 1e3 * random,
-        "sigma_total_um": 1e3 * total,
-        "att_camera": pred.attenuation_camera, "att_projector": pred.attenuation_projector,
-        "filter_factor": pred.filter_factor, "s_o": pred.s_o, "s_t_um_px": 1e3 * s_t,
-        "modulation_dn": inputs["modulation"], "offset_dn": inputs["offset"],
-        "in_volume": look.in_volume.ravel(),
-        "model_valid": pred.valid, "pixel_u": pixels[0], "pixel_v": pixels[1],
-        "table_corr_mm": inputs["corr_px"] * points[:, 2] / config.camera.principal_distance_px,
-    }
-    for i, name in enumerate(("sx_um", "sy_um", "sz_um")):
-        values[name] = 1e3 * random * np.abs(slope[:, i] / s_t)
-    if "std" in inputs:
-        values["sigma_meas_um"] = 1e3 * inputs["std"]
-        values["n_repeats"] = inputs["count"]
-    # attributes as rows of one block, then written record by record in one pass
     names = ply.attribute_names(out.dtype)
     block = np.empty((len(names), out.size), dtype=np.float32)
-    for row, name in zip(block, names, strict=True):
-        row[...] = values[name]
+    row = dict(zip(names, block, strict=True))
+    um = 1e3 * s_t
+    random_um = 1e3 * random
+    for name, values in (("sigma_model_um", pred.sigma), ("sigma_scene_um", pred.sigma_scene),
+                         ("sigma_sensor_um", pred.sigma_sensor), ("sigma_table_um", sig_tab)):
+        np.multiply(values, 1e3, out=row[name], casting="same_kind")
+    if n_invalid:  # NaN where the model is not valid
+        for name in ("sigma_model_um", "sigma_scene_um", "sigma_sensor_um"):
+            row[name][invalid] = np.nan
+    np.multiply(um, inputs["sigma_xp"], out=row["sigma_phase_um"], casting="same_kind")
+    row["sigma_random_um"][...] = random_um
+    total = random**2
+    total += sig_tab**2
+    total += config.model.systematic_sigma_mm**2
+    np.sqrt(total, out=total)
+    np.multiply(total, 1e3, out=row["sigma_total_um"], casting="same_kind")
+    for i, name in enumerate(("sx_um", "sy_um", "sz_um")):
+        part = np.abs(slope[:, i] / s_t)
+        np.multiply(random_um, part, out=row[name], casting="same_kind")
+    corr = inputs["corr_px"] * points[:, 2]
+    np.divide(corr, config.camera.principal_distance_px, out=row["table_corr_mm"],
+              casting="same_kind")
+    for name, values in (("att_camera", pred.attenuation_camera),
+                         ("att_projector", pred.attenuation_projector),
+                         ("filter_factor", pred.filter_factor), ("s_o", pred.s_o),
+                         ("s_t_um_px", um), ("modulation_dn", inputs["modulation"]),
+                         ("offset_dn", inputs["offset"]), ("in_volume", look.in_volume.ravel()),
+                         ("model_valid", pred.valid), ("pixel_u", pixels[0]),
+                         ("pixel_v", pixels[1])):
+        row[name][...] = values
+    if "std" in inputs:
+        np.multiply(inputs["std"], 1e3, out=row["sigma_meas_um"], casting="same_kind")
+        row["n_repeats"][...] = inputs["count"]
     ply.attribute_block(out)[...] = block.T
-    return int((~pred.valid).sum())
+    return n_invalid
 
 
 def measured_std(table: Calibration, scans: Sequence[PhaseMap]

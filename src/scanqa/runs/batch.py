@@ -209,8 +209,11 @@ def _outputs(ctx: BatchContext, task: ScanTask, stage: Path) -> dict:
     """Decode, annotate and QA one scan into ``stage``; its row."""
     scan = decode(task.path)
     qa = ctx.layout is not None
+    # without QA the cloud is written while it is computed (annotate's file mapping: one
+    # copy of the cloud, not two); annotate refuses an empty cloud before writing
     cloud = annotate(scan, ctx.calibrations[scan.orientation], ctx.config,
-                     keep_invalid=qa or ctx.settings.keep_invalid, source=task.source)
+                     keep_invalid=qa or ctx.settings.keep_invalid, source=task.source,
+                     out=None if qa else stage / "cloud.ply")
     if not cloud.counts["written"]:
         raise InputError(f"{task.source}: no point lies inside the calibrated volume")
     source = cloud.metadata.get("sigma_source", {})
@@ -218,7 +221,6 @@ def _outputs(ctx: BatchContext, task: ScanTask, stage: Path) -> dict:
            "points": int(cloud.counts["written"]), "sigma_source": source.get("kind", ""),
            "sigma_warning": source.get("warning", "")}
     if not qa:
-        cloud.write(stage / "cloud.ply")
         return row
     s = ctx.settings
     result = run_qa(cloud, ctx.layout, config=ctx.config, margin_mm=s.margin_mm,
