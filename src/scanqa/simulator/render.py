@@ -40,7 +40,7 @@ from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.coding import PatternDescription, PhaseSet
 from scanqa.errors import InputError
 from scanqa.model.config import ScannerConfig
-from scanqa.simulator import devices
+from scanqa.simulator import devices, raykernels
 from scanqa.simulator.blur import BlurPlan, blur, blur_plan
 from scanqa.simulator.devices import Pose, Window
 from scanqa.simulator.optics_kernels import DiscAverage, airy_kernel, disc_average
@@ -357,7 +357,9 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
     frame); True if any sample is lit."""
     sim, s = config.simulator, config.simulator.supersampling
     uu, vv = _supersample_grid(config, win, tile, halo)
-    pts = _geometry(config, acq, uu, vv, threads)
+    fast = raykernels.tile_geometry(config, acq.scene, acq.camera, acq.projector, uu, vv,
+                                    threads)
+    pts = _geometry(config, acq, uu, vv, threads) if fast is None else _Points(*fast)
     if not pts.hit.any():
         return False
     airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
@@ -433,6 +435,16 @@ class _CellNoise:
         values *= self.scale
         return values
 
+    def add_to(self, radiance: np.ndarray, key: int) -> None:
+        """Add the noise of stream ``key`` to ``radiance`` in place (float32) [e-]."""
+        if self.scale is None:
+            return
+        if self.index is None:
+            radiance += self(key)
+            return
+        cells = _hash_normal(key, self.gx, self.gy).astype(np.float32)
+        raykernels.add_cell_noise(radiance, cells, self.index, self.scale)
+
 
 @dataclass(frozen=True)
 class _Frame:
@@ -455,11 +467,9 @@ class _Frame:
         key = _stream_key(self.config, (*self.key, pattern))
         radiance = base.copy()
         for h, q_re, q_im in terms:
-            radiance += np.float32(math.cos(h * delta)) * q_re
-            radiance -= np.float32(math.sin(h * delta)) * q_im
-        noise = self.noise(key)
-        if noise is not None:
-            radiance += noise
+            raykernels.add_fringe(radiance, np.float32(math.cos(h * delta)), q_re,
+                                  np.float32(math.sin(h * delta)), q_im)
+        self.noise.add_to(radiance, key)
         pixels = blur(radiance, self.plan)  # the pixel means of the blurred light [e-]
         rng = np.random.Generator(np.random.PCG64(
             np.random.SeedSequence([key, self.tile_index, 7])))
