@@ -67,3 +67,13 @@ def test_frame_loops_repeat_numpys_float32_arithmetic():
     expected = got + cells.ravel()[index] * scale
     raykernels.add_cell_noise(got, cells, index, scale)
     np.testing.assert_array_equal(got, expected)
+
+
+@pytest.mark.parametrize("shape", [(768, 768), (300, 93), (3, 3)])
+def test_pixel_means_repeat_numpys_float32_mean(shape):
+    rng = np.random.default_rng(6)
+    fine = rng.uniform(0, 4e4, shape).astype(np.float32)
+    out = rng.uniform(0, 4e4, (shape[0] // 3, shape[1] // 3)).astype(np.float32)
+    expected = out + fine.reshape(shape[0] // 3, 3, shape[1] // 3, 3).mean(axis=(1, 3))
+    raykernels.add_pixel_means(out, fine, 3)
+    np.testing.assert_array_equal(out, expected)  # numpy's summation order, bit for bit

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.fft import irfft2, next_fast_len, rfft2
 
 from scanqa.simulator.optics_kernels import camera_kernel
+from scanqa.simulator.raykernels import add_pixel_means
 
 #: Blur-diameter ladder: linear steps up to _D_LIN, then geometric [supersamples].
 _D_STEP, _D_LIN, _D_RATIO = 0.5, 4.0, 1.06
@@ -312,7 +313,7 @@ def blur(radiance: np.ndarray, plan: BlurPlan) -> np.ndarray:
         fine = np.zeros((rows.stop - rows.start, cols.stop - cols.start), np.float32)
         for crop in plan.crops:
             _add_crop(fine, radiance, crop, rows.start, cols.start)
-        out += fine.reshape(n_rows, s, n_cols, s).mean(axis=(1, 3))
+        add_pixel_means(out, fine, s)
     return out
 
 

@@ -266,3 +266,39 @@ def add_cell_noise(radiance: np.ndarray, cells: np.ndarray, index: np.ndarray,
     idx, s = index.reshape(-1), scale.reshape(-1)
     for i in range(r.size):
         r[i] += c[idx[i]] * s[i]
+
+
+@njit(cache=True, nogil=True)
+def add_pixel_means(out: np.ndarray, fine: np.ndarray, s: int) -> None:
+    """``out += fine.reshape(n0, s, n1, s).mean(axis=(1, 3))`` in one pass, float32, in
+    numpy's order (the sum of each supersample row's sum, then / s**2) [e-]."""
+    count = np.float32(s * s)
+    for r in range(out.shape[0]):
+        for c in range(out.shape[1]):
+            acc = np.float32(0.0)
+            for a in range(s):
+                part = np.float32(0.0)
+                for b in range(s):
+                    part += fine[r * s + a, c * s + b]
+                acc += part
+            out[r, c] += acc / count
+
+
+@njit(cache=True, nogil=True)
+def noise_cells(world: np.ndarray, hit: np.ndarray, cell: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Cell indices ``floor(X / cell)``, ``floor(Y / cell)`` of every sample (n,) int64;
+    a sample that sees nothing takes the first hit sample's cell (0 if none) [-]."""
+    n = hit.shape[0]
+    fx, fy = 0.0, 0.0
+    for i in range(n):
+        if hit[i]:
+            fx, fy = world[i, 0], world[i, 1]
+            break
+    ix = np.empty(n, np.int64)
+    iy = np.empty(n, np.int64)
+    for i in range(n):
+        x, y = (world[i, 0], world[i, 1]) if hit[i] else (fx, fy)
+        ix[i] = np.int64(np.floor(x / cell))
+        iy[i] = np.int64(np.floor(y / cell))
+    return ix, iy

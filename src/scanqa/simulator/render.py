@@ -222,10 +222,8 @@ def _noise_cells(config: ScannerConfig, pts: _Points, uu: np.ndarray, vv: np.nda
         s = sim.supersampling
         return (np.round(uu * s - 0.5).astype(np.int64),
                 np.round(vv * s - 0.5).astype(np.int64), float(s))
-    first = pts.world[pts.hit][0] if pts.hit.any() else np.zeros(3)
-    ix = np.floor(np.where(pts.hit, pts.world[..., 0], first[0]) / cell).astype(np.int64)
-    iy = np.floor(np.where(pts.hit, pts.world[..., 1], first[1]) / cell).astype(np.int64)
-    return ix, iy, 1.0
+    ix, iy = raykernels.noise_cells(pts.world.reshape(-1, 3), pts.hit.ravel(), float(cell))
+    return ix.reshape(pts.hit.shape), iy.reshape(pts.hit.shape), 1.0
 
 
 # --------------------------------------------------------------------------- sensor
