@@ -120,6 +120,15 @@ def _geometry(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndar
     return _Points(hits.hit, world, z_c, x_p, y_p, z_p, lit, shade)
 
 
+def _points(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndarray,
+            threads: int = 0) -> _Points:
+    """:func:`_geometry` by the compiled loops of :mod:`~scanqa.simulator.raykernels`
+    (the same numbers), or by numpy where those do not apply (a distorted projector)."""
+    fast = raykernels.tile_geometry(config, acq.scene, acq.camera, acq.projector, u, v,
+                                    threads)
+    return _geometry(config, acq, u, v, threads) if fast is None else _Points(*fast)
+
+
 def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
               normals: np.ndarray, hit: np.ndarray, x_p: np.ndarray, y_p: np.ndarray,
               z_p: np.ndarray, threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -165,7 +174,7 @@ def truth_for(config: ScannerConfig, acq: Acquisition) -> Truth:
 
     def band(r0: int, r1: int) -> None:
         v, u = np.mgrid[win.v0 + r0:win.v0 + r1, win.u0:win.u0 + win.width]
-        pts = _geometry(config, acq, u.astype(float), v.astype(float), threads)
+        pts = _points(config, acq, u.astype(float), v.astype(float), threads)
         cam = acq.camera.to_device(pts.world)
         for name, values, keep in (("x", cam[..., 0], pts.hit), ("y", cam[..., 1], pts.hit),
                                    ("z", cam[..., 2], pts.hit), ("xp", pts.x_p, pts.lit),
@@ -355,9 +364,7 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
     frame); True if any sample is lit."""
     sim, s = config.simulator, config.simulator.supersampling
     uu, vv = _supersample_grid(config, win, tile, halo)
-    fast = raykernels.tile_geometry(config, acq.scene, acq.camera, acq.projector, uu, vv,
-                                    threads)
-    pts = _geometry(config, acq, uu, vv, threads) if fast is None else _Points(*fast)
+    pts = _points(config, acq, uu, vv, threads)
     if not pts.hit.any():
         return False
     airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
