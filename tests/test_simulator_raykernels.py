@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from scanqa.simulator import devices, experiments, raykernels, render
+from scanqa.simulator.optics_kernels import DiscAverage
 
 
 def _window(config, size):
@@ -77,3 +78,24 @@ def test_pixel_means_repeat_numpys_float32_mean(shape):
     expected = out + fine.reshape(shape[0] // 3, 3, shape[1] // 3, 3).mean(axis=(1, 3))
     raykernels.add_pixel_means(out, fine, 3)
     np.testing.assert_array_equal(out, expected)  # numpy's summation order, bit for bit
+
+
+def test_phasor_parts_repeat_numpys_interp_and_reduction():
+    table = DiscAverage(37)
+    rng = np.random.default_rng(7)
+    n = 20000
+    lit = rng.random(n) < 0.8
+    d_panel = np.where(lit, rng.uniform(0, 20, n), 0.0)
+    d_panel[:5] = [0.0, table.u[7] * 6 / np.pi, 1e3, table.u[-1] * 6 / np.pi, 2.5]  # grid
+    lit[:5] = True                                     # points, beyond the table's end
+    x_p = rng.uniform(-0.5, 1279.5, n)
+    for harmonic in (1, 3):
+        contrast, angle = raykernels.phasor_parts(lit, d_panel, x_p, harmonic, 6.0,
+                                                  table.u, table.m)
+        # the numpy expressions the renderer used before (np.interp, float64 reduction)
+        ref_c = np.where(lit, np.interp(np.pi * d_panel * harmonic / 6.0, table.u, table.m),
+                         0.0).astype(np.float32)
+        cycles = np.where(lit, x_p, 0.0) * (harmonic / 6.0)
+        ref_a = ((cycles - np.floor(cycles)) * (2.0 * np.pi)).astype(np.float32)
+        np.testing.assert_array_equal(contrast, ref_c)
+        np.testing.assert_array_equal(angle, ref_a)

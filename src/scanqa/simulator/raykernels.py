@@ -302,3 +302,40 @@ def noise_cells(world: np.ndarray, hit: np.ndarray, cell: float
         ix[i] = np.int64(np.floor(x / cell))
         iy[i] = np.int64(np.floor(y / cell))
     return ix, iy
+
+
+@njit(cache=True, nogil=True)
+def _interp(x: float, xp: np.ndarray, fp: np.ndarray) -> float:
+    """``np.interp(x, xp, fp)`` for a finite x >= xp[0] on an evenly spaced, increasing
+    xp: the same interval and the same arithmetic as numpy's [-]."""
+    n = xp.shape[0]
+    if x > xp[n - 1]:
+        return fp[n - 1]
+    j = min(max(int(x / (xp[1] - xp[0])), 0), n - 1)
+    while j > 0 and xp[j] > x:
+        j -= 1
+    while j < n - 1 and xp[j + 1] <= x:
+        j += 1
+    if j == n - 1 or xp[j] == x:
+        return fp[j]
+    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
+    return slope * (x - xp[j]) + fp[j]
+
+
+@njit(cache=True, nogil=True)
+def phasor_parts(lit: np.ndarray, d_panel: np.ndarray, x_p: np.ndarray, harmonic: int,
+                 period: float, table_u: np.ndarray, table_m: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Contrast ``M(pi d h / P)`` and fringe angle ``2 pi frac(h x_p / P)`` of lit samples
+    (0 elsewhere), both float32, as the renderer's ``_phasor`` forms them [-], [rad]."""
+    n = lit.shape[0]
+    contrast = np.zeros(n, np.float32)
+    angle = np.zeros(n, np.float32)
+    scale = harmonic / period
+    for i in range(n):
+        if lit[i]:
+            contrast[i] = np.float32(_interp(np.pi * d_panel[i] * harmonic / period,
+                                             table_u, table_m))
+            cycles = x_p[i] * scale
+            angle[i] = np.float32((cycles - np.floor(cycles)) * (2.0 * np.pi))
+    return contrast, angle

@@ -514,10 +514,10 @@ def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage
     The fringe's phase is reduced to one period in float64 before the float32 cosine
     (a phase error of ~1e-6 rad instead of ~1e-4 rad at the panel's edge).
     """
-    contrast = np.where(pts.lit, table(np.pi * d_panel * harmonic / period), 0.0)
-    cycles = np.where(pts.lit, pts.x_p, 0.0) * (harmonic / period)
-    angle = ((cycles - np.floor(cycles)) * (2.0 * np.pi)).astype(np.float32)
-    contrast = contrast.astype(np.float32)
+    contrast, angle = raykernels.phasor_parts(
+        pts.lit.ravel(), d_panel.ravel(), pts.x_p.ravel(), harmonic, float(period),
+        table.u, table.m)
+    contrast, angle = contrast.reshape(pts.lit.shape), angle.reshape(pts.lit.shape)
     return contrast * np.cos(angle), contrast * np.sin(angle)
 
 
