@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanqa.simulator import devices, experiments, raykernels, render
+from scanqa.simulator import blur, devices, experiments, raykernels, render
 from scanqa.simulator.optics_kernels import DiscAverage
 
 
@@ -99,3 +99,29 @@ def test_phasor_parts_repeat_numpys_interp_and_reduction():
         ref_a = ((cycles - np.floor(cycles)) * (2.0 * np.pi)).astype(np.float32)
         np.testing.assert_array_equal(contrast, ref_c)
         np.testing.assert_array_equal(angle, ref_a)
+
+
+def _numpy_groups(diameter, hit):
+    """blur._groups as numpy computed it: ladder positions, a stable argsort by layer."""
+    flat = np.flatnonzero(hit)
+    lam = blur.layer_coord(diameter.ravel()[flat])
+    level = np.floor(lam).astype(np.int64)
+    order = np.argsort(level, kind="stable")
+    flat, level, frac = flat[order], level[order], (lam - level)[order]
+    return [(int(lev), flat[level == lev], frac[level == lev]) for lev in np.unique(level)]
+
+
+@pytest.mark.parametrize("shape", [(300, 300), (5, 7), (1, 1)])
+def test_ladder_groups_equal_numpys_sort(shape):
+    rng = np.random.default_rng(8)
+    diameter = rng.uniform(0, 60, shape)
+    diameter.flat[0] = 4.0  # the end of the ladder's linear part
+    hit = rng.random(shape) < 0.7
+    hit.flat[0] = True
+    got = blur._groups(diameter, hit)
+    expected = _numpy_groups(diameter, hit)
+    assert [g[0] for g in got] == [e[0] for e in expected]
+    for (_, idx, frac), (_, idx_ref, frac_ref) in zip(got, expected, strict=True):
+        np.testing.assert_array_equal(idx, idx_ref)
+        np.testing.assert_array_equal(frac, frac_ref)  # the same float64 operations
+    assert blur._groups(diameter, np.zeros(shape, bool)) == []

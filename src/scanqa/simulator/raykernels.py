@@ -339,3 +339,48 @@ def phasor_parts(lit: np.ndarray, d_panel: np.ndarray, x_p: np.ndarray, harmonic
             cycles = x_p[i] * scale
             angle[i] = np.float32((cycles - np.floor(cycles)) * (2.0 * np.pi))
     return contrast, angle
+
+
+@njit(cache=True, nogil=True)
+def ladder_groups(diameter: np.ndarray, hit: np.ndarray, d_step: float, d_lin: float,
+                  log_ratio: float):
+    """The hit samples sorted by their blur-ladder layer (a stable counting sort).
+
+    ``diameter`` (n,) [supersamples] and ``hit`` (n,) are flat; the ladder position is
+    ``d / d_step`` up to ``d_lin``, ``d_lin / d_step + log(d / d_lin) / log_ratio``
+    beyond (``scanqa.simulator.blur.layer_coord``). Returns the flat indices (int64) and
+    the fractions ``lam - floor(lam)`` of the samples in layer order (within a layer in
+    flat order), the layers present and where each starts in those arrays.
+    """
+    lin = d_lin / d_step
+    m = 0
+    for i in range(hit.shape[0]):
+        m += hit[i]
+    lam = np.empty(m)
+    flat = np.empty(m, np.int64)
+    j = 0
+    for i in range(hit.shape[0]):
+        if hit[i]:
+            d = diameter[i]
+            if d <= d_lin:
+                lam[j] = d / d_step
+            else:
+                lam[j] = lin + np.log(max(d, d_lin) / d_lin) / log_ratio
+            flat[j] = i
+            j += 1
+    level = np.floor(lam).astype(np.int64)
+    lo = level.min() if m else 0
+    counts = np.zeros((level.max() - lo + 2) if m else 1, np.int64)
+    for k in range(m):
+        counts[level[k] - lo + 1] += 1
+    starts = np.cumsum(counts)
+    fill = starts[:-1].copy()
+    out_flat = np.empty(m, np.int64)
+    out_frac = np.empty(m)
+    for k in range(m):
+        slot = fill[level[k] - lo]
+        out_flat[slot] = flat[k]
+        out_frac[slot] = lam[k] - level[k]
+        fill[level[k] - lo] += 1
+    present = np.flatnonzero(counts[1:]) if m else np.zeros(0, np.int64)
+    return out_flat, out_frac, present + lo, starts[present], starts[present + 1]
