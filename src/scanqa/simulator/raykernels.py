@@ -305,21 +305,23 @@ def noise_cells(world: np.ndarray, hit: np.ndarray, cell: float
 
 
 @njit(cache=True, nogil=True)
-def _interp(x: float, xp: np.ndarray, fp: np.ndarray) -> float:
+def _interp(x: float, xp: np.ndarray, fp: np.ndarray, slopes: np.ndarray,
+            inv_step: float) -> float:
     """``np.interp(x, xp, fp)`` for a finite x >= xp[0] on an evenly spaced, increasing
-    xp: the same interval and the same arithmetic as numpy's [-]."""
+    xp (``inv_step`` its inverse spacing, a first guess of the interval; ``slopes`` numpy's
+    ``(fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])``): the same interval and the same
+    arithmetic as numpy's [-]."""
     n = xp.shape[0]
     if x > xp[n - 1]:
         return fp[n - 1]
-    j = min(max(int(x / (xp[1] - xp[0])), 0), n - 1)
+    j = min(max(int(x * inv_step), 0), n - 1)
     while j > 0 and xp[j] > x:
         j -= 1
     while j < n - 1 and xp[j + 1] <= x:
         j += 1
     if j == n - 1 or xp[j] == x:
         return fp[j]
-    slope = (fp[j + 1] - fp[j]) / (xp[j + 1] - xp[j])
-    return slope * (x - xp[j]) + fp[j]
+    return slopes[j] * (x - xp[j]) + fp[j]
 
 
 @njit(cache=True, nogil=True)
@@ -332,10 +334,12 @@ def phasor_parts(lit: np.ndarray, d_panel: np.ndarray, x_p: np.ndarray, harmonic
     contrast = np.zeros(n, np.float32)
     angle = np.zeros(n, np.float32)
     scale = harmonic / period
+    slopes = (table_m[1:] - table_m[:-1]) / (table_u[1:] - table_u[:-1])
+    inv_step = (table_u.shape[0] - 1) / (table_u[-1] - table_u[0])
     for i in range(n):
         if lit[i]:
             contrast[i] = np.float32(_interp(np.pi * d_panel[i] * harmonic / period,
-                                             table_u, table_m))
+                                             table_u, table_m, slopes, inv_step))
             cycles = x_p[i] * scale
             angle[i] = np.float32((cycles - np.floor(cycles)) * (2.0 * np.pi))
     return contrast, angle
