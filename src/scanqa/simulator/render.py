@@ -23,7 +23,9 @@ largest blur, so memory is bounded, on a pool of threads (one per core); every r
 stream is keyed by (seed, stream key, pattern, tile), so the output does not depend on
 anything but the inputs (nor on the order in which the threads finish). The radiance and
 the blur are float32 (rounding ~1e-3 e- against a shot noise of ~140 e-); the geometry
-and the fringe's phase are float64.
+and the fringe's phase are float64. The per-sample passes (hits, projections, lighting,
+the fringe's contrast and angle, the noise cells, the blur's sort into layers) are
+compiled loops (:mod:`scanqa.simulator.raykernels`) that repeat numpy's arithmetic.
 """
 
 from __future__ import annotations
