@@ -1,19 +1,25 @@
-"""Compiled per-sample loops of the renderer's tiles (numba): hits, projections, light.
+"""Compiled per-sample loops of the renderer (numba): hits, projections, light, frames.
 
-The renderer's geometry of a tile (:func:`scanqa.simulator.render._geometry`) takes about
-twenty numpy passes over (n, 3) float64 arrays per ray set (the float64 refinement of the
+The renderer's geometry of a grid of rays (``scanqa.simulator.render._geometry``) took
+about twenty numpy passes over (n, 3) float64 arrays (the float64 refinement of the
 hits, the world points, the camera depth, the projector coordinates, the lighting and
 the shadow rays' set-up); here each is one loop over the samples, on the calling thread
 with the GIL released (the renderer's tile pool runs one per core). open3d still finds
-the hit triangle; the float64 refinement against that triangle's plane is the same
-formula as :meth:`scanqa.simulator.scene.Scene.cast`.
+the hit triangle; the float64 refinement against that triangle's plane is the formula
+of :meth:`scanqa.simulator.scene.Scene.cast`. The frame loops (:func:`add_fringe`,
+:func:`add_cell_noise`, :func:`add_pixel_means`), :func:`phasor_parts`,
+:func:`noise_cells` and :func:`ladder_groups` replace numpy passes of the tiles and of
+the blur plan.
 
-The results agree with the numpy path to float64 rounding (a few ulp: the order of the
-three products of a dot product differs); the ground truth
-(:func:`scanqa.simulator.render.truth_for`) keeps the numpy path, so it is unchanged bit
-for bit, and ``tests/test_simulator_raykernels.py`` checks the two against each other.
-The frame loops (:func:`add_fringe`, :func:`add_cell_noise`) repeat numpy's float32
-operations in numpy's order and give the same bits.
+Every loop repeats numpy's arithmetic in numpy's order (einsum's three-term dot product
+as ``(a0 b0 + a2 b2) + a1 b1``, matrix products with fused multiply-adds as BLAS forms
+them, a mean over two axes as the sum of row sums, numpy's interpolation slopes), so
+the renderer's images and the ground truth (:func:`scanqa.simulator.render.truth_for`
+uses :func:`tile_geometry` too) are the same bytes as with the numpy passes on this
+machine (docs/benchmarks.rst, "Fourth pass"); on a BLAS that sums otherwise the
+geometry may differ by an ulp. ``tests/test_simulator_raykernels.py`` checks each
+loop against the numpy expressions it replaces; the numpy geometry stays for a
+distorted projector.
 """
 
 from __future__ import annotations
