@@ -9,13 +9,15 @@ the 2448 x 2048 one is the paper's. Targets: under 15 s (issue 4); 60 s and 2.5 
 
     .venv/bin/python benchmarks/bench_simulate.py            # both sizes
     .venv/bin/python benchmarks/bench_simulate.py 640        # one size
-    # side by side with an older version (its src from a git worktree), alternated:
+    # side by side with an older version (its src from a git worktree), alternated; the
+    # line of each pair says whether the two wrote the same images and truth:
     .venv/bin/python benchmarks/bench_simulate.py 2448 --old /tmp/old/src --pairs 1
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import os
 import resource
@@ -52,12 +54,30 @@ def run_one(key: str) -> dict:
         t0 = time.perf_counter()
         run_experiment("gauge-blocks", config, tmp, repeats=1)
         seconds = time.perf_counter() - t0
-    usage = resource.getrusage(resource.RUSAGE_SELF)
+        usage = resource.getrusage(resource.RUSAGE_SELF)
+        digest = _digest(Path(tmp))
     return {"size": f"{config.camera.width_px} x {config.camera.height_px}",
             "pixel_um": config.camera.pixel_um, "patterns": 12,
             "seconds": round(seconds, 2), "cpu_seconds": round(usage.ru_utime
                                                                + usage.ru_stime, 1),
-            "peak_rss_mb": round(usage.ru_maxrss / 1024.0, 1), "target": TARGETS[key]}
+            "peak_rss_mb": round(usage.ru_maxrss / 1024.0, 1), "target": TARGETS[key],
+            "digest": digest}
+
+
+def _digest(folder: Path) -> str:
+    """SHA-256 (first 16 hex digits) of the scan's PNG files and truth arrays: equal for
+    two versions that render the same images and truth (the npz's zip headers carry a
+    time, so its arrays are hashed, not its bytes)."""
+    import numpy as np
+
+    h = hashlib.sha256()
+    for path in sorted(folder.rglob("*.png")):
+        h.update(path.relative_to(folder).as_posix().encode() + path.read_bytes())
+    for path in sorted(folder.rglob("*.npz")):
+        with np.load(path) as arrays:
+            for name in sorted(arrays.files):
+                h.update(name.encode() + arrays[name].tobytes())
+    return h.hexdigest()[:16]
 
 
 def _child(key: str, src: str | None) -> dict:
@@ -90,7 +110,9 @@ def main(argv: list[str]) -> int:
             print(json.dumps({"tree": "new", **new}))
             print(f"{key}: old/new CPU {old['cpu_seconds'] / new['cpu_seconds']:.2f}, "
                   f"wall {old['seconds'] / new['seconds']:.2f}, peak memory "
-                  f"{old['peak_rss_mb']:.0f} -> {new['peak_rss_mb']:.0f} MB", flush=True)
+                  f"{old['peak_rss_mb']:.0f} -> {new['peak_rss_mb']:.0f} MB, files "
+                  f"{'identical' if old['digest'] == new['digest'] else 'differ'}",
+                  flush=True)
     return 0
 
 

@@ -37,15 +37,20 @@ from scanqa.simulator.experiments import run_experiment
 #: Rows of the docs' table: label and the (file, function) whose cumulative time it sums.
 PARTS = (
     ("render: everything per tile", (("render.py", "_render_tile"),)),
-    ("geometry: camera and shadow rays, lighting", (("render.py", "_geometry"),)),
+    ("geometry: camera and shadow rays, lighting", (("render.py", "_points"),)),
     ("- open3d's cast_rays", (("~", "cast_rays"),)),
+    ("- the compiled loops (hits, projections, light)", (("raykernels.py", "light_hits"),
+                                                          ("raykernels.py", "unshadowed"))),
     ("blur plan (split into items, kernels)", (("blur.py", "blur_plan"),)),
     ("blur of the frames (FFTs, crops, fold)", (("blur.py", "blur"),)),
     ("fringe terms (disc average, phasor)", (("render.py", "_fringe_terms"),)),
-    ("scene noise (cells, hash, gather)", (("render.py", "of"), ("render.py", "__call__"))),
+    ("scene noise (cells, hash, gather)", (("render.py", "of"), ("render.py", "__call__"),
+                                           ("render.py", "add_to"))),
     ("sensor (Poisson, read noise, quantisation)", (("render.py", "_sensor"),)),
     ("truth (pixel centres) and its npz", (("experiments.py", "write_truth"),)),
     ("PNG frames", (("patternset.py", "write_pattern_set"),)),
+    ("numba: loading (or compiling) the compiled loops", (("dispatcher.py",
+                                                          "_compile_for_args"),)),
 )
 
 

@@ -37,6 +37,7 @@ import numpy as np
 from scipy.fft import irfft2, next_fast_len, rfft2
 
 from scanqa.simulator.optics_kernels import camera_kernel
+from scanqa.simulator.raykernels import add_pixel_means, ladder_groups
 
 #: Blur-diameter ladder: linear steps up to _D_LIN, then geometric [supersamples].
 _D_STEP, _D_LIN, _D_RATIO = 0.5, 4.0, 1.06
@@ -98,19 +99,16 @@ class BlurPlan:
 
 def _groups(diameter: np.ndarray, hit: np.ndarray
             ) -> list[tuple[int, np.ndarray, np.ndarray]]:
-    """(ladder index l, flat sample indices, fractions f) of the samples in [l, l + 1)."""
-    flat = np.flatnonzero(hit)
-    if flat.size == 0:
-        return []
-    lam = layer_coord(diameter.ravel()[flat])
-    i0 = np.floor(lam).astype(np.int64)
-    frac = lam - i0
-    order = np.argsort(i0.astype(np.int16), kind="stable")  # a radix sort: < 2**15 layers
-    flat, i0, frac = flat[order], i0[order], frac[order]
-    start = np.flatnonzero(np.diff(i0, prepend=i0[:1] - 1))  # i0 is sorted
-    stop = np.append(start[1:], i0.size)
+    """(ladder index l, flat sample indices, fractions f) of the samples in [l, l + 1).
+
+    :func:`layer_coord` of every hit sample and a stable sort by layer, in one compiled
+    pass (:func:`scanqa.simulator.raykernels.ladder_groups`).
+    """
+    flat, frac, levels, start, stop = ladder_groups(
+        np.ascontiguousarray(diameter, np.float64).ravel(), np.ascontiguousarray(hit).ravel(),
+        _D_STEP, _D_LIN, float(np.log(_D_RATIO)))
     return [(lev, flat[a:b], frac[a:b])
-            for lev, a, b in zip(i0[start].tolist(), start, stop, strict=True)]
+            for lev, a, b in zip(levels.tolist(), start, stop, strict=True)]
 
 
 def _items(diameter: np.ndarray, hit: np.ndarray
@@ -312,7 +310,7 @@ def blur(radiance: np.ndarray, plan: BlurPlan) -> np.ndarray:
         fine = np.zeros((rows.stop - rows.start, cols.stop - cols.start), np.float32)
         for crop in plan.crops:
             _add_crop(fine, radiance, crop, rows.start, cols.start)
-        out += fine.reshape(n_rows, s, n_cols, s).mean(axis=(1, 3))
+        add_pixel_means(out, fine, s)
     return out
 
 

@@ -553,12 +553,16 @@ def _manifest(name: str, config: ScannerConfig, desc: PatternDescription,
 
 
 def write_npz(path: Path, arrays: dict) -> Path:
-    """Write arrays as an uncompressed-deflate npz with fixed timestamps (reproducible)."""
+    """Write arrays as a deflated npz with fixed timestamps (reproducible).
+
+    Deflate level 1: at 5 MP the truth's arrays take 0.4 s of CPU per megapixel at level
+    6 and 0.15 s at level 1, for files 8 % larger (6.8 against 6.3 MB per megapixel).
+    """
     with atomic_path(path) as tmp, zipfile.ZipFile(tmp, "w", zipfile.ZIP_DEFLATED) as zf:
         for key, arr in arrays.items():
             buf = io.BytesIO()
             np.lib.format.write_array(buf, np.ascontiguousarray(arr), allow_pickle=False)
             info = zipfile.ZipInfo(f"{key}.npy", date_time=(1980, 1, 1, 0, 0, 0))
             info.compress_type = zipfile.ZIP_DEFLATED
-            zf.writestr(info, buf.getvalue())
+            zf.writestr(info, buf.getvalue(), compresslevel=1)
     return path

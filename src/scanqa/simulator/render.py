@@ -23,7 +23,9 @@ largest blur, so memory is bounded, on a pool of threads (one per core); every r
 stream is keyed by (seed, stream key, pattern, tile), so the output does not depend on
 anything but the inputs (nor on the order in which the threads finish). The radiance and
 the blur are float32 (rounding ~1e-3 e- against a shot noise of ~140 e-); the geometry
-and the fringe's phase are float64.
+and the fringe's phase are float64. The per-sample passes (hits, projections, lighting,
+the fringe's contrast and angle, the noise cells, the blur's sort into layers) are
+compiled loops (:mod:`scanqa.simulator.raykernels`) that repeat numpy's arithmetic.
 """
 
 from __future__ import annotations
@@ -40,7 +42,7 @@ from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.coding import PatternDescription, PhaseSet
 from scanqa.errors import InputError
 from scanqa.model.config import ScannerConfig
-from scanqa.simulator import devices
+from scanqa.simulator import devices, raykernels
 from scanqa.simulator.blur import BlurPlan, blur, blur_plan
 from scanqa.simulator.devices import Pose, Window
 from scanqa.simulator.optics_kernels import DiscAverage, airy_kernel, disc_average
@@ -120,6 +122,15 @@ def _geometry(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndar
     return _Points(hits.hit, world, z_c, x_p, y_p, z_p, lit, shade)
 
 
+def _points(config: ScannerConfig, acq: Acquisition, u: np.ndarray, v: np.ndarray,
+            threads: int = 0) -> _Points:
+    """:func:`_geometry` by the compiled loops of :mod:`~scanqa.simulator.raykernels`
+    (the same numbers), or by numpy where those do not apply (a distorted projector)."""
+    fast = raykernels.tile_geometry(config, acq.scene, acq.camera, acq.projector, u, v,
+                                    threads)
+    return _geometry(config, acq, u, v, threads) if fast is None else _Points(*fast)
+
+
 def _lighting(config: ScannerConfig, acq: Acquisition, world: np.ndarray,
               normals: np.ndarray, hit: np.ndarray, x_p: np.ndarray, y_p: np.ndarray,
               z_p: np.ndarray, threads: int = 0) -> tuple[np.ndarray, np.ndarray]:
@@ -165,7 +176,7 @@ def truth_for(config: ScannerConfig, acq: Acquisition) -> Truth:
 
     def band(r0: int, r1: int) -> None:
         v, u = np.mgrid[win.v0 + r0:win.v0 + r1, win.u0:win.u0 + win.width]
-        pts = _geometry(config, acq, u.astype(float), v.astype(float), threads)
+        pts = _points(config, acq, u.astype(float), v.astype(float), threads)
         cam = acq.camera.to_device(pts.world)
         for name, values, keep in (("x", cam[..., 0], pts.hit), ("y", cam[..., 1], pts.hit),
                                    ("z", cam[..., 2], pts.hit), ("xp", pts.x_p, pts.lit),
@@ -222,10 +233,8 @@ def _noise_cells(config: ScannerConfig, pts: _Points, uu: np.ndarray, vv: np.nda
         s = sim.supersampling
         return (np.round(uu * s - 0.5).astype(np.int64),
                 np.round(vv * s - 0.5).astype(np.int64), float(s))
-    first = pts.world[pts.hit][0] if pts.hit.any() else np.zeros(3)
-    ix = np.floor(np.where(pts.hit, pts.world[..., 0], first[0]) / cell).astype(np.int64)
-    iy = np.floor(np.where(pts.hit, pts.world[..., 1], first[1]) / cell).astype(np.int64)
-    return ix, iy, 1.0
+    ix, iy = raykernels.noise_cells(pts.world.reshape(-1, 3), pts.hit.ravel(), float(cell))
+    return ix.reshape(pts.hit.shape), iy.reshape(pts.hit.shape), 1.0
 
 
 # --------------------------------------------------------------------------- sensor
@@ -357,7 +366,7 @@ def _render_tile(config: ScannerConfig, acq: Acquisition, desc: PatternDescripti
     frame); True if any sample is lit."""
     sim, s = config.simulator, config.simulator.supersampling
     uu, vv = _supersample_grid(config, win, tile, halo)
-    pts = _geometry(config, acq, uu, vv, threads)
+    pts = _points(config, acq, uu, vv, threads)
     if not pts.hit.any():
         return False
     airy = airy_kernel(config.model.wavelength_nm * 1e-6, config.camera.f_number,
@@ -433,6 +442,16 @@ class _CellNoise:
         values *= self.scale
         return values
 
+    def add_to(self, radiance: np.ndarray, key: int) -> None:
+        """Add the noise of stream ``key`` to ``radiance`` in place (float32) [e-]."""
+        if self.scale is None:
+            return
+        if self.index is None:
+            radiance += self(key)
+            return
+        cells = _hash_normal(key, self.gx, self.gy).astype(np.float32)
+        raykernels.add_cell_noise(radiance, cells, self.index, self.scale)
+
 
 @dataclass(frozen=True)
 class _Frame:
@@ -455,11 +474,9 @@ class _Frame:
         key = _stream_key(self.config, (*self.key, pattern))
         radiance = base.copy()
         for h, q_re, q_im in terms:
-            radiance += np.float32(math.cos(h * delta)) * q_re
-            radiance -= np.float32(math.sin(h * delta)) * q_im
-        noise = self.noise(key)
-        if noise is not None:
-            radiance += noise
+            raykernels.add_fringe(radiance, np.float32(math.cos(h * delta)), q_re,
+                                  np.float32(math.sin(h * delta)), q_im)
+        self.noise.add_to(radiance, key)
         pixels = blur(radiance, self.plan)  # the pixel means of the blurred light [e-]
         rng = np.random.Generator(np.random.PCG64(
             np.random.SeedSequence([key, self.tile_index, 7])))
@@ -499,10 +516,10 @@ def _phasor(pts: _Points, d_panel: np.ndarray, period: float, table: DiscAverage
     The fringe's phase is reduced to one period in float64 before the float32 cosine
     (a phase error of ~1e-6 rad instead of ~1e-4 rad at the panel's edge).
     """
-    contrast = np.where(pts.lit, table(np.pi * d_panel * harmonic / period), 0.0)
-    cycles = np.where(pts.lit, pts.x_p, 0.0) * (harmonic / period)
-    angle = ((cycles - np.floor(cycles)) * (2.0 * np.pi)).astype(np.float32)
-    contrast = contrast.astype(np.float32)
+    contrast, angle = raykernels.phasor_parts(
+        pts.lit.ravel(), d_panel.ravel(), pts.x_p.ravel(), harmonic, float(period),
+        table.u, table.m)
+    contrast, angle = contrast.reshape(pts.lit.shape), angle.reshape(pts.lit.shape)
     return contrast * np.cos(angle), contrast * np.sin(angle)
 
 

@@ -97,6 +97,7 @@ class Scene:
                            self._v[self._f[:, 2]] - self._v[self._f[:, 0]])
         norm = np.linalg.norm(normals, axis=1, keepdims=True)
         self._n = normals / np.where(norm > 0, norm, 1.0)
+        self._v0 = np.ascontiguousarray(self._v[self._f[:, 0]])
         self._raycast = o3d.t.geometry.RaycastingScene()
         self._raycast.add_triangles(o3d.core.Tensor(self._v.astype(np.float32)),
                                     o3d.core.Tensor(self._f.astype(np.uint32)))
@@ -105,6 +106,35 @@ class Scene:
     def bounds(self) -> np.ndarray:
         """(2, 3) axis-aligned bounding box [mm]."""
         return np.array([self._v.min(axis=0), self._v.max(axis=0)])
+
+    @property
+    def face_normals(self) -> np.ndarray:
+        """(F, 3) float64 unit normals of the faces [-]."""
+        return self._n
+
+    @property
+    def face_origins(self) -> np.ndarray:
+        """(F, 3) float64 first vertex of every face [mm]."""
+        return self._v0
+
+    def face_offsets(self, origin: np.ndarray) -> np.ndarray:
+        """(F,) float64 ``n . (v0 - origin)`` per face, as :meth:`cast` computes it for
+        one shared origin (the hit distance is this over ``n . d``) [mm]."""
+        return np.einsum("ij,ij->i", self._n, self._v0 - origin[None, :])
+
+    def first_hits(self, rays: np.ndarray, threads: int = 0
+                   ) -> tuple[np.ndarray, np.ndarray]:
+        """open3d's float32 cast of (n, 6) float32 rays (origin, direction).
+
+        Returns
+        -------
+        prim, t : (n,) uint32, float32
+            Hit triangle (``2**32 - 1`` for none) and its ray parameter (inf for none).
+        """
+        import open3d as o3d
+
+        ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
+        return ans["primitive_ids"].numpy(), ans["t_hit"].numpy()
 
     def cast(self, origins: np.ndarray, directions: np.ndarray, normals: bool = True,
              threads: int = 0) -> Hits:
