@@ -189,3 +189,12 @@ def test_bands_fill_the_display_of_the_kept_points_only(scan, cfg, table, monkey
     packed = write_ply(tmp_path / "packed.ply", np.array(kept.xyz),
                        {k: np.array(v) for k, v in kept.attributes.items()}, kept.metadata)
     assert (tmp_path / "direct.ply").read_bytes() == packed.read_bytes()
+
+
+def test_the_display_fields_derive_from_the_ply_offset_property():
+    """ply_display names the property it reads without importing ply (no cycle): the name
+    must be the one ply writes the LAS intensity source under."""
+    from scanqa.io import ply, ply_display
+    from scanqa.io.las import INTENSITY_SOURCE
+
+    assert ply_display.LEVEL_FIELD == ply.PREFIX + INTENSITY_SOURCE == "scalar_offset_dn"

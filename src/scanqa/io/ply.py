@@ -31,7 +31,15 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io.atomic import atomic_path
 from scanqa.io.guard import loads_json_object
-from scanqa.io.las import INTENSITY_SOURCE, grey_levels, grey_scale, scaled_grey
+from scanqa.io.las import INTENSITY_SOURCE, grey_levels
+from scanqa.io.ply_display import (  # noqa: F401 - fill_display, display_scale: public here too
+    DISPLAY_COMMENT,
+    DISPLAY_FIELDS,
+    _fill_display,
+    _fill_display_records,
+    display_scale,
+    fill_display,
+)
 
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
 RESERVED_SUBSTRINGS = ("red", "green", "blue", "nx", "ny", "nz", "intensity", "gray", "grey")
@@ -46,12 +54,6 @@ log = logging.getLogger(__name__)
 #: abort on header lines longer than ~1 kB.
 META_COMMENT = "comment scanqa-meta"
 META_CHUNK = 160
-#: Display fields written after the attributes of a cloud with an ``offset_dn``
-#: attribute: 8 bytes, so that records stay whole 4-byte words.
-DISPLAY_FIELDS = (("intensity", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1"),
-                  ("alpha", "u1"))
-#: Header comment that marks the display fields as derived from ``scalar_offset_dn``.
-DISPLAY_COMMENT = "comment scanqa-display intensity red green blue alpha"
 
 
 def check_attribute_name(name: str) -> None:
@@ -281,73 +283,6 @@ def _header(dtype: np.dtype, n: int, metadata: dict | None) -> bytes:
     header += [f"property {_TYPE_NAMES[dtype[f].str[1:]]} {f}" for f in dtype.names]
     header.append("end_header")
     return ("\n".join(header) + "\n").encode("ascii")
-
-
-#: Records whose display fields are filled per pass of :func:`fill_display`.
-_DISPLAY_CHUNK = 1 << 16
-
-
-def _fill_display_records(records: np.ndarray) -> None:
-    """Fill the display fields of records from their own ``offset_dn`` field, chunk by
-    chunk: the grey levels of :func:`scanqa.io.las.grey_levels` (the same scale and
-    rounding, element by element in float64) without its five full-size temporaries."""
-    fill_display(records, grey_scale(records[PREFIX + INTENSITY_SOURCE]))
-
-
-def display_scale(levels: np.ndarray) -> float:
-    """The grey scale of the display fields of records whose ``offset_dn`` will be
-    ``levels`` [DN], known before the records are written (:func:`fill_display`).
-
-    Parameters
-    ----------
-    levels : (n,) float ndarray
-        The ``offset_dn`` of every record, in any order [DN]; rounded to float32 here,
-        as the records hold them.
-
-    Returns
-    -------
-    float
-        The factor :func:`write_ply` scales the levels by [1/DN]
-        (:func:`scanqa.io.las.grey_scale`): the same order statistics of the same
-        float32 values.
-    """
-    return grey_scale(np.asarray(levels, dtype=np.float32))
-
-
-def fill_display(records: np.ndarray, scale: float) -> None:
-    """Fill the display fields of records (:func:`vertex_dtype` with ``offset_dn``) from
-    their own ``offset_dn`` field, chunk by chunk.
-
-    Parameters
-    ----------
-    records : (n,) ndarray
-        Records in the layout of :func:`vertex_dtype`, ``offset_dn`` written.
-    scale : float
-        The grey scale of the whole cloud (:func:`display_scale`) [1/DN].
-
-    Notes
-    -----
-    The grey levels of :func:`scanqa.io.las.grey_levels` (the same scale and rounding,
-    element by element in float64) without its five full-size temporaries; a producer
-    that writes a cloud in chunks can fill each chunk's display fields as it goes.
-    """
-    level = records[PREFIX + INTENSITY_SOURCE]
-    for a in range(0, records.size, _DISPLAY_CHUNK):
-        v = np.nan_to_num(level[a:a + _DISPLAY_CHUNK].astype(float), nan=0.0, copy=False)
-        _fill_display(records[a:a + _DISPLAY_CHUNK], scaled_grey(v, scale))
-
-
-def _fill_display(records: np.ndarray, grey: np.ndarray) -> None:
-    """Write the display fields of records (:data:`DISPLAY_FIELDS`, the last 8 bytes)
-    from 16-bit grey levels: intensity, and red = green = blue = the top 8 bits, alpha
-    255, as one little-endian word per record."""
-    words = records.view(np.uint32).reshape(records.size, records.itemsize // 4)
-    words[:, -2] = grey.astype(np.float32).view(np.uint32)
-    rgba = grey.astype(np.uint32)
-    rgba >>= 8
-    rgba *= 0x010101
-    rgba += 0xFF000000
-    words[:, -1] = rgba
 
 
 #: PLY type name of each numpy type code written.
