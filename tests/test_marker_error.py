@@ -12,8 +12,10 @@ import pytest
 from scanqa.calibration import uncertainty as un
 from scanqa.calibration.sweep_fit import fit_sweep_geometry
 
-from .test_sweep_fit import _sweep
-from .test_sweep_fit import cfg  # noqa: F401  (the fixture)
+from .test_sweep_fit import (
+    _sweep,
+    cfg,  # noqa: F401  (the fixture)
+)
 
 ZS = [float(z) for z in np.arange(424.0, 477.0, 4.0)]
 
