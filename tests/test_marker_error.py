@@ -109,5 +109,5 @@ def test_marker_frames_listed_and_averaged(cfg, tmp_path):  # noqa: F811
     np.testing.assert_allclose(marker_image(pos.marker_frames, cfg),
                                np.mean(np.array(frames, float), axis=0))  # exact mean
     (tmp_path / "sweep.toml").write_text(head + rows.replace("m2.png", "gone.png"))
-    with pytest.raises(InputError, match="marker frame 'gone.png' does not exist"):
+    with pytest.raises(InputError, match=r"marker frame 'gone\.png' does not exist"):
         load_sweep(tmp_path)
