@@ -111,3 +111,17 @@ def test_marker_frames_listed_and_averaged(cfg, tmp_path):  # noqa: F811
     (tmp_path / "sweep.toml").write_text(head + rows.replace("m2.png", "gone.png"))
     with pytest.raises(InputError, match=r"marker frame 'gone\.png' does not exist"):
         load_sweep(tmp_path)
+
+
+def test_sweep_manifest_groups_marker_frames():
+    from scanqa.errors import InputError
+    from scanqa.io.sweep import sweep_manifest
+
+    caps, zs = ["a", "b", "c"], [430.0, 440.0, 450.0]
+    marks = [f"m{z:g}_{k}.png" for z in zs for k in range(2)]  # name order = reading order
+    rows = sweep_manifest(caps, zs, marks, 2.0, False)["position"]
+    assert [r["markers"] for r in rows] == [marks[0:2], marks[2:4], marks[4:6]]
+    assert sweep_manifest(caps, zs, marks[::2], 2.0, False)["position"][1]["markers"] == \
+        "m440_0.png"  # one a position: a plain string, as before
+    with pytest.raises(InputError, match="5 marker frames but 3 distinct stage readings"):
+        sweep_manifest(caps, zs, marks[:5], 2.0, False)

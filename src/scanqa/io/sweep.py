@@ -274,7 +274,8 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
         The stage reading of each capture [mm]; equal readings are repeats of one
         position.
     markers : list of str, optional
-        One marker frame per distinct reading, in increasing reading order.
+        Marker frames in increasing reading order: one per distinct reading, or N per
+        reading (the N of one position consecutive), averaged by ``scanqa calibrate``.
     square_mm : float, optional
         The printed target's square [mm] (required with ``markers``).
     decoded : bool
@@ -296,9 +297,10 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
     zs = sorted(set(readings))
     if len(zs) < 3:
         raise InputError(f"a sweep needs at least 3 distinct stage readings, got {len(zs)}")
-    if markers is not None and len(markers) != len(zs):
+    if markers is not None and (not markers or len(markers) % len(zs)):
         raise InputError(f"{len(markers)} marker frames but {len(zs)} distinct stage "
-                         "readings: give one marker frame per position")
+                         "readings: give one marker frame per position, or the same number "
+                         "for every position (consecutive in name order)")
     if markers is not None and not (square_mm and square_mm > 0):
         raise InputError("marker frames need the printed target's square size (square_mm "
                          "> 0 [mm])")
@@ -307,7 +309,8 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
     for k, z in enumerate(zs):
         row = {"z_mm": z, key: [c for c, r in zip(captures, readings, strict=True) if r == z]}
         if markers is not None:
-            row["markers"] = markers[k]
+            n = len(markers) // len(zs)
+            row["markers"] = markers[k] if n == 1 else markers[k * n:(k + 1) * n]
         rows.append(row)
     out: dict = {"format": FORMAT, "description": description or
                  f"{len(zs)} positions, {len(captures)} scans"}
