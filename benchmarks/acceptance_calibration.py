@@ -74,9 +74,12 @@ def scanner(config: Path = SAMPLE, profile: str | None = "sample",
     return load_config(config, profile=profile).replace_simulator(**realism)
 
 
-def simulate(out: Path, quick: bool, cfg: ScannerConfig, seed: int = 0) -> dict[str, Path]:
+def simulate(out: Path, quick: bool, cfg: ScannerConfig, seed: int = 0,
+             marker_frames: int = 1) -> dict[str, Path]:
     """Simulate (or reuse) the sweep, the hold-out planes and the gauge scans; ``seed``
-    > 0 gives all three fresh noise (a second, independent run of the same scanner)."""
+    > 0 gives all three fresh noise (a second, independent run of the same scanner);
+    the sweep takes ``marker_frames`` marker frames per position (the hold-out planes,
+    whose markers are not used, one)."""
     zs = SWEEP_Z[::2] if quick else SWEEP_Z
     shift = 10 * seed
     runs = {"sweep": ("calibration-sweep", cfg.replace_simulator(
@@ -91,7 +94,8 @@ def simulate(out: Path, quick: bool, cfg: ScannerConfig, seed: int = 0) -> dict[
         if not (folder / "manifest.toml").is_file():
             t0 = time.time()
             run_experiment(name, config, folder, positions=positions, repeats=repeats,
-                           progress=True)
+                           progress=True,
+                           marker_frames=marker_frames if key == "sweep" else 1)
             print(f"simulated {key} in {time.time() - t0:.0f} s", file=sys.stderr)
         done[key] = folder
     return done
@@ -272,7 +276,10 @@ def evaluate(cfg: ScannerConfig, folders: dict[str, Path]) -> dict:
     margin = edge_margin_px(cfg)
     focus = int(np.argmin(np.abs(np.array(z_hold) - cfg.camera.focus_mm)))
     result = {"simulated": True, "realism": REALISM,
-              "target_square_mm": cfg.simulator.target_square_mm, "geometry": geometry.summary(),
+              "target_square_mm": cfg.simulator.target_square_mm,
+              "marker_error": cals["a_marker_table"].provenance["target_geometry"][
+                  "marker_error"],
+              "geometry": geometry.summary(),
               "projector_fit_rms_px": proj_rms, "edge_margin_px": margin, "calibrations": {}}
     for name, cal in cals.items():
         reg = registration(cal, folders["sweep"])
@@ -315,13 +322,16 @@ def main(argv: list[str] | None = None) -> int:
                              "calib/paper_scanner.toml is the paper's full-resolution camera)")
     parser.add_argument("--square-mm", type=float, default=None,
                         help="the printed chessboard's square [mm] (default 4)")
+    parser.add_argument("--marker-frames", type=int, default=1,
+                        help="marker frames per sweep position, averaged by calibrate "
+                             "(default 1; docs/calibration.rst, 'How many marker frames')")
     parser.add_argument("--seed", type=int, default=0,
                         help="> 0: fresh noise for sweep, hold-out and gauge scans (an "
                              "independent repetition of the run; default 0)")
     args = parser.parse_args(argv)
     out = Path(args.out)
     cfg = scanner(args.config, args.profile, args.square_mm)
-    folders = simulate(out, args.quick, cfg, args.seed)
+    folders = simulate(out, args.quick, cfg, args.seed, args.marker_frames)
     if args.simulate_only:
         return 0
     result = evaluate(cfg, folders)

@@ -15,10 +15,18 @@ it and with a fixed window (sigma, half window [px]); the fit's f and k2 against
 simulator's camera are the detector's bias alone (docs/calibration.rst, "The marker fit's
 radial bias"). ``--seed N`` renders the frames with noise instead (stream N).
 
+``--frames K --seed N`` renders the marker frames with noise streams N .. N + K - 1,
+averages the K frames of each position as ``calibrate`` does, fits, and prints the
+target rotation's error against the simulator's truth and its std, with the registered
+error the fit's covariance implies (Eq. 4 of :mod:`scanqa.calibration.uncertainty`) and
+its distribution for 1-8 frames per position (docs/calibration.rst, "How many marker
+frames"). Streams 1000 and up are the marker-only draws (no acceptance seed).
+
 Usage::
 
     python benchmarks/diagnose_marker_geometry.py [--sweep DIR]
     python benchmarks/diagnose_marker_geometry.py --radial-bias [--seed N]
+    python benchmarks/diagnose_marker_geometry.py --frames K --seed N
 
 DIR defaults to ``acceptance_calibration_data/sweep`` (simulate it with
 ``acceptance_calibration.py --simulate-only``).
@@ -270,14 +278,46 @@ def radial_bias(seed: int | None) -> dict:
     return {"simulated": True, "noise": "none" if seed is None else f"seed {seed}", **out}
 
 
+def averaged_frames(seed: int, frames: int) -> dict:
+    """The marker fit of K averaged noisy frames per position against the truth, and
+    what its covariance predicts (module notes)."""
+    from scanqa.calibration import uncertainty as un
+
+    cfg = acc.scanner(square_mm=2.0)
+    spec, size = tg.ChessboardSpec(2.0), (cfg.camera.width_px, cfg.camera.height_px)
+    draws = [marker_frames(cfg, seed + k) for k in range(frames)]
+    dets = [tg.detect_chessboard(np.mean([d[i].astype(float) for d in draws], axis=0), spec)
+            for i in range(len(acc.SWEEP_Z))]
+    g = sf.fit_sweep_geometry(dets, acc.SWEEP_Z, cfg, *size)
+    ref = 0.5 * (min(acc.SWEEP_Z) + max(acc.SWEEP_Z))
+    truth = texture.target_frame(cfg, ref).axes.T[:, 2]
+    normal = g.rotation[:, 2] * np.sign(g.rotation[2, 2]) - truth
+    spread = un.registered_error_spread(g, acc.SWEEP_Z)
+    per_n = {n: {"median_um": 1e3 * un.registered_error_mm(spread, 0.5, frames / n),
+                 "q95_um": 1e3 * un.registered_error_mm(spread, 0.95, frames / n)}
+             for n in (1, 2, 3, 4, 5, 6, 8)}
+    return {"simulated": True, "streams": [seed, seed + frames - 1], "frames": frames,
+            "rotation_error_deg": [math.degrees(float(v)) for v in normal[:2]],
+            "rotation_std_deg": [g.std["target_normal_x_deg"], g.std["target_normal_y_deg"]],
+            "spread_um2": [1e6 * float(v) for v in spread[:3]],
+            "predicted_per_frames": per_n,
+            "marker_error": un.marker_error_summary(g, acc.SWEEP_Z, frames, 0.75e-3)}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--sweep", default="acceptance_calibration_data/sweep")
     parser.add_argument("--radial-bias", action="store_true",
                         help="the detector's bias of f and k2 from rendered marker frames")
     parser.add_argument("--seed", type=int, default=None,
-                        help="with --radial-bias: frames with noise of this stream")
+                        help="with --radial-bias: frames with noise of this stream; with "
+                             "--frames: the first stream")
+    parser.add_argument("--frames", type=int, default=None,
+                        help="marker frames averaged per position (needs --seed)")
     args = parser.parse_args(argv)
+    if args.frames:
+        print(json.dumps(averaged_frames(args.seed or 1001, args.frames), indent=1))
+        return 0
     if args.radial_bias:
         print(json.dumps(radial_bias(args.seed), indent=1))
         return 0

@@ -116,7 +116,16 @@ def test_calibration_report_shows_the_marker_geometry(cfg, tmp_path, capsys):
 
     small = cfg.replace_simulator(target_square_mm=4.0)
     out = run_experiment("calibration-sweep", small, tmp_path / "s",
-                         positions=[430.0, 440.0, 450.0, 460.0, 470.0], repeats=1)
+                         positions=[430.0, 440.0, 450.0, 460.0, 470.0], repeats=1,
+                         marker_frames=2)
+    # two marker frames per position, each its own noise, both listed in the manifest
+    from scanqa.io.sweep import load_sweep
+
+    frames = load_sweep(out.parent).positions[0].marker_frames
+    assert len(frames) == 2
+    from scanqa.io.images import read_image
+
+    assert (read_image(frames[0]) != read_image(frames[1])).any()
     assert main(["calibrate", str(out.parent), "--config", f"{SAMPLE}#sample", "--out",
                  str(tmp_path / "t.npz")]) == 0
     info = json.loads((tmp_path / "t_report.json").read_text())
@@ -135,6 +144,15 @@ def test_calibration_report_shows_the_marker_geometry(cfg, tmp_path, capsys):
     # to a turn about the other axis)
     assert f"toward azimuth {geo['target_tilt_azimuth_deg']:.2f} deg" in html
     assert f"{geo['std']['target_normal_y_deg']:.4f} deg toward x / y" in html
+    # the error the marker fit implies, against the model's bound: stated, with the
+    # frames it would take (a 4 mm board at 5 positions is far from the bound)
+    err = geo["marker_error"]
+    assert err["marker_frames"] == 2
+    assert err["rotation_std_deg"] == [geo["std"]["target_normal_x_deg"],
+                                       geo["std"]["target_normal_y_deg"]]
+    assert f"{err['fit_error_quantile_um']:.2f} um in 95 % of sweeps" in html
+    assert err["exceeds_bound"] == ("Warning: the marker fit" in html)
+    assert err["exceeds_bound"] == (err["frames_needed"] is None or err["frames_needed"] > 2)
 
 
 def test_target_normal_in_both_directions_with_its_std(cfg):

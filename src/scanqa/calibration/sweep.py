@@ -28,6 +28,7 @@ from scanqa.calibration.target import ChessboardSpec, detect_chessboard
 from scanqa.calibration.uncertainty import (
     GeometryCovariance,
     marker_covariance,
+    marker_error_summary,
     parametric_covariance,
 )
 from scanqa.decoding.decoder import decode
@@ -40,11 +41,14 @@ from scanqa.model import optics
 from scanqa.model.config import ScannerConfig, first_difference
 
 __all__ = ["Sweep", "calibrate", "check_sweep", "geometry_covariance", "iter_observations",
-           "load_sweep", "marker_geometry"]
+           "load_sweep", "marker_geometry", "marker_image"]
 
 #: The images' scale may differ from the config's by this factor before it is an error
 #: (distortion and a tilted target change the local scale by a few per cent) [-].
 SCALE_TOLERANCE = 1.25
+#: The bound on the table's error: this share of the optics model's single-point sigma
+#: on the camera axis at focus (the 0.1 sigma criterion, docs/calibration.rst) [-].
+TABLE_BOUND_SIGMA = 0.1
 #: Config sections a simulated sweep must share with the config it is calibrated with.
 _SIMULATED_SECTIONS = ("camera", "projector")
 
@@ -89,14 +93,33 @@ def marker_geometry(sweep: Sweep, config: ScannerConfig) -> SweepGeometry:
                           *(() if cells is None else (tuple(map(tuple, cells)),)))
     detections, size = [], None
     for pos in sweep.positions:
-        image = read_image(pos.markers)
-        _check_size(image.shape, config, pos.markers)
+        image = marker_image(pos.marker_frames or (pos.markers,), config)
         size = image.shape
         detections.append(detect_chessboard(image, spec, str(pos.markers)))
     geometry = fit_sweep_geometry(detections, [p.z_mm for p in sweep.positions], config,
                                   size[1], size[0])
     _check_focal(geometry, config, sweep.path)
     return geometry
+
+
+def marker_image(frames, config: ScannerConfig) -> np.ndarray:
+    """The mean of one position's marker frames, (H, W) float64 [DN].
+
+    The target does not move between them, so averaging N frames divides the image
+    noise's variance, and with it that of the corners and of the marker fit (its target
+    rotation above all: docs/calibration.rst, "How many marker frames"), by N.
+
+    Raises
+    ------
+    InputError
+        A frame is not the camera's size.
+    """
+    total = None
+    for frame in frames:
+        image = read_image(frame)
+        _check_size(image.shape, config, frame)
+        total = image.astype(float) if total is None else total + image
+    return total / len(frames)
 
 
 def _check_size(shape: tuple, config: ScannerConfig, source) -> None:
@@ -236,16 +259,29 @@ def calibrate(sweep: Sweep | str | os.PathLike, config: ScannerConfig,
         The table (``table.save(path)`` writes it); a marked sweep's fitted geometry is
         in its provenance under ``target_geometry``.
     report : BuildReport
-        Rejected samples by reason and the fit residual per position.
+        Rejected samples by reason and the fit residual per position. The marker fit's
+        implied error (:func:`~scanqa.calibration.uncertainty.marker_error_summary`,
+        against :func:`table_bound_mm`) is in ``target_geometry["marker_error"]``.
     """
     sweep = sweep if isinstance(sweep, Sweep) else load_sweep(sweep)
     geometry = marker_geometry(sweep, config) if use_markers and sweep.has_markers else None
     prov = sweep.provenance()
     if geometry is not None:
         prov["target_geometry"] = geometry.summary()
+        prov["target_geometry"]["marker_error"] = marker_error_summary(
+            geometry, [p.z_mm for p in sweep.positions],
+            len(sweep.positions[0].marker_frames), table_bound_mm(config))
     return build_table(_checked(iter_observations(sweep, geometry), sweep, config), config,
                        weights=weights, cell_px=cell_px, min_modulation=min_modulation,
                        provenance=prov, total=sweep.observation_count())
+
+
+def table_bound_mm(config: ScannerConfig) -> float:
+    """:data:`TABLE_BOUND_SIGMA` times the model's single-point sigma on the camera axis
+    at the focus distance [mm]."""
+    focus = config.camera.focus_mm
+    return TABLE_BOUND_SIGMA * float(optics.predict(np.array([0.0, 0.0, focus]),
+                                                    config).sigma)
 
 
 def geometry_covariance(cal) -> GeometryCovariance | None:

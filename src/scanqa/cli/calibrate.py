@@ -115,6 +115,13 @@ def run(args: argparse.Namespace) -> int:
          f"{report.used_samples} samples used, rejected: {rej}; table sigma median "
          + (f"{median:.3g} um" if median is not None else "unknown")
          + f"; report {report_html}")
+    err = info.get("target_geometry", {}).get("marker_error")
+    if err and err["exceeds_bound"]:
+        log.warning("the marker fit implies %.2f um of table error in %d %% of "
+                    "sweeps, past the bound of %.2f um: capture %s marker frames per "
+                    "position (see the report)", err["fit_error_quantile_um"],
+                    round(100 * err["quantile"]), err["bound_um"],
+                    err["frames_needed"] or "more")
     return 0
 
 

@@ -30,8 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="stage readings [mm]: a CSV/text file (one per line, last column) "
                         "or a comma list")
     p.add_argument("--markers", metavar="GLOB", default=None,
-                   help="marker frames relative to FOLDER, one per position in reading "
-                        "order (e.g. 'markers/*.png')")
+                   help="marker frames relative to FOLDER in reading order, one per "
+                        "position or N per position (consecutive in name order; "
+                        "calibrate averages them), e.g. 'markers/*.png'")
     p.add_argument("--square-mm", type=float, default=None, metavar="MM",
                    help="side of the printed chessboard's squares [mm] (with --markers)")
     add_config_argument(p, required=False)

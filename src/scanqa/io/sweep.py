@@ -10,6 +10,7 @@ Format (paths relative to the manifest's folder)::
     # patterns = ["p430_r0", "p430_r1"]            # or pattern folders, decoded on the fly
     lateral = "p430_truth.npz"                     # optional: arrays X, Y [mm] per pixel
     markers = "markers/p430.png"                   # optional: the marker frame
+    # markers = ["markers/p430_0.png", "markers/p430_1.png"]   # or several, averaged
 
     [target]                                       # with markers: the printed target
     kind = "chessboard"
@@ -22,8 +23,9 @@ Format (paths relative to the manifest's folder)::
 Positions are listed once each, in increasing ``z_mm`` (the stage reading); repeats go in
 the same position's list. At least three positions are needed. ``markers`` (on every
 position, with a ``[target]`` table) give the lateral geometry from the printed target;
-else ``lateral``; else the camera intrinsics of the scanner config. ``[scanner]`` keys
-are checked against the config a sweep is calibrated with.
+else ``lateral``; else the camera intrinsics of the scanner config. Several marker frames
+of one position (the target not moved between them) are averaged before detection.
+``[scanner]`` keys are checked against the config a sweep is calibrated with.
 """
 
 from __future__ import annotations
@@ -50,7 +52,8 @@ _POSITION = Schema("[[position]]", (
     Field("phase", "string or strings", doc="decoded phase files, one per repeat"),
     Field("patterns", "string or strings", doc="or pattern folders, decoded on the fly"),
     Field("lateral", "string", doc="file of arrays X, Y [mm] per pixel"),
-    Field("markers", "string", doc="image of the printed target at this position"),
+    Field("markers", "string or strings",
+          doc="image(s) of the printed target at this position (several are averaged)"),
 ))
 _TARGET = Schema("[target]", (
     Field("kind", "string", required=True, check=one_of("chessboard"),
@@ -83,13 +86,15 @@ SCANNER_KEYS = tuple(f.name for f in _SCANNER.fields)
 
 @dataclass(frozen=True)
 class SweepPosition:
-    """One stage position: its Z [mm], scan sources (one per repeat), optional lateral map."""
+    """One stage position: its Z [mm], scan sources (one per repeat), optional lateral map
+    and marker frames (``markers`` the first of ``marker_frames``)."""
 
     z_mm: float
     sources: tuple[Path, ...]
     decoded: bool
     lateral: Path | None
     markers: Path | None = None
+    marker_frames: tuple[Path, ...] = ()
 
 
 @dataclass(frozen=True)
@@ -180,10 +185,13 @@ def _position(path: Path, i: int, table: dict) -> SweepPosition:
     if lat is not None and not lat.exists():
         raise _err(path, f"{where}: lateral file {lateral!r} does not exist")
     markers = table.get("markers")
-    mark = None if markers is None else path.parent / markers
-    if mark is not None and not mark.is_file():
-        raise _err(path, f"{where}: marker frame {markers!r} does not exist")
-    return SweepPosition(float(z), sources, has_phase, lat, mark)
+    names = [] if markers is None else [markers] if isinstance(markers, str) else markers
+    frames = tuple(path.parent / m for m in names)
+    for name, frame in zip(names, frames, strict=True):
+        if not frame.is_file():
+            raise _err(path, f"{where}: marker frame {name!r} does not exist")
+    return SweepPosition(float(z), sources, has_phase, lat, frames[0] if frames else None,
+                         frames)
 
 
 def _check_order(path: Path, positions: tuple[SweepPosition, ...]) -> None:
@@ -266,7 +274,8 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
         The stage reading of each capture [mm]; equal readings are repeats of one
         position.
     markers : list of str, optional
-        One marker frame per distinct reading, in increasing reading order.
+        Marker frames in increasing reading order: one per distinct reading, or N per
+        reading (the N of one position consecutive), averaged by ``scanqa calibrate``.
     square_mm : float, optional
         The printed target's square [mm] (required with ``markers``).
     decoded : bool
@@ -288,9 +297,10 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
     zs = sorted(set(readings))
     if len(zs) < 3:
         raise InputError(f"a sweep needs at least 3 distinct stage readings, got {len(zs)}")
-    if markers is not None and len(markers) != len(zs):
+    if markers is not None and (not markers or len(markers) % len(zs)):
         raise InputError(f"{len(markers)} marker frames but {len(zs)} distinct stage "
-                         "readings: give one marker frame per position")
+                         "readings: give one marker frame per position, or the same number "
+                         "for every position (consecutive in name order)")
     if markers is not None and not (square_mm and square_mm > 0):
         raise InputError("marker frames need the printed target's square size (square_mm "
                          "> 0 [mm])")
@@ -299,7 +309,8 @@ def sweep_manifest(captures: list[str], readings: list[float], markers: list[str
     for k, z in enumerate(zs):
         row = {"z_mm": z, key: [c for c, r in zip(captures, readings, strict=True) if r == z]}
         if markers is not None:
-            row["markers"] = markers[k]
+            n = len(markers) // len(zs)
+            row["markers"] = markers[k] if n == 1 else markers[k * n:(k + 1) * n]
         rows.append(row)
     out: dict = {"format": FORMAT, "description": description or
                  f"{len(zs)} positions, {len(captures)} scans"}

@@ -65,6 +65,29 @@ def render(table: CalibrationTable, report: BuildReport) -> str:
     return page.render()
 
 
+def _marker_error(page: Page, err: dict) -> None:
+    """The error the marker fit's uncertainty implies, and a warning past the bound."""
+    q = round(100 * err["quantile"])
+    sx, sy = err["rotation_std_deg"]
+    rot = (f"the target's rotation known to {sx:.4f} / {sy:.4f} deg toward x / y (1 std) "
+           if sx is not None else "the target's rotation ")
+    page.paragraph(
+        f"From {err['marker_frames']} marker frame(s) per position: {rot}alone implies "
+        f"{err['rotation_error_um']:.2f} um RMS of registered table error "
+        f"({err['rotation_error_quantile_um']:.2f} um in {q} % of sweeps); the whole "
+        f"marker fit, whose errors partly cancel, {err['fit_error_um']:.2f} um "
+        f"({err['fit_error_quantile_um']:.2f} um in {q} %), against a bound of "
+        f"{err['bound_um']:.2f} um (0.1 of the model's single-point sigma at focus).")
+    if err["exceeds_bound"]:
+        needed = err["frames_needed"]
+        page.paragraph(
+            f"Warning: the marker fit's implied error ({err['fit_error_quantile_um']:.2f} "
+            f"um in {q} % of sweeps) exceeds the bound ({err['bound_um']:.2f} um): capture "
+            + (f"{needed} marker frames per position" if needed else
+               "more marker frames per position or a finer target")
+            + " (docs/calibration.rst, 'How many marker frames').", note=True)
+
+
 def _geometry_section(page: Page, geo: dict) -> None:
     """The camera and stage fitted to the marked target, and what the sweep pinned."""
     page.heading("Camera and stage from the marked target", "geometry")
@@ -82,6 +105,8 @@ def _geometry_section(page: Page, geo: dict) -> None:
                    f"{geo['target_tilt_deg']:.4f} deg{lean}{known}, focal length "
                    f"{geo['focal_px']:.2f} px, corner RMS {geo['rms_px']:.3f} px. Not fitted: "
                    + ("; ".join(held) if held else "nothing") + ".")
+    if "marker_error" in geo:
+        _marker_error(page, geo["marker_error"])
     if not geo.get("principal_point_fitted", True) and geo.get("decentring_fitted", False):
         page.paragraph("The sweep did not separate the principal point from the stage axis "
                        "(a lens that needs p1, p2): the table's volume may be sheared by a "

@@ -231,7 +231,8 @@ def acquisition(config: ScannerConfig, pos: Position, repeat: int, experiment: s
 def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
                    positions: Sequence[float] | None = None, repeats: int | None = None,
                    periods: Sequence[float] | None = None,
-                   mesh: str | os.PathLike | None = None, progress: bool = False) -> Path:
+                   mesh: str | os.PathLike | None = None, progress: bool = False,
+                   marker_frames: int = 1) -> Path:
     """Simulate an experiment and write its folder.
 
     Parameters
@@ -255,6 +256,9 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
     progress : bool
         Show the progress (:mod:`scanqa.progress`: a bar on a terminal, a log line per
         scan otherwise); False shows nothing.
+    marker_frames : int
+        Marker frames per position of a marked target, each with its own noise (the
+        sweep manifest lists them all; docs/calibration.rst, "How many marker frames").
 
     Returns
     -------
@@ -265,23 +269,24 @@ def run_experiment(name: str, config: ScannerConfig, out_dir: str | os.PathLike,
         raise InputError(f"unknown experiment {name!r} (known: {', '.join(EXPERIMENTS)})")
     positions = default_positions(name, config) if positions is None else list(positions)
     repeats = EXPERIMENTS[name] if repeats is None else int(repeats)
-    if not positions or repeats < 1:
-        raise InputError("need at least one position and repeats >= 1")
+    if not positions or repeats < 1 or marker_frames < 1:
+        raise InputError("need at least one position, repeats >= 1 and marker_frames >= 1")
     desc = pattern_description(config, periods)
     pos_list = build_positions(name, config, positions, mesh)
     target = Path(out_dir)
     with staged_dir(target) as out:  # published together when every scan is written
-        _simulate(name, config, out, desc, pos_list, repeats, progress)
+        _simulate(name, config, out, desc, pos_list, repeats, progress, marker_frames)
     return target / "manifest.toml"
 
 
 def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescription,
-              pos_list: list[Position], repeats: int, progress: bool) -> None:
+              pos_list: list[Position], repeats: int, progress: bool,
+              marker_frames: int = 1) -> None:
     """Render every scan of an experiment and write its folder into ``out``."""
     with Progress(f"simulate {name}", len(pos_list) * repeats, "scan", log,
                   enabled=progress) as bar, _Writer() as writer:
         for pos in pos_list:
-            write_truth(name, config, pos, out, writer)
+            write_truth(name, config, pos, out, writer, marker_frames)
             for rep in range(repeats):
                 write_scan(name, config, desc, pos, rep, out,
                            lambda done, tiles: bar.update(1 / tiles), writer=writer)
@@ -314,9 +319,10 @@ class _Writer:
 
 
 def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path,
-                writer: _Writer | None = None) -> Path:
+                writer: _Writer | None = None, marker_frames: int = 1) -> Path:
     """Render the ground truth of one position and write ``out/truth/pNNN.npz`` (and, for
-    a marked target, its marker frame ``out/markers/pNNN.png``).
+    a marked target, its marker frame ``out/markers/pNNN.png``, and frames k = 1 ..
+    ``marker_frames`` - 1 as ``pNNN_mK.png``, each the noise of repeat k).
 
     Parameters
     ----------
@@ -330,6 +336,8 @@ def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path,
         The experiment folder.
     writer : _Writer, optional
         Write the npz on this background writer (the caller waits for it).
+    marker_frames : int
+        Marker frames of a marked target [-].
 
     Raises
     ------
@@ -349,8 +357,9 @@ def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path,
         writer.submit(write_npz, path, truth.arrays())
     if pos.scene.texture is not None:  # a marked target: its marker frame too
         make_out_dir(out / "markers")
-        frame = render.render_marker_frame(config, acquisition(config, pos, 0, name))
-        write_image(out / "markers" / f"{pos.label}.png", frame)
+        for k in range(marker_frames):
+            frame = render.render_marker_frame(config, acquisition(config, pos, k, name))
+            write_image(out / "markers" / _marker_name(pos, k), frame)
     return path
 
 
@@ -400,6 +409,11 @@ def write_scan(name: str, config: ScannerConfig, desc: PatternDescription, pos: 
     return folder
 
 
+def _marker_name(pos: Position, k: int) -> str:
+    """File name of a position's k-th marker frame."""
+    return f"{pos.label}.png" if k == 0 else f"{pos.label}_m{k}.png"
+
+
 def finish_experiment(name: str, config: ScannerConfig, desc: PatternDescription,
                       pos_list: list[Position], repeats: int, out: Path) -> Path:
     """Write an experiment's own files once its scans are written: sweep.toml
@@ -408,7 +422,9 @@ def finish_experiment(name: str, config: ScannerConfig, desc: PatternDescription
     entries = [_entry(pos, rep, f"{pos.label}_r{rep}") for pos in pos_list
                for rep in range(repeats)]
     if name == "calibration-sweep":
-        write_text(out / "sweep.toml", dump_toml(_sweep(config, pos_list, entries)))
+        frames = sum(1 for k in range(1, 1000)
+                     if (out / "markers" / _marker_name(pos_list[0], k)).is_file()) + 1
+        write_text(out / "sweep.toml", dump_toml(_sweep(config, pos_list, entries, frames)))
     if name == "gauge-blocks":  # the artefact's layout, for 'scanqa qa --layout'
         layout = scene.paper_gauge_layout(config.camera.focus_mm)
         write_text(out / "layout.toml", scene.gauge_layout_toml(layout))
@@ -490,7 +506,8 @@ def example_spec(g: dict) -> dict:
     return spec
 
 
-def _sweep(config: ScannerConfig, pos_list: list[Position], entries: list[dict]) -> dict:
+def _sweep(config: ScannerConfig, pos_list: list[Position], entries: list[dict],
+           marker_frames: int = 1) -> dict:
     """The calibration's ``sweep.toml`` (scanqa.io.sweep): positions in increasing Z.
 
     A plain flat moving along the camera axis lists the truth's X, Y as its lateral maps;
@@ -505,7 +522,8 @@ def _sweep(config: ScannerConfig, pos_list: list[Position], entries: list[dict])
         row = {"z_mm": pos.stage_mm,
                "patterns": [e["folder"] for e in entries if e["index"] == pos.index]}
         if printed:
-            row["markers"] = f"markers/{pos.label}.png"
+            names = [f"markers/{_marker_name(pos, k)}" for k in range(marker_frames)]
+            row["markers"] = names[0] if marker_frames == 1 else names
         elif not tilted:
             row["lateral"] = f"truth/{pos.label}.npz"
         rows.append(row)
