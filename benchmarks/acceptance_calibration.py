@@ -325,8 +325,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the printed chessboard's square [mm] (default 4)")
     parser.add_argument("--marker-frames", type=int, default=5,
                         help="marker frames per sweep position, averaged by calibrate "
-                             "(default 5, the capture the docs advise; docs/calibration.rst, "
-                             "'How many marker frames')")
+                             "(default 5, the capture the docs advise: "
+                             "docs/calibration.rst 'How many marker frames')")
     parser.add_argument("--seed", type=int, default=0,
                         help="> 0: fresh noise for sweep, hold-out and gauge scans (an "
                              "independent repetition of the run; default 0)")

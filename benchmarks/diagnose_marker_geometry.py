@@ -19,8 +19,9 @@ radial bias"). ``--seed N`` renders the frames with noise instead (stream N).
 averages the K frames of each position as ``calibrate`` does, fits, and prints the
 target rotation's error against the simulator's truth and its std, with the registered
 error the fit's covariance implies (Eq. 4 of :mod:`scanqa.calibration.uncertainty`) and
-its distribution for 1-8 frames per position (docs/calibration.rst, "How many marker
-frames"). Streams 1000 and up are the marker-only draws (no acceptance seed).
+its distribution for 1-8 frames per position
+(docs/calibration.rst, "How many marker frames"). Streams 1000 and up are the
+marker-only draws (no acceptance seed).
 
 Usage::
 
