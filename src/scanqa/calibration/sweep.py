@@ -93,7 +93,7 @@ def marker_geometry(sweep: Sweep, config: ScannerConfig) -> SweepGeometry:
                           *(() if cells is None else (tuple(map(tuple, cells)),)))
     detections, size = [], None
     for pos in sweep.positions:
-        image = marker_image(pos.marker_frames or (pos.markers,), config)
+        image = marker_image(pos.marker_frames, config)
         size = image.shape
         detections.append(detect_chessboard(image, spec, str(pos.markers)))
     geometry = fit_sweep_geometry(detections, [p.z_mm for p in sweep.positions], config,
