@@ -290,7 +290,7 @@ def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescript
             for rep in range(repeats):
                 write_scan(name, config, desc, pos, rep, out,
                            lambda done, tiles: bar.update(1 / tiles), writer=writer)
-    finish_experiment(name, config, desc, pos_list, repeats, out)
+    finish_experiment(name, config, desc, pos_list, repeats, out, marker_frames)
 
 
 class _Writer:
@@ -415,16 +415,17 @@ def _marker_name(pos: Position, k: int) -> str:
 
 
 def finish_experiment(name: str, config: ScannerConfig, desc: PatternDescription,
-                      pos_list: list[Position], repeats: int, out: Path) -> Path:
+                      pos_list: list[Position], repeats: int, out: Path,
+                      marker_frames: int = 1) -> Path:
     """Write an experiment's own files once its scans are written: sweep.toml
-    (calibration sweeps), layout.toml (gauge blocks), the artefact files and, last,
-    manifest.toml; returns the manifest's path."""
+    (calibration sweeps, listing ``marker_frames`` marker frames per position of a
+    marked target, as :func:`write_truth` rendered them), layout.toml (gauge blocks),
+    the artefact files and, last, manifest.toml; returns the manifest's path."""
     entries = [_entry(pos, rep, f"{pos.label}_r{rep}") for pos in pos_list
                for rep in range(repeats)]
     if name == "calibration-sweep":
-        frames = sum(1 for k in range(1, 1000)
-                     if (out / "markers" / _marker_name(pos_list[0], k)).is_file()) + 1
-        write_text(out / "sweep.toml", dump_toml(_sweep(config, pos_list, entries, frames)))
+        write_text(out / "sweep.toml",
+                   dump_toml(_sweep(config, pos_list, entries, marker_frames)))
     if name == "gauge-blocks":  # the artefact's layout, for 'scanqa qa --layout'
         layout = scene.paper_gauge_layout(config.camera.focus_mm)
         write_text(out / "layout.toml", scene.gauge_layout_toml(layout))
