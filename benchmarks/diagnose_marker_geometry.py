@@ -79,7 +79,7 @@ class Setup:
         self.ref = 0.5 * (min(self.stage) + max(self.stage))
         self.size = (self.cfg.camera.width_px, self.cfg.camera.height_px)
         spec = tg.ChessboardSpec(float(self.sweep.target["square_mm"]))
-        self.detected = [tg.detect_chessboard(read_image(p.markers), spec)
+        self.detected = [tg.detect_chessboard(read_image(p.marker_frames[0]), spec)
                          for p in self.sweep.positions]
         self.exact = [tg.Detection(self.true_uv(d.target_points, s), d.target_points)
                       for d, s in zip(self.detected, self.stage, strict=True)]

@@ -105,11 +105,17 @@ def test_marker_frames_listed_and_averaged(cfg, tmp_path):  # noqa: F811
     sweep = load_sweep(tmp_path)
     pos = sweep.positions[0]
     assert pos.marker_frames == tuple(tmp_path / n for n in names)
-    assert pos.markers == tmp_path / "m0.png" and sweep.has_markers
+    assert pos.marker_frames[0] == tmp_path / "m0.png" and sweep.has_markers
     np.testing.assert_allclose(marker_image(pos.marker_frames, cfg),
                                np.mean(np.array(frames, float), axis=0))  # exact mean
     (tmp_path / "sweep.toml").write_text(head + rows.replace("m2.png", "gone.png"))
     with pytest.raises(InputError, match=r"marker frame 'gone\.png' does not exist"):
+        load_sweep(tmp_path)
+    # one position with fewer frames: refused, naming the position and both counts
+    fewer = rows.replace(', "m2.png"]', ']', 1)
+    (tmp_path / "sweep.toml").write_text(head + fewer)
+    with pytest.raises(InputError, match=r"position 2 \(z_mm = 440.0\) lists 3 marker "
+                                         r"frames, position 1 lists 2"):
         load_sweep(tmp_path)
 
 

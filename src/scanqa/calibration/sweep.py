@@ -95,7 +95,7 @@ def marker_geometry(sweep: Sweep, config: ScannerConfig) -> SweepGeometry:
     for pos in sweep.positions:
         image = marker_image(pos.marker_frames, config)
         size = image.shape
-        detections.append(detect_chessboard(image, spec, str(pos.markers)))
+        detections.append(detect_chessboard(image, spec, str(pos.marker_frames[0])))
     geometry = fit_sweep_geometry(detections, [p.z_mm for p in sweep.positions], config,
                                   size[1], size[0])
     _check_focal(geometry, config, sweep.path)

@@ -24,7 +24,8 @@ Positions are listed once each, in increasing ``z_mm`` (the stage reading); repe
 the same position's list. At least three positions are needed. ``markers`` (on every
 position, with a ``[target]`` table) give the lateral geometry from the printed target;
 else ``lateral``; else the camera intrinsics of the scanner config. Several marker frames
-of one position (the target not moved between them) are averaged before detection.
+of one position (the target not moved between them) are averaged before detection;
+every position lists the same number.
 ``[scanner]`` keys are checked against the config a sweep is calibrated with.
 """
 
@@ -87,13 +88,12 @@ SCANNER_KEYS = tuple(f.name for f in _SCANNER.fields)
 @dataclass(frozen=True)
 class SweepPosition:
     """One stage position: its Z [mm], scan sources (one per repeat), optional lateral map
-    and marker frames (``markers`` the first of ``marker_frames``)."""
+    and marker frames (empty without markers; several are averaged)."""
 
     z_mm: float
     sources: tuple[Path, ...]
     decoded: bool
     lateral: Path | None
-    markers: Path | None = None
     marker_frames: tuple[Path, ...] = ()
 
 
@@ -110,7 +110,7 @@ class Sweep:
     @property
     def has_markers(self) -> bool:
         """Whether every position names a marker frame."""
-        return all(p.markers is not None for p in self.positions)
+        return all(p.marker_frames for p in self.positions)
 
     def observation_count(self) -> int:
         """Number of scans (positions x repeats)."""
@@ -155,11 +155,18 @@ def _target(path: Path, table, positions: tuple[SweepPosition, ...]) -> dict | N
     """The ``[target]`` table (checked by :data:`SCHEMA`), required exactly when
     positions name marker frames."""
     target = None if table is None else dict(table)
-    marked = [p.markers is not None for p in positions]
+    marked = [bool(p.marker_frames) for p in positions]
     if any(marked) and not all(marked):
         k = marked.index(False)
         raise _err(path, f"position {k + 1} (z_mm = {positions[k].z_mm}) has no 'markers': "
                          "give the marker frame of every position or of none")
+    counts = [len(p.marker_frames) for p in positions]
+    if any(c != counts[0] for c in counts):
+        k = next(i for i, c in enumerate(counts) if c != counts[0])
+        raise _err(path, f"position {k + 1} (z_mm = {positions[k].z_mm}) lists {counts[k]} "
+                         f"marker frames, position 1 lists {counts[0]}: give every position "
+                         "the same number (they are averaged, and the report's error and "
+                         "frames needed assume one count)")
     if all(marked) and target is None:
         raise _err(path, "positions name marker frames but there is no [target] table: add "
                          "[target] kind = \"chessboard\", square_mm = <printed square> [mm]")
@@ -190,8 +197,7 @@ def _position(path: Path, i: int, table: dict) -> SweepPosition:
     for name, frame in zip(names, frames, strict=True):
         if not frame.is_file():
             raise _err(path, f"{where}: marker frame {name!r} does not exist")
-    return SweepPosition(float(z), sources, has_phase, lat, frames[0] if frames else None,
-                         frames)
+    return SweepPosition(float(z), sources, has_phase, lat, frames)
 
 
 def _check_order(path: Path, positions: tuple[SweepPosition, ...]) -> None:
