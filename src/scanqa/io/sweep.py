@@ -54,7 +54,8 @@ _POSITION = Schema("[[position]]", (
     Field("patterns", "string or strings", doc="or pattern folders, decoded on the fly"),
     Field("lateral", "string", doc="file of arrays X, Y [mm] per pixel"),
     Field("markers", "string or strings",
-          doc="image(s) of the printed target at this position (several are averaged)"),
+          doc="image(s) of the printed target at this position (several are averaged; "
+              "the same number at every position)"),
 ))
 _TARGET = Schema("[target]", (
     Field("kind", "string", required=True, check=one_of("chessboard"),
