@@ -17,7 +17,7 @@ def register(sub: argparse._SubParsersAction) -> None:
         help="characterise, calibrate, annotate and QA the sample data in one go",
         epilog="examples:\n  scanqa demo                   # sample data, ~5 s\n"
                "  scanqa demo --out /tmp/d --full   # simulate at 2448 x 2048 first "
-               "(~40 min)\n\nwrites the table, the annotated PLY, the QA report and tables")
+               "(~14 min)\n\nwrites the table, the annotated PLY, the QA report and tables")
     p.add_argument("--out", default="scanqa-demo", help="output folder (default scanqa-demo)")
     p.add_argument("--data", default="sample_data", metavar="DIR",
                    help="the data set (default: sample_data, in a clone of the repository)")

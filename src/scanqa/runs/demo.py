@@ -39,8 +39,9 @@ from scanqa.report.characterization import characterization_lines, write_charact
 from scanqa.runs.annotation import annotate
 
 #: Simulation plan of ``--full``: (experiment, camera window, positions, repeats, folder).
-#: About 40 min on 2 cores: 14 sweep positions and 3 gauge scans at 2448 x 2048 (~2 min
-#: each), the camera and projector sweeps on the central 256 x 256 px.
+#: About 14 min on 2 idle cores (docs/benchmarks.rst): 14 sweep positions and 3 gauge
+#: scans at 2448 x 2048 (~1 min each), the camera and projector sweeps on the central
+#: 256 x 256 px.
 FULL_PLAN = (("camera-sweep", 256, "-30:30:2", 1, "camera_sweep"),
              ("projector-sweep", 256, "-30:30:2", 1, "projector_sweep"),
              ("calibration-sweep", 0, "424:476:4", 1, "calibration_sweep"),
