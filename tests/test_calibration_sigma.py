@@ -50,3 +50,20 @@ def test_calibration_covariance_reaches_every_point(paper_config):
     np.testing.assert_allclose(a["sigma_total_um"], np.sqrt(
         a["sigma_random_um"].astype(float) ** 2 + a["sigma_table_um"].astype(float) ** 2),
         rtol=1e-5)
+
+
+def test_a_covariance_too_wide_for_its_calibration_is_named(paper_config):
+    """A covariance whose one-std step makes the camera's focal length negative is not this
+    calibration's: one clear error naming the covariance, not the camera matrix alone."""
+    import pytest
+
+    from scanqa.errors import InputError
+
+    cal, _ = small_scanner(paper_config, 40, 30)
+    cov = np.zeros((24, 24))
+    cov[0, 0] = (2 * cal.camera.matrix[0, 0]) ** 2   # f_x's std twice f_x itself
+    xp = np.full((30, 40), cal.projector.width_px / 2.0)
+    with pytest.raises(InputError, match=r"calibration_covariance: one std along a principal "
+                                         r"axis .* moves the calibration to an impossible one"):
+        replace(cal, covariance=cov).calibration_sigma_mm(
+            np.arange(40.0), np.zeros(40), xp[0])

@@ -98,6 +98,11 @@ BAD = {
     "fractional size": ({**GOOD, "screenResY": 600.5}, r"screenResY must be a positive whole"),
     "text size": ({**GOOD, "frameHeight": "480"}, r"frameHeight must be .* got '480'"),
     "text error": ({**GOOD, "cam_error": "small"}, r"cam_error must be a number"),
+    "negative error": ({**GOOD, "proj_error": -0.4}, r"proj_error must be a number >= 0"),
+    "covariance not symmetric": ({**GOOD, "calibration_covariance": np.triu(np.ones((24, 24)))},
+                                 r"'calibration_covariance' is not symmetric"),
+    "covariance not positive": ({**GOOD, "calibration_covariance": np.diag(
+        np.r_[np.ones(23), -1e-3])}, r"'calibration_covariance' has a negative eigenvalue"),
 }
 
 

@@ -43,6 +43,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from scanqa.errors import InputError
 from scanqa.io.opencv import COVARIANCE_PARAMETERS, OpenCVCalibration
 
 #: Eigenvalues below this fraction of the largest are dropped (numerical rank) [-].
@@ -151,8 +152,15 @@ def calibration_sigma_mm(cal, covariance: np.ndarray, u: np.ndarray, v: np.ndarr
     var = np.zeros(point.shape[:-1])
     for value, axis in zip(lam[keep], axes.T[keep], strict=True):
         step = np.sqrt(value) * axis
-        plus = unpack(cal, theta + step).apply(u, v, xp, extrapolate=True).xyz
-        minus = unpack(cal, theta - step).apply(u, v, xp, extrapolate=True).xyz
+        try:
+            plus, minus = unpack(cal, theta + step), unpack(cal, theta - step)
+        except InputError as err:
+            raise InputError(f"{cal.source}: calibration_covariance: one std along a "
+                             f"principal axis (variance {value:.3g}) moves the calibration "
+                             f"to an impossible one ({str(err).split(': ', 1)[-1]}): the "
+                             "covariance is not this calibration's") from None
+        plus = plus.apply(u, v, xp, extrapolate=True).xyz
+        minus = minus.apply(u, v, xp, extrapolate=True).xyz
         var += (np.sum(ray * (plus - minus), axis=-1) / 2) ** 2
     return np.sqrt(var)
 

@@ -170,7 +170,7 @@ def _read_nodes(fs, p: Path) -> OpenCVCalibration:
     errors = {name: _real(fs, p, name) for name in ERRORS}
     n = len(COVARIANCE_PARAMETERS)
     cov = (None if fs.getNode("calibration_covariance").empty()
-           else _matrix(fs, p, "calibration_covariance", (n, n)))
+           else _covariance(p, _matrix(fs, p, "calibration_covariance", (n, n))))
     return OpenCVCalibration(**mats, sizes={k: v for k, v in sizes.items() if v is not None},
                              errors={k: v for k, v in errors.items() if v is not None},
                              source=str(p), covariance=cov)
@@ -244,6 +244,29 @@ def _matrix(fs, p: Path, name: str, shape) -> np.ndarray:
     return mat.reshape(shape)
 
 
+#: Relative tolerance of the covariance's symmetry and of its smallest eigenvalue (text
+#: files round-trip float64 to ~1e-16; a covariance computed as a sum of outer products
+#: is symmetric to ~1e-15 of its largest entry) [-].
+COVARIANCE_TOLERANCE = 1e-9
+
+
+def _covariance(p: Path, cov: np.ndarray) -> np.ndarray:
+    """``calibration_covariance`` checked to be a covariance: symmetric and without a
+    negative eigenvalue (to :data:`COVARIANCE_TOLERANCE` of its largest)."""
+    scale = float(np.abs(cov).max())
+    asym = float(np.abs(cov - cov.T).max())
+    if asym > COVARIANCE_TOLERANCE * scale:
+        raise InputError(f"{p}: 'calibration_covariance' is not symmetric (largest "
+                         f"|C - C^T| {asym:.3g} against entries up to {scale:.3g}): write "
+                         "the fit's covariance matrix, or leave the key out")
+    low = float(np.linalg.eigvalsh((cov + cov.T) / 2).min())
+    if low < -COVARIANCE_TOLERANCE * scale:
+        raise InputError(f"{p}: 'calibration_covariance' has a negative eigenvalue ({low:.3g}), "
+                         "so it is no covariance: write the fit's covariance matrix, or "
+                         "leave the key out")
+    return cov
+
+
 def _distortion(p: Path, name: str, mat: np.ndarray) -> np.ndarray:
     """A distortion vector (a row or a column) as k1 k2 p1 p2 k3."""
     if (mat.ndim == 2 and min(mat.shape) != 1) or mat.size not in DISTORTION_LENGTHS:
@@ -273,12 +296,14 @@ def _size(fs, p: Path, name: str) -> int | None:
 
 
 def _real(fs, p: Path, name: str) -> float | None:
-    """An optional finite real node, or None."""
+    """An optional finite, non-negative real node (an RMS error), or None."""
     node = fs.getNode(name)
     if node.empty():
         return None
-    if not (node.isInt() or node.isReal()) or not np.isfinite(node.real()):
-        raise InputError(f"{p}: {name} must be a number [px], got {_show(node)}")
+    if not (node.isInt() or node.isReal()) or not np.isfinite(node.real()) or \
+            node.real() < 0:
+        raise InputError(f"{p}: {name} must be a number >= 0 [px] (an RMS error), got "
+                         f"{_show(node)}")
     return float(node.real())
 
 
