@@ -38,13 +38,22 @@ def read_fitted_model(path: str | os.PathLike) -> dict:
                 "filter_floor": str(best["filter_floor"]),
                 "noise_reading": str(best["noise_reading"]),
                 "filter_form": str(best.get("filter_form", "product")),
-                "sigma_p_px": float(best["sigma_p_px"]), "gamma": float(best["gamma"]),
-                "sensor_sigma_p_px": float(best.get("sensor_sigma_p_px", 0.0))}
+                "sigma_p_px": _number(best["sigma_p_px"], "sigma_p_px"),
+                "gamma": _number(best["gamma"], "gamma"),
+                "sensor_sigma_p_px": _number(best.get("sensor_sigma_p_px", 0.0),
+                                             "sensor_sigma_p_px")}
     except OSError as err:
         raise InputError(f"cannot read characterisation {path}: {err.strerror}") from None
-    except (ValueError, KeyError, TypeError, AttributeError) as err:
+    except (ValueError, KeyError, TypeError, AttributeError, RecursionError) as err:
         raise InputError(f"{path} is not a characterisation summary (scanqa characterize "
                          f"writes one; missing or bad {err})") from None
+
+
+def _number(value, key: str) -> float:
+    """A JSON number (not a boolean, which float() would take as 0 or 1)."""
+    if isinstance(value, bool):
+        raise ValueError(f"best_variant {key} (a number, got {str(value).lower()})")
+    return float(value)
 
 
 def _board_law(law: dict, where: str, kind: str) -> dict:

@@ -144,7 +144,7 @@ def _checked_scalars(data: dict, p: Path) -> dict:
                          f"{width!r} is not a valid value (damaged file)")
     try:
         provenance = json.loads(str(scalar("provenance", "U")))
-    except json.JSONDecodeError as err:
+    except (json.JSONDecodeError, RecursionError) as err:
         raise InputError(f"phase map {p}: provenance is not valid JSON ({err})") from None
     if not isinstance(provenance, dict):
         raise InputError(f"phase map {p}: provenance must be a JSON object")

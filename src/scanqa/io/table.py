@@ -58,7 +58,7 @@ def read_table_file(path: str | os.PathLike) -> tuple[dict, dict]:
     data = load_npz(path, "calibration table")
     try:
         meta = json.loads(str(data["meta"][()])) if data.get("meta") is not None else None
-    except (json.JSONDecodeError, IndexError) as err:
+    except (json.JSONDecodeError, IndexError, RecursionError) as err:
         raise InputError(f"{path}: table metadata is not JSON ({err}); rebuild it") from None
     if not isinstance(meta, dict) or meta.get("format") != FORMAT:
         found = meta.get("format") if isinstance(meta, dict) else None

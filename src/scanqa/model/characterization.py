@@ -509,7 +509,8 @@ def load_fitted_model(path: str | os.PathLike) -> dict:
 
 def apply_fitted_model(config: ScannerConfig, path: str | os.PathLike) -> ScannerConfig:
     """``config`` with the model parameters and readings that the data supported."""
+    fitted = load_fitted_model(path)  # its own errors name the file and what is wrong
     try:
-        return config.replace_model(**load_fitted_model(path))
+        return config.replace_model(**fitted)
     except ScanQAError as err:
         raise InputError(f"{path}: fitted model is not a valid [model] table: {err}") from None
