@@ -641,3 +641,26 @@ def test_singular_smoothing_windows_are_counted_and_reported(monkeypatch, caplog
                                       cell_px=8)
     assert report.unsmoothed_cells == 3 * 6 and report.as_dict()["unsmoothed_cells"] == 18
     assert "18 cell estimates kept unsmoothed" in caplog.text
+
+
+@pytest.mark.parametrize(("text", "message"), [
+    # a face pointing past the vertex list: trimesh reads it, the ray caster then failed
+    ("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 99999\n", r"IndexError|a face refers to vertex"),
+    # vertices of two coordinates: Open3D's ray caster raised a RuntimeError
+    ("v 0 0\nv 1 0\nv 0 1\nv 1 1\nf 1 2 3\nf 2 3 4\n", r"vertices have 2 coordinates"),
+])
+def test_malformed_reference_meshes_are_one_clear_error(tmp_path, text, message):
+    """Meshes an ad-hoc fuzz of `scanqa compare` found crashing past the reader."""
+    from scanqa.cli import main
+    from scanqa.io.ply import write_ply
+    from tests.smallcases import gauge_cloud
+
+    xyz, attrs = gauge_cloud()
+    write_ply(tmp_path / "cloud.ply", xyz, attrs, {"source": "tests"})
+    (tmp_path / "ref.obj").write_text(text)
+    with pytest.raises(InputError, match=message):
+        from scanqa.io.mesh import read_mesh
+        read_mesh(tmp_path / "ref.obj")
+    assert main(["compare", str(tmp_path / "cloud.ply"), str(tmp_path / "ref.obj"),
+                 "--out", str(tmp_path / "out"), "-q"]) == 2
+    assert not (tmp_path / "out").exists()

@@ -69,12 +69,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _mesh(path: str):
-    import trimesh
+    from scanqa.io.mesh import read_mesh
 
-    try:
-        mesh = trimesh.load(path, force="mesh")
-    except (OSError, ValueError) as err:
-        raise InputError(f"cannot read the reference mesh {path}: {err}") from None
-    if len(getattr(mesh, "faces", ())) == 0:
-        raise InputError(f"{path} holds no triangles (a point cloud? give it as .ply/.las)")
-    return mesh
+    return read_mesh(path)

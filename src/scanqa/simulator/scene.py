@@ -21,8 +21,6 @@ a single-point noise of several um).
 from __future__ import annotations
 
 import os
-import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -30,6 +28,7 @@ import numpy as np
 import trimesh
 
 from scanqa.errors import InputError
+from scanqa.io.mesh import read_mesh
 
 #: Gauge-block heights of Table 3, block 1 (tallest) first [mm].
 GAUGE_HEIGHTS_MM = (50.80, 25.40, 12.70, 7.62, 6.35, 5.08, 3.18, 2.54)
@@ -309,32 +308,17 @@ def gauge_layout_toml(layout: GaugeLayout) -> str:
     return "\n".join(lines) + "\n"
 
 
-#: What trimesh raises on a damaged or unsupported file (measured on truncated, bit-flipped
-#: and garbled STL, PLY and OBJ files); anything else is a bug and is not hidden.
-MESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, EOFError, OSError, struct.error,
-               zlib.error)
-
-
 def load_mesh(path: str | os.PathLike, translate_mm=(0.0, 0.0, 0.0)) -> Scene:
     """Load an STL/PLY/OBJ mesh as a scene (coordinates in mm, world frame).
 
     Raises
     ------
     InputError
-        When the file is missing, unreadable or holds no triangles.
+        When the file is missing, unreadable or holds no (or malformed) triangles
+        (:func:`scanqa.io.mesh.read_mesh`).
     """
     p = Path(path)
-    if not p.is_file():
-        raise InputError(f"mesh file {p} does not exist")
-    try:
-        mesh = trimesh.load(p, force="mesh")
-    except MESH_ERRORS as err:
-        raise InputError(f"cannot load mesh {p}: {type(err).__name__}: {err} (need a valid "
-                         "STL, PLY or OBJ)") from None
-    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
-        raise InputError(f"mesh {p} holds no triangles (need a valid STL, PLY or OBJ)")
-    if not np.isfinite(mesh.vertices).all():
-        raise InputError(f"mesh {p} has vertices with NaN or infinite coordinates")
+    mesh = read_mesh(p)
     mesh.apply_translation(np.asarray(translate_mm, dtype=float))
     return Scene(mesh, p.stem)
 

@@ -1,0 +1,72 @@
+"""Triangle meshes (STL, PLY, OBJ, OFF, GLB through trimesh): one reader, checked, for the
+simulator's mesh scenes and ``scanqa compare``'s reference.
+
+A mesh is read with ``trimesh.load(..., force="mesh")`` and then checked before anything
+uses it: at least one triangle, vertices of three finite coordinates, faces of three
+vertex indices that exist. A damaged file fails here with one :class:`InputError` naming
+it; trimesh accepts some (faces pointing past the vertex list, two-coordinate OBJ
+vertices) that would otherwise fail later, deep in a ray caster.
+"""
+
+from __future__ import annotations
+
+import os
+import struct
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+from scanqa.errors import InputError
+
+#: What trimesh raises on a damaged or unsupported file (measured on truncated, bit-flipped
+#: and garbled STL, PLY and OBJ files); anything else is a bug and is not hidden.
+MESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, EOFError, OSError, struct.error,
+               zlib.error)
+
+
+def read_mesh(path: str | os.PathLike):
+    """Read and check a triangle mesh (module notes).
+
+    Parameters
+    ----------
+    path : str or PathLike
+        The mesh file [mm coordinates, as the scan's].
+
+    Returns
+    -------
+    trimesh.Trimesh
+        The mesh, (n, 3) finite vertices and (m, 3) faces indexing them.
+
+    Raises
+    ------
+    InputError
+        The file is missing, unreadable, holds no triangles or holds malformed ones.
+    """
+    import trimesh
+
+    p = Path(path)
+    if not p.is_file():
+        raise InputError(f"mesh file {p} does not exist")
+    try:
+        mesh = trimesh.load(p, force="mesh")
+    except MESH_ERRORS as err:
+        raise InputError(f"cannot load mesh {p}: {type(err).__name__}: {err} (need a valid "
+                         "STL, PLY, OBJ or OFF file)") from None
+    faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
+    if not isinstance(mesh, trimesh.Trimesh) or faces.size == 0:
+        raise InputError(f"mesh {p} holds no triangles (a point cloud? give it as a cloud; "
+                         "else need a valid STL, PLY, OBJ or OFF file)")
+    vertices = np.asarray(mesh.vertices)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        raise InputError(f"mesh {p}: vertices have {vertices.shape[-1]} coordinates, need "
+                         "x, y, z (damaged file?)")
+    if faces.ndim != 2 or faces.shape[1] != 3:
+        raise InputError(f"mesh {p}: faces are not triangles of 3 vertex indices (damaged "
+                         "file?)")
+    if faces.min() < 0 or faces.max() >= len(vertices):
+        raise InputError(f"mesh {p}: a face refers to vertex {int(faces.max())} (or "
+                         f"{int(faces.min())}) but there are {len(vertices)} (damaged file?)")
+    if not np.isfinite(vertices).all():
+        raise InputError(f"mesh {p} has vertices with NaN or infinite coordinates")
+    return mesh
