@@ -104,6 +104,14 @@ def test_mesh_reference_and_tolerance_verdict(scan_and_truth, tmp_path, capsys):
     assert data["verdict"] == "pass"
     assert sorted(p.name for p in (tmp_path / "cmp").iterdir()) == [
         "cloud_compare.ply", "report.html", "summary.json"]
+    # the same plane as a PLY mesh (faces declared): compared as a mesh, as the help says
+    # (it was read as a cloud of its 4 vertices and refused)
+    plane.export(tmp_path / "plane.ply")
+    code = main(["compare", str(tmp_path / "scan.ply"), str(tmp_path / "plane.ply"),
+                 "--tolerance-um", "200", "--out", str(tmp_path / "cmp_ply")])
+    assert code == 0 and "verdict pass" in capsys.readouterr().out
+    again = json.loads((tmp_path / "cmp_ply" / "summary.json").read_text())
+    assert again["median_deviation_um"] == pytest.approx(data["median_deviation_um"], abs=1e-6)
 
 
 def test_compare_refuses_what_it_cannot_judge(scan_and_truth, tmp_path, capsys):

@@ -18,9 +18,6 @@ deviation_um, u_deviation_um, U_deviation_um, significance, significant and, wit
 tolerance, in_tolerance). Mesh references: .stl, .obj, .off, .glb (trimesh); cloud
 references: .ply, .las, .csv, .parquet (a .ply holding faces is read as a mesh)."""
 
-MESH_SUFFIXES = (".stl", ".obj", ".off", ".glb", ".gltf")
-
-
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", formatter_class=argparse.RawDescriptionHelpFormatter,
                        help="deviation from a reference cloud or mesh vs the scan's own "
@@ -41,6 +38,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from scanqa.io.mesh import is_mesh_file
     from scanqa.model.cloud import read_cloud
     from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
     from scanqa.report.compare import write_outputs
@@ -50,7 +48,7 @@ def run(args: argparse.Namespace) -> int:
     tol = None if args.tolerance_um is None else 1e-3 * args.tolerance_um
     ref_sigma = 1e-3 * args.reference_sigma_um
     try:
-        if Path(args.reference).suffix.lower() in MESH_SUFFIXES:
+        if is_mesh_file(args.reference):
             result = compare_to_mesh(cloud, _mesh(args.reference), args.k, ref_sigma,
                                      args.max_distance_mm, tol, name=args.reference)
         else:

@@ -25,6 +25,28 @@ MESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, EOFError, OSError, s
                zlib.error)
 
 
+#: Suffixes always read as meshes (a .ply is a mesh when it declares faces).
+MESH_SUFFIXES = (".stl", ".obj", ".off", ".glb", ".gltf")
+
+
+def is_mesh_file(path: str | os.PathLike) -> bool:
+    """Whether ``path`` is a mesh: a mesh suffix, or a PLY whose header declares at least
+    one face (``element face N``, N > 0); other files (clouds) are False."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix in MESH_SUFFIXES:
+        return True
+    if suffix != ".ply" or not p.is_file():
+        return False
+    with open(p, "rb") as fh:
+        head = fh.read(65536)
+    for line in head.split(b"end_header", 1)[0].splitlines():
+        words = line.split()
+        if len(words) == 3 and words[:2] == [b"element", b"face"]:
+            return words[2].isdigit() and int(words[2]) > 0
+    return False
+
+
 def read_mesh(path: str | os.PathLike):
     """Read and check a triangle mesh (module notes).
 
