@@ -1,6 +1,7 @@
 """The digital filters of flattening (Sect. 5.2 of [1]_): a bank of disc kernels, what
 a filter does to the two noise sources and to the fringe, and its application to the
-quadrature components of a phase set.
+quadrature components of a phase set, and the sampling error of a std measured on a
+field the filter (and the scene's correlated noise) has correlated.
 
 A pixel's filter is a blend of two neighbouring discs of the bank, indexed by a
 continuous level t; the blend's noise-equivalent area NEA = 1 / sum(K^2), second moment
@@ -18,10 +19,12 @@ from __future__ import annotations
 
 import functools
 import itertools
+import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
+from scipy import stats
 
 from scanqa.decoding.demodulate import TWO_PI, ShiftFit
 from scanqa.decoding.phasemap import MASK_INCONSISTENT, MASK_OUT_OF_RANGE, PhaseMap
@@ -302,3 +305,89 @@ def _convolve(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
     return cv2.filter2D(image, cv2.CV_32F, kernel.astype(np.float32),
                         borderType=cv2.BORDER_REFLECT)
+
+
+#: Largest lag of the autocorrelation summed by :func:`effective_pixels` [camera px]:
+#: the largest disc of the bank (16 px) correlates pixels up to 16 px apart, and the
+#: camera's defocus disc (about 10 px at 436 and 463 mm on the paper's f/11 scanner) adds.
+MAX_LAG_PX = 24
+
+
+def effective_pixels(field: np.ndarray, max_lag_px: int = MAX_LAG_PX) -> tuple[int, float]:
+    """The number of finite pixels of a noise field and its effective number of
+    independent pixels for the variance.
+
+    Parameters
+    ----------
+    field : (H, W) float
+        A zero-mean noise field (e.g. the difference of two scans' x_p or range), NaN
+        where not measured [any unit].
+    max_lag_px : int
+        Largest lag along each axis summed [px].
+
+    Returns
+    -------
+    n : int
+        Finite pixels [-].
+    n_eff : float
+        n^2 / sum_(i,j) rho_ij^2 [-], with rho the field's autocorrelation measured on
+        it (every lag within ``max_lag_px``), so that the sample variance has the
+        relative variance 2 / n_eff.
+
+    Notes
+    -----
+    For a Gaussian field, var(s^2) = (2 / n^2) sum_(i,j) cov_ij^2 (Isserlis), so
+    var(s^2) / sigma^4 = 2 / n_eff with n_eff = n^2 / sum_lag C(lag) rho(lag)^2, C(lag)
+    the pixel pairs at that lag. White noise gives n_eff = n; noise filtered by a kernel
+    K gives n / sum_lag rho^2 with rho = (K * K) / sum(K^2), about n / 20 for a 7 px disc.
+    Each lag's estimated rho^2 is biased up by about S / C(lag), S = sum_lag rho^2
+    (Bartlett's variance of an autocorrelation estimate), so the measured sum
+    D = sum_lag C rho^2 is about S (n + L) over L lags besides the zero lag, and
+    n_eff = n (n + L) / D.
+    """
+    ok = np.isfinite(field)
+    n = int(ok.sum())
+    if n < 2:
+        return n, float(n)
+    z = np.where(ok, field - np.mean(field[ok]), 0.0)
+    m = ok.astype(float)
+    h, w = z.shape
+    shape = (2 * h, 2 * w)
+    fz, fm = np.fft.rfft2(z, shape), np.fft.rfft2(m, shape)
+    lags = np.r_[0:max_lag_px + 1, -max_lag_px:0]
+    acov = np.fft.irfft2(fz * np.conj(fz), shape)[np.ix_(lags, lags)]
+    pairs = np.rint(np.fft.irfft2(fm * np.conj(fm), shape)[np.ix_(lags, lags)])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho = acov / np.maximum(pairs, 1.0) / (acov[0, 0] / n)
+        terms = np.where(pairs > 0, pairs * rho ** 2, 0.0)
+    lags = int((pairs[1:, :] > 0).sum() + (pairs[0, 1:] > 0).sum())
+    return n, float(n * (n + lags) / max(terms.sum(), n + lags))
+
+
+def std_interval(std: float, n_eff: float, level: float = 0.95) -> tuple[float, float]:
+    """Confidence interval of the true std behind a measured one.
+
+    Parameters
+    ----------
+    std : float
+        The measured std [any unit].
+    n_eff : float
+        Effective independent pixels of the field it was measured on
+        (:func:`effective_pixels`) [-].
+    level : float
+        Confidence level [-].
+
+    Returns
+    -------
+    low, high : float
+        The interval [unit of ``std``]: n_eff s^2 / sigma^2 taken as chi-square with
+        n_eff degrees of freedom (the same relative variance 2 / n_eff).
+
+    Examples
+    --------
+    >>> [round(v, 3) for v in std_interval(1.0, 1000.0)]
+    [0.958, 1.046]
+    """
+    a = (1.0 - level) / 2.0
+    q_hi, q_lo = stats.chi2.ppf([1.0 - a, a], n_eff)
+    return std * math.sqrt(n_eff / q_hi), std * math.sqrt(n_eff / q_lo)
