@@ -8,7 +8,8 @@ acceptance is checked on (``flat_heldout`` 0-4 and 50-58, ``flat_s36_heldout`` 6
 110-118, ``flat_s38_d`` 120-128, ``flat_s39_a``-``d`` and ``flat_s39_e``-``h`` at
 130-168). The filter's predicted gain is :func:`scanqa.runs.filterbank.reduction`'s with
 the range given: since session 39 its exact second-order scene factor
-(:func:`scanqa.runs.filterbank.scene_gain`). Two measurements a user can make on their own scanner with a flat:
+(:func:`scanqa.runs.filterbank.scene_gain`). Two measurements a user can make on their
+own scanner with a flat:
 
 1. *a sweep*: the flat at 49 depths over 432-468 mm (positions 100-124 and 200-223), two
    scans each; the phase noise is the std of the two x_p maps' difference over sqrt 2,
