@@ -7,7 +7,13 @@ sweeps select, its central ``--size`` px rendered, a flat at each of nine depths
 Each scan is flattened to the volume's target (the lowest valid sigma of the model's
 on-axis curve over 438-466 mm). Per depth: the std from the two scans' range difference
 over sqrt 2 before and after, after / target, the predicted sigma after and the filter;
-and the pixels the decode masked as inconsistent (their fringe order, not their fringe).
+the pixels the decode masked as inconsistent (their fringe order, not their fringe); and
+the 95 % sampling interval of after / target, from the effective number of independent
+pixels of the range difference (:func:`scanqa.runs.filterbank.effective_pixels`: the
+filter and the camera's kernel correlate neighbours, so a 96 px flat holds only about
+400 independent samples), with the verdict on the +-10 % bound: "in", "chance" (outside,
+but the interval reaches inside: a single stream cannot tell the miss from sampling) or
+"model" (the whole interval outside).
 
 Usage::
 
@@ -36,6 +42,7 @@ def main() -> None:
 
     from scanqa.decoding.decoder import decode_images
     from scanqa.decoding.phasemap import MASK_INCONSISTENT
+    from scanqa.runs.filterbank import effective_pixels, std_interval
     from scanqa.runs.flattening import flatten
     from scanqa.simulator import experiments, render, scene
 
@@ -50,7 +57,7 @@ def main() -> None:
     print(f"simulated, stream {args.stream!r}, positions {args.first}-"
           f"{args.first + len(args.depths) - 1}, {args.size} px; target {target:.2f} um")
     print("Z [mm]  inconsistent [%]  before [um]  filter [px]  after [um]  after/target  "
-          "predicted [um]")
+          "predicted [um]  n_eff  95 % interval  +-10 %")
     for i, z in enumerate(args.depths):
         pos = experiments.Position(args.first + i, 0.0, 0.0, 0.0, scene.plane_scene(z))
         scans = [render.render_images(cfg, experiments.acquisition(cfg, pos, rep,
@@ -61,16 +68,32 @@ def main() -> None:
                                                                        strict=True)]
         before = _std(cal, [m.xp for m in maps])
         after = _std(cal, [f.phase_map.xp for f in flats])
+        n_eff = effective_pixels(_difference(cal, [f.phase_map.xp for f in flats]))[1]
+        low, high = (v / target for v in std_interval(after, n_eff))
         masked = 100 * float(np.mean([m.mask == MASK_INCONSISTENT for m in maps]))
         print(f"{z:6.1f} {masked:17.2f} {before:12.2f} "
               f"{float(np.median(flats[0].curve.filter_diameter_px)):12.1f} {after:11.2f} "
-              f"{after / target:13.3f} {float(np.median(flats[0].curve.sigma_flat_um)):15.2f}")
+              f"{after / target:13.3f} {float(np.median(flats[0].curve.sigma_flat_um)):15.2f}"
+              f" {n_eff:6.0f}  {low:.3f}-{high:.3f}  {_verdict(after / target, low, high)}")
+
+
+def _verdict(ratio: float, low: float, high: float, bound: float = 0.10) -> str:
+    """"in" within the bound; else "chance" if the sampling interval reaches inside it,
+    "model" if the whole interval is outside."""
+    if abs(ratio - 1) <= bound:
+        return "in"
+    return "chance" if low <= 1 + bound and high >= 1 - bound else "model"
+
+
+def _difference(cal, xps) -> np.ndarray:
+    """Range difference of two scans [mm], NaN where either is missing."""
+    ranges = [np.linalg.norm(cal.apply_image(xp).xyz, axis=-1) for xp in xps]
+    return ranges[0] - ranges[1]
 
 
 def _std(cal, xps) -> float:
     """Std of one scan's range from the difference of two [um]."""
-    ranges = [np.linalg.norm(cal.apply_image(xp).xyz, axis=-1) for xp in xps]
-    d = ranges[0] - ranges[1]
+    d = _difference(cal, xps)
     return 1e3 * float(np.nanstd(d)) / math.sqrt(2)
 
 

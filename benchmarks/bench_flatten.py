@@ -35,7 +35,7 @@ def _config(rows: int, cols: int):
     base = load_config(ROOT / "calib" / "paper_scanner.toml", profile="f11")
     cfg = ScannerConfig(replace(base.camera, width_px=cols, height_px=rows), base.projector,
                         base.fringes, base.model, base.simulator, base.name, base.source)
-    return cfg.replace_model(gamma=2.20, sigma_p_px=0.0329, sensor_sigma_p_px=0.00514,
+    return cfg.replace_model(gamma=2.10, sigma_p_px=0.0341, sensor_sigma_p_px=0.00514,
                              filter_floor="smooth", filter_form="sum",
                              noise_reading="two_source", characterised_by="simulated sweeps")
 

@@ -1,11 +1,15 @@
 """How the flatten acceptance's noise model was chosen (simulated; docs/flattening.rst,
-"The model the filter is solved from" and "The far end").
+"The model the filter is solved from", "The far end" and "Bias and chance").
 
-Everything here runs on its own noise stream (``--stream``, default "derive38";
-"derive37" chose the session-37 model), never on the streams the acceptance is checked
-on (``flat_heldout`` 0-4 and 50-58, ``flat_s36_heldout`` 60-68, ``flat_s37_fresh`` 70-78,
-``flat_s38_fresh`` 80-88, ``flat_s38_b`` 90-98, ``flat_s38_c`` 110-118 and ``flat_s38_d``
-120-128). Two measurements a user can make on their own scanner with a flat:
+Everything here runs on its own noise stream (``--stream``, default "derive39a";
+"derive37" chose the session-37 model, "derive38" session 38's), never on the streams the
+acceptance is checked on (``flat_heldout`` 0-4 and 50-58, ``flat_s36_heldout`` 60-68,
+``flat_s37_fresh`` 70-78, ``flat_s38_fresh`` 80-88, ``flat_s38_b`` 90-98, ``flat_s38_c``
+110-118, ``flat_s38_d`` 120-128, ``flat_s39_a``-``d`` and ``flat_s39_e``-``h`` at
+130-168). The filter's predicted gain is :func:`scanqa.runs.filterbank.reduction`'s with
+the range given: since session 39 its exact second-order scene factor
+(:func:`scanqa.runs.filterbank.scene_gain`). Two measurements a user can make on their
+own scanner with a flat:
 
 1. *a sweep*: the flat at 49 depths over 432-468 mm (positions 100-124 and 200-223), two
    scans each; the phase noise is the std of the two x_p maps' difference over sqrt 2,
@@ -27,7 +31,7 @@ keeps the renders (about 40 s of CPU) so that the fits can be re-run.
 
 Usage::
 
-    .venv/bin/python benchmarks/derive_flatten_model.py [--stream derive38] [--cache renders.pkl]
+    .venv/bin/python benchmarks/derive_flatten_model.py [--stream derive39a] [--cache renders.pkl]
 """
 
 from __future__ import annotations
@@ -157,7 +161,7 @@ def main() -> None:
     from scanqa.runs.filterbank import default_bank
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--stream", default="derive38")
+    parser.add_argument("--stream", default="derive39a")
     parser.add_argument("--cache", help="pickle of the renders (written once, then read)")
     args = parser.parse_args()
     cfg, big = _config(96, 96), _config(160, 160)

@@ -28,13 +28,14 @@ What a disc filter K of noise-equivalent area NEA = 1 / sum(K^2) [px^2] does to 
 noise sources of docs/noise_model.rst:
 
 * the sensor part, white at the pixel scale, falls as 1 / sqrt(NEA);
-* the scene part, already filtered by the camera's own kernel (noise-equivalent area
-  N_o), falls as F_o / F_a with F^2 = 1 + N / gamma^2 and N_a = N_o + NEA - 1 (second
-  moments of convolved kernels add; the pixel is counted once): the smooth form of Eq. 17
-  (``filter_floor = "smooth"``, whose gamma follows the point's range,
-  :func:`scanqa.model.optics.correlation_gamma`). A model with that floor gives the
-  unflattened sigma by the same law; with the floored form ("one") the plan inherits
-  its kink near focus (docs/flattening.rst);
+* the scene part, already filtered by the camera's own kernel, falls by the exact
+  second-order factor of :func:`scanqa.runs.filterbank.scene_gain` (square cells of
+  side gamma, following the point's range, :func:`scanqa.model.optics.correlation_gamma`,
+  through pixel, defocus disc, Airy pattern and the filter) when the model has the
+  smooth floor (``filter_floor = "smooth"``), which gives the unflattened sigma by the
+  areas-add law F^2 = 1 + N / gamma^2; otherwise it falls as F_o / F_a of that law
+  with N_a = N_o + NEA - 1, and a floored model ("one") leaves the plan its kink near
+  focus (docs/flattening.rst);
 * both are divided by the filter's transfer m_f at the fringe period in the camera image
   (the fringe amplitude falls, Eq. 11), P_cam = P / norm(grad x_p).
 
