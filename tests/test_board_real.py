@@ -13,6 +13,11 @@ plane RMS 0.157, 0.246, 0.229, 0.296, 0.213 mm (calibration.xml: 0.157, 0.251, 0
 sigma (jackknife over the five poses) 3.0-4.3 mm, median |dXYZ| / sigma 0.32. The
 camera's RMS and the baseline direction miss issue 25's bounds because the board is not
 flat (test_the_camera_residual_is_the_boards, docs/calibration.rst).
+
+With corner_method="model" (the detector a rule fixed beforehand chose, by its
+repeatability between the column and the row frames): camera 0.249 px, projector 0.264,
+stereo 0.306; f +0.32 % / +0.11 %; rotation 0.41 deg; baseline 0.62 deg, +0.58 %: the
+camera's bound met, the baseline direction still missed, so it is not the default.
 """
 
 from __future__ import annotations
