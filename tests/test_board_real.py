@@ -13,18 +13,25 @@ plane RMS 0.157, 0.246, 0.229, 0.296, 0.213 mm (calibration.xml: 0.157, 0.251, 0
 sigma (jackknife over the five poses) 3.0-4.3 mm, median |dXYZ| / sigma 0.32. The
 camera's RMS and the baseline direction miss issue 25's bounds because the board is not
 flat (test_the_camera_residual_is_the_boards, docs/calibration.rst).
+
+With corner_method="model" (the detector a rule fixed beforehand chose, by its
+repeatability between the column and the row frames): camera 0.249 px, projector 0.264,
+stereo 0.306; f +0.32 % / +0.11 %; rotation 0.41 deg; baseline 0.62 deg, +0.58 %: the
+camera's bound met, the baseline direction still missed, so it is not the default.
 """
 
 from __future__ import annotations
 
 import json
 import math
+from dataclasses import replace
 
 import numpy as np
 import pytest
 
-from scanqa.calibration.board import Board, decode_pose
+from scanqa.calibration.board import Board, decode_pose, find_corners, projector_corners
 from scanqa.calibration.board_fit import board_flatness, calibrate_board, compare, hold_out
+from scanqa.calibration.corners import refine_corners
 from scanqa.calibration.parametric import from_opencv, load_opencv_calibration
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode_pattern_dir
@@ -196,3 +203,82 @@ def test_cli_refuses_a_board_without_its_size(patterns, tmp_path, capsys):
                  *patterns, str(CALIBRATION / "calseq1"), "--out", str(tmp_path / "x.xml")])
     assert code == 2  # the check: the frames show 9 x 13
     assert "9 x 13 inner corners, --board says 9 x 12" in capsys.readouterr().err
+
+
+def _frames(k: int) -> np.ndarray:
+    """The 12 frames of pose calseq<k> (README: 00-05 columns, 06-11 rows) [DN]."""
+    import cv2
+
+    return np.array([cv2.imread(str(CALIBRATION / f"calseq{k}" / f"frameSeq_{i:02d}.png"),
+                                cv2.IMREAD_GRAYSCALE) for i in range(12)], dtype=float)
+
+
+@pytest.fixture(scope="module")
+def model_poses(poses):
+    """The six poses with the corners of ``corner_method="model"`` (found in the mean of all
+    12 frames, placed by the blurred-corner model); their projector corners from the
+    decoded maps of ``poses`` (decoded pixel by pixel: against decode_pose(...,
+    corner_method="model") the camera corners agree to 1e-6 px, the projector corners to
+    2e-5 px, the RMS of the calibration below to 1e-6 px)."""
+    out = []
+    for k, pose in enumerate(poses, start=1):
+        camera = find_corners(_frames(k).mean(axis=0), BOARD, "model")
+        proj = projector_corners(camera, pose.xp, pose.yp, offset=pose.crop[:2])
+        out.append(replace(pose, camera_px=camera, projector_px=proj))
+    return out
+
+
+def test_model_corners_repeat_between_column_and_row_frames():
+    """The rule that chose the corner detector (docs/calibration.rst, fixed before any
+    candidate was measured): the same corners found in the column frames and in the row
+    frames of a pose, two independent captures. Over all six poses: OpenCV's 0.031 px
+    (0.043 px in the finest column set alone, today's image), the model's 0.014 px (per
+    image, RMS / sqrt 2); here two poses (0.037 and 0.015 px)."""
+    spread = {"opencv": [], "model": []}
+    for k in (1, 4):
+        frames = _frames(k)
+        found = []
+        for image in (frames[:6].mean(axis=0), frames[6:].mean(axis=0)):
+            opencv = find_corners(image, BOARD)
+            found.append((opencv, refine_corners(image, opencv, BOARD.rows, BOARD.columns)))
+        (col_cv, col_model), (row_cv, row_model) = found
+        if np.abs(col_cv - row_cv[::-1]).max() < np.abs(col_cv - row_cv).max():
+            row_cv, row_model = row_cv[::-1], row_model[::-1]  # OpenCV's order may flip
+        spread["opencv"].append(col_cv - row_cv)
+        spread["model"].append(col_model - row_model)
+    rms = {key: np.sqrt(np.mean(np.sum(np.concatenate(d) ** 2, axis=1)) / 2)
+           for key, d in spread.items()}
+    assert rms["model"] < 0.6 * rms["opencv"], rms  # measured 0.014 vs 0.031 px, 6 poses
+    assert rms["model"] < 0.025, rms
+
+
+@pytest.fixture(scope="module")
+def model_calibration(model_poses):
+    return calibrate_board([model_poses[k] for k in (0, 2, 3, 4, 5)], BOARD, PANEL)
+
+
+def test_model_corners_against_slstudio(model_calibration):
+    """The detector the rule chose, on the poses SLStudio used (1, 3-6). The camera's RMS
+    meets issue 25's bound; the baseline direction still does not (0.62 deg, 0.57 with
+    OpenCV's corners), so the model is not the default (docs/calibration.rst)."""
+    ours = model_calibration.data
+    ref = read_opencv_calibration(CALIBRATION / "calibration.xml")
+    diff = compare(ours, ref)
+    assert ours.errors["cam_error"] <= ref.errors["cam_error"]  # 0.249 vs 0.282 px
+    assert ours.errors["proj_error"] <= ref.errors["proj_error"]  # 0.264 vs 0.463 px
+    assert ours.errors["stereo_error"] <= ref.errors["stereo_error"]  # 0.306 vs 0.422 px
+    assert abs(diff["camera_focal_rel"]) < 0.01  # measured +0.32 %
+    assert abs(diff["projector_focal_rel"]) < 0.01  # measured +0.11 %
+    assert diff["rotation_deg"] < 0.5  # measured 0.41 deg
+    assert abs(diff["baseline_rel"]) < 0.01  # measured +0.58 %
+    assert diff["baseline_deg"] < 0.7  # measured 0.62 deg: misses issue 25's 0.5 deg
+    assert model_calibration.flagged == []
+
+
+def test_model_corners_each_pose_left_out(model_poses):
+    reference = load_opencv_calibration(CALIBRATION / "calibration.xml")
+    five = [model_poses[k] for k in (0, 2, 3, 4, 5)]
+    for row in hold_out(five, BOARD, PANEL, reference=reference):
+        # issue 25: within 1.2 x of calibration.xml (measured 0.96-1.00 x)
+        assert row["plane_rms_mm"] <= 1.2 * row["reference_plane_rms_mm"], row
+        assert row["projector_rms_px"] < 1.5, row  # predicted, measured 0.50-1.15 px

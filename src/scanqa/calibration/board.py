@@ -4,12 +4,15 @@ from the decoded phase, in the projector.
 A pose is one placement of a flat chessboard, scanned with fringes in both directions
 (columns, x_p, and rows, y_p). Its camera corners are found by OpenCV in the mean of the
 finest column set (the offset image, the board as a camera sees it under uniform light);
-its projector corners come from local homographies (Moreno and Taubin [1]_): around each
-camera corner the decoded (x_p, y_p) of the valid pixels within ``window_px`` are fitted
-by a homography of the camera pixels, (x_p, y_p, 1) ~ H (u, v, 1), and the corner is
-mapped through it. The board is flat, so within the window the camera-to-projector map
-is a homography up to the lenses' distortion, and the fit averages the phase noise of a
-few thousand pixels into each corner.
+or, with ``corners="model"``, in the mean of every phase-shift frame of both directions
+and placed to sub-pixel by a model of the blurred corner
+(:mod:`scanqa.calibration.corners`). Its projector corners come from local homographies
+(Moreno and Taubin [1]_): around each camera corner the decoded (x_p, y_p) of the valid
+pixels within ``window_px`` are fitted by a homography of the camera pixels,
+(x_p, y_p, 1) ~ H (u, v, 1), and the corner is mapped through it. The board is flat, so
+within the window the camera-to-projector map is a homography up to the lenses'
+distortion, and the fit averages the phase noise of a few thousand pixels into each
+corner.
 
 References
 ----------
@@ -26,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scanqa.calibration.corners import refine_corners
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.decoder import decode_images
 from scanqa.decoding.patternset import read_pattern_images
@@ -41,6 +45,10 @@ MIN_WINDOW_PIXELS = 50
 CROP_MARGIN_PX = 60
 #: Margin around the corners found at half size where they are sought again [px].
 CORNER_MARGIN_PX = 40
+#: Corner detectors: "opencv" (``findChessboardCornersSB`` with its sub-pixel flag, in the
+#: finest column set's mean) and "model" (those corners placed by the blurred-corner model,
+#: :mod:`scanqa.calibration.corners`, in the mean of every phase-shift frame).
+CORNER_METHODS = ("opencv", "model")
 
 
 @dataclass(frozen=True)
@@ -147,7 +155,8 @@ def corner_grid(image: np.ndarray) -> tuple[int, int] | None:
     return int(min(meta.shape)), int(max(meta.shape))
 
 
-def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
+def find_corners(image: np.ndarray, board: Board, method: str = "opencv"
+                 ) -> np.ndarray | None:
     """The board's inner corners in a grey image, or None when OpenCV finds no board.
 
     Parameters
@@ -157,6 +166,8 @@ def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
         percentile first: dark captures are found as well).
     board : Board
         What to look for.
+    method : str
+        "opencv" or "model" (``CORNER_METHODS``).
 
     Returns
     -------
@@ -168,8 +179,24 @@ def find_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
     ``cv2.findChessboardCornersSB`` finds the board in the image at half size, then
     again with its sub-pixel accuracy flag in the full-size region around it (three
     times faster than the whole image at full size, corners within 0.05 px of it on
-    the SLStudio board but for one pose, 0.19 px).
+    the SLStudio board but for one pose, 0.19 px). With ``method="model"`` each corner is
+    then placed by the blurred-corner model
+    (:func:`scanqa.calibration.corners.refine_corners`) fitted to the image itself, not
+    the stretched copy OpenCV is given. On the SLStudio board the model's corners repeat
+    between the column and the row frames of a pose to 0.014 px (OpenCV's own sub-pixel
+    corners 0.031 px in the same images).
     """
+    if method not in CORNER_METHODS:
+        raise InputError(f"corner method must be one of {CORNER_METHODS}, got {method!r}")
+    corners = _opencv_corners(image, board)
+    if corners is None or method == "opencv":
+        return corners
+    return refine_corners(np.nan_to_num(np.asarray(image, dtype=float)), corners,
+                          board.rows, board.columns)
+
+
+def _opencv_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
+    """OpenCV's corners (``findChessboardCornersSB``, half size then the region) [px]."""
     import cv2
 
     grey = _grey(image)
@@ -227,7 +254,7 @@ def projector_corners(camera_px: np.ndarray, xp: np.ndarray, yp: np.ndarray,
 
 def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
                 rows: PatternDescription, board: Board | float,
-                window_px: int = WINDOW_PX) -> BoardPose:
+                window_px: int = WINDOW_PX, corner_method: str = "opencv") -> BoardPose:
     """Find and decode one board pose.
 
     Parameters
@@ -243,6 +270,9 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
         frames (:func:`corner_grid`). A Board's grid is checked against the frames.
     window_px : int
         Half-width of the local homographies [camera px].
+    corner_method : str
+        The corner detector (``CORNER_METHODS``): "opencv" in the mean of the finest
+        column set, "model" in the mean of every phase-shift frame (:func:`find_corners`).
 
     Returns
     -------
@@ -261,10 +291,13 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
                          f"got {columns.orientation!r} and {rows.orientation!r}")
     stacks = [read_pattern_images(replace(d, source=str(where / "patterns.toml")))
               for d in (columns, rows)]
-    finest = columns.sets.index(columns.phase_sets[-1])
-    image = np.asarray(stacks[0][finest], dtype=float).mean(axis=0)
+    if corner_method == "model":
+        image = _offset_image(stacks, (columns, rows))
+    else:
+        finest = columns.sets.index(columns.phase_sets[-1])
+        image = np.asarray(stacks[0][finest], dtype=float).mean(axis=0)
     board = _board_in(image, board, where)
-    corners = find_corners(image, board)
+    corners = find_corners(image, board, corner_method)
     if corners is None:
         raise InputError(f"{where}: no {board.rows} x {board.columns} chessboard found "
                          "(check the board's corner counts and that the board is lit)")
@@ -275,6 +308,15 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
     proj = projector_corners(corners, *maps, offset=(u0, v0), window_px=window_px)
     return BoardPose(where.name, corners, proj, crop, maps[0], maps[1],
                      (image.shape[1], image.shape[0]), board)
+
+
+def _offset_image(stacks: list, descriptions: tuple) -> np.ndarray:
+    """Mean of every phase-shift frame of both directions: the board under the
+    projector's mean level (each N-step set's mean is its offset) [DN]."""
+    frames = [np.asarray(stack[desc.sets.index(phase)], dtype=float)
+              for stack, desc in zip(stacks, descriptions, strict=True)
+              for phase in desc.phase_sets]
+    return np.mean([f.mean(axis=0) for f in frames], axis=0)
 
 
 def _board_in(image: np.ndarray, board: Board | float, where: Path) -> Board:

@@ -157,7 +157,7 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
 def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,
                     rows: PatternDescription, board: Board | float, model: str = "k1",
                     held_out: bool = False, reference: OpenCVCalibration | None = None,
-                    progress=None) -> BoardCalibration:
+                    progress=None, corner_method: str = "opencv") -> BoardCalibration:
     """Decode board poses and calibrate from them (what ``scanqa calibrate --board`` does).
 
     Parameters
@@ -180,6 +180,9 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
         pose too).
     progress : callable, optional
         Receives a message per pose.
+    corner_method : str
+        The camera's corner detector
+        (:data:`scanqa.calibration.board.CORNER_METHODS`).
 
     Returns
     -------
@@ -187,7 +190,7 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
     """
     poses = []
     for folder in folders:
-        poses.append(decode_pose(folder, columns, rows, board))
+        poses.append(decode_pose(folder, columns, rows, board, corner_method=corner_method))
         if progress:
             progress(f"pose {poses[-1].name}: {np.isfinite(poses[-1].projector_px).all(1).sum()}"
                      f" of {len(poses[-1].camera_px)} corners in the projector")
