@@ -11,11 +11,12 @@ from scipy.special import j1
 
 from scanqa.calibration.build import build_table
 from scanqa.decoding.phasemap import PhaseMap
+from scanqa.io import ply
 from scanqa.model import optics
 from scanqa.model.cloud import AnnotatedCloud, read_cloud
 from scanqa.model.config import FILTER_FLOORS, FILTER_FORMS, NOISE_READINGS
 from scanqa.runs import annotation, annotkernels
-from scanqa.runs.annotation import annotate
+from scanqa.runs.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
 from .synth_sweep import plane_truth, small_camera, sweep
 
@@ -108,6 +109,14 @@ def numpy_path(monkeypatch, *args, **kwargs):
         return annotate(*args, **kwargs)
 
 
+def raw_records(path):
+    """The vertex records of a binary PLY written by annotate, as they are."""
+    data = path.read_bytes()
+    start = data.index(b"end_header\n") + len(b"end_header\n")
+    names = ATTRIBUTES + REPEAT_ATTRIBUTES
+    return np.frombuffer(data[start:], dtype=ply.vertex_dtype(names))
+
+
 def assert_same_cloud(got, want):
     assert got.counts == want.counts
     np.testing.assert_allclose(got.xyz, want.xyz, rtol=0, atol=1e-9)  # [mm]: 1 pm
@@ -133,7 +142,11 @@ def test_records_match_the_numpy_path(cfg, table, monkeypatch, keep_invalid, tmp
     numpy_path(monkeypatch, pm, table, cfg, repeats=repeats, keep_invalid=keep_invalid,
                out=wanted)
     assert out.stat().st_size == wanted.stat().st_size
-    mine, theirs = read_cloud(out), read_cloud(wanted)  # display fields included
+    mine, theirs = raw_records(out), raw_records(wanted)
+    for name in ("intensity", "red", "green", "blue", "alpha"):  # the display fields
+        np.testing.assert_array_equal(mine[name], theirs[name], err_msg=name)
+    assert len(np.unique(mine["red"])) > 50  # the offsets span the grey scale
+    mine, theirs = read_cloud(out), read_cloud(wanted)
     assert_same_cloud(AnnotatedCloud(mine.xyz, mine.attributes, want.counts),
                       AnnotatedCloud(theirs.xyz, theirs.attributes, want.counts))
 
@@ -151,3 +164,14 @@ def test_every_sigma_source_matches_the_numpy_path(cfg, table, monkeypatch, nois
     assert annotation.sigma_source(config, pm)["random"] == noise
     assert_same_cloud(annotate(pm, table, config), numpy_path(monkeypatch, pm, table,
                                                               config))
+
+
+def test_one_compiled_signature_for_every_output(cfg, table, tmp_path):
+    # load() gives the types annotate gives, whatever the PLY header's length: no second
+    # compilation (~25 s on a first run) for another offset of the file's mapping
+    annotkernels.load()
+    pm = phase_map(cfg, masked_rows=2)
+    for k, name in enumerate(("a.ply", "bb.ply", "ccc.ply", "dddd.ply")):
+        annotate(pm, table, cfg, out=tmp_path / name, source="s" * k)
+    annotate(pm, table, cfg, repeats=[phase_map(cfg, seed=1)], keep_invalid=True)
+    assert len(annotkernels.annotate_band.signatures) == 1

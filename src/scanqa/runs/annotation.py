@@ -276,11 +276,8 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
     r0, r1 = rows
     select = None if out.size == keep.size else np.flatnonzero(keep)
     if compiled is not None:
-        invalid = _compiled_band(compiled, xp, extra, select, rows, keep_invalid, out,
-                                 source)
-        if grey is not None:
-            ply.fill_display(out, grey)
-        return invalid
+        return _compiled_band(compiled, xp, extra, select, rows, keep_invalid, out, source,
+                              grey)
     look = table.apply_rows(xp[r0:r1], r0, select, extrapolate=keep_invalid)
     pixels = _pixels(select, r0, r1, xp.shape[1])
     inputs = {k: _pick(v[r0:r1], select) for k, v in extra.items()}
@@ -309,9 +306,10 @@ def _compiled(table: Calibration, config: ScannerConfig, source: dict) -> tuple 
 
 def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndarray | None,
                    rows: tuple[int, int], keep_invalid: bool, out: np.ndarray,
-                   source: dict) -> int:
+                   source: dict, grey: float | None) -> int:
     """One band through :func:`annotkernels.annotate_band`: its per-point inputs picked,
-    the random source's phase sigma [px], the records' coordinate and attribute views."""
+    the random source's phase sigma [px], the records' coordinate and attribute views,
+    and their display fields with the grey scale ``grey`` [1/DN], if given."""
     grid, packed, par, codes, shear_u, shear_c = compiled
     r0, r1 = rows
     inputs = {k: np.asarray(_pick(v[r0:r1], select), dtype=float) for k, v in extra.items()}
@@ -321,15 +319,25 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
         phase = phase_sigma_px(inputs["modulation"], inputs["offset"], a, b, period, steps)
     else:
         phase = inputs["sigma_xp"] if source["random"] == "images" else empty
-    per_point = (inputs["modulation"], inputs["offset"], inputs["sigma_xp"],
-                 np.asarray(phase, dtype=float), inputs.get("std", empty),
-                 inputs.get("count", empty))
+    per_point = tuple(np.ascontiguousarray(a, dtype=float) for a in (
+        inputs["modulation"], inputs["offset"], inputs["sigma_xp"], phase,
+        inputs.get("std", empty), inputs.get("count", empty)))
     band = (*grid, annotkernels.shear_rows(shear_u, shear_c, range(r0, r1), grid[4].size),
             shear_u)
-    xyz = np.ndarray((out.size, 3), dtype="<f8", buffer=out, strides=(out.itemsize, 8))
     chosen = np.empty(0, dtype=np.intp) if select is None else select
-    return annotkernels.annotate_band(xp[r0:r1], chosen, r0, band, packed, keep_invalid,
-                                      per_point, par, codes, xyz, ply.attribute_block(out))
+    phases = xp[r0:r1].view()
+    phases.flags.writeable = False  # one compiled signature, writable phase map or not
+    # the loop fills plain records, then one copy into ``out`` (a mapping at any offset)
+    records, points = np.empty(out.size, dtype=out.dtype), np.empty((out.size, 3))
+    words = records.view(np.uint32).reshape(out.size, out.itemsize // 4)
+    invalid = annotkernels.annotate_band(phases, chosen, r0, band, packed, keep_invalid,
+                                         per_point, par, codes, points, words,
+                                         words.view(np.float32),
+                                         -1.0 if grey is None else float(grey))
+    np.ndarray((out.size, 3), dtype="<f8", buffer=records,
+               strides=(out.itemsize, 8))[...] = points
+    out.view(np.uint8)[...] = records.view(np.uint8)  # bytes: a record copy is per field
+    return invalid
 
 
 def table_correlation_px(table: Calibration) -> float:

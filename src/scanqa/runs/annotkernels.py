@@ -321,7 +321,8 @@ def _lookup_point(s: float, base: int, w0: np.float32, w1: np.float32, w2: np.fl
 @njit(cache=True, nogil=True, error_model="numpy")
 def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, table: tuple,
                   extrapolate: bool, per_point: tuple, par: np.ndarray, codes: np.ndarray,
-                  xyz: np.ndarray, block: np.ndarray) -> int:
+                  xyz: np.ndarray, words: np.ndarray, floats: np.ndarray,
+                  grey: float) -> int:
     """Look up, model and write the kept points of one band of image rows.
 
     Parameters
@@ -345,9 +346,15 @@ def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, ta
     par, codes : ndarray
         :func:`model_parameters`, with ``par[20]`` the table correlation [camera px].
     xyz : (n, 3) float64
-        The records' coordinates, written [mm].
-    block : (n, k) float32
-        The records' attributes in :data:`ATTRIBUTE_COLUMNS` order, written.
+        The points, written [mm] (the caller copies them into the records).
+    words, floats : (n, m) uint32, float32
+        Two views of C-contiguous records (:func:`scanqa.io.ply.vertex_dtype`) as 4-byte
+        words: the attributes (words 6.., :data:`ATTRIBUTE_COLUMNS` order) are written,
+        and with ``grey`` >= 0 the display fields, the last two words
+        (:func:`scanqa.io.ply.fill_display`). Plain aligned arrays, so that numba
+        compiles one signature whatever the output file's header length.
+    grey : float
+        The cloud's grey scale (:func:`scanqa.io.ply.display_scale`) [1/DN], or -1.
 
     Returns
     -------
@@ -357,6 +364,7 @@ def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, ta
     col, tu, row, iv, tv, along, step, lo, hi, shear_rows, shear_u = grid
     coef, pk, n_s, corners = table
     width, n = xp.shape[1], xyz.shape[0]
+    block = floats[:, 6:]
     deg = shear_u.shape[0]
     slope, sig_tab, pixel = np.empty((n, 3)), np.empty(n), np.empty((n, 2), dtype=np.intp)
     inside, ratio, coc = np.empty(n, dtype=np.bool_), np.empty((2, n)), np.empty(n)
@@ -401,7 +409,26 @@ def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, ta
     if std.size:
         for i in range(n):
             block[i, 22], block[i, 23] = std[i] * 1e3, count[i]
+    if grey >= 0:
+        _fill_display(block, words, floats, grey)
     return invalid
+
+
+@njit(cache=True, nogil=True)
+def _fill_display(block: np.ndarray, words: np.ndarray, floats: np.ndarray,
+                  grey: float) -> None:
+    """The display fields of records from their ``offset_dn`` (column 16 of ``block``)
+    and the grey scale ``grey`` [1/DN]: the 16-bit level (``scanqa.io.las.scaled_grey``:
+    NaN as 0, rounded half to even, clipped) as float32 intensity, and red = green =
+    blue = its top 8 bits with alpha 255, as ``scanqa.io.ply_display`` packs them."""
+    last = words.shape[1] - 1
+    for i in range(block.shape[0]):
+        level = np.float64(block[i, 16])
+        level = np.rint((0.0 if level != level else level) * grey)
+        level = min(max(level, 0.0), 65535.0)
+        g = np.uint32(level)
+        floats[i, last - 1] = np.float32(g)
+        words[i, last] = (g >> np.uint32(8)) * np.uint32(0x010101) + np.uint32(0xFF000000)
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
@@ -450,3 +477,21 @@ def shear_rows(grid_u: np.ndarray, shear_c: np.ndarray, rows: range, height: int
     (``scanqa.calibration.lookup._band_shear``)."""
     vn = 2.0 * np.asarray(rows, dtype=float) / max(height - 1, 1) - 1.0
     return (vn[:, None] ** np.arange(grid_u.shape[0])[None, :]) @ shear_c.T
+
+
+def load() -> None:
+    """Load :func:`annotate_band` for the argument types ``annotate`` gives it, from
+    numba's cache (compiled there on a first run, ~25 s): numba's one-time start of a
+    process, 0.4-0.8 s of CPU, which a benchmark can keep out of the annotate it times."""
+    f8, ip = np.zeros(1), np.zeros(1, dtype=np.intp)
+    plane = np.zeros((1, 1))
+    grid = (ip, f8, ip, ip, f8, np.zeros((4, 1, 1)), np.zeros((4, 1, 1)), plane, plane,
+            plane, plane)
+    table = (np.zeros((2, 6), dtype=np.float32), np.array([0.0, 0.0, 1.0]), 2,
+             np.zeros(4, dtype=np.intp))
+    words = np.zeros((1, 6 + len(ATTRIBUTE_COLUMNS) + 2), dtype=np.uint32)
+    phases = plane.view()
+    phases.flags.writeable = False  # as ``annotate`` passes them
+    annotate_band(phases, np.empty(0, dtype=np.intp), 0, grid, table, False, (f8,) * 6,
+                  np.ones(22), np.zeros(4, dtype=np.int64), np.zeros((1, 3)), words,
+                  words.view(np.float32), -1.0)
