@@ -175,3 +175,8 @@ def test_one_compiled_signature_for_every_output(cfg, table, tmp_path):
         annotate(pm, table, cfg, out=tmp_path / name, source="s" * k)
     annotate(pm, table, cfg, repeats=[phase_map(cfg, seed=1)], keep_invalid=True)
     assert len(annotkernels.annotate_band.signatures) == 1
+
+
+def test_attribute_columns_are_annotates_order():
+    # the loop writes record columns by position: they must be annotate's names in order
+    assert annotkernels.ATTRIBUTE_COLUMNS == ATTRIBUTES + REPEAT_ATTRIBUTES

@@ -5,19 +5,23 @@ of a 5 MP scan: the table lookup (the sheared phase, the node rows, four Hermite
 gathers and the blend; :func:`scanqa.calibration.lookup.apply_rows`), the optics model
 per point (:func:`scanqa.model.optics.predict`, ~60 passes and two Bessel functions) and
 the float32 attributes, transposed into the records. :func:`annotate_band` does all of
-it in one loop over the band's points, on the calling thread with the GIL released (the
-band pool runs one per core), writing each record once and making no temporary array.
+it in three loops over the band's points (the lookup and the blur ratios; the
+attenuations; the model's scales, the attributes and the display fields), on the calling
+thread with the GIL released (the band pool runs one per core), with a few band-sized
+scratch arrays that stay in the core's cache, writing each record once.
 
 The loop repeats numpy's arithmetic in numpy's order: the lookup's float32 blend of the
 four nodes, its float64 Hermite cubic, the model's chain of Eqs. 1-4 and 12-19 as
 :func:`scanqa.model.optics.optical_terms` forms it, each attribute rounded once to
 float32 from the same float64 value. What differs is J1, which numba cannot call from
 scipy: :func:`bessel_j1` sums its power series below x = 12 and the Hankel asymptotic
-expansion above (Eqs. 9.1.10 and 9.2.5 in [1]_), within 1e-15 of scipy's J1 on the main
-lobe of the attenuation, so an attribute may differ from the numpy path's by one float32
-rounding step. ``tests/test_annotkernels.py`` checks J1 and A(r) against scipy and
-:func:`scanqa.model.optics.attenuation`, the model against :func:`~scanqa.model.optics.predict`
-for every reading, and the records against the numpy path.
+expansion above (Eqs. 9.1.10 and 9.2.5 in [1]_), within 4e-16 of scipy's J1 on the main
+lobe of the attenuation, and the shear polynomial is summed in another order than
+BLAS's, so an attribute may differ from the numpy path's by one float32 rounding step.
+``tests/test_annotkernels.py`` checks J1 and A(r) against scipy and
+:func:`scanqa.model.optics.attenuation`, the model against
+:func:`~scanqa.model.optics.predict` for every reading, and the records against the
+numpy path.
 
 References
 ----------
