@@ -174,6 +174,9 @@ def test_one_compiled_signature_for_every_output(cfg, table, tmp_path):
     for k, name in enumerate(("a.ply", "bb.ply", "ccc.ply", "dddd.ply")):
         annotate(pm, table, cfg, out=tmp_path / name, source="s" * k)
     annotate(pm, table, cfg, repeats=[phase_map(cfg, seed=1)], keep_invalid=True)
+    other = replace(pm, xp=np.asfortranarray(pm.xp, dtype=np.float32),
+                    modulation=np.asfortranarray(pm.modulation, dtype=np.float32))
+    annotate(other, table, cfg)
     assert len(annotkernels.annotate_band.signatures) == 1
 
 

@@ -325,8 +325,8 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
     band = (*grid, annotkernels.shear_rows(shear_u, shear_c, range(r0, r1), grid[4].size),
             shear_u)
     chosen = np.empty(0, dtype=np.intp) if select is None else select
-    phases = xp[r0:r1].view()
-    phases.flags.writeable = False  # one compiled signature, writable phase map or not
+    phases = np.ascontiguousarray(xp[r0:r1]).view()
+    phases.flags.writeable = False  # one compiled signature for every phase map
     # the loop fills plain records, then one copy into ``out`` (a mapping at any offset)
     records, points = np.empty(out.size, dtype=out.dtype), np.empty((out.size, 3))
     words = records.view(np.uint32).reshape(out.size, out.itemsize // 4)

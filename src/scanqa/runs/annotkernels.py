@@ -47,8 +47,9 @@ READING_CODES = {"power": 0, "amplitude": 1, "mixed": 2, "two_source": 3}
 SERIES_LIMIT = 12.0
 #: 1 / (k (k + 1)), the ratio of J1's series terms without a division per term [-].
 _SERIES_STEP = 1.0 / (np.arange(1, 61) * np.arange(2, 62))
-#: 2 J1(x) / x = sum_k c_k (x^2 / 4)^k, c_k = (-1)^k / (k! (k + 1)!) (Eq. 9.1.10 in
-#: [1]_), to k = 17: below :data:`POLYNOMIAL_LIMIT` the last term is < 1e-19 [-].
+#: 2 J1(x) / x = sum_k c_k (x^2 / 4)^k, c_k = (-1)^k / (k! (k + 1)!) (Eq. 9.1.10 in the
+#: module's reference), to k = 17: below :data:`POLYNOMIAL_LIMIT` the last term is
+#: < 1e-19 [-].
 _DISC_SERIES = np.array([(-1) ** k / (math.factorial(k) * math.factorial(k + 1))
                          for k in range(18)])
 #: Largest pi r at which :func:`attenuations` uses the fixed polynomial [-] (the main
@@ -76,9 +77,9 @@ def bessel_j1(x: float) -> float:
     -------
     float
         J1(x): the power series sum_k (-1)^k (x/2)^(2k+1) / (k! (k+1)!) for |x| < 12
-        (Eq. 9.1.10 in [1]_), else sqrt(2 / (pi x)) (P cos(x - 3 pi / 4) - Q sin(x -
-        3 pi / 4)) with P and Q the asymptotic series of Eq. 9.2.5 for mu = 4, summed
-        to their smallest term; odd in x.
+        (Eq. 9.1.10 in the module's reference), else sqrt(2 / (pi x)) (P cos(x - 3 pi
+        / 4) - Q sin(x - 3 pi / 4)) with P and Q the asymptotic series of Eq. 9.2.5 for
+        mu = 4, summed to their smallest term; odd in x.
 
     Notes
     -----
