@@ -7,7 +7,7 @@ split shows how much went to the kernel: first touches of fresh memory (the clou
 records, the page cache of the 602 MB file) are expensive on some virtual machines.
 numba's one-time start of the process (loading the compiled annotate loop from its
 cache, :func:`scanqa.runs.annotkernels.load`) runs before the timer, like the imports,
-and is printed on its own; the first run after a change of the loop compiles it (~25 s).
+and is printed on its own; the first run after a change of the loop compiles it (8-9 s of CPU).
 
 Run: .venv/bin/python benchmarks/bench_annotate.py [--width 2448 --height 2048]
 """

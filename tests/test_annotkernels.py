@@ -168,7 +168,7 @@ def test_every_sigma_source_matches_the_numpy_path(cfg, table, monkeypatch, nois
 
 def test_one_compiled_signature_for_every_output(cfg, table, tmp_path):
     # load() gives the types annotate gives, whatever the PLY header's length: no second
-    # compilation (~25 s on a first run) for another offset of the file's mapping
+    # compilation (8-9 s of CPU) for another offset of the file's mapping
     annotkernels.load()
     pm = phase_map(cfg, masked_rows=2)
     for k, name in enumerate(("a.ply", "bb.ply", "ccc.ply", "dddd.ply")):

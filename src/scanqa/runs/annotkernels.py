@@ -486,8 +486,9 @@ def shear_rows(grid_u: np.ndarray, shear_c: np.ndarray, rows: range, height: int
 
 def load() -> None:
     """Load :func:`annotate_band` for the argument types ``annotate`` gives it, from
-    numba's cache (compiled there on a first run, ~25 s): numba's one-time start of a
-    process, 0.4-0.8 s of CPU, which a benchmark can keep out of the annotate it times."""
+    numba's cache (compiled there on a first run, 8-9 s of CPU): numba's one-time start
+    of a process, 0.4-0.6 s of CPU, which a benchmark can keep out of the annotate it
+    times."""
     f8, ip = np.zeros(1), np.zeros(1, dtype=np.intp)
     plane = np.zeros((1, 1))
     grid = (ip, f8, ip, ip, f8, np.zeros((4, 1, 1)), np.zeros((4, 1, 1)), plane, plane,
