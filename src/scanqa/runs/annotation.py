@@ -308,8 +308,8 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
                    rows: tuple[int, int], keep_invalid: bool, out: np.ndarray,
                    source: dict, grey: float | None) -> int:
     """One band through :func:`annotkernels.annotate_band`: its per-point inputs picked,
-    the random source's phase sigma [px], the records' coordinate and attribute views,
-    and their display fields with the grey scale ``grey`` [1/DN], if given."""
+    the random source's phase sigma [px], a band of plain records filled (the display
+    fields too with the grey scale ``grey`` [1/DN], if given) and copied into ``out``."""
     grid, packed, par, codes, shear_u, shear_c = compiled
     r0, r1 = rows
     inputs = {k: np.asarray(_pick(v[r0:r1], select), dtype=float) for k, v in extra.items()}
@@ -330,7 +330,7 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
     # the loop fills plain records, then one copy into ``out`` (a mapping at any offset)
     records, points = np.empty(out.size, dtype=out.dtype), np.empty((out.size, 3))
     words = records.view(np.uint32).reshape(out.size, out.itemsize // 4)
-    invalid = annotkernels.annotate_band(phases, chosen, r0, band, packed, keep_invalid,
+    invalid = annotkernels.annotate_band(phases, chosen, r0, band, packed, bool(keep_invalid),
                                          per_point, par, codes, points, words,
                                          words.view(np.float32),
                                          -1.0 if grey is None else float(grey))
