@@ -61,6 +61,7 @@ from scanqa._version import __version__
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
+from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
@@ -69,6 +70,7 @@ from scanqa.io import ply
 from scanqa.model import optics
 from scanqa.model.cloud import AnnotatedCloud
 from scanqa.model.config import ScannerConfig
+from scanqa.runs import annotkernels
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
@@ -160,6 +162,7 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     starts = np.cumsum([0, *kept])
     index = {band: i for i, band in enumerate(bands)}
     grey = None
+    compiled = _compiled(table, config, origin)
 
     def fill(records: np.ndarray) -> None:
         records = records.view(np.ndarray)  # a memmap's slices run Python hooks per view
@@ -168,7 +171,7 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
             i = index[(r0, r1)]
             return _annotate_band(table, config, xp, extra, keep[i], (r0, r1),
                                   keep_invalid, records[starts[i]:starts[i + 1]], origin,
-                                  grey)
+                                  grey, compiled)
 
         counts["model_invalid"] = int(sum(run_bands(band, bands)))
 
@@ -264,12 +267,17 @@ def _json_number(value: float) -> float | None:
 
 def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
                    extra: dict, keep: np.ndarray, rows: tuple[int, int], keep_invalid: bool,
-                   out: np.ndarray, source: dict, grey: float | None = None) -> int:
+                   out: np.ndarray, source: dict, grey: float | None = None,
+                   compiled: tuple | None = None) -> int:
     """Look up, model and write the kept points of image rows ``rows`` into the records
     ``out`` (and their display fields with the grey scale ``grey`` [1/DN], if given);
-    returns the number outside the model's validity."""
+    returns the number outside the model's validity. With ``compiled``
+    (:func:`_compiled`), in one compiled pass (:func:`annotkernels.annotate_band`)."""
     r0, r1 = rows
     select = None if out.size == keep.size else np.flatnonzero(keep)
+    if compiled is not None:
+        return _compiled_band(compiled, xp, extra, select, rows, keep_invalid, out, source,
+                              grey)
     look = table.apply_rows(xp[r0:r1], r0, select, extrapolate=keep_invalid)
     pixels = _pixels(select, r0, r1, xp.shape[1])
     inputs = {k: _pick(v[r0:r1], select) for k, v in extra.items()}
@@ -281,6 +289,54 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
     invalid = _annotate_points(look, pixels, inputs, config, out)
     if grey is not None:
         ply.fill_display(out, grey)
+    return invalid
+
+
+def _compiled(table: Calibration, config: ScannerConfig, source: dict) -> tuple | None:
+    """The constants of the compiled pass (:mod:`scanqa.runs.annotkernels`) for a
+    nonparametric table, made once per scan; None for other calibrations (numpy path)."""
+    if not isinstance(table, CalibrationTable):
+        return None
+    par, codes = annotkernels.model_parameters(config, source["random"])
+    par[20] = table_correlation_px(table)
+    grid, packed = annotkernels.table_arrays(table)
+    g = table.image_grid
+    return grid, packed, par, codes, g.shear_u, g.shear_c
+
+
+def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndarray | None,
+                   rows: tuple[int, int], keep_invalid: bool, out: np.ndarray,
+                   source: dict, grey: float | None) -> int:
+    """One band through :func:`annotkernels.annotate_band`: its per-point inputs picked,
+    the random source's phase sigma [px], a band of plain records filled (the display
+    fields too with the grey scale ``grey`` [1/DN], if given) and copied into ``out``."""
+    grid, packed, par, codes, shear_u, shear_c = compiled
+    r0, r1 = rows
+    inputs = {k: np.asarray(_pick(v[r0:r1], select), dtype=float) for k, v in extra.items()}
+    empty = np.empty(0)
+    if source["random"] == "law":
+        a, b, period, steps = source["law"]
+        phase = phase_sigma_px(inputs["modulation"], inputs["offset"], a, b, period, steps)
+    else:
+        phase = inputs["sigma_xp"] if source["random"] == "images" else empty
+    per_point = tuple(np.ascontiguousarray(a, dtype=float) for a in (
+        inputs["modulation"], inputs["offset"], inputs["sigma_xp"], phase,
+        inputs.get("std", empty), inputs.get("count", empty)))
+    band = (*grid, annotkernels.shear_rows(shear_u, shear_c, range(r0, r1), grid[4].size),
+            shear_u)
+    chosen = np.empty(0, dtype=np.intp) if select is None else select
+    phases = np.ascontiguousarray(xp[r0:r1]).view()
+    phases.flags.writeable = False  # one compiled signature for every phase map
+    # the loop fills plain records, then one copy into ``out`` (a mapping at any offset)
+    records, points = np.empty(out.size, dtype=out.dtype), np.empty((out.size, 3))
+    words = records.view(np.uint32).reshape(out.size, out.itemsize // 4)
+    invalid = annotkernels.annotate_band(phases, chosen, r0, band, packed, bool(keep_invalid),
+                                         per_point, par, codes, points, words,
+                                         words.view(np.float32),
+                                         -1.0 if grey is None else float(grey))
+    np.ndarray((out.size, 3), dtype="<f8", buffer=records,
+               strides=(out.itemsize, 8))[...] = points
+    out.view(np.uint8)[...] = records.view(np.uint8)  # bytes: a record copy is per field
     return invalid
 
 
