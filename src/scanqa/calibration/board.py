@@ -2,11 +2,12 @@
 from the decoded phase, in the projector.
 
 A pose is one placement of a flat chessboard, scanned with fringes in both directions
-(columns, x_p, and rows, y_p). Its camera corners are found by OpenCV in the mean of the
-finest column set (the offset image, the board as a camera sees it under uniform light);
-or, with ``corners="model"``, in the mean of every phase-shift frame of both directions
-and placed to sub-pixel by a model of the blurred corner
-(:mod:`scanqa.calibration.corners`). Its projector corners come from local homographies
+(columns, x_p, and rows, y_p). Its camera corners are found by OpenCV in the mean of
+every phase-shift frame of both directions (the board as a camera sees it under uniform
+light) and placed to sub-pixel by a model of the blurred corner
+(:mod:`scanqa.calibration.corners`; ``corner_method="model"``, the default); or, with
+``corner_method="opencv"``, by OpenCV's own sub-pixel search in the mean of the finest
+column set. Its projector corners come from local homographies
 (Moreno and Taubin [1]_): around each camera corner the decoded (x_p, y_p) of the valid
 pixels within ``window_px`` are fitted by a homography of the camera pixels,
 (x_p, y_p, 1) ~ H (u, v, 1), and the corner is mapped through it. The board is flat, so
@@ -254,7 +255,7 @@ def projector_corners(camera_px: np.ndarray, xp: np.ndarray, yp: np.ndarray,
 
 def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
                 rows: PatternDescription, board: Board | float,
-                window_px: int = WINDOW_PX, corner_method: str = "opencv") -> BoardPose:
+                window_px: int = WINDOW_PX, corner_method: str = "model") -> BoardPose:
     """Find and decode one board pose.
 
     Parameters

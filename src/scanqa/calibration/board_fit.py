@@ -92,6 +92,9 @@ class BoardCalibration:
         noise) [px, -], for comparison with the jackknife's.
     flatness : dict
         :func:`board_flatness` of the poses; empty when a corner was not decoded.
+    corner_method : str
+        The camera's corner detector (:data:`scanqa.calibration.board.CORNER_METHODS`);
+        empty when the poses were decoded elsewhere.
     """
 
     data: OpenCVCalibration
@@ -101,6 +104,7 @@ class BoardCalibration:
     comparison: dict = field(default_factory=dict)
     fit_std: dict = field(default_factory=dict)
     flatness: dict = field(default_factory=dict)
+    corner_method: str = ""
 
     @property
     def flagged(self) -> list[str]:
@@ -157,7 +161,7 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
 def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,
                     rows: PatternDescription, board: Board | float, model: str = "k1",
                     held_out: bool = False, reference: OpenCVCalibration | None = None,
-                    progress=None, corner_method: str = "opencv") -> BoardCalibration:
+                    progress=None, corner_method: str = "model") -> BoardCalibration:
     """Decode board poses and calibrate from them (what ``scanqa calibrate --board`` does).
 
     Parameters
@@ -181,8 +185,8 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
     progress : callable, optional
         Receives a message per pose.
     corner_method : str
-        The camera's corner detector
-        (:data:`scanqa.calibration.board.CORNER_METHODS`).
+        The camera's corner detector (:data:`scanqa.calibration.board.CORNER_METHODS`;
+        default "model", docs/calibration.rst says why).
 
     Returns
     -------
@@ -199,7 +203,8 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
     result = calibrate_board(poses, board, panel, model)
     ref = None if reference is None else from_opencv(reference)
     complete = all(np.isfinite(p.projector_px).all() for p in poses)
-    return replace(result, comparison=compare(result.data, reference) if reference else {},
+    return replace(result, corner_method=corner_method,
+                   comparison=compare(result.data, reference) if reference else {},
                    held_out=tuple(hold_out(poses, board, panel, model, ref)
                                   if held_out and len(poses) >= 3 else ()),
                    flatness=board_flatness(poses, board, panel, model) if complete else {})

@@ -7,7 +7,7 @@ import argparse
 import json
 import logging
 
-from scanqa.calibration.board import Board
+from scanqa.calibration.board import CORNER_METHODS, Board
 from scanqa.calibration.board_fit import MODELS, calibrate_poses
 from scanqa.calibration.build import WEIGHT_MODES
 from scanqa.calibration.sweep import calibrate
@@ -69,6 +69,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     board.add_argument("--patterns", nargs=2, metavar=("COLUMNS.toml", "ROWS.toml"),
                        help="patterns.toml of the column (vertical) and row (horizontal) "
                             "fringes; their file names are read in each pose folder")
+    board.add_argument("--corners", choices=CORNER_METHODS, default="model",
+                       help="the camera's corner detector: 'model' (default: a blurred "
+                            "corner fitted in the mean of every frame) or 'opencv' "
+                            "(findChessboardCornersSB's own sub-pixel corners)")
     board.add_argument("--lens-model", choices=MODELS, default="k1",
                        help="k1 (default: square pixels, radial k1, camera principal point "
                             "at the centre), k1k2, or full (k1 k2 p1 p2 k3)")
@@ -140,7 +144,7 @@ def run_board(args: argparse.Namespace) -> int:
     try:
         result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns),
                                  board, args.lens_model, args.hold_out, reference,
-                                 progress=log.info)
+                                 progress=log.info, corner_method=args.corners)
     except InputError as err:   # the library speaks of the board given; the CLI of --board
         raise InputError(str(err).replace("the board given", "--board").replace(
             "the board's corner count", "--board")) from None

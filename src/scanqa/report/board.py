@@ -16,6 +16,7 @@ def summary(result: BoardCalibration) -> dict:
     return {
         "format": "scanqa-board-calibration-report/1",
         "model": result.model,
+        "corner_method": result.corner_method,
         "errors_px": dict(data.errors),
         "camera_matrix": np.asarray(data.Kc).tolist(),
         "camera_distortion": np.asarray(data.kc).tolist(),
@@ -40,7 +41,8 @@ def render(result: BoardCalibration) -> str:
     info = summary(result)
     page = Page("scanqa board calibration report")
     err = info["errors_px"]
-    page.paragraph(f"lens model {result.model}; reprojection RMS camera "
+    corners = f"corners {result.corner_method}; " if result.corner_method else ""
+    page.paragraph(f"{corners}lens model {result.model}; reprojection RMS camera "
                    f"{err['cam_error']:.3f} px, projector {err['proj_error']:.3f} px, "
                    f"stereo {err['stereo_error']:.3f} px over {len(result.poses)} poses.")
     if info["flagged_poses"]:
