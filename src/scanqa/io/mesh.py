@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import os
 import struct
+import warnings
 import zlib
 from pathlib import Path
 
@@ -71,7 +72,9 @@ def read_mesh(path: str | os.PathLike):
     if not p.is_file():
         raise InputError(f"mesh file {p} does not exist")
     try:
-        mesh = trimesh.load(p, force="mesh")
+        with warnings.catch_warnings(), np.errstate(all="ignore"):
+            warnings.simplefilter("ignore")  # a damaged file's casts: the checks below say it
+            mesh = trimesh.load(p, force="mesh")
     except MESH_ERRORS as err:
         raise InputError(f"cannot load mesh {p}: {type(err).__name__}: {err} (need a valid "
                          "STL, PLY, OBJ or OFF file)") from None
