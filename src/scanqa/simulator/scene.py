@@ -35,6 +35,12 @@ from scanqa.errors import InputError
 GAUGE_HEIGHTS_MM = (50.80, 25.40, 12.70, 7.62, 6.35, 5.08, 3.18, 2.54)
 #: Largest accepted departure of a sphere's mesh from the ideal sphere [mm].
 SPHERE_TOLERANCE_MM = 2e-4
+#: Rays per open3d call when the cast runs inside a pool of threads [-]. open3d's
+#: ``cast_rays`` holds the GIL for the whole call (about 0.19 us per ray on one core), so
+#: a tile casting 0.8 M rays at once stalls the other core's thread at its next Python
+#: step for ~0.15 s; in chunks of this size the GIL is let go every ~3 ms. Each ray is
+#: cast on its own, so the hits do not depend on the chunking.
+CAST_CHUNK_RAYS = 16384
 #: Ball diameter of the simulated test sphere and ball bar [mm] (0.14 of the sample
 #: scanner's measuring-volume diagonal).
 BALL_DIAMETER_MM = 12.0
@@ -131,10 +137,23 @@ class Scene:
         prim, t : (n,) uint32, float32
             Hit triangle (``2**32 - 1`` for none) and its ray parameter (inf for none).
         """
+        return self._cast_rays(rays, threads)
+
+    def _cast_rays(self, rays: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
+        """open3d's primitive ids and float32 distances of (n, 6) float32 rays, in chunks
+        of :data:`CAST_CHUNK_RAYS` when ``threads`` is 1 (a caller's pool of threads)."""
         import open3d as o3d
 
-        ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
-        return ans["primitive_ids"].numpy(), ans["t_hit"].numpy()
+        n = rays.shape[0]
+        if threads != 1 or n <= CAST_CHUNK_RAYS:
+            ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
+            return ans["primitive_ids"].numpy(), ans["t_hit"].numpy()
+        prim, t = np.empty(n, np.uint32), np.empty(n, np.float32)
+        for a in range(0, n, CAST_CHUNK_RAYS):
+            b = min(a + CAST_CHUNK_RAYS, n)
+            ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays[a:b]), nthreads=1)
+            prim[a:b], t[a:b] = ans["primitive_ids"].numpy(), ans["t_hit"].numpy()
+        return prim, t
 
     def cast(self, origins: np.ndarray, directions: np.ndarray, normals: bool = True,
              threads: int = 0) -> Hits:
@@ -156,8 +175,6 @@ class Scene:
         Hits
             Arrays of shape (...,) and (..., 3).
         """
-        import open3d as o3d
-
         shape = np.shape(directions)[:-1]
         d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
         origins = np.asarray(origins, dtype=np.float64)
@@ -166,10 +183,9 @@ class Scene:
             origins, np.shape(directions)).reshape(-1, 3)
         rays = np.empty((d.shape[0], 6), np.float32)
         rays[:, :3], rays[:, 3:] = o, d
-        ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
-        prim = ans["primitive_ids"].numpy()
-        hit = np.isfinite(ans["t_hit"].numpy()) & (prim != np.iinfo(np.uint32).max)
-        del ans, rays
+        prim, t_hit = self._cast_rays(rays, threads)
+        hit = np.isfinite(t_hit) & (prim != np.iinfo(np.uint32).max)
+        del t_hit, rays
         safe = np.where(hit, prim, 0)
         n = self._n[safe]  # the rows of misses are discarded below
         with np.errstate(divide="ignore", invalid="ignore"):
