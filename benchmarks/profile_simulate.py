@@ -12,6 +12,13 @@ time and the largest cumulative time, then the parts of the table in docs/benchm
 Run: .venv/bin/python benchmarks/profile_simulate.py [--width 640 --height 512]
          [--roi 1024 1024] [--top 25]
 (to profile another version: PYTHONPATH=OTHER/src .venv/bin/python benchmarks/...)
+
+``--timeline`` instead runs the scan as ``bench_simulate`` does (the real thread pools,
+no profiler) and prints when each phase ran (truth, tiles, the truth's npz, the PNG
+frames), its CPU seconds, and per second of the run how many of the process's threads
+were busy (over half of that second on a core, from /proc): the parallel efficiency
+of the run, and where it runs on one core. Meaningful on idle cores only: under other
+jobs' load a runnable thread waits for a core and does not count as busy.
 """
 
 from __future__ import annotations
@@ -19,9 +26,11 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import os
 import pstats
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -94,6 +103,86 @@ def _parts(stats: pstats.Stats) -> list[tuple[str, float]]:
     return out
 
 
+class _Timeline:
+    """Phases of one run (wall start, end, CPU of the process during it) and a sampler of
+    the process's and its threads' CPU seconds (/proc/self/task, every 0.25 s)."""
+
+    def __init__(self) -> None:
+        self.t0 = time.perf_counter()
+        self.phases: list[tuple[str, float, float, float]] = []
+        self.samples: list[tuple[float, float, dict]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._sample, daemon=True)
+        self._thread.start()
+
+    def now(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def _sample(self) -> None:
+        tick = os.sysconf("SC_CLK_TCK")
+        while not self._stop.wait(0.25):
+            tasks = {}
+            for tid in os.listdir("/proc/self/task"):
+                try:
+                    with open(f"/proc/self/task/{tid}/stat") as f:
+                        fields = f.read().rsplit(")", 1)[1].split()
+                except OSError:
+                    continue
+                tasks[tid] = (int(fields[11]) + int(fields[12])) / tick
+            self.samples.append((self.now(), time.process_time(), tasks))
+
+    def wrap(self, module, name: str, label: str) -> None:
+        """Record every call of ``module.name`` as a phase ``label``."""
+        fn = getattr(module, name)
+
+        def timed(*args, **kwargs):
+            start, cpu = self.now(), time.process_time()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.phases.append((label, start, self.now(), time.process_time() - cpu))
+
+        setattr(module, name, timed)
+
+    def report(self) -> None:
+        self._stop.set()
+        self._thread.join()
+        for label in dict.fromkeys(p[0] for p in self.phases):
+            runs = [p for p in self.phases if p[0] == label]
+            start, end = min(p[1] for p in runs), max(p[2] for p in runs)
+            cpu = sum(p[3] for p in runs) if label == "tile" else runs[0][3]
+            what = f"{len(runs)} calls, CPU of the calls" if label == "tile" else \
+                "CPU of the process meanwhile"
+            print(f"{label:6s} {start:6.1f} -> {end:6.1f} s  wall {end - start:5.1f} s  "
+                  f"{what} {cpu:5.1f} s")
+        busy = []
+        for (t0, _, a), (t1, _, b) in zip(self.samples[:-4:4], self.samples[4::4], strict=True):
+            busy.append(sum((b[k] - a.get(k, 0.0)) / (t1 - t0) > 0.5 for k in b))
+        print("threads busy, per second:", "".join(str(min(n, 9)) for n in busy))
+        print("seconds with 0 / 1 / 2+ busy threads:",
+              " / ".join(str(n) for n in (busy.count(0), busy.count(1),
+                                           sum(n >= 2 for n in busy))))
+
+
+def timeline(config: ScannerConfig) -> None:
+    """Run one scan on the real pools and print its phases and busy threads."""
+    import scanqa.simulator.experiments as experiments
+
+    tl = _Timeline()
+    for module, name, label in ((render, "truth_for", "truth"), (render, "_render_tile", "tile"),
+                                (experiments, "write_npz", "npz"),
+                                (experiments, "write_pattern_set", "png")):
+        tl.wrap(module, name, label)
+    cpu = time.process_time()
+    with tempfile.TemporaryDirectory() as tmp:
+        start = tl.now()
+        run_experiment("gauge-blocks", config, tmp, repeats=1)
+        end = tl.now()
+    print(f"run_experiment {start:.1f} -> {end:.1f} s: wall {end - start:.1f} s, "
+          f"CPU {time.process_time() - cpu:.1f} s")
+    tl.report()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -102,12 +191,17 @@ def main() -> int:
     ap.add_argument("--roi", type=int, nargs=2, metavar=("W", "H"),
                     help="a centred window of the 2448 x 2048 sensor instead")
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--timeline", action="store_true",
+                    help="phases and busy threads of a run on the real pools instead")
     args = ap.parse_args()
     config = _config(*((2448, 2048) if args.roi else (args.width, args.height)))
     if args.roi:
         sim = replace(config.simulator, roi_width_px=args.roi[0], roi_height_px=args.roi[1])
         config = ScannerConfig(config.camera, config.projector, config.fringes,
                                config.model, sim, config.name, config.source, config.profile)
+    if args.timeline:
+        timeline(config)
+        return 0
     import open3d  # noqa: F401  (its import is not the renderer's time)
 
     import scanqa.chunks
