@@ -15,10 +15,10 @@ Run: .venv/bin/python benchmarks/profile_simulate.py [--width 640 --height 512]
 
 ``--timeline`` instead runs the scan as ``bench_simulate`` does (the real thread pools,
 no profiler) and prints when each phase ran (truth, tiles, the truth's npz, the PNG
-frames), its CPU seconds, and per second of the run how many of the process's threads
-were busy (over half of that second on a core, from /proc): the parallel efficiency
-of the run, and where it runs on one core. Meaningful on idle cores only: under other
-jobs' load a runnable thread waits for a core and does not count as busy.
+frames) with its CPU seconds, and how often a tile's thread was asleep inside its tile
+(state S or D in /proc every 20 ms: waiting for the GIL that the other thread holds,
+or for a page). That share does not depend on other jobs' load (a thread that waits
+for a core is runnable, state R); the wall times do.
 """
 
 from __future__ import annotations
@@ -28,6 +28,7 @@ import cProfile
 import io
 import os
 import pstats
+import subprocess
 import sys
 import tempfile
 import threading
@@ -103,65 +104,84 @@ def _parts(stats: pstats.Stats) -> list[tuple[str, float]]:
     return out
 
 
+#: The sampler process: every 20 ms, the state of each thread of process argv[1]
+#: (R running or runnable, S sleeping, D in I/O) on one line of argv[2].
+_SAMPLER = """
+import os, sys, time
+pid, out = sys.argv[1], open(sys.argv[2], "w")
+while os.path.exists(f"/proc/{pid}"):
+    states = []
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                states.append(tid + ":" + f.read().rsplit(")", 1)[1].split()[0])
+        except OSError:
+            pass
+    out.write(f"{time.perf_counter()} {' '.join(states)}\\n")
+    out.flush()
+    time.sleep(0.02)
+"""
+
+
 class _Timeline:
-    """Phases of one run (wall start, end, CPU of the process during it) and a sampler of
-    the process's and its threads' CPU seconds (/proc/self/task, every 0.25 s)."""
+    """Phases of one run (wall start and end, CPU seconds) and a sampler of the state of
+    every thread of the process (/proc/self/task, every 20 ms)."""
 
     def __init__(self) -> None:
         self.t0 = time.perf_counter()
-        self.phases: list[tuple[str, float, float, float]] = []
-        self.samples: list[tuple[float, float, dict]] = []
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._sample, daemon=True)
-        self._thread.start()
+        self.phases: list[tuple[str, float, float, float, int]] = []
+        self._log = tempfile.NamedTemporaryFile("w+", suffix=".states")
+        # another process: a thread of this one would need the GIL to sample, and so
+        # would miss the very moments when a tile's thread holds it
+        self._sampler = subprocess.Popen([sys.executable, "-c", _SAMPLER, str(os.getpid()),
+                                          self._log.name])
 
     def now(self) -> float:
         return time.perf_counter() - self.t0
 
-    def _sample(self) -> None:
-        tick = os.sysconf("SC_CLK_TCK")
-        while not self._stop.wait(0.25):
-            tasks = {}
-            for tid in os.listdir("/proc/self/task"):
-                try:
-                    with open(f"/proc/self/task/{tid}/stat") as f:
-                        fields = f.read().rsplit(")", 1)[1].split()
-                except OSError:
-                    continue
-                tasks[tid] = (int(fields[11]) + int(fields[12])) / tick
-            self.samples.append((self.now(), time.process_time(), tasks))
+    def samples(self) -> list[tuple[float, dict]]:
+        """(time since the start [s], {thread id: state}) of every sample."""
+        out = []
+        for line in open(self._log.name):
+            t, *pairs = line.split()
+            out.append((float(t) - self.t0, dict((int(a), b) for a, b in
+                                                 (x.split(":") for x in pairs))))
+        return out
 
     def wrap(self, module, name: str, label: str) -> None:
-        """Record every call of ``module.name`` as a phase ``label``."""
+        """Record every call of ``module.name`` as a phase ``label`` (CPU: of the
+        calling thread for the tiles, which run two at once; else of the process)."""
         fn = getattr(module, name)
+        clock = time.thread_time if label == "tile" else time.process_time
 
         def timed(*args, **kwargs):
-            start, cpu = self.now(), time.process_time()
+            start, cpu = self.now(), clock()
             try:
                 return fn(*args, **kwargs)
             finally:
-                self.phases.append((label, start, self.now(), time.process_time() - cpu))
+                self.phases.append((label, start, self.now(), clock() - cpu,
+                                    threading.get_native_id()))
 
         setattr(module, name, timed)
 
     def report(self) -> None:
-        self._stop.set()
-        self._thread.join()
+        """Print the phases and how often a tile's thread slept inside its tile."""
+        self._sampler.terminate()
+        self._sampler.wait()
+        samples = self.samples()
         for label in dict.fromkeys(p[0] for p in self.phases):
             runs = [p for p in self.phases if p[0] == label]
             start, end = min(p[1] for p in runs), max(p[2] for p in runs)
             cpu = sum(p[3] for p in runs) if label == "tile" else runs[0][3]
-            what = f"{len(runs)} calls, CPU of the calls" if label == "tile" else \
-                "CPU of the process meanwhile"
             print(f"{label:6s} {start:6.1f} -> {end:6.1f} s  wall {end - start:5.1f} s  "
-                  f"{what} {cpu:5.1f} s")
-        busy = []
-        for (t0, _, a), (t1, _, b) in zip(self.samples[:-4:4], self.samples[4::4], strict=True):
-            busy.append(sum((b[k] - a.get(k, 0.0)) / (t1 - t0) > 0.5 for k in b))
-        print("threads busy, per second:", "".join(str(min(n, 9)) for n in busy))
-        print("seconds with 0 / 1 / 2+ busy threads:",
-              " / ".join(str(n) for n in (busy.count(0), busy.count(1),
-                                           sum(n >= 2 for n in busy))))
+                  f"CPU {cpu:5.1f} s ({len(runs)} calls)")
+        tiles = [p for p in self.phases if p[0] == "tile"]
+        inside = [states[p[4]] for t, states in samples for p in tiles
+                  if p[1] <= t <= p[2] and p[4] in states]
+        asleep = sum(state in "SD" for state in inside)
+        print(f"tile threads inside a tile: {len(inside)} samples, asleep (waiting for the "
+              f"GIL or a page) in {asleep} = {100 * asleep / max(len(inside), 1):.1f} %; "
+              "the rest running or waiting for a core")
 
 
 def timeline(config: ScannerConfig) -> None:

@@ -36,11 +36,14 @@ GAUGE_HEIGHTS_MM = (50.80, 25.40, 12.70, 7.62, 6.35, 5.08, 3.18, 2.54)
 #: Largest accepted departure of a sphere's mesh from the ideal sphere [mm].
 SPHERE_TOLERANCE_MM = 2e-4
 #: Rays per open3d call when the cast runs inside a pool of threads [-]. open3d's
-#: ``cast_rays`` holds the GIL for the whole call (about 0.19 us per ray on one core), so
-#: a tile casting 0.8 M rays at once stalls the other core's thread at its next Python
-#: step for ~0.15 s; in chunks of this size the GIL is let go every ~3 ms. Each ray is
-#: cast on its own, so the hits do not depend on the chunking.
-CAST_CHUNK_RAYS = 16384
+#: ``cast_rays`` holds the GIL for the whole call (0.1-0.2 us per ray on one core), so a
+#: tile casting 0.8 M rays at once stalls the other core's thread at its next Python
+#: step for ~0.1 s; in chunks of this size the GIL is let go every ~1 ms. Each ray is
+#: cast on its own, so the hits do not depend on the chunking. Measured on a 768 x 768
+#: window of the 5 MP gauge scan (``profile_simulate.py --timeline``): the tile threads
+#: slept 14 % of their time in one call, 10 % in chunks of 16384, 5 % in chunks of 4096,
+#: for ~50 us of CPU per call (casting 0.81 M rays: 64, 70 and 74 ms of CPU).
+CAST_CHUNK_RAYS = 4096
 #: Ball diameter of the simulated test sphere and ball bar [mm] (0.14 of the sample
 #: scanner's measuring-volume diagonal).
 BALL_DIAMETER_MM = 12.0
