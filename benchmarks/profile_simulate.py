@@ -17,8 +17,9 @@ Run: .venv/bin/python benchmarks/profile_simulate.py [--width 640 --height 512]
 no profiler) and prints when each phase ran (truth, tiles, the truth's npz, the PNG
 frames) with its CPU seconds, and how often a tile's thread was asleep inside its tile
 (state S or D in /proc every 20 ms: waiting for the GIL that the other thread holds,
-or for a page). That share does not depend on other jobs' load (a thread that waits
-for a core is runnable, state R); the wall times do.
+or for a page; a thread that waits for a core is runnable, state R). Under other jobs'
+load the wall times stretch and that share shrinks somewhat (the threads also wait for
+a core), so compare two versions in neighbouring runs.
 """
 
 from __future__ import annotations
@@ -185,7 +186,7 @@ class _Timeline:
 
 
 def timeline(config: ScannerConfig) -> None:
-    """Run one scan on the real pools and print its phases and busy threads."""
+    """Run one scan on the real pools; print its phases and the tile threads' sleep."""
     import scanqa.simulator.experiments as experiments
 
     tl = _Timeline()
