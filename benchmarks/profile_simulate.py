@@ -12,6 +12,14 @@ time and the largest cumulative time, then the parts of the table in docs/benchm
 Run: .venv/bin/python benchmarks/profile_simulate.py [--width 640 --height 512]
          [--roi 1024 1024] [--top 25]
 (to profile another version: PYTHONPATH=OTHER/src .venv/bin/python benchmarks/...)
+
+``--timeline`` instead runs the scan as ``bench_simulate`` does (the real thread pools,
+no profiler) and prints when each phase ran (truth, tiles, the truth's npz, the PNG
+frames) with its CPU seconds, and how often a tile's thread was asleep inside its tile
+(state S or D in /proc every 20 ms: waiting for the GIL that the other thread holds,
+or for a page; a thread that waits for a core is runnable, state R). Under other jobs'
+load the wall times stretch and that share shrinks somewhat (the threads also wait for
+a core), so compare two versions in neighbouring runs.
 """
 
 from __future__ import annotations
@@ -19,9 +27,12 @@ from __future__ import annotations
 import argparse
 import cProfile
 import io
+import os
 import pstats
+import subprocess
 import sys
 import tempfile
+import threading
 import time
 from dataclasses import replace
 from pathlib import Path
@@ -94,6 +105,105 @@ def _parts(stats: pstats.Stats) -> list[tuple[str, float]]:
     return out
 
 
+#: The sampler process: every 20 ms, the state of each thread of process argv[1]
+#: (R running or runnable, S sleeping, D in I/O) on one line of argv[2].
+_SAMPLER = """
+import os, sys, time
+pid, out = sys.argv[1], open(sys.argv[2], "w")
+while os.path.exists(f"/proc/{pid}"):
+    states = []
+    for tid in os.listdir(f"/proc/{pid}/task"):
+        try:
+            with open(f"/proc/{pid}/task/{tid}/stat") as f:
+                states.append(tid + ":" + f.read().rsplit(")", 1)[1].split()[0])
+        except OSError:
+            pass
+    out.write(f"{time.perf_counter()} {' '.join(states)}\\n")
+    out.flush()
+    time.sleep(0.02)
+"""
+
+
+class _Timeline:
+    """Phases of one run (wall start and end, CPU seconds) and a sampler of the state of
+    every thread of the process (/proc/self/task, every 20 ms)."""
+
+    def __init__(self) -> None:
+        self.t0 = time.perf_counter()
+        self.phases: list[tuple[str, float, float, float, int]] = []
+        self._log = tempfile.NamedTemporaryFile("w+", suffix=".states")
+        # another process: a thread of this one would need the GIL to sample, and so
+        # would miss the very moments when a tile's thread holds it
+        self._sampler = subprocess.Popen([sys.executable, "-c", _SAMPLER, str(os.getpid()),
+                                          self._log.name])
+
+    def now(self) -> float:
+        return time.perf_counter() - self.t0
+
+    def samples(self) -> list[tuple[float, dict]]:
+        """(time since the start [s], {thread id: state}) of every sample."""
+        out = []
+        for line in open(self._log.name):
+            t, *pairs = line.split()
+            out.append((float(t) - self.t0, dict((int(a), b) for a, b in
+                                                 (x.split(":") for x in pairs))))
+        return out
+
+    def wrap(self, module, name: str, label: str) -> None:
+        """Record every call of ``module.name`` as a phase ``label`` (CPU: of the
+        calling thread for the tiles, which run two at once; else of the process)."""
+        fn = getattr(module, name)
+        clock = time.thread_time if label == "tile" else time.process_time
+
+        def timed(*args, **kwargs):
+            start, cpu = self.now(), clock()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                self.phases.append((label, start, self.now(), clock() - cpu,
+                                    threading.get_native_id()))
+
+        setattr(module, name, timed)
+
+    def report(self) -> None:
+        """Print the phases and how often a tile's thread slept inside its tile."""
+        self._sampler.terminate()
+        self._sampler.wait()
+        samples = self.samples()
+        for label in dict.fromkeys(p[0] for p in self.phases):
+            runs = [p for p in self.phases if p[0] == label]
+            start, end = min(p[1] for p in runs), max(p[2] for p in runs)
+            cpu = sum(p[3] for p in runs) if label == "tile" else runs[0][3]
+            print(f"{label:6s} {start:6.1f} -> {end:6.1f} s  wall {end - start:5.1f} s  "
+                  f"CPU {cpu:5.1f} s ({len(runs)} calls)")
+        tiles = [p for p in self.phases if p[0] == "tile"]
+        inside = [states[p[4]] for t, states in samples for p in tiles
+                  if p[1] <= t <= p[2] and p[4] in states]
+        asleep = sum(state in "SD" for state in inside)
+        print(f"tile threads inside a tile: {len(inside)} samples, asleep (waiting for the "
+              f"GIL or a page) in {asleep} = {100 * asleep / max(len(inside), 1):.1f} %; "
+              "the rest running or waiting for a core")
+
+
+def timeline(config: ScannerConfig) -> None:
+    """Run one scan on the real pools; print its phases and the tile threads' sleep."""
+    import scanqa.simulator.experiments as experiments
+
+    tl = _Timeline()
+    for module, name, label in ((render, "truth_for", "truth"), (render, "_render_tile", "tile"),
+                                (experiments, "write_npz", "npz"),
+                                (experiments, "write_pattern_set", "png")):
+        tl.wrap(module, name, label)
+    cpu = time.process_time()
+    with tempfile.TemporaryDirectory() as tmp:
+        start = tl.now()
+        run_experiment("gauge-blocks", config, tmp, repeats=1)
+        end = tl.now()
+    print(f"run_experiment {start:.1f} -> {end:.1f} s: wall {end - start:.1f} s, "
+          f"CPU {time.process_time() - cpu:.1f} s")
+    tl.report()
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -102,12 +212,17 @@ def main() -> int:
     ap.add_argument("--roi", type=int, nargs=2, metavar=("W", "H"),
                     help="a centred window of the 2448 x 2048 sensor instead")
     ap.add_argument("--top", type=int, default=25)
+    ap.add_argument("--timeline", action="store_true",
+                    help="phases and busy threads of a run on the real pools instead")
     args = ap.parse_args()
     config = _config(*((2448, 2048) if args.roi else (args.width, args.height)))
     if args.roi:
         sim = replace(config.simulator, roi_width_px=args.roi[0], roi_height_px=args.roi[1])
         config = ScannerConfig(config.camera, config.projector, config.fringes,
                                config.model, sim, config.name, config.source, config.profile)
+    if args.timeline:
+        timeline(config)
+        return 0
     import open3d  # noqa: F401  (its import is not the renderer's time)
 
     import scanqa.chunks

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanqa.simulator import blur, devices, experiments, raykernels, render
+from scanqa.simulator import blur, devices, experiments, raykernels, render, scene
 from scanqa.simulator.optics_kernels import DiscAverage
 
 
@@ -125,3 +125,46 @@ def test_ladder_groups_equal_numpys_sort(shape):
         np.testing.assert_array_equal(idx, idx_ref)
         np.testing.assert_array_equal(frac, frac_ref)  # the same float64 operations
     assert blur._groups(diameter, np.zeros(shape, bool)) == []
+
+
+def test_chunked_cast_equals_one_open3d_call(paper_config, monkeypatch):
+    # Inside the tile pool (threads=1) open3d is called in chunks so that it lets go of
+    # the GIL between them; the reference is one open3d call over all the rays
+    # (threads=0 is never chunked). A tile's camera rays with its halo, in chunks of
+    # 4099 rays, so that the last chunk is partial; some rays miss.
+    config = _window(paper_config, 96)
+    pos = experiments.build_positions("gauge-blocks", config, [0.0])[0]
+    acq = experiments.acquisition(config, pos, 0, "gauge-blocks")
+    win = devices.sensor_window(config)
+    uu, vv = render._supersample_grid(config, win, render._tiles(win)[0],
+                                      render.halo_px(config, acq))
+    origins, dirs = devices.camera_rays(config, acq.camera, uu, vv)
+    dirs = np.array(dirs)
+    dirs[:, :40] *= -1.0  # a band of rays that look away from the scene: misses
+    rays = raykernels.camera_rays32(np.ascontiguousarray(origins.reshape(-1, 3)[0]),
+                                    np.ascontiguousarray(dirs).reshape(-1, 3))
+    ref_prim, ref_t = acq.scene.first_hits(rays, 0)
+    ref_cast = acq.scene.cast(origins, dirs, threads=0)
+    calls = []
+    cast_rays = acq.scene._raycast.cast_rays
+    monkeypatch.setattr(scene, "CAST_CHUNK_RAYS", 4099)
+    monkeypatch.setattr(acq.scene, "_raycast", _Counting(cast_rays, calls))
+    prim, t = acq.scene.first_hits(rays, 1)
+    assert len(calls) == -(-rays.shape[0] // 4099) and max(calls) == 4099  # chunked
+    np.testing.assert_array_equal(prim, ref_prim)
+    np.testing.assert_array_equal(t, ref_t)
+    assert (ref_prim != raykernels.NO_HIT).any() and (ref_prim == raykernels.NO_HIT).any()
+    hits = acq.scene.cast(origins, dirs, threads=1)
+    for field in ("t", "hit", "normals", "face"):
+        np.testing.assert_array_equal(getattr(hits, field), getattr(ref_cast, field))
+
+
+class _Counting:
+    """open3d's ``cast_rays`` that records the rays of every call."""
+
+    def __init__(self, cast_rays, calls: list) -> None:
+        self._cast_rays, self._calls = cast_rays, calls
+
+    def cast_rays(self, rays, nthreads: int = 0):
+        self._calls.append(rays.shape[0])
+        return self._cast_rays(rays, nthreads=nthreads)

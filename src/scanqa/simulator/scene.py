@@ -34,6 +34,15 @@ from scanqa.io.mesh import read_mesh
 GAUGE_HEIGHTS_MM = (50.80, 25.40, 12.70, 7.62, 6.35, 5.08, 3.18, 2.54)
 #: Largest accepted departure of a sphere's mesh from the ideal sphere [mm].
 SPHERE_TOLERANCE_MM = 2e-4
+#: Rays per open3d call when the cast runs inside a pool of threads [-]. open3d's
+#: ``cast_rays`` holds the GIL for the whole call (0.1-0.2 us per ray on one core), so a
+#: tile casting 0.8 M rays at once stalls the other core's thread at its next Python
+#: step for ~0.1 s; in chunks of this size the GIL is let go every ~1 ms. Each ray is
+#: cast on its own, so the hits do not depend on the chunking. Measured on a 768 x 768
+#: window of the 5 MP gauge scan (``profile_simulate.py --timeline``): the tile threads
+#: slept 14 % of their time in one call, 10 % in chunks of 16384, 5 % in chunks of 4096,
+#: for ~50 us of CPU per call (casting 0.81 M rays: 64, 70 and 74 ms of CPU).
+CAST_CHUNK_RAYS = 4096
 #: Ball diameter of the simulated test sphere and ball bar [mm] (0.14 of the sample
 #: scanner's measuring-volume diagonal).
 BALL_DIAMETER_MM = 12.0
@@ -130,10 +139,23 @@ class Scene:
         prim, t : (n,) uint32, float32
             Hit triangle (``2**32 - 1`` for none) and its ray parameter (inf for none).
         """
+        return self._cast_rays(rays, threads)
+
+    def _cast_rays(self, rays: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
+        """open3d's primitive ids and float32 distances of (n, 6) float32 rays, in chunks
+        of :data:`CAST_CHUNK_RAYS` when ``threads`` is 1 (a caller's pool of threads)."""
         import open3d as o3d
 
-        ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
-        return ans["primitive_ids"].numpy(), ans["t_hit"].numpy()
+        n = rays.shape[0]
+        if threads != 1 or n <= CAST_CHUNK_RAYS:
+            ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
+            return ans["primitive_ids"].numpy(), ans["t_hit"].numpy()
+        prim, t = np.empty(n, np.uint32), np.empty(n, np.float32)
+        for a in range(0, n, CAST_CHUNK_RAYS):
+            b = min(a + CAST_CHUNK_RAYS, n)
+            ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays[a:b]), nthreads=1)
+            prim[a:b], t[a:b] = ans["primitive_ids"].numpy(), ans["t_hit"].numpy()
+        return prim, t
 
     def cast(self, origins: np.ndarray, directions: np.ndarray, normals: bool = True,
              threads: int = 0) -> Hits:
@@ -155,8 +177,6 @@ class Scene:
         Hits
             Arrays of shape (...,) and (..., 3).
         """
-        import open3d as o3d
-
         shape = np.shape(directions)[:-1]
         d = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
         origins = np.asarray(origins, dtype=np.float64)
@@ -165,10 +185,9 @@ class Scene:
             origins, np.shape(directions)).reshape(-1, 3)
         rays = np.empty((d.shape[0], 6), np.float32)
         rays[:, :3], rays[:, 3:] = o, d
-        ans = self._raycast.cast_rays(o3d.core.Tensor.from_numpy(rays), nthreads=threads)
-        prim = ans["primitive_ids"].numpy()
-        hit = np.isfinite(ans["t_hit"].numpy()) & (prim != np.iinfo(np.uint32).max)
-        del ans, rays
+        prim, t_hit = self._cast_rays(rays, threads)
+        hit = np.isfinite(t_hit) & (prim != np.iinfo(np.uint32).max)
+        del t_hit, rays
         safe = np.where(hit, prim, 0)
         n = self._n[safe]  # the rows of misses are discarded below
         with np.errstate(divide="ignore", invalid="ignore"):
