@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy import signal, special, stats
 
+from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.demodulate import TWO_PI, ShiftFit
 from scanqa.decoding.phasemap import MASK_INCONSISTENT, MASK_OUT_OF_RANGE, PhaseMap
 from scanqa.model import optics
@@ -431,23 +432,38 @@ def filter_phase(stack: np.ndarray, shifts_rad: Sequence[float], phase_map: Phas
     w = (t - k).astype(np.float32)
     order = np.argsort(k, kind="stable")  # a radix sort of small integers
     bounds = np.searchsorted(k[order], np.arange(len(bank.kernels) + 1))
-    cs = np.zeros((2, todo.size), np.float32)
-    for lev in range(len(bank.kernels)):
+    # each pixel takes (1 - w) of level k (``below``) and w of level k + 1 (``above``):
+    # every level writes its own pixels of each, so the levels run on every core, and
+    # below + above is the sum the levels added one after another
+    below, above = (np.zeros((2, todo.size), np.float32) for _ in range(2))
+
+    def one_level(lev: int, _: int) -> None:
         lower = order[bounds[lev]:bounds[lev + 1]]  # k == lev: weight 1 - w
         upper = order[bounds[lev - 1]:bounds[lev]] if lev else order[:0]  # k + 1 == lev
         sel = np.concatenate([lower, upper])
         if sel.size:
             share = np.concatenate([1 - w[lower], w[upper]])
-            cs[:, sel] += share * _filtered_at(weighted, bank.kernels[lev], todo[sel], width)
+            part = share * _filtered_at(weighted, bank.kernels[lev], todo[sel], width)
+            below[:, lower] = part[:, :lower.size]
+            above[:, upper] = part[:, lower.size:]
+
+    run_bands(one_level, [(lev, lev + 1) for lev in range(len(bank.kernels))])
+    cs = below + above
     xp = phase_map.xp.copy()
-    c0, s0 = c.flat[todo], s.flat[todo]
-    shift = (np.arctan2(-cs[1], cs[0]) - np.arctan2(-s0, c0)) / TWO_PI
-    xp.flat[todo] += (shift - np.rint(shift)) * phase_map.period_px
     gain = np.ones((height, width))
     grid = np.linspace(0.0, bank.top, 64 * int(bank.top) + 1)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        fall = np.hypot(cs[0], cs[1]) / np.hypot(c0, s0)
-        gain.flat[todo] = 1.0 / (np.sqrt(np.interp(t, grid, bank.nea_px2(grid))) * fall)
+    nea = bank.nea_px2(grid)
+
+    def finish(a: int, b: int) -> None:  # element by element: disjoint slices of todo
+        at, cs_ab = todo[a:b], cs[:, a:b]
+        c0, s0 = c.flat[at], s.flat[at]
+        shift = (np.arctan2(-cs_ab[1], cs_ab[0]) - np.arctan2(-s0, c0)) / TWO_PI
+        xp.flat[at] += (shift - np.rint(shift)) * phase_map.period_px
+        with np.errstate(invalid="ignore", divide="ignore"):
+            fall = np.hypot(cs_ab[0], cs_ab[1]) / np.hypot(c0, s0)
+            gain.flat[at] = 1.0 / (np.sqrt(np.interp(t[a:b], grid, nea)) * fall)
+
+    run_bands(finish, row_bands(todo.size, 1, 1 << 20))
     return xp, gain
 
 
