@@ -56,6 +56,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -436,9 +437,13 @@ def flatten(desc: PatternDescription, stacks: Sequence[np.ndarray], phase_map: P
     level = _level_map(shape, stride, noise, curve, phase_map.valid)
     working = desc.phase_sets[-1]
     stack = stacks[[s.name for s in desc.sets].index(working.name)]
-    xp, gain = filter_phase(stack, working.shifts_rad, phase_map, level, bank)
-    g_scene, g_sensor = reduction(noise.noise_area_px2, noise.period_cam_px,
-                                  curve.level_at(noise.z_mm), config, bank, z_mm=noise.z_mm)
+    with ThreadPoolExecutor(max_workers=1) as pool:  # the sampled pixels' gains meanwhile
+        filtered = pool.submit(filter_phase, stack, working.shifts_rad, phase_map, level,
+                               bank)
+        g_scene, g_sensor = reduction(noise.noise_area_px2, noise.period_cam_px,
+                                      curve.level_at(noise.z_mm), config, bank,
+                                      z_mm=noise.z_mm)
+        xp, gain = filtered.result()
     sigma, flat, lateral = (np.full(shape, np.nan) for _ in range(3))
     sigma.flat[noise.index] = noise.sigma_mm
     flat.flat[noise.index] = np.hypot(noise.scene_mm * g_scene, noise.sensor_mm * g_sensor)
