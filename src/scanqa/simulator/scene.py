@@ -132,18 +132,14 @@ class Scene:
 
     def first_hits(self, rays: np.ndarray, threads: int = 0
                    ) -> tuple[np.ndarray, np.ndarray]:
-        """open3d's float32 cast of (n, 6) float32 rays (origin, direction).
+        """open3d's float32 cast of (n, 6) float32 rays (origin, direction), in chunks of
+        :data:`CAST_CHUNK_RAYS` when ``threads`` is 1 (a caller's pool of threads).
 
         Returns
         -------
         prim, t : (n,) uint32, float32
             Hit triangle (``2**32 - 1`` for none) and its ray parameter (inf for none).
         """
-        return self._cast_rays(rays, threads)
-
-    def _cast_rays(self, rays: np.ndarray, threads: int) -> tuple[np.ndarray, np.ndarray]:
-        """open3d's primitive ids and float32 distances of (n, 6) float32 rays, in chunks
-        of :data:`CAST_CHUNK_RAYS` when ``threads`` is 1 (a caller's pool of threads)."""
         import open3d as o3d
 
         n = rays.shape[0]
@@ -185,7 +181,7 @@ class Scene:
             origins, np.shape(directions)).reshape(-1, 3)
         rays = np.empty((d.shape[0], 6), np.float32)
         rays[:, :3], rays[:, 3:] = o, d
-        prim, t_hit = self._cast_rays(rays, threads)
+        prim, t_hit = self.first_hits(rays, threads)
         hit = np.isfinite(t_hit) & (prim != np.iinfo(np.uint32).max)
         del t_hit, rays
         safe = np.where(hit, prim, 0)
