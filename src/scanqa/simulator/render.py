@@ -432,24 +432,15 @@ class _CellNoise:
         gx, gy = np.meshgrid(np.arange(x0, x0 + nx), np.arange(y0, y0 + ny))
         return cls(gx, gy, ((iy - y0) * nx + (ix - x0)).astype(np.intp), scale)
 
-    def __call__(self, key: int) -> np.ndarray | None:
-        """Noise of every sample for the stream ``key`` (float32) [e-], None if off."""
-        if self.scale is None:
-            return None
-        values = _hash_normal(key, self.gx, self.gy).astype(np.float32)
-        if self.index is not None:
-            values = values.ravel()[self.index]
-        values *= self.scale
-        return values
-
     def add_to(self, radiance: np.ndarray, key: int) -> None:
         """Add the noise of stream ``key`` to ``radiance`` in place (float32) [e-]."""
         if self.scale is None:
             return
-        if self.index is None:
-            radiance += self(key)
-            return
         cells = _hash_normal(key, self.gx, self.gy).astype(np.float32)
+        if self.index is None:  # one cell per sample
+            cells *= self.scale
+            radiance += cells
+            return
         raykernels.add_cell_noise(radiance, cells, self.index, self.scale)
 
 
