@@ -297,8 +297,8 @@ def _compiled(table: Calibration, config: ScannerConfig, source: dict) -> tuple 
     nonparametric table, made once per scan; None for other calibrations (numpy path)."""
     if not isinstance(table, CalibrationTable):
         return None
-    par, codes = annotkernels.model_parameters(config, source["random"])
-    par[20] = table_correlation_px(table)
+    par, codes = annotkernels.model_parameters(config, source["random"],
+                                               table_correlation_px(table))
     grid, packed = annotkernels.table_arrays(table)
     g = table.image_grid
     return grid, packed, par, codes, g.shear_u, g.shear_c

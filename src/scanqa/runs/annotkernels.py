@@ -239,7 +239,8 @@ def _scales(z: float, coc_c: float, r_c: float, r_p: float, a_c: float, a_p: flo
     return f, s_o, sigma, s_t * scene * sp, s_t * sensor * sp, valid
 
 
-def model_parameters(config: ScannerConfig, random: str = "model") -> tuple:
+def model_parameters(config: ScannerConfig, random: str = "model",
+                     table_corr_px: float = np.nan) -> tuple:
     """The config's numbers and readings as :func:`point_model` takes them.
 
     Parameters
@@ -248,6 +249,9 @@ def model_parameters(config: ScannerConfig, random: str = "model") -> tuple:
         Optics, poses and the model's parameters and readings.
     random : {"model", "law", "images"}
         The per-point random sigma's source (``scanqa.runs.annotation.sigma_source``).
+    table_corr_px : float
+        The calibration table's correlation length
+        (``scanqa.runs.annotation.table_correlation_px``) [camera px]; NaN without one.
 
     Returns
     -------
@@ -255,7 +259,7 @@ def model_parameters(config: ScannerConfig, random: str = "model") -> tuple:
         Projector position [mm], its rotation's third row [-], working period [px],
         pitch, focus, focal, aperture [mm]; camera focus, aperture, focal, pixel [mm];
         b_d [px^2]; gamma [-]; rho [-]; sigma_p [px]; systematic sigma [mm]; table
-        correlation placeholder [px]; camera principal distance [px].
+        correlation [px]; camera principal distance [px].
     codes : (4,) int64
         Filter form, floor, reading; random source 0 (model) or 1 (s_T times a phase
         sigma per point).
@@ -269,7 +273,7 @@ def model_parameters(config: ScannerConfig, random: str = "model") -> tuple:
                     proj.pitch_um * 1e-3, proj.focus_mm, proj.focal_mm, proj.aperture_mm,
                     cam.focus_mm, cam.aperture_mm, cam.focal_mm, pixel, b_d, model.gamma,
                     model.sensor_sigma_p_px / model.sigma_p_px, model.sigma_p_px,
-                    model.systematic_sigma_mm, np.nan, cam.principal_distance_px],
+                    model.systematic_sigma_mm, table_corr_px, cam.principal_distance_px],
                    dtype=np.float64)
     codes = np.array([optics.lookup(FORM_CODES, model.filter_form, "form"),
                       optics.lookup(FLOOR_CODES, model.filter_floor, "floor"),
@@ -349,7 +353,7 @@ def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, ta
         Modulation, offset [DN], decoder sigma_xp [px], the random source's phase sigma
         [px], the repeats' std [mm] and count (empty arrays without repeats).
     par, codes : ndarray
-        :func:`model_parameters`, with ``par[20]`` the table correlation [camera px].
+        :func:`model_parameters` (with the table's correlation) and the readings' codes.
     xyz : (n, 3) float64
         The points, written [mm] (the caller copies them into the records).
     words, floats : (n, m) uint32, float32
