@@ -25,6 +25,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.special import erf
 
 #: Half-width of the window fitted around each corner [camera px].
 HALF_WIDTH_PX = 12
@@ -65,7 +66,7 @@ def _model(p: np.ndarray, u: np.ndarray, v: np.ndarray, jacobian: bool = False):
     sin1, cos1, sin2, cos2 = math.sin(t1), math.cos(t1), math.sin(t2), math.cos(t2)
     d1, d2 = -du * sin1 + dv * cos1, -du * sin2 + dv * cos2
     scale = math.sqrt(2.0) * s
-    e1, e2 = _erf(d1 / scale), _erf(d2 / scale)
+    e1, e2 = erf(d1 / scale), erf(d2 / scale)
     if not jacobian:
         return m + a * e1 * e2
     g1 = 2 / math.sqrt(math.pi) * np.exp(-(d1 / scale) ** 2) / scale  # d e1 / d d1
@@ -79,12 +80,6 @@ def _model(p: np.ndarray, u: np.ndarray, v: np.ndarray, jacobian: bool = False):
         np.ones_like(du),
         e1 * e2])
     return jac
-
-
-def _erf(x: np.ndarray) -> np.ndarray:
-    from scipy.special import erf
-
-    return erf(x)
 
 
 def fit_corner(image: np.ndarray, start: tuple[float, float], angles: tuple[float, float],
