@@ -22,29 +22,16 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from tests.realdata import SLSTUDIO  # noqa: E402
+from tests.realdata import SLSTUDIO, slstudio_board_patterns  # noqa: E402
 
 from scanqa.calibration.board import Board, decode_pose  # noqa: E402
 from scanqa.calibration.board_fit import _flags, _points, compare  # noqa: E402
 from scanqa.decoding.parsing import load_patterns  # noqa: E402
 from scanqa.io.opencv import OpenCVCalibration, read_opencv_calibration  # noqa: E402
-from scanqa.io.patterns import dumps_patterns  # noqa: E402
 
 BOARD = Board(rows=9, columns=13, square_mm=10.0)
 PANEL = (1824, 1140)
-SHIFTS = [0.0, -2 * np.pi / 3, -4 * np.pi / 3]
 CALIBRATION = SLSTUDIO / "calibration"
-
-
-def _patterns(path: Path, width: int, fine: float, orientation: str, first: int):
-    names = [f"frameSeq_{i:02d}.png" for i in range(first, first + 6)]
-    path.write_text(dumps_patterns({
-        "format": "scanqa-patterns/2", "projector_width_px": width, "set": [
-            {"kind": "phase", "name": "fine", "period_px": fine, "steps": 3,
-             "shifts_rad": SHIFTS, "orientation": orientation, "files": names[:3]},
-            {"kind": "phase", "name": "cue", "period_px": float(width), "steps": 3,
-             "shifts_rad": SHIFTS, "orientation": orientation, "files": names[3:]}]}))
-    return load_patterns(path)
 
 
 def bowed(abc) -> np.ndarray:
@@ -108,8 +95,7 @@ def show(label, abc, data, ref):
 
 def main() -> None:
     tmp = Path(sys.argv[1]) if len(sys.argv) > 1 else Path("/tmp")
-    cols = _patterns(tmp / "columns.toml", 1824, 114.0, "vertical", 0)
-    rows = _patterns(tmp / "rows.toml", 1140, 71.25, "horizontal", 6)
+    cols, rows = (load_patterns(p) for p in slstudio_board_patterns(tmp))
     poses = [decode_pose(CALIBRATION / f"calseq{k}", cols, rows, BOARD.square_mm,
                          corner_method="model") for k in (1, 3, 4, 5, 6)]
     ref = read_opencv_calibration(CALIBRATION / "calibration.xml")

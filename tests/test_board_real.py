@@ -25,7 +25,6 @@ default since (more accurate by every measure independent of the bounds); the te
 from __future__ import annotations
 
 import json
-import math
 from dataclasses import replace
 
 import numpy as np
@@ -40,33 +39,24 @@ from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.decoding.parsing import load_patterns
 from scanqa.io.opencv import read_opencv_calibration
 from scanqa.io.patterns import dumps_patterns
-from tests.realdata import SLSTUDIO, needs_slstudio
+from tests.realdata import (
+    SLSTUDIO,
+    SLSTUDIO_SHIFTS,
+    needs_slstudio,
+    slstudio_board_patterns,
+)
 
 pytestmark = needs_slstudio
 
 CALIBRATION = SLSTUDIO / "calibration"
 BOARD = Board(rows=9, columns=13, square_mm=10.0)
 PANEL = (1824, 1140)
-SHIFTS = [0.0, -2 * math.pi / 3, -4 * math.pi / 3]
-
-
-def _patterns(path, width: int, fine: float, orientation: str, first: int) -> str:
-    """A patterns.toml of two 3-step sets (README), file names relative to a pose."""
-    names = [f"frameSeq_{i:02d}.png" for i in range(first, first + 6)]
-    path.write_text(dumps_patterns({
-        "format": "scanqa-patterns/2", "projector_width_px": width, "set": [
-            {"kind": "phase", "name": "fine", "period_px": fine, "steps": 3,
-             "shifts_rad": SHIFTS, "orientation": orientation, "files": names[:3]},
-            {"kind": "phase", "name": "cue", "period_px": float(width), "steps": 3,
-             "shifts_rad": SHIFTS, "orientation": orientation, "files": names[3:]}]}))
-    return str(path)
 
 
 @pytest.fixture(scope="module")
 def patterns(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("board_patterns")
-    return (_patterns(tmp / "columns.toml", 1824, 114.0, "vertical", 0),
-            _patterns(tmp / "rows.toml", 1140, 71.25, "horizontal", 6))
+    return tuple(str(p) for p in slstudio_board_patterns(
+        tmp_path_factory.mktemp("board_patterns")))
 
 
 @pytest.fixture(scope="module")
@@ -159,9 +149,9 @@ def test_skull_against_slstudio_within_the_calibration_sigma(corners, request, t
     (tmp_path / "patterns.toml").write_text(dumps_patterns({
         "format": "scanqa-patterns/2", "projector_width_px": 1824, "set": [
             {"kind": "phase", "name": "p114", "period_px": 114.0, "steps": 3,
-             "shifts_rad": SHIFTS, "files": frames[:3]},
+             "shifts_rad": SLSTUDIO_SHIFTS, "files": frames[:3]},
             {"kind": "phase", "name": "p1824", "period_px": 1824.0, "steps": 3,
-             "shifts_rad": SHIFTS, "files": frames[3:]}]}))
+             "shifts_rad": SLSTUDIO_SHIFTS, "files": frames[3:]}]}))
     pm = decode_pattern_dir(tmp_path)
     v, u = (a[::7] for a in np.nonzero(pm.valid))
     xp = pm.xp[v, u]
