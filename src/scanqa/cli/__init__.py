@@ -22,23 +22,27 @@ from collections.abc import Iterator, Sequence
 from scanqa._version import __version__
 from scanqa.errors import ScanQAError
 
-#: Modules that register subcommands, in the order ``--help`` lists them.
-COMMAND_MODULES = (
-    "scanqa.cli.init",
-    "scanqa.cli.design",
-    "scanqa.cli.sweep_manifest",
-    "scanqa.cli.calibrate",
-    "scanqa.cli.annotate",
-    "scanqa.cli.qa",
-    "scanqa.cli.compare",
-    "scanqa.cli.demo",
-    "scanqa.cli.patterns",
-    "scanqa.cli.describe",
-    "scanqa.cli.decode",
-    "scanqa.cli.simulate",
-    "scanqa.cli.characterize_board",
-    "scanqa.cli.batch",
-)
+#: Modules that register subcommands, in the order ``--help`` lists them, with the
+#: subcommands each registers (tests/test_cli_startup.py holds the names to what the
+#: modules add): ``scanqa dof`` imports the one module that runs it, not all fourteen,
+#: whose libraries (matplotlib, scipy.stats, numba, open3d) take seconds to load.
+COMMANDS = {
+    "scanqa.cli.init": ("init",),
+    "scanqa.cli.design": ("dof", "curve", "volume", "flatten", "design"),
+    "scanqa.cli.sweep_manifest": ("sweep-manifest",),
+    "scanqa.cli.calibrate": ("calibrate",),
+    "scanqa.cli.annotate": ("annotate",),
+    "scanqa.cli.qa": ("qa",),
+    "scanqa.cli.compare": ("compare",),
+    "scanqa.cli.demo": ("demo",),
+    "scanqa.cli.patterns": ("patterns",),
+    "scanqa.cli.describe": ("describe",),
+    "scanqa.cli.decode": ("decode",),
+    "scanqa.cli.simulate": ("simulate", "characterize"),
+    "scanqa.cli.characterize_board": ("characterize-board", "characterize-repeats"),
+    "scanqa.cli.batch": ("batch", "campaign"),
+}
+COMMAND_MODULES = tuple(COMMANDS)
 
 log = logging.getLogger(__name__)
 
@@ -67,15 +71,17 @@ class _SubParsers(argparse._SubParsersAction):
         return super().add_parser(name, **kwargs)
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The top-level parser with every subcommand registered."""
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with every subcommand registered, or with only the module
+    of ``command`` (a subcommand's name) when it is given."""
     parser = _Parser(prog="scanqa", description=(
         "Calibration-aware uncertainty toolkit for phase-shift 3D scanners."))
     parser.register("action", "parsers", _SubParsers)
     parser.add_argument("--version", action="version", version=f"scanqa {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
-    for name in COMMAND_MODULES:
-        importlib.import_module(name).register(sub)
+    for name, commands in COMMANDS.items():
+        if command is None or command in commands:
+            importlib.import_module(name).register(sub)
     return parser
 
 
@@ -118,11 +124,15 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: Sequence[str] | None) -> int:
+    words = list(sys.argv[1:] if argv is None else argv)
+    named = words[0] if words and any(words[0] in c for c in COMMANDS.values()) else None
+    if words == ["--version"]:
+        named = "--version"  # no subcommand's module is needed to print the version
+    parser = build_parser(named)
+    args = parser.parse_args(words)
     from scanqa.cli.common import StdoutClosed, silence_stdout
     from scanqa.progress import NORMAL, QUIET, VERBOSE, configure_logging
 
-    parser = build_parser()
-    args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
         return 2

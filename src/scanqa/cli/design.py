@@ -19,7 +19,6 @@ from scanqa.cli.common import (
     output_path,
 )
 from scanqa.model import design
-from scanqa.report import design as plots
 
 _FMT = argparse.RawDescriptionHelpFormatter
 
@@ -113,14 +112,22 @@ def register(sub: argparse._SubParsersAction) -> None:
     opt.set_defaults(func=run_optimise)
 
 
+
+def _plots():
+    """The pictures' module, loaded when a picture is drawn: matplotlib takes a second
+    to import, and most runs print a table."""
+    from scanqa.report import design as plots
+    return plots
+
 def _add_range(p: argparse.ArgumentParser) -> None:
     add_config_argument(p)
     p.add_argument("--z-min", type=number(), default=None,
                    help="first range [mm] (default: camera focus - 10 %%)")
     p.add_argument("--z-max", type=number(), default=None,
                    help="last range [mm] (default: camera focus + 10 %%)")
-    p.add_argument("--step", type=number(gt=0, unit="mm"), default=0.5,
-                   help="range step [mm] (default 0.5)")
+    p.add_argument("--step", type=number(gt=0, unit="mm"), default=None,
+                   help="range step [mm] (default 0.5, or a 2000th of the range when "
+                        "that is coarser)")
     p.add_argument("--period", type=number(gt=0, unit="px"), default=None,
                    help="fringe period [projector px] (default: the finest of the config)")
     add_output_arguments(p)
@@ -129,7 +136,8 @@ def _add_range(p: argparse.ArgumentParser) -> None:
 def _range(args: argparse.Namespace, focus: float) -> tuple[float, float, float]:
     z_min = 0.9 * focus if args.z_min is None else args.z_min
     z_max = 1.1 * focus if args.z_max is None else args.z_max
-    return z_min, z_max, args.step
+    step = args.step if args.step is not None else max(0.5, abs(z_max - z_min) / 2000.0)
+    return z_min, z_max, step
 
 
 def _columns_to_rows(columns: dict) -> list[dict]:
@@ -164,14 +172,14 @@ def _tabular(args: argparse.Namespace, compute, rows, draw) -> int:
 def run_dof(args: argparse.Namespace) -> int:
     return _tabular(args, lambda c: design.dof_table(c, args.levels, args.periods),
                     lambda res: [r.as_row() for r in res],
-                    lambda res, path, c: plots.plot_dof(res, path))
+                    lambda res, path, c: _plots().plot_dof(res, path))
 
 
 def run_curve(args: argparse.Namespace) -> int:
     return _tabular(args, lambda c: design.axis_curve(c, *_range(args, c.camera.focus_mm),
                                                       args.period),
                     _columns_to_rows,
-                    lambda res, path, c: plots.plot_curve(res, path, c.camera.focus_mm))
+                    lambda res, path, c: _plots().plot_curve(res, path, c.camera.focus_mm))
 
 
 def run_volume(args: argparse.Namespace) -> int:
@@ -184,7 +192,7 @@ def run_volume(args: argparse.Namespace) -> int:
            "step_mm": vol.step_mm, "total_mm3": vol.total_mm3, "usable_mm3": vol.usable_mm3,
            "fraction": vol.fraction}
     if plot:
-        plots.plot_volume(vol, plot)
+        _plots().plot_volume(vol, plot)
     if args.json:
         emit(json.dumps(row, indent=1))
     else:
@@ -195,7 +203,7 @@ def run_volume(args: argparse.Namespace) -> int:
 def run_flatten(args: argparse.Namespace) -> int:
     return _tabular(args, lambda c: design.flatten_curve(c, *_range(args, c.camera.focus_mm),
                                                          args.period),
-                    _columns_to_rows, lambda res, path, c: plots.plot_flatten(res, path))
+                    _columns_to_rows, lambda res, path, c: _plots().plot_flatten(res, path))
 
 
 def run_page(args: argparse.Namespace) -> int:
@@ -240,7 +248,7 @@ def run_optimise(args: argparse.Namespace) -> int:
         write_text(out, "# found by scanqa design optimise --spec " + args.spec + "\n"
                           + dumps_toml(rig.config_toml_dict(best)))
     if plot:
-        plots.plot_curve(curve, plot, focus)
+        _plots().plot_curve(curve, plot, focus)
     row = {**res.values, "usable_mm3": res.usable_mm3, "worst_sigma_um": res.worst_sigma_um,
            "evaluations": res.evaluations}
     if args.json:
