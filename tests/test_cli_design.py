@@ -94,3 +94,38 @@ def test_every_subcommand_has_help_with_example(capsys):
     sub = next(a for a in parser._actions if a.dest == "command")
     for name, p in sub.choices.items():
         assert "example" in (p.epilog or ""), name
+
+
+def _config_with(tmp_path, section: str, **values) -> str:
+    from scanqa.io.tomlfile import dumps_toml, tomllib
+
+    doc = tomllib.loads(PAPER_CONFIG.read_text())
+    doc[section].update(values)
+    path = tmp_path / "scanner.toml"
+    path.write_text(dumps_toml(doc))
+    return str(path)
+
+
+def test_projector_focus_under_four_focal_lengths_is_one_error(capsys, tmp_path):
+    # Eq. 3's square root sqrt(Z (Z - 4 f)) is undefined below 4 f: dof had ended in a
+    # scipy traceback ("function value at x=471.2749 is NaN") for f_p = 450 mm
+    cfg = _config_with(tmp_path, "projector", focal_mm=450.0)
+    code, out, err = run(capsys, "dof", "--config", cfg, "--json")
+    assert code == 2 and out == ""
+    assert err.count("\n") == 1 and "projector.focus_mm must be >= 4 x projector.focal_mm" in err
+
+
+def test_curve_default_step_follows_a_long_range(capsys, tmp_path):
+    # focus at 450 m: +-10 % at 0.5 mm would be 180 001 samples (it ran past 20 s)
+    cfg = _config_with(tmp_path, "camera", focus_mm=450_000.0)
+    code, out, _ = run(capsys, "curve", "--config", cfg, "--json")
+    z = [row["z_mm"] for row in json.loads(out)]
+    assert code == 0 and len(z) == 2001 and z[0] == 405_000.0
+    np.testing.assert_allclose(np.diff(z), 45.0)
+
+
+def test_curve_step_too_fine_names_the_option(capsys):
+    code, out, err = run(capsys, "curve", "--config", CFG, "--z-min", "400", "--z-max", "500",
+                         "--step", "0.0001", "--json")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "1e+06 samples (at most 100001)" in err and "--step" in err

@@ -197,10 +197,11 @@ class ProjectorConfig(_Section):
     look_at_mm: tuple = _spec("mm", kind="vec3")
 
     def _check_cross(self) -> None:
-        if self.focus_mm <= self.focal_mm:
+        if self.focus_mm < 4.0 * self.focal_mm:
             raise ConfigError(
-                f"projector.focus_mm must be > projector.focal_mm = {self.focal_mm:g} mm "
-                f"(a lens cannot focus closer than its focal length), got {self.focus_mm!r}")
+                f"projector.focus_mm must be >= 4 x projector.focal_mm = "
+                f"{4.0 * self.focal_mm:g} mm (the projector's magnification, Eq. 3, holds "
+                f"from four focal lengths on), got {self.focus_mm!r}")
         if np.allclose(self.position_mm, self.look_at_mm):
             raise ConfigError("projector.look_at_mm must differ from projector.position_mm, "
                               f"got both {list(self.position_mm)}")

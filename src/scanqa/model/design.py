@@ -152,12 +152,23 @@ def dof_table(config: ScannerConfig, levels=TABLE_LEVELS, periods=None) -> list[
     return rows + [projector_dof(config, a, p) for p in periods for a in levels]
 
 
+#: Most range samples a curve takes (a 0.001 mm step over 100 mm; printing them as JSON
+#: takes seconds).
+MAX_RANGE_SAMPLES = 100_001
+
+
 def _z_grid(z_min: float, z_max: float, step: float) -> np.ndarray:
     """Range samples from z_min to z_max inclusive [mm]."""
     if not (np.isfinite(z_min) and np.isfinite(z_max) and z_max > z_min):
         raise InputError(f"z_max must be > z_min, got z_min={z_min}, z_max={z_max} [mm]")
-    if not step > 0 or (z_max - z_min) / step > 1e6:
-        raise InputError(f"step must be > 0 mm and give at most 1e6 samples, got {step}")
+    if not step > 0:
+        raise InputError(f"the range step must be > 0 mm, got {step}")
+    if (z_max - z_min) / step >= MAX_RANGE_SAMPLES:
+        raise InputError(
+            f"a range step of {step:g} mm from {z_min:g} to {z_max:g} mm gives "
+            f"{(z_max - z_min) / step + 1:.3g} samples (at most {MAX_RANGE_SAMPLES}): give "
+            f"a step of at least {(z_max - z_min) / (MAX_RANGE_SAMPLES - 1):.3g} mm "
+            "(--step) or a narrower range (--z-min, --z-max)")
     n = int(np.floor((z_max - z_min) / step + 1e-9)) + 1
     return z_min + step * np.arange(n)
 

@@ -507,7 +507,9 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
     r_c = coc_c / omega_o
     r_p = circle_of_confusion(z_p, proj.focus_mm, proj.aperture_mm) / omega_o
     a_c, a_p = attenuation(r_c), attenuation(r_p)
-    c_image = cam.focal_mm / (z_c - cam.focal_mm) * coc_c  # Eq. 14 (image_blur_diameter)
+    with np.errstate(divide="ignore", invalid="ignore"):  # no image at or before the lens
+        c_image = np.where(z_c > cam.focal_mm,  # Eq. 14 (image_blur_diameter)
+                           cam.focal_mm / (z_c - cam.focal_mm) * coc_c, np.nan)
     b_c = camera_blur_area(c_image, cam.pixel_um * 1e-3)
     b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
                                 cam.pixel_um * 1e-3)
