@@ -18,9 +18,11 @@ cue-minus-fine coordinate by projector row, the column set as a control, both fr
 harmonic error in the local homographies' windows; (3) the variants (window size,
 harmonic terms in the local fit, a joint stereo fit) under the rule; (4) the baseline
 direction's jackknife, split into two components; (5) calibration.xml's prediction of our
-projector corners.
+projector corners; (6) how far the direction moves with the correspondences shifted or
+scaled.
 
-Run: .venv/bin/python benchmarks/board_direction.py [scratch folder]
+Run: .venv/bin/python benchmarks/board_direction.py [scratch folder]  (about 3 min wall,
+2 min CPU, on two shared cores)
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import itertools
 import sys
 from dataclasses import replace
 from pathlib import Path
+from unittest import mock
 
 import numpy as np
 
@@ -219,6 +222,33 @@ def variants(poses, ref) -> None:
                                                    for s, d in windows(p)])) for p in poses]
         criterion(moved, f"harmonics {orders}", ref)
     criterion(poses, "joint stereo", ref, fit=joint_fit)
+    criterion(poses, "free aspect", ref, fit=free_aspect_fit)
+
+
+def free_aspect_fit(poses, board, panel, model):
+    """``k1`` with the projector's f_x and f_y free."""
+    import cv2
+
+    k1 = bf._flags()["k1"]
+    with mock.patch.object(bf, "_flags", lambda: {
+            "k1": (k1[0], k1[1] & ~cv2.CALIB_FIX_ASPECT_RATIO)}):
+        return bf._fit(poses, board, panel, model)
+
+
+def sensitivity(poses, ref) -> None:
+    """How far the direction moves when the correspondences are shifted or scaled."""
+    five = [poses[k] for k in FIVE]
+    for label, cam, proj in (
+            ("projector corners y + 1 px", (0, 0, 1, 0), (0, 1, 1, 0)),
+            ("camera corners y + 1 px", (0, 1, 1, 0), (0, 0, 1, 0)),
+            ("projector y scaled by 1.001 about row 570", (0, 0, 1, 0),
+             (0, -0.57, 1, 0.001))):
+        moved = [replace(p, camera_px=p.camera_px + cam[:2],
+                         projector_px=p.projector_px * [1, 1 + proj[3]] + proj[:2])
+                 for p in five]
+        d = bf.compare(bf._fit(moved, BOARD, PANEL, "k1")[0], ref)
+        print(f"  {label}: direction {d['baseline_deg']:.3f} deg, rotation "
+              f"{d['rotation_deg']:.3f} deg")
 
 
 def direction(poses, ref) -> None:
@@ -287,6 +317,8 @@ def main() -> None:
     direction(poses, ref)
     print("(5) our projector corners predicted from our camera corners")
     reference_prediction(poses, ref)
+    print("(6) the direction's sensitivity to the correspondences")
+    sensitivity(poses, ref)
 
 
 if __name__ == "__main__":
