@@ -20,6 +20,13 @@ stereo 0.306; f +0.32 % / +0.11 %; rotation 0.41 deg; baseline 0.62 deg, +0.58 %
 camera's bound met, the baseline direction still missed (by both detectors). It is the
 default since (more accurate by every measure independent of the bounds); the tests on
 `poses` ask for OpenCV's corners explicitly.
+
+The baseline direction's miss, looked into (benchmarks/board_direction.py): the row set's
+71.25 px period is right (the decoder's drift warning on poses 3-6 is a step in the cue,
+not a period), no corner-level or stereo variant passes the rule chosen beforehand
+(held-out predicted projector RMS), and calibration.xml predicts our projector corners to
+2.6-5.1 px only: the gap lies between SLStudio's correspondences and ours, at the scale of
+the direction's own jackknife std (0.44 deg).
 """
 
 from __future__ import annotations
@@ -283,3 +290,104 @@ def test_model_corners_each_pose_left_out(model_poses):
         # issue 25: within 1.2 x of calibration.xml (measured 0.96-1.00 x)
         assert row["plane_rms_mm"] <= 1.2 * row["reference_plane_rms_mm"], row
         assert row["projector_rms_px"] < 1.5, row  # predicted, measured 0.50-1.15 px
+
+
+def _phase(stack: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """3-step phase of SLStudio's shifts (0, 2pi/3, 4pi/3 subtracted, README) [rad] and
+    amplitude [DN], computed here, not by scanqa's decoder."""
+    delta = 2 * np.pi * np.arange(3) / 3
+    s, c = np.tensordot(np.sin(delta), stack, 1), np.tensordot(np.cos(delta), stack, 1)
+    return np.arctan2(s, c) % (2 * np.pi), np.hypot(s, c) * 2 / 3
+
+
+def _row_cue_drift(k: int, pose) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The row set's cue minus its unwrapped fine coordinate on the board [projector px],
+    with the fine coordinate [px] and the camera row [px] of each pixel."""
+    import cv2
+
+    u0, v0, u1, v1 = pose.crop
+    stack = _frames(k)[6:, v0:v1, u0:u1]
+    fine, _ = _phase(stack[:3])
+    cue, amplitude = _phase(stack[3:])
+    y_cue, f = cue / (2 * np.pi) * 1140, fine / (2 * np.pi)
+    y = 71.25 * (np.round(y_cue / 71.25 - f) + f)
+    inside = np.zeros(y.shape, np.uint8)
+    hull = cv2.convexHull((pose.camera_px - (u0, v0)).astype(np.float32))
+    cv2.fillConvexPoly(inside, np.round(hull).astype(np.int32), 1)
+    ok = inside.astype(bool) & (amplitude > 8)
+    rows = np.broadcast_to(np.arange(v0, v1)[:, None], y.shape)
+    return ((y_cue - y + 570) % 1140 - 570)[ok], y[ok], rows[ok]
+
+
+def test_the_row_fringes_have_the_stated_period(model_poses):
+    """Decoding the row set (frames 06-11) warns that its cue and fine coordinates drift
+    apart by +10..19 px, and suggests a fine period of 72.4-73.8 px where the README says
+    71.25 (1140 / 16). The fine period is right; the drift is the cue's:
+    (a) the projector fitted with f_x and f_y free (poses 1, 3-6) finds f_y / f_x = 0.9999
+    (jackknife std 0.0012), where 72.4-73.8 px would make it 1.017-1.036; the DMD's pixels
+    are square in 1824 x 1140 coordinates;
+    (b) the near pose calseq1, whose board spans projector rows 113-995, shows no drift
+    (slope +0.03 %), where a 73.4 px period would drift by 3 %;
+    (c) in a far pose the drift is a step of ~20 px between camera rows 450 and 650, not
+    a line, and the decoded fine y_p has no step there (0.02 px)."""
+    import cv2
+
+    five = [model_poses[k] for k in (0, 2, 3, 4, 5)]
+    flags = cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K2 | cv2.CALIB_FIX_K3
+    matrix = cv2.calibrateCamera([BOARD.object_points] * 5,
+                                 [p.projector_px.astype(np.float32) for p in five], PANEL,
+                                 None, None, flags=flags)[1]
+    assert abs(matrix[1, 1] / matrix[0, 0] - 1) < 0.005  # measured 0.9999
+    drift, y, _ = _row_cue_drift(1, model_poses[0])
+    assert np.ptp(y) > 800  # the near board spans most of the panel's rows
+    assert abs(np.polyfit(y, drift, 1)[0]) < 0.005  # measured +0.03 %
+    drift, _, rows = _row_cue_drift(5, model_poses[4])
+    step = np.median(drift[rows > 650]) - np.median(drift[rows < 450])
+    assert step > 10, step  # measured -3.6 / -1.1 px below, +14.7 / +18.6 px above
+    pose = model_poses[4]  # the fine y_p, smooth across the same rows
+    u0, v0, u1, v1 = pose.crop
+    vv, uu = np.mgrid[v0:v1, u0:u1]
+    ok = np.isfinite(pose.yp)
+    u, v = (uu[ok] - 843.5) / 800, (vv[ok] - 675.5) / 800
+    terms = np.column_stack([u ** i * v ** j for i in range(6) for j in range(6 - i)])
+    resid = pose.yp[ok] - terms @ np.linalg.lstsq(terms, pose.yp[ok], rcond=None)[0]
+    jump = np.median(resid[(vv[ok] > 650) & (vv[ok] < 750)]) - np.median(
+        resid[(vv[ok] > 350) & (vv[ok] < 450)])
+    assert abs(jump) < 0.1, jump  # a 1.2 px step would carry the cue's 18 px
+
+
+def test_the_baseline_gap_is_in_the_correspondences(model_calibration, model_poses):
+    """Where the 0.62 deg between our baseline direction and calibration.xml's comes from
+    (docs/calibration.rst, *The baseline direction*). calibration.xml, given our camera
+    corners, predicts our projector corners to 2.6-5.1 px where our calibration does to
+    0.47-0.98 px (and to 0.50-1.15 px each pose held out): it is not consistent with the
+    correspondences scanqa measures. With calibration.xml's own intrinsics held, the
+    stereo fit on our corners still tilts the baseline across (along camera y) by 0.44 deg
+    - the gap's stable part (0.39 deg; jackknife std 0.06 deg) is in the correspondences,
+    not in our lens fit or the stereo step. Its other part, in the plane of the baseline
+    and the camera's x axis (-0.48 deg), is not pinned by five poses (jackknife std 0.43
+    deg, the fit's own noise 0.23 deg)."""
+    import cv2
+
+    from scanqa.calibration.board_fit import _points, predicted_projector_rms
+
+    ref = read_opencv_calibration(CALIBRATION / "calibration.xml")
+    ours = model_calibration.data
+    for pose in model_poses:
+        assert predicted_projector_rms(pose, BOARD, ref) > 2.0  # measured 2.6-5.1 px
+        assert predicted_projector_rms(pose, BOARD, ours) < 1.2  # measured 0.47-0.98 px
+    five = [model_poses[k] for k in (0, 2, 3, 4, 5)]
+    obj, cam, proj = _points(five, BOARD)
+    rot, trans = cv2.stereoCalibrate(obj, cam, proj, ref.Kc, ref.kc, ref.Kp, ref.kp,
+                                     five[0].camera_size, flags=cv2.CALIB_FIX_INTRINSIC)[5:7]
+
+    def across_deg(r, t):
+        """The baseline's angle from calibration.xml's across the camera's x axis [deg]."""
+        e = -ref.Rp.T @ np.ravel(ref.Tp)
+        e /= np.linalg.norm(e)
+        axis = np.cross(e, [1.0, 0.0, 0.0])
+        c = -r.T @ np.ravel(t)
+        return float(np.degrees(c @ (axis / np.linalg.norm(axis)) / np.linalg.norm(c)))
+
+    assert 0.3 < across_deg(rot, trans) < 0.6  # measured 0.44 deg
+    assert 0.3 < across_deg(ours.Rp, ours.Tp) < 0.5  # measured 0.39 deg
