@@ -43,6 +43,7 @@ table exists to absorb; compare the two on a plane sweep to measure them.
 from __future__ import annotations
 
 import functools
+import logging
 import math
 import os
 from dataclasses import dataclass, field
@@ -57,6 +58,7 @@ from scanqa.calibration.parametric_checks import (  # noqa: F401 (importable fro
     check_calibration,
     check_config,
     check_scan,
+    lens_warnings,
 )
 from scanqa.calibration.uncertainty import calibration_sigma_mm
 from scanqa.chunks import row_bands, run_bands
@@ -64,6 +66,8 @@ from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.opencv import OpenCVCalibration, read_opencv_calibration
 from scanqa.model.config import ScannerConfig
+
+log = logging.getLogger(__name__)
 
 #: Convergence of the projector Newton iteration: |x_p(Q) - x_p| [projector px].
 TOLERANCE_PX = 1e-9
@@ -134,7 +138,8 @@ class Lens:
         x, y : ndarray
             Ray direction (x, y, 1) in the device frame [-].
         ok : bool ndarray
-            Converged where the distortion does not fold over (positive Jacobian).
+            Converged where the distortion does not fold over (positive Jacobian and
+            radial factor: the branch that holds the principal point).
         """
         k = self.matrix
         u, v = np.broadcast_arrays(np.asarray(u, dtype=float), np.asarray(v, dtype=float))
@@ -152,7 +157,13 @@ class Lens:
                 y -= (a * ry - b * rx) / det
                 if not np.any(np.abs(rx) + np.abs(ry) > TOLERANCE_NORMALISED):
                     break  # NaN compares False: masked pixels do not hold the loop
-            ok = (np.abs(rx) + np.abs(ry) <= TOLERANCE_NORMALISED) & (det > 0)
+            # det > 0 alone also passes the far branch, where the radial factor and its
+            # derivative are both negative (a point beyond the fold, mirrored through the
+            # centre): the ray must keep the side of its pixel
+            k1, k2, _, _, k3 = self.distortion
+            r2 = x * x + y * y
+            radial = 1.0 + r2 * (k1 + r2 * (k2 + r2 * k3))
+            ok = (np.abs(rx) + np.abs(ry) <= TOLERANCE_NORMALISED) & (det > 0) & (radial > 0)
         return x, y, ok
 
 
@@ -524,10 +535,13 @@ def from_opencv(data: OpenCVCalibration, orientation: str = "vertical",
     """
     cam = _size(data, ("frameWidth", "frameHeight"), camera_size, "camera")
     proj = _size(data, ("screenResX", "screenResY"), projector_size, "projector")
-    return ParametricCalibration(Lens(data.Kc, data.kc, *cam), Lens(data.Kp, data.kp, *proj),
-                                 data.Rp, data.Tp, orientation,
-                                 tuple(float(v) for v in depth_range_mm), dict(data.errors),
-                                 data.source, data.covariance)
+    cal = ParametricCalibration(Lens(data.Kc, data.kc, *cam), Lens(data.Kp, data.kp, *proj),
+                                data.Rp, data.Tp, orientation,
+                                tuple(float(v) for v in depth_range_mm), dict(data.errors),
+                                data.source, data.covariance)
+    for warning in lens_warnings(cal):
+        log.warning(warning)
+    return cal
 
 
 def _size(data: OpenCVCalibration, keys: tuple[str, str], given: tuple[int, int] | None,

@@ -20,6 +20,15 @@ POSITION_TOLERANCE_MM = 1.0
 AXIS_TOLERANCE_DEG = 0.5
 #: Fringe orientations: "vertical" fringes code x_p, "horizontal" ones y_p.
 ORIENTATIONS = ("vertical", "horizontal")
+#: Share of a device's frame over which its lens model may fold over (no undistorted ray)
+#: before the model is refused: a fit extrapolated past its board may fold in the
+#: corners, a lens model of the device does not over a quarter of it [-].
+FOLD_SHARE_REFUSED = 0.25
+#: Pixels per side of the grid the fold and the distortion are checked on.
+LENS_GRID = 33
+#: Radial displacement by the distortion, as a share of the distorted radius, above which
+#: the frame's corner is warned of (a lens this strong wants a fisheye model) [-].
+DISTORTION_WARNED = 0.3
 
 
 def check_calibration(cal) -> None:
@@ -40,11 +49,64 @@ def check_calibration(cal) -> None:
         if min(lens.width_px, lens.height_px) < 1:
             raise InputError(f"{where}: the {name} size must be >= 1 px, got "
                              f"{lens.width_px} x {lens.height_px}")
+    for name, lens, mat, dist in (("camera", cal.camera, "Kc", "kc"),
+                                  ("projector", cal.projector, "Kp", "kp")):
+        share = lens_fold_share(lens)
+        if share > FOLD_SHARE_REFUSED:
+            raise InputError(
+                f"{where}: the {name}'s lens model ({mat} with {dist} = "
+                f"{lens.distortion.tolist()}) folds over at {100 * share:.0f} % of its frame "
+                f"(no ray reaches those pixels): not a lens model of this {name}; check "
+                f"{mat}'s focal lengths and principal point [px] and {dist}'s order (k1 k2 p1 "
+                "p2 k3)")
     _check_pose(cal, where)
     lo, hi = (*cal.depth_range_mm, math.nan, math.nan)[:2]
     if len(cal.depth_range_mm) != 2 or not (0 <= lo < hi):
         raise InputError(f"{where}: the depth range must satisfy 0 <= near < far [mm], got "
                          f"{lo!r}, {hi!r}")
+
+
+def _lens_grid(lens) -> tuple[np.ndarray, np.ndarray]:
+    """A LENS_GRID x LENS_GRID grid of pixels over a device's frame, corners included."""
+    u = np.linspace(0.0, lens.width_px - 1.0, LENS_GRID)
+    v = np.linspace(0.0, lens.height_px - 1.0, LENS_GRID)
+    return np.meshgrid(u, v)
+
+
+def lens_fold_share(lens) -> float:
+    """Share of a device's frame whose pixels have no undistorted ray (the distortion
+    folds over or the undistortion does not converge there) [-]."""
+    u, v = _lens_grid(lens)
+    return float(1.0 - lens.undistort(u, v)[2].mean())
+
+
+def lens_warnings(cal) -> list[str]:
+    """Warnings for lens models that reach their frame but bend it implausibly: a fold in
+    part of the frame (those pixels get no point), or a corner moved by more than
+    :data:`DISTORTION_WARNED` of its radius."""
+    where = cal.source or "the parametric calibration"
+    out = []
+    for name, lens, dist in (("camera", cal.camera, "kc"), ("projector", cal.projector, "kp")):
+        if not np.any(lens.distortion):
+            continue
+        u, v = _lens_grid(lens)
+        x, y, ok = lens.undistort(u, v)
+        if not ok.all():
+            out.append(f"{where}: the {name}'s distortion {dist} folds over at "
+                       f"{100 * (1 - ok.mean()):.0f} % of its frame (its corners, where a fit "
+                       "is extrapolated): pixels there get no point")
+        k = lens.matrix
+        yd = (v - k[1, 2]) / k[1, 1]
+        xd = (u - k[0, 2] - k[0, 1] * yd) / k[0, 0]
+        rd, r = np.hypot(xd, yd)[ok], np.hypot(x, y)[ok]
+        far = rd > 0.5 * rd.max(initial=0.0)
+        moved = float(np.max(np.abs(rd - r)[far] / rd[far], initial=0.0))
+        if moved > DISTORTION_WARNED:
+            out.append(f"{where}: the {name}'s distortion {dist} = {lens.distortion.tolist()} "
+                       f"moves the frame's outer pixels by up to {100 * moved:.0f} % of their "
+                       "distance from the principal point - more than a lens for the "
+                       f"Brown-Conrady model does; check {dist}'s order (k1 k2 p1 p2 k3)")
+    return out
 
 
 def _check_pose(cal, where: str) -> None:
