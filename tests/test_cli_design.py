@@ -129,3 +129,12 @@ def test_curve_step_too_fine_names_the_option(capsys):
                          "--step", "0.0001", "--json")
     assert code == 2 and out == "" and err.count("\n") == 1
     assert "1e+06 samples (at most 100001)" in err and "--step" in err
+
+
+def test_volume_without_overlap_is_one_error_not_nan(capsys, tmp_path):
+    # the projector at x = 140 aimed at (0, 0, 140) looks across the camera's axis in
+    # front of the range: no voxel in both fields, and the fraction was printed as NaN
+    cfg = _config_with(tmp_path, "projector", look_at_mm=[0.0, 0.0, 140.0])
+    code, out, err = run(capsys, "volume", "--config", cfg, "--json")
+    assert code == 2 and out == "" and err.count("\n") == 1
+    assert "fields do not overlap from z = 337.5 to 562.5 mm" in err

@@ -18,6 +18,7 @@ from scanqa.cli.common import (
     number,
     output_path,
 )
+from scanqa.errors import InputError
 from scanqa.model import design
 
 _FMT = argparse.RawDescriptionHelpFormatter
@@ -187,6 +188,12 @@ def run_volume(args: argparse.Namespace) -> int:
     plot = output_path(args.plot)
     vol = design.usable_volume(config, args.level, args.z_min, args.z_max, args.step,
                                coc_max_mm=args.coc_max)
+    if vol.total_mm3 == 0:  # the library answers 0 (the optimiser ranks such designs last)
+        raise InputError(
+            f"the camera's and the projector's fields do not overlap from z = "
+            f"{vol.z_min_mm:g} to {vol.z_max_mm:g} mm (no voxel of {vol.step_mm:g} mm lies in "
+            f"both): check projector.position_mm and look_at_mm in {config.source} (the "
+            "projector must aim into the camera's view) or the range (--z-min, --z-max)")
     row = {"level": vol.level, "coc_max_mm": vol.coc_max_mm, "z_min_mm": vol.z_min_mm,
            "z_max_mm": vol.z_max_mm,
            "step_mm": vol.step_mm, "total_mm3": vol.total_mm3, "usable_mm3": vol.usable_mm3,
