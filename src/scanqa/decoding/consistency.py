@@ -184,7 +184,9 @@ def _likely_cause(coarse: PhaseSet, fine: PhaseSet, frames: tuple, demods: tuple
         return (f"the files of sets {coarse.name!r} and {fine.name!r} are swapped (the "
                 f"frames of {fine.name!r} carry the longer period): exchange their files")
     best, r = _best_ratio(dc, df, ratio, pixels)
-    if r >= EXPLAINED_RATIO * pred:
+    # the noise a ratio predicts grows with it: R_pred at the ratio found
+    spread = _spread(dc, df, best)[pixels]
+    if r >= EXPLAINED_RATIO * float(np.exp(-0.5 * (2.0 * np.pi * spread) ** 2).mean()):
         return _ratio_cause(coarse, fine, best)
     return ""
 
