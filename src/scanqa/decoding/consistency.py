@@ -25,7 +25,7 @@ the sets' frames swapped, and a scan of the period ratio from a fifth to five ti
 stated one) to name the likely cause.
 
 A frame listed twice (in one set or two, by name or by identical pixels) is also named:
-a set cannot hold one image at two phase shifts. Either finding masks every pixel of the
+one frame cannot show two patterns. Either finding masks every pixel of the
 decode (:func:`scanqa.decoding.diagnostics.apply_guard`).
 """
 
@@ -303,7 +303,7 @@ def repeated_frames(desc: PatternDescription, sample: Sequence[np.ndarray]) -> l
             if (name is not None and name == name2) or (
                     np.ptp(image) > 0 and np.array_equal(image, image2)):
                 out.append(f"one image is listed twice: in set {label} and in set "
-                           f"{label2} (a set cannot hold one image at two phase shifts; "
-                           "every pixel is masked); check the files of both sets")
+                           f"{label2} (one frame cannot show two patterns; every pixel "
+                           "is masked); check the files of the sets")
                 break
     return out
