@@ -18,7 +18,10 @@ that no correct description does, and are looked for here:
   agree.
 
 The checks read a sample of rows (:func:`sample_rows`) or the decoded map, and return
-plain warnings (strings that name the likely cause and the key to fix) or notes.
+plain warnings (strings that name the likely cause and the key to fix) or notes. The
+residual test of a cue set against the finer sets, over every well-modulated sampled
+pixel before any mask, and frames listed twice, are in
+:mod:`scanqa.decoding.consistency`.
 """
 
 from __future__ import annotations

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.chunks import row_bands, run_bands
-from scanqa.decoding import checks, diagnostics
+from scanqa.decoding import checks, consistency, diagnostics
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.noise import NoiseEstimate, resolve_noise
 from scanqa.decoding.parsing import load_patterns
@@ -85,7 +85,8 @@ def decode_images(desc: PatternDescription, images: Sequence[np.ndarray], *,
 @dataclass(frozen=True, eq=False)
 class _Run:
     """A decode's outputs (dict of arrays), counts, noise model and plan, the sample of
-    rows the checks read, and what the checks found."""
+    rows the checks read, and what the checks found (``pairs``: the residual test of
+    every cue set against the finer sets)."""
 
     out: dict
     stats: ChainStats
@@ -94,6 +95,8 @@ class _Run:
     sample: list
     notes: list
     warnings: list
+    pairs: list
+    contradicted: bool = False
 
 
 def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: int | None,
@@ -102,11 +105,16 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     stacks = _checked_stacks(desc, images)
     quantised = stacks[0].dtype.kind in "ui"
     noise = resolve_noise(desc, stacks, desc.sensor.resolved(stacks[0].dtype), quantised)
-    sample, bits, notes, warnings = checks.sample_rows(stacks), None, [], []
+    sample, bits, notes, warnings, pairs = checks.sample_rows(stacks), None, [], [], []
+    contradicted = False
     if check:
         bits, notes = checks.gray_bits(desc, sample, noise.sensor, quantised)
+        pairs = consistency.set_consistency(desc, sample, noise.sensor, quantised)
+        repeated = consistency.repeated_frames(desc, sample)
+        contradicted = bool(repeated) or any(p.contradicted for p in pairs)
         warnings = [*checks.reference_swapped(desc, sample, noise.sensor, quantised),
-                    *checks.inverse_layout(desc, sample, noise.sensor, quantised)]
+                    *checks.inverse_layout(desc, sample, noise.sensor, quantised),
+                    *repeated, *consistency.consistency_warnings(pairs)]
     plan = UnwrapPlan.build(desc, noise.sensor, quantised, response, gray_bits=bits)
     height, width = stacks[0].shape[1:]
     out = _allocate(height, width, [p.name for p in plan.phase] if keep_sets else [])
@@ -122,7 +130,7 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     stats = ChainStats()
     for part in run_bands(band, row_bands(height, width, step * width)):
         stats.merge(part)
-    return _Run(out, stats, noise, plan, sample, notes, warnings)
+    return _Run(out, stats, noise, plan, sample, notes, warnings, pairs, contradicted)
 
 
 def _phase_map(desc: PatternDescription, run: _Run, response: ProjectorResponse | None,
@@ -136,6 +144,8 @@ def _phase_map(desc: PatternDescription, run: _Run, response: ProjectorResponse 
         warnings += checks.likely_cause(desc, run.sample, _trips_guard)
     else:
         warnings += _decoded_checks(desc, run)
+    if run.contradicted:  # the sets disagree before any mask: no pixel is trusted
+        diagnostics.apply_guard(out)
     for text in warnings:
         log.warning(text)
     arrays = {k: v for k, v in out.items() if not k.startswith("x:")}
@@ -143,7 +153,8 @@ def _phase_map(desc: PatternDescription, run: _Run, response: ProjectorResponse 
     info = _decode_info(desc, run, response, misstated, [*run.notes, *notes],
                         counts["valid"])
     info["warnings"] = warnings
-    info["hint"] = diagnostics.mask_hint(desc, counts, stats)
+    info["hint"] = diagnostics.mask_hint(desc, counts, stats,
+                                         contradicted=bool(misstated) or run.contradicted)
     period = desc.working_period_px if desc.phase_sets else run.plan.gray_cell_px
     return PhaseMap(**arrays, period_px=period, orientation=desc.orientation,
                     projector_width_px=desc.projector_width_px,
@@ -190,6 +201,7 @@ def _decode_info(desc: PatternDescription, run: _Run, response: ProjectorRespons
     return {"noise": noise.as_dict(), "working": working,
             "chain": [s.name for s in UnwrapPlan.build(desc, noise.sensor, False).steps],
             "disagreement": diagnostics.disagreement(stats), "misstated": misstated,
+            "consistency": [p.as_dict() for p in run.pairs],
             "gray_edge_pixels": int(sum(stats.edges.values())),
             "low_modulation_reasons": {diagnostics.LOW_REASONS[b]: int(n)
                                        for b, n in stats.low.items() if n},

@@ -26,6 +26,7 @@ Everything the frames cannot tell is said in the written file as a question.
 
 from __future__ import annotations
 
+import logging
 import math
 from dataclasses import dataclass, field, replace
 
@@ -410,10 +411,15 @@ def _check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
     """Share of the lit pixels (of the rows checked) that decode valid [-]."""
     from scanqa.errors import ScanQAError
 
+    quiet = logging.getLogger(decode_images.__module__)
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # a candidate's warnings are not the capture's
     try:
         pm = decode_images(desc, stacks)
     except ScanQAError:
         return -1.0
+    finally:
+        quiet.setLevel(level)
     lit_rows = lit[::row_step(lit.shape[0]), ::_column_step(lit.shape[1])]
     return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
 

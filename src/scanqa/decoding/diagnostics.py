@@ -86,8 +86,17 @@ def disagreement(stats: ChainStats) -> list[dict]:
     return rows
 
 
-def mask_hint(desc: PatternDescription, counts: dict, stats: ChainStats) -> str:
-    """When most pixels are masked: the dominant reason and the key that changes it."""
+def mask_hint(desc: PatternDescription, counts: dict, stats: ChainStats,
+              contradicted: bool = False) -> str:
+    """When most pixels are masked: the dominant reason and the key that changes it.
+
+    Parameters
+    ----------
+    contradicted : bool
+        The images contradict the description (the guard or the residual test of
+        :mod:`scanqa.decoding.consistency` fired): the hint then points at the
+        description, never at thresholds or light, which cannot mend it.
+    """
     total = sum(counts.values())
     masked = {k: v for k, v in counts.items() if k != "valid"}
     if not total or counts["valid"] >= 0.5 * total or not any(masked.values()):
@@ -95,6 +104,9 @@ def mask_hint(desc: PatternDescription, counts: dict, stats: ChainStats) -> str:
     reason = max(masked, key=masked.get)
     share = 100.0 * masked[reason] / total
     head = f"most pixels are masked: {reason} {share:.0f} % of the frame"
+    if contradicted:
+        return (f"{head}; the images contradict the description (see the warnings): fix "
+                "patterns.toml first - thresholds and light cannot mend it")
     return f"{head}; {_fix(desc, reason, stats)}"
 
 
