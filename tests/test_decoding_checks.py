@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import numpy as np
 import pytest
 
 from scanqa.cli import main
@@ -219,3 +220,22 @@ def test_phase_sets_that_agree_pass_the_residual_test(case):
 def _desc_and_stacks(rig, frames):
     desc, keys = description(rig, gray=False, reference=False)
     return desc, stacks(frames, keys)
+
+
+def test_a_drift_that_steps_is_not_called_a_misstated_period():
+    # a misstated period parts the coordinates along a line; a coarse set's own
+    # distortion steps or bends (the real board's cue: a 20 px step between two rows)
+    from scanqa.decoding.checks import period_drift
+    from scanqa.decoding.coding import PatternDescription, PhaseSet
+
+    desc = PatternDescription(1000, (PhaseSet("fine", 50.0, 3), PhaseSet("cue", 1000.0, 3)))
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0.0, 1000.0, 20000)
+    line = period_drift(desc, {"cue": 0.012 * x + rng.normal(0, 2.0, x.size)}, {"cue": x})
+    step = period_drift(desc, {"cue": np.where(x > 600, 12.0, 0.0) + rng.normal(0, 2.0, x.size)},
+                        {"cue": x})
+    assert len(line) == 1 and "a period_px is misstated" in line[0]
+    suggested = float(line[0].split("has period_px ")[1].split()[0])
+    assert suggested == pytest.approx(50.0 * 1.012, abs=0.01)
+    assert len(step) == 1 and "not along a line" in step[0] and "misstated" in step[0]
+    assert "a period_px is misstated" not in step[0]

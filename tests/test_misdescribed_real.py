@@ -21,6 +21,7 @@ from PIL import Image
 from scanqa.cli import main
 from scanqa.decoding import checks, consistency
 from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, ReferenceSet
+from scanqa.decoding.decoder import decode
 from scanqa.decoding.noise import resolve_noise
 from scanqa.io.patterns import dumps_patterns
 from tests.realdata import SLSTUDIO, SLSTUDIO_SHIFTS, needs_slstudio
@@ -197,3 +198,20 @@ def test_held_out_skull_gray_with_a_bit_frame_listed_twice_is_named():
     assert len(found) == 1 and "'gray' (frame 5)" in found[0]
     assert consistency.repeated_frames(desc, [np.stack(frames[:2]),
                                               np.stack(frames[2:])]) == []
+
+
+def test_the_board_cue_that_bends_is_not_called_a_misstated_period(tmp_path):
+    # calseq5's column set, as captured (114 / 1824 px, right: the skull's Gray code
+    # agrees with it): its cue and x_p drift apart by -15 px across the board, bending by
+    # 3.7 px about the line (0.24 of the drift); the decoder had called it "a period_px is
+    # misstated", and suggested a period of 113.3 px
+    from tests.realdata import slstudio_board_patterns
+
+    cols, _ = slstudio_board_patterns(tmp_path)
+    for f in (SLSTUDIO / "calibration" / "calseq5").iterdir():
+        (tmp_path / f.name).symlink_to(f)
+    (tmp_path / "patterns.toml").write_text(cols.read_text())
+    pm = decode(tmp_path)
+    drift = [w for w in pm.provenance["decode"]["warnings"] if "drift apart" in w]
+    assert len(drift) == 1 and "not along a line" in drift[0], drift
+    assert "a period_px is misstated" not in drift[0]
