@@ -128,7 +128,7 @@ def test_curve_step_too_fine_names_the_option(capsys):
     code, out, err = run(capsys, "curve", "--config", CFG, "--z-min", "400", "--z-max", "500",
                          "--step", "0.0001", "--json")
     assert code == 2 and out == "" and err.count("\n") == 1
-    assert "1e+06 samples (at most 100001)" in err and "--step" in err
+    assert "1e+06 samples (at most 100001)" in err and "a step of at least 0.001 mm" in err
 
 
 def test_volume_without_overlap_is_one_error_not_nan(capsys, tmp_path):

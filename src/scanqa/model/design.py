@@ -167,8 +167,8 @@ def _z_grid(z_min: float, z_max: float, step: float) -> np.ndarray:
         raise InputError(
             f"a range step of {step:g} mm from {z_min:g} to {z_max:g} mm gives "
             f"{(z_max - z_min) / step + 1:.3g} samples (at most {MAX_RANGE_SAMPLES}): give "
-            f"a step of at least {(z_max - z_min) / (MAX_RANGE_SAMPLES - 1):.3g} mm "
-            "(--step) or a narrower range (--z-min, --z-max)")
+            f"a step of at least {(z_max - z_min) / (MAX_RANGE_SAMPLES - 1):.3g} mm or a "
+            "narrower range")
     n = int(np.floor((z_max - z_min) / step + 1e-9)) + 1
     return z_min + step * np.arange(n)
 
