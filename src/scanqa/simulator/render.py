@@ -343,9 +343,13 @@ def _render_tiles(config: ScannerConfig, acq: Acquisition, desc: PatternDescript
         return _render_tile(config, acq, desc, win, tiles[n], halo, table, images, n,
                             threads)
 
+    # the largest tiles first, so that the pool's last tiles are its smallest (the
+    # window's last column and row): the threads finish closer together
+    order = sorted(range(len(tiles)), key=lambda n: -(tiles[n][1] - tiles[n][0])
+                   * (tiles[n][3] - tiles[n][2]))
     lit_any = False
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for n, lit in enumerate(pool.map(work, range(len(tiles)))):
+        for n, lit in enumerate(pool.map(work, order)):
             lit_any |= lit
             if progress:
                 progress(n + 1, len(tiles))
