@@ -283,20 +283,21 @@ def _simulate(name: str, config: ScannerConfig, out: Path, desc: PatternDescript
               pos_list: list[Position], repeats: int, progress: bool,
               marker_frames: int = 1) -> None:
     """Render every scan of an experiment and write its folder into ``out`` (each
-    position's truth beside its tiles, on the cores that the tile pool leaves idle)."""
+    position's truth and its npz beside its tiles, on the cores the tile pool leaves idle)."""
     with Progress(f"simulate {name}", len(pos_list) * repeats, "scan", log,
                   enabled=progress) as bar, _Writer() as writer, \
             ThreadPoolExecutor(max_workers=1) as beside:
         for pos in pos_list:
-            truth = beside.submit(render.truth_for, config, acquisition(config, pos, 0))
+            truth = beside.submit(_truth_npz, name, config, pos, out)
             for rep in range(repeats):
                 try:
                     write_scan(name, config, desc, pos, rep, out,
                                lambda done, tiles: bar.update(1 / tiles), writer=writer)
                 except InputError:  # the truth's message first, as when it ran first
-                    _check_truth(name, pos, truth.result())
+                    truth.result()
                     raise
-            _write_truth(name, config, pos, out, truth.result(), writer, marker_frames)
+            truth.result()
+            _write_markers(name, config, pos, out, marker_frames)
     finish_experiment(name, config, desc, pos_list, repeats, out, marker_frames)
 
 
@@ -351,33 +352,32 @@ def write_truth(name: str, config: ScannerConfig, pos: Position, out: Path,
     InputError
         When no pixel sees the scene at this position.
     """
+    path = _truth_npz(name, config, pos, out, writer)
+    _write_markers(name, config, pos, out, marker_frames)
+    return path
+
+
+def _truth_npz(name: str, config: ScannerConfig, pos: Position, out: Path,
+               writer: _Writer | None = None) -> Path:
+    """Render a position's truth, check it and write its npz (see :func:`write_truth`)."""
     truth = render.truth_for(config, acquisition(config, pos, 0))
-    return _write_truth(name, config, pos, out, truth, writer, marker_frames)
-
-
-def _check_truth(name: str, pos: Position, truth: render.Truth) -> None:
-    """Raise when no pixel of a position's truth is valid (seen and lit)."""
     if not truth.valid.any():
         raise InputError(f"zero valid pixels at position {pos.stage_mm:g} mm of {name}: "
                          "the scene is outside the camera or projector frustum")
-
-
-def _write_truth(name: str, config: ScannerConfig, pos: Position, out: Path,
-                 truth: render.Truth, writer: _Writer | None, marker_frames: int) -> Path:
-    """Check and write a computed truth (and marker frames), see :func:`write_truth`."""
-    _check_truth(name, pos, truth)
-    make_out_dir(out / "truth")
-    path = out / "truth" / f"{pos.label}.npz"
+    path = make_out_dir(out / "truth") / f"{pos.label}.npz"
     if writer is None:
         write_npz(path, truth.arrays())
     else:
         writer.submit(write_npz, path, truth.arrays())
-    if pos.scene.texture is not None:  # a marked target: its marker frame too
-        make_out_dir(out / "markers")
-        for k in range(marker_frames):
-            frame = render.render_marker_frame(config, acquisition(config, pos, k, name))
-            write_image(out / "markers" / _marker_name(pos, k), frame)
     return path
+
+
+def _write_markers(name: str, config: ScannerConfig, pos: Position, out: Path,
+                   marker_frames: int) -> None:
+    """A marked target's marker frames (see :func:`write_truth`); none for a plain one."""
+    for k in range(marker_frames if pos.scene.texture is not None else 0):
+        frame = render.render_marker_frame(config, acquisition(config, pos, k, name))
+        write_image(make_out_dir(out / "markers") / _marker_name(pos, k), frame)
 
 
 def write_scan(name: str, config: ScannerConfig, desc: PatternDescription, pos: Position,

@@ -25,7 +25,9 @@ anything but the inputs (nor on the order in which the threads finish). The radi
 the blur are float32 (rounding ~1e-3 e- against a shot noise of ~140 e-); the geometry
 and the fringe's phase are float64. The per-sample passes (hits, projections, lighting,
 the fringe's contrast and angle, the noise cells, the blur's sort into layers) are
-compiled loops (:mod:`scanqa.simulator.raykernels`) that repeat numpy's arithmetic.
+compiled loops (:mod:`scanqa.simulator.raykernels`) that repeat numpy's arithmetic; a
+scene of boxes is cast by another (:mod:`scanqa.simulator.boxcast`), so that the tile
+threads do not wait for each other's cast.
 """
 
 from __future__ import annotations

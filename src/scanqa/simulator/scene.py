@@ -3,6 +3,9 @@
 open3d's :class:`RaycastingScene` finds the hit triangle in float32; :meth:`Scene.cast`
 then recomputes the hit distance in float64 against that triangle's plane, so that the
 ground truth of a planar face is exact to rounding (about 1e-13 mm), not to float32.
+For a mesh of axis-aligned boxes (the gauge blocks) :mod:`scanqa.simulator.boxcast`
+finds the same triangles without holding the GIL, leaving to open3d the rays near an
+edge.
 
 Built-in scenes: a flat target (:func:`flat_target`), the gauge-block artefact of
 Sect. 4.3 (:func:`gauge_block_artefact`, layout in :func:`paper_gauge_layout`), the
