@@ -62,23 +62,30 @@ def test_box_table_finds_the_gauge_scenes_boxes_only():
     assert scene.Scene(trimesh.creation.icosphere(1)).boxes is None  # 80 triangles
 
 
-@pytest.mark.parametrize("kind", ["camera", "shadow"])
+@pytest.mark.parametrize("kind", ["camera", "shadow", "both"])
 def test_box_cast_picks_open3ds_triangle_for_every_ray(paper_config, kind):
     # every supersample of the whole field of view (320 x 256 binned pixels, s = 3),
-    # and its shadow ray from the projector to the hit, plus rays aimed at the edges
-    config, acq = _gauge(paper_config, 320, 256)
+    # and its shadow ray from the projector to the hit, plus rays aimed at the edges;
+    # "both": the two origins in one call (no shared origin: the slab test decides)
+    config, acq = _gauge(paper_config, 320 if kind != "both" else 160, 256 if kind != "both"
+                         else 128)
     sc, rng = acq.scene, np.random.default_rng(31)
     win = devices.sensor_window(config)
     uu, vv = render._supersample_grid(config, win, (0, win.height, 0, win.width), 0)
     origins, dirs = devices.camera_rays(config, acq.camera, uu, vv)
     origin = np.ascontiguousarray(origins.reshape(-1, 3)[0], np.float64)
     rays = raykernels.camera_rays32(origin, np.ascontiguousarray(dirs).reshape(-1, 3))
-    if kind == "shadow":
+    camera = np.concatenate([rays, _edge_rays(sc, origin, rng)])
+    if kind != "camera":
         pts = render._points(config, acq, uu, vv, 1)
         origin = np.asarray(acq.projector.centre, np.float64)
         hit = pts.hit.ravel()
         rays = raykernels.shadow_rays32(pts.world.reshape(-1, 3), hit, origin)
     rays = np.concatenate([rays, _edge_rays(sc, origin, rng)])
+    if kind != "shadow":
+        rays = camera if kind == "camera" else np.concatenate([camera, rays])
+    sides = np.ascontiguousarray(sc.boxes[..., 0])  # (B, 3, 2) the boxes' bounds [mm]
+    assert boxcast._windows(rays, sides)[:, 4].all() == (kind != "both")
     ref_prim, ref_t = sc._open3d_hits(rays, 0)
     code, _ = boxcast.first_triangles(rays, sc.boxes, boxcast.AMBIGUOUS_MM)
     prim, t = sc.first_hits(rays, 1)

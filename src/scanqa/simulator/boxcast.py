@@ -123,21 +123,29 @@ def first_triangles(rays: np.ndarray, table: np.ndarray, tol: float
         for a in range(3):
             grown[k, a, 0] = table[k, a, 0, 0] - 2.0 * tol
             grown[k, a, 1] = table[k, a, 1, 0] + 2.0 * tol
+    window = _windows(rays, grown)
+    windowed = window[:, 4].all()  # no slab test needed
     o, d, inv = np.empty(3), np.empty(3), np.empty(3)
     for i in range(n):
         for a in range(3):
             o[a], d[a] = rays[i, a], rays[i, 3 + a]
-            inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
+            if not windowed:
+                inv[a] = 1.0 / d[a] if d[a] != 0.0 else np.inf
         norm = np.sqrt(d[0] * d[0] + d[1] * d[1] + d[2] * d[2])
+        rx, ry = (d[0] / d[2], d[1] / d[2]) if d[2] > 0.0 else (np.nan, np.nan)
         best, second, hit = np.inf, np.inf, MISS
         for k in range(n_box):
-            if not _meets(o, d, inv, grown, k, tol, norm):
+            if window[k, 4]:
+                if not (window[k, 0] <= rx <= window[k, 1]
+                        and window[k, 2] <= ry <= window[k, 3]):
+                    continue  # outside the box's window (NaN: the ray turns away)
+            elif not _meets(o, d, inv, grown, k, tol, norm):
                 continue
             for a in range(3):
                 if d[a] == 0.0:
                     continue
                 s = 0 if d[a] > 0.0 else 1  # the side that faces the ray
-                tk = (table[k, a, s, 0] - o[a]) * inv[a]
+                tk = (table[k, a, s, 0] - o[a]) / d[a]
                 face = _in_face(o, d, tk, table, k, a, s, tol)
                 if face == MISS:
                     continue
@@ -156,6 +164,35 @@ def first_triangles(rays: np.ndarray, table: np.ndarray, tol: float
         if hit >= 0:
             t[i] = best
     return code, t
+
+
+@njit(cache=True, nogil=True)
+def _windows(rays: np.ndarray, grown: np.ndarray) -> np.ndarray:
+    """Per grown box, the range of x/z and y/z of the directions of the rays that can meet
+    it, when every ray starts at one origin with the whole box ahead in z (a central
+    projection maps the convex box into the hull of its corners' images), and 1 in
+    column 4; 0 there when this does not apply (the slab test alone decides) [-]."""
+    window = np.zeros((grown.shape[0], 5))
+    n = rays.shape[0]
+    for i in range(1, n):
+        if rays[i, 0] != rays[0, 0] or rays[i, 1] != rays[0, 1] or rays[i, 2] != rays[0, 2]:
+            return window
+    if n == 0:
+        return window
+    o0, o1, o2 = float(rays[0, 0]), float(rays[0, 1]), float(rays[0, 2])
+    for k in range(grown.shape[0]):
+        if grown[k, 2, 0] - o2 <= 0.0:
+            continue
+        lo_x, hi_x, lo_y, hi_y = np.inf, -np.inf, np.inf, -np.inf
+        for cx in (grown[k, 0, 0], grown[k, 0, 1]):
+            for cy in (grown[k, 1, 0], grown[k, 1, 1]):
+                for cz in (grown[k, 2, 0], grown[k, 2, 1]):
+                    x, y = (cx - o0) / (cz - o2), (cy - o1) / (cz - o2)
+                    lo_x, hi_x = min(lo_x, x), max(hi_x, x)
+                    lo_y, hi_y = min(lo_y, y), max(hi_y, y)
+        margin = 1e-9  # rounding of the ratios, far inside the boxes' 2 tol growth
+        window[k] = (lo_x - margin, hi_x + margin, lo_y - margin, hi_y + margin, 1.0)
+    return window
 
 
 @njit(cache=True, nogil=True, inline="always")
