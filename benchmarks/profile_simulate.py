@@ -60,7 +60,7 @@ PARTS = (
     ("scene noise (cells, hash, gather)", (("render.py", "of"), ("render.py", "__call__"),
                                            ("render.py", "add_to"))),
     ("sensor (Poisson, read noise, quantisation)", (("render.py", "_sensor"),)),
-    ("truth (pixel centres) and its npz", (("experiments.py", "write_truth"),)),
+    ("truth (pixel centres) and its npz", (("experiments.py", "_truth_npz"),)),
     ("PNG frames", (("patternset.py", "write_pattern_set"),)),
     ("numba: loading (or compiling) the compiled loops", (("dispatcher.py",
                                                           "_compile_for_args"),)),

@@ -6,7 +6,8 @@ CPU. For a scene that is a union of axis-aligned boxes (the gauge-block artefact
 hit triangle follows from plane intersections: per ray, every box face that faces the
 ray is intersected in float64 and the nearest face that contains its intersection
 wins; of that face's two triangles, the one on the intersection's side of their shared
-diagonal.
+diagonal. Rays of one origin (a tile's camera rays, its shadow rays) skip a box by the
+window of direction ratios it covers (:func:`_windows`), others by a slab test.
 
 The renderer's geometry depends on the hit *triangle* (its plane and first vertex give
 the float64 hit, :func:`scanqa.simulator.raykernels.light_hits`), so it must be the
