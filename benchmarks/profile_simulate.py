@@ -15,8 +15,9 @@ Run: .venv/bin/python benchmarks/profile_simulate.py [--width 640 --height 512]
 
 ``--timeline`` instead runs the scan as ``bench_simulate`` does (the real thread pools,
 no profiler) and prints when each phase ran (truth, tiles, the truth's npz, the PNG
-frames) with its CPU seconds, and how often a tile's thread was asleep inside its tile
-(state S or D in /proc every 20 ms: waiting for the GIL that the other thread holds,
+frames) with its CPU seconds (of the process, for a phase beside the tiles their CPU
+too), each tile thread's busy time, and how often a tile's thread was asleep inside a
+tile (state S or D in /proc every 20 ms: waiting for the GIL that the other thread holds,
 or for a page; a thread that waits for a core is runnable, state R). Under other jobs'
 load the wall times stretch and that share shrinks somewhat (the threads also wait for
 a core), so compare two versions in neighbouring runs.
@@ -50,6 +51,7 @@ PARTS = (
     ("render: everything per tile", (("render.py", "_render_tile"),)),
     ("geometry: camera and shadow rays, lighting", (("render.py", "_points"),)),
     ("- open3d's cast_rays", (("~", "cast_rays"),)),
+    ("- the box cast (boxcast, without the GIL)", (("boxcast.py", "first_triangles"),)),
     ("- the compiled loops (hits, projections, light)", (("raykernels.py", "light_hits"),
                                                           ("raykernels.py", "unshadowed"))),
     ("blur plan (split into items, kernels)", (("blur.py", "blur_plan"),)),
@@ -58,7 +60,7 @@ PARTS = (
     ("scene noise (cells, hash, gather)", (("render.py", "of"), ("render.py", "__call__"),
                                            ("render.py", "add_to"))),
     ("sensor (Poisson, read noise, quantisation)", (("render.py", "_sensor"),)),
-    ("truth (pixel centres) and its npz", (("experiments.py", "write_truth"),)),
+    ("truth (pixel centres) and its npz", (("experiments.py", "_truth_npz"),)),
     ("PNG frames", (("patternset.py", "write_pattern_set"),)),
     ("numba: loading (or compiling) the compiled loops", (("dispatcher.py",
                                                           "_compile_for_args"),)),
@@ -177,6 +179,11 @@ class _Timeline:
             print(f"{label:6s} {start:6.1f} -> {end:6.1f} s  wall {end - start:5.1f} s  "
                   f"CPU {cpu:5.1f} s ({len(runs)} calls)")
         tiles = [p for p in self.phases if p[0] == "tile"]
+        for tid in dict.fromkeys(p[4] for p in tiles):  # each tile thread's busy time
+            mine = [p for p in tiles if p[4] == tid]
+            print(f"  tile thread {tid}: {len(mine)} tiles, {sum(p[2] - p[1] for p in mine):5.1f}"
+                  f" s inside them, CPU {sum(p[3] for p in mine):5.1f} s, its last tile "
+                  f"ended at {max(p[2] for p in mine):6.1f} s")
         inside = [states[p[4]] for t, states in samples for p in tiles
                   if p[1] <= t <= p[2] and p[4] in states]
         asleep = sum(state in "SD" for state in inside)

@@ -135,6 +135,7 @@ def test_chunked_cast_equals_one_open3d_call(paper_config, monkeypatch):
     config = _window(paper_config, 96)
     pos = experiments.build_positions("gauge-blocks", config, [0.0])[0]
     acq = experiments.acquisition(config, pos, 0, "gauge-blocks")
+    monkeypatch.setattr(acq.scene, "boxes", None)  # open3d's path (test_simulator_boxcast)
     win = devices.sensor_window(config)
     uu, vv = render._supersample_grid(config, win, render._tiles(win)[0],
                                       render.halo_px(config, acq))

@@ -25,7 +25,9 @@ anything but the inputs (nor on the order in which the threads finish). The radi
 the blur are float32 (rounding ~1e-3 e- against a shot noise of ~140 e-); the geometry
 and the fringe's phase are float64. The per-sample passes (hits, projections, lighting,
 the fringe's contrast and angle, the noise cells, the blur's sort into layers) are
-compiled loops (:mod:`scanqa.simulator.raykernels`) that repeat numpy's arithmetic.
+compiled loops (:mod:`scanqa.simulator.raykernels`) that repeat numpy's arithmetic; a
+scene of boxes is cast by another (:mod:`scanqa.simulator.boxcast`), so that the tile
+threads do not wait for each other's cast.
 """
 
 from __future__ import annotations
@@ -343,9 +345,13 @@ def _render_tiles(config: ScannerConfig, acq: Acquisition, desc: PatternDescript
         return _render_tile(config, acq, desc, win, tiles[n], halo, table, images, n,
                             threads)
 
+    # the largest tiles first, so that the pool's last tiles are its smallest (the
+    # window's last column and row): the threads finish closer together
+    order = sorted(range(len(tiles)), key=lambda n: -(tiles[n][1] - tiles[n][0])
+                   * (tiles[n][3] - tiles[n][2]))
     lit_any = False
     with ThreadPoolExecutor(max_workers=workers) as pool:
-        for n, lit in enumerate(pool.map(work, range(len(tiles)))):
+        for n, lit in enumerate(pool.map(work, order)):
             lit_any |= lit
             if progress:
                 progress(n + 1, len(tiles))

@@ -3,6 +3,9 @@
 open3d's :class:`RaycastingScene` finds the hit triangle in float32; :meth:`Scene.cast`
 then recomputes the hit distance in float64 against that triangle's plane, so that the
 ground truth of a planar face is exact to rounding (about 1e-13 mm), not to float32.
+For a mesh of axis-aligned boxes (the gauge blocks) :mod:`scanqa.simulator.boxcast`
+finds the same triangles without holding the GIL, leaving to open3d the rays near an
+edge.
 
 Built-in scenes: a flat target (:func:`flat_target`), the gauge-block artefact of
 Sect. 4.3 (:func:`gauge_block_artefact`, layout in :func:`paper_gauge_layout`), the
@@ -29,6 +32,7 @@ import trimesh
 
 from scanqa.errors import InputError
 from scanqa.io.mesh import read_mesh
+from scanqa.simulator import boxcast
 
 #: Gauge-block heights of Table 3, block 1 (tallest) first [mm].
 GAUGE_HEIGHTS_MM = (50.80, 25.40, 12.70, 7.62, 6.35, 5.08, 3.18, 2.54)
@@ -109,6 +113,9 @@ class Scene:
         self._raycast = o3d.t.geometry.RaycastingScene()
         self._raycast.add_triangles(o3d.core.Tensor(self._v.astype(np.float32)),
                                     o3d.core.Tensor(self._f.astype(np.uint32)))
+        #: The mesh as axis-aligned boxes (:func:`~scanqa.simulator.boxcast.box_table`),
+        #: cast without open3d where the hit is unambiguous; None for other meshes.
+        self.boxes = boxcast.box_table(self._v, self._f)
 
     @property
     def bounds(self) -> np.ndarray:
@@ -132,14 +139,29 @@ class Scene:
 
     def first_hits(self, rays: np.ndarray, threads: int = 0
                    ) -> tuple[np.ndarray, np.ndarray]:
-        """open3d's float32 cast of (n, 6) float32 rays (origin, direction), in chunks of
-        :data:`CAST_CHUNK_RAYS` when ``threads`` is 1 (a caller's pool of threads).
+        """The hit triangles of (n, 6) float32 rays (origin, direction): open3d's float32
+        cast, in chunks of :data:`CAST_CHUNK_RAYS` when ``threads`` is 1 (a caller's pool
+        of threads); for a scene of boxes the same triangles found by
+        :mod:`~scanqa.simulator.boxcast` without the GIL, open3d casting only the rays
+        near an edge (its ray parameters then differ from open3d's in the last bits).
 
         Returns
         -------
         prim, t : (n,) uint32, float32
             Hit triangle (``2**32 - 1`` for none) and its ray parameter (inf for none).
         """
+        if self.boxes is None:
+            return self._open3d_hits(rays, threads)
+        code, t = boxcast.first_triangles(rays, self.boxes, boxcast.AMBIGUOUS_MM)
+        prim = np.where(code >= 0, code, np.iinfo(np.uint32).max).astype(np.uint32)
+        near = np.flatnonzero(code == boxcast.AMBIGUOUS)
+        if near.size:
+            prim[near], t[near] = self._open3d_hits(rays[near], threads)
+        return prim, t
+
+    def _open3d_hits(self, rays: np.ndarray, threads: int = 0
+                     ) -> tuple[np.ndarray, np.ndarray]:
+        """open3d's cast of :meth:`first_hits` (chunked when ``threads`` is 1)."""
         import open3d as o3d
 
         n = rays.shape[0]
