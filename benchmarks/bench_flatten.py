@@ -62,7 +62,7 @@ def rig(size: int):
 
 def _tilted_xp(cfg) -> np.ndarray:
     """x_p of the flat Z = 450 + 0.25 X (about 435-465 mm over the field) [px]."""
-    from scanqa.model import optics
+    from scanqa.model import geometry
 
     cam = cfg.camera
     v, u = np.indices((cam.height_px, cam.width_px), dtype=float)
@@ -70,7 +70,7 @@ def _tilted_xp(cfg) -> np.ndarray:
     dx, dy = (u - cam.principal_point_px[0]) / f, (v - cam.principal_point_px[1]) / f
     t = 450.0 / (1.0 - 0.25 * dx)  # Z of the ray's hit: Z = 450 + 0.25 Z dx
     q = np.stack([dx * t, dy * t, t], axis=-1)
-    qp = optics.to_projector_frame(q, cfg)
+    qp = geometry.to_projector_frame(q, cfg)
     return cfg.projector.principal_distance_px * qp[..., 0] / qp[..., 2] \
         + cfg.projector.principal_point_px[0]
 

@@ -68,7 +68,7 @@ def _pair(cfg, desc, z: float, index: int, stream: str):
 
 def sweep(cfg, stream: str):
     """NoiseData of the flat at 49 depths (two scans each)."""
-    from scanqa.model import optics
+    from scanqa.model import geometry
     from scanqa.model.noisefit import NoiseData
     from scanqa.simulator import experiments
 
@@ -81,7 +81,7 @@ def sweep(cfg, stream: str):
         ok = maps[0].valid & maps[1].valid
         d = (maps[0].xp - maps[1].xp)[ok]
         q = np.array([0.0, 0.0, float(z)])
-        rows.append((float(z), float(optics.projector_depth(q, cfg)),
+        rows.append((float(z), float(geometry.projector_depth(q, cfg)),
                      float(np.std(d)) / math.sqrt(2),
                      float(np.sqrt(np.mean(np.square(maps[0].sigma_xp[ok]))))))
     z_c, z_p, std, sensor = map(np.array, zip(*rows, strict=True))

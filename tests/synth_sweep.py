@@ -12,7 +12,7 @@ from dataclasses import replace
 import numpy as np
 
 from scanqa.calibration.build import PlaneObservation
-from scanqa.model import optics
+from scanqa.model import geometry
 from scanqa.model.config import ScannerConfig
 
 
@@ -30,7 +30,7 @@ def plane_truth(config: ScannerConfig, z: float) -> tuple[np.ndarray, np.ndarray
     f = cam.principal_distance_px
     q = np.stack([(u - cam.principal_point_px[0]) / f * z,
                   (v - cam.principal_point_px[1]) / f * z, np.full_like(u, z)], -1)
-    qp = optics.to_projector_frame(q, config)
+    qp = geometry.to_projector_frame(q, config)
     xp = config.projector.principal_distance_px * qp[..., 0] / qp[..., 2] \
         + config.projector.principal_point_px[0]
     return xp, q

@@ -17,7 +17,7 @@ LAYERS = {
     "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.progress": 0, "scanqa._version": 0,
     "scanqa.io": 1,
     "scanqa.model.config": 2, "scanqa.model.cloud": 2, "scanqa.provenance": 2,
-    "scanqa.model.readings": 3, "scanqa.model.optics": 3,
+    "scanqa.model.readings": 3, "scanqa.model.geometry": 3, "scanqa.model.optics": 3,
     "scanqa.decoding": 4, "scanqa.model.design": 4, "scanqa.model.noisefit": 4,
     "scanqa.model.rig": 4,
     "scanqa.runs.filterbank": 4, "scanqa.runs.flattening": 6,

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 
 from scanqa.errors import RangeError
-from scanqa.model import design, optics
+from scanqa.model import design, geometry, optics
 
 
 def reference_counts(config, level, step, coc_max=None):
@@ -29,7 +29,7 @@ def reference_counts(config, level, step, coc_max=None):
     cam, proj = config.camera, config.projector
     u = cam.principal_distance_px * x / z + cam.principal_point_px[0]
     v = cam.principal_distance_px * y / z + cam.principal_point_px[1]
-    qp = optics.to_projector_frame(pts, config)  # a matmul rounds differently at the edges
+    qp = geometry.to_projector_frame(pts, config)  # a matmul rounds differently at the edges
     xp = proj.principal_distance_px * qp[..., 0] / qp[..., 2] + proj.principal_point_px[0]
     yp = proj.principal_distance_px * qp[..., 1] / qp[..., 2] + proj.principal_point_px[1]
     inside = (u >= -0.5) & (u <= cam.width_px - 0.5) & (v >= -0.5) \

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import j1
 
-from scanqa.model import design, optics
+from scanqa.model import design, geometry, optics
 
 from .model_reference import reference_point
 
@@ -130,12 +130,12 @@ def test_triangulation_scale_matches_finite_difference(paper_config):
     proj = paper_config.projector
 
     def xp(point):
-        qp = optics.to_projector_frame(point, paper_config)
+        qp = geometry.to_projector_frame(point, paper_config)
         return proj.principal_distance_px * qp[0] / qp[2]
 
     h = 1e-4
     slope = (xp(q + h * d) - xp(q - h * d)) / (2 * h)
-    np.testing.assert_allclose(optics.triangulation_scale(q, paper_config), 1 / abs(slope),
+    np.testing.assert_allclose(geometry.triangulation_scale(q, paper_config), 1 / abs(slope),
                                rtol=1e-7)
 
 

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from scanqa.model import optics
+from scanqa.model import geometry, optics
 
 from .model_reference import FLOORS, FORMS, READINGS, attenuation, reference_point
 
@@ -156,8 +156,8 @@ def test_config_with_list_pose_still_predicts(paper_config):
     pts = _grid_points()
     _compare(optics.predict(pts, cfg), [reference_point(p, paper_config, "power", "none")
                                         for p in pts])
-    np.testing.assert_allclose(optics.to_projector_frame(pts, cfg),
-                               optics.to_projector_frame(pts, paper_config), rtol=1e-15)
+    np.testing.assert_allclose(geometry.to_projector_frame(pts, cfg),
+                               geometry.to_projector_frame(pts, paper_config), rtol=1e-15)
 
 
 def test_to_projector_frame_by_hand(paper_config):
@@ -168,10 +168,10 @@ def test_to_projector_frame_by_hand(paper_config):
     d = q - [140.0, 0.0, 0.0]
     want = np.stack([(450 * d[:, 0] + 140 * d[:, 2]) / n, d[:, 1],
                      (-140 * d[:, 0] + 450 * d[:, 2]) / n], -1)
-    np.testing.assert_allclose(optics.to_projector_frame(q, paper_config), want, rtol=1e-13)
-    np.testing.assert_allclose(optics.projector_depth(q, paper_config), want[:, 2], rtol=1e-13)
+    np.testing.assert_allclose(geometry.to_projector_frame(q, paper_config), want, rtol=1e-13)
+    np.testing.assert_allclose(geometry.projector_depth(q, paper_config), want[:, 2], rtol=1e-13)
     # the axes crossing at (0, 0, 450) is at the projector's focus distance hypot(140, 450)
-    np.testing.assert_allclose(optics.projector_depth([0.0, 0.0, 450.0], paper_config),
+    np.testing.assert_allclose(geometry.projector_depth([0.0, 0.0, 450.0], paper_config),
                                n, rtol=1e-13)
 
 
@@ -227,9 +227,9 @@ def test_degenerate_inputs_give_nan_or_inf_without_warnings(paper_config, recwar
     assert np.isinf(optics.optical_scale(1.0, np.array([0.0]), 0.5, "power"))[0]
     assert np.isinf(optics.optical_scale(1.0, 0.5, np.array([0.0]), "mixed"))[0]
     assert np.isnan(optics.projector_magnification(np.array([50.0]), 471.0, 25.0))[0]
-    assert np.isnan(optics.triangulation_scale(np.zeros((1, 3)), paper_config))[0]
+    assert np.isnan(geometry.triangulation_scale(np.zeros((1, 3)), paper_config))[0]
     # a point on the baseline: camera and projector rays coincide, s_T is infinite
-    assert np.isinf(optics.triangulation_scale(np.array([[70.0, 0.0, 0.0]]), paper_config))[0]
+    assert np.isinf(geometry.triangulation_scale(np.array([[70.0, 0.0, 0.0]]), paper_config))[0]
     pred = optics.predict([[0.0, 0.0, np.nan], [0.0, 0.0, 405.0], [0.0, 0.0, 450.0]],
                           paper_config)
     assert np.isnan(pred.sigma[:2]).all() and np.isfinite(pred.sigma[2])
@@ -249,19 +249,19 @@ def test_projector_frame_of_a_general_pose(paper_config):
     and right-handed with y and z; projector_depth is the frame's third coordinate."""
     cfg = _tilted_config(paper_config)
     pos, look = np.array([140.0, 30.0, -12.0]), np.array([5.0, -8.0, 455.0])
-    np.testing.assert_allclose(optics.to_projector_frame(pos, cfg), 0.0, atol=1e-12)
-    np.testing.assert_allclose(optics.to_projector_frame(look, cfg),
+    np.testing.assert_allclose(geometry.to_projector_frame(pos, cfg), 0.0, atol=1e-12)
+    np.testing.assert_allclose(geometry.to_projector_frame(look, cfg),
                                [0.0, 0.0, np.linalg.norm(look - pos)], atol=1e-9)
     rng = np.random.default_rng(2)
     q = rng.uniform([-60, -50, 400], [60, 50, 500], (50, 3))
-    qp = optics.to_projector_frame(q, cfg)
+    qp = geometry.to_projector_frame(q, cfg)
     np.testing.assert_allclose(np.linalg.norm(qp, axis=1), np.linalg.norm(q - pos, axis=1),
                                rtol=1e-12)
-    x_axis = optics.to_projector_frame(pos + np.array([1.0, 0.0, 0.0]), cfg)  # scanner X
-    y_axis = optics.to_projector_frame(pos + np.array([0.0, 1.0, 0.0]), cfg)
+    x_axis = geometry.to_projector_frame(pos + np.array([1.0, 0.0, 0.0]), cfg)  # scanner X
+    y_axis = geometry.to_projector_frame(pos + np.array([0.0, 1.0, 0.0]), cfg)
     assert abs(y_axis[0]) < 1e-12  # the projector's x axis has no scanner-Y component
     assert x_axis[0] > 0.9 and y_axis[1] > 0.9
-    np.testing.assert_allclose(optics.projector_depth(q, cfg), qp[:, 2], rtol=1e-12)
+    np.testing.assert_allclose(geometry.projector_depth(q, cfg), qp[:, 2], rtol=1e-12)
     # and the whole chain with this pose: Z_p is that depth, s_T the finite difference
     pred = optics.predict(q, cfg)
     np.testing.assert_allclose(pred.z_p, qp[:, 2], rtol=1e-12)
@@ -269,7 +269,7 @@ def test_projector_frame_of_a_general_pose(paper_config):
     f_p = cfg.projector.principal_distance_px
 
     def x_p(points):
-        p = optics.to_projector_frame(points, cfg)
+        p = geometry.to_projector_frame(points, cfg)
         return f_p * p[:, 0] / p[:, 2]
 
     h = 1e-3
@@ -321,7 +321,7 @@ def test_optical_terms_fields_and_s_o_with(paper_config, form):
     as the scalar chain does with those in the config."""
     cfg = _two_source_config(paper_config, form, "one", "two_source")
     pts = _grid_points()
-    z_p = optics.projector_depth(pts, cfg)
+    z_p = geometry.projector_depth(pts, cfg)
     terms = optics.optical_terms(pts[:, 2], z_p, cfg)
     ref = [reference_point(p, cfg, "two_source", "one", form=form) for p in pts]
     for name in ("filter_base", "s_o_scene", "s_o_sensor", "s_o", "filter_factor"):
@@ -357,7 +357,7 @@ def test_overrides_of_form_and_sensor_ratio(paper_config):
     predict's sigma_p replaces the scene-side noise only (the sensor's is kept)."""
     cfg = _two_source_config(paper_config, "product", "none", "power")
     pts = _grid_points()
-    z_p = optics.projector_depth(pts, cfg)
+    z_p = geometry.projector_depth(pts, cfg)
     terms = optics.optical_terms(pts[:, 2], z_p, cfg, filter_form="sum", filter_floor="one",
                                  noise_reading="two_source", sensor_ratio=0.25)
     other = _two_source_config(paper_config, "sum", "one", "two_source",

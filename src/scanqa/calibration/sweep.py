@@ -37,7 +37,7 @@ from scanqa.io import manifest as manifest_file
 from scanqa.io.images import read_image
 from scanqa.io.sweep import SCANNER_FIELDS, Sweep, load_sweep, read_lateral
 from scanqa.io.tomlfile import read_toml
-from scanqa.model import optics
+from scanqa.model import geometry, optics
 from scanqa.model.config import ScannerConfig, first_difference
 
 __all__ = ["Sweep", "calibrate", "check_sweep", "geometry_covariance", "iter_observations",
@@ -209,7 +209,7 @@ def check_scale(obs: PlaneObservation, config: ScannerConfig) -> None:
     cam = config.camera
     f, u0 = cam.principal_distance_px, cam.principal_point_px[0]
     pts = np.array([[(u - u0) / f * obs.z_mm, 0.0, obs.z_mm] for u in (u0 - 5, u0 + 5)])
-    qp = optics.to_projector_frame(pts, config)
+    qp = geometry.to_projector_frame(pts, config)
     xp = config.projector.principal_distance_px * qp[:, 0] / qp[:, 2]
     predicted = (xp[1] - xp[0]) / 10.0
     if np.isfinite(slope) and predicted != 0:

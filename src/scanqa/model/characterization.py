@@ -37,7 +37,7 @@ from scanqa.errors import InputError, ScanQAError
 from scanqa.io.fitted_model import read_fitted_model
 from scanqa.io.manifest import read_manifest
 from scanqa.io.sweep import load_sweep
-from scanqa.model import design, optics
+from scanqa.model import design, geometry, optics
 from scanqa.model.config import ScannerConfig, config_from_dict, first_difference
 from scanqa.model.noisefit import (
     JOINT_VARIANTS,
@@ -332,7 +332,7 @@ def _characterize_plane_sweep(path: Path, config: ScannerConfig, min_attenuation
     period = None
     with Progress("characterize: decoding", len(sweep.positions), "position", log) as bar:
         for pos in sweep.positions:
-            z_p = float(optics.projector_depth(np.array([0.0, 0.0, pos.z_mm]), config))
+            z_p = float(geometry.projector_depth(np.array([0.0, 0.0, pos.z_mm]), config))
             roi = min(roi_px, int(CALIBRATION_FIELD_MM * config.camera.principal_distance_px
                                   / pos.z_mm))
             for src in pos.sources:

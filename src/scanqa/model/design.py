@@ -13,7 +13,7 @@ import numpy as np
 from scipy.optimize import brentq
 
 from scanqa.errors import InputError, RangeError
-from scanqa.model import optics
+from scanqa.model import geometry, optics
 from scanqa.model.config import ScannerConfig
 
 #: The ten attenuation levels of Tables 1 and 2 [-].
@@ -253,7 +253,7 @@ def _in_frusta(x: np.ndarray, y: np.ndarray, z: np.ndarray | float,
 
 def _rotation(config: ScannerConfig) -> np.ndarray:
     """The projector's rotation, computed once per pose (the optics module caches it)."""
-    return optics._rotation(config.projector)
+    return geometry.projector_rotation(config.projector)
 
 
 def _dot(row: np.ndarray, d: tuple) -> np.ndarray:

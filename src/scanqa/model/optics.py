@@ -48,7 +48,6 @@ References
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass
 
 import numpy as np
@@ -57,7 +56,8 @@ from scipy.optimize import brentq
 from scipy.special import j1
 
 from scanqa.errors import RangeError
-from scanqa.model.config import ProjectorConfig, ScannerConfig
+from scanqa.model.config import ScannerConfig
+from scanqa.model.geometry import projector_depth, triangulation_scale
 from scanqa.model.readings import (  # noqa: F401 - re-exported: optics is the entry
     FILTER_FLOOR_METHODS,
     FILTER_FORM_METHODS,
@@ -225,10 +225,12 @@ def image_blur_diameter(z_c: ArrayLike, focal: float, focus: float, aperture: fl
     Returns
     -------
     ndarray
-        c_c = f_c / (Z_c - f_c) * C_c(Z_c) [mm].
+        c_c = f_c / (Z_c - f_c) * C_c(Z_c) [mm]; NaN at or before the lens (Z_c <= f_c).
     """
     z_c = np.asarray(z_c, dtype=float)
-    return focal / (z_c - focal) * circle_of_confusion(z_c, focus, aperture)
+    with np.errstate(divide="ignore", invalid="ignore"):  # no image there
+        blur = focal / (z_c - focal) * circle_of_confusion(z_c, focus, aperture)
+    return np.where(z_c > focal, blur, np.nan)
 
 
 def camera_blur_area(c_image: ArrayLike, pixel: float) -> np.ndarray:
@@ -290,88 +292,6 @@ def diffraction_blur_area(airy: float, pixel: float) -> float:
         b_d = pi (d_c / (2 s_c))^2 [px^2].
     """
     return float(np.pi * (airy / (2.0 * pixel)) ** 2)
-
-
-@functools.lru_cache(maxsize=16)
-def _cached_rotation(projector: ProjectorConfig) -> np.ndarray:
-    rot = projector.rotation
-    rot.setflags(write=False)
-    return rot
-
-
-def _rotation(projector: ProjectorConfig) -> np.ndarray:
-    """The projector's rotation (:attr:`ProjectorConfig.rotation`), computed once per pose:
-    the model runs per band of a few thousand points."""
-    try:
-        return _cached_rotation(projector)
-    except TypeError:  # a config built with unhashable (list) fields
-        return projector.rotation
-
-
-def to_projector_frame(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
-    """Express scanner-frame points in the projector frame.
-
-    Parameters
-    ----------
-    points : (..., 3) array_like
-        Points in the scanner (camera) frame [mm].
-    config : ScannerConfig
-        Gives the projector pose.
-
-    Returns
-    -------
-    (..., 3) ndarray
-        Q_p = R (Q - position) [mm].
-    """
-    q = np.asarray(points, dtype=float)
-    proj = config.projector
-    d = [q[..., i] - proj.position_mm[i] for i in range(3)]
-    rot = _rotation(proj)
-    # explicit sums: a (n, 3) @ (3, 3) matmul is far slower for large n
-    return np.stack([rot[j, 0] * d[0] + rot[j, 1] * d[1] + rot[j, 2] * d[2]
-                     for j in range(3)], axis=-1)
-
-
-def projector_depth(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
-    """Z of scanner-frame points in the projector frame, Z_p [mm]; shape (...)."""
-    q = np.asarray(points, dtype=float)
-    proj = config.projector
-    rz, pos = _rotation(proj)[2], proj.position_mm
-    depth = rz[0] * (q[..., 0] - pos[0]) + rz[1] * (q[..., 1] - pos[1])
-    return depth + rz[2] * (q[..., 2] - pos[2])
-
-
-def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
-    """Triangulation scale s_T from the config's pinhole geometry (no table).
-
-    Parameters
-    ----------
-    points : (..., 3) array_like
-        Points in the scanner frame [mm].
-    config : ScannerConfig
-        Camera and projector geometry.
-
-    Returns
-    -------
-    (...,) ndarray
-        |dQ/dx_p| along the camera's line of sight [mm / projector px].
-
-    Notes
-    -----
-    The point moves along its camera ray Q(t) = t d; its projector column is
-    x_p = f_p X_p / Z_p + x_0, so dx_p/dt = f_p (X_p' Z_p - X_p Z_p') / Z_p^2 with
-    X_p' = R_x . d and Z_p' = R_z . d. With a calibration table, use the table's slope
-    instead (docs/model.rst).
-    """
-    q = np.asarray(points, dtype=float)
-    rot = _rotation(config.projector)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        d = q / np.linalg.norm(q, axis=-1, keepdims=True)
-        qp = to_projector_frame(q, config)
-        dx, dz = d @ rot[0], d @ rot[2]
-        dxp_dt = config.projector.principal_distance_px * (dx * qp[..., 2] - qp[..., 0] * dz) \
-            / qp[..., 2] ** 2
-        return 1.0 / np.abs(dxp_dt)
 
 
 @dataclass(frozen=True)
@@ -507,9 +427,7 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
     r_c = coc_c / omega_o
     r_p = circle_of_confusion(z_p, proj.focus_mm, proj.aperture_mm) / omega_o
     a_c, a_p = attenuation(r_c), attenuation(r_p)
-    with np.errstate(divide="ignore", invalid="ignore"):  # no image at or before the lens
-        c_image = np.where(z_c > cam.focal_mm,  # Eq. 14 (image_blur_diameter)
-                           cam.focal_mm / (z_c - cam.focal_mm) * coc_c, np.nan)
+    c_image = image_blur_diameter(z_c, cam.focal_mm, cam.focus_mm, cam.aperture_mm)
     b_c = camera_blur_area(c_image, cam.pixel_um * 1e-3)
     b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
                                 cam.pixel_um * 1e-3)
@@ -575,7 +493,8 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
         Fringe period [projector px]; default the config's working (finest) period.
     s_t : array_like, optional
         Triangulation scale |dQ/dx_p| [mm / px], e.g. from a calibration table's slope;
-        default from the config geometry (:func:`triangulation_scale`).
+        default from the config geometry
+        (:func:`~scanqa.model.geometry.triangulation_scale`).
     sigma_p : float, optional
         Scene-side phase noise at focus [projector px]; default
         ``config.model.sigma_p_px`` (the sensor's, ``sensor_sigma_p_px``, is kept).

@@ -26,7 +26,7 @@ from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from scanqa.errors import InputError
-from scanqa.model import design, optics
+from scanqa.model import design, geometry, optics
 from scanqa.model.config import ScannerConfig, config_from_dict
 
 
@@ -253,7 +253,7 @@ def _pyramid(config: ScannerConfig, device: str, z_far: float) -> np.ndarray:
     """(5, 3) apex then the four base corners of a device's view pyramid [mm]."""
     if device == "camera":
         return np.vstack([np.zeros(3), _camera_plane(config, z_far)])
-    reach = float(optics.projector_depth(np.array([0.0, 0.0, z_far]), config))
+    reach = float(geometry.projector_depth(np.array([0.0, 0.0, z_far]), config))
     return np.vstack([config.projector.position_mm, _projector_corners(config, reach)])
 
 

@@ -36,7 +36,7 @@ import numpy as np
 from numba import njit
 
 from scanqa.calibration.lookup import TableGrid
-from scanqa.model import optics
+from scanqa.model import geometry, optics
 from scanqa.model.config import ScannerConfig
 
 #: Codes of the model's readings in the kernel (the names of :mod:`scanqa.model.readings`).
@@ -268,7 +268,7 @@ def model_parameters(config: ScannerConfig, random: str = "model",
     pixel = cam.pixel_um * 1e-3
     b_d = optics.diffraction_blur_area(optics.airy_diameter(model.wavelength_nm * 1e-6,
                                                             cam.f_number), pixel)
-    rz = optics._rotation(proj)[2]
+    rz = geometry.projector_rotation(proj)[2]
     par = np.array([*proj.position_mm, *rz, config.fringes.working_period_px,
                     proj.pitch_um * 1e-3, proj.focus_mm, proj.focal_mm, proj.aperture_mm,
                     cam.focus_mm, cam.aperture_mm, cam.focal_mm, pixel, b_d, model.gamma,
