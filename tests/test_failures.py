@@ -588,7 +588,7 @@ def test_no_blanket_exception_handlers_in_the_library():
                ("response.py", "TypeError"),    # a response.toml value of a wrong type
                ("phasemap.py", "TypeError"),    # json.dumps of a provenance
                ("fitted_model.py", "TypeError"),  # a summary.json value of a wrong type
-               ("optics.py", "TypeError"),      # lru_cache of a hand-built config
+               ("geometry.py", "TypeError"),    # lru_cache of a hand-built config
                ("rig.py", "TypeError"),         # a design-page setting of a wrong type
                ("optimisation.py", "TypeError"),  # a design spec value of a wrong type
                # one scan's failure (or its workers' deaths) becomes its row in the
