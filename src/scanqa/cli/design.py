@@ -13,10 +13,12 @@ from scanqa.cli.common import (
     add_output_arguments,
     config_from_args,
     emit,
+    flags,
     float_list,
     format_rows,
     number,
     output_path,
+    warn,
 )
 from scanqa.errors import InputError
 from scanqa.model import design
@@ -216,8 +218,12 @@ def run_flatten(args: argparse.Namespace) -> int:
 def run_page(args: argparse.Namespace) -> int:
     from scanqa.runs import designapp  # plotly only when the page is served
 
+    with flags({"host ": "--host ", "give host": "give --host"}):
+        caution = designapp.check_host(args.host)  # refuses --host ''
     server = designapp.make_server(config_from_args(args), args.host, args.port,
                                    args.level, args.coc_max)
+    if caution:
+        warn(caution.replace("host ", "--host ", 1).replace("use host", "use --host"))
     return _serve(server, args.host, open_browser=not args.no_browser)
 
 

@@ -258,6 +258,7 @@ body { font-family: sans-serif; margin: 0; display: flex; height: 100vh; }
 <script>
 "use strict";
 var busy = false, pending = false, redraws = 0;
+var JSON_TYPE = {'Content-Type': 'application/json'};
 var current = {{SETTINGS}};  // exact values: an input only replaces the one it changes
 function settings() { return Object.assign({}, current); }
 window.scanqaBusy = function () { return busy || pending; };  // for tests and benchmarks
@@ -279,7 +280,7 @@ function redraw() {
   var t0 = performance.now();
   var body = JSON.stringify({settings: settings(),
     coc_cuts_volume: document.getElementById('coc_cuts_volume').checked});
-  fetch('/api/view', {method: 'POST', body: body}).then(function (r) {
+  fetch('/api/view', {method: 'POST', headers: JSON_TYPE, body: body}).then(function (r) {
     return r.json().then(function (p) { return {ok: r.ok, p: p}; }); })
   .then(function (res) {
     var p = res.p;
@@ -310,19 +311,27 @@ document.querySelectorAll('#side input[data-key]').forEach(function (el) {
 });
 document.getElementById('coc_cuts_volume').addEventListener('change', redraw);
 document.getElementById('export').addEventListener('click', function () {
-  fetch('/api/export', {method: 'POST', body: JSON.stringify({settings: settings()})})
-  .then(function (r) { return r.text(); }).then(function (text) {
+  fetch('/api/export', {method: 'POST', headers: JSON_TYPE,
+                        body: JSON.stringify({settings: settings()})})
+  .then(function (r) {  // an error is shown, never saved as scanner.toml
+    if (!r.ok) { return r.json().then(function (p) { throw new Error(p.error); }); }
+    return r.text(); })
+  .then(function (text) {
+    document.getElementById('error').textContent = '';
     var a = document.createElement('a');
     a.href = URL.createObjectURL(new Blob([text], {type: 'application/toml'}));
-    a.download = 'scanner.toml'; a.click(); });
+    a.download = 'scanner.toml'; a.click(); })
+  .catch(function (e) { document.getElementById('error').textContent = e.message; });
 });
 document.getElementById('load').addEventListener('change', function (ev) {
   var f = ev.target.files[0]; if (!f) return;
   f.text().then(function (text) {
-    return fetch('/api/load', {method: 'POST', body: text}); })
+    return fetch('/api/load', {method: 'POST', headers: JSON_TYPE,
+                               body: JSON.stringify({toml: text})}); })
   .then(function (r) { return r.json(); }).then(function (p) {
     if (p.error) { document.getElementById('error').textContent = p.error; return; }
-    setInputs(p.settings); redraw(); });
+    setInputs(p.settings); redraw(); })
+  .catch(function (e) { document.getElementById('error').textContent = String(e); });
 });
 redraw();
 </script>
