@@ -337,3 +337,22 @@ def test_cli_bad_inputs_get_one_line(files, capsys, args, message):
     import re
 
     assert re.search(message, err), err
+
+
+def test_cli_without_a_spec_prints_the_fitted_diameter_not_nan(files, capsys):
+    """Issue 45: a sphere without a spec printed 'PS: E +nan um' and no diameter."""
+    out = files / "qa-nospec"
+    assert main(["qa", str(files / "sphere.ply"), "--layout", str(files / "sphere.toml"),
+                 "--out", str(out)]) == 0
+    printed = capsys.readouterr().out
+    assert "nan" not in printed.lower()
+    import re
+
+    found = re.search(r"S1 PS: fitted diameter (\d+\.\d+) mm; no spec: not evaluated", printed)
+    assert found, printed
+    assert float(found.group(1)) == pytest.approx(D, abs=0.005)  # the simulated ball's
+    assert "S1 PF: E +" in printed and "PF: E" in printed.split("no spec")[0]
+    rows = json.loads((out / "summary.json").read_text())["quantities"]
+    ps = next(r for r in rows if r["quantity"] == "PS")
+    assert ps["measured_mm"] == pytest.approx(float(found.group(1)), abs=1e-4)
+    assert ps["value_um"] is None and ps["note"] == "no spec: not evaluated"

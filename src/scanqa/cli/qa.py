@@ -218,9 +218,7 @@ def _run_artefacts(args, clouds, spec, header, out) -> int:
     with flags(_PDF):
         artefact_report.write_outputs(result, out, header, pdf=args.pdf)
     for row in result.rows():
-        emit(f"{row['scan']} {row['artefact']} {row['quantity']}: E {row['value_um']:+.1f} "
-             f"um, U test {row['U_test_um']:.1f} um, MPE {row['mpe_um']:.1f} um, "
-             f"{row['decision']} (U {row['U_um']:.1f} um)")
+        emit(artefact_line(row))
     for note in result.notes:
         emit(f"note: {note}")
     v = result.verdict()
@@ -228,6 +226,22 @@ def _run_artefacts(args, clouds, spec, header, out) -> int:
          f"undecided, {v['not evaluated']} not evaluated)")
     emit(f"report: {out / 'report.html'}" + (f" and {out / 'report.pdf'}" if args.pdf else ""))
     return EXIT_STATUS[v["verdict"]] if args.strict else 0
+
+
+def artefact_line(row: dict) -> str:
+    """One printed line of a VDI/VDE 2634-2 quantity: E, U, MPE and the decision, the
+    fitted size it rests on (PS: the diameter), and why it was not evaluated."""
+    head = f"{row['scan']} {row['artefact']} {row['quantity']}: "
+    size = (f"fitted diameter {row['measured_mm']:.4f} mm"
+            if row["quantity"] == "PS" and math.isfinite(row["measured_mm"]) else "")
+    if row["decision"] == "not evaluated":
+        parts = [f"E {row['value_um']:+.1f} um (U {row['U_um']:.1f} um)"
+                 if math.isfinite(row["value_um"]) else "", size,
+                 row["note"] or "not evaluated"]
+        return head + "; ".join(p for p in parts if p)
+    return head + (f"E {row['value_um']:+.1f} um, U test {row['U_test_um']:.1f} um, MPE "
+                   f"{row['mpe_um']:.1f} um, {row['decision']} (U {row['U_um']:.1f} um)"
+                   + (f"; {size}" if size else ""))
 
 
 def _run_blocks(args, cloud, config, header, out, geometry=None) -> int:

@@ -77,7 +77,7 @@ not be measured, or the spec gives no MPE or certificate for it).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -104,6 +104,8 @@ DROP_FRACTION = 0.003
 #: Which expanded uncertainty the decisions use (module notes).
 DECIDE_WITH = ("test", "total")
 #: The quantities and their names.
+#: The note of a quantity measured without a spec (no MPE, no certificate).
+NO_SPEC = "no spec: not evaluated"
 QUANTITIES = {"PF": "probing error form", "PS": "probing error size",
               "SD": "sphere-spacing error", "F": "flatness measurement error"}
 
@@ -141,6 +143,9 @@ class Quantity:
         The artefact's part of u (certificate, form): the test uncertainty [mm].
     decided_with : str
         "test" (the decision used U_test) or "total" (it used U).
+    measured : float
+        The fitted size E compares with the certificate (PS: the least-squares
+        diameter D_a) [mm], measured with or without a certificate; else NaN.
     """
 
     name: str
@@ -157,6 +162,7 @@ class Quantity:
     note: str = ""
     u_artefact: float = 0.0
     decided_with: str = "test"
+    measured: float = math.nan
 
     @property
     def expanded(self) -> float:
@@ -184,7 +190,7 @@ class Quantity:
                 "k": self.k, "mpe_um": um(self.mpe), "decision": self.decision,
                 "decided_with": self.decided_with,
                 "predicted_um": um(self.predicted), "bias_um": um(self.bias),
-                "length_mm": self.length,
+                "length_mm": self.length, "measured_mm": self.measured,
                 "n_points": self.n_points, "n_dropped": self.n_dropped, "note": self.note}
 
 
@@ -414,8 +420,9 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
                None if cert is None else cert.form_um, _mpe(spec, "PF"), k, decide_with)
     if cert is None:
         ps = quantity("PS", math.nan, math.nan, _mpe(spec, "PS"), k, n_points=keep.size,
-                      note="no sphere certificate (calibrated diameter) in the spec",
-                      decide_with=decide_with)
+                      note=NO_SPEC if spec is None else "no sphere certificate (calibrated "
+                      "diameter) in the spec: not evaluated", decide_with=decide_with,
+                      measured=fit.diameter)
     else:
         u_cert = 1e-3 * cert.diameter_uncertainty_um / cert.k
         ps = quantity("PS", fit.diameter - cert.diameter_mm,
@@ -423,7 +430,9 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
                       _mpe(spec, "PS"), k,
                       bias=2.0 * bias[3], length=cert.diameter_mm, n_points=keep.size,
                       n_dropped=int(keep.size - keep.sum()), u_artefact=u_cert,
-                      decide_with=decide_with)
+                      decide_with=decide_with, measured=fit.diameter)
+    if spec is None:
+        pf = replace(pf, note=NO_SPEC)
     zone = minimum_zone_sphere(pts[keep], start=fit.centre, where=where)
     return SphereTest(fit, zone, keep, pf, ps)
 

@@ -27,17 +27,18 @@ from scanqa.report.qa import csv_text
 #: Columns of quantities.csv, and the report's main and folded columns.
 QUANTITY_COLUMNS = ("scan", "artefact", "kind", "quantity", "name", "value_um", "U_test_um",
                     "mpe_um", "decision", "U_um", "u_points_um", "k", "predicted_um",
-                    "bias_um", "length_mm", "n_points", "n_dropped", "noise_corr_factor",
-                    "minimum_zone_um", "decided_with", "note")
+                    "bias_um", "length_mm", "measured_mm", "n_points", "n_dropped",
+                    "noise_corr_factor", "minimum_zone_um", "decided_with", "note")
 MAIN_COLUMNS = ("scan", "artefact", "quantity", "value_um", "U_test_um", "mpe_um", "decision",
                 "U_um")
-DETAIL_COLUMNS = ("u_points_um", "predicted_um", "minimum_zone_um", "bias_um", "n_points",
+DETAIL_COLUMNS = ("measured_mm", "u_points_um", "predicted_um", "minimum_zone_um", "bias_um",
+                  "n_points",
                   "n_dropped", "noise_corr_factor", "note")
 LABELS = {"value_um": "E [um]", "U_test_um": "U test [um]", "mpe_um": "MPE [um]",
           "U_um": "U [um]", "u_points_um": "u points [um]", "predicted_um": "predicted [um]",
           "bias_um": "bias [um]", "n_points": "points", "n_dropped": "dropped",
           "noise_corr_factor": "kappa", "u_um": "u [um]",
-          "minimum_zone_um": "min. zone [um]"}
+          "minimum_zone_um": "min. zone [um]", "measured_mm": "fitted size [mm]"}
 BUDGET_COLUMNS = ("scan", "artefact", "quantity", "component", "u_um", "enters")
 SECTIONS = ("Results", "Form: predicted and measured", "Sphere spacing over the positions",
             "Residuals", "Uncertainty budget", "Point selection", "Method", "Notes")
