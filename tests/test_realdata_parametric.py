@@ -158,11 +158,14 @@ def test_phase_reconstruction_matches_slstudio(calibration, slstudio_points):
           + " ({1:.2f} / {2:.2f} px)".format(*summary(d_px)))
 
 
-def test_every_point_of_a_real_scan_carries_a_model_sigma(calibration):
+def test_every_point_of_a_real_scan_carries_a_model_sigma(calibration, caplog):
     config = load_config(ROOT / "calib" / "slstudio_example.toml")
     xp = phase_reference(frames("skull_2x3", 6))
     scan = phase_map(xp, np.full(xp.shape, 0.1), 114.0, PANEL)
     cloud = annotate(scan, calibration, config, source="skull_2x3")
+    # the geometry checks (scanqa.calibration.scan_checks) stay quiet on a real scanner
+    assert [r.getMessage() for r in caplog.records if r.name == "scanqa.runs.annotation"
+            and r.levelno >= 30] == []
     sigma = cloud.attributes["sigma_model_um"]
     assert cloud.counts["written"] > 0.9 * np.isfinite(xp).sum()
     assert np.isfinite(sigma).all() and (sigma > 0).all()

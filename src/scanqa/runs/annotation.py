@@ -51,6 +51,7 @@ n_repeats          -      with repeats: number of scans valid at that pixel
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -58,6 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa._version import __version__
+from scanqa.calibration import scan_checks
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
@@ -80,6 +82,8 @@ ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
               "modulation_dn", "offset_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
+
+log = logging.getLogger(__name__)
 
 
 def check_compatible(table: Calibration, config: ScannerConfig, phase_map: PhaseMap,
@@ -139,6 +143,8 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     the cloud; no full-size intermediate array is made.
     """
     check_compatible(table, config, phase_map, source)
+    warnings = [scan_checks.sensitivity_warning(table, config, source),  # may refuse
+                scan_checks.units_warning(table, config, source)]
     if out is not None and Path(out).suffix.lower() != ".ply":
         raise InputError(f"annotate writes a binary PLY while it computes (out={out}): give "
                          "a .ply name, or write other formats with AnnotatedCloud.write")
@@ -151,6 +157,7 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     if out is not None and not counts["written"]:
         raise InputError(f"{source}: no point lies inside the calibrated volume; nothing "
                          f"written to {out} (keep_invalid extrapolates)")
+    warnings.append(scan_checks.volume_warning(counts, xp.size, source, table))
     names = ATTRIBUTES + (REPEAT_ATTRIBUTES if repeats else ())
     extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation,
              "offset": phase_map.offset}
@@ -184,6 +191,9 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
             fill(records)
     counts["kept_invalid"] = keep_invalid
     xyz, attributes = ply.vertex_views(records)
+    warnings.append(scan_checks.depth_warning(xyz[:, 2], config, source))
+    for text in filter(None, warnings):  # the geometry checks (scan_checks)
+        log.warning(text)
     return AnnotatedCloud(xyz, attributes, counts, meta)
 
 
