@@ -39,7 +39,6 @@ import numpy as np
 
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.parametric import ParametricCalibration
-from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.model.config import ScannerConfig
 
