@@ -421,7 +421,7 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
     if cert is None:
         ps = quantity("PS", math.nan, math.nan, _mpe(spec, "PS"), k, n_points=keep.size,
                       note=NO_SPEC if spec is None else "no sphere certificate (calibrated "
-                      "diameter) in the spec: not evaluated", decide_with=decide_with,
+                      "diameter) in the spec", decide_with=decide_with,
                       measured=fit.diameter)
     else:
         u_cert = 1e-3 * cert.diameter_uncertainty_um / cert.k
@@ -431,8 +431,9 @@ def probing_errors(points, sigma=None, spec: Spec | None = None, k: float = 2.0,
                       bias=2.0 * bias[3], length=cert.diameter_mm, n_points=keep.size,
                       n_dropped=int(keep.size - keep.sum()), u_artefact=u_cert,
                       decide_with=decide_with, measured=fit.diameter)
-    if spec is None:
-        pf = replace(pf, note=NO_SPEC)
+    if spec is None:  # say so first, and keep what else the note says
+        rest = "" if pf.note == _why_not_evaluated(pf.value, pf.mpe) else pf.note
+        pf = replace(pf, note="; ".join(n for n in (NO_SPEC, rest) if n))
     zone = minimum_zone_sphere(pts[keep], start=fit.centre, where=where)
     return SphereTest(fit, zone, keep, pf, ps)
 
