@@ -145,3 +145,30 @@ def test_depths_far_from_the_working_distance_are_warned(paper_config, caplog):
     (text,) = geometry_warnings(caplog)
     assert "plane: 100 % of the points lie outside [75, 300] mm" in text
     assert "median 449.8 mm" in text and "camera.focus_mm = 150" in text
+
+
+def test_cli_refuses_fringes_along_the_epipolar_lines_in_one_line(paper_config, tmp_path,
+                                                                  capsys):
+    """Through the command line, from files: exit 2, one line, no cloud written."""
+    from scanqa.cli import main
+    from scanqa.decoding.phasemap import save_phase_map
+    from scanqa.io.opencv import OpenCVCalibration, write_opencv_calibration
+    from scanqa.io.tomlfile import dumps_toml
+    from scanqa.model.rig import config_toml_dict
+
+    cal, cfg = rig(paper_config, (3.0, 140.0, 0.0), "vertical")
+    sizes = {"frameWidth": cal.width_px, "frameHeight": cal.height_px,
+             "screenResX": cal.projector.width_px, "screenResY": cal.projector.height_px}
+    write_opencv_calibration(tmp_path / "cal.xml", OpenCVCalibration(
+        cal.camera.matrix, cal.camera.distortion, cal.projector.matrix,
+        cal.projector.distortion, cal.rotation, cal.translation, sizes, {}, ""))
+    (tmp_path / "scanner.toml").write_text(dumps_toml(config_toml_dict(cfg)))
+    save_phase_map(tmp_path / "phase.npz", scan_of(cal))
+    out = tmp_path / "cloud.ply"
+    assert main(["annotate", str(tmp_path / "phase.npz"), "--calibration",
+                 str(tmp_path / "cal.xml"), "--config", str(tmp_path / "scanner.toml"),
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("scanqa: ") and err.count("\n") == 1 and "Traceback" not in err
+    assert "scan with horizontal fringes" in err and "refused" in err
+    assert not out.exists()
