@@ -121,6 +121,7 @@ def test_projector_rows_in_half_row_units_column_fringes(paper_config, caplog):
     assert share > 0.25
     units, volume = geometry_warnings(caplog)
     assert "projector's rows at x2.00 the config's" in units
+    assert "dropped as out of volume" in units
     assert f"{100 * share:.0f} % of the decoded pixels" in volume
     assert "other units than the panel's (half or double pixels" in volume
 
@@ -133,7 +134,8 @@ def test_projector_rows_in_half_row_units_row_fringes(paper_config, caplog):
     cloud = annotate(scan, half_rows(cal), cfg, source="plane")
     assert np.median(cloud.xyz[:, 2]) < Z_MM - 50  # the simulated plane is at 450 mm
     (text,) = geometry_warnings(caplog)
-    assert "projector's rows at x2.00" in text and "decoded y_p" in text
+    assert "projector's rows at x2.00" in text
+    assert "decoded y_p is read in other units: every depth is off" in text
 
 
 def test_depths_far_from_the_working_distance_are_warned(paper_config, caplog):

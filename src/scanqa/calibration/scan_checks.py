@@ -142,14 +142,18 @@ def units_warning(cal: Calibration, config: ScannerConfig, source: str) -> str:
     if not odd:
         return ""
     axis, key, ratio = odd[0]
-    coded = "x_p" if cal.orientation == "vertical" else "y_p"
+    coded, coded_axis = (("x_p", "columns") if cal.orientation == "vertical"
+                         else ("y_p", "rows"))
+    effect = (f"the scan's decoded {coded} is read in other units: every depth is off"
+              if axis == coded_axis else
+              f"the {axis} place each point in the panel (the fringes code {coded}): points "
+              "whose place falls off the panel are dropped as out of volume")
     return (f"{source}: the calibration {cal.source or '(parametric)'} has the projector's "
             f"{axis} at x{ratio:.2f} the config's (K_p {key} = {ratio * fp:.6g} px, the "
             f"config {config.source or ''} projector's principal distance {fp:.6g} px, "
             "square pixels): its projector pixels are in other units than the panel's (half "
-            "rows or doubled columns of a diamond-pixel DMD?). The scan's decoded "
-            f"{coded} and the calibration must count the same pixels: recalibrate in the "
-            "panel's units, or give the config the calibration's (pitch and size)")
+            f"rows or doubled columns of a diamond-pixel DMD?); {effect}. Recalibrate in the "
+            "panel's units, or make the scan and the config count the calibration's pixels")
 
 
 def volume_warning(counts: dict, n_pixels: int, source: str, cal: Calibration) -> str:
