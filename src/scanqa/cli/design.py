@@ -229,7 +229,8 @@ def run_page(args: argparse.Namespace) -> int:
 
 def _serve(server, host: str, open_browser: bool) -> int:
     """Say where the design page is, open it if asked, serve it until Ctrl-C."""
-    url = f"http://{host}:{server.server_address[1]}/"
+    name = f"[{host}]" if ":" in host else host  # an IPv6 address in a URL
+    url = f"http://{name}:{server.server_address[1]}/"
     emit(f"scanqa design page: {url} (Ctrl-C stops it)")
     if open_browser:
         import webbrowser
