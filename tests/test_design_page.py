@@ -325,3 +325,30 @@ def test_cli_refuses_an_empty_host_and_warns_of_a_public_one(capsys, monkeypatch
                  "--no-browser", "--host", "0.0.0.0"]) == 0
     assert "warning: --host 0.0.0.0 serves the design page beyond this machine" \
         in capsys.readouterr().err
+
+
+def test_a_trickling_client_is_dropped(paper_config):
+    """A header line every 0.2 s never lets the socket time out; the request's own
+    deadline drops it."""
+    import select
+
+    srv = serve(designapp.make_server(paper_config, timeout_s=5.0, request_s=1.0))
+    try:
+        sock = socket.create_connection(("127.0.0.1", srv.server_address[1]), timeout=60)
+        sock.sendall(b"GET / HTTP/1.1\r\n")
+        closed = False
+        for i in range(300):  # up to a minute of trickling
+            if select.select([sock], [], [], 0.2)[0]:
+                closed = sock.recv(100) == b""
+                break
+            try:
+                sock.sendall(f"X-{i}: y\r\n".encode())
+            except OSError:  # closed (reset) between the check and the send
+                closed = True
+                break
+        sock.close()
+        assert closed
+    finally:
+        srv.shutdown()
+        srv.server_close()
+    assert srv.errors == []

@@ -15,8 +15,9 @@ endpoints run the one Python model chain:
 Every POST is JSON (``Content-Type: application/json``) from the page's own origin, for
 this page's host name (:func:`make_server`, Notes); a bad request gets one JSON line
 ``{"error": ...}`` naming the field or header and its fix, never a traceback. Silent
-connections are dropped after :data:`TIMEOUT_S`, and at most :data:`MAX_CONNECTIONS` are
-served at once.
+connections are dropped after :data:`TIMEOUT_S`, a request still arriving after
+:data:`REQUEST_S` (a client that trickles it byte by byte) too, and at most
+:data:`MAX_CONNECTIONS` are served at once.
 
 Why not Dash, Panel or a Bokeh server: the page needs a rotatable 3D scene, which Bokeh
 lacks without a compiled extension; Dash and Panel bring a web framework, a callback
@@ -29,6 +30,7 @@ serve the tests, the benchmark and a future front end.
 from __future__ import annotations
 
 import contextlib
+import io
 import ipaddress
 import json
 import math
@@ -52,6 +54,8 @@ MAX_BODY = 1_000_000
 #: Seconds a connection may stay silent (while its request line, headers or body are
 #: read) before the server drops it [s].
 TIMEOUT_S = 10.0
+#: Seconds one request (its line, headers and body) may take to arrive in all [s].
+REQUEST_S = 30.0
 #: Connections served at once; one more is answered 503 and closed at once, so slow
 #: clients cannot hold an unbounded number of threads.
 MAX_CONNECTIONS = 16
@@ -223,12 +227,36 @@ def parse_body(path: str, text: str) -> dict:
     return body
 
 
-def _handler(state: DesignState, title: str, bound: str,
-             timeout_s: float) -> type[BaseHTTPRequestHandler]:
+class _DeadlineReader(io.RawIOBase):
+    """A socket's reads that fail with :class:`TimeoutError` once ``deadline`` has passed
+    (each read also waits at most ``timeout`` seconds)."""
+
+    def __init__(self, sock: socket.socket, deadline: float, timeout: float):
+        super().__init__()
+        self._sock, self._deadline, self._timeout = sock, deadline, timeout
+
+    def readable(self) -> bool:
+        return True
+
+    def readinto(self, buffer) -> int:
+        left = self._deadline - time.monotonic()
+        if left <= 0:
+            raise TimeoutError("the request took too long to arrive")
+        self._sock.settimeout(min(self._timeout, left))
+        return self._sock.recv_into(buffer)
+
+
+def _handler(state: DesignState, title: str, bound: str, timeout_s: float,
+             request_s: float) -> type[BaseHTTPRequestHandler]:
     """A request handler class bound to one state."""
 
     class Handler(BaseHTTPRequestHandler):
         timeout = timeout_s  # a silent client is dropped (StreamRequestHandler.setup)
+
+        def setup(self) -> None:
+            super().setup()  # a trickling client is dropped after request_s in all
+            self.rfile = io.BufferedReader(_DeadlineReader(
+                self.connection, time.monotonic() + request_s, timeout_s))
 
         def log_message(self, *args) -> None:  # quiet: the terminal shows the URL only
             pass
@@ -428,7 +456,8 @@ def _plotly_js() -> bytes:
 
 def make_server(config: ScannerConfig, host: str = "127.0.0.1", port: int = 0,
                 level: float = 0.49, coc_max_mm: float = 0.030, timeout_s: float = TIMEOUT_S,
-                max_connections: int = MAX_CONNECTIONS) -> DesignServer:
+                max_connections: int = MAX_CONNECTIONS,
+                request_s: float = REQUEST_S) -> DesignServer:
     """A server for the design page (not started; ``port=0`` picks a free port).
 
     Parameters
@@ -448,6 +477,8 @@ def make_server(config: ScannerConfig, host: str = "127.0.0.1", port: int = 0,
         A connection silent this long is dropped [s].
     max_connections : int
         Connections served at once; more are answered 503.
+    request_s : float
+        A request still arriving after this long is dropped [s].
 
     Returns
     -------
@@ -466,6 +497,6 @@ def make_server(config: ScannerConfig, host: str = "127.0.0.1", port: int = 0,
     state = DesignState(config, level, coc_max_mm)
     rig.apply_settings(config, state.settings)  # refuse a config the page cannot show
     server = DesignServer((host, port), _handler(state, config.name or "scanner", host,
-                                                 timeout_s), max_connections)
+                                                 timeout_s, request_s), max_connections)
     server.state = state
     return server
