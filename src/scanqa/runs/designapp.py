@@ -303,30 +303,30 @@ def _handler(state: DesignState, title: str, bound: str, timeout_s: float,
             """The request body, after the checks of its headers."""
             ctype = (self.headers.get("Content-Type") or "").split(";")[0].strip().lower()
             if ctype != "application/json":
-                raise RequestError(415, f"POST {self.path}: Content-Type must be "
+                raise RequestError(415, f"POST {self.path[:80]}: Content-Type must be "
                                         f"application/json, got {ctype[:60]!r}")
             if self.headers.get("Transfer-Encoding"):
-                raise RequestError(411, f"POST {self.path}: send the body with a "
+                raise RequestError(411, f"POST {self.path[:80]}: send the body with a "
                                         "Content-Length, not Transfer-Encoding")
             raw = self.headers.get("Content-Length")
             if raw is None:
-                raise RequestError(411, f"POST {self.path}: a Content-Length is required")
+                raise RequestError(411, f"POST {self.path[:80]}: a Content-Length is required")
             if not raw.strip().isdigit():
-                raise RequestError(400, f"POST {self.path}: Content-Length must be a "
+                raise RequestError(400, f"POST {self.path[:80]}: Content-Length must be a "
                                         f"whole number of bytes >= 0, got {raw[:40]!r}")
             length = int(raw) if len(raw.strip()) <= 15 else MAX_BODY + 1
             if length > MAX_BODY:
-                raise RequestError(413, f"POST {self.path}: the body of {length} bytes is "
+                raise RequestError(413, f"POST {self.path[:80]}: the body of {length} bytes is "
                                         f"over the limit of {MAX_BODY}")
             self.unread = False
             data = self.rfile.read(length)
             if len(data) < length:
-                raise RequestError(400, f"POST {self.path}: the body ended after "
+                raise RequestError(400, f"POST {self.path[:80]}: the body ended after "
                                         f"{len(data)} of {length} bytes")
             try:
                 return data.decode("utf-8")
             except UnicodeDecodeError:
-                raise RequestError(400, f"POST {self.path}: the body is not UTF-8") from None
+                raise RequestError(400, f"POST {self.path[:80]}: the body is not UTF-8") from None
 
         unread = True  # the body is still in the socket
 
