@@ -136,3 +136,16 @@ def test_loading_a_toml_sets_the_inputs(page, tmp_path):
     settle(page, count)
     assert page.input_value("#camera_f_number-n") == "16.0000"
     assert page.inner_text("#error") == ""
+
+
+def test_a_toml_outside_the_ranges_is_refused_on_the_page(page, tmp_path):
+    """The error names the setting and its range; the inputs keep the page's config."""
+    text = PAPER_CONFIG.read_text().replace("f_number = 8.0", "f_number = 45.0", 1)
+    path = tmp_path / "f45.toml"
+    path.write_text(text)
+    before = page.input_value("#camera_f_number-n")
+    page.set_input_files("#load", str(path))
+    page.wait_for_function("document.getElementById('error').textContent !== ''",
+                           timeout=60_000)
+    assert "camera_f_number must be in [1.4, 32]" in page.inner_text("#error")
+    assert page.input_value("#camera_f_number-n") == before
