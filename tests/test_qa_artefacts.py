@@ -356,3 +356,5 @@ def test_cli_without_a_spec_prints_the_fitted_diameter_not_nan(files, capsys):
     ps = next(r for r in rows if r["quantity"] == "PS")
     assert ps["measured_mm"] == pytest.approx(float(found.group(1)), abs=1e-4)
     assert ps["value_um"] is None and ps["note"] == "no spec: not evaluated"
+    html = (out / "report.html").read_text()
+    assert f">{ps['measured_mm']:.4f}<" in html and "fitted size [mm]" in html

@@ -101,8 +101,9 @@ def _results(page: Page, result: ArtefactQAResult) -> None:
                       " This report decides with U instead of U test (--decide-with total).")
                    + (f" MPEs and certificates: {spec.name}." if spec is not None else
                       " No spec was given: nothing is decided."))
-    page.table(result.rows(), MAIN_COLUMNS, DETAIL_COLUMNS, ("scan", "artefact", "quantity"),
-               LABELS)
+    rows = [{**r, "measured_mm": f"{r['measured_mm']:.4f}"} if math.isfinite(r["measured_mm"])
+            else r for r in result.rows()]  # a diameter to 0.1 um, not 4 digits
+    page.table(rows, MAIN_COLUMNS, DETAIL_COLUMNS, ("scan", "artefact", "quantity"), LABELS)
 
 
 def _form(page: Page, result: ArtefactQAResult) -> None:
