@@ -17,7 +17,7 @@ The three jobs, from Python
 
        scan = scanqa.decode("sample_data/gauge_blocks/p000_r0")   # or a phase.npz
        cloud = scanqa.annotate(scan, table, config)
-       cloud.write("cloud.ply")          # .ply .las .csv .parquet; the model goes along
+       cloud.write("cloud.ply")          # .ply .las .e57 .csv .parquet; the model goes along
        cloud.to_open3d(), cloud.to_dataframe()
 
 3. QA report - gauge blocks: plane fits, measured vs predicted std, steps with U::

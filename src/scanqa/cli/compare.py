@@ -16,7 +16,7 @@ _EPILOG = """examples:
 Writes cmp/report.html, cmp/summary.json and cmp/cloud_compare.ply (the scan with
 deviation_um, u_deviation_um, U_deviation_um, significance, significant and, with a
 tolerance, in_tolerance). Mesh references: .stl, .obj, .off, .glb (trimesh); cloud
-references: .ply, .las, .csv, .parquet (a .ply holding faces is read as a mesh)."""
+references: .ply, .las, .e57, .csv, .parquet (a .ply holding faces is read as a mesh)."""
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", formatter_class=argparse.RawDescriptionHelpFormatter,
