@@ -61,6 +61,7 @@ from scanqa._version import __version__
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
+from scanqa.calibration.parametric_checks import with_calibrated_geometry
 from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
@@ -105,7 +106,9 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     config : ScannerConfig
         The config the table was built with, or that describes the parametrically
         calibrated scanner (its ``[model]`` gives sigma_p, gamma and
-        the readings; they may differ from the table's).
+        the readings; they may differ from the table's). A parametric calibration
+        supplies the projector's pose itself (:func:`~scanqa.calibration.parametric_checks.
+        with_calibrated_geometry`; a large change is a warning); the config the rest.
     repeats : sequence of PhaseMap
         Further scans of the same static scene for the measured per-point std.
     keep_invalid : bool
@@ -138,6 +141,7 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     them up in the table, evaluates the model and writes every attribute straight into
     the cloud; no full-size intermediate array is made.
     """
+    config = with_calibrated_geometry(table, config)  # a parametric one's pose wins
     check_compatible(table, config, phase_map, source)
     if out is not None and Path(out).suffix.lower() != ".ply":
         raise InputError(f"annotate writes a binary PLY while it computes (out={out}): give "
