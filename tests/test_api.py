@@ -67,3 +67,20 @@ def test_calibrate_board_writes_what_the_command_writes(tmp_path):
     assert (tmp_path / "board_report.html").exists()
     cal = scanqa.load_opencv_calibration(tmp_path / "board.xml")
     assert cal.covariance is not None
+
+
+def test_per_pose_messages_become_one_log_line_per_step_off_a_terminal(caplog):
+    """A bar in a terminal (tqdm), and in logs one line per pose with its message, as the
+    board calibration and characterisation now report (scanqa.progress.step_messages)."""
+    import logging
+
+    from scanqa.progress import Progress, step_messages
+
+    with caplog.at_level(logging.INFO, logger="scanqa"), \
+            Progress("calibrate", total=2, unit="pose") as bar:
+        tell = step_messages(bar)
+        tell("pose calseq1: 117 of 117 corners")
+        tell("pose calseq3: 117 of 117 corners")
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == ["calibrate: pose 1/2 (pose calseq1: 117 of 117 corners)",
+                     "calibrate: pose 2/2 (pose calseq3: 117 of 117 corners)"]

@@ -6,19 +6,18 @@ Each function does what its command does (``scanqa describe``, ``scanqa calibrat
 --board``, ``scanqa characterize-board``, ``scanqa compare``), takes the same arguments
 under the same names (``--square-mm`` is ``square_mm``), accepts file names or the objects
 scanqa already loaded, and returns the result; with ``out`` it also writes the command's
-files. Nothing is printed: progress goes to the ``scanqa`` logger.
+files. Nothing is printed: progress goes to the ``scanqa`` logger (a bar in a terminal,
+:mod:`scanqa.progress`).
 """
 
 from __future__ import annotations
 
 import json
-import logging
 import os
 from pathlib import Path
 
 from scanqa.errors import InputError
-
-log = logging.getLogger(__name__)
+from scanqa.progress import Progress, step_messages
 
 PathLike = str | os.PathLike
 
@@ -121,8 +120,9 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
     grid = square_mm if board is None else Board(board[0], board[1], square_mm)
     ref = read_opencv_calibration(reference) if reference else None
     columns, rows = (load_patterns(p) for p in patterns)
-    result = calibrate_poses(list(poses), columns, rows, grid, lens_model, hold_out, ref,
-                             progress=log.info, corner_method=corners)
+    with Progress("calibrate", total=len(poses), unit="pose") as bar:
+        result = calibrate_poses(list(poses), columns, rows, grid, lens_model, hold_out,
+                                 ref, progress=step_messages(bar), corner_method=corners)
     if target is not None:
         stem = target.with_suffix("").name
         with staged_dir(target.parent) as stage:
@@ -174,7 +174,8 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     first = next(iter(decoded.values()))
     cal = load_calibration(calibration, cfg, first.orientation,
                            tuple(depth_range_mm or (0.0, float("inf"))))
-    result = fit_board(decoded, cal, tuple(board), progress=log.info)
+    with Progress("characterize-board", total=len(decoded), unit="pose") as bar:
+        result = fit_board(decoded, cal, tuple(board), progress=step_messages(bar))
     if out is not None:
         text = io.StringIO()
         writer = csv.DictWriter(text, fieldnames=list(result["held_out"][0]))
