@@ -23,7 +23,7 @@ from scanqa.cli import main
 from scanqa.errors import InputError
 from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.align import align_reference, fit_alignment, parse_region
-from scanqa.qa.compare import compare_to_cloud
+from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
 
 from .test_compare import _in_block, _interiors, scan_and_truth  # noqa: F401 - fixture
 
@@ -56,6 +56,12 @@ def test_a_moved_box_mesh_is_put_back_within_the_fits_uncertainty():
                 for e in np.eye(3)], axis=0)
     assert (err < 4 * np.sqrt(3) * u + 1e-5).all(), (err, u)
     assert err.max() < 2e-3  # and that is small: 2 um at the box's corners
+    # the comparison with the mesh put back: the 2 um noise, the fit in every point's u
+    result = compare_to_mesh(cloud, back, alignment=fit)
+    dev = np.asarray(result.cloud.attributes["deviation_um"], float)
+    assert np.median(np.abs(dev)) < 2.0 and result.summary()["alignment"]["free_motions"] == []
+    plain = compare_to_mesh(cloud, back).cloud.attributes["u_deviation_um"]
+    assert (np.asarray(result.cloud.attributes["u_deviation_um"]) >= plain).all()
 
 
 def test_regions_parse_and_refuse():
