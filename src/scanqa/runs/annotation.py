@@ -74,9 +74,10 @@ from scanqa.model.config import ScannerConfig
 from scanqa.runs import annotkernels
 
 #: Attribute names in export order (repeat fields only when repeats are given).
-ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
+#: ``sigma_total_um`` first: viewers (CloudCompare) select a cloud's first scalar field.
+ATTRIBUTES = ("sigma_total_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
               "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_random_um",
-              "sigma_total_um",
+              "sigma_model_um",
               "att_camera", "att_projector", "filter_factor", "s_o", "s_t_um_px",
               "modulation_dn", "offset_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
