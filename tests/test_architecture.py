@@ -28,7 +28,7 @@ LAYERS = {
     "scanqa.simulator": 6,
     "scanqa.report": 7,
     "scanqa.runs.demo": 8, "scanqa.runs.batch": 8, "scanqa.cluster": 8, "scanqa.runs.campaign": 8,
-    "scanqa.runs.designapp": 8,
+    "scanqa.runs.designapp": 8, "scanqa.api": 8,
     "scanqa": 8,
     "scanqa.cli": 9, "scanqa.__main__": 9,
 }

@@ -6,7 +6,9 @@
 #                             CloudCompare (command line, headless under xvfb-run),
 #                             chromium (the HTML reports, and the design page, which
 #                             Playwright drives through this very binary: no browser
-#                             download), poppler-utils (the PDF reports)
+#                             download), poppler-utils (the PDF reports), and PDAL
+#                             (tests/test_pdal.py) where the archive packages it
+#                             (Debian 12 does not: those tests are then skipped)
 set -e
 missing=""
 lib() {  # lib SONAME PACKAGE: add PACKAGE when the shared library SONAME is missing
@@ -22,13 +24,21 @@ if [ "${1:-}" = "test" ]; then
     command -v xauth >/dev/null 2>&1 || missing="$missing xauth"
     command -v chromium >/dev/null 2>&1 || missing="$missing chromium"
     command -v pdftoppm >/dev/null 2>&1 || missing="$missing poppler-utils"
+    # PDAL where the archive has it (the package lists as they are: no update for it alone)
+    if ! command -v pdal >/dev/null 2>&1; then
+        optional="pdal"
+        apt-cache show pdal >/dev/null 2>&1 && missing="$missing pdal" && optional=""
+    fi
 fi
 [ -z "$missing" ] && exit 0
 if command -v apt-get >/dev/null 2>&1; then
-    echo "scanqa setup: installing system packages:$missing (apt-get)"
     SUDO=""
     [ "$(id -u)" -ne 0 ] && SUDO="sudo"
     $SUDO apt-get update -qq >/dev/null
+    for pkg in ${optional:-}; do  # only where the archive has it (not in Debian 12)
+        apt-cache show "$pkg" >/dev/null 2>&1 && missing="$missing $pkg"
+    done
+    echo "scanqa setup: installing system packages:$missing (apt-get)"
     DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq \
         $missing >/dev/null
 else

@@ -17,13 +17,26 @@ The three jobs, from Python
 
        scan = scanqa.decode("sample_data/gauge_blocks/p000_r0")   # or a phase.npz
        cloud = scanqa.annotate(scan, table, config)
-       cloud.write("cloud.ply")          # .ply .las .csv .parquet; the model goes along
+       cloud.write("cloud.ply")          # .ply .las .e57 .csv .parquet; the model goes along
        cloud.to_open3d(), cloud.to_dataframe()
 
 3. QA report - gauge blocks: plane fits, measured vs predicted std, steps with U::
 
        qa = scanqa.run_qa(scanqa.read_cloud("cloud.ply"), scanqa.load_layout("layout.toml"))
        scanqa.write_report(qa, "qa/")   # report.html, blocks.csv, steps.csv, summary.json
+
+A real scanner, from its frames to a comparison (:mod:`scanqa.api`; the commands'
+arguments)::
+
+       scanqa.describe("capture/")                       # -> capture/patterns.toml
+       result = scanqa.calibrate_board(poses, ("columns.toml", "rows.toml"), square_mm=10,
+                                       out="calibration.xml")
+       law = scanqa.characterize_board(poses, "calibration.xml", "scanner.toml",
+                                       out="board_noise")
+       config = scanqa.apply_characterization("scanner.toml", "board_noise/summary.json")
+       cloud = scanqa.annotate(scanqa.decode("part/"),
+                               scanqa.load_calibration("calibration.xml", config), config)
+       cmp = scanqa.compare(cloud, "part.stl", align=True, out="cmp")
 
 Characterise a scanner (fit sigma_p, gamma and the model's reading to a sweep) with
 :func:`characterize` and apply the result with ``result.apply_to(config)``; predict the
@@ -77,18 +90,58 @@ _EXPORTS = {
     "Layout": ("scanqa.qa.layout", "Layout"),
     "load_layout": ("scanqa.qa.layout", "load_layout"),
     "write_report": ("scanqa.report.qa", "write_outputs"),
+    "describe": ("scanqa.api", "describe"),
+    "calibrate_board": ("scanqa.api", "calibrate_board"),
+    "characterize_board": ("scanqa.api", "characterize_board"),
+    "apply_characterization": ("scanqa.api", "apply_characterization"),
+    "compare": ("scanqa.api", "compare"),
 }
 
 
 __all__ = [
-    "AnnotatedCloud", "BuildReport", "Calibration", "CalibrationTable", "ConfigError",
-    "InputError", "Layout", "OutputError", "ParametricCalibration", "PatternDescription",
-    "PhaseMap", "QAResult", "RangeError", "ScanQAError", "ScannerConfig", "__version__",
+    "AnnotatedCloud",
+    "BuildReport",
+    "Calibration",
+    "CalibrationTable",
+    "ConfigError",
+    "InputError",
+    "Layout",
+    "OutputError",
+    "ParametricCalibration",
+    "PatternDescription",
+    "PhaseMap",
+    "QAResult",
+    "RangeError",
+    "ScanQAError",
+    "ScannerConfig",
+    "__version__",
     "annotate",
-    "build_table", "calibrate", "characterize", "decode", "decode_images", "detect_blocks",
-    "load_calibration", "load_config", "load_layout", "load_opencv_calibration",
-    "load_patterns", "load_phase_map", "load_sweep", "load_table", "predict", "read_cloud",
-    "run_qa", "save_phase_map", "save_table", "write_cloud", "write_report",
+    "apply_characterization",
+    "build_table",
+    "calibrate",
+    "calibrate_board",
+    "characterize",
+    "characterize_board",
+    "compare",
+    "decode",
+    "decode_images",
+    "describe",
+    "detect_blocks",
+    "load_calibration",
+    "load_config",
+    "load_layout",
+    "load_opencv_calibration",
+    "load_patterns",
+    "load_phase_map",
+    "load_sweep",
+    "load_table",
+    "predict",
+    "read_cloud",
+    "run_qa",
+    "save_phase_map",
+    "save_table",
+    "write_cloud",
+    "write_report",
 ]
 
 

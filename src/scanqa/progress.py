@@ -20,6 +20,7 @@ import logging
 import math
 import os
 import sys
+from collections.abc import Callable
 from types import TracebackType
 
 from tqdm import tqdm
@@ -133,6 +134,21 @@ class Progress:
     def __exit__(self, kind: type | None, err: BaseException | None,
                  tb: TracebackType | None) -> None:
         self.close()
+
+
+def step_messages(bar: Progress) -> Callable[[str], None]:
+    """A ``progress(message)`` callback, as the library's per-step loops take (board
+    poses, ...), that advances ``bar`` one step with the message as its note: a bar in
+    a terminal, one log line per step in logs, instead of a line per step everywhere.
+
+    Examples
+    --------
+    >>> with Progress("calibrate", total=2, unit="pose") as bar:
+    ...     tell = step_messages(bar)
+    ...     tell("pose 1: 117 corners")
+    ...     tell("pose 2: 117 corners")
+    """
+    return lambda message: bar.update(1, note=message)
 
 
 def _is_terminal() -> bool:

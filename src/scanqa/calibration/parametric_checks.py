@@ -6,13 +6,17 @@ here: the model imports its checks)."""
 
 from __future__ import annotations
 
+import logging
 import math
+from dataclasses import replace
 
 import numpy as np
 
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.model.config import ScannerConfig
+
+log = logging.getLogger(__name__)
 
 #: A config's projector position may differ from the calibration's by this much [mm].
 POSITION_TOLERANCE_MM = 1.0
@@ -184,3 +188,53 @@ def check_config(cal, config: ScannerConfig) -> None:
                          f"position_mm) is {angle:.2f} deg off the calibration's (Rp^T e_z "
                          f"of {where}); put look_at_mm on the axis "
                          f"{np.round(cal.projector_axis, 6).tolist()}")
+
+
+def with_calibrated_geometry(cal, config: ScannerConfig) -> ScannerConfig:
+    """The config with the scanner's geometry taken from a parametric calibration.
+
+    A parametric calibration knows the projector's pose (-R^T T and R^T e_z); the config
+    supplies only what it cannot know (apertures, focus, the noise model). So a config
+    keeps working with a recalibration of the same scanner: its camera and projector
+    sizes are still checked (:func:`check_config` raises on those), its projector pose is
+    replaced by the calibration's, keeping the distance from ``position_mm`` to
+    ``look_at_mm``, and a change beyond :data:`POSITION_TOLERANCE_MM` or
+    :data:`AXIS_TOLERANCE_DEG` is reported as a warning (a rebuilt scanner wants its
+    optics checked). A calibration table (no projector pose) returns the config as is.
+
+    Parameters
+    ----------
+    cal : Calibration
+        The calibration; parametric ones have ``projector_position_mm`` and
+        ``projector_axis``.
+    config : ScannerConfig
+        The scanner config.
+
+    Returns
+    -------
+    ScannerConfig
+        The config whose projector pose is the calibration's (the same object when
+        nothing changes).
+    """
+    if not (hasattr(cal, "projector_position_mm") and hasattr(cal, "projector_axis")):
+        return config
+    where = getattr(cal, "source", "") or "the parametric calibration"
+    pos = np.asarray(config.projector.position_mm, dtype=float)
+    look = np.asarray(config.projector.look_at_mm, dtype=float)
+    new_pos = np.asarray(cal.projector_position_mm, dtype=float)
+    axis = np.asarray(cal.projector_axis, dtype=float)
+    reach = float(np.linalg.norm(look - pos)) or 1.0
+    moved = float(np.linalg.norm(pos - new_pos))
+    old_axis = (look - pos) / reach
+    turned = math.degrees(math.acos(float(np.clip(old_axis @ axis, -1.0, 1.0))))
+    if moved <= 1e-9 and turned <= 1e-9:
+        return config
+    if moved > POSITION_TOLERANCE_MM or turned > AXIS_TOLERANCE_DEG:
+        log.warning(f"config {config.source}: the projector pose is taken from the "
+                    f"calibration {where}: position {np.round(new_pos, 3).tolist()} mm, "
+                    f"{moved:.1f} mm from the config's {pos.tolist()}, axis turned "
+                    f"{turned:.2f} deg (a recalibration; if the scanner was rebuilt, check "
+                    "its optics in the config)")
+    projector = replace(config.projector, position_mm=tuple(float(v) for v in new_pos),
+                        look_at_mm=tuple(float(v) for v in new_pos + reach * axis))
+    return replace(config, projector=projector)

@@ -47,7 +47,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_calibration_argument(p)
     add_config_argument(p)
     add_model_argument(p)
-    p.add_argument("--out", required=True, help="output cloud (.ply, .las, .csv, .parquet)")
+    p.add_argument("--out", required=True, help="output cloud (.ply, .las, .e57, .csv, .parquet)")
     p.add_argument("--repeats", nargs="+", default=[], metavar="SCAN",
                    help="further scans of the same scene: adds the measured per-point std")
     p.add_argument("--keep-invalid", action="store_true",

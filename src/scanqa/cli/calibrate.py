@@ -24,6 +24,7 @@ from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, staged_dir, write_text
 from scanqa.io.opencv import is_opencv_file, read_opencv_calibration, write_opencv_calibration
 from scanqa.io.sweep import load_sweep
+from scanqa.progress import Progress, step_messages
 from scanqa.report import board as report_board
 from scanqa.report import calibration as report_calibration
 
@@ -142,9 +143,10 @@ def run_board(args: argparse.Namespace) -> int:
              else Board(args.board[0], args.board[1], args.square_mm))
     reference = read_opencv_calibration(args.reference) if args.reference else None
     try:
-        result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns),
-                                 board, args.lens_model, args.hold_out, reference,
-                                 progress=log.info, corner_method=args.corners)
+        with Progress("calibrate", total=len(args.sweep), unit="pose") as bar:
+            result = calibrate_poses(args.sweep, *(load_patterns(p) for p in args.patterns),
+                                     board, args.lens_model, args.hold_out, reference,
+                                     progress=step_messages(bar), corner_method=args.corners)
     except InputError as err:   # the library speaks of the board given; the CLI of --board
         raise InputError(str(err).replace("the board given", "--board").replace(
             "the board's corner count", "--board")) from None

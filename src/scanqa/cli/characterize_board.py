@@ -68,14 +68,16 @@ def _board(text: str) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
+    from scanqa.progress import Progress, step_messages
     from scanqa.runs.boardnoise import characterize_board, digest
 
     inner = _board(args.board)
     config = config_from_args(args)
     poses = {Path(p).name or p: decode(p) for p in args.poses}
     calibration = calibration_from_args(args, config, next(iter(poses.values())))
-    with flags({"check the board given": "check --board"}):
-        result = characterize_board(poses, calibration, inner, progress=emit)
+    with flags({"check the board given": "check --board"}), \
+            Progress("characterize-board", total=len(poses), unit="pose") as bar:
+        result = characterize_board(poses, calibration, inner, progress=step_messages(bar))
     files = [f for pm in poses.values() for f in _files(pm)]
     result["noise_law"]["data_sha256"] = digest(files) if files else ""
     law = result["noise_law"]

@@ -12,11 +12,12 @@ from scanqa.errors import InputError
 _EPILOG = """examples:
   scanqa compare scan.ply reference.ply --out cmp
   scanqa compare scan.ply part.stl --tolerance-um 50 --out cmp
+  scanqa compare scan.ply part.stl --align --out cmp      # best-fit the part first
 
 Writes cmp/report.html, cmp/summary.json and cmp/cloud_compare.ply (the scan with
 deviation_um, u_deviation_um, U_deviation_um, significance, significant and, with a
 tolerance, in_tolerance). Mesh references: .stl, .obj, .off, .glb (trimesh); cloud
-references: .ply, .las, .csv, .parquet (a .ply holding faces is read as a mesh)."""
+references: .ply, .las, .e57, .csv, .parquet (a .ply holding faces is read as a mesh)."""
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("compare", formatter_class=argparse.RawDescriptionHelpFormatter,
@@ -34,6 +35,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="reference points per local plane (default 16)")
     p.add_argument("--max-distance-mm", type=number(gt=0), default=1.0,
                    help="farther from the reference: not compared (default 1 mm)")
+    p.add_argument("--align", action="store_true",
+                   help="best-fit the reference onto the scan first (rigid, point-to-plane "
+                        "ICP, robust); the transform and its uncertainty go into the report")
+    p.add_argument("--align-region", metavar="[NAME=]X0,X1,Y0,Y1", default=None,
+                   help="fit only on the scan's points in this box [mm] (implies --align)")
+    p.add_argument("--align-max-distance-mm", type=number(gt=0), default=5.0,
+                   help="pairs farther apart are not used by the fit (default 5 mm)")
     p.set_defaults(func=run)
 
 
@@ -47,14 +55,29 @@ def run(args: argparse.Namespace) -> int:
     warn_sigma([cloud])
     tol = None if args.tolerance_um is None else 1e-3 * args.tolerance_um
     ref_sigma = 1e-3 * args.reference_sigma_um
+    region = None
+    if args.align_region is not None:
+        from scanqa.qa.align import parse_region
+
+        region = parse_region(args.align_region)
+    mesh = is_mesh_file(args.reference)
+    reference = _mesh(args.reference) if mesh else read_cloud(args.reference)
+    fit = None
+    if args.align or region is not None:
+        from scanqa.qa.align import align_reference
+
+        reference, fit = align_reference(cloud, reference, region,
+                                         args.align_max_distance_mm, args.neighbours,
+                                         ref_sigma)
     try:
-        if is_mesh_file(args.reference):
-            result = compare_to_mesh(cloud, _mesh(args.reference), args.k, ref_sigma,
-                                     args.max_distance_mm, tol, name=args.reference)
+        if mesh:
+            result = compare_to_mesh(cloud, reference, args.k, ref_sigma,
+                                     args.max_distance_mm, tol, name=args.reference,
+                                     alignment=fit)
         else:
-            result = compare_to_cloud(cloud, read_cloud(args.reference), args.k,
-                                      args.neighbours, ref_sigma, args.max_distance_mm,
-                                      tolerance_mm=tol, name=args.reference)
+            result = compare_to_cloud(cloud, reference, args.k, args.neighbours, ref_sigma,
+                                      args.max_distance_mm, tolerance_mm=tol,
+                                      name=args.reference, alignment=fit)
     except InputError as err:   # the library names its parameter; the CLI names the flag
         raise InputError(str(err).replace("max_distance_mm", "--max-distance-mm")) from None
     info = write_outputs(result, args.out)

@@ -1,13 +1,15 @@
 """Point-cloud files by suffix: ``.ply`` (binary), ``.las`` (1.4, extra bytes, metres),
-``.csv`` and ``.parquet`` (pandas). One small registry, one module per format.
+``.e57`` (ASTM E2807, extension fields, metres; the ``e57`` extra), ``.csv`` and
+``.parquet`` (pandas). One small registry, one module per format.
 
 Every format carries an optional metadata dict (plain JSON): a PLY header comment, a LAS
-variable-length record, a JSON sidecar ``<name>.csv.json`` beside a CSV (so that the CSV
-itself is a plain table every reader loads whole: pandas, CloudCompare), Parquet
-key-value metadata. A CSV whose first line is ``# scanqa-meta {...}`` (scanqa before
-0.9 wrote its metadata there) is still read. Coordinates are millimetres in memory
-whatever the file stores. A cell of a numeric CSV column that is not a number is an
-error naming the row and the column, never a silent NaN.
+variable-length record, an E57 scan's ``scanqa:metadata`` string, a JSON sidecar
+``<name>.csv.json`` beside a CSV (so that the CSV itself is a plain table every reader
+loads whole: pandas, CloudCompare), Parquet key-value metadata. A CSV whose first line
+is ``# scanqa-meta {...}`` (scanqa before 0.9 wrote its metadata there) is still read.
+Coordinates are millimetres in memory whatever the file stores. A cell of a numeric CSV
+column that is not a number is an error naming the row and the column, never a silent
+NaN.
 """
 
 from __future__ import annotations
@@ -21,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.errors import InputError
-from scanqa.io import las, ply
+from scanqa.io import e57, las, ply
 from scanqa.io.atomic import atomic_path
 from scanqa.io.guard import MAX_TEXT_BYTES, loads_json_object, regular_file
 
@@ -73,7 +75,8 @@ def check_format(path: str | os.PathLike, write: bool = True) -> Path:
     Raises
     ------
     InputError
-        An unknown suffix, or ``.parquet`` without a Parquet engine installed.
+        An unknown suffix, ``.parquet`` without a Parquet engine installed, or ``.e57``
+        without pye57.
     """
     path = Path(path)
     known = WRITERS if write else READERS
@@ -83,6 +86,8 @@ def check_format(path: str | os.PathLike, write: bool = True) -> Path:
     if path.suffix.lower() == ".parquet" and parquet_engine() is None:
         raise InputError(f"cannot {'write' if write else 'read'} {path}: Parquet needs pyarrow "
                          "(pip install 'scanqa[parquet]'); or use .csv, .ply or .las")
+    if path.suffix.lower() == ".e57" and not e57.available():
+        raise InputError(f"cannot {'write' if write else 'read'} {path}: {e57.INSTALL_HINT}")
     return path
 
 
@@ -154,10 +159,10 @@ def _check_cells(path: Path, column: str, values: np.ndarray, filled: np.ndarray
                          "the cell empty for no value)")
 
 
-WRITERS = {".ply": ply.write_ply, ".las": las.write_las, ".csv": _write_csv,
-           ".parquet": _write_parquet}
-READERS = {".ply": ply.read_ply, ".las": las.read_las, ".csv": _read_table,
-           ".parquet": _read_table}
+WRITERS = {".ply": ply.write_ply, ".las": las.write_las, ".e57": e57.write_e57,
+           ".csv": _write_csv, ".parquet": _write_parquet}
+READERS = {".ply": ply.read_ply, ".las": las.read_las, ".e57": e57.read_e57,
+           ".csv": _read_table, ".parquet": _read_table}
 
 
 def write_cloud(path: str | os.PathLike, xyz: np.ndarray, attributes: dict,
@@ -167,7 +172,7 @@ def write_cloud(path: str | os.PathLike, xyz: np.ndarray, attributes: dict,
     Parameters
     ----------
     path : str or PathLike
-        ``.ply``, ``.las``, ``.csv`` or ``.parquet``.
+        ``.ply``, ``.las``, ``.e57``, ``.csv`` or ``.parquet``.
     xyz : (n, 3) float
         Points [mm].
     attributes : dict of str to (n,) array

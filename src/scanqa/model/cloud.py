@@ -103,8 +103,8 @@ class AnnotatedCloud:
         return "; ".join(parts)
 
     def write(self, path: str | os.PathLike) -> Path:
-        """Write the cloud in the format its suffix names (``.ply``, ``.las``, ``.csv``,
-        ``.parquet``), metadata included; atomically."""
+        """Write the cloud in the format its suffix names (``.ply``, ``.las``, ``.e57``,
+        ``.csv``, ``.parquet``), metadata included; atomically."""
         return cloud_file.write_cloud(path, self.xyz, self.attributes, self.metadata)
 
     def with_attributes(self, **extra: np.ndarray) -> AnnotatedCloud:
@@ -140,7 +140,7 @@ class AnnotatedCloud:
 
 
 def read_cloud(path: str | os.PathLike) -> AnnotatedCloud:
-    """Read a cloud file (``.ply``, ``.las``, ``.csv``, ``.parquet``) with its metadata.
+    """Read a cloud file (``.ply``, ``.las``, ``.e57``, ``.csv``, ``.parquet``) with its metadata.
 
     Parameters
     ----------

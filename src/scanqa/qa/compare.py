@@ -57,6 +57,7 @@ class Comparison:
     tolerance_mm: float | None
     reference: str
     notes: tuple[str, ...] = field(default=())
+    alignment: dict | None = None  # the best fit (scanqa.qa.align), when there was one
 
     def deviation_limit_um(self, percentile: float = 99.0) -> float:
         """Colour-scale limit of the deviation map: the ``percentile`` of |deviation| over
@@ -90,6 +91,8 @@ class Comparison:
                if judged.any() else None,
                "significant_fraction": _num(sig.mean()) if judged.any() else None,
                "sigma_source": self.cloud.sigma_source, "notes": list(self.notes)}
+        if self.alignment is not None:
+            out["alignment"] = self.alignment
         if self.tolerance_mm is not None:
             inside = np.asarray(a["in_tolerance"])[ok]
             out["tolerance_um"] = 1e3 * self.tolerance_mm
@@ -126,8 +129,8 @@ def _verdict(dev_um: np.ndarray, big_u_um: np.ndarray, tol_um: float) -> str:
 def compare_to_cloud(cloud: AnnotatedCloud, reference: AnnotatedCloud, k: float = 2.0,
                      neighbours: int = 16, reference_sigma_mm: float = 0.0,
                      max_distance_mm: float = 1.0, max_roughness_mm: float | None = None,
-                     tolerance_mm: float | None = None, name: str = "reference cloud"
-                     ) -> Comparison:
+                     tolerance_mm: float | None = None, name: str = "reference cloud",
+                     alignment=None) -> Comparison:
     """Deviations of ``cloud`` from a reference cloud (module notes).
 
     Parameters
@@ -149,6 +152,9 @@ def compare_to_cloud(cloud: AnnotatedCloud, reference: AnnotatedCloud, k: float 
         Tolerance on |deviation| for the verdict [mm].
     name : str
         The reference, for the summary.
+    alignment : scanqa.qa.align.Alignment, optional
+        The best fit that moved ``reference`` into the scan's frame: its uncertainty
+        joins each point's u (:meth:`~scanqa.qa.align.Alignment.deviation_sigma_mm`).
 
     Notes
     -----
@@ -185,20 +191,21 @@ def compare_to_cloud(cloud: AnnotatedCloud, reference: AnnotatedCloud, k: float 
     notes = [] if ref_sigma.any() else ["the reference carries no sigma: taken as exact "
                                         "(give --reference-sigma-um)"]
     return _finish(cloud, np.where(near, dev, np.nan), normal, u_ref, k, tolerance_mm,
-                   f"{name} ({len(ref)} points, planes of {neighbours})", notes)
+                   f"{name} ({len(ref)} points, planes of {neighbours})", notes, alignment)
 
 
 def compare_to_mesh(cloud: AnnotatedCloud, mesh, k: float = 2.0,
                     reference_sigma_mm: float = 0.0, max_distance_mm: float = 1.0,
-                    tolerance_mm: float | None = None, name: str = "reference mesh"
-                    ) -> Comparison:
+                    tolerance_mm: float | None = None, name: str = "reference mesh",
+                    alignment=None) -> Comparison:
     """Deviations of ``cloud`` from a trimesh mesh along the closest face's normal.
 
     Notes
     -----
     d_i = (p_i - f_i) . n_i to the closest face (foot f_i, face normal n_i);
     u_i^2 = (sigma_i |l_i . n_i|)^2 + sigma_ref^2 (GUM 5.1.2, Eq. 10), U_i = k u_i,
-    significance |d_i| / U_i (docs/compare.rst).
+    significance |d_i| / U_i (docs/compare.rst). ``alignment`` as in
+    :func:`compare_to_cloud`.
     """
     import open3d as o3d  # its ray-casting scene: closest points on millions of faces
 
@@ -219,7 +226,7 @@ def compare_to_mesh(cloud: AnnotatedCloud, mesh, k: float = 2.0,
     near = finite & (dist <= max_distance_mm)
     return _finish(cloud, np.where(near, dev, np.nan), normal,
                    np.full(len(pts), reference_sigma_mm), k, tolerance_mm,
-                   f"{name} ({len(mesh.faces)} faces)", [])
+                   f"{name} ({len(mesh.faces)} faces)", [], alignment)
 
 
 def _reference_sigma(reference: AnnotatedCloud, ok: np.ndarray, given_mm: float
@@ -233,9 +240,12 @@ def _reference_sigma(reference: AnnotatedCloud, ok: np.ndarray, given_mm: float
 
 
 def _finish(cloud: AnnotatedCloud, dev: np.ndarray, normal: np.ndarray, u_ref: np.ndarray,
-            k: float, tolerance_mm: float | None, reference: str, notes: list
-            ) -> Comparison:
+            k: float, tolerance_mm: float | None, reference: str, notes: list,
+            alignment=None) -> Comparison:
     pts = np.asarray(cloud.xyz, float)
+    if alignment is not None:  # the best fit's own uncertainty (scanqa.qa.align)
+        u_ref = np.hypot(u_ref, alignment.deviation_sigma_mm(pts, normal))
+        notes = [*notes, alignment.note()]
     ray = pts / np.linalg.norm(pts, axis=1, keepdims=True)
     cos = np.abs(np.einsum("ij,ij->i", ray, normal))
     own = 1e-3 * np.asarray(cloud.attributes["sigma_total_um"], float) * cos
@@ -255,7 +265,7 @@ def _finish(cloud: AnnotatedCloud, dev: np.ndarray, normal: np.ndarray, u_ref: n
                          "(check that both share one frame, in mm, or raise "
                          "max_distance_mm)")
     return Comparison(cloud.with_attributes(**extra), k, tolerance_mm, reference,
-                      tuple(notes))
+                      tuple(notes), alignment.summary() if alignment is not None else None)
 
 
 def _check(cloud: AnnotatedCloud, k: float, neighbours: int, ref_sigma: float,

@@ -28,8 +28,10 @@ def render(result: Comparison) -> str:
     page.sigma_source(info["sigma_source"])
     page.heading("Summary", "summary")
     rows = [{"quantity": k, "value": v} for k, v in info.items()
-            if k not in ("format", "sigma_source", "notes")]
+            if k not in ("format", "sigma_source", "notes", "alignment")]
     page.table(rows, ["quantity", "value"])
+    if "alignment" in info:
+        _alignment(page, info["alignment"])
     page.paragraph(f"Deviation along the reference surface's normal; u combines the scan's "
                    f"sigma_total (projected on the normal) with the reference's; a point is "
                    f"significant when |deviation| > U = {result.k:g} u.", note=True)
@@ -46,6 +48,28 @@ def render(result: Comparison) -> str:
     for note in result.notes:
         page.paragraph(note, note=True)
     return page.render()
+
+
+def _alignment(page: Page, fit: dict) -> None:
+    """The best fit's transform and its standard uncertainties (scanqa.qa.align)."""
+    page.heading("Alignment", "alignment")
+    axes = "xyz"
+    rows = [{"motion": f"shift {a} of the centre", "value": f"{t:+.4f} mm",
+             "u": f"{u:.3g} um"} for a, t, u in zip(axes, fit["centre_shift_mm"],
+                                                    fit["u_translation_um"], strict=True)]
+    rows += [{"motion": f"rotation {a}", "value": f"{r:+.5f} deg", "u": f"{u:.3g} mdeg"}
+             for a, r, u in zip(axes, fit["rotation_vector_deg"], fit["u_rotation_mdeg"],
+                                strict=True)]
+    page.table(rows, ["motion", "value", "u"])
+    page.paragraph(f"The reference was moved onto the scan by {fit['method']} "
+                   f"({fit['region']}, {fit['points']} points, RMS {fit['rms_um']:.2f} um). "
+                   "The shift is that of the reference point that lands on the fit points' "
+                   f"centroid {tuple(round(c, 2) for c in fit['centre_mm'])} mm, the "
+                   "rotations (a rotation vector) turn about it; summary.json has the 4 x 4 "
+                   "matrix and the covariance. "
+                   "Each point's u includes the deviation's uncertainty from the fit."
+                   + (f" Barely fixed by the surface: {', '.join(fit['free_motions'])}."
+                      if fit["free_motions"] else ""), note=True)
 
 
 def _maps(xyz: np.ndarray, dev: np.ndarray, significance: np.ndarray, lim: float):

@@ -63,6 +63,7 @@ from scanqa.calibration import scan_checks
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
+from scanqa.calibration.parametric_checks import with_calibrated_geometry
 from scanqa.calibration.table import CalibrationTable
 from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
@@ -75,9 +76,10 @@ from scanqa.model.config import ScannerConfig
 from scanqa.runs import annotkernels
 
 #: Attribute names in export order (repeat fields only when repeats are given).
-ATTRIBUTES = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
+#: ``sigma_total_um`` first: viewers (CloudCompare) select a cloud's first scalar field.
+ATTRIBUTES = ("sigma_total_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
               "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_random_um",
-              "sigma_total_um",
+              "sigma_model_um",
               "att_camera", "att_projector", "filter_factor", "s_o", "s_t_um_px",
               "modulation_dn", "offset_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
@@ -109,7 +111,9 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     config : ScannerConfig
         The config the table was built with, or that describes the parametrically
         calibrated scanner (its ``[model]`` gives sigma_p, gamma and
-        the readings; they may differ from the table's).
+        the readings; they may differ from the table's). A parametric calibration
+        supplies the projector's pose itself (:func:`~scanqa.calibration.parametric_checks.
+        with_calibrated_geometry`; a large change is a warning); the config the rest.
     repeats : sequence of PhaseMap
         Further scans of the same static scene for the measured per-point std.
     keep_invalid : bool
@@ -142,6 +146,7 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     them up in the table, evaluates the model and writes every attribute straight into
     the cloud; no full-size intermediate array is made.
     """
+    config = with_calibrated_geometry(table, config)  # a parametric one's pose wins
     check_compatible(table, config, phase_map, source)
     warnings = [scan_checks.sensitivity_warning(table, config, source),  # may refuse
                 scan_checks.units_warning(table, config, source)]

@@ -56,9 +56,9 @@ _DISC_SERIES = np.array([(-1) ** k / (math.factorial(k) * math.factorial(k + 1))
 #: lobe, past the first zero 3.83, is below it).
 POLYNOMIAL_LIMIT = 4.0
 #: Columns of the attribute block (``scanqa.runs.annotation.ATTRIBUTES`` order).
-ATTRIBUTE_COLUMNS = ("sigma_model_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
+ATTRIBUTE_COLUMNS = ("sigma_total_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
                      "sigma_sensor_um", "sigma_phase_um", "sigma_table_um",
-                     "sigma_random_um", "sigma_total_um", "att_camera", "att_projector",
+                     "sigma_random_um", "sigma_model_um", "att_camera", "att_projector",
                      "filter_factor", "s_o", "s_t_um_px", "modulation_dn", "offset_dn",
                      "in_volume", "model_valid", "pixel_u", "pixel_v", "table_corr_mm",
                      "sigma_meas_um", "n_repeats")
@@ -455,12 +455,12 @@ def _fill_record(i: int, z: float, sx: float, sy: float, sz: float, sig_tab: flo
         sigma = scene = sensor = np.nan
     random = sigma if codes[3] == 0 else s_t * phase
     um, random_um = 1e3 * s_t, 1e3 * random
-    block[i, 0], block[i, 4], block[i, 5] = sigma * 1e3, scene * 1e3, sensor * 1e3
+    block[i, 9], block[i, 4], block[i, 5] = sigma * 1e3, scene * 1e3, sensor * 1e3
     block[i, 6], block[i, 7], block[i, 8] = um * sxp, sig_tab * 1e3, random_um
     total = random * random
     total += sig_tab * sig_tab
     total += par[19] * par[19]
-    block[i, 9] = math.sqrt(total) * 1e3
+    block[i, 0] = math.sqrt(total) * 1e3  # first: the field viewers colour by by default
     block[i, 1], block[i, 2], block[i, 3] = random_um * abs(sx / s_t), random_um * abs(sy / s_t), \
         random_um * abs(sz / s_t)
     block[i, 10], block[i, 11], block[i, 12], block[i, 13], block[i, 14] = a_c, a_p, f, s_o, um

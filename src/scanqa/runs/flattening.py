@@ -63,6 +63,7 @@ import numpy as np
 from scipy import ndimage
 
 from scanqa.calibration.base import Calibration
+from scanqa.calibration.parametric_checks import with_calibrated_geometry
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.imagenoise import phase_sigma_px
 from scanqa.decoding.phasemap import PhaseMap
@@ -138,6 +139,7 @@ def pixel_noise(phase_map: PhaseMap, calibration: Calibration, config: ScannerCo
         Over the sampled pixels with a finite point; ``index`` is their flat index in
         the image.
     """
+    config = with_calibrated_geometry(calibration, config)  # a parametric one's pose wins
     calibration.check_scan(config, phase_map)
     grid = np.zeros(phase_map.xp.shape, bool)
     grid[::stride, ::stride] = True
