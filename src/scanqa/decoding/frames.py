@@ -128,13 +128,19 @@ def frame_level(norm: Normalised, k: int) -> str:
 
 
 def reference_frames(norm: Normalised) -> tuple[int, ...]:
-    """Indices of the white and black frames: runs of uniform frames at the start or the
-    end of the sequence, or runs holding both a white and a black frame anywhere (a
-    lone uniform frame inside the sequence is taken for a Gray bit that a small object
-    sees on one side of its edges). Empty unless both levels are found."""
+    """Indices of the uniform reference frames (white, black, or black or white alone).
+
+    Runs of uniform frames at the start or the end of the sequence are the references
+    (a real tool puts them there); only when those do not hold both levels, a run
+    holding both a white and a black frame inside the sequence is taken too. A lone
+    uniform frame inside the sequence is taken for a Gray bit that a small object sees
+    on one side of its edges (and so is a pair of them, a bit and its inverse, when
+    the ends already hold both levels).
+    """
     count = norm.n.shape[0]
     levels = [frame_level(norm, k) for k in range(count)]
-    found: list[int] = []
+    ends: list[int] = []
+    inner: list[list[int]] = []
     k = 0
     while k < count:
         if not levels[k]:
@@ -143,11 +149,17 @@ def reference_frames(norm: Normalised) -> tuple[int, ...]:
         end = k
         while end + 1 < count and levels[end + 1]:
             end += 1
-        run = range(k, end + 1)
-        if k == 0 or end == count - 1 or {levels[i] for i in run} == {"white", "black"}:
-            found.extend(run)
+        run = list(range(k, end + 1))
+        if k == 0 or end == count - 1:
+            ends.extend(run)
+        elif {levels[i] for i in run} == {"white", "black"}:
+            inner.append(run)
         k = end + 1
-    return tuple(found) if {levels[k] for k in found} == {"white", "black"} else ()
+    if {levels[i] for i in ends} != {"white", "black"} and inner:
+        ends.extend(inner[0])
+    if len(ends) == count:  # every frame uniform: nothing is coded
+        return ()
+    return tuple(sorted(ends))
 
 
 def _sample(norm: Normalised, frames, limit: int = 400_000) -> np.ndarray:
@@ -353,7 +365,8 @@ def _gray_runs(norm: Normalised, frames: list[int]) -> list[Run]:
     for i in range(1, len(frames) + 1):
         if i == len(frames) or clear[i] != clear[start] or frames[i] != frames[i - 1] + 1:
             part = frames[start:i]
-            aniso = math.exp(np.mean([math.log(seen[j][1]) for j in range(start, i)]))
+            aniso = math.exp(np.mean([math.log(max(seen[j][1], 1e-12))
+                                      for j in range(start, i)]))
             runs.append(Run("gray", tuple(part), clear[start], aniso))
             start = i
     return runs
