@@ -44,8 +44,8 @@ from scanqa.decoding.describe_gray import (
     rank_cells,
     read_gray,
     refine_ratio,
-    slope_sign,
     simple_ratio,
+    slope_sign,
 )
 from scanqa.errors import ConfigError, InputError
 
