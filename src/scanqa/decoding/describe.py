@@ -223,7 +223,7 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
         desc = _with_signs(desc, signs, [r.order for r in phase], offsets)
         got = _check(desc, stacks_for(desc), norm.lit)
         tried.append((desc, got))
-        if got > share + 1e-3:
+        if got > share + (0.02 if tried[1:] else 0.0):  # the likelier kept unless clearly worse
             best, share = desc, got
     if best is None:
         raise InputError(f"no consistent description of the {group.orientation} sets was "

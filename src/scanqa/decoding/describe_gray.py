@@ -203,18 +203,29 @@ def edge_offsets(zs: list, signs: list, cells: np.ndarray, cell: float, periods:
     """Phase start of each phase set relative to the Gray code [rad]: the phase
     measured where the cell index steps by one between neighbouring pixels (at
     ``x = c cell - 1/2``, the edge of cell c) less the phase a set starting at x = 0
-    has there, averaged as unit phasors; snapped to a multiple of pi / 12 within
-    0.05 rad. The decoder's phase of a set is ``2 pi x / P + offset``."""
+    has there, averaged as unit phasors (each edge of the code weighing the same,
+    however many pixels see it); snapped to a multiple of pi / 6 within 0.1 rad (a
+    projector's gamma biases the phase by a few hundredths), or of pi / 12 within
+    0.04 rad. The decoder's phase of a set is ``2 pi x / P + offset``."""
     ok, m = cell_edges(cells, axis)
     if ok.sum() < 20:
         return tuple(0.0 for _ in zs)
     edge = m * cell - 0.5
+    counts = np.bincount(m.astype(np.int64))
+    weight = np.where(counts[m.astype(np.int64)] >= 10, 1.0 / counts[m.astype(np.int64)], 0.0)
     out = []
     for z, sign, period in zip(zs, signs, periods, strict=True):
         psi = sign * np.angle(_edge_phasor(z, ok, axis))
-        theta = float(np.angle(np.sum(np.exp(1j * (psi - 2 * np.pi * edge / period)))))
-        snap = round(theta / (np.pi / 12)) * np.pi / 12
-        theta = snap if abs(snap - theta) <= 0.05 else round(theta, 3)
+        theta = float(np.angle(np.sum(weight * np.exp(1j * (psi - 2 * np.pi * edge
+                                                           / period)))))
+        for step, within in ((np.pi / 6, 0.1), (np.pi / 12, 0.04), (None, 0)):
+            if step is None:
+                theta = round(theta, 3)
+                break
+            snap = round(theta / step) * step
+            if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
+                theta = snap
+                break
         out.append(0.0 if abs(theta) < 1e-12 else theta)
     return tuple(out)
 
@@ -248,17 +259,18 @@ def refine_ratio(z: np.ndarray, cells: np.ndarray, axis: int, guess: float) -> f
     else:
         pick = slice(None)
     phi = np.angle(_edge_phasor(z, ok, axis))[pick]
-    mm = m[pick]
+    mm = m[pick].astype(np.int64)
+    counts = np.bincount(mm)
+    weight = np.where(counts[mm] >= 10, 1.0 / counts[mm], 0.0)  # each edge counts once
+    if np.count_nonzero(counts >= 10) < 3:
+        return guess
     best, score = guess, -1.0
-    for r in guess * np.linspace(0.85, 1.15, 601):
-        for sign in (1.0, -1.0):
-            v = abs(np.mean(np.exp(1j * (sign * phi - 2 * np.pi * mm / r))))
-            if v > score:
-                best, score = float(r), v
-    lo, hi = best * 0.9995, best * 1.0005
-    for r in np.linspace(lo, hi, 41):
-        for sign in (1.0, -1.0):
-            v = abs(np.mean(np.exp(1j * (sign * phi - 2 * np.pi * mm / r))))
-            if v > score:
-                best, score = float(r), v
+    for grid in (guess * np.linspace(0.85, 1.15, 601), None):
+        if grid is None:
+            grid = np.linspace(best * 0.9995, best * 1.0005, 41)
+        for r in grid:
+            for sign in (1.0, -1.0):
+                v = abs(np.sum(weight * np.exp(1j * (sign * phi - 2 * np.pi * mm / r))))
+                if v > score:
+                    best, score = float(r), v
     return best
