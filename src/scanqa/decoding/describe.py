@@ -180,7 +180,16 @@ def _read_group_gray(data: np.ndarray, norm: fr.Normalised, group: _Group) -> No
         group.questions.append(f"{len(grays)} separate runs of binary frames were found; "
                                "only the first is used as the Gray code - are the others "
                                "part of it?")
-    group.gray, group.cells = read_gray(data, norm, gray, axis, group)
+    gray, cells = read_gray(data, norm, gray, axis, group)
+    if cells is None:
+        first, last = gray.run.frames[0], gray.run.frames[-1]
+        group.notes.append(
+            f"frames {first}..{last} (indices) read as a plain binary code, not a reflected "
+            "Gray code: left out, as the decoder reads reflected Gray codes only (the "
+            "phase sets alone must then order the fringes)")
+        group.runs = [r for r in group.runs if r is not gray.run]
+        return
+    group.gray, group.cells = gray, cells
     if group.width_px is not None:
         group.range = cell_range(group.width_px, gray.bits,
                                  cells_seen(group.cells, 2 ** gray.bits))
@@ -225,6 +234,11 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
         tried.append((desc, got))
         if got > share + (0.02 if tried[1:] else 0.0):  # the likelier kept unless clearly worse
             best, share = desc, got
+    if tried and 0 <= share < 0.3 and tried[0][1] >= 0 and best is not tried[0][0]:
+        best, share = tried[0]  # none decodes: the best measured fit is kept
+        group.questions.append("no candidate decodes 30 % of the lit pixels: the periods "
+                               "that fit the measured ratios best were kept - is the "
+                               "decoder able to unwrap them (noise, a beat of beats)?")
     if best is None:
         raise InputError(f"no consistent description of the {group.orientation} sets was "
                          f"found ({'; '.join(group.questions) or 'nothing decoded'})")

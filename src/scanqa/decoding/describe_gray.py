@@ -112,7 +112,7 @@ def _smoothness(cells: np.ndarray, axis: int) -> float:
 
 def read_gray(data, norm, gray: GrayRun, axis: int, group) -> tuple:
     """The Gray code's cells, with the inverse frames first when that reads smoother;
-    a code that reads smoother as plain binary is asked about."""
+    None for the cells of a code that reads smoother as plain binary."""
     cells = _gray_cells(data, norm, gray)
     if gray.inverse != "none":
         plain, inv = _bit_frames(gray)
@@ -126,9 +126,7 @@ def read_gray(data, norm, gray: GrayRun, axis: int, group) -> tuple:
             gray, cells = swapped, other
     if _smoothness(_gray_cells(data, norm, gray, True), axis) > \
             _smoothness(cells, axis) + 0.05:
-        group.questions.append("the binary frames read more smoothly as a plain binary "
-                               "code than as a reflected Gray code, which is all the "
-                               "decoder reads: is it a binary code?")
+        return gray, None  # a plain binary code: the caller leaves it out
     return gray, cells
 
 
