@@ -15,9 +15,9 @@ from __future__ import annotations
 
 import pytest
 
-import describe_corpus as corpus
 from scanqa.decoding.describe import describe_frames
 from scanqa.errors import ScanQAError
+from tests import describe_corpus as corpus
 
 
 def run_layout(layout: corpus.Layout, seed: int = 0) -> corpus.Verdict:

@@ -106,3 +106,25 @@ def test_cli_refuses_an_empty_folder_and_keeps_an_existing_file(tmp_path, capsys
     text = (tmp_path / "patterns.toml").read_text()
     assert 'files = ["f_0.png", "f_1.png", "f_2.png"]' in text  # beside the toml
     assert "period_px = 128.0" in text and "period_px = 16.0" in text
+
+
+def test_a_blank_frame_is_named_in_one_line_not_a_traceback(tmp_path, capsys):
+    """A zeroed frame inside a sequence (a dropped capture; once a math domain error in
+    the frame analysis) is refused with its name."""
+    frames = np.concatenate([_phase(128.0, 3), _phase(16.0, 3)])
+    frames[2] = 0.0
+    for k, frame in enumerate(frames):
+        Image.fromarray(np.clip(frame, 0, 255).astype(np.uint8)).save(tmp_path / f"f{k}.bmp")
+    assert main(["describe", str(tmp_path), "--projector-width", "128"]) == 2
+    err = capsys.readouterr().err
+    assert "f2.bmp is blank" in err and "Traceback" not in err
+
+
+def test_a_black_frame_alone_at_the_end_is_left_out_with_a_note():
+    """A DLP capture's lone black frame is no reference set (that needs white too)."""
+    black = np.full((1, *SHAPE), 3.0)
+    frames = np.concatenate([_phase(128.0, 3), _phase(16.0, 3), black])
+    (d,) = describe_frames(frames, [f"f{k}.png" for k in range(7)], 128)
+    assert d.desc.reference_set is None
+    assert any("f6.png (black) left out" in n for n in d.notes)
+    assert sorted(s.period_px for s in d.desc.phase_sets) == [16.0, 128.0]

@@ -138,6 +138,12 @@ def describe_frames(images: np.ndarray, names: list[str], width_px: int | None =
     data = images.astype(np.float32)
     norm = fr.normalise(data)
     refs = fr.reference_frames(norm)
+    blank = [k for k in range(len(names)) if k not in refs and float(np.ptp(data[k])) <= 2]
+    if blank:
+        raise InputError(f"frame {names[blank[0]]} is blank (every pixel within 2 DN of "
+                         f"{float(data[blank[0]].mean()):.0f} DN) and is no white or black "
+                         "frame at the ends of the sequence: a dropped or overwritten "
+                         "capture; replace it, or leave it out with --frames")
     levels = tuple(fr.frame_level(norm, k) for k in refs)
     if refs:
         lo = [data[k] for k, v in zip(refs, levels, strict=True) if v == "black"]
