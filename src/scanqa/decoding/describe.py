@@ -41,6 +41,7 @@ from scanqa.decoding.describe_gray import (
     cells_seen,
     edge_offsets,
     gray_layout,
+    panel_edge_seen,
     rank_cells,
     read_gray,
     refine_ratio,
@@ -143,7 +144,7 @@ def describe_frames(images: np.ndarray, names: list[str], width_px: int | None =
         raise InputError(f"frame {names[blank[0]]} is blank (every pixel within 2 DN of "
                          f"{float(data[blank[0]].mean()):.0f} DN) and is no white or black "
                          "frame at the ends of the sequence: a dropped or overwritten "
-                         "capture; replace it, or leave it out with --frames")
+                         "capture; replace it, or list the frames without it")
     levels = tuple(fr.frame_level(norm, k) for k in refs)
     if refs:
         lo = [data[k] for k, v in zip(refs, levels, strict=True) if v == "black"]
@@ -197,8 +198,13 @@ def _read_group_gray(data: np.ndarray, norm: fr.Normalised, group: _Group) -> No
         return
     group.gray, group.cells = gray, cells
     if group.width_px is not None:
-        group.range = cell_range(group.width_px, gray.bits,
-                                 cells_seen(group.cells, 2 ** gray.bits))
+        top = cells_seen(group.cells, 2 ** gray.bits)
+        edge = panel_edge_seen(group.cells, top, axis)
+        group.range = cell_range(group.width_px, gray.bits, top, edge)
+        if edge:
+            group.notes.append(f"the panel's far edge is seen in Gray cell {top}: the "
+                               f"cells are {group.width_px / (top + 1):.4g} to "
+                               f"{group.width_px / top:.4g} px wide")
 
 
 def _joint_cells(groups: list) -> None:

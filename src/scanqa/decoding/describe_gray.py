@@ -148,12 +148,33 @@ def cells_seen(cells: np.ndarray, count: int) -> int:
     return int(np.flatnonzero(hist >= 0.1 * typical).max())
 
 
-def cell_range(width: int, bits: int, top: int) -> tuple[float, float]:
+def panel_edge_seen(cells: np.ndarray, top: int, axis: int) -> bool:
+    """True when the light ends at the panel's far edge in view: the last (or first)
+    lit pixel of 90 % of the image lines along ``axis`` lies in cell ``top`` - a
+    straight line in projector coordinates, where an object's silhouette cuts the
+    cells anywhere."""
+    c = np.moveaxis(cells, axis, -1).reshape(-1, cells.shape[axis])
+    lit = np.isfinite(c)
+    lines = lit.any(axis=1)
+    if lines.sum() < 10:
+        return False
+    c, lit = c[lines], lit[lines]
+    n = lit.shape[1]
+    last = n - 1 - np.argmax(lit[:, ::-1], axis=1)
+    first = np.argmax(lit, axis=1)
+    rows = np.arange(c.shape[0])
+    return bool(max(np.mean(c[rows, last] == top), np.mean(c[rows, first] == top)) >= 0.9)
+
+
+def cell_range(width: int, bits: int, top: int, edge: bool = False) -> tuple[float, float]:
     """Cell widths [px] that need every bit to cover ``width`` (``2**bits`` cells
-    cover it, ``2**(bits-1)`` do not) and put cell ``top`` on the panel: [lo, hi)."""
+    cover it, ``2**(bits-1)`` do not) and put cell ``top`` on the panel: [lo, hi);
+    with the panel's far edge seen in cell ``top``, the cells that end there."""
     lo, hi = width / 2 ** bits, width / 2 ** (bits - 1)
     if top > 0:
         hi = min(hi, width / top * 1.001)
+        if edge:
+            lo = max(lo, width / (top + 1) * 0.999)
     return lo, hi
 
 
