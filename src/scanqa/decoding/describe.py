@@ -11,15 +11,19 @@ what each set codes and checks the guess with scanqa's decoder:
   Gray code's own direction decides;
 * period ratios come from the phase slopes of two sets on the same image segments
   (:func:`scanqa.decoding.frames.frequency_ratio`), a phase set's period in Gray cells
-  from its slope against the decoded Gray cell;
+  from its phase at the Gray code's cell edges (:func:`~scanqa.decoding.describe_gray.
+  refine_ratio`, snapped to a simple fraction), and its phase start from the same
+  edges (:func:`~scanqa.decoding.describe_gray.edge_offsets`, added to its shifts);
 * the absolute scale needs the projector size along the coded direction: phase sets
   are taken to repeat a whole number of times over it (``P = W / n``, the fewest that
   fit, e.g. a coarse set of one period over the panel or a heterodyne triple whose
-  beat covers it); a Gray code is taken to need all its bits (``2**bits`` cells of
-  whole pixels cover the panel, ``2**(bits-1)`` do not), with cells no wider than the
-  cells actually seen allow;
-* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels) and
-  the one that decodes most pixels is kept; the others are reported.
+  beat covers it); a Gray code is taken to need all its bits with whole-pixel cells
+  that put the last cell seen on the panel - pinned when the panel's far edge is in
+  view, else the same cell for columns and rows, then cells dividing the width, the
+  roundest, the finest (:func:`~scanqa.decoding.describe_gray.rank_cells`);
+* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels);
+  the likeliest is kept unless another decodes clearly more, the others are reported,
+  and the description says how sure it is.
 
 Everything the frames cannot tell is said in the written file as a question.
 """

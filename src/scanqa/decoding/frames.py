@@ -8,8 +8,9 @@ the frames alone (:mod:`scanqa.decoding.describe` turns the runs into a
   the darkest and brightest sample of the pixel over all frames (over the black and
   white frames once they are known), which removes the albedo;
 * uniform frames - nearly 1 or nearly 0 everywhere - at the start or the end of the
-  sequence, or a white and a black frame side by side anywhere, are the references (a
-  lone Gray bit may look uniform on a small object);
+  sequence are the references (a black frame alone too), or, when those lack a level,
+  a white and a black frame side by side inside it (a lone Gray bit, or a bit and its
+  inverse, may look uniform on a small object);
 * a run of N >= 3 frames whose mean is uniform while each frame is not, and whose
   frame-to-frame correlations follow ``cos(2 pi (j - k) / N)``, is an N-step phase set
   (the offsets ``A`` of its frames add up, the fringes cancel);
