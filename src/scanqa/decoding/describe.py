@@ -43,6 +43,7 @@ from scanqa.decoding.describe_gray import (
     GrayRun,
     cell_range,
     cells_seen,
+    confidence_line,
     edge_offsets,
     gray_layout,
     panel_edge_seen,
@@ -268,29 +269,7 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     sample = (len(range(0, images.shape[1], row_step(images.shape[1]))),
               len(range(0, images.shape[2], _column_step(images.shape[2]))))
     return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions),
-                       sample, _confidence(best, share, tried, group))
-
-
-def _confidence(best: PatternDescription, share: float, tried: list, group: _Group) -> str:
-    """How sure the description is, in one line: "sure" (decodes, nothing else fits),
-    "likely" (decodes, but a question is open) or "unsure" (decodes little)."""
-    others = [got for d, got in tried if d.sets != best.sets and _periods_differ(d, best)]
-    runner = max(others, default=-1.0)
-    asked = len(group.questions)
-    word = ("unsure" if share < 0.6 else "sure" if not asked and runner < 0.9 * share
-            else "likely")
-    said = f"{word}: {100 * share:.0f} % of the lit pixels of the sample decode"
-    if runner >= 0:
-        said += (f"; the next candidate checked ({len(tried)} in all) "
-                 f"{100 * runner:.0f} %")
-    return said + (f"; {asked} question(s) open" if asked else "")
-
-
-def _periods_differ(a: PatternDescription, b: PatternDescription) -> bool:
-    """Another scale: a period or the cell width differs by more than 0.1 %."""
-    pa = [s.period_px for s in a.sets if isinstance(s, PhaseSet)] + [a.gray_cell_px]
-    pb = [s.period_px for s in b.sets if isinstance(s, PhaseSet)] + [b.gray_cell_px]
-    return any(abs(x - y) > 1e-3 * max(abs(y), 1e-9) for x, y in zip(pa, pb, strict=True))
+                       sample, confidence_line(best, share, tried, len(group.questions)))
 
 
 def _ask_about_runs(group: _Group, phase: list, zs: list, axis: int,

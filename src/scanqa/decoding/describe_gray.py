@@ -293,3 +293,30 @@ def refine_ratio(z: np.ndarray, cells: np.ndarray, axis: int, guess: float) -> f
                 if v > score:
                     best, score = float(r), v
     return best
+
+
+def confidence_line(best, share: float, tried: list, asked: int) -> str:
+    """How sure a description is, in one line: "sure" (it decodes, nothing else fits),
+    "likely" (it decodes, but a question is open) or "unsure" (it decodes little).
+
+    ``best`` is the chosen PatternDescription, ``share`` its decoded share [-], ``tried``
+    every (description, share) checked, ``asked`` the count of open questions.
+    """
+    others = [got for d, got in tried if d.sets != best.sets and periods_differ(d, best)]
+    runner = max(others, default=-1.0)
+    word = ("unsure" if share < 0.6 else "sure" if not asked and runner < 0.9 * share
+            else "likely")
+    said = f"{word}: {100 * share:.0f} % of the lit pixels of the sample decode"
+    if runner >= 0:
+        said += (f"; the next candidate checked ({len(tried)} in all) "
+                 f"{100 * runner:.0f} %")
+    return said + (f"; {asked} question(s) open" if asked else "")
+
+
+def periods_differ(a, b) -> bool:
+    """Another scale: a period or the cell width of description ``a`` differs from
+    ``b``'s by more than 0.1 %."""
+    pa = [s.period_px for s in a.phase_sets] + [a.gray_cell_px]
+    pb = [s.period_px for s in b.phase_sets] + [b.gray_cell_px]
+    return len(pa) != len(pb) or any(abs(x - y) > 1e-3 * max(abs(y), 1e-9)
+                                      for x, y in zip(pa, pb, strict=True))
