@@ -574,9 +574,13 @@ def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
         basis = ("the Gray code's direction" if gray is not None else
                  "the assumption that the projector coordinate grows along the camera's "
                  + ("rows" if s.orientation == "vertical" else "columns"))
+        start = ()
+        if gray is not None and not run.order:
+            start = (f"phase start {s.shifts_rad[0]:.3f} rad (added to every shift), "
+                     "measured at the Gray code's cell edges",)
         out.append(SetNote(s.name, "sure" if gray is not None else "likely", (
             f"{s.steps} steps, shifts {way} 2 pi k / {s.steps} (from the phase slope and "
-            f"{basis})",)))
+            f"{basis})", *start)))
     if phase_sets and gray is None:
         group.questions.append(
             f"the frames give period ratios only: is the projector "
