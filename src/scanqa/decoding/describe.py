@@ -166,6 +166,12 @@ def describe_frames(images: np.ndarray, names: list[str], width_px: int | None =
         lone = tuple(f"{names[k]} ({v})" for k, v in zip(refs, levels, strict=True))
         runs = [r for r in runs if r.kind != "reference"]
         refs, levels = (), ()
+    stray = [r for r in runs if r.kind == "gray" and len(r.frames) <= 2 and all(
+        fr.frame_level(norm, k) for k in r.frames)]  # uniform frames between sets
+    if stray:
+        lone += tuple(f"{names[k]} ({fr.frame_level(norm, k)})" for r in stray
+                      for k in r.frames)
+        runs = [r for r in runs if r not in stray]
     coded = [r for r in runs if r.kind != "reference"]
     if not coded:
         raise InputError("no phase set or Gray code found among the frames (only uniform "
