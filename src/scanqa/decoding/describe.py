@@ -352,7 +352,9 @@ def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
                            for g, c, sd in zip(gaps, counts, spreads, strict=True))
     if not loose:
         return []
-    best = sorted(loose, key=lambda t: (score[t], t))[:3]  # in measured spreads
+    # in measured spreads; within one spread alike (a multiple of the right counts fits
+    # as well), and the fewest counts first among them
+    best = sorted(loose, key=lambda t: (max(score[t], 1.0), t))[:3]
     out = []  # the best fit first: it is kept when decoding cannot tell
     for t in best:
         if t != loose[0]:
