@@ -106,3 +106,57 @@ def test_cli_refuses_an_empty_folder_and_keeps_an_existing_file(tmp_path, capsys
     text = (tmp_path / "patterns.toml").read_text()
     assert 'files = ["f_0.png", "f_1.png", "f_2.png"]' in text  # beside the toml
     assert "period_px = 128.0" in text and "period_px = 16.0" in text
+
+
+def test_a_blank_frame_is_named_in_one_line_not_a_traceback(tmp_path, capsys):
+    """A zeroed frame inside a sequence (a dropped capture; once a math domain error in
+    the frame analysis) is refused with its name."""
+    frames = np.concatenate([_phase(128.0, 3), _phase(16.0, 3)])
+    frames[2] = 0.0
+    for k, frame in enumerate(frames):
+        Image.fromarray(np.clip(frame, 0, 255).astype(np.uint8)).save(tmp_path / f"f{k}.bmp")
+    assert main(["describe", str(tmp_path), "--projector-width", "128"]) == 2
+    err = capsys.readouterr().err
+    assert "f2.bmp is blank" in err and "Traceback" not in err
+
+
+def test_a_black_frame_alone_at_the_end_is_left_out_with_a_note():
+    """A DLP capture's lone black frame is no reference set (that needs white too)."""
+    black = np.full((1, *SHAPE), 3.0)
+    frames = np.concatenate([_phase(128.0, 3), _phase(16.0, 3), black])
+    (d,) = describe_frames(frames, [f"f{k}.png" for k in range(7)], 128)
+    assert d.desc.reference_set is None
+    assert any("f6.png (black) left out" in n for n in d.notes)
+    assert sorted(s.period_px for s in d.desc.phase_sets) == [16.0, 128.0]
+
+
+def test_a_black_frame_between_two_phase_sets_is_left_out_not_read_as_a_gray_bit():
+    black = np.full((1, *SHAPE), 3.0) + (U[None] % 7)  # a little ambient texture
+    frames = np.concatenate([_phase(128.0, 3), black, _phase(16.0, 3)])
+    (d,) = describe_frames(frames, [f"f{k}.png" for k in range(7)], 128)
+    assert d.desc.gray_set is None and d.desc.reference_set is None
+    assert any("f3.png (black) left out" in n for n in d.notes)
+    assert sorted(s.period_px for s in d.desc.phase_sets) == [16.0, 128.0]
+
+
+def test_cell_widths_periods_in_cells_and_phase_starts_hand_computed():
+    from scanqa.decoding import describe_gray as dg
+
+    # object1: 5 column bits over 1920 px (cells 60..120), 4 row bits over 1080 px with
+    # cell 10 seen (67.5..108): one setting for both - no whole cell divides both
+    # widths, so the roundest, 100 px
+    assert dg.rank_cells([(1920, dg.cell_range(1920, 5, 16)),
+                          (1080, dg.cell_range(1080, 4, 10))])[0] == 100
+    assert dg.rank_cells([(912, dg.cell_range(912, 3, 7))])[0] == 114  # 912 / 8
+    assert dg.cell_range(640, 7, 79, edge=True) == pytest.approx((8.0, 8.101), abs=1e-2)
+    assert dg.simple_ratio(0.6669) == pytest.approx(2 / 3)
+    assert dg.simple_ratio(1.0312) == 1.0312  # 3 % off: kept as measured
+    # a 3-step set of period 2 cells (cell 8 px) starting 0.9 rad late, read at the
+    # cell edges of a noiseless column ramp
+    u = np.arange(256, dtype=float)[None].repeat(16, 0)
+    cells = np.floor((u + 0.5) / 8)
+    z = sum(np.cos(2 * np.pi * u / 16 + 0.9 + 2 * np.pi * k / 3)
+            * np.exp(-2j * np.pi * k / 3) for k in range(3))
+    assert dg.refine_ratio(z, cells, 1, 1.9) == pytest.approx(2.0, rel=2e-3)
+    (start,) = dg.edge_offsets([z], [1.0], cells, 8.0, (16.0,), 1)
+    assert start == pytest.approx(0.9, abs=0.01)

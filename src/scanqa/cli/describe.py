@@ -79,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         sets = ", ".join(f"{s.name} ({s.frames})" for s in d.desc.sets)
         asked = sum(len(n.questions) for n in d.set_notes) + len(d.questions)
         emit(f"{d.desc.orientation}: {sets}; {100 * d.valid_share:.0f} % of the lit pixels "
-             f"decode; {asked} question(s) -> {target}")
+             f"decode; {asked} question(s); {d.confidence.split(':')[0]} -> {target}")
     return 0
 
 

@@ -11,15 +11,19 @@ what each set codes and checks the guess with scanqa's decoder:
   Gray code's own direction decides;
 * period ratios come from the phase slopes of two sets on the same image segments
   (:func:`scanqa.decoding.frames.frequency_ratio`), a phase set's period in Gray cells
-  from its slope against the decoded Gray cell;
+  from its phase at the Gray code's cell edges (:func:`~scanqa.decoding.describe_gray.
+  refine_ratio`, snapped to a simple fraction), and its phase start from the same
+  edges (:func:`~scanqa.decoding.describe_gray.edge_offsets`, added to its shifts);
 * the absolute scale needs the projector size along the coded direction: phase sets
   are taken to repeat a whole number of times over it (``P = W / n``, the fewest that
   fit, e.g. a coarse set of one period over the panel or a heterodyne triple whose
-  beat covers it); a Gray code is taken to need all its bits (``2**bits`` cells of
-  whole pixels cover the panel, ``2**(bits-1)`` do not), with cells no wider than the
-  cells actually seen allow;
-* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels) and
-  the one that decodes most pixels is kept; the others are reported.
+  beat covers it); a Gray code is taken to need all its bits with whole-pixel cells
+  that put the last cell seen on the panel - pinned when the panel's far edge is in
+  view, else the same cell for columns and rows, then cells dividing the width, the
+  roundest, the finest (:func:`~scanqa.decoding.describe_gray.rank_cells`);
+* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels);
+  the likeliest is kept unless another decodes clearly more, the others are reported,
+  and the description says how sure it is.
 
 Everything the frames cannot tell is said in the written file as a question.
 """
@@ -37,10 +41,16 @@ from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, Re
 from scanqa.decoding.decoder import decode_images
 from scanqa.decoding.describe_gray import (
     GrayRun,
-    cell_width,
+    cell_range,
     cells_seen,
+    confidence_line,
+    edge_offsets,
     gray_layout,
+    panel_edge_seen,
+    rank_cells,
     read_gray,
+    refine_ratio,
+    simple_ratio,
     slope_sign,
 )
 from scanqa.errors import ConfigError, InputError
@@ -77,6 +87,9 @@ class Description:
         About the whole description.
     checked : tuple of int
         Rows and columns of the sample the decoding check read [camera px].
+    confidence : str
+        "sure", "likely" or "unsure", with the shares decoded by the chosen and the
+        next candidate and the count of open questions.
     """
 
     desc: PatternDescription
@@ -85,6 +98,7 @@ class Description:
     notes: tuple = ()
     questions: tuple = ()
     checked: tuple = ()
+    confidence: str = ""
 
 
 @dataclass
@@ -97,6 +111,11 @@ class _Group:
     levels: tuple = ()
     notes: list = field(default_factory=list)
     questions: list = field(default_factory=list)
+    gray: GrayRun | None = None
+    cells: np.ndarray | None = None
+    range: tuple = ()
+    cell_choices: list = field(default_factory=list)
+    set_notes: dict = field(default_factory=dict)
 
 
 def describe_frames(images: np.ndarray, names: list[str], width_px: int | None = None,
@@ -129,24 +148,90 @@ def describe_frames(images: np.ndarray, names: list[str], width_px: int | None =
     data = images.astype(np.float32)
     norm = fr.normalise(data)
     refs = fr.reference_frames(norm)
+    blank = [k for k in range(len(names)) if k not in refs and float(np.ptp(data[k])) <= 2]
+    if blank:
+        raise InputError(f"frame {names[blank[0]]} is blank (every pixel within 2 DN of "
+                         f"{float(data[blank[0]].mean()):.0f} DN) and is no white or black "
+                         "frame at the ends of the sequence: a dropped or overwritten "
+                         "capture; replace it, or list the frames without it")
     levels = tuple(fr.frame_level(norm, k) for k in refs)
     if refs:
-        lo = np.mean([data[k] for k, v in zip(refs, levels, strict=True) if v == "black"], 0)
-        hi = np.mean([data[k] for k, v in zip(refs, levels, strict=True) if v == "white"], 0)
-        norm = fr.normalise(data, lo, hi)
+        lo = [data[k] for k, v in zip(refs, levels, strict=True) if v == "black"]
+        hi = [data[k] for k, v in zip(refs, levels, strict=True) if v == "white"]
+        norm = fr.normalise(data, np.mean(lo, 0) if lo else None,
+                            np.mean(hi, 0) if hi else None)
     runs = fr.split_runs(data, norm, refs)
+    lone = ()
+    if refs and len(set(levels)) < 2:  # a black (or white) frame alone: no reference set
+        lone = tuple(f"{names[k]} ({v})" for k, v in zip(refs, levels, strict=True))
+        runs = [r for r in runs if r.kind != "reference"]
+        refs, levels = (), ()
+    stray = [r for r in runs if r.kind == "gray" and len(r.frames) <= 2 and all(
+        fr.frame_level(norm, k) for k in r.frames)]  # uniform frames between sets
+    if stray:
+        lone += tuple(f"{names[k]} ({fr.frame_level(norm, k)})" for r in stray
+                      for k in r.frames)
+        runs = [r for r in runs if r not in stray]
     coded = [r for r in runs if r.kind != "reference"]
     if not coded:
         raise InputError("no phase set or Gray code found among the frames (only uniform "
                          "frames?)")
-    out = []
+    groups = []
     for orientation, size in (("vertical", width_px), ("horizontal", height_px)):
         group = [r for r in coded if r.orientation == orientation]
         if group:
             ref = [r for r in runs if r.kind == "reference"]
-            out.append(_describe_group(images, data, norm, names,
-                                       _Group(orientation, size, ref + group, levels)))
-    return out
+            g = _Group(orientation, size, ref + group, levels)
+            if lone:
+                g.notes.append(f"uniform frame {', '.join(lone)} left out: the decoder's "
+                               "reference set needs a white and a black frame")
+            _read_group_gray(data, norm, g)
+            groups.append(g)
+    _joint_cells(groups)
+    return [_describe_group(images, data, norm, names, g) for g in groups]
+
+
+def _read_group_gray(data: np.ndarray, norm: fr.Normalised, group: _Group) -> None:
+    """The group's Gray code read (bits, layout, cells) and the cell widths it allows."""
+    axis = 1 if group.orientation == "vertical" else 0
+    grays = [r for r in group.runs if r.kind == "gray"]
+    if not grays:
+        return
+    gray = gray_layout(norm, grays, axis, group, group.set_notes)
+    if len(grays) > 1:
+        group.questions.append(f"{len(grays)} separate runs of binary frames were found; "
+                               "only the first is used as the Gray code - are the others "
+                               "part of it?")
+    gray, cells = read_gray(data, norm, gray, axis, group)
+    if cells is None:
+        first, last = gray.run.frames[0], gray.run.frames[-1]
+        group.notes.append(
+            f"frames {first}..{last} (indices) read as a plain binary code, not a reflected "
+            "Gray code: left out, as the decoder reads reflected Gray codes only (the "
+            "phase sets alone must then order the fringes)")
+        group.runs = [r for r in group.runs if r is not gray.run]
+        return
+    group.gray, group.cells = gray, cells
+    if group.width_px is not None:
+        top = cells_seen(group.cells, 2 ** gray.bits)
+        edge = panel_edge_seen(group.cells, top, axis)
+        group.range = cell_range(group.width_px, gray.bits, top, edge)
+        if edge:
+            group.notes.append(f"the panel's far edge is seen in Gray cell {top}: the "
+                               f"cells are {group.width_px / (top + 1):.4g} to "
+                               f"{group.width_px / top:.4g} px wide")
+
+
+def _joint_cells(groups: list) -> None:
+    """Cell widths for each Gray code, likeliest first: the same cell in both
+    directions when their ranges allow one (one tool setting), else each its own."""
+    coded = [g for g in groups if g.range]
+    joint = [(g.width_px, g.range) for g in coded]
+    together = rank_cells(joint) if len(joint) > 1 else []
+    for g in coded:
+        g.cell_choices = together or rank_cells([(g.width_px, g.range)])
+        if together:
+            g.notes.append("the same Gray cell width is assumed for columns and rows")
 
 
 def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
@@ -154,18 +239,11 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     """Sets, scale and the decoding check of one direction."""
     axis = 1 if group.orientation == "vertical" else 0
     phase = [r for r in group.runs if r.kind == "phase"]
-    grays = [r for r in group.runs if r.kind == "gray"]
     ref = next((r for r in group.runs if r.kind == "reference"), None)
-    notes: dict[str, SetNote] = {}
-    gray = gray_layout(norm, grays, axis, group, notes) if grays else None
-    if len(grays) > 1:
-        group.questions.append(f"{len(grays)} separate runs of binary frames were found; "
-                               "only the first is used as the Gray code - are the others "
-                               "part of it?")
+    notes = group.set_notes
+    gray, cells = group.gray, group.cells
     direction = 1.0
-    cells = None
     if gray is not None:
-        gray, cells = read_gray(data, norm, gray, axis, group)
         direction = slope_sign(cells, norm.lit, axis)
         if direction < 0:
             group.questions.append("the Gray code's cells grow against the camera axis: "
@@ -174,15 +252,20 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     zs = [fr.phasor(data[list(r.frames)], r.order) for r in phase]
     signs = [direction * _sign(fr.phase_frequency(z, axis)) for z in zs]
     _ask_about_runs(group, phase, zs, axis, names)
-    candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group)
+    candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group, signs)
     stacks_for = _stacks_factory(images, group, phase, gray, ref)
     best, share, tried = None, -1.0, []
-    for desc in candidates:
-        desc = _with_signs(desc, signs, [r.order for r in phase])
+    for desc, offsets in candidates:
+        desc = _with_signs(desc, signs, [r.order for r in phase], offsets)
         got = _check(desc, stacks_for(desc), norm.lit)
         tried.append((desc, got))
-        if got > share + 1e-3:
+        if got > share + (0.02 if tried[1:] else 0.0):  # the likelier kept unless clearly worse
             best, share = desc, got
+    if tried and 0 <= share < 0.3 and tried[0][1] >= 0 and best is not tried[0][0]:
+        best, share = tried[0]  # none decodes: the best measured fit is kept
+        group.questions.append("no candidate decodes 30 % of the lit pixels: the periods "
+                               "that fit the measured ratios best were kept - is the "
+                               "decoder able to unwrap them (noise, a beat of beats)?")
     if best is None:
         raise InputError(f"no consistent description of the {group.orientation} sets was "
                          f"found ({'; '.join(group.questions) or 'nothing decoded'})")
@@ -192,7 +275,7 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     sample = (len(range(0, images.shape[1], row_step(images.shape[1]))),
               len(range(0, images.shape[2], _column_step(images.shape[2]))))
     return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions),
-                       sample)
+                       sample, confidence_line(best, share, tried, len(group.questions)))
 
 
 def _ask_about_runs(group: _Group, phase: list, zs: list, axis: int,
@@ -232,18 +315,20 @@ class _Scale:
     cell_px: float | None
     evidence: str
     question: str = ""
+    offsets: tuple = ()  # phase start of each run [rad], added to its shifts
 
 
-def _candidates(data, norm, phase, zs, gray, cells, axis, group) -> list:
+def _candidates(data, norm, phase, zs, gray, cells, axis, group, signs) -> list:
     """Descriptions the measurement leaves open (decoded later to choose)."""
     usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
                                 for z in zs], axis=0) if zs else norm.lit
-    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group) if gray is not None
+    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs)
+              if gray is not None
               else _phase_scales(phase, zs, axis, usable, group))
     out = []
     for scale in scales:
         try:
-            out.append(_build(scale, phase, gray, group))
+            out.append((_build(scale, phase, gray, group), scale.offsets))
         except ConfigError:
             continue
     return out
@@ -267,7 +352,9 @@ def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
                            for g, c, sd in zip(gaps, counts, spreads, strict=True))
     if not loose:
         return []
-    best = sorted(loose, key=lambda t: (score[t], t))[:3]  # in measured spreads
+    # in measured spreads; within one spread alike (a multiple of the right counts fits
+    # as well), and the fewest counts first among them
+    best = sorted(loose, key=lambda t: (max(score[t], 1.0), t))[:3]
     out = []  # the best fit first: it is kept when decoding cannot tell
     for t in best:
         if t != loose[0]:
@@ -312,17 +399,23 @@ def _variants(whole: list[int], width: int, ratios: list[float]) -> list[_Scale]
     return out
 
 
-def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
-    """A Gray code: whole-pixel cells that cover the panel; periods in cells."""
+def _gray_scales(phase, zs, gray, cells, axis, usable, group, signs) -> list[_Scale]:
+    """A Gray code: whole-pixel cells that cover the panel; periods in cells (simple
+    fractions of a cell where the measurement allows); each set's phase start from the
+    phase at the Gray code's cell edges."""
     count = 2 ** gray.bits
-    seen, edge = cells_seen(cells, count)
     width = group.width_px
+    choices = group.cell_choices
     if width is None:
         width = int(count)
+        choices = [1]
         group.questions.append(f"the projector size was not given: cells of 1 px assumed "
                                f"({count} px coded, as OpenCV's GrayCodePattern); give "
                                f"--projector-{'width' if axis == 1 else 'height'}")
-    cell, evidence = cell_width(width, gray.bits, seen, edge, group)
+    if not choices:
+        group.questions.append(f"no whole-pixel cell lets {gray.bits} Gray bits cover "
+                               f"{width} px: is the projector size right?")
+        return []
     ratios = []
     for z, run in zip(zs, phase, strict=True):
         zg = np.exp(2j * np.pi * np.nan_to_num(cells) / count)
@@ -333,12 +426,25 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group) -> list[_Scale]:
                                    "measured against the Gray code (too few clean image "
                                    "segments): what is it?")
             return []
-        ratios.append(abs(r) * count)  # period in cells
-    periods = [p * cell for p in ratios]
-    snapped = [float(round(p)) if abs(p - round(p)) <= 0.03 * p else p for p in periods]
-    out = [_Scale(width, tuple(snapped), cell, evidence)]
-    if snapped != periods:
-        out.append(_Scale(width, tuple(periods), cell, evidence))
+        ratios.append(refine_ratio(z, cells, axis, abs(r) * count))  # period in cells
+    lo, hi = cell_range(width, gray.bits, 0)
+    out = []
+    for cell in choices[:3]:
+        evidence = (f"{gray.bits} bits cover {width} px with cells of {lo:.4g} to "
+                    f"{hi:.4g} px; periods of {', '.join(f'{r:.4f}' for r in ratios)} "
+                    f"cells measured")
+        for snap in (True, False):
+            periods = tuple(cell * (simple_ratio(r) if snap else r) for r in ratios)
+            offsets = edge_offsets(zs, signs, cells, float(cell), periods, axis)
+            scale = _Scale(width, periods, float(cell), evidence, offsets=offsets)
+            if scale not in out:
+                out.append(scale)
+    if len(choices) > 1:
+        others = ", ".join(f"{c:g}" for c in choices[1:4])
+        group.questions.append(
+            f"cell_px = {choices[0]:g} was taken (cells that divide the coded width first, "
+            f"then the roundest); cells of {others} px fit the bits and the cells seen "
+            "too and decode alike (x_p scales with the cell) - which one was projected?")
     return out
 
 
@@ -366,16 +472,18 @@ def _phase_name(period: float, sets: list) -> str:
     return name if name not in taken else f"{name}_{len(sets)}"
 
 
-def _with_signs(desc: PatternDescription, signs: list[float],
-                orders: list[tuple]) -> PatternDescription:
-    """The phase sets' shifts with the measured signs and step orders (in run order)."""
+def _with_signs(desc: PatternDescription, signs: list[float], orders: list[tuple],
+                offsets: tuple = ()) -> PatternDescription:
+    """The phase sets' shifts with the measured signs, step orders and phase starts
+    (in run order)."""
     sets, i = [], 0
     for s in desc.sets:
         if isinstance(s, PhaseSet):
             steps = orders[i] or range(s.steps)
-            shifts = tuple(signs[i] * 2 * math.pi * k / s.steps for k in steps)
-            if orders[i]:  # out of order: stated in [0, 2 pi), whatever the sign
-                shifts = tuple(v % (2 * math.pi) for v in shifts)
+            start = offsets[i] if offsets else 0.0
+            shifts = tuple(signs[i] * 2 * math.pi * k / s.steps + start for k in steps)
+            if orders[i] or start:  # stated in [0, 2 pi), whatever the sign
+                shifts = tuple(round(v % (2 * math.pi), 9) % (2 * math.pi) for v in shifts)
             s = replace(s, shifts_rad=tuple(0.0 if v == 0 else v for v in shifts))
             i += 1
         sets.append(s)
@@ -474,9 +582,13 @@ def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
         basis = ("the Gray code's direction" if gray is not None else
                  "the assumption that the projector coordinate grows along the camera's "
                  + ("rows" if s.orientation == "vertical" else "columns"))
+        start = ()
+        if gray is not None and not run.order:
+            start = (f"phase start {s.shifts_rad[0]:.3f} rad (added to every shift), "
+                     "measured at the Gray code's cell edges",)
         out.append(SetNote(s.name, "sure" if gray is not None else "likely", (
             f"{s.steps} steps, shifts {way} 2 pi k / {s.steps} (from the phase slope and "
-            f"{basis})",)))
+            f"{basis})", *start)))
     if phase_sets and gray is None:
         group.questions.append(
             f"the frames give period ratios only: is the projector "

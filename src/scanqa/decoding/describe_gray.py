@@ -112,7 +112,7 @@ def _smoothness(cells: np.ndarray, axis: int) -> float:
 
 def read_gray(data, norm, gray: GrayRun, axis: int, group) -> tuple:
     """The Gray code's cells, with the inverse frames first when that reads smoother;
-    a code that reads smoother as plain binary is asked about."""
+    None for the cells of a code that reads smoother as plain binary."""
     cells = _gray_cells(data, norm, gray)
     if gray.inverse != "none":
         plain, inv = _bit_frames(gray)
@@ -126,9 +126,7 @@ def read_gray(data, norm, gray: GrayRun, axis: int, group) -> tuple:
             gray, cells = swapped, other
     if _smoothness(_gray_cells(data, norm, gray, True), axis) > \
             _smoothness(cells, axis) + 0.05:
-        group.questions.append("the binary frames read more smoothly as a plain binary "
-                               "code than as a reflected Gray code, which is all the "
-                               "decoder reads: is it a binary code?")
+        return gray, None  # a plain binary code: the caller leaves it out
     return gray, cells
 
 
@@ -140,41 +138,185 @@ def slope_sign(cells: np.ndarray, lit: np.ndarray, axis: int) -> float:
 
 
 
-def cells_seen(cells: np.ndarray, count: int) -> tuple[int, bool]:
-    """Cells up to the last well-populated one, and whether the panel's edge was seen.
-
-    At the panel's far edge the last cell is a full line of pixels across the image (as
-    many as a typical cell); at an object's silhouette the last cells thin out.
-    """
+def cells_seen(cells: np.ndarray, count: int) -> int:
+    """Index of the last well-populated cell (a cell index that exists on the panel)."""
     codes = cells[np.isfinite(cells)].astype(np.int64)
     if codes.size == 0:
-        return count, False
+        return 0
     hist = np.bincount(codes, minlength=count)
     typical = float(np.median(hist[hist > 0]))
-    top = int(np.flatnonzero(hist >= 0.1 * typical).max())
-    edge = top + 1 < count and hist[max(top - 1, 0):top + 1].sum() >= 0.5 * typical
-    return top + 1, bool(edge)
+    return int(np.flatnonzero(hist >= 0.1 * typical).max())
 
 
-def cell_width(width: int, bits: int, seen: int, edge: bool, group) -> tuple[float, str]:
-    """Cell width from the panel size, the bits and the cells seen [px], and why."""
-    count = 2 ** bits
-    lo, hi = width / count, width / (count / 2)
-    whole = [c for c in range(max(1, math.ceil(lo - 1e-9)), math.floor(hi) + 1)
-             if lo - 1e-9 <= c < hi and c <= width / seen * 1.02]
-    evidence = (f"{bits} bits cover {width} px with cells of {lo:.4g} to {hi:.4g} px; "
-                f"cells 0..{seen - 1} seen")
-    if edge and width / seen >= lo - 1e-9:
-        target = width / seen  # the panel's edge seen: the cells fill the width
-        cell = min(whole, key=lambda c: abs(c - target)) if whole else target
-        return float(cell), evidence + ", the last one at the panel's edge"
-    if not whole:
-        return lo, evidence
-    cell = float(whole[0])
-    if len(whole) > 1:
-        others = ", ".join(f"{c:g}" for c in whole[1:])
-        group.questions.append(
-            f"cell_px = {cell:g} is the finest whole-pixel cell that covers the {width} px "
-            f"with {bits} bits; the panel's edge was not seen, and cells of {others} px "
-            f"would fit the {seen} cells seen too - which one was projected?")
-    return cell, evidence
+def panel_edge_seen(cells: np.ndarray, top: int, axis: int) -> bool:
+    """True when the light ends at the panel's far edge in view: the last (or first)
+    lit pixel of 90 % of the image lines along ``axis`` lies in cell ``top`` - a
+    straight line in projector coordinates, where an object's silhouette cuts the
+    cells anywhere."""
+    c = np.moveaxis(cells, axis, -1).reshape(-1, cells.shape[axis])
+    lit = np.isfinite(c)
+    lines = lit.any(axis=1)
+    if lines.sum() < 10:
+        return False
+    c, lit = c[lines], lit[lines]
+    n = lit.shape[1]
+    last = n - 1 - np.argmax(lit[:, ::-1], axis=1)
+    first = np.argmax(lit, axis=1)
+    rows = np.arange(c.shape[0])
+    return bool(max(np.mean(c[rows, last] == top), np.mean(c[rows, first] == top)) >= 0.9)
+
+
+def cell_range(width: int, bits: int, top: int, edge: bool = False) -> tuple[float, float]:
+    """Cell widths [px] that need every bit to cover ``width`` (``2**bits`` cells
+    cover it, ``2**(bits-1)`` do not) and put cell ``top`` on the panel: [lo, hi);
+    with the panel's far edge seen in cell ``top``, the cells that end there."""
+    lo, hi = width / 2 ** bits, width / 2 ** (bits - 1)
+    if top > 0:
+        hi = min(hi, width / top * 1.001)
+        if edge:
+            lo = max(lo, width / (top + 1) * 0.999)
+    return lo, hi
+
+
+def roundness(value: int) -> int:
+    """Trailing zeros of a whole number in decimal [-] (100 is rounder than 96)."""
+    count = 0
+    while value and value % 10 == 0:
+        value //= 10
+        count += 1
+    return count
+
+
+def rank_cells(ranges: list[tuple[int, tuple[float, float]]]) -> list[int]:
+    """Whole-pixel cell widths that fit every (width, range) given, likeliest first.
+
+    The same cell is assumed in every direction given (one tool setting). Cells that
+    divide every coded width (the cells fill the panel, as a DLP's or OpenCV's step)
+    come first, the finest of them first; then the roundest (a tool's setting such as
+    100 px), then the finest.
+    """
+    lo = max(r[0] for _, r in ranges)
+    hi = min(r[1] for _, r in ranges)
+    whole = [c for c in range(max(1, math.ceil(lo - 1e-9)), math.ceil(hi - 1e-9))
+             if lo - 1e-9 <= c < hi]
+
+    def key(c):
+        divides = all(w % c == 0 for w, _ in ranges)
+        return (not divides, 0 if divides else -roundness(c), c)
+    return sorted(whole, key=key)
+
+
+def simple_ratio(ratio: float, tolerance: float = 0.004) -> float:
+    """``ratio`` snapped to the nearest fraction p/q with q <= 8 within ``tolerance``
+    (relative), else unchanged (a period of 2/3 of a cell: 66.667 px for 100 px)."""
+    best = ratio
+    for q in range(1, 9):
+        p = round(ratio * q)
+        if p and abs(p / q / ratio - 1) <= tolerance:
+            return p / q
+    return best
+
+
+def edge_offsets(zs: list, signs: list, cells: np.ndarray, cell: float, periods: tuple,
+                 axis: int) -> tuple:
+    """Phase start of each phase set relative to the Gray code [rad]: the phase
+    measured where the cell index steps by one between neighbouring pixels (at
+    ``x = c cell - 1/2``, the edge of cell c) less the phase a set starting at x = 0
+    has there, averaged as unit phasors (each edge of the code weighing the same,
+    however many pixels see it); snapped to a multiple of pi / 6 within 0.1 rad (a
+    projector's gamma biases the phase by a few hundredths), or of pi / 12 within
+    0.04 rad. The decoder's phase of a set is ``2 pi x / P + offset``."""
+    ok, m = cell_edges(cells, axis)
+    if ok.sum() < 20:
+        return tuple(0.0 for _ in zs)
+    edge = m * cell - 0.5
+    counts = np.bincount(m.astype(np.int64))
+    weight = np.where(counts[m.astype(np.int64)] >= 10, 1.0 / counts[m.astype(np.int64)], 0.0)
+    out = []
+    for z, sign, period in zip(zs, signs, periods, strict=True):
+        psi = sign * np.angle(_edge_phasor(z, ok, axis))
+        theta = float(np.angle(np.sum(weight * np.exp(1j * (psi - 2 * np.pi * edge
+                                                           / period)))))
+        for step, within in ((np.pi / 6, 0.1), (np.pi / 12, 0.04), (None, 0)):
+            if step is None:
+                theta = round(theta, 3)
+                break
+            snap = round(theta / step) * step
+            if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
+                theta = snap
+                break
+        out.append(0.0 if abs(theta) < 1e-12 else theta)
+    return tuple(out)
+
+
+def cell_edges(cells: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
+    """Neighbour pairs along ``axis`` whose cell index steps by one, and the index of
+    the cell to the right of each edge (the edge lies at ``m cell - 1/2``)."""
+    c = np.moveaxis(cells, axis, -1)
+    a, b = c[..., :-1], c[..., 1:]
+    ok = np.isfinite(a) & np.isfinite(b) & (np.abs(b - a) == 1)
+    return ok, np.maximum(a, b)[ok]
+
+
+def _edge_phasor(z: np.ndarray, ok: np.ndarray, axis: int) -> np.ndarray:
+    """Unit phasors of the two pixels of each edge pair, added."""
+    zz = np.moveaxis(z, axis, -1)
+    za, zb = zz[..., :-1][ok], zz[..., 1:][ok]
+    return za / np.maximum(np.abs(za), 1e-9) + zb / np.maximum(np.abs(zb), 1e-9)
+
+
+def refine_ratio(z: np.ndarray, cells: np.ndarray, axis: int, guess: float) -> float:
+    """A phase set's period in Gray cells [cells], refined from the phase at the cell
+    edges: the period whose fringes best line up with the edges (the largest
+    ``|sum exp(i (phi_e -+ 2 pi m_e / r))|`` over r within 15 % of ``guess``, either
+    sign of the shifts); ``guess`` when there are too few edges."""
+    ok, m = cell_edges(cells, axis)
+    if ok.sum() < 20 or not guess > 0:
+        return guess
+    if m.size > 20000:
+        pick = np.linspace(0, m.size - 1, 20000).astype(int)
+    else:
+        pick = slice(None)
+    phi = np.angle(_edge_phasor(z, ok, axis))[pick]
+    mm = m[pick].astype(np.int64)
+    counts = np.bincount(mm)
+    weight = np.where(counts[mm] >= 10, 1.0 / counts[mm], 0.0)  # each edge counts once
+    if np.count_nonzero(counts >= 10) < 3:
+        return guess
+    best, score = guess, -1.0
+    for grid in (guess * np.linspace(0.85, 1.15, 601), None):
+        if grid is None:
+            grid = np.linspace(best * 0.9995, best * 1.0005, 41)
+        for r in grid:
+            for sign in (1.0, -1.0):
+                v = abs(np.sum(weight * np.exp(1j * (sign * phi - 2 * np.pi * mm / r))))
+                if v > score:
+                    best, score = float(r), v
+    return best
+
+
+def confidence_line(best, share: float, tried: list, asked: int) -> str:
+    """How sure a description is, in one line: "sure" (it decodes, nothing else fits),
+    "likely" (it decodes, but a question is open) or "unsure" (it decodes little).
+
+    ``best`` is the chosen PatternDescription, ``share`` its decoded share [-], ``tried``
+    every (description, share) checked, ``asked`` the count of open questions.
+    """
+    others = [got for d, got in tried if d.sets != best.sets and periods_differ(d, best)]
+    runner = max(others, default=-1.0)
+    word = ("unsure" if share < 0.6 else "sure" if not asked and runner < 0.9 * share
+            else "likely")
+    said = f"{word}: {100 * share:.0f} % of the lit pixels of the sample decode"
+    if runner >= 0:
+        said += (f"; the next candidate checked ({len(tried)} in all) "
+                 f"{100 * runner:.0f} %")
+    return said + (f"; {asked} question(s) open" if asked else "")
+
+
+def periods_differ(a, b) -> bool:
+    """Another scale: a period or the cell width of description ``a`` differs from
+    ``b``'s by more than 0.1 %."""
+    pa = [s.period_px for s in a.phase_sets] + [a.gray_cell_px]
+    pb = [s.period_px for s in b.phase_sets] + [b.gray_cell_px]
+    return len(pa) != len(pb) or any(abs(x - y) > 1e-3 * max(abs(y), 1e-9)
+                                      for x, y in zip(pa, pb, strict=True))

@@ -97,6 +97,7 @@ def description_text(d: Description, source: str, frames: int) -> str:
         f"{'columns (x_p)' if d.desc.orientation == 'vertical' else 'rows (y_p)'}.",
         f"Checked with scanqa's decoder on a {d.checked[0]} x {d.checked[1]} px sample of "
         f"the frames: {100 * d.valid_share:.0f} % of its lit pixels decode.",
+        f"Confidence: {d.confidence}.",
         *d.notes]) + _questions(d.questions)
     parts = body.split("[[set]]\n")
     out = [head + parts[0]]

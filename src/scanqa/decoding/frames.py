@@ -8,8 +8,9 @@ the frames alone (:mod:`scanqa.decoding.describe` turns the runs into a
   the darkest and brightest sample of the pixel over all frames (over the black and
   white frames once they are known), which removes the albedo;
 * uniform frames - nearly 1 or nearly 0 everywhere - at the start or the end of the
-  sequence, or a white and a black frame side by side anywhere, are the references (a
-  lone Gray bit may look uniform on a small object);
+  sequence are the references (a black frame alone too), or, when those lack a level,
+  a white and a black frame side by side inside it (a lone Gray bit, or a bit and its
+  inverse, may look uniform on a small object);
 * a run of N >= 3 frames whose mean is uniform while each frame is not, and whose
   frame-to-frame correlations follow ``cos(2 pi (j - k) / N)``, is an N-step phase set
   (the offsets ``A`` of its frames add up, the fringes cancel);
@@ -128,13 +129,19 @@ def frame_level(norm: Normalised, k: int) -> str:
 
 
 def reference_frames(norm: Normalised) -> tuple[int, ...]:
-    """Indices of the white and black frames: runs of uniform frames at the start or the
-    end of the sequence, or runs holding both a white and a black frame anywhere (a
-    lone uniform frame inside the sequence is taken for a Gray bit that a small object
-    sees on one side of its edges). Empty unless both levels are found."""
+    """Indices of the uniform reference frames (white, black, or black or white alone).
+
+    Runs of uniform frames at the start or the end of the sequence are the references
+    (a real tool puts them there); only when those do not hold both levels, a run
+    holding both a white and a black frame inside the sequence is taken too. A lone
+    uniform frame inside the sequence is taken for a Gray bit that a small object sees
+    on one side of its edges (and so is a pair of them, a bit and its inverse, when
+    the ends already hold both levels).
+    """
     count = norm.n.shape[0]
     levels = [frame_level(norm, k) for k in range(count)]
-    found: list[int] = []
+    ends: list[int] = []
+    inner: list[list[int]] = []
     k = 0
     while k < count:
         if not levels[k]:
@@ -143,11 +150,17 @@ def reference_frames(norm: Normalised) -> tuple[int, ...]:
         end = k
         while end + 1 < count and levels[end + 1]:
             end += 1
-        run = range(k, end + 1)
-        if k == 0 or end == count - 1 or {levels[i] for i in run} == {"white", "black"}:
-            found.extend(run)
+        run = list(range(k, end + 1))
+        if k == 0 or end == count - 1:
+            ends.extend(run)
+        elif {levels[i] for i in run} == {"white", "black"}:
+            inner.append(run)
         k = end + 1
-    return tuple(found) if {levels[k] for k in found} == {"white", "black"} else ()
+    if {levels[i] for i in ends} != {"white", "black"} and inner:
+        ends.extend(inner[0])
+    if len(ends) == count:  # every frame uniform: nothing is coded
+        return ()
+    return tuple(sorted(ends))
 
 
 def _sample(norm: Normalised, frames, limit: int = 400_000) -> np.ndarray:
@@ -240,7 +253,15 @@ def step_order(norm: Normalised, frames, cov: np.ndarray) -> tuple | None:
 
 
 def gradient_energy(frame: np.ndarray, lit: np.ndarray) -> tuple[float, float]:
-    """Mean absolute difference between neighbours along rows and along columns [-]."""
+    """Mean absolute difference between neighbours along rows and along columns [-],
+    on the frame averaged over blocks of f x f pixels (f = 1 up to 300 px, about
+    1/150 of the smaller side beyond): in a large frame, a stripe edge every hundred
+    pixels is otherwise lost in the noise of neighbouring pixels."""
+    f = max(1, min(frame.shape) // 150) if min(frame.shape) > 300 else 1
+    if f > 1:
+        h, w = (frame.shape[0] // f) * f, (frame.shape[1] // f) * f
+        frame = frame[:h, :w].reshape(h // f, f, w // f, f).mean(axis=(1, 3))
+        lit = lit[:h, :w].reshape(h // f, f, w // f, f).all(axis=(1, 3))
     du = np.abs(np.diff(frame, axis=1))[lit[:, 1:] & lit[:, :-1]]
     dv = np.abs(np.diff(frame, axis=0))[lit[1:] & lit[:-1]]
     return float(du.mean()) if du.size else 0.0, float(dv.mean()) if dv.size else 0.0
@@ -353,7 +374,8 @@ def _gray_runs(norm: Normalised, frames: list[int]) -> list[Run]:
     for i in range(1, len(frames) + 1):
         if i == len(frames) or clear[i] != clear[start] or frames[i] != frames[i - 1] + 1:
             part = frames[start:i]
-            aniso = math.exp(np.mean([math.log(seen[j][1]) for j in range(start, i)]))
+            aniso = math.exp(np.mean([math.log(max(seen[j][1], 1e-12))
+                                      for j in range(start, i)]))
             runs.append(Run("gray", tuple(part), clear[start], aniso))
             start = i
     return runs

@@ -1,0 +1,321 @@
+"""A conformance corpus for ``scanqa describe``: captures of the pattern layouts public
+structured-light tools write, rendered by a small camera model.
+
+Each :class:`Layout` lists the projected frames in capture order, following one tool's
+conventions (written from their documentation and from the READMEs of the real captures
+beside the repository, not from their code):
+
+* OpenCV's ``GrayCodePattern``: column bits then row bits, most significant first, each
+  bit followed by its inverse, cells of one projector pixel (``step`` 1), a white and a
+  black frame at the end;
+* SLStudio: 2 x 3-step sets (a fine period and a cue of one period over the panel),
+  shifts 0, -2 pi / 3, -4 pi / 3; its Gray-code layout (white, black, then the top bits
+  of the column Gray code, no inverses); its calibration layout (columns then rows);
+* kamino410's phase-shifting sample: 3-step sets of two non-nested periods (shifts
+  -2 pi / 3, 0, 2 pi / 3) for columns and rows, an OpenCV Gray code whose cells equal
+  the coarser period, white, black;
+* a DLP scanner: 3-step sets and a reflected Gray code whose cells equal the period,
+  least significant bit first, a black frame only, the phase starting a fraction of a
+  cell off the cell edges;
+* multi-frequency and heterodyne sets (non-nested periods, 4- to 8-step), plain binary
+  codes, grouped inverses, uniform frames in the middle, cells a fraction of the period.
+
+The camera (:func:`capture`) sees a curved object on a dark background: projector
+coordinates that vary smoothly (and slightly across the fringes), a textured albedo,
+the projector's residual gamma after the tool's pre-distortion, stray light (ambient
+plus a share of the frame's mean), a Gaussian blur, noise and 8-bit quantisation.
+
+:func:`judge` says whether a description is right: every coded direction found, and
+decoding the capture with it gives most of the object's pixels the true projector
+coordinate (no whole-period order errors, no offset).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import gaussian_filter
+
+TWO_PI = 2 * math.pi
+
+
+@dataclass(frozen=True)
+class Frame:
+    """One projected frame.
+
+    kind: "phase" (period, steps, k, sign, offset), "gray" (bit 0 = most significant of
+    ``bits``, cell, inverse, binary, offset), "white" or "black".
+    """
+
+    kind: str
+    orientation: str = ""
+    period: float = 0.0
+    steps: int = 0
+    k: int = 0
+    sign: float = 1.0
+    offset_rad: float = 0.0
+    bit: int = 0
+    bits: int = 0
+    cell: float = 0.0
+    inverse: bool = False
+    binary: bool = False
+    cell_offset_px: float = 0.0
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A capture layout: the projector size, the frames in order, the camera scene."""
+
+    name: str
+    width: int
+    height: int
+    frames: tuple
+    camera: tuple = (96, 160)
+    notes: str = ""
+    directions: tuple = field(default=())
+
+    @property
+    def coded(self) -> tuple:
+        """The coded orientations, columns first."""
+        found = {f.orientation for f in self.frames if f.orientation}
+        return tuple(o for o in ("vertical", "horizontal") if o in found)
+
+
+# --------------------------------------------------------------------- frame builders
+
+def phase(orientation: str, period: float, steps: int, sign: float = 1.0,
+          offset_rad: float = 0.0, order=None) -> list[Frame]:
+    """An N-step set: shifts ``offset + sign 2 pi k / N`` in frame order."""
+    ks = range(steps) if order is None else order
+    return [Frame("phase", orientation, period, steps, k, sign, offset_rad) for k in ks]
+
+
+def gray(orientation: str, bits: int, cell: float, inverse: str = "none",
+         msb_first: bool = True, binary: bool = False, inverse_first: bool = False,
+         cell_offset_px: float = 0.0) -> list[Frame]:
+    """A Gray (or plain binary) code; inverse "none", "interleaved" or "grouped"."""
+    order = list(range(bits)) if msb_first else list(range(bits))[::-1]
+
+    def one(b, inv):
+        return Frame("gray", orientation, bit=b, bits=bits, cell=cell, inverse=inv,
+                     binary=binary, cell_offset_px=cell_offset_px)
+    if inverse == "none":
+        return [one(b, False) for b in order]
+    if inverse == "grouped":
+        return [one(b, False) for b in order] + [one(b, True) for b in order]
+    pair = (True, False) if inverse_first else (False, True)
+    return [one(b, inv) for b in order for inv in pair]
+
+
+WHITE, BLACK = Frame("white"), Frame("black")
+SLSTUDIO_SIGN = -1.0  # shifts 0, -2 pi / 3, -4 pi / 3
+
+
+def _pattern(f: Frame, xp: np.ndarray, yp: np.ndarray) -> np.ndarray:
+    """Projected value in [0, 1] of one frame at projector coordinates."""
+    if f.kind == "white":
+        return np.ones_like(xp)
+    if f.kind == "black":
+        return np.zeros_like(xp)
+    x = xp if f.orientation == "vertical" else yp
+    if f.kind == "phase":
+        delta = f.offset_rad + f.sign * TWO_PI * f.k / f.steps
+        return 0.5 + 0.5 * np.cos(TWO_PI * x / f.period + delta)
+    cell = np.floor((x + 0.5 - f.cell_offset_px) / f.cell).astype(np.int64)
+    cell = np.clip(cell, 0, 2 ** f.bits - 1)
+    code = cell if f.binary else cell ^ (cell >> 1)
+    on = (code >> (f.bits - 1 - f.bit)) & 1
+    return (1 - on if f.inverse else on).astype(float)
+
+
+# ----------------------------------------------------------------------------- camera
+
+def scene(layout: Layout, seed: int = 0) -> dict:
+    """Projector coordinates, albedo and object mask of the camera pixels."""
+    h, w = layout.camera
+    v, u = np.mgrid[0:h, 0:w].astype(float)
+    s, t = u / (w - 1), v / (h - 1)
+    rng = np.random.default_rng(seed)
+    a, b = rng.uniform(-0.02, 0.02, 2)
+    xp = layout.width * (0.06 + 0.86 * s + 0.03 * t + 0.03 * np.sin(math.pi * s) + a)
+    yp = layout.height * (0.06 + 0.86 * t + 0.03 * s + 0.03 * np.sin(math.pi * t) + b)
+    inside = ((s - 0.5) / 0.47) ** 2 + ((t - 0.5) / 0.46) ** 2 < 1
+    texture = 0.65 + 0.25 * np.cos(v / 7.0) * np.sin(u / 11.0)
+    albedo = np.where(inside, texture, 0.04)
+    return {"xp": xp, "yp": yp, "albedo": albedo, "object": inside}
+
+
+def capture(layout: Layout, seed: int = 0, gamma: float = 1.15, blur_px: float = 0.8,
+            noise_dn: float = 1.0, stray: float = 0.05) -> tuple[np.ndarray, dict]:
+    """(K, H, W) uint8 frames of ``layout`` and the scene (the truth)."""
+    sc = scene(layout, seed)
+    rng = np.random.default_rng(seed + 1)
+    frames = []
+    for f in layout.frames:
+        light = _pattern(f, sc["xp"], sc["yp"]) ** gamma  # the pre-distortion's residual
+        radiance = sc["albedo"] * light
+        radiance = gaussian_filter(radiance, blur_px)
+        dn = 6.0 + 220.0 * radiance + stray * 220.0 * float(light.mean()) * 0.5
+        dn = dn + rng.normal(0.0, 1.0, dn.shape) * np.sqrt(noise_dn ** 2 + 0.02 * dn)
+        frames.append(np.clip(np.rint(dn), 0, 255).astype(np.uint8))
+    return np.stack(frames), sc
+
+
+def frame_names(layout: Layout) -> list[str]:
+    """File names of the frames, in capture order."""
+    return [f"pat{i:02d}.png" for i in range(len(layout.frames))]
+
+
+# ---------------------------------------------------------------------------- layouts
+
+def _sl_pair(orientation: str, fine: float, coarse: float) -> list[Frame]:
+    return (phase(orientation, fine, 3, SLSTUDIO_SIGN)
+            + phase(orientation, coarse, 3, SLSTUDIO_SIGN))
+
+
+def tuning_layouts() -> list[Layout]:
+    """The 12 layouts describe is tuned on."""
+    k3 = -TWO_PI / 3  # kamino410: shifts -2 pi / 3, 0, 2 pi / 3
+    return [
+        Layout("opencv_graycode", 128, 96,
+               tuple(gray("vertical", 7, 1, "interleaved") + gray("horizontal", 7, 1,
+                     "interleaved") + [WHITE, BLACK]), camera=(112, 160),
+               notes="OpenCV GrayCodePattern alone: columns then rows, 1-px cells"),
+        Layout("slstudio_2x3", 1824, 1140, tuple(_sl_pair("vertical", 114, 1824)),
+               notes="SLStudio skull_2x3"),
+        Layout("slstudio_gray", 480, 300,
+               tuple([WHITE, BLACK, *gray("vertical", 7, 4)]), camera=(96, 200),
+               notes="SLStudio Gray layout: white, black, top Gray bits, no inverses"),
+        Layout("slstudio_board", 1824, 1140,
+               tuple(_sl_pair("vertical", 114, 1824) + _sl_pair("horizontal", 71.25, 1140)),
+               notes="SLStudio calibration poses: columns then rows"),
+        Layout("kamino_object1", 1920, 1080, tuple(
+            phase("vertical", 200 / 3, 3, 1, k3) + phase("vertical", 100, 3, 1, k3)
+            + phase("horizontal", 200 / 3, 3, 1, k3) + phase("horizontal", 100, 3, 1, k3)
+            + gray("vertical", 5, 100, "interleaved")
+            + gray("horizontal", 4, 100, "interleaved") + [WHITE, BLACK]),
+            notes="kamino410 object1"),
+        Layout("dlp_lsb_black", 912, 1140, tuple(
+            phase("vertical", 114, 3, 1, 0.9) + gray("vertical", 3, 114, msb_first=False)
+            + [BLACK]), notes="DLP: 3-step + period-wide Gray LSB first, black only, "
+                              "the phase starting off the cell edges"),
+        Layout("multifreq_4step", 1024, 768, tuple(
+            phase("vertical", 1024 / 70, 4) + phase("vertical", 1024 / 64, 4)
+            + phase("vertical", 1024 / 59, 4)),
+            notes="three-frequency heterodyne, 4 steps"),
+        Layout("heterodyne_5step_rows", 1280, 800, tuple(
+            phase("horizontal", 800 / 36, 5) + phase("horizontal", 800 / 31, 5)
+            + phase("horizontal", 800, 5)),
+            notes="two non-nested periods and a cue, 5 steps, rows"),
+        Layout("eight_step_grouped", 1024, 768, tuple(
+            [WHITE, BLACK, *gray("vertical", 5, 32, "grouped"), *phase("vertical", 64, 8)]),
+            notes="8 steps, Gray grouped inverses, cells half the period"),
+        Layout("plain_binary", 1024, 768, tuple(
+            gray("vertical", 4, 64, binary=True) + phase("vertical", 64, 4)
+            + phase("vertical", 1024, 4) + [WHITE, BLACK]),
+            notes="plain binary code of period-wide cells (which the decoder does not "
+                  "read: describe must say so and leave it out), 4 steps and a cue"),
+        Layout("lsb_grouped_mid_refs", 1280, 720, tuple(
+            [*phase("vertical", 40, 6), WHITE, BLACK,
+             *gray("vertical", 6, 20, "grouped", msb_first=False)]),
+            notes="6 steps, references in the middle, grouped LSB-first Gray code"),
+        Layout("rows_negative_quarter_cells", 1280, 800, tuple(
+            gray("horizontal", 6, 16, "interleaved", inverse_first=True)
+            + phase("horizontal", 64, 7, -1) + [WHITE, BLACK]),
+            notes="rows, 7 negative steps, inverse before bit, cells a quarter period"),
+    ]
+
+
+def held_out_layouts() -> list[Layout]:
+    """Layouts kept back while tuning (reported apart)."""
+    return [
+        Layout("dlp_rows_lsb_black", 912, 1140, tuple(
+            phase("horizontal", 114, 3, 1, -1.3) + gray("horizontal", 4, 114, msb_first=False)
+            + [BLACK]), notes="DLP rows"),
+        Layout("seven_step_heterodyne_refs_split", 1600, 900, tuple(
+            [WHITE, *phase("vertical", 1600 / 45, 7), *phase("vertical", 1600 / 40, 7),
+             *phase("vertical", 1600 / 5, 7), BLACK]),
+            notes="white first, black last, 7-step heterodyne"),
+        Layout("opencv_phase_both_grouped", 1280, 800, tuple(
+            [WHITE, BLACK, *gray("vertical", 6, 20, "grouped"), *phase("vertical", 40, 4),
+             *gray("horizontal", 6, 20, "grouped"), *phase("horizontal", 40, 4)]),
+            notes="columns and rows, grouped inverses, 4 steps"),
+    ]
+
+
+# ------------------------------------------------------------------------------ judge
+
+@dataclass
+class Verdict:
+    """How a description did on one layout."""
+
+    layout: str
+    right: bool
+    why: str
+    shares: dict
+
+
+def judge(layout: Layout, images: np.ndarray, sc: dict, described: list) -> Verdict:
+    """Decode the capture with each described direction and compare with the truth.
+
+    Right when every coded direction is described once and, for each, >= 80 % of the
+    object's pixels (away from its rim) decode, >= 97 % of those within a tenth of the
+    finest period (or a cell for a Gray code alone) of the truth, and the median error
+    is below 3 % of it (no offset). Phase sets alone (no Gray code) are also right when
+    their periods (0.1 %), steps and shift signs are the projected ones: scanqa's
+    decoder may not unwrap a beat of beats whose noise amplification is large, which is
+    no fault of the description.
+    """
+    from scanqa.decoding.coding import GrayCodeSet
+    from scanqa.decoding.decoder import decode_images
+
+    names = frame_names(layout)
+    index = {n: i for i, n in enumerate(names)}
+    got = [d.desc.orientation for d in described]
+    shares: dict = {}
+    if sorted(got) != sorted(layout.coded):
+        return Verdict(layout.name, False, f"directions {got}, want {list(layout.coded)}",
+                       shares)
+    from scipy.ndimage import binary_erosion
+    core = binary_erosion(sc["object"], iterations=3)
+    for d in described:
+        desc = d.desc
+        stacks = [images[[index[f] for f in s.files]] for s in desc.sets]
+        pm = decode_images(desc, stacks)
+        truth = sc["xp"] if desc.orientation == "vertical" else sc["yp"]
+        scale = desc.working_period_px if desc.phase_sets else max(
+            desc.gray_cell_px, 1.0) * 10
+        ok = pm.valid & core
+        err = np.abs(pm.xp - truth)[ok]
+        valid = ok.sum() / core.sum()
+        near = float(np.mean(err <= 0.1 * scale)) if err.size else 0.0
+        med = float(np.median(err)) / scale if err.size else 1.0
+        shares[desc.orientation] = (round(float(valid), 3), round(near, 4), round(med, 4))
+        binary = any(f.binary for f in layout.frames)
+        if binary and (isinstance(desc.gray_set, GrayCodeSet)
+                       or "plain binary" not in " ".join(d.notes + d.questions)):
+            return Verdict(layout.name, False, "plain binary not recognised", shares)
+        if desc.gray_set is None and _same_phase_sets(layout, desc):
+            continue  # right, whether or not the decoder can unwrap such a set
+        if valid < 0.8 or near < 0.97 or med > 0.03:
+            return Verdict(layout.name, False, f"{desc.orientation}: valid {valid:.3f}, "
+                           f"near {near:.4f}, median {med:.4f}", shares)
+    return Verdict(layout.name, True, "", shares)
+
+
+def _same_phase_sets(layout: Layout, desc) -> bool:
+    """The described phase sets are the layout's: periods within 0.1 %, steps, signs."""
+    want = {}
+    for f in layout.frames:
+        if f.kind == "phase" and f.orientation == desc.orientation:
+            want[f.period] = (f.steps, f.sign)
+    got = sorted((s.period_px, s.steps, s.shifts_rad) for s in desc.phase_sets)
+    if len(got) != len(want):
+        return False
+    for (period, steps, shifts), p in zip(got, sorted(want), strict=True):
+        sign = 1.0 if math.sin(shifts[1] - shifts[0]) > 0 else -1.0
+        if abs(period / p - 1) > 1e-3 or (steps, sign) != want[p]:
+            return False
+    return True

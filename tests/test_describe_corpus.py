@@ -1,0 +1,58 @@
+"""``scanqa describe``, blind (the projector size only), on the conformance corpus of
+:mod:`describe_corpus`: captures of the layouts public tools write, with 8-bit
+quantisation, residual gamma, stray light and blur.
+
+The 12 tuning layouts were chosen and the generator written before describe was tuned
+on them (5 of 12 right before, 12 of 12 after; with the scene and noise of seeds 1 and 2
+also 12 of 12, once a tie between fringe counts that fit equally well - 59 and 177 for
+the three-frequency set - went to the fewest); describe must be right on at least 11.
+The held-out layouts were not looked at while tuning; at their first run, after tuning,
+1 of 3 was right: the DLP rows (1140 px, 4 bits of 114-px cells) took 76-px cells
+(76, 95 and 114 all divide 1140 and fit the bits; describe asks which), and a 7-step
+heterodyne of 45, 40 and 5 fringes was read as 9, 8 and 1 (the same ratios: the frames
+cannot tell, describe asks). The test keeps that first-run count as its floor.
+"""
+
+from __future__ import annotations
+
+import pytest
+
+from scanqa.decoding.describe import describe_frames
+from scanqa.errors import ScanQAError
+from tests import describe_corpus as corpus
+
+
+def run_layout(layout: corpus.Layout, seed: int = 0) -> corpus.Verdict:
+    """Capture, describe blind, judge."""
+    images, sc = corpus.capture(layout, seed)
+    try:
+        described = describe_frames(images, corpus.frame_names(layout), layout.width,
+                                    layout.height)
+    except ScanQAError as exc:
+        return corpus.Verdict(layout.name, False, f"describe refused: {exc}", {})
+    return corpus.judge(layout, images, sc, described)
+
+
+def _report(verdicts) -> str:
+    return "; ".join(f"{v.layout}: {'right' if v.right else 'WRONG ' + v.why} {v.shares}"
+                     for v in verdicts)
+
+
+def test_the_corpus_has_twelve_tuning_layouts_of_distinct_conventions():
+    layouts = corpus.tuning_layouts()
+    assert len(layouts) == 12 and len({x.name for x in layouts}) == 12
+    held = {x.name for x in corpus.held_out_layouts()}
+    assert not held & {x.name for x in layouts}
+
+
+@pytest.mark.slow
+def test_describe_is_right_on_at_least_11_of_12_tuning_layouts():
+    verdicts = [run_layout(x) for x in corpus.tuning_layouts()]
+    right = sum(v.right for v in verdicts)
+    assert right >= 11, _report(verdicts)
+
+
+@pytest.mark.slow
+def test_describe_on_held_out_layouts():
+    verdicts = [run_layout(x) for x in corpus.held_out_layouts()]
+    assert sum(v.right for v in verdicts) >= 1, _report(verdicts)
