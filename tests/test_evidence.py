@@ -62,3 +62,16 @@ def test_the_shipped_configs_name_their_evidence():
                           (ROOT / "sample_data" / "sample_scanner.toml", "sample")):
         config = load_config(path, profile=profile)
         assert " sha256 " in config.model.characterised_by, (path, profile)
+
+
+def test_a_config_written_elsewhere_names_its_evidence_by_absolute_path(tmp_path):
+    """The design page's export (the TOML tables of a loaded config) loads from any folder."""
+    from scanqa.io.tomlfile import dumps_toml
+    from scanqa.model.rig import config_toml_dict
+
+    data = config_toml_dict(load_config(ROOT / "calib" / "paper_scanner.toml"))
+    line = data["model"]["characterised_by"]
+    assert line.startswith(str(ROOT / "calib" / "paper_scanner_fig3.json") + " sha256 ")
+    path = tmp_path / "exported.toml"
+    path.write_text(dumps_toml(data))
+    assert load_config(path).model.characterised_by == line

@@ -27,6 +27,16 @@ def evidence(path: str | os.PathLike, remark: str = "") -> str:
     return f"{path} sha256 {digest}" + (f" ({remark})" if remark else "")
 
 
+def absolute_evidence(text: str, config_path: str | os.PathLike) -> str:
+    """``characterised_by`` with its file named by absolute path (for a config written
+    elsewhere: an export, a copy); other text unchanged."""
+    found = EVIDENCE.match(text or "")
+    if found is None or Path(found["path"]).is_absolute():
+        return text
+    path = (Path(config_path).parent / found["path"]).resolve()
+    return f"{path}{text[found.end('path'):]}"
+
+
 def check_characterised_by(text: str, config_path: str | os.PathLike) -> None:
     """Refuse a ``characterised_by`` that does not name a characterisation file whose
     SHA-256 starts with the digits given (the path relative to the config's folder).
