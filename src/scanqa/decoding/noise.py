@@ -52,7 +52,9 @@ from scanqa.decoding.demodulate import ShiftFit, fit_residual
 
 #: Pixels sampled (whole rows or columns, evenly spaced) for the estimate: the variance
 #: is then known to better than 1 % (chi-square with one degree of freedom per sample).
-SAMPLE_PIXELS = 120000
+SAMPLE_PIXELS = 60000
+#: Fewest lines sampled for an estimate [-].
+MIN_LINES = 24
 #: Fewest usable samples for an estimate (the variance is then known to ~10 %).
 MIN_SAMPLES = 200
 #: Lag of the second differences along the fringes [px] (chosen on kamino410's gamma
@@ -133,6 +135,9 @@ def resolve_noise(desc: PatternDescription, stacks: list[np.ndarray], sensor: Se
     found = _samples(desc, stacks, sensor)
     if found is not None and found[0][0].size >= MIN_SAMPLES:
         (s2, dof, level), name = found
+        if s2.size > 2 * SAMPLE_PIXELS:  # many frames' lines: an even share of them
+            pick = np.linspace(0, s2.size - 1, 2 * SAMPLE_PIXELS).astype(int)
+            s2, dof, level = s2[pick], dof[pick], level[pick]
         a, b = fit_variance(s2, dof, level - sensor.black_level_dn,
                             floor=1.0 / 48.0 if quantised else 1e-6)
         return NoiseEstimate(f"estimated from the images: {name}",
@@ -145,8 +150,10 @@ def resolve_noise(desc: PatternDescription, stacks: list[np.ndarray], sensor: Se
 
 def _centres(length: int, width: int) -> np.ndarray:
     """Evenly spaced centre lines of ``width`` samples each, LAG_PX from either end,
-    about SAMPLE_PIXELS samples in all."""
-    count = max(1, min(length - 2 * LAG_PX, SAMPLE_PIXELS // max(width, 1)))
+    about SAMPLE_PIXELS samples in all, and at least MIN_LINES lines (a few lines would
+    sample a few places of the scene only)."""
+    count = max(MIN_LINES, min(length - 2 * LAG_PX, SAMPLE_PIXELS // max(width, 1)))
+    count = min(count, max(length - 2 * LAG_PX, 1))
     return np.unique(np.linspace(LAG_PX, length - LAG_PX - 1, count).round().astype(int))
 
 
