@@ -58,7 +58,8 @@ MIN_LINES = 24
 #: Fewest usable samples for an estimate (the variance is then known to ~10 %).
 MIN_SAMPLES = 200
 #: Lag of the second differences along the fringes [px] (chosen on kamino410's gamma
-#: flat, set A, and SLStudio's first board pose; docs/noise_model.rst).
+#: flat, set A: the phase noise along its fringes is flat from lag 2 to 6, while lag 1
+#: reads the camera's neighbour correlation; docs/noise_model.rst).
 LAG_PX = 3
 #: A Gray frame counts as white (black) where it is this share of the white - black
 #: contrast above (below) the mid level at all three pixels of a difference [-].
@@ -70,6 +71,8 @@ ASSUMED_WARNING = (
     "no Gray code with inverses) and [sensor] gives no gain and read noise; the default "
     "camera (4 e-/DN, 8 e-) is used - give [sensor] gain_e_per_dn and read_noise_e, or "
     "capture a white and a black frame or a second phase set")
+
+
 @dataclass(frozen=True)
 class NoiseEstimate:
     """Noise model in use and where it came from.
