@@ -44,7 +44,7 @@ def test_a_named_summary_is_checked_by_its_hash(tmp_path):
     line = evidence(summary, "scanqa characterize-board").replace(f"{tmp_path}/", "")
     assert line.startswith("board/summary.json sha256 ") and line.endswith("-board)")
     config = load_config(_config(tmp_path, line))  # relative to the config's folder
-    assert config.model.characterised_by == line
+    assert config.model.characterised_by == f"{tmp_path.resolve()}/{line}"  # from here on
     summary.write_text(summary.read_text() + "\n")
     with pytest.raises(ConfigError, match="changed since the config named it"):
         load_config(_config(tmp_path, line))
@@ -65,7 +65,8 @@ def test_the_shipped_configs_name_their_evidence():
 
 
 def test_a_config_written_elsewhere_names_its_evidence_by_absolute_path(tmp_path):
-    """The design page's export (the TOML tables of a loaded config) loads from any folder."""
+    """A loaded config names its evidence by absolute path, so that the design page's
+    export, or any copy of its tables, loads from any folder."""
     from scanqa.io.tomlfile import dumps_toml
     from scanqa.model.rig import config_toml_dict
 

@@ -28,7 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from scanqa.errors import ConfigError
-from scanqa.io.fitted_model import check_characterised_by
+from scanqa.io.fitted_model import absolute_evidence, check_characterised_by
 from scanqa.io.tomlfile import read_toml
 
 #: The readings of Eq. 17 (docs/model.rst, reading (i)) and its smooth form
@@ -535,8 +535,12 @@ def load_config(path: str | os.PathLike, profile: str | None = None) -> ScannerC
     p = Path(text_path)
     data = read_toml(p, "scanner config", ConfigError)
     config = config_from_dict(data, source=str(p), profile=profile)
-    check_characterised_by(config.model.characterised_by, p)  # evidence, not words
-    return config
+    evidence = config.model.characterised_by
+    check_characterised_by(evidence, p)  # evidence, not words
+    # named by absolute path from here on: a config written elsewhere (an export, a test's
+    # copy, a recorded config) still names the same file
+    return config.replace_model(characterised_by=absolute_evidence(evidence, p)) \
+        if evidence else config
 
 
 def first_difference(config: ScannerConfig, recorded: dict,

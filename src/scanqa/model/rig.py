@@ -20,14 +20,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from scanqa.errors import InputError
-from scanqa.io.fitted_model import absolute_evidence
 from scanqa.model import design, geometry, optics
 from scanqa.model.config import ScannerConfig, config_from_dict
 
@@ -149,14 +147,8 @@ def _drop_none(data: dict) -> dict:
 
 
 def config_toml_dict(config: ScannerConfig) -> dict:
-    """The config as the TOML tables every command reads (``--config``); the evidence its
-    ``characterised_by`` names by absolute path, since the tables are written elsewhere."""
-    data = _drop_none(config.to_dict())
-    model = data.get("model", {})
-    if model.get("characterised_by") and Path(config.source).is_file():
-        model["characterised_by"] = absolute_evidence(model["characterised_by"],
-                                                      config.source)
-    return data
+    """The config as the TOML tables every command reads (``--config``)."""
+    return _drop_none(config.to_dict())
 
 
 @dataclass(frozen=True)
