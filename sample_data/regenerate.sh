@@ -24,3 +24,8 @@ $SCANQA simulate projector-sweep --config "$CFG#sample_roi64" --positions=-30:30
 # simulator's pinhole camera). The gauge-block and camera-sweep truth stay.
 rm -rf sample_data/calibration_sweep/truth
 sed -i '/^lateral = /d' sample_data/calibration_sweep/sweep.toml
+# The evidence the "sample" profile's characterised_by names (then put the file's new
+# sha256 into sample_scanner.toml, and the fitted values if they moved):
+$SCANQA characterize sample_data/camera_sweep sample_data/projector_sweep \
+    --config "$CFG#sample_roi64" --out sample_data/characterisation
+rm -f sample_data/characterisation/*.png

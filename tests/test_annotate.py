@@ -20,7 +20,7 @@ from scanqa.io.ply import RESERVED_SUBSTRINGS, check_attribute_name
 from scanqa.model import optics
 from scanqa.runs.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
-from .conftest import PAPER_CONFIG
+from .conftest import paper_config_text
 from .synth_sweep import plane_truth, small_camera, sweep
 
 W, H = 96, 64
@@ -267,7 +267,7 @@ def test_bad_inputs(cfg, table, tmp_path, capsys):
     save_table(tmp_path / "t.npz", table)
     save_phase_map(tmp_path / "s.npz", scan(cfg)[0])
     cfg_file = tmp_path / "small.toml"
-    cfg_file.write_text(PAPER_CONFIG.read_text().replace("width_px = 2448", f"width_px = {W}")
+    cfg_file.write_text(paper_config_text().replace("width_px = 2448", f"width_px = {W}")
                         .replace("height_px = 2048", f"height_px = {H}"))
     code = main(["annotate", str(tmp_path / "s.npz"), "--table", str(tmp_path / "t.npz"),
                  "--config", str(cfg_file), "--out", str(tmp_path / "no" / "c.ply")])
@@ -297,7 +297,13 @@ def test_sigma_source_picks_the_random_sigma(cfg, table):
     model = annotate(pm, table, cfg)
     a = model.attributes
     assert model.sigma_source["kind"] == "characterised"
-    assert model.sigma_warning == ""
+    # this scan's own sigma_xp (0.03 px) is ~4x what the characterised model gives: the
+    # cloud warns with both medians; at 0.008 px the two agree within [0.5, 2], no warning
+    ratio = model.sigma_source["ratio_to_images"]
+    assert ratio == pytest.approx(np.median(a["sigma_model_um"]) / np.median(
+        1e3 * s_t * 0.03), rel=2e-3) and ratio < 0.5
+    assert "does not fit this scan" in model.sigma_warning
+    assert annotate(scan(cfg, sigma=0.008)[0], table, cfg).sigma_warning == ""
     np.testing.assert_allclose(a["sigma_random_um"], a["sigma_model_um"], rtol=1e-6)
 
     images = annotate(pm, table, cfg.replace_model(characterised_by=""))
@@ -337,8 +343,8 @@ def test_cli_warns_when_sigma_p_is_assumed(cfg, table, tmp_path, capsys):
     """An assumed sigma_p is never silent: a warning on the console and the source in the
     cloud's header; a characterised config gives neither."""
     save_table(tmp_path / "t.npz", table)
-    save_phase_map(tmp_path / "s.npz", scan(cfg)[0])
-    text = PAPER_CONFIG.read_text().replace("width_px = 2448", f"width_px = {W}") \
+    save_phase_map(tmp_path / "s.npz", scan(cfg, sigma=0.008)[0])  # as characterised
+    text = paper_config_text().replace("width_px = 2448", f"width_px = {W}") \
         .replace("height_px = 2048", f"height_px = {H}")
     for name, body in (("char.toml", text), ("assumed.toml", "\n".join(
             line for line in text.splitlines() if not line.startswith("characterised_by")))):

@@ -11,7 +11,7 @@ import pytest
 
 from scanqa.cli import main
 
-from .conftest import PAPER_CONFIG
+from .conftest import PAPER_CONFIG, paper_config_text
 
 CFG = str(PAPER_CONFIG)
 
@@ -99,7 +99,7 @@ def test_every_subcommand_has_help_with_example(capsys):
 def _config_with(tmp_path, section: str, **values) -> str:
     from scanqa.io.tomlfile import dumps_toml, tomllib
 
-    doc = tomllib.loads(PAPER_CONFIG.read_text())
+    doc = tomllib.loads(paper_config_text())
     doc[section].update(values)
     path = tmp_path / "scanner.toml"
     path.write_text(dumps_toml(doc))

@@ -58,7 +58,7 @@ def test_gray_and_phase_patterns_round_trip_through_files(tmp_path, capsys, pred
         assert np.sqrt(np.mean(err ** 2)) < 0.08  # px (measured 0.041, the noise): ideal fringes
     else:
         assert np.sqrt(np.mean(err ** 2)) > 0.5  # px (measured 1.3): gamma 2.2 left in the phase
-    assert "noise: estimated from the images: repeats of the white and black levels" in out
+    assert "noise: estimated from the images: offsets of the phase sets" in out
 
 
 def test_panel_size_and_periods_from_a_config(tmp_path, capsys):

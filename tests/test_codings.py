@@ -101,8 +101,9 @@ def test_opencv_gray_cells_order_two_non_nested_three_step_sets():
     ratio = _check(pm, x, 40.0)
     assert ratio == pytest.approx(1.0, abs=0.12)  # predicted sigma within 12 %
     assert pm.period_px == 40.0
-    # the noise came from the white/black repeats, and the summary says so
-    assert "repeats of the white and black levels" in pm.summary()
+    # the noise came from the two phase sets' offsets (the phase frames' own noise),
+    # and the summary says so
+    assert "offsets of the phase sets" in pm.summary()
     # OpenCV's own decoder finds the same cell; it also wants the row code, which
     # this capture does not have: the frames of projector row 0 stand in for it
     gray = cv2.structured_light.GrayCodePattern.create(width // cell, 2)

@@ -10,11 +10,11 @@ import pytest
 from scanqa.errors import ConfigError
 from scanqa.model.config import ScannerConfig, config_from_dict, load_config
 
-from .conftest import PAPER_CONFIG
+from .conftest import PAPER_CONFIG, paper_config_text
 
 
 def _base() -> str:
-    return PAPER_CONFIG.read_text()
+    return paper_config_text()
 
 
 def _write(tmp_path: Path, text: str) -> Path:

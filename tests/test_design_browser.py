@@ -22,7 +22,7 @@ import pytest
 from scanqa.cli import main
 from scanqa.runs import designapp
 
-from .conftest import PAPER_CONFIG
+from .conftest import PAPER_CONFIG, paper_config_text
 
 REQUIRE_CLIENTS = os.environ.get("SCANQA_REQUIRE_CLIENTS") == "1"
 BROWSERS = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
@@ -128,7 +128,7 @@ def test_slider_changes_the_volume_and_numbers_and_export_matches_scanqa(page, c
 
 
 def test_loading_a_toml_sets_the_inputs(page, tmp_path):
-    text = PAPER_CONFIG.read_text().replace("f_number = 8.0", "f_number = 16.0", 1)
+    text = paper_config_text().replace("f_number = 8.0", "f_number = 16.0", 1)
     path = tmp_path / "f16.toml"
     path.write_text(text)
     count = redraws(page)

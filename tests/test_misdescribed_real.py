@@ -144,13 +144,16 @@ def test_held_out_board_sets_as_captured_agree(board, k, cols):
 
 
 @pytest.mark.parametrize("variant,named", [
-    ({"fine_shifts": REVERSED}, 10), ({"fine_period": "half"}, 12),
-    ({"cue_period": "double"}, 12)],
+    ({"fine_shifts": REVERSED}, 10), ({"fine_period": "half"}, 11),
+    ({"cue_period": "double"}, 11)],
     ids=["fine_shifts_neg", "fine_period_half", "cue_period_double"])
 def test_held_out_board_misdescriptions_are_caught(board, board_noise, variant, named):
     # held out: each is caught on all 12 sets; the cause is named where the correct
     # description reaches EXPLAINED_RATIO of R_pred, which the rows of poses 4 and 5
-    # (R / R_pred 0.67) do not: a reversed sign there reads "no single misreading"
+    # (R / R_pred 0.67) do not: a reversed sign there reads "no single misreading".
+    # Since the image noise estimate stopped over-predicting the board's noise (session
+    # 41: measured/predicted 0.93-1.06 on its cells, was ~0.85), R_pred is higher and one
+    # set of the halved and doubled periods reads "no single misreading" too
     causes = 0
     for k, cols in BOARD:
         fine, width = (114.0, 1824) if cols else (71.25, 1140)

@@ -54,7 +54,8 @@ def test_repeats_law_holds_on_held_out_rows_and_meets_the_sweep_model(repeats, t
     config = load_config(SAMPLE / "sample_scanner.toml", profile="sample")
     law = apply_fitted_model(config, path)
     assert law.model.has_noise_law
-    assert law.model.characterised_by.startswith("scanqa characterize-repeats")
+    assert "summary.json sha256 " in law.model.characterised_by
+    assert "(scanqa characterize-repeats" in law.model.characterised_by
     cal = config_pinhole(config)
     swept = annotate(repeats[0], cal, config).attributes
     lawful = annotate(repeats[0], cal, law)
@@ -74,3 +75,29 @@ def test_repeats_need_two_captures_and_the_cli_writes_the_summary(repeats, tmp_p
     assert code == 0 and "held-out rows" in out
     data = json.loads((tmp_path / "n" / "summary.json").read_text())
     assert data["kind"] == "repeats" and len(data["noise_law"]["data_sha256"]) == 64
+
+
+def test_a_characterisation_that_does_not_fit_the_scan_warns_with_both_numbers(repeats,
+                                                                               tmp_path):
+    """The law the repeats gave: its median random sigma over the scan within [0.5, 2] of
+    the images' own (no warning). The same law with 400x the intensity variance (20x the
+    sigma, as a datasheet for another camera might give): a warning naming both medians."""
+    result = boardnoise.characterize_repeats(repeats)
+    config = load_config(SAMPLE / "sample_scanner.toml", profile="sample")
+    cal = config_pinhole(config)
+    path = tmp_path / "summary.json"
+    path.write_text(json.dumps(result))
+    fits = annotate(repeats[0], cal, apply_fitted_model(config, path))
+    assert 0.5 <= fits.sigma_source["ratio_to_images"] <= 2.0
+    assert fits.sigma_warning == ""
+    law = result["noise_law"]
+    law["read_var_dn2"], law["shot_dn"] = 400 * law["read_var_dn2"], 400 * law["shot_dn"]
+    path.write_text(json.dumps(result))
+    cloud = annotate(repeats[0], cal, apply_fitted_model(config, path))
+    a = cloud.attributes
+    ok = np.isfinite(a["sigma_random_um"]) & np.isfinite(a["sigma_phase_um"])
+    char, images = (float(np.median(a[k][ok])) for k in ("sigma_random_um", "sigma_phase_um"))
+    assert char / images == pytest.approx(20 * fits.sigma_source["ratio_to_images"], rel=0.05)
+    warning = cloud.sigma_warning
+    assert f"median of {char:.3g} um" in warning and f"give {images:.3g} um" in warning
+    assert "does not fit this scan" in warning and "\n" not in warning

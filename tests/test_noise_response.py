@@ -122,6 +122,10 @@ def test_without_a_noise_source_the_default_model_is_named():
     pm = decode_images(desc, [_camera(_phase(x, 1400.0, 3), np.random.default_rng(8))])
     assert "noise: default model (4 e-/DN, 8 e-): the images hold no noise source" in \
         pm.summary()
+    # and one loud line says that every sigma is assumed and what to give
+    warnings = pm.provenance["decode"]["warnings"]
+    assert sum("every sigma of this scan is ASSUMED" in w for w in warnings) == 1
+    assert "give [sensor] gain_e_per_dn and read_noise_e" in warnings[0]
 
 
 def test_a_dark_scan_names_its_reason_and_the_key():

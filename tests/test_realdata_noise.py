@@ -86,11 +86,13 @@ def test_held_out_poses_match_the_board_law(board):
         assert measured > 1.3
 
 
-def test_image_estimate_alone_is_within_a_factor_1_5(board):
-    """No characterisation: the decoder's own per-pixel noise estimate, measured/predicted
-    in [0.67, 1.5] on every cell (0.90-1.03 measured here)."""
+def test_image_estimate_alone_is_within_15_percent(board):
+    """No characterisation: the decoder's own per-pixel noise estimate (offsets of the
+    two phase sets, differenced along the fringes), measured/predicted in [0.85, 1.15]
+    on every cell (0.93-1.06 measured here; calseq1 was looked at while the estimator's
+    lag was chosen, calseq2-6 not)."""
     ratios = [r["ratio_random"] for r in board["images_only"]]
-    assert len(ratios) == 12 and all(0.67 <= r <= 1.5 for r in ratios), ratios
+    assert len(ratios) == 12 and all(0.85 <= r <= 1.15 for r in ratios), ratios
 
 
 def test_board_summary_reports_the_systematic_parts_and_the_law(board, tmp_path):
@@ -112,14 +114,15 @@ def test_board_summary_reports_the_systematic_parts_and_the_law(board, tmp_path)
     path.write_text(json.dumps(board))
     config = apply_fitted_model(load_config(ROOT / "calib" / "slstudio_example.toml"), path)
     assert config.model.noise_shot_dn == pytest.approx(law["shot_dn"])
-    assert config.model.characterised_by.startswith("scanqa characterize-board")
+    assert "(scanqa characterize-board" in config.model.characterised_by
 
 
 def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):
-    """skull_2x3: the robust std of (cue alone - fine) x_p against sqrt(s1^2 + s2^2) in
-    [0.8, 1.25] (1.24 measured here; 1.17 once the cue's phase-locked error is fitted
-    out), and the cloud's local scatter (z minus its 5 x 5 median) against the median
-    sigma_z in [0.67, 1.5] with the image estimate (0.82 here)."""
+    """skull_2x3: the robust std of (cue alone - fine) x_p, the cue's phase-locked error
+    fitted out, against sqrt(s1^2 + s2^2) in [0.8, 1.25] (1.27 with that error left in),
+    the per-pixel random part against sigma_xp in [0.85, 1.15] (1.00), and the cloud's
+    local scatter (z minus its 5 x 5 median) against the median sigma_z in [0.67, 1.5]
+    with the image estimate (0.82 before this estimator)."""
     frames = [SLSTUDIO / "skull_2x3" / f"frameSeq_{i:02d}.bmp" for i in range(6)]
     fine = _decode(tmp_path, "fine", [_phase_set("p114", 114.0, frames[:3]),
                                       _phase_set("p1824", 1824.0, frames[3:])])
@@ -127,8 +130,20 @@ def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):
     cue = _decode(tmp_path, "cue", [_phase_set("p1824", 1824.0, frames[3:])],
                   {"bit_depth": 8, "gain_e_per_dn": s["gain_e_per_dn"],
                    "read_noise_e": s["read_noise_e"]})
+    # the per-pixel random part: lag-3 second difference down the columns (along the
+    # fringes) against the median sigma_xp, in [0.85, 1.15] (1.00 measured; held out)
+    d = (fine.xp[:-6] - 2 * fine.xp[3:-3] + fine.xp[6:]) / math.sqrt(6)
+    ok = np.isfinite(d) & np.isfinite(fine.sigma_xp[3:-3])
+    ratio = float(np.median(fine.sigma_xp[3:-3][ok])) / boardnoise.robust_std(d[ok])
+    assert 0.85 <= ratio <= 1.15, ratio
     both = np.isfinite(fine.xp) & np.isfinite(cue.xp)
     diff = (cue.xp - fine.xp)[both]
+    # the cue's phase-locked error (a projector response that is not a sine, harmonics
+    # 1-3 of its one period) is systematic, not noise: fitted out first
+    theta = 2 * math.pi * fine.xp[both] / 1824.0
+    basis = np.column_stack([np.ones_like(theta)] + [f(k * theta) for k in (1, 2, 3)
+                                                      for f in (np.cos, np.sin)])
+    diff = diff - basis @ np.linalg.lstsq(basis, diff, rcond=None)[0]
     measured = boardnoise.robust_std(diff)
     predicted = float(np.median(np.hypot(cue.sigma_xp[both], fine.sigma_xp[both])))
     assert 0.8 <= measured / predicted <= 1.25, (measured, predicted)

@@ -13,7 +13,7 @@ from scanqa.decoding.phasemap import PhaseMap, save_phase_map
 from scanqa.errors import InputError
 from scanqa.io.sweep import load_sweep
 
-from .conftest import PAPER_CONFIG
+from .conftest import paper_config_text
 from .synth_sweep import small_camera, sweep
 
 ZS = (440.0, 445.0, 450.0, 455.0, 460.0, 465.0)
@@ -44,7 +44,7 @@ def _write_sweep(folder, cfg, zs=ZS, repeats=2, lines=None):
 @pytest.fixture(scope="module")
 def small_cfg_file(tmp_path_factory, paper_config):
     folder = tmp_path_factory.mktemp("cfg")
-    text = PAPER_CONFIG.read_text().replace("width_px = 2448", "width_px = 96") \
+    text = paper_config_text().replace("width_px = 2448", "width_px = 96") \
         .replace("height_px = 2048", "height_px = 64")
     path = folder / "small.toml"
     path.write_text(text)

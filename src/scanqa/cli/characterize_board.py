@@ -22,12 +22,15 @@ from scanqa.errors import InputError
 
 _EPILOG = """examples:
   scanqa characterize-board pose1/ pose2/ pose3/ --calibration calibration.xml \\
-      --config scanner.toml --board 13x9 --out board_noise
+      --config scanner.toml --board 9x13 --out board_noise
   scanqa annotate scan/ --calibration calibration.xml --config scanner.toml \\
       --model board_noise/summary.json --out cloud.ply
 
 Each POSE is a pattern folder (frames + patterns.toml) or a decoded phase.npz of the
-chessboard at one pose, with the fringes across it. Writes summary.json (the noise law
+chessboard at one pose, with the fringes across it; a pose is named by its folder
+(pose1/phase.npz is pose1). --board gives the inner corners as ROWSxCOLS, as calibrate
+does. The calibration's baseline must agree with the config's projector position_mm.
+Writes summary.json (the noise law
 that --model takes, each pose predicted by the others, the smooth part and the
 phase-locked ripple per pose) and cells.csv."""
 
@@ -39,8 +42,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("poses", nargs="+", metavar="POSE", help="board poses (>= 2)")
     add_calibration_argument(p)
     add_config_argument(p)
-    p.add_argument("--board", default="13x9", metavar="COLSxROWS",
-                   help="inner corners of the chessboard per row x per column (default 13x9)")
+    p.add_argument("--board", default="9x13", metavar="ROWSxCOLS",
+                   help="inner corners (saddle points) of the chessboard, rows x columns as "
+                        "for calibrate (default 9x13)")
     p.add_argument("--out", required=True, help="output folder")
     p.set_defaults(func=run)
     r = sub.add_parser("characterize-repeats",
@@ -48,7 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                        help="a scanner's per-pixel noise law from repeated captures of one pose",
                        epilog="example:\n  scanqa characterize-repeats rep0/ rep1/ rep2/ --out "
                               "noise\n\nEach SCAN is a pattern folder or phase.npz of the same "
-                              "static scene. Writes summary.json (the law --model takes, fitted "
+                              "static scene (each a separate capture; nothing moved between "
+                              "them: repeats that differ beyond their noise are refused). "
+                              "Writes summary.json (the law --model takes, fitted "
                               "to the even image rows and checked on the odd ones).")
     r.add_argument("scans", nargs="+", metavar="SCAN", help="repeated captures (>= 2)")
     r.add_argument("--out", required=True, help="output folder")
@@ -56,13 +62,25 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _board(text: str) -> tuple[int, int]:
+    """``ROWSxCOLS`` -> (rows, cols)."""
     try:
-        cols, rows = (int(v) for v in text.lower().split("x"))
+        rows, cols = (int(v) for v in text.lower().split("x"))
     except ValueError:
         cols = rows = 0
     if cols < 2 or rows < 2:
-        raise InputError(f"--board takes inner corners as COLSxROWS (e.g. 13x9), got {text!r}")
-    return cols, rows
+        raise InputError(f"--board takes inner corners as ROWSxCOLS (e.g. 9x13), got {text!r}")
+    return rows, cols
+
+
+def board_notice(rows: int, cols: int) -> str:
+    """A one-line notice when ``--board ROWSxCOLS`` looks like the old COLSxROWS order
+    (more rows than columns, as the old default 13x9 for a board of 9 rows), else ""."""
+    if rows <= cols:
+        return ""
+    return (f"note: --board {rows}x{cols} is read as ROWSxCOLS ({rows} rows x {cols} columns "
+            "of inner corners), as calibrate reads it; characterize-board read COLSxROWS "
+            "before. The board is found in either orientation, so it fits the same board as "
+            f"{cols}x{rows}")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -70,11 +88,22 @@ def run(args: argparse.Namespace) -> int:
     from scanqa.io.atomic import staged_dir, write_text
     from scanqa.progress import Progress, step_messages
     from scanqa.runs.boardnoise import characterize_board, digest
+    from scanqa.runs.noisechecks import check_scale, pose_keys
 
-    inner = _board(args.board)
+    rows, cols = _board(args.board)
+    inner = (cols, rows)  # per row, per column
+    notice = board_notice(rows, cols)
+    if notice:
+        emit(notice)
     config = config_from_args(args)
-    poses = {Path(p).name or p: decode(p) for p in args.poses}
+    keys = pose_keys(list(args.poses))
+    if len(keys) < 2:
+        raise InputError(f"a board characterisation needs >= 2 poses (one held out at a "
+                         f"time), got {len(keys)}")
+    poses = {name: decode(p) for name, p in keys.items()}
     calibration = calibration_from_args(args, config, next(iter(poses.values())))
+    with flags({"wrong square size": "wrong --square-mm"}):
+        check_scale(calibration, config, args.calibration)
     with flags({"check the board given": "check --board"}), \
             Progress("characterize-board", total=len(poses), unit="pose") as bar:
         result = characterize_board(poses, calibration, inner, progress=step_messages(bar))
@@ -102,12 +131,20 @@ def run_repeats(args: argparse.Namespace) -> int:
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
     from scanqa.runs.boardnoise import characterize_repeats, digest
+    from scanqa.runs.noisechecks import check_repeats, frame_levels
 
+    if len(args.scans) < 2:
+        raise InputError(f"repeats need >= 2 captures of one pose, got {len(args.scans)}")
+    check_repeats([], list(args.scans))  # the same folder twice, before decoding
     scans = [decode(s) for s in args.scans]
     shapes = {s.xp.shape for s in scans}
     if len(shapes) > 1:
         raise InputError(f"the repeats differ in size ({sorted(shapes)}): they must be "
                          "captures of one pose by one camera")
+    files = [_files(pm) for pm in scans]
+    frames = [list(zip(f, frame_levels(f), strict=True)) for f in files] \
+        if all(files) and all(Path(f).is_file() for fs in files for f in fs) else None
+    check_repeats(scans, list(args.scans), frames)
     result = characterize_repeats(scans)
     files = [f for pm in scans for f in _files(pm)]
     result["noise_law"]["data_sha256"] = digest(files) if files else ""

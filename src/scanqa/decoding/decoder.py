@@ -138,7 +138,7 @@ def _phase_map(desc: PatternDescription, run: _Run, response: ProjectorResponse 
     """Apply the guard, gather the diagnostics and warnings, and build the map."""
     out, stats = run.out, run.stats
     misstated = diagnostics.misstated_steps(desc, stats)
-    warnings = list(run.warnings)
+    warnings = [*([run.noise.warning] if run.noise.warning else []), *run.warnings]
     if misstated:
         diagnostics.apply_guard(out)
         warnings += checks.likely_cause(desc, run.sample, _trips_guard)

@@ -1,32 +1,40 @@
 """Camera noise from the images themselves, when the camera's gain and read noise are
 not given.
 
-Every source below yields, per pixel, a sample variance ``s^2`` with ``nu`` degrees of
-freedom at an intensity level L; the model ``sigma_I^2 = a + b (L - black)`` (read noise
-and quantisation, plus shot noise with ``b = 1 / gain``) is fitted to all samples by
-weighted least squares (weights ``nu / sigma^4``, non-negative coefficients), with
+Every source below yields samples of the intensity variance ``s^2`` with ``nu`` degrees
+of freedom at an intensity level L; the model ``sigma_I^2 = a + b (L - black)`` (read
+noise and quantisation, plus shot noise with ``b = 1 / gain``) is fitted to all samples
+by weighted least squares (weights ``nu / sigma^4``, non-negative coefficients), with
 samples beyond the 99.9 % chi-square quantile (edges, motion) dropped and the
 truncation corrected. The first source the scan has is used, in this order:
 
 1. residuals of the N-step fits (phase sets of N >= 4 frames): ``RSS / (N - 3)``;
-2. repeats of the white and black levels: the Gray-code frames that are white (black)
-   at a pixel against the white (black) reference frame, deviations away from mid grey
-   only (blur at cell edges pulls a frame towards mid grey, never beyond its level);
-   without a Gray code, repeated reference frames of one level;
-3. pattern + inverse sums of a Gray code: ``var_k(P_k + I_k) / 2`` at the mid level
-   (repeats of one level round the same way every time, so 2. and 3. hold no
-   quantisation noise, which the model adds for integer images);
-4. offsets of two phase sets: ``(A_i - A_j)^2 / (q_i + q_j)``, the offsets being the same
-   mean level measured twice (``q`` is the variance factor of each set's offset).
+2. offsets of two phase sets of one orientation: the offset A of each is the same mean
+   level measured twice, up to what the projector's response adds (constant along a
+   fringe);
+3. the Gray-code frames that are clearly white (black) at a pixel against the white
+   (black) reference frame; without a Gray code, repeated reference frames of one level;
+4. pattern + inverse sums of a Gray code, one bit against the next.
 
-Residual-type estimates also hold what the model does not explain - fringe harmonics
-of a nonlinear projector in 1. and 4. - so they err on the side of more noise. The
-source is named in the decode summary and the phase map's provenance.
+Sources 2-4 compare images whose expected difference is not zero - stray light puts a
+Gray code's white stripes below the white frame, a nonlinear projector shifts one
+set's offset against another's - but changes only slowly, or not at all, along the
+stripes and fringes. So each difference image is taken through the second difference
+at a lag of :data:`LAG_PX` pixels *along* the fringes, ``(d[i - L] - 2 d[i] + d[i + L])
+/ sqrt(6)``, which removes any level that is linear along them and keeps the noise
+(its variance is the variance of d for noise uncorrelated beyond L - 1 px: cameras
+whose noise is shared between neighbouring pixels, through demosaicing or the lens,
+are read right at L = 3). Every pixel counts, whatever the sign of its deviation, and
+the samples hold the quantisation of the frames they come from (noise of 0.5 DN or
+more dithers it), as the phase frames do. The source is named in the decode summary
+and the phase map's provenance; with none, one warning says that every sigma is
+assumed and what to give.
 """
 
 from __future__ import annotations
 
 import itertools
+import math
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -42,11 +50,27 @@ from scanqa.decoding.coding import (
 )
 from scanqa.decoding.demodulate import ShiftFit, fit_residual
 
-#: Pixels sampled (whole rows, evenly spaced) for the estimate: the variance is then
-#: known to about 1 % (chi-square with one degree of freedom per sample).
+#: Pixels sampled (whole rows or columns, evenly spaced) for the estimate: the variance
+#: is then known to better than 1 % (chi-square with one degree of freedom per sample).
 SAMPLE_PIXELS = 60000
+#: Fewest lines sampled for an estimate [-].
+MIN_LINES = 24
 #: Fewest usable samples for an estimate (the variance is then known to ~10 %).
 MIN_SAMPLES = 200
+#: Lag of the second differences along the fringes [px] (chosen on kamino410's gamma
+#: flat, set A: the phase noise along its fringes is flat from lag 2 to 6, while lag 1
+#: reads the camera's neighbour correlation; docs/noise_model.rst).
+LAG_PX = 3
+#: A Gray frame counts as white (black) where it is this share of the white - black
+#: contrast above (below) the mid level at all three pixels of a difference [-].
+STATE_MARGIN = 0.25
+#: The warning of a decode whose every sigma is assumed.
+ASSUMED_WARNING = (
+    "every sigma of this scan is ASSUMED: the images hold no noise source (no phase set "
+    "of 4 or more steps, no two phase sets of one orientation, no white and black frames, "
+    "no Gray code with inverses) and [sensor] gives no gain and read noise; the default "
+    "camera (4 e-/DN, 8 e-) is used - give [sensor] gain_e_per_dn and read_noise_e, or "
+    "capture a white and a black frame or a second phase set")
 
 
 @dataclass(frozen=True)
@@ -60,12 +84,18 @@ class NoiseEstimate:
     sensor : SensorModel
         Resolved model with gain and read noise.
     samples : int
-        Pixels the estimate used (0 for a given or default model) [-].
+        Samples the estimate used (0 for a given or default model) [-].
     """
 
     source: str
     sensor: SensorModel
     samples: int = 0
+
+    @property
+    def warning(self) -> str:
+        """One line saying that every sigma is assumed and what to give, or ""."""
+        return ASSUMED_WARNING if self.source.startswith("default model") and \
+            "hold no noise source" in self.source else ""
 
     def as_dict(self) -> dict:
         """JSON-ready summary (for the phase map's provenance)."""
@@ -105,101 +135,171 @@ def resolve_noise(desc: PatternDescription, stacks: list[np.ndarray], sensor: Se
         what = "[sensor] gain and read noise" if sensor.knows_noise else \
             "default model (4 e-/DN, 8 e-; decode.noise = 'sensor' without [sensor] gain)"
         return NoiseEstimate(f"sensor model: {what}", model)
-    found = _samples(desc, _sampled(stacks), sensor)
+    found = _samples(desc, stacks, sensor)
     if found is not None and found[0][0].size >= MIN_SAMPLES:
         (s2, dof, level), name = found
+        if s2.size > 2 * SAMPLE_PIXELS:  # many frames' lines: an even share of them
+            pick = np.linspace(0, s2.size - 1, 2 * SAMPLE_PIXELS).astype(int)
+            s2, dof, level = s2[pick], dof[pick], level[pick]
         a, b = fit_variance(s2, dof, level - sensor.black_level_dn,
                             floor=1.0 / 48.0 if quantised else 1e-6)
-        # repeats of one level round the same way every time: no quantisation in them
-        has_q = quantised and not name.startswith(("repeats", "pattern + inverse"))
         return NoiseEstimate(f"estimated from the images: {name}",
-                             _to_sensor(sensor, a, b, has_q), int(s2.size))
+                             _to_sensor(sensor, a, b, quantised), int(s2.size))
     model = replace(sensor, gain_e_per_dn=DEFAULT_SENSOR.gain_e_per_dn,
                     read_noise_e=DEFAULT_SENSOR.read_noise_e)
     return NoiseEstimate("default model (4 e-/DN, 8 e-): the images hold no noise source "
                          "(give [sensor] gain_e_per_dn and read_noise_e)", model)
 
 
-def _sampled(stacks: list[np.ndarray]) -> list[np.ndarray]:
-    """Evenly spaced whole rows of every stack, flattened to (N, M) float64."""
-    height, width = stacks[0].shape[1:]
-    step = max(1, (height * width) // SAMPLE_PIXELS)
-    return [st[:, ::step].reshape(st.shape[0], -1).astype(np.float64) for st in stacks]
+def _centres(length: int, width: int) -> np.ndarray:
+    """Evenly spaced centre lines of ``width`` samples each, LAG_PX from either end,
+    about SAMPLE_PIXELS samples in all, and at least MIN_LINES lines (a few lines would
+    sample a few places of the scene only)."""
+    count = max(MIN_LINES, min(length - 2 * LAG_PX, SAMPLE_PIXELS // max(width, 1)))
+    count = min(count, max(length - 2 * LAG_PX, 1))
+    return np.unique(np.linspace(LAG_PX, length - LAG_PX - 1, count).round().astype(int))
 
 
-def _samples(desc: PatternDescription, flat: list[np.ndarray], sensor: SensorModel
+class _Lines:
+    """Three lines per sample: a centre and its neighbours LAG_PX before and after it,
+    taken along the fringes of one orientation (rows for vertical fringes)."""
+
+    def __init__(self, shape: tuple[int, int], orientation: str, frames: int = 1) -> None:
+        self.vertical = orientation != "horizontal"
+        height, width = shape
+        # frames: images each line is read from, sharing the SAMPLE_PIXELS between them
+        width, height = (width, height) if self.vertical else (height, width)
+        self.idx = _centres(height, width * max(frames, 1))
+
+    def take(self, stack: np.ndarray) -> np.ndarray:
+        """(3, N, M) float64: the lines before, at and after each centre, flattened."""
+        axis = -2 if self.vertical else -1
+        out = [np.take(stack, self.idx + k, axis=axis).astype(np.float64)
+               for k in (-LAG_PX, 0, LAG_PX)]
+        return np.stack([o.reshape(o.shape[0], -1) for o in out])
+
+
+def _second(d: np.ndarray) -> np.ndarray:
+    """Second difference of (3, ...) lines, scaled to the variance of one line."""
+    return (d[0] - 2.0 * d[1] + d[2]) / math.sqrt(6.0)
+
+
+def _samples(desc: PatternDescription, stacks: list[np.ndarray], sensor: SensorModel
              ) -> tuple[tuple, str] | None:
     """(s2, dof, level) of the first source the scan has, and its name."""
-    unsat = ~np.any([f.max(axis=0) >= sensor.saturation_dn for f in flat], axis=0)
-    by_kind = {type(s): (s, f[:, unsat]) for s, f in zip(desc.sets, flat, strict=True)}
-    phase = [(s, f[:, unsat]) for s, f in zip(desc.sets, flat, strict=True)
-             if isinstance(s, PhaseSet)]
-    long_sets = [(s, f) for s, f in phase if s.steps >= 4]
+    shape = stacks[0].shape[1:]
+    sets = list(zip(desc.sets, stacks, strict=True))
+    phase = [(s, st) for s, st in sets if isinstance(s, PhaseSet)]
+    long_sets = [(s, st) for s, st in phase if s.steps >= 4]
+    sat = sensor.saturation_dn
     if long_sets:
         names = ", ".join(s.name for s, _ in long_sets)
-        return _residual_samples(long_sets), f"residuals of the N-step fits ({names})"
-    gray, ref = by_kind.get(GrayCodeSet), by_kind.get(ReferenceSet)
+        return _residual_samples(long_sets, shape, sat), \
+            f"residuals of the N-step fits ({names})"
+    pairs = [p for o in ("vertical", "horizontal")
+             for p in itertools.pairwise([x for x in phase if x[0].orientation == o])]
+    if pairs:
+        names = ", ".join(f"{a.name} vs {b.name}" for (a, _), (b, _) in pairs)
+        return _offset_samples(pairs, shape, sat), \
+            f"offsets of the phase sets ({names}), second differences along the fringes"
+    gray = next(((s, st) for s, st in sets if isinstance(s, GrayCodeSet)), None)
+    ref = next(((s, st) for s, st in sets if isinstance(s, ReferenceSet)), None)
     if ref is not None:
-        return _level_samples(ref, gray), "repeats of the white and black levels"
+        how = "repeats of the white and black levels" + (
+            " (the Gray code's stripes against the white and black frames, second "
+            "differences along the stripes)" if gray is not None else "")
+        return _level_samples(ref, gray, shape, sat), how
     if gray is not None and gray[0].inverse != "none":
-        return _inverse_samples(*gray), "pattern + inverse sums of the Gray code"
-    if len(phase) >= 2:
-        pairs = ", ".join(f"{a.name} vs {b.name}" for (a, _), (b, _) in
-                          itertools.pairwise(phase))
-        return _offset_samples(phase), f"offsets of the phase sets ({pairs})"
+        return _inverse_samples(*gray, shape, sat), \
+            "pattern + inverse sums of the Gray code, bit against bit"
     return None
 
 
-def _residual_samples(sets: list) -> tuple:
+def _unsat(lines: np.ndarray, sat: float) -> np.ndarray:
+    """Samples none of whose frames and lines is clipped: at or above saturation, or at
+    or below zero (a camera clips its noise there, which would read low)."""
+    return ~np.any((lines >= sat) | (lines <= 0), axis=(0, 1))
+
+
+def _residual_samples(sets: list, shape: tuple, sat: float) -> tuple:
     parts = []
-    for pset, f in sets:
+    for pset, st in sets:
+        f = _Lines(shape, pset.orientation).take(st)[1]
+        keep = ~np.any((f >= sat) | (f <= 0), axis=0)
         fit = ShiftFit.from_shifts(pset.shifts_rad)
         dof = pset.steps - 3
-        parts.append((fit_residual(fit, f) / dof, np.full(f.shape[1], dof), fit.rows[0] @ f))
+        f = f[:, keep]
+        parts.append((fit_residual(fit, f) / dof, np.full(f.shape[1], dof),
+                      fit.rows[0] @ f))
     return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
-def _offset_samples(sets: list) -> tuple:
+def _offset_samples(pairs: list, shape: tuple, sat: float) -> tuple:
+    """The offsets of two phase sets of one orientation, differenced along the fringes:
+    ``var(A_i - A_j) = sigma_I^2 (q_i + q_j)`` with ``q`` each offset's variance factor."""
     parts = []
-    for (sa, fa), (sb, fb) in itertools.pairwise(sets):
-        ra, rb = ShiftFit.from_shifts(sa.shifts_rad).rows[0], \
-            ShiftFit.from_shifts(sb.shifts_rad).rows[0]
-        a, b = ra @ fa, rb @ fb
-        parts.append(((a - b) ** 2 / (ra @ ra + rb @ rb), np.ones(a.size), 0.5 * (a + b)))
+    for (sa, fa), (sb, fb) in pairs:
+        lines = _Lines(shape, sa.orientation)
+        la, lb = lines.take(fa), lines.take(fb)
+        ra = ShiftFit.from_shifts(sa.shifts_rad).rows[0]
+        rb = ShiftFit.from_shifts(sb.shifts_rad).rows[0]
+        a, b = np.einsum("n,lnm->lm", ra, la), np.einsum("n,lnm->lm", rb, lb)
+        keep = _unsat(la, sat) & _unsat(lb, sat)
+        d = _second(a - b)[keep]
+        parts.append((d * d / (ra @ ra + rb @ rb), np.ones(d.size),
+                      0.5 * (a[1] + b[1])[keep]))
     return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
-def _inverse_samples(gray: GrayCodeSet, f: np.ndarray) -> tuple:
-    plain, inverse = gray.frame_order()
-    sums = f[plain] + f[inverse]
-    return sums.var(axis=0, ddof=1) / 2.0, np.full(f.shape[1], gray.bits - 1.0), \
-        sums.mean(axis=0) / 2.0
+def _level_samples(ref: tuple, gray: tuple | None, shape: tuple, sat: float) -> tuple:
+    """White and black levels measured twice.
 
-
-def _level_samples(ref: tuple, gray: tuple | None) -> tuple:
-    """Deviations of repeated white or black frames from the reference level.
-
-    With a Gray code, its frames that are white (black) at a pixel are compared with
-    the white (black) reference frame, counting only deviations away from mid grey: a
-    frame on a blurred cell edge is pulled towards mid grey, never beyond its level, so
-    the far half of the deviations is noise alone (for symmetric noise). Without a Gray
-    code, repeated reference frames of one level are compared with their mean.
+    With a Gray code, each of its frames is compared with the reference frame of the
+    level it shows at a pixel - white (black) where it is clearly above (below) the mid
+    level at all three pixels of the difference, so that cell edges stay out and no
+    deviation is kept or dropped for its own sign. Without a Gray code, repeated
+    reference frames of one level give their within-level variance.
     """
-    rset, rf = ref
+    rset, rst = ref
     is_white = np.array([v == "white" for v in rset.levels])
-    white, black = rf[is_white].mean(axis=0), rf[~is_white].mean(axis=0)
+    orientation = gray[0].orientation if gray is not None else "vertical"
+    lines = _Lines(shape, orientation, gray[1].shape[0] if gray is not None else 1)
+    rl = lines.take(rst)
     if gray is None:
-        parts = [_repeat_deviations(rf[is_white]), _repeat_deviations(rf[~is_white])]
+        keep = _unsat(rl, sat)
+        parts = [_repeat_deviations(rl[1][is_white][:, keep]),
+                 _repeat_deviations(rl[1][~is_white][:, keep])]
         return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
-    g = gray[1]
+    white, black = rl[:, is_white].mean(axis=1), rl[:, ~is_white].mean(axis=1)
+    contrast = white - black
     mid = 0.5 * (white + black)
-    is_w = g > mid
-    level = np.where(is_w, white, black)
-    dev = g - level
-    away = np.where(is_w, dev > 0, dev < 0) & (white > black)
-    n_ref = np.where(is_w, is_white.sum(), (~is_white).sum())
-    s2 = dev[away] ** 2 / (1.0 + 1.0 / n_ref[away])
-    return s2, np.ones(s2.size), level[away]
+    gl = lines.take(gray[1])
+    keep = _unsat(rl, sat) & _unsat(gl, sat) & np.all(contrast > 0, axis=0)
+    parts = []
+    for k in range(gl.shape[1]):
+        g = gl[:, k]
+        for sign, level, n_ref in ((1.0, white, is_white.sum()), (-1.0, black,
+                                                                  (~is_white).sum())):
+            state = keep & np.all(sign * (g - mid) > STATE_MARGIN * contrast, axis=0)
+            d = _second(g - level)[state]
+            parts.append((d * d / (1.0 + 1.0 / n_ref), np.ones(d.size),
+                          0.5 * (g[1] + level[1])[state]))
+    return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
+
+
+def _inverse_samples(gray: GrayCodeSet, st: np.ndarray, shape: tuple, sat: float) -> tuple:
+    """Pattern + inverse sums of consecutive bits, differenced along the stripes: each sum
+    is the white plus the black level, up to what a nonlinear camera adds at cell edges."""
+    plain, inverse = gray.frame_order()
+    gl = _Lines(shape, gray.orientation, gray.bits).take(st)
+    keep = _unsat(gl, sat)
+    sums = gl[:, plain] + gl[:, inverse]
+    parts = []
+    for k in range(gray.bits - 1):
+        d = _second(sums[:, k] - sums[:, k + 1])[keep]
+        parts.append((d * d / 4.0, np.ones(d.size),
+                      0.25 * (sums[1, k] + sums[1, k + 1])[keep]))
+    return tuple(np.concatenate(p) for p in zip(*parts, strict=True))
 
 
 def _repeat_deviations(frames: np.ndarray) -> tuple:
@@ -271,8 +371,9 @@ def _nnls2(level: np.ndarray, y: np.ndarray, w: np.ndarray) -> np.ndarray:
 def _to_sensor(sensor: SensorModel, a: float, b: float, quantised: bool) -> SensorModel:
     """The sensor model whose sample variance is ``a + b (I - black)``.
 
-    ``quantised``: the estimate holds the quantisation variance 1/12 DN^2, which the
-    model adds by itself for integer images, so it is taken out of the read noise.
+    ``quantised``: the estimate holds the quantisation variance 1/12 DN^2 (every source
+    compares frames rounded independently), which the model adds by itself for integer
+    images, so it is taken out of the read noise.
     """
     gain = 1.0 / b if b > 1e-9 else 1e9
     read_var = max(a - (1.0 / 12.0 if quantised else 0.0), 0.0)

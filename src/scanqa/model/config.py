@@ -28,6 +28,7 @@ from typing import Any, ClassVar
 import numpy as np
 
 from scanqa.errors import ConfigError
+from scanqa.io.fitted_model import absolute_evidence, check_characterised_by
 from scanqa.io.tomlfile import read_toml
 
 #: The readings of Eq. 17 (docs/model.rst, reading (i)) and its smooth form
@@ -280,9 +281,10 @@ class ModelConfig(_Section):
     filter_form: str = _spec(kind="str", choices=FILTER_FORMS, default="sum")
     #: phase noise of the sensor at focus (A_c = A_p = 1) [projector px]; two_source only
     sensor_sigma_p_px: float = _spec("px", ge=0, default=0.0)
-    #: where sigma_p comes from ("" = assumed, not characterised): a characterisation
-    #: (its summary and data hash) or a published measurement. An assumed sigma_p does
-    #: not set the per-point sigma: the images' own noise does (docs/noise_model.rst)
+    #: where sigma_p comes from ("" = assumed, not characterised): a characterisation file
+    #: and the start of its sha256, "summary.json sha256 HEX" (a published measurement
+    #: written down as a kind = "published" file). An assumed sigma_p does not set the
+    #: per-point sigma: the images' own noise does (docs/noise_model.rst)
     characterised_by: str = _spec(kind="text", default="")
     #: per-pixel noise law fitted to a board (scanqa characterize-board): intensity
     #: variance a + b A per frame at offset A; 0 and 0 = no law
@@ -532,7 +534,13 @@ def load_config(path: str | os.PathLike, profile: str | None = None) -> ScannerC
         text_path, profile = text_path.rsplit("#", 1)
     p = Path(text_path)
     data = read_toml(p, "scanner config", ConfigError)
-    return config_from_dict(data, source=str(p), profile=profile)
+    config = config_from_dict(data, source=str(p), profile=profile)
+    evidence = config.model.characterised_by
+    check_characterised_by(evidence, p)  # evidence, not words
+    # named by absolute path from here on: a config written elsewhere (an export, a test's
+    # copy, a recorded config) still names the same file
+    return config.replace_model(characterised_by=absolute_evidence(evidence, p)) \
+        if evidence else config
 
 
 def first_difference(config: ScannerConfig, recorded: dict,

@@ -39,6 +39,7 @@ from scanqa.calibration.board import Board, find_corners
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
+from scanqa.runs.boardshape import board_coordinates, split_smooth
 
 #: Degree of the polynomial surface taken as the smooth part [-].
 SMOOTH_DEGREE = 4
@@ -49,6 +50,8 @@ RIPPLE_HARMONICS = 3
 SQUARE_SHRINK = 0.6
 #: Fewest points of a square used in the fit [-].
 MIN_SQUARE_POINTS = 200
+#: Points per pose sampled for the board-shape / calibration split [-].
+SHAPE_SAMPLES = 4000
 #: Format tag of the summary written by :func:`characterize_board`.
 SUMMARY_FORMAT = "scanqa-board-noise/1"
 
@@ -142,6 +145,9 @@ class PoseResidual:
     #: robust std of the whole residual about the plane over all points of the bright
     #: and of the dark squares (smooth part and ripple included) [um]
     about_plane_um: dict = field(default_factory=dict)
+    #: sampled points for splitting the smooth part (:func:`scanqa.runs.boardshape.
+    #: split_smooth`): board and image coordinates, plane coordinates, smooth part
+    shape_samples: dict = field(default_factory=dict, repr=False)
 
 
 def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
@@ -160,7 +166,7 @@ def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
     ray = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
     cos = np.abs(ray @ normal)
     theta = 2 * math.pi * phase_map.xp[on] / phase_map.period_px
-    parts, keep = _split(xyz, normal, resid, theta)
+    parts, keep, plane_st = _split(xyz, normal, resid, theta)
     smooth, ripple = parts
     random = resid - smooth - ripple
     lab = labels[on]
@@ -170,10 +176,16 @@ def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
     is_bright = bright[lab - 1]
     pooled = {"bright": 1e3 * robust_std(resid[is_bright]),
               "dark": 1e3 * robust_std(resid[~is_bright])}
+    pick = np.flatnonzero(keep)[::max(1, int(keep.sum()) // SHAPE_SAMPLES)]
+    rows, cols = (i[pick] for i in np.nonzero(on))
+    board_u, board_v = board_coordinates(corners, rows, cols)
+    samples = {"board_u": board_u, "board_v": board_v, "image_u": cols.astype(float),
+               "image_v": rows.astype(float), "s": plane_st[0][pick], "t": plane_st[1][pick],
+               "smooth": smooth[pick]}
     return PoseResidual(name, normal, float(np.median(xyz[:, 2])),
                         1e3 * float(np.sqrt(np.mean(smooth[keep] ** 2))),
                         1e3 * 0.5 * float(np.ptp(np.percentile(ripple[keep], [1, 99]))),
-                        squares, pooled)
+                        squares, pooled, samples)
 
 
 def _plane(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -191,9 +203,9 @@ def _plane(xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _split(xyz: np.ndarray, normal: np.ndarray, resid: np.ndarray, theta: np.ndarray
-           ) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray]:
+           ) -> tuple[tuple[np.ndarray, np.ndarray], np.ndarray, tuple]:
     """Smooth part and ripple of ``resid`` (joint least squares with 4-sigma rejection),
-    and the points kept [mm, mm, bool]."""
+    the points kept and their plane coordinates [mm, mm, bool, (-, -)]."""
     e1 = np.cross(normal, [0.0, 1.0, 0.0])
     e1 /= np.linalg.norm(e1)
     e2 = np.cross(normal, e1)
@@ -212,7 +224,7 @@ def _split(xyz: np.ndarray, normal: np.ndarray, resid: np.ndarray, theta: np.nda
         rest = resid - design @ coef
         keep = np.abs(rest) < 4 * robust_std(rest)
     n = len(smooth_cols)
-    return (design[:, :n] @ coef[:n], design[:, n:] @ coef[n:]), keep
+    return (design[:, :n] @ coef[:n], design[:, n:] @ coef[n:]), keep, (s, t)
 
 
 def _law_terms(phase_map: PhaseMap, s_t: np.ndarray, cos: np.ndarray, on: np.ndarray
@@ -348,14 +360,32 @@ def summary(poses: list[PoseResidual], law: NoiseLaw, held_out: list[dict],
             data_sha256: str, sources: list[str]) -> dict:
     """The JSON summary that ``--model`` takes (``noise_law``) with every table."""
     smooth = math.sqrt(np.mean([p.smooth_rms_um**2 for p in poses]))
+    split = split_smooth([p.shape_samples for p in poses]) \
+        if all(p.shape_samples for p in poses) else {"separable": False}
+    if split["separable"]:
+        applied = split["calibration_um"]
+        what = (f"split: the board's own shape {split['board_shape_um']:.1f} um (the same in "
+                f"board coordinates at every pose; not applied to later scans) and the "
+                f"calibration error {split['calibration_um']:.1f} um (fixed in the image, "
+                "plus each pose's own rest; applied to later scans), canonical correlation "
+                f"of the two {split['correlation']:.2f}")
+    else:
+        applied = smooth
+        what = ("not separable with these poses (" + split.get(
+            "why", f"the board-fixed and image-fixed surfaces correlate "
+                   f"{split.get('correlation', math.nan):.2f}") + "): board shape and "
+                "calibration error are applied together to later scans; pose the board "
+                "at more different positions and tilts, or add a flat of known form")
     return {"format": SUMMARY_FORMAT, "kind": "board",
             "noise_law": {"read_var_dn2": law.read_var_dn2, "shot_dn": law.shot_dn,
                           "interval_95": law.interval,
-                          "systematic_um": smooth,
+                          "systematic_um": applied,
+                          "systematic": {"smooth_rms_um": smooth, **split},
                           "data_sha256": data_sha256, "sources": sources},
             "identifiability": {
                 "read_var_dn2": "fitted (bright and dark squares differ in B)",
                 "shot_dn": "fitted (bright and dark squares differ in B)",
+                "systematic (board shape against calibration error)": what,
                 "defocus filtering (gamma, sigma_p)": "not identified: the board's poses "
                 "span too little depth for the blur to change the noise"},
             "poses": [{"name": p.name, "depth_mm": p.depth_mm,

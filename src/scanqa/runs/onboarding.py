@@ -246,7 +246,8 @@ def _model() -> list[tuple]:
              'F >= 1, "smooth" takes sqrt(1 + F^2)'),
             ("noise_reading", "power", 'how attenuation enters s_O: "power" (1/A), '
              '"amplitude" (1/sqrt(A)) or "mixed"'),
-            ("characterised_by", "", "where sigma_p was measured; empty = ASSUMED, so "
+            ("characterised_by", "", "the characterisation file and the start of its "
+             "sha256, 'SUMMARY.json sha256 HEX' (never free words); empty = ASSUMED, so "
              "every point's sigma comes from the scan's own images and every command warns "
              "('scanqa characterize-board' or --model SUMMARY.json fill it)")]
 
