@@ -424,8 +424,8 @@ def _gray_order(plan: UnwrapPlan, step: chain.Step, dec, frac: np.ndarray,
     the phase cannot order is undecidable (low modulation). Either way the phase must
     keep its own noise margin from the decision boundary half a period away.
 
-    Where the next step tells neighbouring orders apart (:func:`defers_orders`; a Gray cell
-    as wide as the period, as OpenCV's codes of non-nested sets have), a pixel whose
+    Where the next step tells neighbouring orders apart (:func:`defers_orders`; a Gray
+    cell as wide as the period, as OpenCV's codes of non-nested sets have), a pixel whose
     phase also fits the order below or above (or lies within its noise of the boundary)
     keeps them open: returns ``(x, open)`` with ``open`` None or (pixels, (n, 2) bool:
     order -1 and +1 still possible) for :func:`_resolve_orders`.
@@ -454,7 +454,7 @@ def _gray_order(plan: UnwrapPlan, step: chain.Step, dec, frac: np.ndarray,
         pixels = np.flatnonzero(undecided & flags.open())
         if pixels.size:
             open_orders = (pixels, np.column_stack([lower[pixels], upper[pixels]]),
-                           full[pixels])
+                           full[pixels], centre[pixels], half[pixels])
         ambiguous &= ~undecided
         noisy &= ~undecided
     bad = outside | (ambiguous & full)
@@ -478,11 +478,13 @@ def _resolve_orders(plan: UnwrapPlan, first: chain.Step, step: chain.Step, x: np
     sets at the pixel's phases (a projector's gamma, :attr:`UnwrapPlan.systematic`) and
     reduced by the bound of what the ripple leaves, which may account for that much of
     a residual at no cost, while an order it cannot explain must be told apart by the
-    noise. A pixel left undecided is
-    masked as the Gray order alone would have masked it (inconsistent, or an
-    undecidable Gray bit for a pixel between cells).
+    noise. An order inside the decoded cells (to its noise) is only challenged by the
+    other orders inside them: the Gray code speaks against one that only the edge
+    tolerance admits, and two orders two periods apart may read alike in the step. A
+    pixel left undecided is masked as the Gray order alone would have masked it
+    (inconsistent, or an undecidable Gray bit for a pixel between cells).
     """
-    pixels, sides, full = open_orders
+    pixels, sides, full, centre, half = open_orders
     th = plan.desc.thresholds
     period, p_step = first.period_px, step.period_px
     base = x[pixels]
@@ -499,6 +501,11 @@ def _resolve_orders(plan: UnwrapPlan, first: chain.Step, step: chain.Step, x: np
     rows = np.arange(pixels.size)
     r_best = r[rows, best]
     sigma2 = (var_x[pixels] + var_step[pixels]) / (p_step * p_step)
+    # an order inside the decoded cells is not challenged by one that only the edge
+    # tolerance admits (the step may not tell two orders apart that are two periods apart)
+    noise = 3.0 * th.unwrap_sigma_margin * np.sqrt(var_x[pixels])
+    inside = np.abs(cand - centre[:, None]) <= (half + noise)[:, None]
+    r = np.where(inside[rows, best][:, None] & ~inside, np.inf, r)
     r[rows, best] = np.inf
     # a residual within the systematic bound costs nothing; beyond it, the noise decides
     r_other = np.maximum(r.min(axis=1) - bound, 0.0)
