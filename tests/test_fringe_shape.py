@@ -22,10 +22,11 @@ PERIOD = 96.0
 WIDTH = 1536
 
 
-def _scan(square: bool, seed: int):
+def _scan(square: bool, seed: int, steps: int = 3):
     desc = PatternDescription(WIDTH, (
         GrayCodeSet("g", 5, cell_px=PERIOD / 2, inverse="interleaved", orders="fine"),
-        PhaseSet("fine", PERIOD, 3)), sensor=SensorModel(gain_e_per_dn=20.0, read_noise_e=20.0))
+        PhaseSet("fine", PERIOD, steps)),
+        sensor=SensorModel(gain_e_per_dn=20.0, read_noise_e=20.0))
     rows, cols = 40, 1400
     truth = np.linspace(20.0, WIDTH - 60.0, cols)[None, :] + np.linspace(0, 30, rows)[:, None]
     stacks = synthesize_images(desc, truth, 110.0, 70.0)
@@ -64,3 +65,13 @@ def test_sine_fringes_are_not_named(seed):
     assert _named(pm) == []
     assert np.median(pm.sigma_xp[pm.valid]) < 0.5
     assert np.abs(pm.xp[pm.valid] - truth[pm.valid]).max() < 2.0
+
+
+def test_square_wave_4_step_fringes_are_named_with_their_error():
+    # four shifts of a 50 % square wave read four phase values: a coarser staircase,
+    # whose spread sigma_xp must carry
+    pm, truth = _scan(square=True, seed=2, steps=4)
+    error = pm.xp[pm.valid] - truth[pm.valid]
+    named = _named(pm)
+    assert len(named) == 1 and "4-step phase clusters" in named[0], named
+    assert 0.8 * np.std(error) <= np.median(pm.sigma_xp[pm.valid]) <= 1.25 * np.std(error)
