@@ -48,3 +48,47 @@ def slstudio_board_patterns(folder: Path) -> tuple[Path, Path]:
                  "files": names[3:]}]}))
         paths.append(path)
     return paths[0], paths[1]
+
+
+#: kamino410/phase-shifting's sample captures (README in the folder): object1 with the
+#: reference decoder's result.
+KAMINO = REALDATA / "kamino410"
+
+#: Skips a test when kamino410's captures are not beside the repository.
+needs_kamino = pytest.mark.skipif(
+    not (KAMINO / "object1_ref.npz").is_file(),
+    reason=f"kamino410's captures not found at {KAMINO} (they live beside the repository "
+           "in ../shared/realdata; set SCANQA_REALDATA to their folder to run these tests)")
+
+#: kamino410's shifts in frame order [rad].
+KAMINO_SHIFTS = [-2 * math.pi / 3, 0.0, 2 * math.pi / 3]
+
+
+def kamino_object1_patterns(folder: Path) -> tuple[Path, Path]:
+    """Write hand descriptions of object1's columns and rows into ``folder`` (README:
+    3-step sets of 66.667 and 100 px; OpenCV Gray bits of 100 px cells, each followed by
+    its inverse, ordering the 100 px set; white pat30, black pat31); returns the two
+    folders (columns, rows)."""
+    obj = KAMINO / "object1"
+    paths = []
+    for name, width, fine, coarse, gray, bits, orientation in (
+            ("columns", 1920, 0, 3, 12, 5, "vertical"),
+            ("rows", 1080, 6, 9, 22, 4, "horizontal")):
+        files = [str(obj / f"pat{i:02d}.png") for i in range(32)]
+        sub = Path(folder) / name
+        sub.mkdir(parents=True, exist_ok=True)
+        (sub / "patterns.toml").write_text(dumps_patterns({
+            "format": "scanqa-patterns/2", "projector_width_px": width, "set": [
+                {"kind": "reference", "name": "white_black", "levels": ["white", "black"],
+                 "files": files[30:32]},
+                {"kind": "gray", "name": "gray", "bits": bits, "cell_px": 100.0,
+                 "inverse": "interleaved", "orders": "p100", "orientation": orientation,
+                 "files": files[gray:gray + 2 * bits]},
+                {"kind": "phase", "name": "p100", "period_px": 100.0, "steps": 3,
+                 "shifts_rad": KAMINO_SHIFTS, "orientation": orientation,
+                 "files": files[coarse:coarse + 3]},
+                {"kind": "phase", "name": "p66", "period_px": 1920 / 28.8, "steps": 3,
+                 "shifts_rad": KAMINO_SHIFTS, "orientation": orientation,
+                 "files": files[fine:fine + 3]}]}))
+        paths.append(sub)
+    return paths[0], paths[1]

@@ -103,6 +103,7 @@ def test_cli_writes_a_config_that_gives_the_reported_volume(capsys, tmp_path, sp
     (SPEC.replace("scanqa-design-spec/1", "x/1"), "format must be"),
     (SPEC.replace("angle_deg = [8.0, 25.0]", "angle_deg = [25.0, 8.0]"), "low < high"),
     (SPEC.replace("angle_deg", "bogus"), "limits.bogus is not a scanner setting"),
+    (SPEC.replace("[8.0, 25.0]", "[8.0, 60.0]"), r"must lie within \[0, 45\] deg"),
     (SPEC.replace("[cover]", "[cover_]"), "unknown key 'cover_'"),
     (SPEC.replace("sigma_max_um = 8.0", "sigma_max_um = 0.1"), "no configuration"),
     (SPEC.replace("level = 0.49", 'objective = "fast"\nlevel = 0.49'),
@@ -139,3 +140,29 @@ def test_cli_opens_the_best_configuration_in_the_page(capsys, monkeypatch, spec_
     out = capsys.readouterr().out
     row = json.loads(out[:out.index("scanqa design page:")])
     assert served[0].camera.f_number == pytest.approx(row["camera_f_number"])
+
+
+SLSTUDIO_CONFIG = PAPER_CONFIG.parent / "slstudio_example.toml"
+
+
+def test_optimiser_finds_what_volume_calls_usable_on_a_dlp_scanner():
+    """SLStudio's scanner (a DLP of 5.4 um pitch, 114 px fringes): a 40 mm box that the
+    usable-volume model (``scanqa volume``'s) calls usable everywhere is covered by the
+    config itself, so the optimiser must find a configuration (it found none while the
+    page's period range stopped at 64 px)."""
+    from scanqa.model.config import load_config
+
+    config = load_config(SLSTUDIO_CONFIG)
+    assert config.fringes.working_period_px == 114.0 and config.projector.pitch_um == 5.4
+    box = optimisation.Box((-20.0, 20.0, 392.0), (20.0, 60.0, 432.0))
+    pts = box.samples()
+    inside, good = design.volume_masks(pts[:, 0], pts[:, 1], pts[:, 2], config, 0.49,
+                                       None, None)
+    assert (inside & good).all()
+    sigma_um = optics.predict(pts, config).sigma * 1e3
+    for limits in ({"angle_deg": (8.0, 20.0)}, {"period_px": (100.0, 228.0)}):
+        spec = optimisation.DesignSpec(box, 1.25 * float(sigma_um.max()), limits,
+                                       step_mm=8.0)
+        found = optimisation.optimise(config, spec, budget=30)
+        assert optimisation.feasible(found.config, spec) and found.usable_mm3 > 0
+        assert found.config.fringes.working_period_px >= 100.0

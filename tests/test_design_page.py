@@ -352,3 +352,20 @@ def test_a_trickling_client_is_dropped(paper_config):
         srv.shutdown()
         srv.server_close()
     assert srv.errors == []
+
+
+def test_page_opens_on_a_dlp_scanner_with_long_fringes(capsys, monkeypatch):
+    """calib/slstudio_example.toml: 114 px fringes on a 5.4 um DLP (the period range once
+    stopped at 64 px); the page's settings pass their own check."""
+    config = PAPER_CONFIG.parent / "slstudio_example.toml"
+    served = []
+
+    def interrupted(server, *args, **kwargs):
+        served.append(server.state.settings)
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(designapp.ThreadingHTTPServer, "serve_forever", interrupted)
+    assert main(["design", "page", "--config", str(config), "--port", "0",
+                 "--no-browser"]) == 0
+    assert served[0]["period_px"] == 114.0
+    assert rig.check_settings(served[0])["period_px"] == 114.0

@@ -68,10 +68,11 @@ MIRRORED_SHARE = 0.75
 
 
 def sample_rows(stacks: Sequence[np.ndarray], rows: int = SAMPLE_ROWS) -> list[np.ndarray]:
-    """Every k-th row of each (N, H, W) stack, as (N, h, W) arrays [DN]."""
+    """Every k-th row of each (N, H, W) stack, as contiguous (N, h, W) arrays [DN] (each
+    check reshapes them; a strided view would be copied by every one)."""
     height = stacks[0].shape[1]
     step = max(1, height // rows)
-    return [np.asarray(st[:, ::step]) for st in stacks]
+    return [np.ascontiguousarray(st[:, ::step]) for st in stacks]
 
 
 def _flat(stack: np.ndarray) -> np.ndarray:

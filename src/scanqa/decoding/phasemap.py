@@ -88,7 +88,10 @@ class PhaseMap:
         self._check_consistency()
 
     def _check_consistency(self) -> None:
-        unknown = np.setdiff1d(np.unique(self.mask), list(MASK_REASONS))
+        mask = self.mask
+        codes = np.flatnonzero(np.bincount(mask.ravel())) if mask.dtype == np.uint8 \
+            else np.unique(mask)  # a count of 256 codes is ~10x faster than a hash
+        unknown = np.setdiff1d(codes, list(MASK_REASONS))
         if unknown.size:
             raise InputError(f"PhaseMap.mask holds unknown reason codes {unknown.tolist()} "
                              f"(known: {MASK_REASONS})")

@@ -16,7 +16,9 @@ inverse variance with ``fuse_periods``). A pixel is
   sigma excursion (:func:`_unwrap_step`), when its undecidable Gray bits leave a span
   of cells the phase cannot order (:func:`_gray_order`; a Gray code alone: any
   undecidable bit but an edge pixel's), or when the phase lies too close to the Gray
-  order's decision boundary for its noise;
+  order's decision boundary for its noise - unless the next set tells the neighbouring
+  orders apart (non-nested periods): the Gray code then leaves them open and that set's
+  phase decides (:func:`_resolve_orders`);
 - *inconsistent* when an observed residual exceeds the accepted one (or the phase
   lies outside its decided Gray cell by more than ``gray_edge_cells`` and its noise);
 - *out of range* when the result lies outside [-0.5, width - 0.5).
@@ -91,6 +93,11 @@ class UnwrapPlan:
     gray_frames : tuple of int
         Frames of the Gray set that ``gray`` decodes (all bits unless the finest were
         dropped: then ``gray`` is the coarser code, its inverses grouped after it).
+    systematic : dict of str to tuple
+        Measured systematic disagreement of the step that decides the orders a Gray
+        code leaves open with the Gray-ordered set: ripple tables over the two wrapped
+        phases [px] and a bound of the rest [cycles of the step]
+        (:func:`scanqa.decoding.decoder._systematic`); steps not named: none.
     """
 
     phase: tuple
@@ -103,6 +110,7 @@ class UnwrapPlan:
     quantised: bool
     desc: PatternDescription
     gray_frames: tuple = ()
+    systematic: dict = field(default_factory=dict)
 
     @classmethod
     def build(cls, desc: PatternDescription, sensor: SensorModel, quantised: bool,
@@ -275,8 +283,14 @@ def _gray(plan: UnwrapPlan, flat: dict, sets: list, flags: _Flags):
     dec = decode_gray(gray, frames, plan.sensor, plan.quantised,
                       th.gray_min_contrast_sigma, threshold)
     if plan.steps:  # a phase decides the order wherever the span of cells is narrower
-        # than its period (edge pixels, blurred fine bits: :func:`_gray_order`)
-        unknown = (dec.span > 1) & (dec.span * plan.gray_cell_px > plan.steps[0].period_px)
+        # than its period (edge pixels, blurred fine bits: :func:`_gray_order`), or than
+        # three periods where a further set tells neighbouring orders apart
+        period = plan.steps[0].period_px
+        if defers_orders(plan):
+            reach = 0.5 * dec.span * plan.gray_cell_px + _gray_edge(plan, period)
+            unknown = reach >= 1.5 * period
+        else:
+            unknown = (dec.span > 1) & (dec.span * plan.gray_cell_px > period)
     else:
         unknown = dec.undecidable
     flags.low |= unknown.view(np.uint8) * np.uint8(LOW_GRAY)
@@ -305,8 +319,9 @@ def _run_chain(plan: UnwrapPlan, sets: list, gray, flags: _Flags, stats: ChainSt
         return *gray_coordinate(gray[1].cell, gray[1].edge, plan.gray_cell_px), per_set
     first, rest = plan.steps[0], plan.steps[1:]
     frac, var = _step_phase(plan, first, sets)
+    open_orders = None
     if gray is not None:
-        x = _gray_order(plan, first, gray[1], frac, var, flags, stats)
+        x, open_orders = _gray_order(plan, first, gray[1], frac, var, flags, stats)
     else:
         x = _absolute(plan, first, frac)
     if first.is_set:
@@ -314,6 +329,9 @@ def _run_chain(plan: UnwrapPlan, sets: list, gray, flags: _Flags, stats: ChainSt
     period = first.period_px
     for step in rest:  # a set coarser than the estimate is unwrapped, but not used on
         frac_s, var_s = _step_phase(plan, step, sets)
+        if open_orders is not None:  # the Gray code left neighbouring orders open
+            _resolve_orders(plan, first, step, x, var, frac_s, var_s, open_orders, flags)
+            open_orders = None
         x_s = _unwrap_step(plan, step, x, var, frac_s, var_s, flags, stats)
         if step.period_px < period:
             x, var, period = x_s, var_s, step.period_px
@@ -372,8 +390,31 @@ def _absolute(plan: UnwrapPlan, step: chain.Step, frac: np.ndarray) -> np.ndarra
     return np.mod(frac * period + margin, period) - margin
 
 
+def defers_orders(plan: UnwrapPlan) -> bool:
+    """True when the Gray-ordered set's order may be left open between neighbouring
+    orders for the next step of the chain to decide (:func:`_resolve_orders`): a set or
+    beat follows, and a shift of one ordered period moves its phase by at least a quarter
+    cycle (periods that do not nest; orders two periods apart it may not tell apart, and
+    such pixels stay masked)."""
+    if plan.gray is None or len(plan.steps) < 2:
+        return False
+    ratio = plan.steps[0].period_px / plan.steps[1].period_px
+    return abs(ratio - round(ratio)) >= 0.25
+
+
+def _gray_edge(plan: UnwrapPlan, period: float) -> float:
+    """How far the phase may fall outside its Gray cells [px]: ``gray_edge_cells``; where
+    one order must come out of the Gray code alone, at most ``(P - cell) / 2`` (one order
+    accepted at most), else up to a period (:func:`defers_orders`)."""
+    w = plan.gray_cell_px
+    edge = plan.desc.thresholds.gray_edge_cells * w
+    if defers_orders(plan):
+        return min(edge, max(period - w, 0.5 * w))
+    return min(edge, 0.5 * max(period - w, 0.0))
+
+
 def _gray_order(plan: UnwrapPlan, step: chain.Step, dec, frac: np.ndarray,
-                var: np.ndarray, flags: _Flags, stats: ChainStats) -> np.ndarray:
+                var: np.ndarray, flags: _Flags, stats: ChainStats):
     """Fringe order of the ordered set from the Gray cells (interval test).
 
     A pixel may lie in ``dec.span`` cells from ``dec.first`` (one where every bit is
@@ -382,10 +423,16 @@ def _gray_order(plan: UnwrapPlan, step: chain.Step, dec, frac: np.ndarray,
     does. A pixel of one cell whose phase falls outside is inconsistent; a wider span
     the phase cannot order is undecidable (low modulation). Either way the phase must
     keep its own noise margin from the decision boundary half a period away.
+
+    Where the next step tells neighbouring orders apart (:func:`defers_orders`; a Gray
+    cell as wide as the period, as OpenCV's codes of non-nested sets have), a pixel whose
+    phase also fits the order below or above (or lies within its noise of the boundary)
+    keeps them open: returns ``(x, open)`` with ``open`` None or (pixels, (n, 2) bool:
+    order -1 and +1 still possible) for :func:`_resolve_orders`.
     """
     period, w = step.period_px, plan.gray_cell_px
     th = plan.desc.thresholds
-    edge = min(th.gray_edge_cells * w, 0.5 * max(period - w, 0.0))
+    edge = _gray_edge(plan, period)
     half = 0.5 * w * dec.span
     centre = dec.first * w + half - 0.5
     k = np.rint(centre / period - frac)
@@ -396,13 +443,82 @@ def _gray_order(plan: UnwrapPlan, step: chain.Step, dec, frac: np.ndarray,
     full = dec.span == 1
     outside = dist > accept
     ambiguous = period - dist <= accept
+    clearance = 0.5 * period - dist
+    noisy = ~(var * (3.0 * th.unwrap_sigma_margin) ** 2 <= clearance * clearance)
+    open_orders = None
+    if defers_orders(plan):
+        d = x - centre
+        lower = (np.abs(d - period) <= accept) | (noisy & (d >= 0))
+        upper = (np.abs(d + period) <= accept) | (noisy & (d < 0))
+        undecided = ~outside & (lower | upper)
+        pixels = np.flatnonzero(undecided & flags.open())
+        if pixels.size:
+            open_orders = (pixels, np.column_stack([lower[pixels], upper[pixels]]),
+                           full[pixels], centre[pixels], half[pixels])
+        ambiguous &= ~undecided
+        noisy &= ~undecided
     bad = outside | (ambiguous & full)
     flags.low |= (ambiguous & ~full).view(np.uint8) * np.uint8(LOW_GRAY)
-    clearance = 0.5 * period - dist
-    noisy = ~bad & ~(var * (3.0 * th.unwrap_sigma_margin) ** 2 <= clearance * clearance)
+    noisy &= ~bad
     _check_step(stats, f"{plan.gray.name} -> {step.name}", flags, bad,
                 1.0 - min(1.0, (w + 2.0 * edge) / period), noisy, judged=full)
-    return x
+    return x, open_orders
+
+
+def _resolve_orders(plan: UnwrapPlan, first: chain.Step, step: chain.Step, x: np.ndarray,
+                    var_x: np.ndarray, frac: np.ndarray, var_step: np.ndarray,
+                    open_orders, flags: _Flags) -> None:
+    """Decide the orders the Gray code left open by the next step's phase, in place.
+
+    Each open order (the one taken, and one period below or above) predicts the step's
+    phase; the order whose prediction is nearest is taken when every other open order's
+    odds against it, ``exp(-(r_o^2 - r^2) / (2 sigma^2))`` for residuals r [cycles],
+    stay below those of a ``3 margin`` sigma excursion: sigma is the predicted noise of
+    the two phases. The residuals are first corrected by the measured ripple of the two
+    sets at the pixel's phases (a projector's gamma, :attr:`UnwrapPlan.systematic`) and
+    reduced by the bound of what the ripple leaves, which may account for that much of
+    a residual at no cost, while an order it cannot explain must be told apart by the
+    noise. An order inside the decoded cells (to its noise) is only challenged by the
+    other orders inside them: the Gray code speaks against one that only the edge
+    tolerance admits, and two orders two periods apart may read alike in the step. A
+    pixel left undecided is masked as the Gray order alone would have masked it
+    (inconsistent, or an undecidable Gray bit for a pixel between cells).
+    """
+    pixels, sides, full, centre, half = open_orders
+    th = plan.desc.thresholds
+    period, p_step = first.period_px, step.period_px
+    base = x[pixels]
+    cand = base[:, None] + np.array([0.0, -period, period])[None, :]
+    r = cand / p_step - frac[pixels, None]
+    e1, e2, bound = plan.systematic.get(step.name, (None, None, 0.0))
+    if e1 is not None:  # the measured ripple of the two sets at these phases
+        r -= (e1[ripple_bin(base / period, e1.size)]
+              - e2[ripple_bin(frac[pixels], e2.size)])[:, None] / p_step
+    r = np.abs(r - np.rint(r))
+    possible = np.column_stack([np.ones(pixels.size, bool), sides])
+    r = np.where(possible, r, np.inf)
+    best = np.argmin(r, axis=1)
+    rows = np.arange(pixels.size)
+    r_best = r[rows, best]
+    sigma2 = (var_x[pixels] + var_step[pixels]) / (p_step * p_step)
+    # an order inside the decoded cells is not challenged by one that only the edge
+    # tolerance admits (the step may not tell two orders apart that are two periods apart)
+    noise = 3.0 * th.unwrap_sigma_margin * np.sqrt(var_x[pixels])
+    inside = np.abs(cand - centre[:, None]) <= (half + noise)[:, None]
+    r = np.where(inside[rows, best][:, None] & ~inside, np.inf, r)
+    r[rows, best] = np.inf
+    # a residual within the systematic bound costs nothing; beyond it, the noise decides
+    r_other = np.maximum(r.min(axis=1) - bound, 0.0)
+    r_best = np.maximum(r_best - bound, 0.0)
+    clear = r_other * r_other - r_best * r_best >= sigma2 * (3.0 * th.unwrap_sigma_margin) ** 2
+    x[pixels] = cand[rows, best]
+    flags.inconsistent[pixels[~clear & full]] = True
+    flags.low[pixels[~clear & ~full]] |= np.uint8(LOW_GRAY)
+
+
+def ripple_bin(cycles: np.ndarray, bins: int) -> np.ndarray:
+    """Bin of a ripple table of ``bins`` bins for a coordinate in periods [-]."""
+    return (np.mod(cycles, 1.0) * bins).astype(np.intp) % bins
 
 
 def _unwrap_step(plan: UnwrapPlan, step: chain.Step, x: np.ndarray, var_x: np.ndarray,

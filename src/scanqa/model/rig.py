@@ -52,7 +52,9 @@ SETTINGS: dict[str, Setting] = {
     "projector_focus_mm": Setting("projector focus distance", "mm", 150.0, 1500.0, 1.0),
     "baseline_mm": Setting("baseline (projector X)", "mm", 20.0, 500.0, 1.0),
     "angle_deg": Setting("convergence angle", "deg", 0.0, 45.0, 0.1),
-    "period_px": Setting("fringe period", "px", 2.0, 64.0, 0.5),
+    # any period the decoder orders (a Gray code, a coarser set or a beat), from two
+    # projector pixels (the finest period a panel can show) to the widest panels (8K)
+    "period_px": Setting("fringe period", "px", 2.0, 8192.0, 0.25),
     "level": Setting("combined attenuation threshold A_c A_p", "", 0.05, 0.95, 0.01),
     "coc_max_mm": Setting("camera circle of confusion threshold c_c", "mm", 0.005, 0.2, 0.001),
 }
