@@ -82,3 +82,191 @@ def test_publication_interrupted_between_any_two_lines_loses_nothing(tmp_path, m
         if outcome == "new":
             break
     assert outcomes == {"interrupted", "new"}
+
+
+SAMPLE_SCAN = Path(__file__).resolve().parents[1] / "sample_data" / "gauge_blocks" / "p000_r0"
+
+
+def _one_line(capsys, code: int) -> str:
+    err = capsys.readouterr().err
+    lines = [ln for ln in err.splitlines() if ln.startswith("scanqa: ")
+             and not ln.startswith("scanqa: warning:") and not ln.startswith("scanqa decode:")
+             and not ln.startswith("scanqa describe:")]
+    assert code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+@pytest.fixture()
+def scan(tmp_path) -> Path:
+    import shutil
+
+    return Path(shutil.copytree(SAMPLE_SCAN, tmp_path / "scan"))
+
+
+@pytest.mark.parametrize("argv", [["decode", "{scan}", "--out", "{scan}/p5_00.png"],
+                                  ["decode", "{scan}", "--out", "{scan}/patterns.toml"],
+                                  ["describe", "{scan}", "--out", "{scan}/p80_01.png",
+                                   "--force", "--projector-width", "1280"]],
+                         ids=["decode", "decode-manifest", "describe-force"])
+def test_an_output_never_replaces_an_input(scan, argv, capsys):
+    """decode SCAN --out SCAN/p5_00.png replaced a frame with an .npz (issue 45); now one
+    line naming the file and the fix, with or without --force, and the frame unchanged."""
+    from scanqa.cli import main
+
+    name = argv[3].rsplit("/", 1)[1]
+    before = (scan / name).read_bytes()
+    code = main([a.format(scan=scan) for a in argv] + ["-q"])
+    line = _one_line(capsys, code)
+    what = "image file" if name.endswith(".png") else "pattern description"
+    assert line == (f"scanqa: cannot write {scan / name}: it is one of this command's inputs "
+                    f"(read as {what}), which no forcing replaces: give the output "
+                    "another name or folder"), line
+    assert (scan / name).read_bytes() == before
+
+
+def test_writing_next_to_the_inputs_still_works(scan):
+    """The documented decode SCAN --out SCAN/phase.npz, twice (the second replaces an
+    output, not an input)."""
+    from scanqa.cli import main
+
+    for _ in range(2):
+        assert main(["decode", str(scan), "--out", str(scan / "phase.npz"), "-q"]) == 0
+
+
+def test_a_manifest_read_is_not_replaced_by_a_table_or_a_published_folder(tmp_path):
+    """calibrate SWEEP --out SWEEP/sweep.toml replaced the manifest with the table (issue
+    45): every writer of scanqa.io.atomic refuses an input the command read."""
+    from scanqa.errors import InputError
+    from scanqa.io.guard import command_inputs, regular_file
+
+    manifest = tmp_path / "sweep.toml"
+    manifest.write_text("x = 1\n")
+    (tmp_path / "link").symlink_to(tmp_path, target_is_directory=True)
+    with command_inputs():
+        regular_file(tmp_path / "link" / "sweep.toml", "sweep manifest")
+        with pytest.raises(InputError, match=r"it is one of this command's inputs \(read "
+                           r"as sweep manifest\), which no forcing replaces"):
+            atomic.write_text(manifest, "table")
+        with pytest.raises(InputError, match="one of this command's inputs"):
+            with atomic.staged_dir(tmp_path) as stage:
+                (stage / "sweep.toml").write_text("table")
+                (stage / "other.txt").write_text("x")
+        atomic.write_text(tmp_path / "other.toml", "fine")
+    assert manifest.read_text() == "x = 1\n" and not (tmp_path / "other.txt").exists()
+    atomic.write_text(manifest, "outside a command: the library writes where it is told")
+
+
+def _plane_cloud(n: int = 400, seed: int = 0):
+    import numpy as np
+
+    rng = np.random.default_rng(seed)
+    return np.c_[rng.uniform(-10, 10, (n, 2)), np.full(n, 400.0)]
+
+
+@pytest.mark.parametrize("case", ["nan-sigmas", "coincident-reference", "collinear-reference",
+                                  "degenerate-triangle"])
+def test_compare_without_a_usable_sigma_or_surface_fails_before_writing(case, tmp_path,
+                                                                         capsys):
+    """compare raised a TypeError after writing its outputs when no compared point had a
+    sigma (issue 45); a reference of coincident or collinear points, or a zero-area
+    triangle, compared along an arbitrary normal. Now one line, and no output folder."""
+    import numpy as np
+
+    from scanqa.cli import main
+    from scanqa.io.cloud import write_cloud
+
+    xyz = _plane_cloud()
+    sigma = np.full(len(xyz), np.nan if case == "nan-sigmas" else 5.0)
+    write_cloud(tmp_path / "scan.ply", xyz, {"sigma_total_um": sigma})
+    if case == "degenerate-triangle":
+        ref = tmp_path / "ref.obj"
+        ref.write_text("v -10 0 400\nv 0 0 400\nv 10 0 400\nf 1 2 3\n")
+    else:
+        ref = tmp_path / "ref.ply"
+        pts = {"nan-sigmas": xyz, "coincident-reference": np.tile([[0.0, 0.0, 400.0]], (50, 1)),
+               "collinear-reference": np.c_[np.linspace(-10, 10, 50), np.zeros(50),
+                                            np.full(50, 400.0)]}[case]
+        write_cloud(ref, pts, {})
+    code = main(["compare", str(tmp_path / "scan.ply"), str(ref), "--out",
+                 str(tmp_path / "cmp"), "-q"])
+    line = _one_line(capsys, code)
+    expected = ("none of the 400 compared points has a usable uncertainty" if case ==
+                "nan-sigmas" else "no point of the cloud lies within reach of a surface")
+    assert expected in line, line
+    assert not (tmp_path / "cmp").exists()
+
+
+@pytest.mark.parametrize("body", [
+    b'{"asset": 5, "scenes": "x"}',
+    b'{"asset":{"version":"2.0"},"meshes":[{"primitives":[{"attributes":{"POSITION":0}}]}],'
+    b'"accessors":[{"bufferView":5,"count":3,"type":"VEC3","componentType":5126}]}'],
+    ids=["wrong-kinds", "accessor-without-buffer"])
+def test_a_garbage_glb_is_one_error(body, tmp_path):
+    """trimesh's glTF reader raised AttributeError / UnboundLocalError inside (issue 45)."""
+    import struct
+
+    from scanqa.errors import InputError
+    from scanqa.io.mesh import read_mesh
+
+    body += b" " * (-len(body) % 4)
+    glb = tmp_path / "part.glb"
+    glb.write_bytes(b"glTF" + struct.pack("<II", 2, 20 + len(body))
+                    + struct.pack("<I", len(body)) + b"JSON" + body)
+    with pytest.raises(InputError, match=r"^cannot load mesh .*part\.glb: \w+Error: .* \(need "
+                       r"a valid STL, PLY, OBJ, OFF or GLB file\)$"):
+        read_mesh(glb)
+
+
+@pytest.fixture(scope="module")
+def small_inputs(tmp_path_factory) -> dict[str, Path]:
+    from .smallcases import write_inputs
+
+    return write_inputs(tmp_path_factory.mktemp("inputs"))
+
+
+def _rewrite_table(src: Path, dst: Path, meta_edit=None, array_edit=None) -> Path:
+    import json
+
+    import numpy as np
+
+    with np.load(src) as data:
+        arrays = {k: data[k] for k in data.files}
+    meta = json.loads(str(arrays.pop("meta")[()]))
+    if meta_edit:
+        meta_edit(meta)
+    if array_edit:
+        array_edit(arrays)
+    np.savez(dst, meta=np.array(json.dumps(meta)), **arrays)
+    return dst
+
+
+@pytest.mark.parametrize("edit", ["f_number", "z_mm", "float16"])
+def test_table_metadata_and_arrays_are_type_checked(edit, small_inputs, tmp_path, capsys):
+    """A table with ``camera.f_number = {}`` in its metadata raised inside
+    calibration/table.py, a float16 array inside numba (issue 45): now the config is
+    validated as a config, and float arrays of other widths are read as float64."""
+    import numpy as np
+
+    from scanqa.cli import main
+
+    def meta_edit(meta):
+        if edit == "f_number":
+            meta["config"]["camera"]["f_number"] = {}
+        if edit == "z_mm":
+            meta["provenance"]["positions"] = [{"z_mm": "far"}]
+
+    def array_edit(arrays):
+        if edit == "float16":
+            arrays["xyz"] = arrays["xyz"].astype(np.float16)
+            arrays["sigma_node"] = arrays["sigma_node"].astype(np.float16)
+
+    table = _rewrite_table(small_inputs["table"], tmp_path / "t.npz", meta_edit, array_edit)
+    argv = ["annotate", str(small_inputs["phase"]), "--table", str(table), "--config",
+            str(small_inputs["config"]), "--out", str(tmp_path / "c.ply"), "-q"]
+    code = main(argv)
+    if edit == "float16":
+        assert code == 0, capsys.readouterr().err
+        return
+    line = _one_line(capsys, code)
+    field = {"f_number": "camera.f_number", "z_mm": "provenance"}[edit]
+    assert str(table) in line and field in line and "rebuild it" in line, line

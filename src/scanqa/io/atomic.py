@@ -28,6 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from scanqa.errors import InputError, OutputError
+from scanqa.io.guard import refuse_input_overwrite
 
 #: Prefix of staging folders and temporary files (hidden on Unix).
 STAGE_PREFIX = ".scanqa-stage-"
@@ -140,6 +141,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     'ok'
     """
     out = check_out_dir(path)
+    refuse_input_overwrite(out)
     suffix = out.suffix if suffix is None else suffix
     held: list[Path] = []  # the temporary, registered before it exists (module notes)
     try:
@@ -283,6 +285,7 @@ def _plan(stage: Path, target: Path, backup: Path) -> list[tuple[Path, Path, Pat
             kind = "folder" if dst.is_dir() else "file"
             raise OutputError(f"cannot write {dst}: a {kind} of that name is in the way")
         else:
+            refuse_input_overwrite(dst)
             moves.append((src, dst, backup / src.name if dst.exists() else None))
     return moves
 
