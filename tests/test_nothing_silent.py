@@ -84,6 +84,7 @@ def test_publication_interrupted_between_any_two_lines_loses_nothing(tmp_path, m
     assert outcomes == {"interrupted", "new"}
 
 
+LAYOUT = Path(__file__).resolve().parents[1] / "calib" / "gauge_blocks_paper.toml"
 SAMPLE_SCAN = Path(__file__).resolve().parents[1] / "sample_data" / "gauge_blocks" / "p000_r0"
 
 
@@ -270,3 +271,58 @@ def test_table_metadata_and_arrays_are_type_checked(edit, small_inputs, tmp_path
     line = _one_line(capsys, code)
     field = {"f_number": "camera.f_number", "z_mm": "provenance"}[edit]
     assert str(table) in line and field in line and "rebuild it" in line, line
+
+
+@pytest.mark.parametrize(("name", "value", "suffix"), [
+    ("in_volume", -4.0, ".ply"), ("sigma_total_um", 1e30, ".ply"), ("x_mm", 1e30, ".ply"),
+    ("sigma_table_um", -1.0, ".csv")])
+def test_per_point_values_outside_physical_limits_are_refused(name, value, suffix, tmp_path,
+                                                              capsys):
+    """A flag of -4 or a sigma of 1e30 reached summary.json (issue 45): the cloud readers
+    check every column against its declared limits (io.cloud.VALUE_LIMITS)."""
+    import numpy as np
+
+    from scanqa.cli import main
+    from scanqa.io.cloud import write_cloud
+
+    xyz = _plane_cloud(100)
+    attrs = {"sigma_total_um": np.full(100, 5.0), "sigma_table_um": np.full(100, 0.5),
+             "in_volume": np.ones(100)}
+    if name == "x_mm":
+        xyz[3, 0] = value
+    else:
+        attrs[name][3] = value
+    cloud = write_cloud(tmp_path / f"c{suffix}", xyz, attrs)
+    code = main(["qa", str(cloud), "--layout", str(LAYOUT), "--out", str(tmp_path / "qa"),
+                 "-q"])
+    line = _one_line(capsys, code)
+    assert f"{cloud}: {name} of point 3 is {value:g}, outside [" in line, line
+    assert "a damaged file, or one in other units" in line and not (tmp_path / "qa").exists()
+
+
+def test_a_csv_cell_that_overflows_is_refused(tmp_path, capsys):
+    """A CSV cell 1e400 became inf (issue 45)."""
+    from scanqa.cli import main
+
+    csv = tmp_path / "c.csv"
+    csv.write_text("x_mm,y_mm,z_mm,sigma_total_um\n1,2,400,5\n1,2,400,1e400\n")
+    code = main(["qa", str(csv), "--layout", str(LAYOUT), "--out", str(tmp_path / "q"), "-q"])
+    assert "sigma_total_um of point 1 is inf, outside [0, 1e+06] um" in _one_line(capsys, code)
+
+
+def test_a_phase_map_claiming_exact_phases_is_refused(small_inputs, tmp_path, capsys):
+    """sigma_xp = 0 on valid pixels was read as a perfect scan (issue 45)."""
+    import numpy as np
+
+    from scanqa.cli import main
+
+    with np.load(small_inputs["phase"]) as data:
+        arrays = {k: data[k] for k in data.files}
+    arrays["sigma_xp"] = np.where(np.isnan(arrays["sigma_xp"]), np.nan, 0.0).astype(np.float32)
+    np.savez(tmp_path / "phase.npz", **arrays)
+    code = main(["annotate", str(tmp_path / "phase.npz"), "--table", str(small_inputs["table"]),
+                 "--config", str(small_inputs["config"]), "--out", str(tmp_path / "c.ply"),
+                 "-q"])
+    line = _one_line(capsys, code)
+    assert "sigma_xp must be >= 0 [projector px] (NaN where masked) and > 0 where the pixel "\
+        "is valid" in line, line
