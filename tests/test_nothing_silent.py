@@ -326,3 +326,32 @@ def test_a_phase_map_claiming_exact_phases_is_refused(small_inputs, tmp_path, ca
     line = _one_line(capsys, code)
     assert "sigma_xp must be >= 0 [projector px] (NaN where masked) and > 0 where the pixel "\
         "is valid" in line, line
+
+
+@pytest.mark.parametrize("change", ["zeroed", "swapped"])
+def test_a_zeroed_or_swapped_frame_is_not_decoded_silently(change, scan, capsys):
+    """Zeroing p5_02.png decoded 67 % of the pixels with no warning, x_p off 0.43 px and
+    sigma_xp down to 0.006 px (issue 45). Now a warning naming the set (and the frame)
+    and no pixel trusted; the untouched scan decodes with no such warning."""
+    import numpy as np
+    from PIL import Image
+
+    from scanqa.cli import main
+    from scanqa.decoding.phasemap import load_phase_map
+
+    assert main(["decode", str(scan), "--out", str(scan / "ok.npz"), "-q"]) == 0
+    assert "warning" not in capsys.readouterr().err
+    assert load_phase_map(scan / "ok.npz").valid.mean() > 0.8
+    if change == "zeroed":
+        frame = np.asarray(Image.open(scan / "p5_02.png"))
+        Image.fromarray(np.zeros_like(frame)).save(scan / "p5_02.png")
+        expected = "set 'p5': frame 2 (p5_02.png) is black or zeroed"
+    else:
+        one, two = (scan / "p5_01.png").read_bytes(), (scan / "p5_02.png").read_bytes()
+        (scan / "p5_01.png").write_bytes(two)
+        (scan / "p5_02.png").write_bytes(one)
+        expected = "set 'p5': its 4 frames (p5_00.png, p5_01.png, p5_02.png, p5_03.png) fit "
+    assert main(["decode", str(scan), "--out", str(scan / "bad.npz"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert f"scanqa: warning: {expected}" in err, err
+    assert load_phase_map(scan / "bad.npz").valid.sum() == 0
