@@ -13,9 +13,12 @@ sigma. The frames themselves say it, before anything is decoded:
 - *frames that fit no sinusoid* (N >= 4): the least-squares fit of A, B cos, B sin to
   the N frames leaves residuals that noise cannot explain; at the well-modulated pixels
   the median ratio of the residual's RMS to B exceeds :data:`MISFIT_SHARE` where a
-  correct set leaves noise only. (With N = 3 the fit is exact for any frames; only the
-  black-frame test applies. With N = 4 the residual has one degree of freedom, shared
-  by all frames: the set is named, not the frame.)
+  correct set leaves noise only, or the residuals follow the phase's 0th and 1st
+  harmonics across the pixels (:data:`COHERENT_SHARE`), as one frame of a wrong level,
+  shift or scene makes them, where a projector's gamma adds a 2nd harmonic only. (With
+  N = 3 the fit is exact for any frames; only the black-frame test applies. With N = 4
+  the residual has one degree of freedom, shared by all frames: the set is named, not
+  the frame.)
 
 Each finding is a warning naming the set, the frame (its file when known) and the fix,
 and the decode trusts no pixel of the scan (:mod:`scanqa.decoding.decoder`).
@@ -38,6 +41,13 @@ BLACK_SHARE = 0.05
 #: 0.40 at 3.0 (about 0.7 of that as the median residual); one zeroed or two swapped
 #: frames of four leave 0.6.
 MISFIT_SHARE = 0.4
+#: RMS share of the residuals that follows the phase's 0th and 1st harmonics (a frame of
+#: a wrong shift or scene) above which the frames are broken [-]; correct sets leave noise
+#: averaged over the pixels, and a projector's gamma its 2nd harmonic, which is fitted:
+#: at most 0.0015 on every 4-step set of the sample sweeps and gauge scans, also with a
+#: gamma of 2.2 applied; a frame of another scene leaves 0.014-0.31 (tuned on those
+#: simulated scans; no real 4-step capture was at hand).
+COHERENT_SHARE = 0.01
 #: Fewest well-modulated sampled pixels for the misfit test [-].
 MIN_PIXELS = 200
 
@@ -110,4 +120,23 @@ def _misfit(pset: PhaseSet, f: np.ndarray, sensor: SensorModel, quantised: bool
         return None
     rms = np.sqrt(np.mean(resid[:, lit] ** 2, axis=0))
     share = float(np.median(rms / modulation[lit]))
-    return share if share > MISFIT_SHARE else None
+    if share > MISFIT_SHARE:
+        return share
+    coherent = _coherent_share(resid[:, lit] / modulation[lit],
+                               np.arctan2(coef[2][lit], coef[1][lit]))
+    return coherent if coherent > COHERENT_SHARE else None
+
+
+def _coherent_share(q: np.ndarray, phi: np.ndarray) -> float:
+    """The RMS share of the residuals (over modulation) that follows the phase's 0th and
+    1st harmonics across the pixels - what a frame of a wrong shift, scene or level
+    leaves - with the 2nd harmonic (a projector's gamma, harmless to the phase with 4
+    steps) fitted alongside; 0 when the pixels' phases cover too little of the circle to
+    tell the harmonics apart (a cue set of one period)."""
+    basis = np.stack([np.ones_like(phi), np.cos(phi), np.sin(phi), np.cos(2 * phi),
+                      np.sin(2 * phi)], axis=1)
+    if np.linalg.cond(basis) > 10.0:
+        return 0.0
+    coef, *_ = np.linalg.lstsq(basis, q.T, rcond=None)
+    first = basis[:, :3] @ coef[:3]
+    return float(np.sqrt(np.mean(first ** 2)))
