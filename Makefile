@@ -84,9 +84,12 @@ bench: $(STAMP)
 
 # Nightly-size fuzz run: 560 seeded mutations of each of the nine input formats through
 # the command line (5040 cases: TOML with grammar-aware nesting, PLY, CSV, npz containers
-# with forged headers, flags and bombs, PNG headers, image stacks); fails on a traceback,
-# a broken promise, a case over 30 s, an invalid input accepted, or a peak memory over
-# 1 GB. FUZZ_ARGS="CASES SEED [FORMAT,...]" changes size, seed and formats.
+# with forged headers, flags and bombs, PNG headers, image stacks), then 560 of each of
+# the four physical-value kinds (2240 cases: config and sigma_xp off by orders of
+# magnitude, impossible per-point values, other units, zeroed/swapped/foreign frames);
+# fails on a traceback, a broken promise, a case over 30 s, an invalid input accepted, a
+# result its oracle calls wrong, or a peak memory over 1 GB. FUZZ_ARGS="CASES SEED
+# [FORMAT,...]" changes size, seed and formats (physical-config, physical-frames, ...).
 fuzz: $(STAMP)
 	@$(BIN)/python -m tests.fuzz $(or $(FUZZ_ARGS),560 0)
 
