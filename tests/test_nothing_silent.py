@@ -324,8 +324,8 @@ def test_a_phase_map_claiming_exact_phases_is_refused(small_inputs, tmp_path, ca
                  "--config", str(small_inputs["config"]), "--out", str(tmp_path / "c.ply"),
                  "-q"])
     line = _one_line(capsys, code)
-    assert "sigma_xp must be >= 0 [projector px] (NaN where masked) and > 0 where the pixel "\
-        "is valid" in line, line
+    assert f"phase map {tmp_path / 'phase.npz'}: sigma_xp must be > 0 [projector px] where " \
+        "the pixel is valid" in line, line
 
 
 @pytest.mark.parametrize("change", ["zeroed", "swapped"])
@@ -355,3 +355,30 @@ def test_a_zeroed_or_swapped_frame_is_not_decoded_silently(change, scan, capsys)
     err = capsys.readouterr().err
     assert f"scanqa: warning: {expected}" in err, err
     assert load_phase_map(scan / "bad.npz").valid.sum() == 0
+
+
+def test_repeats_of_another_scene_are_refused(small_inputs, tmp_path, capsys):
+    """A "repeat" of another scene gave a measured std of the scenes' difference."""
+    import numpy as np
+
+    from scanqa.cli import main
+    from scanqa.decoding.phasemap import save_phase_map
+
+    from .smallcases import phase_map, small_config
+
+    config = small_config()
+    rng = np.random.default_rng(3)
+    same = phase_map(config, 450.0)
+    noisy = same.__class__(**{**same.__dict__, "xp": same.xp + rng.normal(0, 0.01,
+                                                                          same.xp.shape)})
+    save_phase_map(tmp_path / "same.npz", noisy)
+    save_phase_map(tmp_path / "other.npz", phase_map(config, 458.0))
+    argv = ["annotate", str(small_inputs["phase"]), "--table", str(small_inputs["table"]),
+            "--config", str(small_inputs["config"]), "-q", "--repeats"]
+    assert main([*argv, str(tmp_path / "same.npz"), "--out", str(tmp_path / "a.ply")]) == 0
+    capsys.readouterr()
+    code = main([*argv, str(tmp_path / "same.npz"), str(tmp_path / "other.npz"), "--out",
+                 str(tmp_path / "b.ply")])
+    line = _one_line(capsys, code)
+    assert "repeat 2 differs from the scan by a median" in line and "another scene" in line
+    assert not (tmp_path / "b.ply").exists()

@@ -104,15 +104,14 @@ class PhaseMap:
 
     def _check_values(self, valid: np.ndarray) -> None:
         """The one validation of the per-pixel values, for a decoded map and a read one:
-        sigma_xp >= 0, > 0 where valid and never infinite (NaN: no prediction), modulation
-        and offset finite where valid and modulation >= 0, a known orientation."""
+        sigma_xp >= 0 and never infinite (NaN: no prediction), modulation and offset
+        finite where valid and modulation >= 0, a known orientation."""
         if self.orientation not in ORIENTATIONS:
             raise InputError(f"PhaseMap.orientation must be one of {', '.join(ORIENTATIONS)}"
                              f", got {self.orientation!r}")
-        checks = (("sigma_xp", np.isinf(self.sigma_xp) | (self.sigma_xp < 0)
-                   | (valid & (self.sigma_xp == 0)),
-                   "must be >= 0 [projector px] (NaN where masked) and > 0 where the pixel "
-                   "is valid (no phase is exact), never negative or infinite"),
+        checks = (("sigma_xp", np.isinf(self.sigma_xp) | (self.sigma_xp < 0),
+                   "must be >= 0 [projector px] (NaN where masked), never negative or "
+                   "infinite"),
                   ("modulation", np.isinf(self.modulation) | (self.modulation < 0)
                    | (valid & np.isnan(self.modulation)),
                    "must be finite and >= 0 [DN] where the pixel is valid"),
