@@ -15,6 +15,8 @@ exits 0 with a result its oracle calls wrong. The mutations:
   of -4 or 7, a coordinate of 1e30, inf): must fail; or the coordinates written in
   another unit (m, um, inch): qa must not pass blocks it cannot see (exit 0 is silent
   unless every step is "not evaluated");
+- ``repeats``: annotate with a repeat that is the scan plus its noise, or the scan of
+  another scene (the plane 1-20 mm away): another scene accepted is silent;
 - ``frames``: a phase-set frame zeroed, two frames of one set swapped, or a frame of
   another scene (the frame mirrored and shifted by a quarter of its width): decode may
   exit 2, or exit 0 with a warning; exit 0 without a warning is silent when x_p differs
@@ -37,7 +39,7 @@ from scanqa.io.tomlfile import dumps_toml, tomllib
 from .fuzz import QUIET, SLOW_S, Outcome, _fast_reports, _promise_kept, run_case, signature
 from .smallcases import command, write_inputs
 
-KINDS = ("config", "phase", "cloud", "frames")
+KINDS = ("config", "phase", "cloud", "frames", "repeats")
 #: Values no per-point column can hold, by column (the oracle's own physics).
 IMPOSSIBLE = {"sigma_model_um": (-1.0, 1e30, float("inf")), "sigma_table_um": (-5.0, 1e30),
               "in_volume": (-4.0, 7.0), "model_valid": (-1.0, 2.0), "x_mm": (1e30, -1e30),
@@ -151,6 +153,8 @@ def _case(kind: str, base: Path, case_dir: Path, rng: random.Random
                 return f"{len(decided)} steps decided on a cloud in {unit}" if decided else ""
         paths["ply"] = write_ply(case_dir / "cloud.ply", xyz, attrs, meta)
         return command("ply", paths, out), oracle, what
+    if kind == "repeats":
+        return _repeats_case(paths, case_dir, out, rng)
     # frames
     patterns = shutil.copytree(base / "patterns", case_dir / "patterns")
     paths["patterns"] = patterns
@@ -183,6 +187,32 @@ def _case(kind: str, base: Path, case_dir: Path, rng: random.Random
             return ""
         return _phase_error(_out / "phase.npz", base / "reference_phase.npz")
     return command("image", paths, out), frames_oracle, f"{op} {pset['name']} frame {k}"
+
+
+def _repeats_case(paths: dict, case_dir: Path, out: Path, rng: random.Random):
+    """annotate --repeats with a true repeat (the scan plus its noise) or the scan of
+    another scene (the plane 1-20 mm away); another scene accepted is silent."""
+    import dataclasses
+
+    from scanqa.decoding.phasemap import load_phase_map, save_phase_map
+
+    from .smallcases import phase_map, small_config
+
+    scan = load_phase_map(paths["phase"])
+    other = rng.random() < 0.5
+    if other:
+        dz = rng.choice((-1, 1)) * rng.uniform(1.0, 20.0)
+        rep = phase_map(small_config(), 450.0 + dz)
+        what = f"a repeat of the plane {dz:+.1f} mm away"
+    else:
+        noise = np.random.default_rng(rng.randrange(2**32)).normal(0, 1, scan.xp.shape)
+        rep = dataclasses.replace(scan, xp=scan.xp + noise * np.nan_to_num(scan.sigma_xp))
+        what = "a true repeat"
+    save_phase_map(case_dir / "repeat.npz", rep)
+    out.mkdir()
+    argv = [*command("phase", paths, out), "--repeats", str(case_dir / "repeat.npz")]
+    return argv, (lambda c, e: "another scene taken as a repeat" if other and c == 0
+                  else ""), what
 
 
 def fuzz_physical(kind: str, cases: int, seed: int, work: Path, render_every: int = 25
