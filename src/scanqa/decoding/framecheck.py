@@ -115,7 +115,9 @@ def _misfit(pset: PhaseSet, f: np.ndarray, sensor: SensorModel, quantised: bool
     resid = f - design @ coef
     modulation = np.hypot(coef[1], coef[2])
     var = sample_variance(np.clip(coef[0], 0, None) + sensor.black_level_dn, sensor, quantised)
-    lit = modulation > 10.0 * np.sqrt(var)
+    # clipped pixels (saturated, masked by the decoder) are no sinusoid either: left out
+    top = sensor.saturation_dn - sensor.black_level_dn if sensor.saturation_dn else f.max()
+    lit = (modulation > 10.0 * np.sqrt(var)) & (f < 0.99 * top).all(axis=0)
     if lit.sum() < MIN_PIXELS:
         return None
     rms = np.sqrt(np.mean(resid[:, lit] ** 2, axis=0))
