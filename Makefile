@@ -84,11 +84,14 @@ bench: $(STAMP)
 
 # Nightly-size fuzz run: 560 seeded mutations of each of the nine input formats through
 # the command line (5040 cases: TOML with grammar-aware nesting, PLY, CSV, npz containers
-# with forged headers, flags and bombs, PNG headers, image stacks); fails on a traceback,
-# a broken promise, a case over 30 s, an invalid input accepted, or a peak memory over
-# 1 GB. FUZZ_ARGS="CASES SEED [FORMAT,...]" changes size, seed and formats. Then 1000
-# seeded requests against the design page's server (tests/fuzz_http.py; FUZZ_HTTP_ARGS=
-# "CASES SEED"): no 500, no traceback, no hang, every refusal refused.
+# with forged headers, flags and bombs, PNG headers, image stacks), then 560 of each of
+# the physical-value kinds (config and sigma_xp off by orders of magnitude, impossible
+# per-point values, other units, zeroed/swapped/foreign frames, repeats of another scene);
+# fails on a traceback, a broken promise, a case over 30 s, an invalid input accepted, a
+# result its oracle calls wrong, or a peak memory over 1 GB. FUZZ_ARGS="CASES SEED
+# [FORMAT,...]" changes size, seed and formats (physical-config, physical-frames, ...).
+# Then 1000 seeded requests against the design page's server (tests/fuzz_http.py;
+# FUZZ_HTTP_ARGS="CASES SEED"): no 500, no traceback, no hang, every refusal refused.
 fuzz: $(STAMP)
 	@$(BIN)/python -m tests.fuzz $(or $(FUZZ_ARGS),560 0)
 	@$(BIN)/python -m tests.fuzz_http $(or $(FUZZ_HTTP_ARGS),1000 0)

@@ -571,18 +571,24 @@ def main(argv: list[str] | None = None) -> int:
     args = argv if argv is not None else sys.argv[1:]
     cases = int(args[0]) if args else 400
     seed = int(args[1]) if len(args) > 1 else 0
-    kinds = args[2].split(",") if len(args) > 2 else FORMATS
+    from .fuzz_physical import KINDS, fuzz_physical
+
+    kinds = args[2].split(",") if len(args) > 2 else (*FORMATS, *(f"physical-{k}"
+                                                                   for k in KINDS))
     failures = 0
     with tempfile.TemporaryDirectory() as tmp:
         for kind in kinds:
-            res = fuzz_format(kind, cases, seed, Path(tmp))
+            res = fuzz_physical(kind.split("-", 1)[1], cases, seed, Path(tmp)) \
+                if kind.startswith("physical-") else fuzz_format(kind, cases, seed, Path(tmp))
             sigs = Counter(s for _, s, _ in res.tracebacks)
-            print(f"{kind:9s} {res.cases} cases, exits {dict(res.exits)}, "
+            print(f"{kind:16s} {res.cases} cases, exits {dict(res.exits)}, "
                   f"{len(res.tracebacks)} tracebacks {dict(sigs)}, "
                   f"{len(res.broken_promises)} broken promises, {len(res.silent)} silent "
                   f"{res.silent[:5]}, slowest {res.slowest_s:.1f} s", flush=True)
             for case, what in res.broken_promises[:5]:
                 print(f"    case {case}: {what}")
+            for silent in res.silent[:5] if kind.startswith("physical-") else ():
+                print(f"    silent: {silent}")
             for sig in sigs:
                 text = next(t for _, s, t in res.tracebacks if s == sig)
                 print(f"    {sig}:\n" + "".join("      " + ln for ln in

@@ -48,16 +48,25 @@ def test_config_is_frozen(paper_config):
 
 
 BAD_VALUES = [
-    ("focal_mm = 100.0", "focal_mm = -25.0", r"camera\.focal_mm must be > 0 mm, got -25\.0"),
-    ("focal_mm = 100.0", "focal_mm = 0.0", r"camera\.focal_mm must be > 0 mm, got 0\.0"),
-    ("f_number = 8.0", "f_number = 0", r"camera\.f_number must be > 0, got 0"),
-    ("pixel_um = 8.0", "pixel_um = -8.0", r"camera\.pixel_um must be > 0 um, got -8\.0"),
+    ("focal_mm = 100.0", "focal_mm = -25.0",
+     r"camera\.focal_mm must be >= 0\.5 mm and <= 5000 mm, got -25\.0"),
+    ("focal_mm = 100.0", "focal_mm = 0.0",
+     r"camera\.focal_mm must be >= 0\.5 mm and <= 5000 mm, got 0\.0"),
+    ("f_number = 8.0", "f_number = 0", r"camera\.f_number must be >= 0\.5 and <= 256, got 0"),
+    ("pixel_um = 8.0", "pixel_um = -8.0",
+     r"camera\.pixel_um must be >= 0\.1 um and <= 100 um, got -8\.0"),
     ("focus_mm = 450.0", "focus_mm = 90.0",
      r"camera\.focus_mm must be > camera\.focal_mm = 100 mm .*got 90\.0"),
-    ("pitch_um = 8.8507", "pitch_um = 0.0", r"projector\.pitch_um must be > 0 um, got 0\.0"),
+    ("pitch_um = 8.8507", "pitch_um = 0.0",
+     r"projector\.pitch_um must be >= 0\.1 um and <= 1000 um, got 0\.0"),
     ("periods_px = [5.0, 7.0, 10.0]", "periods_px = [5.0, -7.0]",
-     r"fringes\.periods_px\[1\] must be > 0 px, got -7\.0"),
-    ("gamma = 3.0", "gamma = 0.5", r"model\.gamma must be >= 1, got 0\.5"),
+     r"fringes\.periods_px\[1\] must be >= 2 px and <= 1e\+07 px, got -7\.0"),
+    # physical ranges (issue 45): a period of 1e-9 px made every sigma NaN, gamma = 1e9 a
+    # sigma of 3.3e9 um, both with exit 0
+    ("periods_px = [5.0, 7.0, 10.0]", "periods_px = [1e-9]",
+     r"fringes\.periods_px\[0\] must be >= 2 px and <= 1e\+07 px, got 1e-09"),
+    ("gamma = 3.0", "gamma = 1e9", r"model\.gamma must be >= 1 and <= 1000, got 1000000000\.0"),
+    ("gamma = 3.0", "gamma = 0.5", r"model\.gamma must be >= 1 and <= 1000, got 0\.5"),
     ("width_px = 2448", "width_px = 24.5", r"camera\.width_px must be a whole number"),
     ("focal_mm = 100.0", 'focal_mm = "100"', r"camera\.focal_mm must be a number"),
     ('filter_floor = "none"', 'filter_floor = "half"',
@@ -91,7 +100,8 @@ def test_unknown_table(tmp_path):
 
 def test_missing_key(tmp_path):
     path = _write(tmp_path, _base().replace("pixel_um = 8.0\n", "", 1))
-    with pytest.raises(ConfigError, match=r"missing key camera\.pixel_um \(expected > 0 um\)"):
+    with pytest.raises(ConfigError, match=r"missing key camera\.pixel_um \(expected >= 0\.1 "
+                       r"um and <= 100 um\)"):
         load_config(path)
 
 
@@ -111,7 +121,8 @@ def test_unknown_profile_and_bad_profile_key(tmp_path):
 
 def test_invalid_profile_value_is_caught(tmp_path):
     path = _write(tmp_path, _base() + "\n[profiles.neg]\ncamera.f_number = -1.0\n")
-    with pytest.raises(ConfigError, match=r"camera\.f_number must be > 0, got -1\.0"):
+    with pytest.raises(ConfigError,
+                       match=r"camera\.f_number must be >= 0\.5 and <= 256, got -1\.0"):
         load_config(path, profile="neg")
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -15,6 +16,7 @@ from scanqa.qa.blocks import run_qa
 from scanqa.qa.detect import detect_blocks
 from scanqa.qa.layout import load_layout
 from scanqa.qa.planes import fit_plane
+from scanqa.report.qa import step_verdict
 
 from .conftest import ROOT
 
@@ -149,12 +151,18 @@ def test_missing_block_degenerate_region_and_no_sigma():
     res = run_qa(AnnotatedCloud(xyz, attrs), layout)
     b5 = next(b for b in res.blocks if b.block_id == 5)
     assert b5.status == "no_points" and "block 5: no points" in res.notes[0]
-    assert len(res.steps) == 5  # 4-5 and 5-6 need block 5's plane
+    assert len(res.steps) == 7  # 4-5 and 5-6 need block 5's plane: kept, not evaluated
+    unmeasured = [(s.block_a, s.block_b) for s in res.steps if not s.evaluated]
+    assert unmeasured == [(4, 5), (5, 6)], unmeasured
+    assert all(math.isnan(s.measured_diff_mm) and "block 5 has no plane" in s.note
+               for s in res.steps if not s.evaluated)
+    assert res.summary()["verdict"] == "INCOMPLETE", res.summary()["verdict"]
+    assert step_verdict(res)["not evaluated"] == 2
     bare = {k: v for k, v in attrs.items() if not k.startswith("sigma")}
     res = run_qa(AnnotatedCloud(xyz, bare), layout)
     assert not res.has_prediction and "predicted-std column is missing" in res.notes[0]
     assert np.isnan(res.blocks[0].predicted_std_um)
-    assert all(np.isfinite(s.u_um) for s in res.steps)
+    assert all(np.isfinite(s.u_um) for s in res.steps if s.evaluated)
 
 
 def test_outside_volume_block_is_flagged():

@@ -414,7 +414,8 @@ def test_settings_are_refused_with_one_message():
         run_qa(cloud, THREE, outlier_k=0.0)
     with pytest.raises(InputError, match=r"^k must be a number > 0"):
         run_qa(cloud, THREE, k=0.0)
-    assert run_qa(cloud, THREE, k=0.5).steps == []  # one block: no step, but k accepted
+    # one block measured: its two steps kept but not evaluated, and k accepted
+    assert [s.evaluated for s in run_qa(cloud, THREE, k=0.5).steps] == [False, False]
 
 
 def test_clouds_without_finite_points_or_outside_every_block():

@@ -21,7 +21,7 @@ from scanqa.calibration import lookup
 from scanqa.calibration.lookup import TableLookup
 from scanqa.calibration.shear import N_TERMS as SHEAR_TERMS
 from scanqa.decoding.phasemap import PhaseMap
-from scanqa.errors import InputError
+from scanqa.errors import ConfigError, InputError
 from scanqa.io import table as table_file
 from scanqa.model.config import ScannerConfig, config_from_dict
 
@@ -209,6 +209,10 @@ def save_table(path: str | os.PathLike, table: CalibrationTable) -> Path:
 def load_table(path: str | os.PathLike) -> CalibrationTable:
     """Read a table written by :func:`save_table`, checking its format version."""
     arrays, meta = table_file.read_table_file(path)
+    try:  # the metadata's config is checked as any config: field by field
+        config_from_dict(meta["config"], source=f"{path}, table metadata config")
+    except ConfigError as err:
+        raise InputError(f"{err}; the table is damaged: rebuild it") from None
     if arrays["shear"].shape != (SHEAR_TERMS,):
         raise InputError(f"{path}: table array shear has shape {arrays['shear'].shape}, "
                          f"expected ({SHEAR_TERMS},) (damaged); rebuild it")

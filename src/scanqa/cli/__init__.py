@@ -137,8 +137,10 @@ def _main(argv: Sequence[str] | None) -> int:
         parser.print_help()
         return 2
     configure_logging(QUIET if args.quiet else VERBOSE if args.verbose else NORMAL)
+    from scanqa.io.guard import command_inputs
+
     try:
-        with _sigterm_raises():
+        with _sigterm_raises(), command_inputs():
             return int(args.func(args) or 0)
     except ScanQAError as err:
         _fail(str(err))

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.chunks import row_bands, run_bands
-from scanqa.decoding import checks, consistency, diagnostics, waveform
+from scanqa.decoding import checks, consistency, diagnostics, framecheck, waveform
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.noise import NoiseEstimate, resolve_noise
 from scanqa.decoding.parsing import load_patterns
@@ -121,8 +121,9 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
         bits, notes = checks.gray_bits(desc, sample, noise.sensor, quantised)
         pairs = consistency.set_consistency(desc, sample, noise.sensor, quantised)
         repeated = consistency.repeated_frames(desc, sample)
-        contradicted = bool(repeated) or any(p.contradicted for p in pairs)
-        warnings = [*checks.reference_swapped(desc, sample, noise.sensor, quantised),
+        broken = framecheck.broken_frames(desc, sample, noise.sensor, quantised)
+        contradicted = bool(repeated or broken) or any(p.contradicted for p in pairs)
+        warnings = [*broken, *checks.reference_swapped(desc, sample, noise.sensor, quantised),
                     *checks.inverse_layout(desc, sample, noise.sensor, quantised),
                     *repeated, *consistency.consistency_warnings(pairs)]
     plan = UnwrapPlan.build(desc, noise.sensor, quantised, response, gray_bits=bits)

@@ -28,6 +28,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from scanqa.errors import InputError, OutputError
+from scanqa.io.guard import refuse_input_overwrite
 
 #: Prefix of staging folders and temporary files (hidden on Unix).
 STAGE_PREFIX = ".scanqa-stage-"
@@ -140,6 +141,7 @@ def atomic_path(path: str | os.PathLike, suffix: str | None = None) -> Iterator[
     'ok'
     """
     out = check_out_dir(path)
+    refuse_input_overwrite(out)
     suffix = out.suffix if suffix is None else suffix
     held: list[Path] = []  # the temporary, registered before it exists (module notes)
     try:
@@ -283,26 +285,47 @@ def _plan(stage: Path, target: Path, backup: Path) -> list[tuple[Path, Path, Pat
             kind = "folder" if dst.is_dir() else "file"
             raise OutputError(f"cannot write {dst}: a {kind} of that name is in the way")
         else:
+            refuse_input_overwrite(dst)
             moves.append((src, dst, backup / src.name if dst.exists() else None))
     return moves
 
 
 def _apply(moves: list[tuple[Path, Path, Path | None]]) -> None:
     """Rename every staged entry into place, keeping the replaced ones until all moved;
-    on any failure put everything back."""
-    done: list[tuple[Path, Path, Path | None]] = []
+    on any failure put everything back.
+
+    Crash-safe at every line: a replaced file is first hard-linked (copied where links
+    are not supported) to its backup and then renamed over, so that the final name
+    always holds the previous file or the new one, never nothing; and each move is
+    registered as begun *before* its first operation, so that an interrupt between any
+    two lines (Ctrl-C, SIGTERM through the command line) is undone from what is on disk:
+    a new entry already in place goes back to the stage, a backup goes back over its
+    name.
+    """
+    begun: list[tuple[Path, Path, Path | None]] = []
     try:
         for src, dst, old in moves:
+            begun.append((src, dst, old))
             if old is not None:
                 old.parent.mkdir(parents=True, exist_ok=True)
-                os.replace(dst, old)
-            done.append((src, dst, old))
+                _keep(dst, old)
             os.replace(src, dst)
     except BaseException:
-        for src, dst, old in reversed(done):
+        for src, dst, old in reversed(begun):
             with contextlib.suppress(OSError):
-                if not src.exists() and dst.exists():  # the new one moved: take it back
-                    os.replace(dst, src)
-                if old is not None:
+                if not src.exists() and (dst.exists() or dst.is_symlink()):
+                    os.replace(dst, src)  # the new one moved: take it back
+                if old is not None and (old.exists() or old.is_symlink()):
                     os.replace(old, dst)
         raise
+
+
+def _keep(path: Path, backup: Path) -> None:
+    """A backup of ``path`` at ``backup`` that leaves ``path`` in place: a hard link, or a
+    copy on a file system without links."""
+    with contextlib.suppress(FileNotFoundError):
+        backup.unlink()
+    try:
+        os.link(path, backup, follow_symlinks=False)
+    except OSError:
+        shutil.copy2(path, backup, follow_symlinks=False)

@@ -186,9 +186,58 @@ def write_cloud(path: str | os.PathLike, xyz: np.ndarray, attributes: dict,
 
 def read_cloud(path: str | os.PathLike) -> tuple[np.ndarray, dict, dict]:
     """Read a cloud written by :func:`write_cloud`: (xyz (n, 3) [mm], attributes,
-    metadata)."""
+    metadata), its values checked against :data:`VALUE_LIMITS`."""
     path = check_format(path, write=False)
     if not path.is_file():
         raise InputError(f"point cloud {path} does not exist" if not path.exists() else
                          f"point cloud {path} is a folder, not a file")
-    return READERS[path.suffix.lower()](path)
+    xyz, attributes, metadata = READERS[path.suffix.lower()](path)
+    check_values(path, xyz, attributes)
+    return xyz, attributes, metadata
+
+
+#: Physical limits of per-point values, by name pattern (first match): (pattern, low,
+#: high, unit). NaN means "no value" and passes; a value outside its limits (a negative
+#: sigma, a flag of -4, 1e30 anywhere, an overflowed CSV cell read as inf) is a damaged
+#: file or one in other units, refused naming the column.
+VALUE_LIMITS: tuple[tuple[str, float, float, str], ...] = (
+    ("[xyz]_mm", -1e6, 1e6, "mm"),           # coordinates: within a kilometre
+    ("sigma_*_um", 0.0, 1e6, "um"), ("s[xyz]_um", 0.0, 1e6, "um"),
+    ("*u_deviation_um", 0.0, 1e6, "um"), ("table_corr_mm", 0.0, 1e4, "mm"),
+    ("in_volume", 0.0, 1.0, "-"), ("model_valid", 0.0, 1.0, "-"),
+    ("significant", 0.0, 1.0, "-"), ("in_tolerance", 0.0, 1.0, "-"),
+    ("att_*", 0.0, 1e3, "-"), ("n_repeats", 0.0, 1e6, "-"),
+    ("*", -1e15, 1e15, ""))                  # anything else: a finite float64 value
+
+
+def value_limits(name: str) -> tuple[float, float, str]:
+    """(low, high, unit) of a per-point value named ``name`` (:data:`VALUE_LIMITS`)."""
+    from fnmatch import fnmatchcase
+
+    return next((lo, hi, unit) for pattern, lo, hi, unit in VALUE_LIMITS
+                if fnmatchcase(name, pattern))
+
+
+def check_values(path: str | os.PathLike, xyz: np.ndarray, attributes: dict) -> None:
+    """Refuse a cloud whose coordinates or attributes leave their physical limits.
+
+    Raises
+    ------
+    InputError
+        Naming the file, the column, the first point and the limits.
+    """
+    columns = {"x_mm": xyz[:, 0], "y_mm": xyz[:, 1], "z_mm": xyz[:, 2], **attributes}
+    for name, values in columns.items():
+        v = np.asarray(values)
+        if v.dtype.kind not in "iuf":
+            continue
+        lo, hi, unit = value_limits(str(name))
+        with np.errstate(invalid="ignore"):
+            bad = np.flatnonzero(~((v >= lo) & (v <= hi)) & ~np.isnan(v)) \
+                if v.dtype.kind == "f" else np.flatnonzero((v < lo) | (v > hi))
+        if bad.size:
+            unit = f" {unit}" if unit and unit != "-" else ""
+            raise InputError(f"{path}: {name} of point {bad[0]} is {v[bad[0]].item():.6g}, "
+                             f"outside [{lo:g}, {hi:g}]{unit} ({bad.size} such points; a "
+                             "damaged file, or one in other units): fix or export the "
+                             "cloud again")

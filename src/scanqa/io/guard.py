@@ -8,12 +8,21 @@ and :func:`check_size` refuses a declared or real size above the limit of its ki
 before anything is allocated or decompressed. The limits are generous for real scans
 (:data:`MAX_INPUT_BYTES`, 1 GiB by default) and can be raised with the environment
 variable ``SCANQA_MAX_INPUT_MB`` on a machine with the memory for it.
+
+Every file that passes :func:`regular_file` while a command runs (inside
+:func:`command_inputs`) is remembered as one of the command's inputs, and
+:func:`refuse_input_overwrite` - called by every writer of :mod:`scanqa.io.atomic` - refuses
+to replace one of them, with or without ``--force``: ``decode SCAN --out SCAN/p5_00.png``
+or ``calibrate SWEEP --out SWEEP/sweep.toml`` would otherwise destroy the data the result
+came from. A file is identified by its folder (symbolic links resolved) and its name.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import stat
+from collections.abc import Iterator
 from pathlib import Path
 
 from scanqa.errors import InputError
@@ -24,6 +33,46 @@ MAX_INPUT_BYTES = 1 << 30
 MAX_TEXT_BYTES = 16 << 20
 #: The environment variable that raises :data:`MAX_INPUT_BYTES` [MiB].
 LIMIT_VARIABLE = "SCANQA_MAX_INPUT_MB"
+
+#: The inputs of the running command, by entry (:func:`entry`): what each was read as.
+_inputs: dict[str, str] | None = None
+
+
+def entry(path: str | os.PathLike) -> str:
+    """The identity of a file's name: its folder with symbolic links resolved, and the name
+    (the file a rename onto ``path`` would replace)."""
+    p = Path(os.path.abspath(path))
+    return os.path.join(os.path.realpath(p.parent), p.name)
+
+
+@contextlib.contextmanager
+def command_inputs() -> Iterator[dict[str, str]]:
+    """Remember the files read through :func:`regular_file` until the block ends (one
+    command run); yields the record {entry: what it was read as}."""
+    global _inputs
+    saved, _inputs = _inputs, {}
+    try:
+        yield _inputs
+    finally:
+        _inputs = saved
+
+
+def refuse_input_overwrite(path: str | os.PathLike) -> None:
+    """Refuse to write ``path`` when the running command read it as an input.
+
+    Raises
+    ------
+    InputError
+        Naming the file, what it was read as, and the fix.
+    """
+    record = _inputs
+    if not record:
+        return
+    what = record.get(entry(path))
+    if what is not None:
+        raise InputError(f"cannot write {path}: it is one of this command's inputs (read as "
+                         f"{what}), which no forcing replaces: give the output another "
+                         "name or folder")
 
 
 def max_input_bytes() -> int:
@@ -56,6 +105,8 @@ def regular_file(path: str | os.PathLike, what: str, max_bytes: int | None = Non
         When the file does not exist, is not a regular file or is too large.
     """
     p = Path(path)
+    if _inputs is not None:
+        _inputs.setdefault(entry(p), what)
     try:
         st = os.stat(p)
     except FileNotFoundError:

@@ -24,6 +24,27 @@ from scanqa.errors import InputError
 #: and garbled STL, PLY and OBJ files); anything else is a bug and is not hidden.
 MESH_ERRORS = (ValueError, KeyError, IndexError, TypeError, EOFError, OSError, struct.error,
                zlib.error)
+#: What trimesh's glTF/GLB reader raises on a file whose JSON holds values of the wrong kind
+#: (``{"asset": 5}``, an accessor without its buffer view): errors that would be bugs
+#: anywhere else, so they count as the file's fault only when raised inside trimesh.
+DAMAGE_IN_TRIMESH = (AttributeError, NameError, ArithmeticError, RecursionError,
+                     AssertionError)
+
+
+def raised_in(err: BaseException, package: str) -> bool:
+    """Whether a frame of ``err``'s traceback lies in ``package``'s own source."""
+    import importlib.util
+
+    spec = importlib.util.find_spec(package)
+    roots = [str(Path(r).resolve()) for r in (spec.submodule_search_locations or [])] \
+        if spec is not None else []
+    tb = err.__traceback__
+    while tb is not None:
+        name = str(Path(tb.tb_frame.f_code.co_filename).resolve())
+        if any(name.startswith(root + os.sep) for root in roots):
+            return True
+        tb = tb.tb_next
+    return False
 
 
 #: Suffixes always read as meshes (a .ply is a mesh when it declares faces).
@@ -75,9 +96,11 @@ def read_mesh(path: str | os.PathLike):
         with warnings.catch_warnings(), np.errstate(all="ignore"):
             warnings.simplefilter("ignore")  # a damaged file's casts: the checks below say it
             mesh = trimesh.load(p, force="mesh")
-    except MESH_ERRORS as err:
+    except (*MESH_ERRORS, *DAMAGE_IN_TRIMESH) as err:
+        if not isinstance(err, MESH_ERRORS) and not raised_in(err, "trimesh"):
+            raise  # not the file: a bug, not hidden
         raise InputError(f"cannot load mesh {p}: {type(err).__name__}: {err} (need a valid "
-                         "STL, PLY, OBJ or OFF file)") from None
+                         "STL, PLY, OBJ, OFF or GLB file)") from None
     faces = np.asarray(getattr(mesh, "faces", np.zeros((0, 3))))
     if not isinstance(mesh, trimesh.Trimesh) or faces.size == 0:
         raise InputError(f"mesh {p} holds no triangles (a point cloud? give it as a cloud; "

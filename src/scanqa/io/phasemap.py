@@ -126,6 +126,13 @@ def _checked_arrays(data: dict, p: Path) -> dict:
             raise InputError(f"phase map {p}: {k} must be a 2-D array of the shape of xp "
                              f"{shape} holding numbers, got {a.dtype} {a.shape} (damaged "
                              "file)")
+    exact = (np.asarray(data["mask"]) == 0) & (np.asarray(data["sigma_xp"]) == 0)
+    if exact.any():
+        row, col = np.argwhere(exact)[0]
+        raise InputError(f"phase map {p}: sigma_xp must be > 0 [projector px] where the "
+                         f"pixel is valid (no decoder knows a phase exactly): {int(exact.sum())}"
+                         f" valid pixels hold 0 (first at row {row}, column {col}); decode the "
+                         "images again")
     return {k: data[k] for k in ARRAYS}
 
 

@@ -69,7 +69,9 @@ def read_table_file(path: str | os.PathLike) -> tuple[dict, dict]:
         raise InputError(f"{path}: table lacks {', '.join(missing)} (file not written by "
                          "scanqa calibrate, or damaged); rebuild it")
     _check_meta(meta, path)
-    arrays = {k: data[k] for k in ARRAYS}
+    # float16 or extended floats: read as float64 (the lookups are compiled for 32 and 64)
+    arrays = {k: data[k].astype(np.float64) if data[k].dtype.kind == "f"
+              and data[k].dtype not in (np.float32, np.float64) else data[k] for k in ARRAYS}
     _check_arrays(arrays, meta, path)
     return arrays, meta
 
@@ -88,6 +90,17 @@ def _check_meta(meta: dict, path: Path) -> None:
         if not isinstance(meta[key], kind):
             raise InputError(f"{path}: table metadata {key} must be a {kind.__name__}, got "
                              f"{meta[key]!r} (damaged); rebuild it")
+    positions = meta["provenance"].get("positions", [])
+    if not isinstance(positions, list) or not all(
+            isinstance(p, dict) and _is_number(p.get("z_mm")) for p in positions):
+        raise InputError(f"{path}: table metadata provenance.positions must be a list of "
+                         "tables with a finite number z_mm [mm] (damaged); rebuild it")
+
+
+def _is_number(value: object) -> bool:
+    """A finite int or float (not a bool)."""
+    return isinstance(value, int | float) and not isinstance(value, bool) and \
+        bool(np.isfinite(value))
 
 
 def _check_arrays(a: dict, meta: dict, path: Path) -> None:

@@ -149,9 +149,9 @@ class CameraConfig(_Section):
     """Camera lens and sensor. Its frame is the scanner frame."""
 
     section: ClassVar[str] = "camera"
-    focal_mm: float = _spec("mm", gt=0)
-    f_number: float = _spec("", gt=0)
-    pixel_um: float = _spec("um", gt=0)
+    focal_mm: float = _spec("mm", ge=0.5, le=5000)
+    f_number: float = _spec("", ge=0.5, le=256)
+    pixel_um: float = _spec("um", ge=0.1, le=100)
     width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     focus_mm: float = _spec("mm", gt=0)
@@ -188,9 +188,9 @@ class ProjectorConfig(_Section):
     """
 
     section: ClassVar[str] = "projector"
-    focal_mm: float = _spec("mm", gt=0)
-    aperture_mm: float = _spec("mm", gt=0)
-    pitch_um: float = _spec("um", gt=0)
+    focal_mm: float = _spec("mm", ge=0.5, le=5000)
+    aperture_mm: float = _spec("mm", ge=0.01, le=1000)
+    pitch_um: float = _spec("um", ge=0.1, le=1000)
     width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     focus_mm: float = _spec("mm", gt=0)
@@ -244,7 +244,7 @@ class FringeConfig(_Section):
     """Fringe periods in projector pixels; the first is the working (finest) period."""
 
     section: ClassVar[str] = "fringes"
-    periods_px: tuple = _spec("px", gt=0, kind="list")
+    periods_px: tuple = _spec("px", ge=2, le=MAX_SIDE_PX * 100, kind="list")
 
     @property
     def working_period_px(self) -> float:
@@ -273,14 +273,14 @@ class ModelConfig(_Section):
     """
 
     section: ClassVar[str] = "model"
-    wavelength_nm: float = _spec("nm", gt=0)
-    gamma: float = _spec("", ge=1)
-    sigma_p_px: float = _spec("px", gt=0)
+    wavelength_nm: float = _spec("nm", ge=100, le=20000)
+    gamma: float = _spec("", ge=1, le=1000)
+    sigma_p_px: float = _spec("px", gt=0, le=100)
     filter_floor: str = _spec(kind="str", choices=FILTER_FLOORS, default="one")
     noise_reading: str = _spec(kind="str", choices=NOISE_READINGS, default="two_source")
     filter_form: str = _spec(kind="str", choices=FILTER_FORMS, default="sum")
     #: phase noise of the sensor at focus (A_c = A_p = 1) [projector px]; two_source only
-    sensor_sigma_p_px: float = _spec("px", ge=0, default=0.0)
+    sensor_sigma_p_px: float = _spec("px", ge=0, le=100, default=0.0)
     #: where sigma_p comes from ("" = assumed, not characterised): a characterisation file
     #: and the start of its sha256, "summary.json sha256 HEX" (a published measurement
     #: written down as a kind = "published" file). An assumed sigma_p does not set the

@@ -35,9 +35,9 @@ times the height, its depth-axis tilt error times the lateral separation.
 Statuses: a block is flagged "outside_volume" or "model_invalid" when more than
 :data:`MAX_FLAGGED_FRACTION` of its points lie outside the calibrated volume or outside
 the model's validity (a blur ratio > 1/2). A step involving a flagged block is "not
-evaluated": it gets no decision. A block without a plane (too few points) has no steps: its
-steps to the blocks before and after it are left out of the table, and the notes name the
-block.
+evaluated": it gets no decision. A block without a plane (no points, too few) keeps its
+steps to the blocks before and after it in the table, "not evaluated" with NaN numbers, and
+the notes name the block: a missed block makes the verdict INCOMPLETE, never PASS.
 
 Decision (ISO 14253-1): conformance is proven when |error| <= T - U ("pass"),
 non-conformance when |error| > T + U ("fail"), otherwise "undecided".
@@ -303,6 +303,17 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
                       measured, budget.u_um, budget.k, tolerance_um, budget, evaluated, note)
 
 
+def unmeasured_step(a: BlockResult, b: BlockResult, tolerance_um: float) -> StepResult:
+    """The step between two blocks when one has no plane (no points, too few, degenerate):
+    kept in the table as "not evaluated" with NaN numbers, so that the verdict counts it
+    (a layout block the cloud misses makes the verdict INCOMPLETE, never PASS)."""
+    missing = [x.block_id for x in (a, b) if x.fit is None]
+    return StepResult(a.block_id, b.block_id, a.nominal_height_mm - b.nominal_height_mm,
+                      math.nan, math.nan, math.nan, tolerance_um, None, False,
+                      f"not evaluated: block {' and '.join(map(str, missing))} has no plane "
+                      "(see its status)")
+
+
 def geometry_component(term: StepGeometry, xyz: np.ndarray, a: BlockResult,
                        b: BlockResult) -> Component:
     """The calibration-geometry line of a step's budget: the calibration's parameter
@@ -554,9 +565,12 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
               "computed (the blocks' points do not map through the calibration); left out"
               for (a, b), line in zip(pairs, lines, strict=True)
               if line is not None and not math.isfinite(line.u)]
-    steps = [step_between(a, b, k, tolerance_um, budget, n_planes,
-                          line if line is not None and math.isfinite(line.u) else None)
-             for (a, b), line in zip(pairs, lines, strict=True)]
+    fitted = {(a.block_id, b.block_id): step_between(
+        a, b, k, tolerance_um, budget, n_planes,
+        line if line is not None and math.isfinite(line.u) else None)
+        for (a, b), line in zip(pairs, lines, strict=True)}
+    steps = [fitted.get((a.block_id, b.block_id)) or unmeasured_step(a, b, tolerance_um)
+             for a, b in itertools.pairwise(ordered)]
     notes += coverage_notes(steps)
     if budget is None:
         notes.append("Type B inputs (gauge-block certificates, temperature, stage scale, "

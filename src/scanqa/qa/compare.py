@@ -186,7 +186,9 @@ def compare_to_cloud(cloud: AnnotatedCloud, reference: AnnotatedCloud, k: float 
     normal *= -np.sign(np.einsum("ij,ij->i", normal, centre))[:, None]  # towards the camera
     rms = svals[:, 2] / math.sqrt(neighbours)
     dev = np.einsum("ij,ij->i", pts - centre, normal)
-    near = finite & (dist[:, 0] <= max_distance_mm) & (rms <= rough)
+    # a neighbourhood of coincident or collinear points defines no plane: no normal
+    planar = svals[:, 1] > 1e-6 * np.maximum(svals[:, 0], 1e-12)
+    near = finite & (dist[:, 0] <= max_distance_mm) & (rms <= rough) & planar
     u_ref = np.sqrt(np.mean(ref_sigma[nn] ** 2, axis=1) / neighbours)
     notes = [] if ref_sigma.any() else ["the reference carries no sigma: taken as exact "
                                         "(give --reference-sigma-um)"]
@@ -223,7 +225,8 @@ def compare_to_mesh(cloud: AnnotatedCloud, mesh, k: float = 2.0,
     foot = np.asarray(mesh.vertices)[np.asarray(mesh.faces)[face, 0]]
     dev = np.einsum("ij,ij->i", pts - foot, normal)
     dist = np.linalg.norm(pts - found["points"].numpy(), axis=1)
-    near = finite & (dist <= max_distance_mm)
+    # a degenerate face (zero area) has no normal
+    near = finite & (dist <= max_distance_mm) & (np.linalg.norm(normal, axis=1) > 0.5)
     return _finish(cloud, np.where(near, dev, np.nan), normal,
                    np.full(len(pts), reference_sigma_mm), k, tolerance_mm,
                    f"{name} ({len(mesh.faces)} faces)", [], alignment)
@@ -261,9 +264,15 @@ def _finish(cloud: AnnotatedCloud, dev: np.ndarray, normal: np.ndarray, u_ref: n
                                          np.nan)
     extra = {n: np.asarray(v, np.float32) for n, v in extra.items()}
     if not np.isfinite(dev).any():
-        raise InputError(f"no point of the cloud lies within reach of the {reference} "
-                         "(check that both share one frame, in mm, or raise "
-                         "max_distance_mm)")
+        raise InputError(f"no point of the cloud lies within reach of a surface of the "
+                         f"{reference} (check that both share one frame, in mm, that the "
+                         "reference is a surface - not coincident, collinear points or "
+                         "zero-area faces - or raise max_distance_mm)")
+    if not np.isfinite(significance).any():
+        raise InputError(f"none of the {int(np.isfinite(dev).sum())} compared points has a "
+                         "usable uncertainty (their sigma_total_um is NaN, or 0 against an "
+                         "exact reference): annotate the cloud with scanqa annotate inside "
+                         "the calibrated volume, or give the reference's sigma")
     return Comparison(cloud.with_attributes(**extra), k, tolerance_mm, reference,
                       tuple(notes), alignment.summary() if alignment is not None else None)
 

@@ -519,6 +519,7 @@ def measured_std(table: Calibration, scans: Sequence[PhaseMap]
         if scan.xp.shape != shape:
             raise InputError(f"repeat {k} is {scan.xp.shape[1]} x {scan.xp.shape[0]} px, the "
                              f"table's camera {shape[1]} x {shape[0]} px")
+    check_one_scene(scans)
     std = np.empty(shape)
     count = np.empty(shape, dtype=int)
 
@@ -528,6 +529,36 @@ def measured_std(table: Calibration, scans: Sequence[PhaseMap]
     table.image_grid  # noqa: B018 - computed once, before the threads share it
     run_bands(band, row_bands(*shape))
     return std, count
+
+
+#: Median |x_p difference| of a repeat from the first scan, in units of their combined
+#: predicted sigma, above which the "repeat" shows another scene [-] (repeats of one
+#: static scene differ by noise: about 0.7 of the combined sigma as the median).
+REPEAT_LIMIT_SIGMA = 20.0
+
+
+def check_one_scene(scans: Sequence[PhaseMap]) -> None:
+    """Refuse repeats that show another scene than the first scan: a std over different
+    scenes is no measured noise.
+
+    Raises
+    ------
+    InputError
+        Naming the repeat, its median difference and the fix.
+    """
+    first = scans[0]
+    for k, scan in enumerate(scans[1:], start=1):
+        both = first.valid & scan.valid
+        if both.sum() < 10:
+            continue
+        diff = np.abs(scan.xp[both] - first.xp[both])
+        sigma = np.hypot(first.sigma_xp[both], scan.sigma_xp[both])
+        ratio = float(np.nanmedian(diff / sigma))
+        if ratio > REPEAT_LIMIT_SIGMA:
+            raise InputError(f"repeat {k} differs from the scan by a median "
+                             f"{float(np.median(diff)):.3g} projector px, {ratio:.0f} times "
+                             "their predicted sigma: it shows another scene (or the scene "
+                             "moved); give repeats of one static scene")
 
 
 def _band_std(table: Calibration, rows: list[np.ndarray], r0: int

@@ -1,0 +1,144 @@
+"""Frame-level checks of the phase sets: a zeroed, black, swapped or foreign frame.
+
+A phase set's N frames sample one sinusoid per pixel, I_k = A + B cos(phi - delta_k). A
+frame that is not one of them - zeroed or black (a dropped capture), two frames swapped,
+a frame of another scene or another set - still decodes: the arctangent returns a phase
+for any N numbers, and the noise model, fed the wrong frames, even predicts a smaller
+sigma. The frames themselves say it, before anything is decoded:
+
+- *a black frame*: its mean over the sampled rows is below :data:`BLACK_SHARE` of its
+  siblings' median mean (a fringe pattern never dims a whole frame so: the darkest frame
+  of a one-period cue set is 0.21 of its siblings on the sample scans and SLStudio's
+  skull, 0.52-0.75 on its board poses, 0.94-0.99 on kamino410's captures);
+- *frames that fit no sinusoid* (N >= 4): the least-squares fit of A, B cos, B sin to
+  the N frames leaves residuals that noise cannot explain; at the well-modulated pixels
+  the median ratio of the residual's RMS to B exceeds :data:`MISFIT_SHARE` where a
+  correct set leaves noise only, or the residuals follow the phase's 0th and 1st
+  harmonics across the pixels (:data:`COHERENT_SHARE`), as one frame of a wrong level,
+  shift or scene makes them, where a projector's gamma adds a 2nd harmonic only. (With
+  N = 3 the fit is exact for any frames; only the black-frame test applies. With N = 4
+  the residual has one degree of freedom, shared by all frames: the set is named, not
+  the frame.)
+
+Each finding is a warning naming the set, the frame (its file when known) and the fix,
+and the decode trusts no pixel of the scan (:mod:`scanqa.decoding.decoder`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
+from scanqa.decoding.demodulate import sample_variance
+
+#: A frame darker than this share of its siblings' median mean is black or zeroed [-].
+BLACK_SHARE = 0.05
+#: Median residual RMS over modulation above which a set's frames fit no sinusoid [-].
+#: Correct simulated sets leave 0.005-0.014 (the sample sweeps and gauge scans); an
+#: uncorrected projector gamma leaves its second harmonic, b2/b1 = 0.29 at gamma 2.2 and
+#: 0.40 at 3.0 (about 0.7 of that as the median residual); one zeroed or two swapped
+#: frames of four leave 0.6.
+MISFIT_SHARE = 0.4
+#: RMS share of the residuals that follows the phase's 0th and 1st harmonics (a frame of
+#: a wrong shift or scene) above which the frames are broken [-]; correct sets leave noise
+#: averaged over the pixels, and a projector's gamma its 2nd harmonic, which is fitted:
+#: at most 0.0015 on every 4-step set of the sample sweeps and gauge scans, also with a
+#: gamma of 2.2 applied; a frame of another scene leaves 0.014-0.31 (tuned on those
+#: simulated scans; no real 4-step capture was at hand).
+COHERENT_SHARE = 0.01
+#: Fewest well-modulated sampled pixels for the misfit test [-].
+MIN_PIXELS = 200
+
+
+def _frame_name(pset: PhaseSet, k: int) -> str:
+    return f"frame {k} ({pset.files[k]})" if k < len(pset.files) else f"frame {k}"
+
+
+def broken_frames(desc: PatternDescription, sample: Sequence[np.ndarray],
+                  sensor: SensorModel, quantised: bool) -> list[str]:
+    """Warnings for phase-set frames that are black or fit no sinusoid (module notes).
+
+    Parameters
+    ----------
+    desc : PatternDescription
+        The scan's description.
+    sample : sequence of (N, h, W) arrays
+        Sampled rows of each set's frames, in ``desc.sets`` order [DN].
+    sensor : SensorModel
+        The sensor noise model.
+    quantised : bool
+        Integer images (quantisation noise added).
+
+    Returns
+    -------
+    list of str
+        One warning per broken set.
+    """
+    out = []
+    for pset, frames in zip(desc.sets, sample, strict=True):
+        if not isinstance(pset, PhaseSet):
+            continue
+        f = np.asarray(frames, np.float64).reshape(frames.shape[0], -1) - sensor.black_level_dn
+        means = f.mean(axis=1)
+        black = [k for k in range(len(means))
+                 if (sib := np.median(np.delete(means, k))) > 0
+                 and means[k] < BLACK_SHARE * sib]
+        if black:
+            k = black[0]
+            out.append(f"set {pset.name!r}: {_frame_name(pset, k)} is black or zeroed (mean "
+                       f"{means[k]:.3g} DN against {np.median(np.delete(means, k)):.3g} DN "
+                       "of the other frames): capture it again, or correct the set's frame "
+                       "list; no pixel of this decode is trusted")
+            continue
+        share = _misfit(pset, f, sensor, quantised)
+        if share is not None:
+            files = f" ({', '.join(pset.files)})" if pset.files else ""
+            out.append(f"set {pset.name!r}: its {pset.steps} frames{files} fit no sinusoid "
+                       f"(residual {100 * share:.0f} % of the modulation, where noise and a "
+                       "projector's gamma leave < 30 %): a frame zeroed, swapped, out of "
+                       "order or of another scene - check the set's files and shifts_rad; no "
+                       "pixel of this decode is trusted")
+    return out
+
+
+def _misfit(pset: PhaseSet, f: np.ndarray, sensor: SensorModel, quantised: bool
+            ) -> float | None:
+    """The median residual RMS / modulation when above :data:`MISFIT_SHARE`, else None."""
+    n = f.shape[0]
+    if n < 4:
+        return None
+    delta = np.asarray(pset.shifts_rad, float)
+    design = np.stack([np.ones(n), np.cos(delta), np.sin(delta)], axis=1)
+    coef, *_ = np.linalg.lstsq(design, f, rcond=None)
+    resid = f - design @ coef
+    modulation = np.hypot(coef[1], coef[2])
+    var = sample_variance(np.clip(coef[0], 0, None) + sensor.black_level_dn, sensor, quantised)
+    # clipped pixels (saturated, masked by the decoder) are no sinusoid either: left out
+    top = sensor.saturation_dn - sensor.black_level_dn if sensor.saturation_dn else f.max()
+    lit = (modulation > 10.0 * np.sqrt(var)) & (f < 0.99 * top).all(axis=0)
+    if lit.sum() < MIN_PIXELS:
+        return None
+    rms = np.sqrt(np.mean(resid[:, lit] ** 2, axis=0))
+    share = float(np.median(rms / modulation[lit]))
+    if share > MISFIT_SHARE:
+        return share
+    coherent = _coherent_share(resid[:, lit] / modulation[lit],
+                               np.arctan2(coef[2][lit], coef[1][lit]))
+    return coherent if coherent > COHERENT_SHARE else None
+
+
+def _coherent_share(q: np.ndarray, phi: np.ndarray) -> float:
+    """The RMS share of the residuals (over modulation) that follows the phase's 0th and
+    1st harmonics across the pixels - what a frame of a wrong shift, scene or level
+    leaves - with the 2nd harmonic (a projector's gamma, harmless to the phase with 4
+    steps) fitted alongside; 0 when the pixels' phases cover too little of the circle to
+    tell the harmonics apart (a cue set of one period)."""
+    basis = np.stack([np.ones_like(phi), np.cos(phi), np.sin(phi), np.cos(2 * phi),
+                      np.sin(2 * phi)], axis=1)
+    if np.linalg.cond(basis) > 10.0:
+        return 0.0
+    coef, *_ = np.linalg.lstsq(basis, q.T, rcond=None)
+    first = basis[:, :3] @ coef[:3]
+    return float(np.sqrt(np.mean(first ** 2)))
