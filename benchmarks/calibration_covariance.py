@@ -1,0 +1,105 @@
+"""Does a board calibration's covariance predict its real error? (issue 42)
+
+Part "sim" (simulated, known truth): each seed draws a scanner, a bowed board and board
+poses (:mod:`scanqa.simulator.boardposes`: camera and projector with k1 and k2, the
+camera's principal point off the image centre, a quadric bow of ~0.15 mm, corner noise
+0.03-0.2 px), calibrates with the default lens model "k1" (which leaves the camera's
+principal point and both k2 out: model errors the joint fit must state) and compares,
+at points spread over the volume (a 7 x 7 grid of camera pixels at three depths over the
+poses' range), the calibration's 3-D error along the line of sight with its predicted
+sigma (:func:`scanqa.calibration.uncertainty.calibration_sigma_mm` of the joint fit's
+covariance). Acceptance: over the held-out seeds, RMS(error / sigma) in [0.75, 1.33] and
+the share within 2 sigma in [0.90, 0.99].
+
+The seeds were named here before they were run: TUNING_SEEDS were used while the
+method was built (the sign of a term, how a left-out term's variance is stated),
+HELD_OUT_SEEDS only once, for the numbers reported.
+
+Part "real" (the SLStudio board poses 1, 3-6, model corners, and skull_2x3; needs the
+real-data folder): skull_2x3 triangulated with scanqa's board calibration and with
+calibration.xml: median |dXYZ| / median calibration sigma; the five leave-one-pose-out
+calibrations' spread at the skull's points against the predicted sigma.
+
+Usage::
+
+    python benchmarks/calibration_covariance.py sim [--tuning]
+    python benchmarks/calibration_covariance.py real
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ROOT))
+
+from scanqa.calibration.board_fit import calibrate_board  # noqa: E402
+from scanqa.calibration.parametric import from_opencv  # noqa: E402
+from scanqa.calibration.uncertainty import calibration_sigma_mm  # noqa: E402
+from scanqa.simulator.boardposes import BOARD, PANEL, simulate, volume_points  # noqa: E402
+
+#: Seeds the method was built on.
+TUNING_SEEDS = tuple(range(1000, 1010))
+#: Seeds named before they were run; run once for the reported numbers.
+HELD_OUT_SEEDS = tuple(range(2000, 2012))
+
+
+def seed_errors(seed: int) -> dict:
+    """One seed: the calibration's line-of-sight error and predicted sigma at volume
+    points [mm]."""
+    sim = simulate(seed)
+    result = calibrate_board(sim.poses, BOARD, PANEL, "k1")
+    cal = from_opencv(result.data)
+    u, v, xp, xyz = volume_points(sim.truth, sim.depth_mm)
+    ray = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    est = cal.apply(u, v, xp, extrapolate=True).xyz
+    err = np.sum((est - xyz) * ray, axis=1)
+    sigma = calibration_sigma_mm(cal, result.data.covariance, u, v, xp)
+    return {"seed": seed, "error": err, "sigma": sigma,
+            "abs_error": np.linalg.norm(est - xyz, axis=1),
+            "noise_px": result.bundle["noise_px"], "bow": sim.bow.tolist()}
+
+
+def run_sim(seeds) -> dict:
+    rows, z = [], []
+    for seed in seeds:
+        t = time.process_time()
+        out = seed_errors(seed)
+        ratio = out["error"] / out["sigma"]
+        z.append(ratio)
+        rows.append({"seed": seed, "median_abs_error_um": 1e3 * np.median(np.abs(
+            out["error"])), "median_sigma_um": 1e3 * np.median(out["sigma"]),
+            "rms_z": float(np.sqrt(np.mean(ratio**2))),
+            "within_2sigma": float(np.mean(np.abs(ratio) <= 2)),
+            "cpu_s": time.process_time() - t})
+        print(json.dumps(rows[-1]), flush=True)
+    z = np.concatenate(z)
+    summary = {"seeds": list(seeds), "rms_z": float(np.sqrt(np.mean(z**2))),
+               "within_2sigma": float(np.mean(np.abs(z) <= 2)), "points": int(z.size)}
+    print(json.dumps(summary))
+    return summary
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("part", choices=("sim", "real"))
+    parser.add_argument("--tuning", action="store_true", help="the tuning seeds")
+    args = parser.parse_args(argv)
+    if args.part == "sim":
+        run_sim(TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS)
+    else:
+        from benchmarks.calibration_covariance_real import run_real
+
+        run_real()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
