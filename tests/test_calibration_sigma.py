@@ -67,3 +67,27 @@ def test_a_covariance_too_wide_for_its_calibration_is_named(paper_config):
                                          r"axis .* moves the calibration to an impossible one"):
         replace(cal, covariance=cov).calibration_sigma_mm(
             np.arange(40.0), np.zeros(40), xp[0])
+
+
+def test_a_calibration_without_covariance_says_so_and_a_stated_sigma_is_used(paper_config):
+    """Issue 42: an imported calibration with no covariance has no calibration term, and
+    every cloud of it says so (sigma_source); a stated std enters every point instead."""
+    cal, cfg = small_scanner(paper_config, 40, 30)
+    rays = camera_rays(cal)
+    xp = projector_pixels(cal, layout_scene(rays, 450.0, []))[..., 0]
+    scan = phase_map(xp, np.full(xp.shape, 0.02), cfg.fringes.working_period_px,
+                     cfg.projector.width_px)
+    plain = annotate(scan, cal, cfg)
+    source = plain.sigma_source
+    assert source["calibration"] == "none"
+    assert "carries no covariance" in source["calibration_warning"]
+    assert "carries no covariance" in plain.sigma_warning  # what the CLI logs
+    stated = annotate(scan, replace(cal, stated_sigma_mm=0.25), cfg)
+    a = stated.attributes
+    assert stated.sigma_source["calibration"] == "stated"
+    assert stated.sigma_source["calibration_warning"] == ""
+    np.testing.assert_allclose(a["sigma_table_um"], 250.0, rtol=1e-6)
+    np.testing.assert_allclose(a["sigma_total_um"], np.sqrt(
+        a["sigma_random_um"].astype(float) ** 2 + 250.0**2), rtol=1e-5)
+    cov = replace(cal, covariance=np.diag(np.r_[np.ones(18) * 1e-6, np.zeros(6)]))
+    assert annotate(scan, cov, cfg).sigma_source["calibration"] == "covariance"
