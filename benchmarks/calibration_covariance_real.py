@@ -16,6 +16,7 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
+from tests.realdata import SLSTUDIO, SLSTUDIO_SHIFTS, slstudio_board_patterns
 
 from scanqa.calibration.board import Board, decode_pose
 from scanqa.calibration.board_fit import calibrate_board
@@ -23,7 +24,6 @@ from scanqa.calibration.parametric import from_opencv, load_opencv_calibration
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.decoding.parsing import load_patterns
 from scanqa.io.patterns import dumps_patterns
-from tests.realdata import SLSTUDIO, SLSTUDIO_SHIFTS, slstudio_board_patterns
 
 BOARD = Board(rows=9, columns=13, square_mm=10.0)
 PANEL = (1824, 1140)
