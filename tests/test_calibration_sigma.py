@@ -91,3 +91,33 @@ def test_a_calibration_without_covariance_says_so_and_a_stated_sigma_is_used(pap
         a["sigma_random_um"].astype(float) ** 2 + 250.0**2), rtol=1e-5)
     cov = replace(cal, covariance=np.diag(np.r_[np.ones(18) * 1e-6, np.zeros(6)]))
     assert annotate(scan, cov, cfg).sigma_source["calibration"] == "covariance"
+
+
+def test_the_documented_sigma_total_formula_holds_in_a_written_cloud(paper_config, tmp_path):
+    """docs/formats.rst's sigma_total_um formula, parsed term by term, recomputed from the
+    attributes of a cloud written to PLY and read back, the systematic term from the
+    config the cloud's metadata carries."""
+    import re
+    from pathlib import Path
+
+    from scanqa.model.cloud import read_cloud
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "formats.rst").read_text()
+    row = text[text.index("* - ``sigma_total_um``"):]
+    formula = re.search(r"``sqrt\(([^`]*)\)``", row).group(1)
+    terms = [t.strip() for t in formula.split("+")]
+    names = [re.fullmatch(r"(\w+)\^2", t).group(1) for t in terms]
+    assert names == ["sigma_random_um", "sigma_table_um", "systematic_um"]
+    cal, cfg = small_scanner(paper_config, 40, 30)
+    cfg = cfg.replace_model(systematic_sigma_mm=0.05)
+    xp = projector_pixels(cal, layout_scene(camera_rays(cal), 450.0, []))[..., 0]
+    scan = phase_map(xp, np.full(xp.shape, 0.02), cfg.fringes.working_period_px,
+                     cfg.projector.width_px)
+    path = tmp_path / "cloud.ply"
+    annotate(scan, replace(cal, stated_sigma_mm=0.1), cfg).write(path)
+    back = read_cloud(path)
+    values = {n: back.attributes[n].astype(float) for n in names[:2]}
+    values["systematic_um"] = 1e3 * back.metadata["config"]["model"]["systematic_sigma_mm"]
+    expect = np.sqrt(sum(values[n] ** 2 for n in names))
+    np.testing.assert_allclose(back.attributes["sigma_total_um"], expect, rtol=1e-5)
+    assert values["systematic_um"] == 50.0 and np.all(values["sigma_table_um"] > 99)

@@ -17,8 +17,8 @@ name               unit   meaning
 =================  =====  ==================================================================
 sigma_model_um     um     model sigma along the line of sight; NaN where the model is not
                           valid (a blur ratio > 1/2)
-sx_um, sy_um,      um     the X, Y, Z components of sigma_random (CloudCompare M3C2
-sz_um                     precision maps pick fields containing "sx", "sy", "sz")
+sx_um, sy_um,      um     the X, Y, Z components of sigma_random along dQ/dx_p (CloudCompare
+sz_um                     M3C2 precision maps pick fields containing "sx", "sy", "sz")
 sigma_scene_um     um     the model sigma's scene-side part (filtered by the camera blur;
                           the whole model sigma for the paper's readings)
 sigma_sensor_um    um     the model sigma's sensor part (two-source model; 0 otherwise)
@@ -33,7 +33,8 @@ sigma_random_um    um     the per-point random sigma along the line of sight, fr
                           characterisation pinned it, a board's noise law applied to the
                           pixel's own A and B, else the decoder's image estimate
                           (sigma_phase_um)
-sigma_total_um     um     sqrt(sigma_random^2 + sigma_table^2 + systematic^2)
+sigma_total_um     um     sqrt(sigma_random^2 + sigma_table^2 + systematic^2), systematic
+                          the config's [model] systematic_sigma_mm
 att_camera         -      camera attenuation A_c
 att_projector      -      projector attenuation A_p
 filter_factor      -      F_gamma (Eq. 17)
