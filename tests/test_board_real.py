@@ -367,7 +367,7 @@ def test_the_row_fringes_have_the_stated_period(model_poses):
     assert abs(jump) < 0.1, jump  # a 1.2 px step would carry the cue's 18 px
 
 
-def test_the_baseline_gap_is_in_the_correspondences(model_calibration, model_poses):
+def test_the_baseline_gap_is_in_the_correspondences(model_poses):
     """Where the 0.62 deg between our baseline direction and calibration.xml's comes from
     (docs/calibration.rst, *The baseline direction*). calibration.xml, given our camera
     corners, predicts our projector corners to 2.6-5.1 px where our calibration does to
@@ -383,7 +383,10 @@ def test_the_baseline_gap_is_in_the_correspondences(model_calibration, model_pos
     from scanqa.calibration.board_fit import _points, predicted_projector_rms
 
     ref = read_opencv_calibration(CALIBRATION / "calibration.xml")
-    ours = model_calibration.data
+    # the analysis is of OpenCV's sequential fit (the joint fit of issue 42, the default
+    # since, tilts across by 0.57 deg: model_calibration.data)
+    ours = calibrate_board([model_poses[k] for k in (0, 2, 3, 4, 5)], BOARD, PANEL,
+                           covariance=False).data
     for pose in model_poses:
         assert predicted_projector_rms(pose, BOARD, ref) > 2.0  # measured 2.6-5.1 px
         assert predicted_projector_rms(pose, BOARD, ours) < 1.2  # measured 0.47-0.98 px

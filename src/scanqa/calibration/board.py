@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.calibration.corners import refine_corners
-from scanqa.decoding.coding import PatternDescription
+from scanqa.decoding.coding import GrayCodeSet, PatternDescription, ReferenceSet
 from scanqa.decoding.decoder import decode_images
 from scanqa.decoding.patternset import read_pattern_images
 from scanqa.errors import InputError
@@ -292,7 +292,7 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
                          f"got {columns.orientation!r} and {rows.orientation!r}")
     stacks = [read_pattern_images(replace(d, source=str(where / "patterns.toml")))
               for d in (columns, rows)]
-    if corner_method == "model":
+    if corner_method == "model" or not columns.phase_sets:
         image = _offset_image(stacks, (columns, rows))
     else:
         finest = columns.sets.index(columns.phase_sets[-1])
@@ -312,11 +312,22 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
 
 
 def _offset_image(stacks: list, descriptions: tuple) -> np.ndarray:
-    """Mean of every phase-shift frame of both directions: the board under the
-    projector's mean level (each N-step set's mean is its offset) [DN]."""
+    """The board under uniform light [DN]: the mean of every phase-shift frame of both
+    directions (each N-step set's mean is its offset); without phase sets, the mean of
+    the white frames of a reference set, else of every Gray-code frame (a bit and its
+    inverse light every pixel once)."""
     frames = [np.asarray(stack[desc.sets.index(phase)], dtype=float)
               for stack, desc in zip(stacks, descriptions, strict=True)
               for phase in desc.phase_sets]
+    if not frames:
+        frames = [np.asarray(stack[k], dtype=float)[[i for i, level in enumerate(s.levels)
+                                                     if level == "white"]]
+                  for stack, desc in zip(stacks, descriptions, strict=True)
+                  for k, s in enumerate(desc.sets) if isinstance(s, ReferenceSet)]
+    if not frames:
+        frames = [np.asarray(stack[k], dtype=float)
+                  for stack, desc in zip(stacks, descriptions, strict=True)
+                  for k, s in enumerate(desc.sets) if isinstance(s, GrayCodeSet)]
     return np.mean([f.mean(axis=0) for f in frames], axis=0)
 
 

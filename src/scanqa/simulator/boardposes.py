@@ -49,13 +49,20 @@ class SimulatedBoardScanner:
     depth_mm: tuple
 
 
-def bowed_points(board: Board, bow: np.ndarray) -> np.ndarray:
-    """(n, 3) board corners with the quadric sag as Z [mm]."""
+def sag_mm(board: Board, bow: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The board's quadric sag at board coordinates ``xy`` (n, 2) [mm]: x', y' are in
+    units of half the corner grid's size about its centre."""
     pts = board.object_points.astype(float)
     centre = (pts.max(axis=0) + pts.min(axis=0)) / 2
     half = np.maximum((pts.max(axis=0) - pts.min(axis=0)) / 2, 1e-9)
-    x, y = (pts[:, 0] - centre[0]) / half[0], (pts[:, 1] - centre[1]) / half[1]
-    pts[:, 2] = bow[0] * x**2 + bow[1] * y**2 + bow[2] * x * y
+    x, y = (xy[:, 0] - centre[0]) / half[0], (xy[:, 1] - centre[1]) / half[1]
+    return bow[0] * x**2 + bow[1] * y**2 + bow[2] * x * y
+
+
+def bowed_points(board: Board, bow: np.ndarray) -> np.ndarray:
+    """(n, 3) board corners with the quadric sag as Z [mm]."""
+    pts = board.object_points.astype(float)
+    pts[:, 2] = sag_mm(board, bow, pts)
     return pts
 
 
@@ -165,3 +172,71 @@ def volume_points(truth: OpenCVCalibration, depth_mm: tuple, grid: int = 7,
             prj[:, 1] < PANEL[1])
         out.append((pix[ok, 0], pix[ok, 1], prj[ok, 0], xyz[ok]))
     return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
+
+
+def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: np.ndarray,
+                bits: tuple[int, int], rng: np.random.Generator, noise_dn: float = 2.0,
+                blur_px: float = 0.7, bow: np.ndarray | None = None) -> dict:
+    """8-bit frames of one board pose under Gray codes, as public projector-camera
+    calibration tools capture them: for columns and for rows, every bit (most
+    significant first, one projector pixel per code) followed by its inverse, then a
+    white and a black frame.
+
+    Each camera pixel's ray meets the board's plane (bowed by ``bow``, to first order:
+    the sag moves the point along the board's normal); the point's projector pixel
+    decides the light, the board's squares its reflectance (0.15 black, 0.85 white, a
+    white margin of one square around the grid), then a Gaussian blur of ``blur_px`` and
+    Gaussian noise of ``noise_dn``.
+
+    Returns
+    -------
+    dict
+        ``columns`` and ``rows``: (2 bits, H, W) uint8 frames; ``white``, ``black``:
+        (H, W) uint8 [DN].
+    """
+    import cv2
+
+    width, height = int(truth.sizes["frameWidth"]), int(truth.sizes["frameHeight"])
+    v, u = np.mgrid[0:height, 0:width].astype(float)
+    norm = cv2.undistortPoints(np.column_stack([u.ravel(), v.ravel()]).reshape(-1, 1, 2),
+                               truth.Kc, truth.kc).reshape(-1, 2)
+    rays = np.column_stack([norm, np.ones(len(norm))])
+    rot = cv2.Rodrigues(np.asarray(rvec, float))[0]
+    normal, origin = rot[:, 2], np.asarray(tvec, float)
+    t = (normal @ origin) / (rays @ normal)
+    pts = rays * t[:, None]                                    # camera frame [mm]
+    local = (pts - origin) @ rot                               # board frame [mm]
+    if bow is not None:
+        z = sag_mm(board, bow, local)
+        pts = pts + z[:, None] * normal
+        local[:, 2] = z
+    sq = np.floor(local[:, :2] / board.square_mm).astype(int) + 1
+    inside = ((sq[:, 0] >= -1) & (sq[:, 0] <= board.columns + 1) & (sq[:, 1] >= -1)
+              & (sq[:, 1] <= board.rows + 1))
+    grid_in = ((sq[:, 0] >= 0) & (sq[:, 0] <= board.columns) & (sq[:, 1] >= 0)
+               & (sq[:, 1] <= board.rows))
+    albedo = np.where(inside, 0.85, 0.05)
+    albedo = np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), 0.15, albedo)
+    proj = cv2.projectPoints(pts, cv2.Rodrigues(truth.Rp)[0], truth.Tp, truth.Kp,
+                             truth.kp)[0].reshape(-1, 2)
+    panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
+    lit = ((proj[:, 0] > -0.5) & (proj[:, 0] < panel[0] - 0.5) & (proj[:, 1] > -0.5)
+           & (proj[:, 1] < panel[1] - 0.5))
+
+    def shoot(light: np.ndarray) -> np.ndarray:
+        image = (8.0 + 230.0 * albedo * np.where(lit, light, 0.0)).reshape(height, width)
+        image = cv2.GaussianBlur(image, (0, 0), blur_px)
+        return np.clip(np.round(image + noise_dn * rng.standard_normal(image.shape)), 0,
+                       255).astype(np.uint8)
+
+    out = {}
+    for key, axis, n in (("columns", 0, bits[0]), ("rows", 1, bits[1])):
+        code = np.floor(np.clip(proj[:, axis], 0, panel[axis] - 1) + 0.5).astype(np.int64)
+        code = code ^ (code >> 1)
+        frames = []
+        for b in range(n):
+            bit = ((code >> (n - 1 - b)) & 1).astype(float)
+            frames += [shoot(bit), shoot(1.0 - bit)]
+        out[key] = np.array(frames)
+    out["white"], out["black"] = shoot(np.ones(len(proj))), shoot(np.zeros(len(proj)))
+    return out
