@@ -84,3 +84,16 @@ def test_gray_code_only_pose_with_opencv_corners(gray_poses):
     _, folders = gray_poses
     pose = decode_pose(folders[0], *descriptions(), BOARD, corner_method="opencv")
     assert np.isfinite(pose.projector_px).all()
+
+
+@pytest.mark.slow
+def test_a_wrong_or_transposed_board_is_one_clear_line(gray_poses):
+    from scanqa.calibration.board import Board
+    from scanqa.errors import InputError
+
+    _, folders = gray_poses
+    with pytest.raises(InputError, match=r"8 x 11 inner corners, the board given says 11 x "
+                                         r"8 \(rows first"):
+        decode_pose(folders[0], *descriptions(), Board(11, 8, 10.0))
+    with pytest.raises(InputError, match=r"the board given says 8 x 12: fix"):
+        decode_pose(folders[0], *descriptions(), Board(8, 12, 10.0))

@@ -48,3 +48,33 @@ def test_a_pose_given_twice_is_refused():
     twice = [sim.poses[0], sim.poses[1], sim.poses[0]]
     with pytest.raises(InputError, match="show the board at the same place"):
         calibrate_board(twice, BOARD, PANEL, "k1")
+
+
+def test_an_implausible_square_size_is_refused(tmp_path, capsys):
+    from scanqa.calibration.board import Board
+    from scanqa.cli import main
+
+    with pytest.raises(InputError, match="no chessboard's square"):
+        Board(8, 11, 1e9)
+    code = main(["calibrate", "--square-mm", "1e9", "--patterns", "c.toml", "r.toml",
+                 str(tmp_path), "--out", str(tmp_path / "cal.xml")])
+    assert code == 2
+    err = capsys.readouterr().err
+    assert "no chessboard's square (0.2-500 mm)" in err and "Traceback" not in err
+
+
+def test_a_baseline_far_from_the_configs_is_refused():
+    """A wrong square size scales the calibration's baseline: 15 mm squares stated for
+    the simulated 10 mm board put the projector ~50 % farther than the config says."""
+    from dataclasses import replace
+
+    from scanqa.calibration.board_fit import check_baseline
+
+    sim = simulate(1000, n_poses=4)
+    truth_centre = -sim.truth.Rp.T @ sim.truth.Tp
+    result = calibrate_board(sim.poses, BOARD, PANEL, "k1", covariance=False)
+    assert abs(check_baseline(result.data, truth_centre, 10.0)) < 0.05
+    wrong = calibrate_board(sim.poses, replace(BOARD, square_mm=15.0), PANEL, "k1",
+                            covariance=False)
+    with pytest.raises(InputError, match=r"\+5\d % off the config.s projector position"):
+        check_baseline(wrong.data, truth_centre, 15.0)

@@ -50,6 +50,8 @@ CORNER_MARGIN_PX = 40
 #: finest column set's mean) and "model" (those corners placed by the blurred-corner model,
 #: :mod:`scanqa.calibration.corners`, in the mean of every phase-shift frame).
 CORNER_METHODS = ("opencv", "model")
+#: Square sizes a printed or machined chessboard can have [mm].
+SQUARE_RANGE_MM = (0.2, 500.0)
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,10 @@ class Board:
                                  f"corners, got {value!r}")
         if not (math.isfinite(self.square_mm) and self.square_mm > 0):
             raise InputError(f"board square_mm must be > 0, got {self.square_mm} [mm]")
+        low, high = SQUARE_RANGE_MM
+        if not low <= self.square_mm <= high:
+            raise InputError(f"board square_mm {self.square_mm:g} mm is no chessboard's "
+                             f"square ({low:g}-{high:g} mm): give the side of one square in mm")
 
     @property
     def object_points(self) -> np.ndarray:
@@ -337,9 +343,12 @@ def _board_in(image: np.ndarray, board: Board | float, where: Path) -> Board:
     grid = corner_grid(image)
     if isinstance(board, Board):
         if grid is not None and grid != (board.rows, board.columns):
+            hint = (" (rows first: the short side's inner corners, then the long side's)"
+                    if grid == (board.columns, board.rows) else "")
             raise InputError(f"{where}: the frames show a chessboard of {grid[0]} x "
                              f"{grid[1]} inner corners, the board given says {board.rows} x "
-                             f"{board.columns}: fix the board's corner count or leave it out")
+                             f"{board.columns}{hint}: fix the board's corner count or leave "
+                             "it out")
         return board
     if grid is None:
         raise InputError(f"{where}: no chessboard found in the frames (check that the "

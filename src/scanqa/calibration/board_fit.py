@@ -267,6 +267,32 @@ def _distinct(poses: list[BoardPose]) -> None:
                     "moved and tilted between poses - drop the repeat")
 
 
+#: How far a board calibration's baseline may lie from the config's before it is refused
+#: (a wrong square size scales it) [-].
+BASELINE_TOLERANCE = 0.2
+
+
+def check_baseline(data: OpenCVCalibration, expected_mm: np.ndarray, square_mm: float
+                   ) -> float:
+    """Refuse a calibration whose baseline (camera to projector centre) is more than
+    :data:`BASELINE_TOLERANCE` off the expected one (a config's projector position).
+
+    Returns
+    -------
+    float
+        The relative difference [-].
+    """
+    got = float(np.linalg.norm(data.Rp.T @ np.ravel(data.Tp)))
+    want = float(np.linalg.norm(expected_mm))
+    rel = got / want - 1 if want > 0 else float("nan")
+    if not abs(rel) <= BASELINE_TOLERANCE:
+        raise InputError(
+            f"the board calibration's baseline is {got:.1f} mm, {100 * rel:+.0f} % off the "
+            f"config's projector position ({want:.1f} mm from the camera): check the square "
+            f"size ({square_mm:g} mm; a wrong one scales the baseline) or the config")
+    return rel
+
+
 def _one_board(poses: list[BoardPose]) -> Board:
     """The board all poses show, or an error naming the two that differ."""
     first = poses[0]
