@@ -57,8 +57,13 @@ TUNING_SEEDS = tuple(range(1000, 1010))
 HELD_OUT_SEEDS = tuple(range(2000, 2012))
 #: Part "gray": seeds whose poses are rendered as images under Gray codes (10 column and
 #: 11 row bits with inverses, white, black; no phase set), decoded and calibrated as
-#: ``scanqa calibrate`` does; named before they were run, none tuned on.
-GRAY_SEEDS = tuple(range(4000, 4010))
+#: ``scanqa calibrate`` does; named before they were run, none tuned on. Seeds 4000-4009
+#: were named first and three run with a renderer that lit the bowed board's point off
+#: the camera pixel's ray and sampled each pixel's reflectance at its centre only (its
+#: corners 0.29 px off the truth, now 0.03 px; ratio of median error to median sigma
+#: 1.45, 0.96, 2.64): the renderer was fixed, not the method, and these seeds named
+#: afresh.
+GRAY_SEEDS = tuple(range(4100, 4110))
 
 
 def seed_errors(seed: int) -> dict:

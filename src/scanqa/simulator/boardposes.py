@@ -182,11 +182,13 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
     significant first, one projector pixel per code) followed by its inverse, then a
     white and a black frame.
 
-    Each camera pixel's ray meets the board's plane (bowed by ``bow``, to first order:
-    the sag moves the point along the board's normal); the point's projector pixel
-    decides the light, the board's squares its reflectance (0.15 black, 0.85 white, a
-    white margin of one square around the grid), then a Gaussian blur of ``blur_px`` and
-    Gaussian noise of ``noise_dn``.
+    Each camera pixel's ray meets the board (its plane, then the bowed surface: the
+    sag ``bow`` along the board's normal at the point, found by two fixed-point steps
+    along the ray, enough for sags of a millimetre); that one point's board coordinates
+    give the reflectance (0.15 black squares, 0.85 white, a white margin of one square
+    around the grid; averaged over 3 x 3 points of the pixel's area) and its projector
+    pixel the light; then a Gaussian blur of
+    ``blur_px`` and Gaussian noise of ``noise_dn``.
 
     Returns
     -------
@@ -198,25 +200,35 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
 
     width, height = int(truth.sizes["frameWidth"]), int(truth.sizes["frameHeight"])
     v, u = np.mgrid[0:height, 0:width].astype(float)
-    norm = cv2.undistortPoints(np.column_stack([u.ravel(), v.ravel()]).reshape(-1, 1, 2),
-                               truth.Kc, truth.kc).reshape(-1, 2)
-    rays = np.column_stack([norm, np.ones(len(norm))])
     rot = cv2.Rodrigues(np.asarray(rvec, float))[0]
     normal, origin = rot[:, 2], np.asarray(tvec, float)
-    t = (normal @ origin) / (rays @ normal)
-    pts = rays * t[:, None]                                    # camera frame [mm]
-    local = (pts - origin) @ rot                               # board frame [mm]
-    if bow is not None:
-        z = sag_mm(board, bow, local)
-        pts = pts + z[:, None] * normal
-        local[:, 2] = z
-    sq = np.floor(local[:, :2] / board.square_mm).astype(int) + 1
-    inside = ((sq[:, 0] >= -1) & (sq[:, 0] <= board.columns + 1) & (sq[:, 1] >= -1)
-              & (sq[:, 1] <= board.rows + 1))
-    grid_in = ((sq[:, 0] >= 0) & (sq[:, 0] <= board.columns) & (sq[:, 1] >= 0)
-               & (sq[:, 1] <= board.rows))
-    albedo = np.where(inside, 0.85, 0.05)
-    albedo = np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), 0.15, albedo)
+
+    def surface(du: float, dv: float) -> tuple[np.ndarray, np.ndarray]:
+        """Camera-frame points and board coordinates seen at pixel offset (du, dv)."""
+        norm = cv2.undistortPoints(np.column_stack([u.ravel() + du, v.ravel() + dv])
+                                   .reshape(-1, 1, 2), truth.Kc, truth.kc).reshape(-1, 2)
+        rays = np.column_stack([norm, np.ones(len(norm))])
+        pts = rays * ((normal @ origin) / (rays @ normal))[:, None]
+        local = (pts - origin) @ rot
+        for _ in range(2 if bow is not None else 0):  # onto the bowed board, along the ray
+            pts = rays * ((normal @ origin + sag_mm(board, bow, local)) / (rays @ normal)
+                          )[:, None]
+            local = (pts - origin) @ rot
+        return pts, local
+
+    def reflectance(local: np.ndarray) -> np.ndarray:
+        sq = np.floor(local[:, :2] / board.square_mm).astype(int) + 1
+        inside = ((sq[:, 0] >= -1) & (sq[:, 0] <= board.columns + 1) & (sq[:, 1] >= -1)
+                  & (sq[:, 1] <= board.rows + 1))
+        grid_in = ((sq[:, 0] >= 0) & (sq[:, 0] <= board.columns) & (sq[:, 1] >= 0)
+                   & (sq[:, 1] <= board.rows))
+        out = np.where(inside, 0.85, 0.05)
+        return np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), 0.15, out)
+
+    pts = surface(0.0, 0.0)[0]
+    # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it
+    albedo = np.mean([reflectance(surface(du, dv)[1]) for du in (-1 / 3, 0, 1 / 3)
+                      for dv in (-1 / 3, 0, 1 / 3)], axis=0)
     proj = cv2.projectPoints(pts, cv2.Rodrigues(truth.Rp)[0], truth.Tp, truth.Kp,
                              truth.kp)[0].reshape(-1, 2)
     panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
