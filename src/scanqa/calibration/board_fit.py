@@ -346,6 +346,11 @@ def _points(poses: list[BoardPose], board: Board) -> tuple[list, list, list]:
         if pose.camera_size != poses[0].camera_size:
             raise InputError(f"pose {pose.name} is {pose.camera_size} px, pose "
                              f"{poses[0].name} {poses[0].camera_size}: one camera please")
+        if len(pose.camera_px) != len(board.object_points):
+            raise InputError(f"pose {pose.name} has {len(pose.camera_px)} corners, the "
+                             f"{board.rows} x {board.columns} board {len(board.object_points)}"
+                             ": is the whole board in view? (give --board ROWSxCOLS to "
+                             "look for that grid)")
         ok = np.isfinite(pose.projector_px).all(axis=1)
         if ok.sum() < 6:
             raise InputError(f"pose {pose.name}: only {ok.sum()} corners have decoded "
