@@ -88,9 +88,16 @@ def test_noisy_corners_land_near_the_truth_and_the_spread_covers_the_error():
     err = pack_truth_difference(data)
     std = np.sqrt(np.diag(cov))
     free = std > 0
-    assert free.sum() == 14  # k1 model: f_x = f_y, k1 (+ c_x, c_y of the projector), R, T
-    # the jackknife over six poses is a rough std: every error within 4 of them
-    assert np.all(np.abs(err[free]) <= 4 * std[free]), (err[free], std[free])
+    # k1 model: f_x = f_y, k1 (+ c_x, c_y of the projector), R, T; the left-out lens
+    # terms (camera c_x, c_y, k2; projector k2) enter only where the data show them
+    assert 14 <= free.sum() <= 18
+    # the joint fit's std: every error within 3.5 of them (a 1-in-2000 miss per parameter)
+    assert np.all(np.abs(err[free]) <= 3.5 * std[free]), (err[free], std[free])
+    # the jackknife (the check) is of the same order on the parameters both let move
+    jack = np.sqrt(np.diag(result.jackknife))
+    both = free & (jack > 0)
+    assert both.sum() >= 14
+    assert np.all((jack[both] > 0.2 * std[both]) & (jack[both] < 5 * std[both]))
 
 
 def pack_truth_difference(data: OpenCVCalibration) -> np.ndarray:

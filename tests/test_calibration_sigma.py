@@ -67,3 +67,57 @@ def test_a_covariance_too_wide_for_its_calibration_is_named(paper_config):
                                          r"axis .* moves the calibration to an impossible one"):
         replace(cal, covariance=cov).calibration_sigma_mm(
             np.arange(40.0), np.zeros(40), xp[0])
+
+
+def test_a_calibration_without_covariance_says_so_and_a_stated_sigma_is_used(paper_config):
+    """Issue 42: an imported calibration with no covariance has no calibration term, and
+    every cloud of it says so (sigma_source); a stated std enters every point instead."""
+    cal, cfg = small_scanner(paper_config, 40, 30)
+    rays = camera_rays(cal)
+    xp = projector_pixels(cal, layout_scene(rays, 450.0, []))[..., 0]
+    scan = phase_map(xp, np.full(xp.shape, 0.02), cfg.fringes.working_period_px,
+                     cfg.projector.width_px)
+    plain = annotate(scan, cal, cfg)
+    source = plain.sigma_source
+    assert source["calibration"] == "none"
+    assert "carries no covariance" in source["calibration_warning"]
+    assert "carries no covariance" in plain.sigma_warning  # what the CLI logs
+    stated = annotate(scan, replace(cal, stated_sigma_mm=0.25), cfg)
+    a = stated.attributes
+    assert stated.sigma_source["calibration"] == "stated"
+    assert stated.sigma_source["calibration_warning"] == ""
+    np.testing.assert_allclose(a["sigma_table_um"], 250.0, rtol=1e-6)
+    np.testing.assert_allclose(a["sigma_total_um"], np.sqrt(
+        a["sigma_random_um"].astype(float) ** 2 + 250.0**2), rtol=1e-5)
+    cov = replace(cal, covariance=np.diag(np.r_[np.ones(18) * 1e-6, np.zeros(6)]))
+    assert annotate(scan, cov, cfg).sigma_source["calibration"] == "covariance"
+
+
+def test_the_documented_sigma_total_formula_holds_in_a_written_cloud(paper_config, tmp_path):
+    """docs/formats.rst's sigma_total_um formula, parsed term by term, recomputed from the
+    attributes of a cloud written to PLY and read back, the systematic term from the
+    config the cloud's metadata carries."""
+    import re
+    from pathlib import Path
+
+    from scanqa.model.cloud import read_cloud
+
+    text = (Path(__file__).resolve().parents[1] / "docs" / "formats.rst").read_text()
+    row = text[text.index("* - ``sigma_total_um``"):]
+    formula = re.search(r"``sqrt\(([^`]*)\)``", row).group(1)
+    terms = [t.strip() for t in formula.split("+")]
+    names = [re.fullmatch(r"(\w+)\^2", t).group(1) for t in terms]
+    assert names == ["sigma_random_um", "sigma_table_um", "systematic_um"]
+    cal, cfg = small_scanner(paper_config, 40, 30)
+    cfg = cfg.replace_model(systematic_sigma_mm=0.05)
+    xp = projector_pixels(cal, layout_scene(camera_rays(cal), 450.0, []))[..., 0]
+    scan = phase_map(xp, np.full(xp.shape, 0.02), cfg.fringes.working_period_px,
+                     cfg.projector.width_px)
+    path = tmp_path / "cloud.ply"
+    annotate(scan, replace(cal, stated_sigma_mm=0.1), cfg).write(path)
+    back = read_cloud(path)
+    values = {n: back.attributes[n].astype(float) for n in names[:2]}
+    values["systematic_um"] = 1e3 * back.metadata["config"]["model"]["systematic_sigma_mm"]
+    expect = np.sqrt(sum(values[n] ** 2 for n in names))
+    np.testing.assert_allclose(back.attributes["sigma_total_um"], expect, rtol=1e-5)
+    assert values["systematic_um"] == 50.0 and np.all(values["sigma_table_um"] > 99)

@@ -166,3 +166,31 @@ def test_real_skull_against_the_scanner_makers_own_cloud(tmp_path):
     assert info["compared"] > 0.9 * info["points"]
     assert abs(info["median_deviation_um"]) < 100 and info["significant_fraction"] < 0.25
     assert "data:image/svg+xml" in (tmp_path / "cmp" / "report.html").read_text()
+
+
+def test_the_summary_says_what_u_is_made_of():
+    """Issue 42: median U by term and the smallest deviation the comparison can call
+    significant, on a plane facing the camera (|cos| >= 0.9998) whose terms are known."""
+    g = np.linspace(-5.0, 5.0, 41)
+    x, y = np.meshgrid(g, g)
+    xyz = np.column_stack([x.ravel(), y.ravel(), np.full(x.size, 400.0)])
+    n = len(xyz)
+    total = np.full(n, np.sqrt(30.0**2 + 40.0**2 + 20.0**2), np.float32)
+    cloud = AnnotatedCloud(xyz, {"sigma_random_um": np.full(n, 30.0, np.float32),
+                                 "sigma_table_um": np.full(n, 40.0, np.float32),
+                                 "sigma_total_um": total})
+    fine = np.linspace(-6.0, 6.0, 121)
+    rx, ry = np.meshgrid(fine, fine)
+    ref = np.column_stack([rx.ravel(), ry.ravel(), np.full(rx.size, 400.0)])
+    info = compare_to_cloud(cloud, AnnotatedCloud(ref, {}), k=2.0, neighbours=16,
+                            reference_sigma_mm=0.012).summary()
+    terms = info["median_U_by_term_um"]
+    # k x each std: 60, 80, 40 um; the reference's 12 um / sqrt(16) x 2 = 6 um
+    for name, expect in (("random", 60.0), ("calibration", 80.0), ("systematic", 40.0),
+                         ("reference", 6.0)):
+        assert terms[name] == pytest.approx(expect, rel=1e-3), (name, terms)
+    assert info["dominant_U_term"] == "calibration"
+    small = info["smallest_significant_deviation_um"]
+    expect = 2 * np.sqrt(30.0**2 + 40.0**2 + 20.0**2 + 3.0**2)
+    assert small["median_point"] == pytest.approx(expect, rel=1e-3)
+    assert small["best_5_percent"] <= small["median_point"]

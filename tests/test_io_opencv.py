@@ -84,7 +84,11 @@ def test_zero_higher_order_terms_are_accepted(tmp_path):
 
 BAD = {
     "missing matrix": ({k: v for k, v in GOOD.items() if k != "Rp"},
-                       r"matrix 'Rp' is missing"),
+                       r"matrix 'Rp' or 'rotation' is missing"),
+    "two names of one matrix": ({**GOOD, "cam_int": GOOD["Kc"]},
+                                r"'Kc' and 'cam_int', two names of one matrix"),
+    "negative stated sigma": ({**GOOD, "calibration_sigma_um": -3.0},
+                              r"calibration_sigma_um must be a number >= 0 \[um\]"),
     "wrong shape": ({**GOOD, "Kc": np.eye(4)}, r"'Kc' is 4 x 4, expected 3 x 3"),
     "wrong length": ({**GOOD, "Tp": np.ones((2, 1))}, r"'Tp' is 2 x 1, expected 3 numbers"),
     "distortion length": ({**GOOD, "kp": np.ones((1, 6))},
@@ -144,3 +148,31 @@ def test_missing_file_and_unknown_suffix(tmp_path):
     (tmp_path / "cal.txt").write_text("x")
     with pytest.raises(InputError, match=r"unknown calibration format"):
         load_calibration(tmp_path / "cal.txt")
+
+
+#: The names other public projector-camera calibration tools write (io.opencv.ALIASES).
+PUBLIC_NAMES = {"Kc": "cam_int", "kc": "cam_dist", "Kp": "proj_int", "kp": "proj_dist",
+                "Rp": "rotation", "Tp": "translation"}
+
+
+@pytest.mark.parametrize("suffix", [".xml", ".yml"])
+def test_the_public_tools_names_are_read(tmp_path, suffix):
+    ours = read_opencv_calibration(write_fs(tmp_path / f"ours{suffix}", {**GOOD, **SIZES}))
+    other = read_opencv_calibration(write_fs(tmp_path / f"other{suffix}", {
+        **{PUBLIC_NAMES[k]: v for k, v in GOOD.items()}, **SIZES}))
+    for key in PUBLIC_NAMES:
+        assert_array_equal(getattr(other, key), getattr(ours, key))
+    assert other.stated_sigma_um is None and other.covariance is None
+
+
+def test_a_stated_sigma_is_read_and_written_back(tmp_path):
+    from scanqa.io.opencv import write_opencv_calibration
+
+    cal = read_opencv_calibration(write_fs(tmp_path / "a.xml", {
+        **GOOD, **SIZES, "calibration_sigma_um": 400.0}))
+    assert cal.stated_sigma_um == 400.0
+    back = read_opencv_calibration(write_opencv_calibration(tmp_path / "b.yml", cal))
+    assert back.stated_sigma_um == 400.0
+    par = load_calibration(tmp_path / "b.yml")
+    assert par.calibration_term["kind"] == "stated"
+    assert float(par.calibration_sigma_mm(1.0, 2.0, 3.0)) == pytest.approx(0.4)

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.calibration.corners import refine_corners
-from scanqa.decoding.coding import PatternDescription
+from scanqa.decoding.coding import GrayCodeSet, PatternDescription, ReferenceSet
 from scanqa.decoding.decoder import decode_images
 from scanqa.decoding.patternset import read_pattern_images
 from scanqa.errors import InputError
@@ -50,6 +50,8 @@ CORNER_MARGIN_PX = 40
 #: finest column set's mean) and "model" (those corners placed by the blurred-corner model,
 #: :mod:`scanqa.calibration.corners`, in the mean of every phase-shift frame).
 CORNER_METHODS = ("opencv", "model")
+#: Square sizes a printed or machined chessboard can have [mm].
+SQUARE_RANGE_MM = (0.2, 500.0)
 
 
 @dataclass(frozen=True)
@@ -77,6 +79,10 @@ class Board:
                                  f"corners, got {value!r}")
         if not (math.isfinite(self.square_mm) and self.square_mm > 0):
             raise InputError(f"board square_mm must be > 0, got {self.square_mm} [mm]")
+        low, high = SQUARE_RANGE_MM
+        if not low <= self.square_mm <= high:
+            raise InputError(f"board square_mm {self.square_mm:g} mm is no chessboard's "
+                             f"square ({low:g}-{high:g} mm): give the side of one square in mm")
 
     @property
     def object_points(self) -> np.ndarray:
@@ -292,7 +298,7 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
                          f"got {columns.orientation!r} and {rows.orientation!r}")
     stacks = [read_pattern_images(replace(d, source=str(where / "patterns.toml")))
               for d in (columns, rows)]
-    if corner_method == "model":
+    if corner_method == "model" or not columns.phase_sets:
         image = _offset_image(stacks, (columns, rows))
     else:
         finest = columns.sets.index(columns.phase_sets[-1])
@@ -312,11 +318,22 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
 
 
 def _offset_image(stacks: list, descriptions: tuple) -> np.ndarray:
-    """Mean of every phase-shift frame of both directions: the board under the
-    projector's mean level (each N-step set's mean is its offset) [DN]."""
+    """The board under uniform light [DN]: the mean of every phase-shift frame of both
+    directions (each N-step set's mean is its offset); without phase sets, the mean of
+    the white frames of a reference set, else of every Gray-code frame (a bit and its
+    inverse light every pixel once)."""
     frames = [np.asarray(stack[desc.sets.index(phase)], dtype=float)
               for stack, desc in zip(stacks, descriptions, strict=True)
               for phase in desc.phase_sets]
+    if not frames:
+        frames = [np.asarray(stack[k], dtype=float)[[i for i, level in enumerate(s.levels)
+                                                     if level == "white"]]
+                  for stack, desc in zip(stacks, descriptions, strict=True)
+                  for k, s in enumerate(desc.sets) if isinstance(s, ReferenceSet)]
+    if not frames:
+        frames = [np.asarray(stack[k], dtype=float)
+                  for stack, desc in zip(stacks, descriptions, strict=True)
+                  for k, s in enumerate(desc.sets) if isinstance(s, GrayCodeSet)]
     return np.mean([f.mean(axis=0) for f in frames], axis=0)
 
 
@@ -326,9 +343,12 @@ def _board_in(image: np.ndarray, board: Board | float, where: Path) -> Board:
     grid = corner_grid(image)
     if isinstance(board, Board):
         if grid is not None and grid != (board.rows, board.columns):
+            hint = (" (rows first: the short side's inner corners, then the long side's)"
+                    if grid == (board.columns, board.rows) else "")
             raise InputError(f"{where}: the frames show a chessboard of {grid[0]} x "
                              f"{grid[1]} inner corners, the board given says {board.rows} x "
-                             f"{board.columns}: fix the board's corner count or leave it out")
+                             f"{board.columns}{hint}: fix the board's corner count or leave "
+                             "it out")
         return board
     if grid is None:
         raise InputError(f"{where}: no chessboard found in the frames (check that the "

@@ -3,8 +3,11 @@
 The camera and the projector are each calibrated by OpenCV's ``calibrateCamera`` (Zhang's
 method, the projector as an inverse camera seeing the board's corners at their decoded
 (x_p, y_p)); ``stereoCalibrate`` with both intrinsics held then fits their relative pose
-to all poses at once. The result is the OpenCV layout every scanqa command reads
-(:mod:`scanqa.io.opencv`).
+to all poses at once. From there every parameter, the board poses and the board's bow
+are refined together, each device's residuals scaled by its measured corner noise, and
+that joint fit's Jacobian gives the calibration's covariance, with the left-out lens
+terms the data show as stated terms (:mod:`scanqa.calibration.bundle`). The result is
+the OpenCV layout every scanqa command reads (:mod:`scanqa.io.opencv`).
 
 Checks that need no reference: the reprojection RMS of each pose (a pose whose RMS is
 more than ``FLAG_FACTOR`` times the median of the others is flagged), and leave one pose
@@ -12,7 +15,9 @@ out: calibrate on the others, then (a) the held-out pose's projector corners pre
 from its camera corners (its board pose found by ``solvePnP`` with the held-out
 calibration's camera) and (b) the RMS of its dense triangulated points about their
 fitted plane. The calibrations left one pose out also give the jackknife covariance of
-the parameters [1]_ (:mod:`scanqa.calibration.uncertainty`).
+the parameters [1]_ (:mod:`scanqa.calibration.uncertainty`), kept as a check of the
+joint fit's: with a handful of poses it is a noisy estimate that also carries the
+board's bow as if it were calibration error.
 
 References
 ----------
@@ -28,6 +33,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from scanqa.calibration.board import Board, BoardPose, decode_pose
+from scanqa.calibration.bundle import BundleResult, bundle_adjust
 from scanqa.calibration.parametric import ParametricCalibration, from_opencv
 from scanqa.calibration.uncertainty import jackknife_covariance, pack_opencv
 from scanqa.decoding.coding import PatternDescription
@@ -78,7 +84,9 @@ class BoardCalibration:
     ----------
     data : OpenCVCalibration
         Matrices, sizes, reprojection errors (``cam_error``, ``proj_error``,
-        ``stereo_error`` [px]) and, with three or more poses, the jackknife covariance.
+        ``stereo_error`` [px], OpenCV's sequential fit) and, with ``covariance``, the
+        joint fit's refined parameters and covariance
+        (:func:`scanqa.calibration.bundle.bundle_adjust`).
     poses : tuple of PoseResidual
         Per-pose reprojection RMS, in the order given.
     model : str
@@ -95,6 +103,11 @@ class BoardCalibration:
     corner_method : str
         The camera's corner detector (:data:`scanqa.calibration.board.CORNER_METHODS`);
         empty when the poses were decoded elsewhere.
+    jackknife : (24, 24) float or None
+        The covariance from the calibrations that left one pose out (a check).
+    bundle : dict
+        The joint fit: ``noise_px`` (each device's corner noise), ``model_terms`` (the
+        board's bow and the left-out lens terms: estimate, std).
     """
 
     data: OpenCVCalibration
@@ -105,6 +118,8 @@ class BoardCalibration:
     fit_std: dict = field(default_factory=dict)
     flatness: dict = field(default_factory=dict)
     corner_method: str = ""
+    jackknife: np.ndarray | None = None
+    bundle: dict = field(default_factory=dict)
 
     @property
     def flagged(self) -> list[str]:
@@ -113,14 +128,22 @@ class BoardCalibration:
 
     @property
     def parameter_std(self) -> dict | None:
-        """The jackknife std of each lens parameter (square root of the covariance's
-        diagonal, :data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`) [px, -]; None without
-        a covariance."""
-        cov = self.data.covariance
-        if cov is None:
-            return None
-        std = np.sqrt(np.clip(np.diag(cov), 0, None))
-        return dict(zip(COVARIANCE_PARAMETERS, std.tolist(), strict=True))
+        """The std of each parameter from the joint fit's covariance (square root of its
+        diagonal, :data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`) [px, -, rad, mm];
+        None without a covariance."""
+        return _std(self.data.covariance)
+
+    @property
+    def jackknife_std(self) -> dict | None:
+        """As :attr:`parameter_std`, of the jackknife (the check)."""
+        return _std(self.jackknife)
+
+
+def _std(cov: np.ndarray | None) -> dict | None:
+    if cov is None:
+        return None
+    std = np.sqrt(np.clip(np.diag(cov), 0, None))
+    return dict(zip(COVARIANCE_PARAMETERS, std.tolist(), strict=True))
 
 
 def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
@@ -138,8 +161,9 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
     model : str
         Lens model, one of ``MODELS``.
     covariance : bool
-        Also fit every leave-one-out subset for the jackknife covariance (three or more
-        poses).
+        Refine jointly and give the joint fit's covariance
+        (:mod:`scanqa.calibration.bundle`); with three or more poses also fit every
+        leave-one-out subset for the jackknife covariance (the check).
 
     Returns
     -------
@@ -149,13 +173,28 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
         raise InputError(f"lens model must be one of {MODELS}, got {model!r}")
     if len(poses) < 2:
         raise InputError(f"a board calibration needs at least 2 poses, got {len(poses)}")
+    _distinct(poses)
     data, residuals, fit_std = _fit(poses, board, projector_size, model)
-    if covariance and len(poses) >= 3:
-        thetas = [pack_opencv(_fit(poses[:k] + poses[k + 1:], board, projector_size,
-                                   model)[0]) for k in range(len(poses))]
-        data = OpenCVCalibration(**{**data.__dict__, "covariance":
-                                    jackknife_covariance(np.array(thetas))})
-    return BoardCalibration(data, tuple(_flag(residuals)), model, fit_std=fit_std)
+    if not covariance:
+        return BoardCalibration(data, tuple(_flag(residuals)), model, fit_std=fit_std)
+    joint = joint_fit(poses, board, data, model)
+    jack = None
+    if len(poses) >= 3:
+        thetas = [pack_opencv(joint_fit(poses[:k] + poses[k + 1:], board, _fit(
+            poses[:k] + poses[k + 1:], board, projector_size, model)[0], model).data)
+                  for k in range(len(poses))]
+        jack = jackknife_covariance(np.array(thetas))
+    return BoardCalibration(joint.data, tuple(_flag(residuals)), model, fit_std=fit_std,
+                            jackknife=jack,
+                            bundle={"noise_px": joint.noise_px,
+                                    "model_terms": joint.model_terms})
+
+
+def joint_fit(poses: list[BoardPose], board: Board, start: OpenCVCalibration,
+              model: str) -> BundleResult:
+    """The joint fit of ``poses`` from ``start`` (:func:`bundle_adjust`)."""
+    obj, cam, proj = _points(poses, board)
+    return bundle_adjust(start, obj, cam, proj, model, board.object_points)
 
 
 def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,
@@ -208,6 +247,50 @@ def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescriptio
                    held_out=tuple(hold_out(poses, board, panel, model, ref)
                                   if held_out and len(poses) >= 3 else ()),
                    flatness=board_flatness(poses, board, panel, model) if complete else {})
+
+
+#: Two poses whose camera corners are this close (RMS) are one pose given twice [px].
+SAME_POSE_PX = 0.5
+
+
+def _distinct(poses: list[BoardPose]) -> None:
+    """Refuse a pose given twice (the same images or corners under two names)."""
+    for i, first in enumerate(poses):
+        for second in poses[i + 1:]:
+            if first.camera_px.shape != second.camera_px.shape:
+                continue
+            gap = np.sqrt(np.nanmean(np.sum((first.camera_px - second.camera_px) ** 2, 1)))
+            if gap < SAME_POSE_PX:
+                raise InputError(
+                    f"poses {first.name} and {second.name} show the board at the same place "
+                    f"(their corners {gap:.2g} px apart, RMS): a calibration needs the board "
+                    "moved and tilted between poses - drop the repeat")
+
+
+#: How far a board calibration's baseline may lie from the config's before it is refused
+#: (a wrong square size scales it) [-].
+BASELINE_TOLERANCE = 0.2
+
+
+def check_baseline(data: OpenCVCalibration, expected_mm: np.ndarray, square_mm: float
+                   ) -> float:
+    """Refuse a calibration whose baseline (camera to projector centre) is more than
+    :data:`BASELINE_TOLERANCE` off the expected one (a config's projector position).
+
+    Returns
+    -------
+    float
+        The relative difference [-].
+    """
+    got = float(np.linalg.norm(data.Rp.T @ np.ravel(data.Tp)))
+    want = float(np.linalg.norm(expected_mm))
+    rel = got / want - 1 if want > 0 else float("nan")
+    if not abs(rel) <= BASELINE_TOLERANCE:
+        raise InputError(
+            f"the board calibration's baseline is {got:.1f} mm, {100 * rel:+.0f} % off the "
+            f"config's projector position ({want:.1f} mm from the camera): check the square "
+            f"size ({square_mm:g} mm; a wrong one scales the baseline) or the config")
+    return rel
 
 
 def _one_board(poses: list[BoardPose]) -> Board:
@@ -263,6 +346,11 @@ def _points(poses: list[BoardPose], board: Board) -> tuple[list, list, list]:
         if pose.camera_size != poses[0].camera_size:
             raise InputError(f"pose {pose.name} is {pose.camera_size} px, pose "
                              f"{poses[0].name} {poses[0].camera_size}: one camera please")
+        if len(pose.camera_px) != len(board.object_points):
+            raise InputError(f"pose {pose.name} has {len(pose.camera_px)} corners, the "
+                             f"{board.rows} x {board.columns} board {len(board.object_points)}"
+                             ": is the whole board in view? (give --board ROWSxCOLS to "
+                             "look for that grid)")
         ok = np.isfinite(pose.projector_px).all(axis=1)
         if ok.sum() < 6:
             raise InputError(f"pose {pose.name}: only {ok.sum()} corners have decoded "

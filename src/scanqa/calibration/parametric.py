@@ -32,12 +32,15 @@ projector (Z_p > 0), projects inside the projector panel (both coordinates withi
 [-0.5, size - 0.5]), where neither lens's distortion folds over (positive Jacobian
 determinant), and has Z_c inside the configured depth range ``depth_range_mm``.
 
-The table's own uncertainty is zero here (``sigma_table`` = 0): a calibration file holds
-no covariance of its parameters, and its RMS reprojection errors (kept in
-``provenance``) are the scatter of single target detections, not an error of the fitted
-mapping, so propagating them as a per-point sigma would count detection noise as
-calibration error. A parametric model's systematic errors are what the nonparametric
-table exists to absorb; compare the two on a plane sweep to measure them.
+The calibration's own uncertainty (:attr:`ParametricCalibration.calibration_term`): a
+file written by ``scanqa calibrate --board`` holds the covariance of its 24 parameters
+(the joint fit's, :mod:`scanqa.calibration.bundle`), propagated to every point along its
+line of sight (:meth:`ParametricCalibration.calibration_sigma_mm`); a file from another
+tool has none, unless a covariance (``calibration_covariance``) or a stated std
+(``calibration_sigma_um``) is added to it (:mod:`scanqa.io.opencv`). Without either the
+calibration term is 0 and every output says so (the cloud's ``sigma_source``). Its RMS
+reprojection errors (kept in ``provenance``) are not propagated: they are the scatter
+of single target detections, not an error of the fitted mapping.
 """
 
 from __future__ import annotations
@@ -199,6 +202,9 @@ class ParametricCalibration:
     covariance : (24, 24) float or None
         Covariance of the parameters (:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`),
         e.g. from ``scanqa calibrate --board``; None: unknown.
+    stated_sigma_mm : float or None
+        A stated calibration std of every point along its line of sight, used when
+        there is no covariance [mm]; None: unknown.
     """
 
     camera: Lens
@@ -210,6 +216,7 @@ class ParametricCalibration:
     errors: dict = field(default_factory=dict)
     source: str = ""
     covariance: np.ndarray | None = None
+    stated_sigma_mm: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=float))
@@ -251,10 +258,23 @@ class ParametricCalibration:
         """Where the calibration came from, for output metadata."""
         return {"kind": "parametric", "calibration": self.source,
                 "reprojection_error_px": dict(self.errors), "orientation": self.orientation,
-                "sigma_table": "0: a parametric calibration carries no uncertainty of its "
-                               "own (scanqa.calibration.parametric)",
-                "calibration_covariance": "jackknife, per point: calibration_sigma_mm"
-                if self.covariance is not None else "none"}
+                "calibration_term": self.calibration_term}
+
+    @property
+    def calibration_term(self) -> dict:
+        """Where the calibration's own sigma comes from: ``kind`` "covariance" (its
+        parameters' covariance propagated per point), "stated" (a std stated in the
+        file) or "none" (no term: sigma_table_um is 0), and ``detail`` in words."""
+        if self.covariance is not None:
+            return {"kind": "covariance", "detail": f"{self.source}: the covariance of its "
+                    "24 parameters (calibration_covariance) propagated to every point"}
+        if self.stated_sigma_mm is not None:
+            return {"kind": "stated", "detail": f"{self.source}: a stated "
+                    f"{1e3 * self.stated_sigma_mm:g} um at every point (calibration_sigma_um)"}
+        return {"kind": "none", "detail": f"{self.source} carries no covariance: the "
+                "calibration's own error is not in sigma_total_um; add "
+                "calibration_covariance or calibration_sigma_um to the file, or calibrate "
+                "from board poses (scanqa calibrate --board)"}
 
     @functools.cached_property
     def image_grid(self) -> CameraRays:
@@ -339,10 +359,12 @@ class ParametricCalibration:
                              ) -> np.ndarray:
         """Std of the points (u, v, xp) along their line of sight from the calibration's
         own uncertainty [mm] (:func:`scanqa.calibration.uncertainty.calibration_sigma_mm`);
-        NaN everywhere when the calibration has no covariance."""
+        the stated std where it has none but one is stated; NaN everywhere when it has
+        neither."""
         if self.covariance is None:
-            return np.full(np.broadcast_shapes(np.shape(u), np.shape(v), np.shape(xp)),
-                           np.nan)
+            shape = np.broadcast_shapes(np.shape(u), np.shape(v), np.shape(xp))
+            stated = self.stated_sigma_mm
+            return np.full(shape, np.nan if stated is None else float(stated))
         return calibration_sigma_mm(self, self.covariance, u, v, xp)
 
     @property
@@ -538,7 +560,9 @@ def from_opencv(data: OpenCVCalibration, orientation: str = "vertical",
     cal = ParametricCalibration(Lens(data.Kc, data.kc, *cam), Lens(data.Kp, data.kp, *proj),
                                 data.Rp, data.Tp, orientation,
                                 tuple(float(v) for v in depth_range_mm), dict(data.errors),
-                                data.source, data.covariance)
+                                data.source, data.covariance,
+                                None if data.stated_sigma_um is None
+                                else 1e-3 * float(data.stated_sigma_um))
     for warning in lens_warnings(cal):
         log.warning(warning)
     return cal

@@ -288,7 +288,7 @@ def geometry_covariance(cal) -> GeometryCovariance | None:
     """The geometric parameters and covariance a calibration carries
     (:class:`~scanqa.calibration.uncertainty.GeometryCovariance`), or None: a marker
     table's fit (its ``target_geometry`` provenance with the parameter vector), or a
-    parametric calibration with a covariance (a board calibration's jackknife)."""
+    parametric calibration with a covariance (a board calibration's joint fit)."""
     covariance = getattr(cal, "covariance", None)
     if covariance is not None and hasattr(cal, "projector"):
         return parametric_covariance(cal, covariance)

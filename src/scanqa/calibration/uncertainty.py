@@ -2,7 +2,8 @@
 
 The 24 parameters (:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`: both lenses' f_x,
 f_y, c_x, c_y, k1 k2 p1 p2 k3, the rotation vector of Rp, Tp) of a board calibration get
-a covariance C from the calibrations that left one pose out (the jackknife, Eq. 1):
+their covariance C from the joint fit's Jacobian (:mod:`scanqa.calibration.bundle`); the
+calibrations that left one pose out give another, the jackknife (Eq. 1), kept as a check:
 
     C = (n - 1) / n sum_i (theta_i - theta_bar)(theta_i - theta_bar)^T          (1)
 

@@ -7,8 +7,10 @@ import argparse
 import json
 import logging
 
+import numpy as np
+
 from scanqa.calibration.board import CORNER_METHODS, Board
-from scanqa.calibration.board_fit import MODELS, calibrate_poses
+from scanqa.calibration.board_fit import MODELS, calibrate_poses, check_baseline
 from scanqa.calibration.build import WEIGHT_MODES
 from scanqa.calibration.sweep import calibrate
 from scanqa.calibration.table import save_table
@@ -141,6 +143,7 @@ def run_board(args: argparse.Namespace) -> int:
                          ".yaml or .json)")
     board = (args.square_mm if args.board is None
              else Board(args.board[0], args.board[1], args.square_mm))
+    Board(2, 2, args.square_mm)  # the square size's range, before any pose is decoded
     reference = read_opencv_calibration(args.reference) if args.reference else None
     try:
         with Progress("calibrate", total=len(args.sweep), unit="pose") as bar:
@@ -150,6 +153,9 @@ def run_board(args: argparse.Namespace) -> int:
     except InputError as err:   # the library speaks of the board given; the CLI of --board
         raise InputError(str(err).replace("the board given", "--board").replace(
             "the board's corner count", "--board")) from None
+    if args.config is not None:  # a wrong square size scales the baseline
+        check_baseline(result.data, np.asarray(config_from_args(args).projector.position_mm,
+                                               float), args.square_mm)
     stem = out.with_suffix("").name
     with staged_dir(out.parent) as stage:
         write_opencv_calibration(stage / out.name, result.data)

@@ -21,7 +21,20 @@ key                                required  meaning
                                              (order: ``COVARIANCE_PARAMETERS``), written
                                              by ``scanqa calibrate --board`` [px, -, rad,
                                              mm squared]; other tools ignore the key
+``calibration_sigma_um``           no        a stated std of every point along its line of
+                                             sight from the calibration's own error [um],
+                                             for a calibration without a covariance (add
+                                             it to another tool's file by hand)
 =================================  ========  ===============================================
+
+Other names (:data:`ALIASES`): files written by other public projector-camera
+calibration tools name the six matrices ``cam_int``, ``cam_dist``, ``proj_int``,
+``proj_dist``, ``rotation`` and ``translation`` (``cv::stereoCalibrate`` with the camera
+first, so ``rotation`` and ``translation`` are ``Rp`` and ``Tp``: X_p = R X_c + T).
+Either name is read; a file holding both names of one matrix is refused.
+
+A calibration with neither ``calibration_covariance`` nor ``calibration_sigma_um``
+carries no calibration term: every output of it says so (its cloud's ``sigma_source``).
 
 Conventions (OpenCV's): ``Rp``, ``Tp`` map camera coordinates to projector coordinates,
 X_p = Rp X_c + Tp [mm], so the projector's centre in the camera frame is -Rp^T Tp. A
@@ -53,6 +66,10 @@ SUFFIXES = (".xml", ".yml", ".yaml", ".json")
 #: Matrices every calibration must hold, with their shapes.
 MATRICES = {"Kc": (3, 3), "kc": "distortion", "Kp": (3, 3), "kp": "distortion",
             "Rp": (3, 3), "Tp": (3,)}
+#: Other names of the required matrices, as public projector-camera calibration tools
+#: write them (module notes).
+ALIASES = {"Kc": ("cam_int",), "kc": ("cam_dist",), "Kp": ("proj_int",),
+           "kp": ("proj_dist",), "Rp": ("rotation",), "Tp": ("translation",)}
 #: Optional integer sizes.
 SIZES = ("frameWidth", "frameHeight", "screenResX", "screenResY")
 #: Optional reprojection errors [px].
@@ -90,6 +107,8 @@ class OpenCVCalibration:
         The file.
     covariance : (24, 24) float64 or None
         Covariance of the parameters ``COVARIANCE_PARAMETERS``, when the file has one.
+    stated_sigma_um : float or None
+        ``calibration_sigma_um``: a stated calibration std of every point [um].
     """
 
     Kc: np.ndarray
@@ -102,6 +121,7 @@ class OpenCVCalibration:
     errors: dict = field(default_factory=dict)
     source: str = ""
     covariance: np.ndarray | None = None
+    stated_sigma_um: float | None = None
 
 
 def is_opencv_file(path: str | os.PathLike) -> bool:
@@ -165,15 +185,26 @@ def _first_line(err: Exception) -> str:
 
 def _read_nodes(fs, p: Path) -> OpenCVCalibration:
     """Every key of the module notes from an open FileStorage."""
-    mats = {name: _matrix(fs, p, name, shape) for name, shape in MATRICES.items()}
+    mats = {name: _matrix(fs, p, _key(fs, p, name), shape) for name, shape in MATRICES.items()}
     sizes = {name: _size(fs, p, name) for name in SIZES}
     errors = {name: _real(fs, p, name) for name in ERRORS}
     n = len(COVARIANCE_PARAMETERS)
     cov = (None if fs.getNode("calibration_covariance").empty()
            else _covariance(p, _matrix(fs, p, "calibration_covariance", (n, n))))
+    stated = _real(fs, p, "calibration_sigma_um", "um (a std along the line of sight)")
     return OpenCVCalibration(**mats, sizes={k: v for k, v in sizes.items() if v is not None},
                              errors={k: v for k, v in errors.items() if v is not None},
-                             source=str(p), covariance=cov)
+                             source=str(p), covariance=cov, stated_sigma_um=stated)
+
+
+def _key(fs, p: Path, name: str) -> str:
+    """The name a required matrix goes by in the file (``name`` or one of its
+    :data:`ALIASES`); ``name`` when it has none (the missing-matrix error follows)."""
+    present = [key for key in (name, *ALIASES.get(name, ())) if not fs.getNode(key).empty()]
+    if len(present) > 1:
+        raise InputError(f"{p}: the file holds {' and '.join(map(repr, present))}, two names of "
+                         f"one matrix ({name}): keep one")
+    return present[0] if present else name
 
 
 def write_opencv_calibration(path: str | os.PathLike, data: OpenCVCalibration) -> Path:
@@ -210,6 +241,8 @@ def write_opencv_calibration(path: str | os.PathLike, data: OpenCVCalibration) -
             fs.write(name, value)
         if data.covariance is not None:
             fs.write("calibration_covariance", np.asarray(data.covariance, dtype=float))
+        if data.stated_sigma_um is not None:
+            fs.write("calibration_sigma_um", float(data.stated_sigma_um))
     finally:
         fs.release()
     os.replace(tmp, p)
@@ -222,8 +255,12 @@ def _matrix(fs, p: Path, name: str, shape) -> np.ndarray:
 
     node = fs.getNode(name)
     if node.empty():
-        raise InputError(f"{p}: matrix {name!r} is missing (a camera-projector calibration "
-                         f"needs {', '.join(MATRICES)})")
+        others = {a: n for n, al in ALIASES.items() for a in al}
+        canonical = others.get(name, name)
+        also = "".join(f" or {a!r}" for a in ALIASES.get(canonical, ()))
+        raise InputError(f"{p}: matrix {canonical!r}{also} is missing (a camera-projector "
+                         f"calibration needs {', '.join(MATRICES)}, or the names "
+                         f"{', '.join(a for al in ALIASES.values() for a in al)})")
     try:
         mat = node.mat() if node.isMap() else None
     except cv2.error as err:
@@ -295,15 +332,16 @@ def _size(fs, p: Path, name: str) -> int | None:
     return int(value)
 
 
-def _real(fs, p: Path, name: str) -> float | None:
+def _real(fs, p: Path, name: str, unit: str = "px (an RMS error)") -> float | None:
     """An optional finite, non-negative real node (an RMS error), or None."""
     node = fs.getNode(name)
     if node.empty():
         return None
     if not (node.isInt() or node.isReal()) or not np.isfinite(node.real()) or \
             node.real() < 0:
-        raise InputError(f"{p}: {name} must be a number >= 0 [px] (an RMS error), got "
-                         f"{_show(node)}")
+        raise InputError(f"{p}: {name} must be a number >= 0 [{unit.split(' ', 1)[0]}] "
+                         f"{unit.split(' ', 1)[1] if ' ' in unit else ''}, got "
+                         f"{_show(node)}".replace("  ", " "))
     return float(node.real())
 
 

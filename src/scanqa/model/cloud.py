@@ -87,8 +87,12 @@ class AnnotatedCloud:
     @property
     def sigma_warning(self) -> str:
         """What the user must know about where the sigmas come from ("" when they were
-        characterised; :func:`scanqa.runs.annotation.sigma_source`)."""
-        return str(self.sigma_source.get("warning", ""))
+        characterised; :func:`scanqa.runs.annotation.sigma_source`), and that the
+        calibration carries no term of its own when it does not
+        (:func:`scanqa.runs.annotation.calibration_source`)."""
+        source = self.sigma_source
+        return "; ".join(t for t in (str(source.get("warning", "")),
+                                     str(source.get("calibration_warning", ""))) if t)
 
     def summary(self) -> str:
         """One line: points written, and how many pixels were left out and why."""

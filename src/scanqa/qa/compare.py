@@ -16,6 +16,13 @@ M3C2 with precision maps, here with the scanner's own per-point sigma):
 
 The point's own sigma along the normal is ``sigma_total_um`` x |cos| of its line of sight
 to the normal. Points beyond ``max_distance_mm`` from the reference are left out (NaN).
+
+What U is made of (:func:`u_by_term`): the scan's sigma_total splits into its random part
+(``sigma_random_um``), its calibration term (``sigma_table_um``) and the rest (the
+config's systematic term), each projected on the normal like the total, beside the
+reference's u_ref; the summary gives each one's median expanded uncertainty k u over
+the judged points, the dominant one, and the smallest deviation the comparison can call
+significant (U at the median point, and at the best 5 % of points).
 """
 
 from __future__ import annotations
@@ -58,6 +65,7 @@ class Comparison:
     reference: str
     notes: tuple[str, ...] = field(default=())
     alignment: dict | None = None  # the best fit (scanqa.qa.align), when there was one
+    u_terms: dict = field(default_factory=dict)
 
     def deviation_limit_um(self, percentile: float = 99.0) -> float:
         """Colour-scale limit of the deviation map: the ``percentile`` of |deviation| over
@@ -93,6 +101,7 @@ class Comparison:
                "sigma_source": self.cloud.sigma_source, "notes": list(self.notes)}
         if self.alignment is not None:
             out["alignment"] = self.alignment
+        out.update(self.u_terms)
         if self.tolerance_mm is not None:
             inside = np.asarray(a["in_tolerance"])[ok]
             out["tolerance_um"] = 1e3 * self.tolerance_mm
@@ -274,7 +283,57 @@ def _finish(cloud: AnnotatedCloud, dev: np.ndarray, normal: np.ndarray, u_ref: n
                          "exact reference): annotate the cloud with scanqa annotate inside "
                          "the calibrated volume, or give the reference's sigma")
     return Comparison(cloud.with_attributes(**extra), k, tolerance_mm, reference,
-                      tuple(notes), alignment.summary() if alignment is not None else None)
+                      tuple(notes), alignment.summary() if alignment is not None else None,
+                      u_by_term(cloud, cos, u_ref, k, np.isfinite(significance)))
+
+
+def u_by_term(cloud: AnnotatedCloud, cos: np.ndarray, u_ref: np.ndarray, k: float,
+              judged: np.ndarray) -> dict:
+    """What the expanded uncertainty U of the judged points is made of (module notes).
+
+    Parameters
+    ----------
+    cloud : AnnotatedCloud
+        The scan (``sigma_total_um``; ``sigma_random_um`` and ``sigma_table_um`` when
+        it has them).
+    cos : (n,) float
+        |cos| of each point's line of sight to the normal [-].
+    u_ref : (n,) float
+        The reference's standard uncertainty at each point [mm].
+    k : float
+        Coverage factor [-].
+    judged : (n,) bool
+        The points with a significance.
+
+    Returns
+    -------
+    dict
+        ``median_U_by_term_um``: {"random", "calibration", "systematic", "reference"}:
+        the median of k x each term [um] (None for a term the cloud does not carry);
+        ``dominant_U_term``; ``smallest_significant_deviation_um``: {"median_point",
+        "best_5_percent"}: the U of the median point and the 5th percentile of U [um].
+    """
+    if not judged.any():
+        return {}
+    a = cloud.attributes
+    total = np.asarray(a["sigma_total_um"], float)[judged]
+    parts = {name: np.asarray(a[attr], float)[judged] if attr in a else None
+             for name, attr in (("random", "sigma_random_um"),
+                                ("calibration", "sigma_table_um"))}
+    known = sum(np.nan_to_num(p) ** 2 for p in parts.values() if p is not None)
+    parts["systematic"] = np.sqrt(np.clip(total**2 - known, 0.0, None)) if any(
+        p is not None for p in parts.values()) else None
+    scale = k * np.asarray(cos, float)[judged]
+    terms = {name: None if p is None else float(np.median(scale * np.nan_to_num(p)))
+             for name, p in parts.items()}
+    terms["reference"] = float(np.median(k * 1e3 * np.asarray(u_ref, float)[judged]))
+    big_u = k * np.sqrt((1e-3 * total * cos[judged]) ** 2 + u_ref[judged] ** 2) * 1e3
+    given = {n: v for n, v in terms.items() if v is not None}
+    return {"median_U_by_term_um": terms,
+            "dominant_U_term": max(given, key=given.get),
+            "smallest_significant_deviation_um": {
+                "median_point": float(np.median(big_u)),
+                "best_5_percent": float(np.percentile(big_u, 5))}}
 
 
 def _check(cloud: AnnotatedCloud, k: float, neighbours: int, ref_sigma: float,

@@ -29,6 +29,9 @@ def summary(result: BoardCalibration) -> dict:
         "flag_rule": f"pose RMS > {FLAG_FACTOR:g} x the median of the other poses",
         "parameter_std": result.parameter_std,
         "parameter_std_fit": dict(result.fit_std),
+        "parameter_std_jackknife": result.jackknife_std,
+        "joint_fit": {"noise_px": result.bundle.get("noise_px", {}),
+                      "model_terms": result.bundle.get("model_terms", {})},
         "held_out": list(result.held_out),
         "comparison": dict(result.comparison),
         "board_flatness": {k: v if np.isfinite(v) else None  # JSON has no NaN
@@ -92,10 +95,19 @@ def render(result: BoardCalibration) -> str:
             "what lowers them.")
     if info["parameter_std"]:
         page.heading("Parameter standard deviations", "std")
-        page.paragraph("jackknife: from the calibrations that left one pose out (what enters "
-                       "the calibration sigma); fit: OpenCV's, from the Jacobian of one fit "
-                       "with the residuals taken as white noise (lens parameters only).")
-        fit = info["parameter_std_fit"]
-        page.table([{"parameter": k, "jackknife": v, "fit": fit.get(k, "")}
+        noise = info["joint_fit"]["noise_px"]
+        page.paragraph("joint fit: from the Jacobian of the joint fit of camera, projector, "
+                       "board poses and the board's bow, each device's residuals scaled by "
+                       f"its corner noise (camera {noise.get('camera', float('nan')):.3f} px, "
+                       f"projector {noise.get('projector', float('nan')):.3f} px), with the "
+                       "lens terms the model leaves out as stated terms (what enters the "
+                       "calibration sigma); jackknife: from the calibrations that left one "
+                       "pose out (a check); OpenCV: from the Jacobian of its camera-only or "
+                       "projector-only fit (lens parameters only).")
+        fit, jack = info["parameter_std_fit"], info["parameter_std_jackknife"] or {}
+        page.table([{"parameter": k, "joint fit": v, "jackknife": jack.get(k, ""),
+                     "OpenCV": fit.get(k, "")}
                     for k, v in info["parameter_std"].items()])
+        page.table([{"term": k, **{n: x for n, x in v.items()}}
+                    for k, v in info["joint_fit"]["model_terms"].items()])
     return page.render()

@@ -28,10 +28,13 @@ def render(result: Comparison) -> str:
     page.sigma_source(info["sigma_source"])
     page.heading("Summary", "summary")
     rows = [{"quantity": k, "value": v} for k, v in info.items()
-            if k not in ("format", "sigma_source", "notes", "alignment")]
+            if k not in ("format", "sigma_source", "notes", "alignment", "median_U_by_term_um",
+                         "smallest_significant_deviation_um", "dominant_U_term")]
     page.table(rows, ["quantity", "value"])
     if "alignment" in info:
         _alignment(page, info["alignment"])
+    if info.get("median_U_by_term_um"):
+        _power(page, info)
     page.paragraph(f"Deviation along the reference surface's normal; u combines the scan's "
                    f"sigma_total (projected on the normal) with the reference's; a point is "
                    f"significant when |deviation| > U = {result.k:g} u.", note=True)
@@ -70,6 +73,20 @@ def _alignment(page: Page, fit: dict) -> None:
                    "Each point's u includes the deviation's uncertainty from the fit."
                    + (f" Barely fixed by the surface: {', '.join(fit['free_motions'])}."
                       if fit["free_motions"] else ""), note=True)
+
+
+def _power(page: Page, info: dict) -> None:
+    """What U is made of, and the smallest deviation the comparison can call significant."""
+    page.heading("What U is made of", "u-by-term")
+    terms = info["median_U_by_term_um"]
+    page.table([{"term": name, "median U [um]": "not in the cloud" if v is None
+                 else f"{v:.4g}"} for name, v in terms.items()], ["term", "median U [um]"])
+    small = info["smallest_significant_deviation_um"]
+    page.paragraph(f"U is dominated by the {info['dominant_U_term']} term. The smallest "
+                   f"deviation this comparison can call significant: {small['median_point']:.4g}"
+                   f" um at the median point, {small['best_5_percent']:.4g} um at the best 5 % "
+                   "of points; smaller deviations are within the uncertainty whatever their "
+                   "size.", note=info["dominant_U_term"] != "random")
 
 
 def _maps(xyz: np.ndarray, dev: np.ndarray, significance: np.ndarray, lim: float):

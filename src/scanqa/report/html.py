@@ -113,6 +113,11 @@ class Page:
         text = f"Per-point sigma: {source.get('kind', 'unknown')} ({source.get('detail', '')})"
         if warning:
             text += f". WARNING: {warning}"
+        if source.get("calibration"):
+            text += f". Calibration term: {source['calibration']} "
+            text += f"({source.get('calibration_detail', '')})"
+        if source.get("calibration_warning"):
+            cls = "sigma-source sigma-warning"
         self.parts.append(f'<div class="{cls}" id="sigma-source">{html.escape(text)}</div>')
 
     def header_block(self, items: Sequence[tuple[str, str]]) -> None:

@@ -17,21 +17,24 @@ name               unit   meaning
 =================  =====  ==================================================================
 sigma_model_um     um     model sigma along the line of sight; NaN where the model is not
                           valid (a blur ratio > 1/2)
-sx_um, sy_um,      um     the X, Y, Z components of sigma_random (CloudCompare M3C2
-sz_um                     precision maps pick fields containing "sx", "sy", "sz")
+sx_um, sy_um,      um     the X, Y, Z components of sigma_random along dQ/dx_p (CloudCompare
+sz_um                     M3C2 precision maps pick fields containing "sx", "sy", "sz")
 sigma_scene_um     um     the model sigma's scene-side part (filtered by the camera blur;
                           the whole model sigma for the paper's readings)
 sigma_sensor_um    um     the model sigma's sensor part (two-source model; 0 otherwise)
 sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
 sigma_table_um     um     the calibration's own std at that point along the line of
-                          sight: a table's cell std, or a parametric calibration's from
-                          its parameter covariance (0 when it carries none)
+                          sight (the calibration term): a table's cell std, or a
+                          parametric calibration's from its parameter covariance or a
+                          stated std; 0 when it carries none, and the cloud's
+                          ``sigma_source.calibration`` then says "none"
 sigma_random_um    um     the per-point random sigma along the line of sight, from the
                           source the cloud's ``sigma_source`` names: the model where a
                           characterisation pinned it, a board's noise law applied to the
                           pixel's own A and B, else the decoder's image estimate
                           (sigma_phase_um)
-sigma_total_um     um     sqrt(sigma_random^2 + sigma_table^2 + systematic^2)
+sigma_total_um     um     sqrt(sigma_random^2 + sigma_table^2 + systematic^2), systematic
+                          the config's [model] systematic_sigma_mm
 att_camera         -      camera attenuation A_c
 att_projector      -      projector attenuation A_p
 filter_factor      -      F_gamma (Eq. 17)
@@ -170,6 +173,7 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     origin = sigma_source(config, phase_map)
     meta = cloud_metadata(config, table, source)
     meta["sigma_source"] = {k: v for k, v in origin.items() if k != "law"}
+    meta["sigma_source"].update(calibration_source(table))
     if repeats:
         extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
     starts = np.cumsum([0, *kept])
@@ -263,6 +267,20 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
                       "calibration": table.provenance.get("calibration", "")}}
 
 
+def calibration_source(table: Calibration) -> dict:
+    """Where a cloud's calibration term (``sigma_table_um``) comes from, for its
+    ``sigma_source``: ``calibration`` ("table": a table's cell std; "covariance",
+    "stated" or "none" for a parametric calibration,
+    :attr:`~scanqa.calibration.parametric.ParametricCalibration.calibration_term`),
+    ``calibration_detail`` and, with no term, ``calibration_warning``."""
+    term = getattr(table, "calibration_term", None)
+    if term is None:
+        return {"calibration": "table", "calibration_detail": "the calibration table's own "
+                "cell std (sigma_table_um)", "calibration_warning": ""}
+    return {"calibration": term["kind"], "calibration_detail": term["detail"],
+            "calibration_warning": term["detail"] if term["kind"] == "none" else ""}
+
+
 def sigma_source(config: ScannerConfig, phase_map: PhaseMap) -> dict:
     """Where a scan's per-point random sigma comes from, and what it assumes.
 
@@ -338,7 +356,8 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
     inputs = {k: _pick(v[r0:r1], select) for k, v in extra.items()}
     inputs["corr_px"] = table_correlation_px(table)
     inputs["source"] = source
-    if getattr(table, "covariance", None) is not None:  # a parametric calibration's own
+    term = getattr(table, "calibration_term", {"kind": "table"})
+    if term["kind"] in ("covariance", "stated"):  # a parametric calibration's own
         inputs["sigma_calibration"] = table.calibration_sigma_mm(*pixels, _pick(
             xp[r0:r1], select))
     invalid = _annotate_points(look, pixels, inputs, config, out)

@@ -1,0 +1,186 @@
+"""Does a board calibration's covariance predict its real error? (issue 42)
+
+Part "sim" (simulated, known truth): each seed draws a scanner, a bowed board and board
+poses (:mod:`scanqa.simulator.boardposes`: camera and projector with k1 and k2, the
+camera's principal point off the image centre, a quadric bow of ~0.15 mm, corner noise
+0.03-0.2 px), calibrates with the default lens model "k1" (which leaves the camera's
+principal point and both k2 out: model errors the joint fit must state) and compares,
+at points spread over the volume (a 7 x 7 grid of camera pixels at three depths over the
+poses' range), the calibration's 3-D error along the line of sight with its predicted
+sigma (:func:`scanqa.calibration.uncertainty.calibration_sigma_mm` of the joint fit's
+covariance). Acceptance: over the held-out seeds, RMS(error / sigma) in [0.75, 1.33] and
+the share within 2 sigma in [0.90, 0.99].
+
+The seeds were named here before they were run: TUNING_SEEDS were used while the
+method was built (the sign of a term, how a left-out term's variance is stated),
+HELD_OUT_SEEDS only once, for the numbers reported.
+
+Part "gray" (simulated): GRAY_SEEDS' poses rendered as images under Gray codes alone
+(the layout of public projector-camera calibration tools), decoded (local homographies
+on the decoded codes) and calibrated; the same error / sigma at the volume points, and
+the focal lengths against the truth's.
+
+Part "real" (the SLStudio board poses 1, 3-6, model corners, and skull_2x3; needs the
+real-data folder): skull_2x3 triangulated with scanqa's board calibration and with
+calibration.xml: median |dXYZ| / median calibration sigma; the five leave-one-pose-out
+calibrations' spread at the skull's points against the predicted sigma.
+
+Usage::
+
+    python benchmarks/calibration_covariance.py sim [--tuning]
+    python benchmarks/calibration_covariance.py gray
+    python benchmarks/calibration_covariance.py real
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "src"))
+sys.path.insert(0, str(ROOT))
+
+from scanqa.calibration.board_fit import calibrate_board  # noqa: E402
+from scanqa.calibration.parametric import from_opencv  # noqa: E402
+from scanqa.calibration.uncertainty import calibration_sigma_mm  # noqa: E402
+from scanqa.simulator.boardposes import BOARD, PANEL, simulate, volume_points  # noqa: E402
+
+#: Seeds the method was built on.
+TUNING_SEEDS = tuple(range(1000, 1010))
+#: Seeds named before they were run; run once for the reported numbers.
+HELD_OUT_SEEDS = tuple(range(2000, 2012))
+#: Part "gray": seeds whose poses are rendered as images under Gray codes (10 column and
+#: 11 row bits with inverses, white, black; no phase set), decoded and calibrated as
+#: ``scanqa calibrate`` does; named before they were run, none tuned on. Seeds 4000-4009
+#: were named first and three run with a renderer that lit the bowed board's point off
+#: the camera pixel's ray and sampled each pixel's reflectance at its centre only (its
+#: corners 0.29 px off the truth, now 0.03 px; ratio of median error to median sigma
+#: 1.45, 0.96, 2.64): the renderer was fixed, not the method, and these seeds named
+#: afresh.
+GRAY_SEEDS = tuple(range(4100, 4110))
+
+
+def seed_errors(seed: int) -> dict:
+    """One seed: the calibration's line-of-sight error and predicted sigma at volume
+    points [mm]."""
+    sim = simulate(seed)
+    result = calibrate_board(sim.poses, BOARD, PANEL, "k1")
+    cal = from_opencv(result.data)
+    u, v, xp, xyz = volume_points(sim.truth, sim.depth_mm)
+    ray = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    est = cal.apply(u, v, xp, extrapolate=True).xyz
+    err = np.sum((est - xyz) * ray, axis=1)
+    sigma = calibration_sigma_mm(cal, result.data.covariance, u, v, xp)
+    return {"seed": seed, "error": err, "sigma": sigma,
+            "abs_error": np.linalg.norm(est - xyz, axis=1),
+            "noise_px": result.bundle["noise_px"], "bow": sim.bow.tolist()}
+
+
+def run_sim(seeds) -> dict:
+    rows, z = [], []
+    for seed in seeds:
+        t = time.process_time()
+        out = seed_errors(seed)
+        ratio = out["error"] / out["sigma"]
+        z.append(ratio)
+        rows.append({"seed": seed, "median_abs_error_um": 1e3 * np.median(np.abs(
+            out["error"])), "median_sigma_um": 1e3 * np.median(out["sigma"]),
+            "rms_z": float(np.sqrt(np.mean(ratio**2))),
+            "within_2sigma": float(np.mean(np.abs(ratio) <= 2)),
+            "cpu_s": time.process_time() - t})
+        print(json.dumps(rows[-1]), flush=True)
+    z = np.concatenate(z)
+    summary = {"seeds": list(seeds), "rms_z": float(np.sqrt(np.mean(z**2))),
+               "within_2sigma": float(np.mean(np.abs(z) <= 2)), "points": int(z.size)}
+    print(json.dumps(summary))
+    return summary
+
+
+def gray_seed_errors(seed: int, folder: Path, n_poses: int = 5) -> dict:
+    """One seed rendered under Gray codes, decoded and calibrated (part "gray")."""
+    import cv2
+    from tests.test_board_gray import BITS, descriptions
+
+    from scanqa.calibration.board import decode_pose
+    from scanqa.simulator.boardposes import gray_frames
+
+    sim = simulate(seed, n_poses=n_poses, noise_px=(0.0, 0.0))
+    rng = np.random.default_rng(seed)
+    poses = []
+    for k, pose in enumerate(sim.poses):
+        _, rvec, tvec = cv2.solvePnP(BOARD.object_points.astype(float), pose.camera_px,
+                                     sim.truth.Kc, sim.truth.kc)
+        frames = gray_frames(sim.truth, BOARD, rvec.ravel(), tvec.ravel(), BITS, rng,
+                             bow=sim.bow)
+        where = folder / f"s{seed}_{k}"
+        where.mkdir(parents=True, exist_ok=True)
+        for key in ("columns", "rows"):
+            for i, frame in enumerate(frames[key]):
+                cv2.imwrite(str(where / f"{key}_{i:02d}.png"), frame)
+        cv2.imwrite(str(where / "white.png"), frames["white"])
+        cv2.imwrite(str(where / "black.png"), frames["black"])
+        poses.append(decode_pose(where, *descriptions(), BOARD.square_mm))
+    result = calibrate_board(poses, BOARD, PANEL, "k1")
+    cal = from_opencv(result.data)
+    u, v, xp, xyz = volume_points(sim.truth, sim.depth_mm)
+    ray = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
+    err = np.sum((cal.apply(u, v, xp, extrapolate=True).xyz - xyz) * ray, axis=1)
+    sigma = calibration_sigma_mm(cal, result.data.covariance, u, v, xp)
+    focal = [result.data.Kc[0, 0] / sim.truth.Kc[0, 0] - 1,
+             result.data.Kp[0, 0] / sim.truth.Kp[0, 0] - 1]
+    return {"error": err, "sigma": sigma, "focal_rel": focal,
+            "noise_px": result.bundle["noise_px"]}
+
+
+def run_gray(seeds) -> dict:
+    import tempfile
+
+    z, rows = [], []
+    with tempfile.TemporaryDirectory() as tmp:
+        for seed in seeds:
+            t = time.process_time()
+            out = gray_seed_errors(seed, Path(tmp))
+            ratio = out["error"] / out["sigma"]
+            z.append(ratio)
+            rows.append({"seed": seed, "focal_rel": out["focal_rel"],
+                         "noise_px": out["noise_px"],
+                         "median_abs_error_um": 1e3 * np.median(np.abs(out["error"])),
+                         "median_sigma_um": 1e3 * np.median(out["sigma"]),
+                         "ratio_median": float(np.median(np.abs(out["error"]))
+                                               / np.median(out["sigma"])),
+                         "rms_z": float(np.sqrt(np.mean(ratio**2))),
+                         "within_2sigma": float(np.mean(np.abs(ratio) <= 2)),
+                         "cpu_s": time.process_time() - t})
+            print(json.dumps(rows[-1]), flush=True)
+    z = np.concatenate(z)
+    summary = {"seeds": list(seeds), "rms_z": float(np.sqrt(np.mean(z**2))),
+               "within_2sigma": float(np.mean(np.abs(z) <= 2)), "points": int(z.size),
+               "max_abs_focal_rel": float(np.max(np.abs([r["focal_rel"] for r in rows])))}
+    print(json.dumps(summary))
+    return summary
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("part", choices=("sim", "real", "gray"))
+    parser.add_argument("--tuning", action="store_true", help="the tuning seeds")
+    args = parser.parse_args(argv)
+    if args.part == "sim":
+        run_sim(TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS)
+    elif args.part == "gray":
+        run_gray(GRAY_SEEDS)
+    else:
+        from benchmarks.calibration_covariance_real import run_real
+
+        run_real()
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,353 @@
+"""The joint fit of a board calibration and its covariance (bundle adjustment).
+
+OpenCV's calibration (:mod:`scanqa.calibration.board_fit`) fits the camera, then the
+projector, then their relative pose with both lenses held. Here every parameter is
+refined at once from that start: the free lens parameters of both devices (the lens
+model's, :data:`FREE`), the projector's pose (Rp as a rotation vector, Tp) and the
+board's pose in the camera for every board pose (6 each). The residuals are the
+reprojection errors of the corners in the camera and in the projector, each divided by
+its device's corner noise s_c, s_p measured in the fit itself (the RMS of that device's
+residuals, corrected for the parameters spent, Eq. 1; iterated once):
+
+    s_d^2 = sum_i r_d,i^2 / (m_d - p m_d / m)                                      (1)
+
+with m_d the device's residuals, m all of them and p the parameters. With J the
+Jacobian of the scaled residuals at the solution (central differences), the covariance
+of all parameters is (J^T J)^-1 (Eq. 2), and that of the calibration's 24
+(:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`) its block, the board poses'
+uncertainty carried in:
+
+    C_fit = [(J^T J)^-1]_theta theta                                               (2)
+
+Model errors the data show, as stated terms: what the model holds fixed, but the board
+poses can measure - the board's departure from a plane (a quadric z = b_x x'^2 + b_y y'^2
++ b_xy x' y' over the board, x', y' in units of half its size [mm]) and the lens terms
+the model leaves out (k2 of both devices for "k1", the camera's principal point for
+"k1" too, k3 for "k1k2"). Each such nuisance parameter eta is estimated with its std
+sigma_eta by adding its columns J_eta to the fit (one Gauss-Newton step from the
+solution); ignoring it biases the calibration by G eta with G = (J^T J)^-1 J^T J_eta,
+so its contribution, with a variance eta_hat^2 + sigma_eta^2 for what the calibration
+assumed to be zero, is
+
+    C = C_fit + G diag(eta_hat^2 + sigma_eta^2) G^T                                (3)
+
+The calibrations that leave one pose out (the jackknife) remain a check
+(:func:`scanqa.calibration.uncertainty.jackknife_covariance`); with five poses their
+spread has 4 degrees of freedom and carries the board's bow as if it were noise.
+
+References
+----------
+.. [1] B. Triggs, P. McLauchlan, R. Hartley and A. Fitzgibbon, "Bundle adjustment - a
+   modern synthesis", Vision Algorithms: Theory and Practice, LNCS 1883 (2000), Sec. 9
+   (covariance of the estimate, gauge).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from scanqa.errors import InputError
+from scanqa.io.opencv import OpenCVCalibration
+
+#: Lens parameters free in each model, per device (camera, projector), by name of the
+#: 9-vector (f_x f_y c_x c_y k1 k2 p1 p2 k3); "f" is f_x and f_y tied at their ratio.
+FREE = {"k1": (("f", "k1"), ("f", "cx", "cy", "k1")),
+        "k1k2": (("fx", "fy", "cx", "cy", "k1", "k2"),) * 2,
+        "full": (("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3"),) * 2}
+#: Lens terms a model leaves out that enter Eq. 3 as stated model errors, per device.
+LEFT_OUT = {"k1": (("cx", "cy", "k2"), ("k2",)), "k1k2": (("k3",), ("k3",)),
+            "full": ((), ())}
+#: Board-shape terms of Eq. 3: the quadric's coefficients [mm].
+BOW_TERMS = ("bow_x", "bow_y", "bow_xy")
+_LENS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
+
+
+@dataclass(frozen=True)
+class BundleResult:
+    """The joint fit (module notes).
+
+    Attributes
+    ----------
+    data : OpenCVCalibration
+        The refined calibration, its ``covariance`` Eq. 3's.
+    noise_px : dict
+        s_c, s_p of Eq. 1: ``camera``, ``projector`` [px].
+    fit_covariance : (24, 24) float
+        Eq. 2 alone [px, -, rad, mm squared].
+    model_terms : dict
+        Each stated nuisance: its estimate, std [mm, px, -] and its share of the trace
+        of the camera-frame translation covariance.
+    rvecs, tvecs : list of (3,) float
+        The board poses in the camera [rad, mm].
+    """
+
+    data: OpenCVCalibration
+    noise_px: dict
+    fit_covariance: np.ndarray
+    model_terms: dict = field(default_factory=dict)
+    rvecs: list = field(default_factory=list)
+    tvecs: list = field(default_factory=list)
+
+
+def _basis(matrix: np.ndarray, names) -> np.ndarray:
+    """(9, q) columns: how the device's 9-vector moves per free parameter."""
+    cols = []
+    for name in names:
+        col = np.zeros(9)
+        if name == "f":
+            col[0], col[1] = 1.0, matrix[1, 1] / matrix[0, 0]
+        else:
+            col[_LENS.index(name)] = 1.0
+        cols.append(col)
+    return np.array(cols).T.reshape(9, len(cols))
+
+
+def _lens9(matrix: np.ndarray, dist: np.ndarray) -> np.ndarray:
+    d = np.pad(np.ravel(dist)[:5], (0, 5))[:5]
+    return np.array([matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2], *d], float)
+
+
+def _kd(lens: np.ndarray, skew: float) -> tuple[np.ndarray, np.ndarray]:
+    return (np.array([[lens[0], skew, lens[2]], [0.0, lens[1], lens[3]], [0.0, 0.0, 1.0]]),
+            np.asarray(lens[4:9], float))
+
+
+class _Problem:
+    """The scaled residuals of the joint fit as a function of one parameter vector."""
+
+    def __init__(self, data: OpenCVCalibration, obj: list, cam: list, proj: list,
+                 model: str, rvecs: list, tvecs: list, extent: np.ndarray) -> None:
+        self.obj, self.cam, self.proj = obj, cam, proj
+        self.lens0 = (_lens9(data.Kc, data.kc), _lens9(data.Kp, data.kp))
+        self.skew = (float(data.Kc[0, 1]), float(data.Kp[0, 1]))
+        self.free = FREE[model]
+        self.left = LEFT_OUT[model]
+        self.basis = [_basis(m, f) for m, f in zip((data.Kc, data.Kp), self.free,
+                                                    strict=True)]
+        self.nuis_basis = [_basis(m, f) for m, f in zip((data.Kc, data.Kp), self.left,
+                                                         strict=True)]
+        q = [b.shape[1] for b in self.basis]
+        self.sizes = (q[0], q[1], 6, len(BOW_TERMS), 6 * len(obj))
+        import cv2
+
+        self.x0 = np.concatenate([np.zeros(q[0] + q[1]), cv2.Rodrigues(data.Rp)[0].ravel(),
+                                  np.ravel(data.Tp), np.zeros(len(BOW_TERMS)),
+                                  *[np.r_[np.ravel(r), np.ravel(t)]
+                                                       for r, t in zip(rvecs, tvecs,
+                                                                       strict=True)]])
+        self.n_nuis = sum(b.shape[1] for b in self.nuis_basis)
+        centre = (extent.max(axis=0) + extent.min(axis=0)) / 2
+        half = np.maximum((extent.max(axis=0) - extent.min(axis=0)) / 2, 1e-9)
+        self.shape = [np.column_stack([((o[:, 0] - centre[0]) / half[0]) ** 2,
+                                       ((o[:, 1] - centre[1]) / half[1]) ** 2,
+                                       (o[:, 0] - centre[0]) * (o[:, 1] - centre[1])
+                                       / (half[0] * half[1])]) for o in obj]
+        self.scale = np.ones(2)
+
+    @property
+    def n(self) -> int:
+        return len(self.x0)
+
+    def lenses(self, x: np.ndarray, eta: np.ndarray | None = None) -> list[np.ndarray]:
+        out, k = [], 0
+        for dev in range(2):
+            q = self.basis[dev].shape[1]
+            out.append(self.lens0[dev] + self.basis[dev] @ x[k:k + q])
+            k += q
+        if eta is not None:
+            k = 0
+            for dev in range(2):
+                q = self.nuis_basis[dev].shape[1]
+                out[dev] = out[dev] + self.nuis_basis[dev] @ eta[k:k + q]
+                k += q
+        return out
+
+    def residuals(self, x: np.ndarray, eta: np.ndarray | None = None,
+                  split: bool = False):
+        import cv2
+
+        lens = self.lenses(x, eta)
+        kc_m, kc = _kd(lens[0], self.skew[0])
+        kp_m, kp = _kd(lens[1], self.skew[1])
+        k = self.sizes[0] + self.sizes[1]
+        rot = cv2.Rodrigues(x[k:k + 3])[0]
+        tp = x[k + 3:k + 6]
+        bow = x[k + 6:k + 9]
+        k += len(BOW_TERMS)
+        res_c, res_p = [], []
+        for i, (o, c, p) in enumerate(zip(self.obj, self.cam, self.proj, strict=True)):
+            j = k + 6 + 6 * i
+            rvec, tvec = x[j:j + 3], x[j + 3:j + 6]
+            pts = o.copy()
+            pts[:, 2] = pts[:, 2] + self.shape[i] @ bow
+            res_c.append((cv2.projectPoints(pts, rvec, tvec, kc_m, kc)[0].reshape(-1, 2)
+                          - c).ravel())
+            r2 = cv2.Rodrigues(rot @ cv2.Rodrigues(rvec)[0])[0]
+            res_p.append((cv2.projectPoints(pts, r2, rot @ tvec + tp, kp_m, kp)[0]
+                          .reshape(-1, 2) - p).ravel())
+        rc, rp = np.concatenate(res_c), np.concatenate(res_p)
+        if split:
+            return rc, rp
+        return np.concatenate([rc / self.scale[0], rp / self.scale[1]])
+
+    def step(self, x: np.ndarray) -> np.ndarray:
+        """Central-difference steps of each parameter."""
+        h = np.full(len(x), 1e-6)
+        lens_steps = np.concatenate([np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-6, 1e-6, 1e-7,
+                                               1e-7, 1e-6]) @ np.abs(b) for b in self.basis])
+        h[:len(lens_steps)] = lens_steps
+        k = self.sizes[0] + self.sizes[1]
+        h[k + 3:k + 9] = 1e-4
+        k += len(BOW_TERMS)
+        for i in range(len(self.obj)):
+            h[k + 6 + 6 * i + 3:k + 12 + 6 * i] = 1e-4
+        return h
+
+    def jacobian(self, x: np.ndarray, eta: np.ndarray | None = None,
+                 nuisance: bool = False) -> np.ndarray:
+        """d residuals / d x (or / d eta with ``nuisance``), central differences."""
+        if nuisance:
+            base = np.zeros(self.n_nuis) if eta is None else eta
+            steps = np.full(self.n_nuis, 1e-6)
+            steps[[n in ("cx", "cy") for n in (*self.left[0], *self.left[1])]] = 1e-3
+
+            def f(e):
+                return self.residuals(x, e)
+        else:
+            base, steps = x, self.step(x)
+
+            def f(y):
+                return self.residuals(y, eta)
+        cols = []
+        for j, h in enumerate(steps):
+            plus, minus = base.copy(), base.copy()
+            plus[j] += h
+            minus[j] -= h
+            cols.append((f(plus) - f(minus)) / (2 * h))
+        return np.array(cols).T
+
+    def to_24(self) -> np.ndarray:
+        """(24, n_theta) map from the free calibration parameters to the 24."""
+        q0, q1 = self.sizes[:2]
+        out = np.zeros((24, q0 + q1 + 6))
+        out[0:9, :q0] = self.basis[0]
+        out[9:18, q0:q0 + q1] = self.basis[1]
+        out[18:24, q0 + q1:] = np.eye(6)
+        return out
+
+    def nuisance_24(self) -> np.ndarray:
+        """(24, n_nuis) map from the left-out lens terms to the 24."""
+        out = np.zeros((24, self.n_nuis))
+        q0, q1 = (b.shape[1] for b in self.nuis_basis)
+        out[0:9, :q0] = self.nuis_basis[0]
+        out[9:18, q0:q0 + q1] = self.nuis_basis[1]
+        return out
+
+    def calibration(self, x: np.ndarray, like: OpenCVCalibration) -> OpenCVCalibration:
+        import cv2
+
+        lens = self.lenses(x)
+        kc_m, kc = _kd(lens[0], self.skew[0])
+        kp_m, kp = _kd(lens[1], self.skew[1])
+        k = self.sizes[0] + self.sizes[1]
+        return OpenCVCalibration(kc_m, kc, kp_m, kp, cv2.Rodrigues(x[k:k + 3])[0],
+                                 x[k + 3:k + 6].copy(), sizes=dict(like.sizes),
+                                 errors=dict(like.errors), source=like.source)
+
+
+def _noise(problem: _Problem, x: np.ndarray) -> np.ndarray:
+    """Eq. 1: s_c, s_p [px]."""
+    rc, rp = problem.residuals(x, split=True)
+    m = len(rc) + len(rp)
+    return np.array([np.sqrt(np.sum(r**2) / max(len(r) - problem.n * len(r) / m, 1.0))
+                     for r in (rc, rp)])
+
+
+def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, model: str,
+                  extent: np.ndarray, refine: bool = True) -> BundleResult:
+    """Refine a board calibration jointly and give its covariance (Eqs. 1-3).
+
+    Parameters
+    ----------
+    data : OpenCVCalibration
+        The start (OpenCV's sequential fit).
+    obj, cam, proj : list of (n_i, 2 or 3) float
+        Per pose: board corners [mm] (Z = 0), their camera and projector images [px].
+    model : str
+        The lens model (:data:`FREE`).
+    extent : (m, 3) float
+        The board's corners, to scale the bow terms [mm].
+    refine : bool
+        Refine the parameters (else the covariance at ``data`` as it is).
+
+    Returns
+    -------
+    BundleResult
+    """
+    import cv2
+    from scipy.optimize import least_squares
+
+    if model not in FREE:
+        raise InputError(f"lens model must be one of {tuple(FREE)}, got {model!r}")
+    obj = [np.asarray(o, float).reshape(-1, 3) for o in obj]
+    cam = [np.asarray(c, float).reshape(-1, 2) for c in cam]
+    proj = [np.asarray(p, float).reshape(-1, 2) for p in proj]
+    rvecs, tvecs = [], []
+    for o, c in zip(obj, cam, strict=True):
+        _, r, t = cv2.solvePnP(o, c, data.Kc, data.kc)
+        rvecs.append(r.ravel())
+        tvecs.append(t.ravel())
+    problem = _Problem(data, obj, cam, proj, model, rvecs, tvecs, np.asarray(extent, float))
+    x = problem.x0.copy()
+    problem.scale = _noise(problem, x)
+    for _ in range(2 if refine else 0):
+        x = least_squares(problem.residuals, x, x_scale=problem.step(x) * 1e3,
+                          method="lm").x
+        problem.scale = _noise(problem, x)
+    jac = problem.jacobian(x)
+    info = jac.T @ jac
+    try:
+        inverse = np.linalg.inv(info)
+    except np.linalg.LinAlgError:
+        raise InputError("the board poses do not fix the calibration (a singular joint "
+                         "fit): are two poses the same? use poses that tilt the board "
+                         "differently") from None
+    n_theta = sum(problem.sizes[:3])
+    to24 = problem.to_24()
+    fit_cov = to24 @ inverse[:n_theta, :n_theta] @ to24.T
+    # Eq. 3: the nuisances, estimated by one Gauss-Newton step with their columns added
+    res = problem.residuals(x)
+    jn = (problem.jacobian(x, nuisance=True) if problem.n_nuis
+          else np.zeros((len(res), 0)))
+    full = np.hstack([jac, jn])
+    try:
+        full_inv = np.linalg.inv(full.T @ full)
+    except np.linalg.LinAlgError:
+        full_inv = np.linalg.pinv(full.T @ full)
+    est = -(full_inv @ (full.T @ res))[-problem.n_nuis:]
+    std = np.sqrt(np.clip(np.diag(full_inv)[-problem.n_nuis:], 0, None))
+    gain = (inverse @ (jac.T @ jn))[:n_theta]
+    shift = to24 @ gain - problem.nuisance_24()  # fitted minus true, per unit of eta
+    stated = np.clip(est**2 - std**2, 0.0, None)
+    model_cov = shift @ np.diag(stated) @ shift.T
+    names = [f"camera_{n}" for n in problem.left[0]] + [
+        f"projector_{n}" for n in problem.left[1]]
+    terms = {name: {"estimate": float(e), "std": float(s),
+                    "tz_std_mm": float(abs(shift[-1, k]) * np.sqrt(var))}
+             for k, (name, e, s, var) in enumerate(zip(names, est, std, stated,
+                                                       strict=True))}
+    k = n_theta
+    for name, value, var in zip(BOW_TERMS, x[k:k + 3], np.diag(inverse)[k:k + 3],
+                                strict=True):
+        terms[name] = {"estimate": float(value), "std": float(np.sqrt(max(var, 0.0))),
+                       "fitted": True}
+    out = problem.calibration(x, data)
+    cov = fit_cov + model_cov
+    out = OpenCVCalibration(**{**out.__dict__, "covariance": (cov + cov.T) / 2})
+    k = n_theta + len(BOW_TERMS)
+    return BundleResult(out, {"camera": float(problem.scale[0]),
+                              "projector": float(problem.scale[1])}, fit_cov, terms,
+                        [x[k + 6 * i:k + 6 * i + 3] for i in range(len(obj))],
+                        [x[k + 6 * i + 3:k + 6 * i + 6] for i in range(len(obj))])

@@ -1,0 +1,254 @@
+"""Simulated board poses with a known camera-projector pair, for calibration studies.
+
+Each seed draws a scanner (camera and projector lenses with radial k1 and k2, the
+camera's principal point off the image centre by a few pixels, the projector beside the
+camera), a chessboard bowed by a quadric sag, and board poses tilted about both axes. The
+corners are projected by OpenCV's ``projectPoints`` through the true lenses - the
+camera's image corners and the projector's (what a perfect decode with local
+homographies gives) - with Gaussian corner noise added. The study then calibrates from
+these corners and compares the calibration's 3-D points with the truth
+(:func:`volume_points`, :func:`point_errors`). Everything here is "simulated".
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanqa.calibration.board import Board, BoardPose
+from scanqa.io.opencv import OpenCVCalibration
+
+CAMERA = (1280, 1024)
+PANEL = (912, 1140)
+BOARD = Board(rows=8, columns=11, square_mm=10.0)
+
+
+@dataclass(frozen=True)
+class SimulatedBoardScanner:
+    """One seed's truth and board poses.
+
+    Attributes
+    ----------
+    truth : OpenCVCalibration
+        The true camera, projector and their pose [px, -, mm].
+    bow : (3,) float
+        The board's quadric sag coefficients (x'^2, y'^2, x' y', x' y' in half sizes) [mm].
+    noise_px : (float, float)
+        Corner noise of camera and projector [px].
+    poses : list of BoardPose
+        The noisy corners of each pose.
+    depth_mm : (float, float)
+        Depth range of the poses' board centres [mm].
+    """
+
+    truth: OpenCVCalibration
+    bow: np.ndarray
+    noise_px: tuple
+    poses: list
+    depth_mm: tuple
+
+
+def sag_mm(board: Board, bow: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """The board's quadric sag at board coordinates ``xy`` (n, 2) [mm]: x', y' are in
+    units of half the corner grid's size about its centre."""
+    pts = board.object_points.astype(float)
+    centre = (pts.max(axis=0) + pts.min(axis=0)) / 2
+    half = np.maximum((pts.max(axis=0) - pts.min(axis=0)) / 2, 1e-9)
+    x, y = (xy[:, 0] - centre[0]) / half[0], (xy[:, 1] - centre[1]) / half[1]
+    return bow[0] * x**2 + bow[1] * y**2 + bow[2] * x * y
+
+
+def bowed_points(board: Board, bow: np.ndarray) -> np.ndarray:
+    """(n, 3) board corners with the quadric sag as Z [mm]."""
+    pts = board.object_points.astype(float)
+    pts[:, 2] = sag_mm(board, bow, pts)
+    return pts
+
+
+def _truth(rng: np.random.Generator) -> OpenCVCalibration:
+    import cv2
+
+    f_c, f_p = rng.uniform(1700, 1900), rng.uniform(1250, 1400)
+    kc = np.array([rng.uniform(-0.12, -0.02), rng.normal(0, 0.05), 0, 0, 0])
+    kp = np.array([rng.uniform(-0.06, 0.0), rng.normal(0, 0.03), 0, 0, 0])
+    cc = np.array([(CAMERA[0] - 1) / 2, (CAMERA[1] - 1) / 2]) + rng.normal(0, 4, 2)
+    rot = cv2.Rodrigues(np.array([rng.normal(0.03, 0.02), rng.uniform(0.2, 0.3),
+                                  rng.normal(0, 0.02)]))[0]
+    centre = np.array([rng.uniform(100, 140), rng.normal(10, 5), rng.normal(-10, 5)])
+    return OpenCVCalibration(
+        Kc=np.array([[f_c, 0, cc[0]], [0, f_c, cc[1]], [0, 0, 1.0]]), kc=kc,
+        Kp=np.array([[f_p, 0, PANEL[0] / 2 + rng.normal(0, 10)],
+                     [0, f_p, 0.85 * PANEL[1] + rng.normal(0, 10)], [0, 0, 1.0]]), kp=kp,
+        Rp=rot, Tp=-rot @ centre,
+        sizes={"frameWidth": CAMERA[0], "frameHeight": CAMERA[1], "screenResX": PANEL[0],
+               "screenResY": PANEL[1]})
+
+
+def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 0.15,
+             noise_px: tuple | None = None) -> SimulatedBoardScanner:
+    """One seed's scanner and board poses (module notes).
+
+    Parameters
+    ----------
+    seed : int
+        The random stream.
+    n_poses : int
+        Board poses [-].
+    board : Board
+        The chessboard (its grid and square size).
+    bow_mm : float
+        Std of each quadric sag coefficient [mm].
+    noise_px : (float, float), optional
+        Corner noise of camera and projector [px] (default drawn: 0.05-0.2 and
+        0.03-0.12).
+
+    Returns
+    -------
+    SimulatedBoardScanner
+    """
+    import cv2
+
+    rng = np.random.default_rng(seed)
+    truth = _truth(rng)
+    bow = rng.normal(0, bow_mm, 3)
+    noise = noise_px or (rng.uniform(0.05, 0.2), rng.uniform(0.03, 0.12))
+    obj = bowed_points(board, bow)
+    centre = (obj.max(axis=0) + obj.min(axis=0)) / 2
+    poses, depths = [], []
+    while len(poses) < n_poses:
+        rvec = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4),
+                         rng.uniform(-0.2, 0.2)])
+        depth = rng.uniform(360, 440)
+        rmat = cv2.Rodrigues(rvec)[0]
+        tvec = np.array([rng.normal(10, 15), rng.normal(0, 15), depth]) - rmat @ centre
+        cam = cv2.projectPoints(obj, rvec, tvec, truth.Kc, truth.kc)[0].reshape(-1, 2)
+        rp = cv2.Rodrigues(truth.Rp @ rmat)[0]
+        proj = cv2.projectPoints(obj, rp, truth.Rp @ tvec + truth.Tp, truth.Kp,
+                                 truth.kp)[0].reshape(-1, 2)
+        if not (_inside(cam, CAMERA, 20) and _inside(proj, PANEL, 5)):
+            continue
+        cam = cam + noise[0] * rng.standard_normal(cam.shape)
+        proj = proj + noise[1] * rng.standard_normal(proj.shape)
+        empty = np.full((1, 1), np.nan)
+        poses.append(BoardPose(f"sim{seed}_{len(poses)}", cam, proj, (0, 0, 1, 1), empty,
+                               empty, CAMERA, board))
+        depths.append(depth)
+    return SimulatedBoardScanner(truth, bow, tuple(noise), poses,
+                                 (float(min(depths)), float(max(depths))))
+
+
+def _inside(px: np.ndarray, size: tuple, margin: float) -> bool:
+    return bool(np.all(px >= margin) and np.all(px[:, 0] <= size[0] - margin)
+                and np.all(px[:, 1] <= size[1] - margin))
+
+
+def volume_points(truth: OpenCVCalibration, depth_mm: tuple, grid: int = 7,
+                  depths: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Points spread over the calibrated volume: a grid of camera pixels at several
+    depths, kept where the projector sees them.
+
+    Returns
+    -------
+    u, v : (n,) float
+        Camera pixels [px].
+    xp : (n,) float
+        Their true projector column [projector px].
+    xyz : (n, 3) float
+        The true points in the camera frame [mm].
+    """
+    import cv2
+
+    uu, vv = np.meshgrid(np.linspace(0.1, 0.9, grid) * CAMERA[0],
+                         np.linspace(0.1, 0.9, grid) * CAMERA[1])
+    pix = np.column_stack([uu.ravel(), vv.ravel()])
+    norm = cv2.undistortPoints(pix.reshape(-1, 1, 2), truth.Kc, truth.kc).reshape(-1, 2)
+    out = []
+    for z in np.linspace(*depth_mm, depths):
+        xyz = np.column_stack([norm * z, np.full(len(norm), z)])
+        prj = cv2.projectPoints(xyz, cv2.Rodrigues(truth.Rp)[0], truth.Tp, truth.Kp,
+                                truth.kp)[0].reshape(-1, 2)
+        ok = (prj[:, 0] > 0) & (prj[:, 0] < PANEL[0]) & (prj[:, 1] > 0) & (
+            prj[:, 1] < PANEL[1])
+        out.append((pix[ok, 0], pix[ok, 1], prj[ok, 0], xyz[ok]))
+    return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
+
+
+def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: np.ndarray,
+                bits: tuple[int, int], rng: np.random.Generator, noise_dn: float = 2.0,
+                blur_px: float = 0.7, bow: np.ndarray | None = None) -> dict:
+    """8-bit frames of one board pose under Gray codes, as public projector-camera
+    calibration tools capture them: for columns and for rows, every bit (most
+    significant first, one projector pixel per code) followed by its inverse, then a
+    white and a black frame.
+
+    Each camera pixel's ray meets the board (its plane, then the bowed surface: the
+    sag ``bow`` along the board's normal at the point, found by two fixed-point steps
+    along the ray, enough for sags of a millimetre); that one point's board coordinates
+    give the reflectance (0.15 black squares, 0.85 white, a white margin of one square
+    around the grid; averaged over 3 x 3 points of the pixel's area) and its projector
+    pixel the light; then a Gaussian blur of
+    ``blur_px`` and Gaussian noise of ``noise_dn``.
+
+    Returns
+    -------
+    dict
+        ``columns`` and ``rows``: (2 bits, H, W) uint8 frames; ``white``, ``black``:
+        (H, W) uint8 [DN].
+    """
+    import cv2
+
+    width, height = int(truth.sizes["frameWidth"]), int(truth.sizes["frameHeight"])
+    v, u = np.mgrid[0:height, 0:width].astype(float)
+    rot = cv2.Rodrigues(np.asarray(rvec, float))[0]
+    normal, origin = rot[:, 2], np.asarray(tvec, float)
+
+    def surface(du: float, dv: float) -> tuple[np.ndarray, np.ndarray]:
+        """Camera-frame points and board coordinates seen at pixel offset (du, dv)."""
+        norm = cv2.undistortPoints(np.column_stack([u.ravel() + du, v.ravel() + dv])
+                                   .reshape(-1, 1, 2), truth.Kc, truth.kc).reshape(-1, 2)
+        rays = np.column_stack([norm, np.ones(len(norm))])
+        pts = rays * ((normal @ origin) / (rays @ normal))[:, None]
+        local = (pts - origin) @ rot
+        for _ in range(2 if bow is not None else 0):  # onto the bowed board, along the ray
+            pts = rays * ((normal @ origin + sag_mm(board, bow, local)) / (rays @ normal)
+                          )[:, None]
+            local = (pts - origin) @ rot
+        return pts, local
+
+    def reflectance(local: np.ndarray) -> np.ndarray:
+        sq = np.floor(local[:, :2] / board.square_mm).astype(int) + 1
+        inside = ((sq[:, 0] >= -1) & (sq[:, 0] <= board.columns + 1) & (sq[:, 1] >= -1)
+                  & (sq[:, 1] <= board.rows + 1))
+        grid_in = ((sq[:, 0] >= 0) & (sq[:, 0] <= board.columns) & (sq[:, 1] >= 0)
+                   & (sq[:, 1] <= board.rows))
+        out = np.where(inside, 0.85, 0.05)
+        return np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), 0.15, out)
+
+    pts = surface(0.0, 0.0)[0]
+    # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it
+    albedo = np.mean([reflectance(surface(du, dv)[1]) for du in (-1 / 3, 0, 1 / 3)
+                      for dv in (-1 / 3, 0, 1 / 3)], axis=0)
+    proj = cv2.projectPoints(pts, cv2.Rodrigues(truth.Rp)[0], truth.Tp, truth.Kp,
+                             truth.kp)[0].reshape(-1, 2)
+    panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
+    lit = ((proj[:, 0] > -0.5) & (proj[:, 0] < panel[0] - 0.5) & (proj[:, 1] > -0.5)
+           & (proj[:, 1] < panel[1] - 0.5))
+
+    def shoot(light: np.ndarray) -> np.ndarray:
+        image = (8.0 + 230.0 * albedo * np.where(lit, light, 0.0)).reshape(height, width)
+        image = cv2.GaussianBlur(image, (0, 0), blur_px)
+        return np.clip(np.round(image + noise_dn * rng.standard_normal(image.shape)), 0,
+                       255).astype(np.uint8)
+
+    out = {}
+    for key, axis, n in (("columns", 0, bits[0]), ("rows", 1, bits[1])):
+        code = np.floor(np.clip(proj[:, axis], 0, panel[axis] - 1) + 0.5).astype(np.int64)
+        code = code ^ (code >> 1)
+        frames = []
+        for b in range(n):
+            bit = ((code >> (n - 1 - b)) & 1).astype(float)
+            frames += [shoot(bit), shoot(1.0 - bit)]
+        out[key] = np.array(frames)
+    out["white"], out["black"] = shoot(np.ones(len(proj))), shoot(np.zeros(len(proj)))
+    return out
