@@ -12,7 +12,8 @@ WHEEL_VENV := build/wheel-venv
 # scan in memory); whole test files stay on one worker, so their fixtures are built once.
 JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
 
-.PHONY: demo test docs bench lint fuzz mutate setup syslibs syslibs-test clean wheel-check
+.PHONY: demo test docs bench lint fuzz mutate setup syslibs syslibs-test clean wheel-check \
+	fringes-ref
 
 setup: $(STAMP)
 
@@ -26,7 +27,18 @@ $(STAMP): pyproject.toml | syslibs
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
 	@$(BIN)/python -m pip install --quiet --upgrade pip
 	@$(BIN)/python -m pip install --quiet -e '.[test]'
+	@$(MAKE) --no-print-directory fringes-ref
 	@touch $(STAMP)
+
+# The reference decoder of tests/test_fringes_agreement.py without its dependencies: it
+# asks for opencv-contrib-python, and a second cv2 wheel beside scanqa's
+# opencv-python-headless breaks both (its other dependencies are in [test]). A .venv made
+# before scanqa moved to the headless build has the contrib wheel: one cv2 is kept.
+fringes-ref:
+	@if $(BIN)/python -m pip show -q opencv-contrib-python 2>/dev/null; then \
+		$(BIN)/python -m pip uninstall --quiet -y opencv-contrib-python && \
+		$(BIN)/python -m pip install --quiet --force-reinstall --no-deps opencv-python-headless; fi
+	@$(BIN)/python -m pip install --quiet --no-deps 'fringes==2.1.0'
 
 # make demo installs the package alone (no test, docs or cluster tools)
 $(DEMO_STAMP): pyproject.toml | syslibs

@@ -77,6 +77,7 @@ _EXPORTS = {
     "Layout": ("scanqa.qa.layout", "Layout"),
     "load_layout": ("scanqa.qa.layout", "load_layout"),
     "write_report": ("scanqa.report.qa", "write_outputs"),
+    "sample_data_path": ("scanqa.runs.demo", "sample_data_path"),
 }
 
 
@@ -88,7 +89,8 @@ __all__ = [
     "build_table", "calibrate", "characterize", "decode", "decode_images", "detect_blocks",
     "load_calibration", "load_config", "load_layout", "load_opencv_calibration",
     "load_patterns", "load_phase_map", "load_sweep", "load_table", "predict", "read_cloud",
-    "run_qa", "save_phase_map", "save_table", "write_cloud", "write_report",
+    "run_qa", "sample_data_path", "save_phase_map", "save_table", "write_cloud",
+    "write_report",
 ]
 
 
