@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
 
 import pytest
@@ -14,10 +16,19 @@ from .conftest import ROOT
 
 
 @pytest.fixture(scope="module")
-def demo_out(tmp_path_factory):
+def demo_run(tmp_path_factory):
+    """One demo run on the sample data (~20 s of CPU): its folder and what it printed.
+    Without --data: the sample data of scanqa.sample_data_path()."""
     out = tmp_path_factory.mktemp("demo")
-    assert main(["demo", "--out", str(out), "--data", str(ROOT / "sample_data")]) == 0
-    return out
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["demo", "--out", str(out)]) == 0
+    return out, printed.getvalue()
+
+
+@pytest.fixture(scope="module")
+def demo_out(demo_run):
+    return demo_run[0]
 
 
 def test_demo_writes_every_output(demo_out):
@@ -82,10 +93,9 @@ def test_demo_reports_what_the_sweeps_identify(demo_out, capsys):
     assert {c["name"] for c in best["identifiable"]} >= {"phase noise at focus [px]"}
 
 
-def test_demo_prints_summary_and_report_path(capsys, tmp_path):
-    assert main(["demo", "--out", str(tmp_path / "d"), "--data", str(ROOT / "sample_data")]) == 0
-    out = capsys.readouterr().out
-    assert "report: " in out and str(tmp_path / "d" / "qa" / "report.html") in out
+def test_demo_prints_summary_and_report_path(demo_run):
+    folder, out = demo_run  # the fixture's run (a second run would check nothing more)
+    assert "report: " in out and str(folder / "qa" / "report.html") in out
     assert "block  measured  predicted" in out and "over all 3 scans" in out
     assert "identifiable: phase noise at focus" in out and "(95 %)" in out
     assert "Type B is not included" in out
