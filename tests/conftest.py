@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import os
+import resource
+import time
 from pathlib import Path
 
 import pytest
@@ -16,3 +19,25 @@ PAPER_CONFIG = ROOT / "calib" / "paper_scanner.toml"
 def paper_config() -> ScannerConfig:
     """calib/paper_scanner.toml at f/8 (the set-up of Tables 1 and 2)."""
     return load_config(PAPER_CONFIG)
+
+
+# ----------------------------------------------------------- CPU time per test (opt-in)
+# SCANQA_TEST_CPU_LOG=FILE appends "seconds<TAB>nodeid" per test: the CPU time of this
+# process (all its threads) and of the child processes it waited for, setup to teardown.
+# Unlike --durations it does not grow when other jobs load the machine; docs/benchmarks.rst
+# ("The test suite") sums it per file (tools/test_cpu_times.py).
+_CPU_LOG = os.environ.get("SCANQA_TEST_CPU_LOG")
+
+
+def _cpu_now() -> float:
+    children = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return time.process_time() + children.ru_utime + children.ru_stime
+
+
+@pytest.hookimpl(hookwrapper=True)
+def pytest_runtest_protocol(item, nextitem):
+    start = _cpu_now() if _CPU_LOG else 0.0
+    yield
+    if _CPU_LOG:
+        with open(_CPU_LOG, "a", encoding="utf-8") as fh:
+            fh.write(f"{_cpu_now() - start:.3f}\t{item.nodeid}\n")
