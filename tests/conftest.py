@@ -21,6 +21,27 @@ def paper_config() -> ScannerConfig:
     return load_config(PAPER_CONFIG)
 
 
+# ------------------------------------------------------------ heavy test files first
+#: The files with the most CPU per file (docs/benchmarks.rst, "The test suite"), largest
+#: first. make test runs ``-n 2 --dist loadfile``: a file stays on one worker, so its
+#: module fixtures are built once, and workers take files in collection order; started
+#: first, the long files no longer leave one worker running alone at the end.
+HEAVY_FIRST = (
+    "test_closed_loop.py",
+    "test_demo.py",
+    "test_board_real.py",
+    "test_fringes_agreement.py",
+    "test_flattening.py",
+    "test_batch.py",
+    "test_sweep_fit.py",
+)
+
+
+def pytest_collection_modifyitems(config, items):
+    rank = {name: i for i, name in enumerate(HEAVY_FIRST)}
+    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))  # stable sort
+
+
 # ----------------------------------------------------------- CPU time per test (opt-in)
 # SCANQA_TEST_CPU_LOG=FILE appends "seconds<TAB>nodeid" per test: the CPU time of this
 # process (all its threads) and of the child processes it waited for, setup to teardown.
