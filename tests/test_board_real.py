@@ -109,6 +109,7 @@ def test_against_slstudio_calibration(slstudio_poses):
     assert slstudio_poses.flagged == []
 
 
+@pytest.mark.slow  # ~19 s of CPU: five-pose calibrations with the board released
 def test_the_camera_residual_is_the_boards(poses):
     """The camera's 0.295 px is not its lens model nor its corner detector: calibration.xml's
     own camera on our corners gives 0.297 px, the full model k1 k2 p1 p2 k3 with a free
