@@ -11,8 +11,8 @@ contraction), and (b) runs twice: on this CPU, and in a child pytest with numba
 compiling for the ``generic`` x86-64/aarch64 target (no FMA, no AVX), where a
 CPU-specific difference shows up on this machine too (:func:`run_under_generic_cpu`).
 
-Tests of that kind carry ``@pytest.mark.compiled_vs_numpy``; each such file has one
-``test_..._under_the_generic_cpu`` that reruns them there.
+Tests of that kind carry ``@pytest.mark.compiled_vs_numpy``; tests/test_generic_cpu.py
+reruns all of them there, in one child process.
 """
 
 from __future__ import annotations
@@ -48,13 +48,21 @@ def generic_child() -> bool:
     return os.environ.get(GENERIC_ENV) == "generic"
 
 
-def run_under_generic_cpu(test_file: str) -> None:
-    """Rerun the ``compiled_vs_numpy`` tests of ``test_file`` with numba compiling for the
-    generic CPU (``NUMBA_CPU_NAME=generic``, ``NUMBA_CPU_FEATURES`` unset); fail with the
-    child's report when any of them fails. Inside that child, check the target instead.
+def marked_files() -> list[Path]:
+    """The test files that hold ``compiled_vs_numpy`` tests (by the marker's text)."""
+    return sorted(p for p in (ROOT / "tests").glob("test_*.py")
+                  if "mark.compiled_vs_numpy" in p.read_text(encoding="utf-8"))
 
-    numba caches a compiled function per CPU name, so after the first run the child
-    pays only its start-up (~3 s of CPU) and the comparisons themselves.
+
+def run_under_generic_cpu(*test_files: str | Path) -> None:
+    """Rerun the ``compiled_vs_numpy`` tests of ``test_files`` in one child pytest with
+    numba compiling for the generic CPU (``NUMBA_CPU_NAME=generic``,
+    ``NUMBA_CPU_FEATURES`` unset); fail with the child's report when any of them fails.
+    Inside that child, check the target instead.
+
+    numba caches a compiled function per CPU name (``make setup`` compiles them ahead,
+    tools/warm_numba.py), so the child pays its start-up (~4 s of CPU) and the
+    comparisons themselves.
     """
     if generic_child():
         import numba
@@ -62,14 +70,15 @@ def run_under_generic_cpu(test_file: str) -> None:
         assert numba.config.CPU_NAME == "generic", numba.config.CPU_NAME
         return
     env = {k: v for k, v in os.environ.items()
-           if k not in ("NUMBA_CPU_FEATURES", "PYTEST_ADDOPTS", "PYTEST_XDIST_WORKER")}
+           if k not in ("NUMBA_CPU_FEATURES", "PYTEST_ADDOPTS", "PYTEST_XDIST_WORKER",
+                        "SCANQA_TEST_CPU_LOG")}  # the parent counts the child's CPU
     env.update(NUMBA_CPU_NAME="generic", **{GENERIC_ENV: "generic"})
     env["PYTHONPATH"] = os.pathsep.join(p for p in (str(ROOT / "src"), env.get("PYTHONPATH"))
                                         if p)
     proc = subprocess.run(
         [sys.executable, "-m", "pytest", "-q", "-p", "no:randomly", "-p", "no:cacheprovider",
          "-p", "no:xdist", "-m", "compiled_vs_numpy", "--rootdir", str(ROOT),
-         str(Path(test_file).resolve())],
+         *(str(Path(f).resolve()) for f in test_files)],
         cwd=ROOT, env=env, capture_output=True, text=True, timeout=900, check=False)
     assert proc.returncode == 0, (
         f"on numba's generic CPU target:\n{proc.stdout[-6000:]}\n{proc.stderr[-2000:]}")

@@ -18,11 +18,10 @@ from scanqa.model.config import FILTER_FLOORS, FILTER_FORMS, NOISE_READINGS
 from scanqa.runs import annotation, annotkernels
 from scanqa.runs.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
-from .cpu_targets import run_under_generic_cpu
 from .synth_sweep import plane_truth, small_camera, sweep
 
 # every test here compares the compiled loop with numpy or scipy (tests/cpu_targets.py):
-# rerun on numba's generic CPU target by the last test
+# rerun on numba's generic CPU target by tests/test_generic_cpu.py
 pytestmark = pytest.mark.compiled_vs_numpy
 
 W, H = 96, 64
@@ -188,8 +187,3 @@ def test_one_compiled_signature_for_every_output(cfg, table, tmp_path):
 def test_attribute_columns_are_annotates_order():
     # the loop writes record columns by position: they must be annotate's names in order
     assert annotkernels.ATTRIBUTE_COLUMNS == ATTRIBUTES + REPEAT_ATTRIBUTES
-
-
-def test_these_comparisons_under_the_generic_cpu():
-    # the tests above again, numba compiling for the generic CPU (no FMA, no AVX)
-    run_under_generic_cpu(__file__)

@@ -18,8 +18,6 @@ import trimesh
 from scanqa.model.config import CameraConfig
 from scanqa.simulator import boxcast, devices, experiments, raykernels, render, scene
 
-from .cpu_targets import run_under_generic_cpu
-
 
 def _gauge(paper_config, width, height):
     """The gauge scan's acquisition with the paper's camera binned to width x height
@@ -117,11 +115,3 @@ def test_without_the_tolerance_some_triangles_differ_from_open3ds(paper_config):
     code, _ = boxcast.first_triangles(rays, sc.boxes, boxcast.AMBIGUOUS_MM)
     clear = code != boxcast.AMBIGUOUS
     np.testing.assert_array_equal(code[clear], ref[clear])
-
-
-@pytest.mark.compiled_vs_numpy
-def test_these_comparisons_under_the_generic_cpu():
-    # the compiled box cast against open3d again, numba compiling for the generic CPU:
-    # the triangles are integers, exact outside the ambiguity band that sends rays near
-    # a decision to open3d; the distances to open3d's float32 rounding
-    run_under_generic_cpu(__file__)

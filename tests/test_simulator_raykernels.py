@@ -14,7 +14,7 @@ import pytest
 from scanqa.simulator import blur, devices, experiments, raykernels, render, scene
 from scanqa.simulator.optics_kernels import DiscAverage
 
-from .cpu_targets import op_bound, run_under_generic_cpu
+from .cpu_targets import op_bound
 
 
 def _window(config, size):
@@ -218,11 +218,6 @@ def test_ladder_groups_equal_numpys_sort(shape):
     assert np.all(np.abs(frac - frac_ref)[same] <= tol[same])
     assert blur._groups(diameter, np.zeros(shape, bool)) == []
 
-
-@pytest.mark.compiled_vs_numpy
-def test_these_comparisons_under_the_generic_cpu():
-    # the tests above again, numba compiling for the generic CPU (no FMA, no AVX)
-    run_under_generic_cpu(__file__)
 
 
 def test_chunked_cast_equals_one_open3d_call(paper_config, monkeypatch):
