@@ -179,6 +179,7 @@ def test_skull_against_slstudio_within_the_calibration_sigma(corners, request, t
     assert np.median(diff[ok] / sigma[ok]) < 0.5
 
 
+@pytest.mark.slow  # ~30 s of CPU: three poses decoded and calibrated through the CLI
 def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys):
     out = tmp_path / "board.xml"
     poses = [str(CALIBRATION / f"calseq{k}") for k in (1, 3, 6)]
