@@ -9,7 +9,9 @@ STAMP  := $(VENV)/.installed
 DEMO_STAMP := $(VENV)/.installed-demo
 WHEEL_VENV := build/wheel-venv
 # make test runs the suite on one process per core (at most 4: each may hold a simulated
-# scan in memory); whole test files stay on one worker, so their fixtures are built once.
+# scan in memory); whole test files stay on one worker, so their fixtures are built once,
+# and the heaviest files are collected first (tests/conftest.py, HEAVY_FIRST) so that no
+# worker finishes a long file alone at the end.
 JOBS ?= $(shell n=$$(nproc 2>/dev/null || echo 1); [ $$n -gt 4 ] && n=4; echo $$n)
 
 .PHONY: demo test docs bench lint fuzz mutate setup syslibs syslibs-test clean wheel-check \
