@@ -26,12 +26,16 @@ def paper_config() -> ScannerConfig:
 #: first. make test runs ``-n 2 --dist loadfile``: a file stays on one worker, so its
 #: module fixtures are built once, and workers take files in collection order; started
 #: first, the long files no longer leave one worker running alone at the end.
-HEAVY_FIRST = (
-    "test_closed_loop.py",      # >= 99 s of CPU (measured 2026-11-27)
-    "test_board_real.py",       # 90.5 s
-    "test_demo.py",             # 25.6 s
-    "test_realdata_noise.py",   # 23.7 s
-    "test_batch.py",            # LocalClusters (3 tests marked slow)
+HEAVY_FIRST = (  # CPU seconds per file, measured 2026-11-27 (docs/benchmarks.rst)
+    "test_closed_loop.py",      # >= 99
+    "test_board_real.py",       # 90.5
+    "test_batch.py",            # >= 84.6 (LocalClusters)
+    "test_flattening_real.py",  # 46.4
+    "test_failures.py",         # 38.5
+    "test_sweep_fit.py",        # 36.9
+    "test_demo.py",             # 25.6
+    "test_realdata_noise.py",   # 23.7
+    "test_fuzz.py",             # 17.6
     "test_flattening.py",       # 5 tests marked slow
 )
 
