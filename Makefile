@@ -84,7 +84,7 @@ wheel-check: $(STAMP) $(WHEEL_STAMP)
 		../../tools/readme_examples.py ../../README.md > ../wheel-readme.log 2>&1 \
 		|| (tail -20 ../wheel-readme.log; exit 1)
 	@$(WHEEL_VENV)/bin/scanqa demo --help > /dev/null
-	@echo "wheel: $$(ls build/dist) built; installed without extras; $$(cat build/wheel-readme.log)"
+	@echo "wheel: $$(ls build/dist | tr "\n" " ")built; installed without extras; $$(cat build/wheel-readme.log)"
 
 # The documentation site (docs/): warnings are errors, so a broken reference, a malformed
 # docstring or a module missing from docs/api.rst fails the build.
