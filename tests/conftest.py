@@ -27,16 +27,19 @@ def paper_config() -> ScannerConfig:
 #: module fixtures are built once, and workers take files in collection order; started
 #: first, the long files no longer leave one worker running alone at the end.
 HEAVY_FIRST = (  # CPU seconds per file, measured 2026-11-27 (docs/benchmarks.rst)
-    "test_closed_loop.py",      # >= 99
+    "test_closed_loop.py",      # 98.9
     "test_board_real.py",       # 90.5
-    "test_batch.py",            # >= 84.6 (LocalClusters)
+    "test_batch.py",            # 84.6 (LocalClusters)
     "test_flattening_real.py",  # 46.4
     "test_failures.py",         # 38.5
+    "test_describe_real.py",    # 38.1
     "test_sweep_fit.py",        # 36.9
+    "test_compare.py",          # 31.0
     "test_demo.py",             # 25.6
     "test_realdata_noise.py",   # 23.7
+    "test_characterize.py",     # 21.9
+    "test_target.py",           # 18.8
     "test_fuzz.py",             # 17.6
-    "test_flattening.py",       # 5 tests marked slow
 )
 
 
