@@ -20,6 +20,10 @@ from scanqa.runs.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
 from .synth_sweep import plane_truth, small_camera, sweep
 
+# every test here compares the compiled loop with numpy or scipy (tests/cpu_targets.py):
+# rerun on numba's generic CPU target by tests/test_generic_cpu.py
+pytestmark = pytest.mark.compiled_vs_numpy
+
 W, H = 96, 64
 #: One float32 rounding step: the compiled and numpy paths round the same float64
 #: values, which may differ in the last bits (J1, the shear's sum order) [-].

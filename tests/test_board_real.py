@@ -109,6 +109,7 @@ def test_against_slstudio_calibration(slstudio_poses):
     assert slstudio_poses.flagged == []
 
 
+@pytest.mark.slow  # ~19 s of CPU: five-pose calibrations with the board released
 def test_the_camera_residual_is_the_boards(poses):
     """The camera's 0.295 px is not its lens model nor its corner detector: calibration.xml's
     own camera on our corners gives 0.297 px, the full model k1 k2 p1 p2 k3 with a free
@@ -179,6 +180,7 @@ def test_skull_against_slstudio_within_the_calibration_sigma(corners, request, t
     assert np.mean(diff[ok] <= 2 * sigma[ok]) >= 0.8
 
 
+@pytest.mark.slow  # ~30 s of CPU: three poses decoded and calibrated through the CLI
 def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys):
     out = tmp_path / "board.xml"
     poses = [str(CALIBRATION / f"calseq{k}") for k in (1, 3, 6)]

@@ -440,6 +440,7 @@ def test_scan_on_holdout_planes_has_no_trend(holdout_scan_errors, focus_sigma_mm
     assert change <= 0.1 * focus_sigma_mm
 
 
+@pytest.mark.slow  # ~23 s of CPU: nine gauge-block scans rendered
 def test_scan_systematic_on_gauge_blocks(request, gauge_scans, calibrated, focus_sigma_mm):
     scans, truth = gauge_scans
     table = calibrated[1]["model"]

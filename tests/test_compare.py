@@ -131,6 +131,7 @@ def test_compare_refuses_what_it_cannot_judge(scan_and_truth, tmp_path, capsys):
 
 @pytest.mark.skipif(not (SLSTUDIO / "skull_gray").is_dir(),
                     reason=f"real captures not found at {SLSTUDIO}")
+@pytest.mark.slow  # ~26 s of CPU (measured 2026-11-27)
 def test_real_skull_against_the_scanner_makers_own_cloud(tmp_path):
     """skull_2x3 (phase, decoded and triangulated by scanqa with calibration.xml) against
     SLStudio's own reconstruction of the same pose from its Gray code (pointCloud.mat),

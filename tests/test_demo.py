@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import contextlib
 import csv
+import io
 import json
+from dataclasses import fields
 
 import pytest
 
@@ -14,12 +17,22 @@ from .conftest import ROOT
 
 
 @pytest.fixture(scope="module")
-def demo_out(tmp_path_factory):
+def demo_run(tmp_path_factory):
+    """One demo run on the sample data (~20 s of CPU): its folder and what it printed.
+    Without --data: the sample data of scanqa.sample_data_path()."""
     out = tmp_path_factory.mktemp("demo")
-    assert main(["demo", "--out", str(out), "--data", str(ROOT / "sample_data")]) == 0
-    return out
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        assert main(["demo", "--out", str(out)]) == 0
+    return out, printed.getvalue()
 
 
+@pytest.fixture(scope="module")
+def demo_out(demo_run):
+    return demo_run[0]
+
+
+@pytest.mark.slow  # the module's demo run: ~20 s of CPU
 def test_demo_writes_every_output(demo_out):
     for name in ("table.npz", "table_report.html", "table_report.json", "gauge_cloud.ply",
                  "qa/report.html", "qa/blocks.csv", "qa/steps.csv", "qa/summary.json",
@@ -32,6 +45,7 @@ def test_demo_writes_every_output(demo_out):
         assert section in html, section
 
 
+@pytest.mark.slow  # the module's demo run: ~20 s of CPU
 def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
     """Issue 7 acceptance on the sample data: block 1 flagged, blocks 2-8 measured vs
     predicted within 20 %, >= 90 % of the steps inside the volume within U - pooled over
@@ -65,6 +79,7 @@ def test_demo_summary_meets_the_gauge_qa_acceptance(demo_out):
     assert budget["contribution_um"].dtype.kind == "f" and len(budget) >= 21
 
 
+@pytest.mark.slow  # the module's demo run: ~20 s of CPU
 def test_demo_reports_what_the_sweeps_identify(demo_out, capsys):
     """Issue 16 acceptance: no parameter reported as fitted that the fit did not move,
     intervals reported, and the identifiable quantity printed."""
@@ -82,10 +97,10 @@ def test_demo_reports_what_the_sweeps_identify(demo_out, capsys):
     assert {c["name"] for c in best["identifiable"]} >= {"phase noise at focus [px]"}
 
 
-def test_demo_prints_summary_and_report_path(capsys, tmp_path):
-    assert main(["demo", "--out", str(tmp_path / "d"), "--data", str(ROOT / "sample_data")]) == 0
-    out = capsys.readouterr().out
-    assert "report: " in out and str(tmp_path / "d" / "qa" / "report.html") in out
+@pytest.mark.slow  # the module's demo run: ~20 s of CPU
+def test_demo_prints_summary_and_report_path(demo_run):
+    folder, out = demo_run  # the fixture's run (a second run would check nothing more)
+    assert "report: " in out and str(folder / "qa" / "report.html") in out
     assert "block  measured  predicted" in out and "over all 3 scans" in out
     assert "identifiable: phase noise at focus" in out and "(95 %)" in out
     assert "Type B is not included" in out
@@ -140,33 +155,44 @@ def test_bad_input_gives_one_line_and_exit_2(command, capsys, tmp_path, monkeypa
 def test_full_mode_simulates_then_runs_the_same_pipeline(tmp_path, monkeypatch):
     """--full: the plan's experiments are simulated into OUT/data and the pipeline reads
     them from there (the simulator is replaced by copies of the sample folders, which it
-    wrote: a real --full run takes about 40 minutes)."""
+    wrote: a real --full run takes about 14 minutes). The stages after the data are
+    those of the module's demo run (``demo_run``), which checks what they write; here
+    they are given the data folder and must find there what --full simulated."""
     import shutil
+    from dataclasses import replace
 
     from scanqa.runs import demo
     from scanqa.simulator import experiments
 
-    calls = []
-    real = experiments.run_experiment
+    calls, stages = [], []
 
     def fake_run(name, config, out_dir, positions=None, repeats=None, progress=False):
         calls.append((name, config.camera.width_px, len(positions or []), repeats))
-        if name == "sphere":  # the demo's sphere test: simulated for real (5 s)
-            return real(name, config, out_dir, positions=positions, repeats=repeats)
         folder = {"camera-sweep": "camera_sweep", "projector-sweep": "projector_sweep",
                   "calibration-sweep": "calibration_sweep", "gauge-blocks": "gauge_blocks"}[name]
         shutil.copytree(ROOT / "sample_data" / folder, out_dir)
 
+    def fake_stages(stage, out, data, final):
+        stages.append((data, final, demo.check_data(data)))
+        (out / "marker").write_text("published")
+        return demo.DemoResult(**{f.name: None for f in fields(demo.DemoResult)})
+
     monkeypatch.setattr(experiments, "run_experiment", fake_run)
+    monkeypatch.setattr(demo, "_run_stages", fake_stages)
     config = load_config(ROOT / "sample_data" / "sample_scanner.toml", profile="sample")
     result = demo.run_demo(tmp_path / "full", full_config=config)
     assert [c[0] for c in calls] == ["camera-sweep", "projector-sweep", "calibration-sweep",
-                                     "gauge-blocks", "sphere"]
+                                     "gauge-blocks"]
     assert calls[1][2] == 31 and calls[2][2] == 14 and calls[3][3] == 3
-    assert (tmp_path / "full" / "data" / "gauge_blocks").is_dir()
-    assert result.report.exists() and len(result.qa.steps) == 7
+    data = tmp_path / "full" / "data"
+    assert (data / "gauge_blocks").is_dir()
+    assert stages == [(data, tmp_path / "full",
+                       [data / "camera_sweep", data / "projector_sweep"])]
+    assert result == replace(result, out=tmp_path / "full")
+    assert (tmp_path / "full" / "marker").read_text() == "published"
 
 
+@pytest.mark.slow  # the module's demo run: ~20 s of CPU
 def test_demo_runs_a_sphere_test_beside_the_blocks(demo_out):
     """The demo's VDI/VDE 2634-2 sphere (simulated on the fly, 12 mm, sample scanner):
     PF predicted within 20 % of the measured, PS within its U of the true diameter (the

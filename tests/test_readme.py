@@ -1,5 +1,5 @@
-"""The README's Python API examples run as written (in order, in a scratch folder that
-sees the repository's sample_data/ and calib/), and ``help(scanqa)`` lists the jobs."""
+"""The README's Python API examples run as written (in order, in a scratch folder, on the
+sample data of ``scanqa.sample_data_path()``), and ``help(scanqa)`` lists the jobs."""
 
 from __future__ import annotations
 
@@ -19,15 +19,17 @@ def python_blocks(text: str) -> list[str]:
 
 
 def test_readme_api_examples_run(tmp_path, monkeypatch):
+    # in a folder without the repository's sample_data/: the examples find the sample
+    # data through scanqa.sample_data_path(), as from an installed wheel (make
+    # wheel-check runs them there with tools/readme_examples.py)
     blocks = python_blocks((ROOT / "README.md").read_text(encoding="utf-8"))
     assert len(blocks) >= 3, "the README shows the three jobs as ```python blocks"
-    for name in ("sample_data", "calib"):
-        (tmp_path / name).symlink_to(ROOT / name)
     monkeypatch.chdir(tmp_path)
     namespace: dict = {}
     with contextlib.redirect_stdout(io.StringIO()):
         for block in blocks:
             exec(compile(block, "README.md", "exec"), namespace)
+    assert namespace["data"] == scanqa.sample_data_path()
     # what the examples made is real: a table, a cloud with its model, a QA report
     assert (tmp_path / "table.npz").stat().st_size > 0
     cloud = scanqa.read_cloud(tmp_path / "cloud.ply")
@@ -62,3 +64,11 @@ def test_cloud_converts_to_open3d_and_pandas():
     assert list(frame.columns) == ["x_mm", "y_mm", "z_mm", "sigma_model_um"]
     np.testing.assert_array_equal(frame["z_mm"], [450.0, 451.0])
     assert frame.attrs["scanqa"]["model"]["gamma"] == 3.0
+
+
+def test_sample_data_path_finds_the_sample_data(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # not the working directory: the package's location
+    data = scanqa.sample_data_path()
+    assert (data / "sample_scanner.toml").is_file()
+    assert (data / "gauge_blocks" / "layout.toml").read_bytes() == (
+        ROOT / "calib" / "gauge_blocks_paper.toml").read_bytes()  # the README's layout

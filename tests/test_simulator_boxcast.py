@@ -62,6 +62,7 @@ def test_box_table_finds_the_gauge_scenes_boxes_only():
     assert scene.Scene(trimesh.creation.icosphere(1)).boxes is None  # 80 triangles
 
 
+@pytest.mark.compiled_vs_numpy
 @pytest.mark.parametrize("kind", ["camera", "shadow", "both"])
 def test_box_cast_picks_open3ds_triangle_for_every_ray(paper_config, kind):
     # every supersample of the whole field of view (320 x 256 binned pixels, s = 3),
@@ -99,6 +100,7 @@ def test_box_cast_picks_open3ds_triangle_for_every_ray(paper_config, kind):
     assert hit.any() and (kind == "shadow" or (~hit).any())
 
 
+@pytest.mark.compiled_vs_numpy
 def test_without_the_tolerance_some_triangles_differ_from_open3ds(paper_config):
     # why the rays near a decision go to open3d: decided exactly, rays aimed at the
     # diagonals and edges pick another triangle than open3d's float32 test now and then

@@ -106,6 +106,7 @@ def test_pixel_locking_recovers_a_grid_periodic_error():
     assert not few.any()  # 10 corners cannot tell locking from noise: no correction
 
 
+@pytest.mark.slow  # ~29 s of CPU (measured 2026-11-27)
 def test_calibration_report_shows_the_marker_geometry(cfg, tmp_path, capsys):
     """scanqa calibrate on a simulated marked sweep: the report (JSON and HTML) carries
     the fitted camera and stage and says what the sweep could not pin."""

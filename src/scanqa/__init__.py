@@ -95,6 +95,7 @@ _EXPORTS = {
     "characterize_board": ("scanqa.api", "characterize_board"),
     "apply_characterization": ("scanqa.api", "apply_characterization"),
     "compare": ("scanqa.api", "compare"),
+    "sample_data_path": ("scanqa.runs.demo", "sample_data_path"),
 }
 
 
@@ -138,6 +139,7 @@ __all__ = [
     "predict",
     "read_cloud",
     "run_qa",
+    "sample_data_path",
     "save_phase_map",
     "save_table",
     "write_cloud",

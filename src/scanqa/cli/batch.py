@@ -97,8 +97,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def _options(args: argparse.Namespace):
-    from scanqa.cluster import EngineOptions
+    """The engine options, refused before any work when --scheduler lacks Dask."""
+    from scanqa.cluster import INSTALL_HINT, EngineOptions, dask_available
 
+    if args.scheduler and not args.serial and not dask_available():
+        raise InputError(f"--scheduler needs Dask distributed ({INSTALL_HINT})")
     return EngineOptions(scheduler=args.scheduler, workers=args.workers, serial=args.serial,
                          dashboard=args.dashboard)
 
@@ -121,6 +124,7 @@ def run_batch(args: argparse.Namespace) -> int:
     from scanqa.runs.batch import BatchSettings, prepare, resolve_scans
     from scanqa.runs.batch import run_batch as run
 
+    options = _options(args)  # before any work
     if args.depth_range_mm is not None and len(args.depth_range_mm) != 2:
         raise InputError(f"--depth-range-mm takes NEAR,FAR [mm], got {args.depth_range_mm}")
     scans = resolve_scans(args.scans)
@@ -132,16 +136,17 @@ def run_batch(args: argparse.Namespace) -> int:
     depth = tuple(args.depth_range_mm) if args.depth_range_mm else (0.0, float("inf"))
     ctx = prepare(config, source, args.calibration, args.out, args.layout, settings, depth)
     with flags(_SCHEDULER):
-        return _finish(run(scans, ctx, _options(args)), args.out)
+        return _finish(run(scans, ctx, options), args.out)
 
 
 def run_campaign(args: argparse.Namespace) -> int:
     from scanqa.runs.campaign import load_campaign
     from scanqa.runs.campaign import run_campaign as run
 
+    options = _options(args)  # before any work
     campaign = load_campaign(args.campaign, args.out, seed=args.seed)
     with flags(_SCHEDULER):
-        return _finish(run(campaign, _options(args)), args.out)
+        return _finish(run(campaign, options), args.out)
 
 
 #: The cluster's words for the scheduler address, in this command's.

@@ -19,8 +19,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                "  scanqa demo --out /tmp/d --full   # simulate at 2448 x 2048 first "
                "(~14 min)\n\nwrites the table, the annotated PLY, the QA report and tables")
     p.add_argument("--out", default="scanqa-demo", help="output folder (default scanqa-demo)")
-    p.add_argument("--data", default="sample_data", metavar="DIR",
-                   help="the data set (default: sample_data, in a clone of the repository)")
+    p.add_argument("--data", default=None, metavar="DIR",
+                   help="the data set (default: the sample data installed with scanqa)")
     p.add_argument("--full", action="store_true",
                    help="simulate the data with --full-config at its full resolution first "
                         "(chunked, bounded memory; slow)")

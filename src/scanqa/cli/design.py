@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 
 import numpy as np
@@ -216,6 +217,9 @@ def run_flatten(args: argparse.Namespace) -> int:
 
 
 def run_page(args: argparse.Namespace) -> int:
+    if importlib.util.find_spec("plotly") is None:  # before any work
+        raise InputError("the design page needs plotly, which draws it: pip install "
+                         "'scanqa[design]'")
     from scanqa.runs import designapp  # plotly only when the page is served
 
     with flags({"host ": "--host ", "give host": "give --host"}):

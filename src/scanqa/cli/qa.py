@@ -35,6 +35,7 @@ from scanqa.qa.layout import load_layout
 from scanqa.qa.verdict import EXIT_STATUS
 from scanqa.report import artefacts as artefact_report
 from scanqa.report import qa as qa_report
+from scanqa.report.pdf import check_pdf
 from scanqa.runs.annotation import annotate
 
 _EPILOG = """examples:
@@ -182,6 +183,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.layout and not args.auto:
         raise InputError("give --layout FILE, or --auto to find the blocks (or, with "
                          "--artefact, the artefact)")
+    if args.pdf:  # before any work: the optional dependency, then the run
+        with flags(_PDF):
+            check_pdf(Path(args.out) / "report.pdf")
     spec = read_spec(args.spec) if args.spec else None
     artefacts = bool(args.artefact) or (
         bool(args.layout) and not args.auto and layout_format(args.layout) == ARTEFACT_FORMAT)

@@ -30,12 +30,28 @@ def write_pdf(page_html: str, path: str | os.PathLike) -> Path:
     InputError
         When WeasyPrint or the pango libraries it needs are missing.
     """
-    try:
-        import weasyprint
-    except (ImportError, OSError) as err:
-        raise InputError(f"cannot write {path}: the PDF needs WeasyPrint and the pango "
-                         f"libraries ({err}); run tools/install_syslibs.sh, or write no "
-                         "PDF") from None
+    weasyprint = check_pdf(path)
     with atomic_path(path, suffix=".pdf") as tmp:
         weasyprint.HTML(string=page_html).write_pdf(tmp)
     return Path(path)
+
+
+def check_pdf(path: str | os.PathLike):
+    """Refuse, before any work, a PDF that cannot be written; the weasyprint module.
+
+    Raises
+    ------
+    InputError
+        WeasyPrint missing (the ``pdf`` extra), or the pango libraries it loads.
+    """
+    try:
+        import weasyprint
+    except ImportError:
+        raise InputError(f"cannot write {path}: the PDF needs WeasyPrint (pip install "
+                         "'scanqa[pdf]'), or write no PDF") from None
+    except OSError as err:
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise InputError(f"cannot write {path}: WeasyPrint cannot load the pango libraries "
+                         f"({first}); install them (Debian: tools/install_syslibs.sh), or "
+                         "write no PDF") from None
+    return weasyprint

@@ -124,15 +124,36 @@ def check_data(data: Path) -> list[Path]:
     calibration sweep when it has none; raises unless the required folders are there."""
     missing = [name for name in DATA_FOLDERS if not (data / name / "manifest.toml").exists()]
     if missing:
-        raise InputError(f"demo data not found in {data}: missing {', '.join(missing)} (run "
-                         "the demo from a clone of the repository, where sample_data/ holds "
-                         "them, or simulate them: the full demo)")
+        raise InputError(f"demo data not found in {data}: missing {', '.join(missing)} (give "
+                         "the sample data, scanqa.sample_data_path(), or simulate them: the "
+                         "full demo)")
     sweeps = [data / name for name in ("camera_sweep", "projector_sweep")
               if (data / name / "manifest.toml").exists()]
     return sweeps or [data / "calibration_sweep" / "sweep.toml"]
 
 
-def run_demo(out: str | Path, data: str | Path = "sample_data",
+def sample_data_path() -> Path:
+    """The sample data set: the simulated sweeps, gauge-block scans and their scanner
+    config (``sample_scanner.toml``) that the demo and the README's examples use.
+
+    The copy inside an installed wheel (``scanqa/sample_data``), else ``sample_data/``
+    of the repository that holds this source (a clone, an editable install).
+
+    Returns
+    -------
+    Path
+        The folder (``calibration_sweep/``, ``gauge_blocks/`` with ``layout.toml``,
+        ``camera_sweep/``, ``projector_sweep/``, ``sample_scanner.toml``).
+    """
+    package = Path(__file__).resolve().parents[1]
+    for folder in (package / "sample_data", package.parents[1] / "sample_data"):
+        if (folder / "sample_scanner.toml").is_file():
+            return folder
+    raise InputError(f"the sample data are not installed with scanqa ({package}): "
+                     "reinstall it from a wheel or a clone of the repository")
+
+
+def run_demo(out: str | Path, data: str | Path | None = None,
              full_config: ScannerConfig | None = None) -> DemoResult:
     """Run every stage on a demo data set and write the outputs into ``out``.
 
@@ -141,11 +162,10 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
     out : str or Path
         Output folder (created). The outputs are staged and published together at the
         end: a failed run leaves them as they were.
-    data : str or Path
+    data : str or Path, optional
         The data set: ``calibration_sweep/``, ``gauge_blocks/`` (with its
         ``layout.toml``) and a ``camera_sweep/`` and/or ``projector_sweep/``, each with
-        the manifest that records its scanner config (``sample_data/`` of the
-        repository is one).
+        the manifest that records its scanner config; default :func:`sample_data_path`.
     full_config : ScannerConfig, optional
         Simulate the data set with this config first (into ``out/data``; ``data`` is
         then ignored). Each simulated experiment is published as soon as it is complete
@@ -161,6 +181,7 @@ def run_demo(out: str | Path, data: str | Path = "sample_data",
         if full_config is not None:
             stage("simulating the data at the config's full resolution (long)")
             data = simulate_full(full_config, target / "data")
+        data = sample_data_path() if data is None else data
         with staged_dir(target) as staged:
             result = _run_stages(stage, staged, Path(data), target)
     return replace(result, out=target)
