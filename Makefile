@@ -35,12 +35,18 @@ $(STAMP): pyproject.toml | syslibs
 
 # The reference decoder of tests/test_fringes_agreement.py without its dependencies: it
 # asks for opencv-contrib-python, and a second cv2 wheel beside scanqa's
-# opencv-python-headless breaks both (its other dependencies are in [test]). A .venv made
-# before scanqa moved to the headless build has the contrib wheel: one cv2 is kept.
+# opencv-python-headless breaks both (its other dependencies are in [test]). The tests
+# that write OpenCV's own Gray code (cv2.structured_light.GrayCodePattern, a contrib
+# module scanqa itself never uses) need the contrib build: the test venv swaps the
+# headless wheel for opencv-contrib-python-headless of the same version, a superset of
+# it (the same main modules, no Qt), so one cv2 is kept.
 fringes-ref:
 	@if $(BIN)/python -m pip show -q opencv-contrib-python 2>/dev/null; then \
-		$(BIN)/python -m pip uninstall --quiet -y opencv-contrib-python && \
-		$(BIN)/python -m pip install --quiet --force-reinstall --no-deps opencv-python-headless; fi
+		$(BIN)/python -m pip uninstall --quiet -y opencv-contrib-python; fi
+	@if ! $(BIN)/python -c "import cv2; cv2.structured_light" 2>/dev/null; then \
+		v=$$($(BIN)/python -m pip show opencv-python-headless 2>/dev/null | sed -n 's/^Version: //p'); \
+		$(BIN)/python -m pip uninstall --quiet -y opencv-python-headless; \
+		$(BIN)/python -m pip install --quiet --no-deps "opencv-contrib-python-headless$${v:+==$$v}"; fi
 	@$(BIN)/python -m pip install --quiet --no-deps 'fringes==2.1.0'
 
 # make demo installs the package alone (no test, docs or cluster tools)
