@@ -67,7 +67,7 @@ def test_init_without_calibration_writes_placeholders(tmp_path, capsys):
     assert all(line.startswith("#") or "=" in line or line.startswith("[") or not line
                for line in text.splitlines())
     with pytest.raises(ConfigError, match=r"camera.focal_mm is still the placeholder "
-                                          r"'MEASURE'.*> 0 mm"):
+                                          r"'MEASURE'.*>= 0.5 mm and <= 5000 mm"):
         load_config(out)
 
 

@@ -54,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     cal = None
     if args.calibration:
         cal = load_opencv_calibration(args.calibration)
-    with flags({"check pitch_um": "check --pitch-um"}):
+    with flags({"check pitch_um": "check --pitch-um",
+                "projector.pitch_um must be": "check --pitch-um: projector.pitch_um must be"}):
         text = scanner_config_text(cal, args.pixel_um, args.pitch_um, args.camera_focus_mm,
                                    args.projector_focus_mm, args.periods,
                                    args.name or Path(out).stem)

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import math
 import textwrap
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 from scipy.optimize import brentq
@@ -88,11 +88,13 @@ def projector_focal_mm(fx_px: float, pitch_um: float, focus_mm: float) -> float:
                               (0.0, 0.0, 1.0))
         return cfg.principal_distance_px - fx_px
 
-    upper = focus_mm / 4.0 * (1 - 1e-12)
-    if not excess(upper) > 0:
+    # search only the focal lengths a config accepts (its field range, and focus >= 4 f)
+    spec = next(f.metadata for f in fields(ProjectorConfig) if f.name == "focal_mm")
+    lower, upper = spec["ge"], min(spec["le"], focus_mm / 4.0 * (1 - 1e-12))
+    if not (lower < upper and excess(lower) < 0 < excess(upper)):
         raise InputError(f"the projector's f_x = {fx_px:g} px times the pitch {pitch_um:g} um "
                          f"is not a lens that can focus at {focus_mm:g} mm: check pitch_um")
-    return float(brentq(excess, 1e-6, upper, xtol=1e-12))
+    return float(brentq(excess, lower, upper, xtol=1e-12))
 
 
 def scanner_config_text(cal: ParametricCalibration | None = None,
