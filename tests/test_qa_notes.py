@@ -34,6 +34,8 @@ NOT_NUMERIC = {
     "verdict.verdict": "counts decisions",
     "paper.table3_rows": "joins rows by block number",
     "ransac.check_positive": "refuses a bad length, returns nothing",
+    "align.parse_region": "reads a region's text",
+    "blocks.unmeasured_step": "records a step that was not evaluated (NaN numbers)",
 }
 #: What counts as naming a source in a Notes section.
 SOURCE = re.compile(

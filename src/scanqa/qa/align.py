@@ -272,6 +272,14 @@ def fit_alignment(cloud: AnnotatedCloud, reference, region: Region | None = None
         No sigma_total_um, or too few points in reach or in the region. A surface that
         does not fix all six motions (a single plane, a sphere) is not an error: those
         motions are held and reported (``free``).
+
+    Notes
+    -----
+    Point-to-plane ICP: each step solves the linearised weighted least squares
+    min sum_i w_i ((R p_i + t - q_i) . n_i)^2 / sigma_i^2 for a small rotation and shift,
+    with robust weights w_i (Huber, then Tukey); the covariance of the six motions is the
+    inverse normal matrix scaled by the weighted residual variance (GUM 5.1.2 for the
+    propagation; docs/compare.rst, "Best fit first").
     """
     if "sigma_total_um" not in cloud.attributes:
         raise InputError("the cloud has no sigma_total_um: the alignment weighs each point "
@@ -408,6 +416,11 @@ def align_reference(cloud: AnnotatedCloud, reference, region: Region | None = No
     moved : AnnotatedCloud or trimesh.Trimesh
         The reference in the scan's frame (a copy).
     fit : Alignment
+
+    Notes
+    -----
+    The reference's points (or vertices) x are moved to R x + t with the fit of
+    :func:`fit_alignment` (docs/compare.rst, "Best fit first").
     """
     fit = fit_alignment(cloud, reference, region, max_distance_mm, neighbours,
                         reference_sigma_mm)

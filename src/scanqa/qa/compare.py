@@ -312,6 +312,13 @@ def u_by_term(cloud: AnnotatedCloud, cos: np.ndarray, u_ref: np.ndarray, k: floa
         the median of k x each term [um] (None for a term the cloud does not carry);
         ``dominant_U_term``; ``smallest_significant_deviation_um``: {"median_point",
         "best_5_percent"}: the U of the median point and the 5th percentile of U [um].
+
+    Notes
+    -----
+    U_i = k sqrt((sigma_total,i |cos_i|)^2 + u_ref,i^2) (GUM 6.2.1); each term's share is
+    k |cos_i| times its own sigma, the systematic one what sigma_total leaves after the
+    random and calibration terms, sqrt(sigma_total^2 - sigma_random^2 - sigma_table^2)
+    (docs/formats.rst). A deviation below U_i cannot be called significant at that point.
     """
     if not judged.any():
         return {}
