@@ -349,7 +349,7 @@ def _points(poses: list[BoardPose], board: Board) -> tuple[list, list, list]:
         if len(pose.camera_px) != len(board.object_points):
             raise InputError(f"pose {pose.name} has {len(pose.camera_px)} corners, the "
                              f"{board.rows} x {board.columns} board {len(board.object_points)}"
-                             ": is the whole board in view? (give --board ROWSxCOLS to "
+                             ": is the whole board in view? (give the board's ROWSxCOLS to "
                              "look for that grid)")
         ok = np.isfinite(pose.projector_px).all(axis=1)
         if ok.sum() < 6:

@@ -152,7 +152,8 @@ def run_board(args: argparse.Namespace) -> int:
                                      progress=step_messages(bar), corner_method=args.corners)
     except InputError as err:   # the library speaks of the board given; the CLI of --board
         raise InputError(str(err).replace("the board given", "--board").replace(
-            "the board's corner count", "--board")) from None
+            "the board's corner count", "--board").replace(
+            "give the board's ROWSxCOLS", "give --board ROWSxCOLS")) from None
     if args.config is not None:  # a wrong square size scales the baseline
         check_baseline(result.data, np.asarray(config_from_args(args).projector.position_mm,
                                                float), args.square_mm)
