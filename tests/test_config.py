@@ -54,7 +54,7 @@ BAD_VALUES = [
      r"camera\.focal_mm must be >= 0\.5 mm and <= 5000 mm, got 0\.0"),
     ("f_number = 8.0", "f_number = 0", r"camera\.f_number must be >= 0\.5 and <= 256, got 0"),
     ("pixel_um = 8.0", "pixel_um = -8.0",
-     r"camera\.pixel_um must be >= 0\.1 um and <= 100 um, got -8\.0"),
+     r"camera\.pixel_um must be >= 0\.1 um and <= 1000 um, got -8\.0"),
     ("focus_mm = 450.0", "focus_mm = 90.0",
      r"camera\.focus_mm must be > camera\.focal_mm = 100 mm .*got 90\.0"),
     ("pitch_um = 8.8507", "pitch_um = 0.0",
@@ -101,7 +101,7 @@ def test_unknown_table(tmp_path):
 def test_missing_key(tmp_path):
     path = _write(tmp_path, _base().replace("pixel_um = 8.0\n", "", 1))
     with pytest.raises(ConfigError, match=r"missing key camera\.pixel_um \(expected >= 0\.1 "
-                       r"um and <= 100 um\)"):
+                       r"um and <= 1000 um\)"):
         load_config(path)
 
 

@@ -151,7 +151,7 @@ class CameraConfig(_Section):
     section: ClassVar[str] = "camera"
     focal_mm: float = _spec("mm", ge=0.5, le=5000)
     f_number: float = _spec("", ge=0.5, le=256)
-    pixel_um: float = _spec("um", ge=0.1, le=100)
+    pixel_um: float = _spec("um", ge=0.1, le=1000)  # up to 1 mm: binned simulations
     width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
     focus_mm: float = _spec("mm", gt=0)
