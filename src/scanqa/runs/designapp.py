@@ -33,6 +33,7 @@ import contextlib
 import io
 import ipaddress
 import json
+import logging
 import math
 import select
 import socket
@@ -48,6 +49,8 @@ from scanqa.io.tomlfile import dumps_toml, loads_toml
 from scanqa.model import rig
 from scanqa.model.config import ScannerConfig, config_from_dict
 from scanqa.report import designpage
+
+log = logging.getLogger(__name__)
 
 #: Largest request body the server reads [bytes].
 MAX_BODY = 1_000_000
@@ -361,8 +364,8 @@ def _handler(state: DesignState, title: str, bound: str, timeout_s: float,
                 self.close_connection = True  # the client stalled or went away
             except Exception as err:  # one reply per request, never none
                 self.server.errors.append(traceback.format_exc())
-                sys.stderr.write(f"scanqa design page: internal error on {self.command} "
-                                 f"{self.path[:80]}: {type(err).__name__}: {err}\n")
+                log.error("design page: internal error on %s %s: %s: %s", self.command,
+                          self.path[:80], type(err).__name__, err)
                 self._error(500, f"internal error: {type(err).__name__}: {err}")
 
         def do_GET(self) -> None:
@@ -439,8 +442,7 @@ class DesignServer(ThreadingHTTPServer):
     def handle_error(self, request, client_address) -> None:
         """An exception that escaped a handler: recorded, one line on stderr."""
         self.errors.append(traceback.format_exc())
-        sys.stderr.write(f"scanqa design page: error serving {client_address}: "
-                         f"{sys.exc_info()[1]!r}\n")
+        log.error("design page: error serving %s: %r", client_address, sys.exc_info()[1])
 
 
 _PLOTLY: list[bytes] = []
