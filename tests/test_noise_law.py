@@ -89,7 +89,8 @@ def test_a_characterisation_that_does_not_fit_the_scan_warns_with_both_numbers(r
     path.write_text(json.dumps(result))
     fits = annotate(repeats[0], cal, apply_fitted_model(config, path))
     assert 0.5 <= fits.sigma_source["ratio_to_images"] <= 2.0
-    assert fits.sigma_warning == ""
+    assert fits.sigma_source["warning"] == ""  # the random term: no word against the images
+    assert "carries no covariance" in fits.sigma_warning  # the config's pinhole: none
     law = result["noise_law"]
     law["read_var_dn2"], law["shot_dn"] = 400 * law["read_var_dn2"], 400 * law["shot_dn"]
     path.write_text(json.dumps(result))
@@ -98,6 +99,6 @@ def test_a_characterisation_that_does_not_fit_the_scan_warns_with_both_numbers(r
     ok = np.isfinite(a["sigma_random_um"]) & np.isfinite(a["sigma_phase_um"])
     char, images = (float(np.median(a[k][ok])) for k in ("sigma_random_um", "sigma_phase_um"))
     assert char / images == pytest.approx(20 * fits.sigma_source["ratio_to_images"], rel=0.05)
-    warning = cloud.sigma_warning
+    warning = cloud.sigma_source["warning"]
     assert f"median of {char:.3g} um" in warning and f"give {images:.3g} um" in warning
     assert "does not fit this scan" in warning and "\n" not in warning

@@ -6,9 +6,8 @@ the slope dQ/dx_p; the model gives s_O at that point (Eqs. 12-19) and
 sigma = s_T s_O sigma_p (Eq. 18) with s_T = |dQ/dx_p| from the calibration
 (docs/model.rst). With the two-source model (docs/noise_model.rst) sigma is the
 quadrature sum of a scene-side part, filtered by the camera blur, and a sensor part,
-which is not; both are attributes. Alongside: the sigma implied by the decoder's own
-per-pixel phase noise (s_T sigma_xp), the table's sigma, the combined sigma
-sqrt(model^2 + table^2), and with repeated scans the measured per-point std.
+which is not; both are attributes. Alongside: the decoder's own sigma (s_T sigma_xp), the
+calibration's, the random and total sigma, and with repeats the measured per-point std.
 
 Attribute names (PLY ``scalar_<name>``, LAS extra bytes, CSV columns), all float32:
 
@@ -55,7 +54,6 @@ n_repeats          -      with repeats: number of scans valid at that pixel
 from __future__ import annotations
 
 import logging
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -78,6 +76,7 @@ from scanqa.model import optics
 from scanqa.model.cloud import AnnotatedCloud
 from scanqa.model.config import ScannerConfig
 from scanqa.runs import annotkernels
+from scanqa.runs.noisechecks import evidence_check
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 #: ``sigma_total_um`` first: viewers (CloudCompare) select a cloud's first scalar field.
@@ -204,46 +203,12 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
     warnings.append(scan_checks.depth_warning(xyz[:, 2], config, source))
     for text in filter(None, warnings):  # the geometry checks (scan_checks)
         log.warning(text)
-    meta["sigma_source"].update(evidence_check(origin, attributes))
-    return AnnotatedCloud(xyz, attributes, counts, meta)
-
-
-#: The characterised random sigma may differ from the images' by this factor before a
-#: scan warns that the characterisation does not fit it [-].
-EVIDENCE_FACTOR = 2.0
-
-
-def evidence_check(origin: dict, attributes: dict) -> dict:
-    """The characterised random sigma against the one the scan's own images give.
-
-    Returns
-    -------
-    dict
-        For a characterised source: ``ratio_to_images`` (median characterised random sigma
-        over the median image-based sigma, both [um] over the scan's points) and, where
-        it leaves [1 / EVIDENCE_FACTOR, EVIDENCE_FACTOR], a ``warning`` naming both;
-        otherwise {}. (A PLY written while annotating carries the source without it: the
-        header is written first; the returned cloud and the console have it.)
-    """
-    if origin.get("kind") != "characterised":
-        return {}
-    random = np.asarray(attributes["sigma_random_um"], float)
-    images = np.asarray(attributes["sigma_phase_um"], float)
-    ok = np.isfinite(random) & np.isfinite(images) & (images > 0)
-    if not ok.any():
-        return {}
-    char, img = float(np.median(random[ok])), float(np.median(images[ok]))
-    ratio = char / img if img > 0 else math.inf
-    out = {"ratio_to_images": ratio}
-    if not 1 / EVIDENCE_FACTOR <= ratio <= EVIDENCE_FACTOR:
-        out["warning"] = (
-            f"the characterised random sigma has a median of {char:.3g} um over this scan "
-            f"where the scan's own images give {img:.3g} um ({ratio:.2g}x, outside "
-            f"[{1 / EVIDENCE_FACTOR:g}, {EVIDENCE_FACTOR:g}]): the characterisation "
-            f"({origin.get('detail', '')}) does not fit this scan - another scanner, "
-            "exposure or setting? Check it, or leave characterised_by out to take the "
-            "images' sigma")
-    return out
+    evidence = evidence_check(origin, attributes)
+    meta["sigma_source"].update(evidence)
+    cloud = AnnotatedCloud(xyz, attributes, counts, meta)
+    if out is not None and evidence:  # its header was written before the check: again
+        cloud.write(out)
+    return cloud
 
 
 def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> dict:

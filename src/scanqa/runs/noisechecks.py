@@ -12,7 +12,9 @@ given; these checks make sure that what they are given is what the law means:
   a frame much darker than the same frame of the other repeats (a black or missing
   frame), a repeat that decodes far fewer pixels, or one whose x_p differs from the
   first repeat's by more than their noise allows (moved, shifted, another scene) are
-  refused, each with one line naming the repeat or the frame.
+  refused, each with one line naming the repeat or the frame;
+* after a scan is annotated with a characterised sigma, that sigma is held against the
+  scan's own image-based one (:func:`evidence_check`).
 """
 
 from __future__ import annotations
@@ -200,3 +202,40 @@ def _best_shift(a: np.ndarray, b: np.ndarray) -> tuple[int, int]:
             if cost < best - 1e-12:
                 best, where = cost, (dy, dx)
     return where
+
+
+#: The characterised random sigma may differ from the images' by this factor before a
+#: scan warns that the characterisation does not fit it [-].
+EVIDENCE_FACTOR = 2.0
+
+
+def evidence_check(origin: dict, attributes: dict) -> dict:
+    """The characterised random sigma against the one the scan's own images give.
+
+    Returns
+    -------
+    dict
+        For a characterised source: ``ratio_to_images`` (median characterised random sigma
+        over the median image-based sigma, both [um] over the scan's points) and, where
+        it leaves [1 / EVIDENCE_FACTOR, EVIDENCE_FACTOR], a ``warning`` naming both;
+        otherwise {}.
+    """
+    if origin.get("kind") != "characterised":
+        return {}
+    random = np.asarray(attributes["sigma_random_um"], float)
+    images = np.asarray(attributes["sigma_phase_um"], float)
+    ok = np.isfinite(random) & np.isfinite(images) & (images > 0)
+    if not ok.any():
+        return {}
+    char, img = float(np.median(random[ok])), float(np.median(images[ok]))
+    ratio = char / img if img > 0 else math.inf
+    out = {"ratio_to_images": ratio}
+    if not 1 / EVIDENCE_FACTOR <= ratio <= EVIDENCE_FACTOR:
+        out["warning"] = (
+            f"the characterised random sigma has a median of {char:.3g} um over this scan "
+            f"where the scan's own images give {img:.3g} um ({ratio:.2g}x, outside "
+            f"[{1 / EVIDENCE_FACTOR:g}, {EVIDENCE_FACTOR:g}]): the characterisation "
+            f"({origin.get('detail', '')}) does not fit this scan - another scanner, "
+            "exposure or setting? Check it, or leave characterised_by out to take the "
+            "images' sigma")
+    return out
