@@ -69,7 +69,7 @@ test: syslibs-test $(STAMP)
 # extras into a venv of its own, and the README's Python examples run with that venv's
 # Python in a scratch folder (on the wheel's sample data, scanqa.sample_data_path()),
 # then `scanqa demo --help`. The whole demo runs in the suite (tests/test_demo.py) and
-# from a wheel in docs/install.rst's measurement; here it would repeat ~20 s of CPU.
+# from a wheel when docs/install.rst was measured; here it would repeat ~20 s of CPU.
 # The venv's dependencies are installed again only when pyproject.toml changes (they
 # are what the wheel asks for); scanqa itself always.
 WHEEL_STAMP := $(WHEEL_VENV)/.deps

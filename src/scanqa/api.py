@@ -134,7 +134,7 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
 
 
 def characterize_board(poses: list[PathLike], calibration: PathLike, config: PathLike,
-                       board: tuple[int, int] = (13, 9), profile: str | None = None,
+                       board: tuple[int, int] = (9, 13), profile: str | None = None,
                        depth_range_mm: tuple[float, float] | None = None,
                        out: PathLike | None = None) -> dict:
     """The scanner's noise law from board poses (``scanqa characterize-board``).
@@ -148,7 +148,8 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     config : path
         The scanner config (``--config``), with ``profile``.
     board : (int, int)
-        Inner corners (columns, rows), as ``--board 13x9``.
+        Inner corners (rows, columns), as ``--board 9x13`` (the order of
+        :func:`calibrate_board`).
     depth_range_mm : (float, float), optional
         As ``--depth-range-mm``.
     out : path, optional
@@ -168,14 +169,17 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     from scanqa.io.atomic import staged_dir, write_text
     from scanqa.model.config import load_config
     from scanqa.runs.boardnoise import characterize_board as fit_board
+    from scanqa.runs.noisechecks import check_scale, pose_keys
 
     cfg = load_config(config, profile=profile)
-    decoded = {Path(p).name or str(p): decode(p) for p in poses}
+    decoded = {name: decode(p) for name, p in pose_keys([str(p) for p in poses]).items()}
     first = next(iter(decoded.values()))
     cal = load_calibration(calibration, cfg, first.orientation,
                            tuple(depth_range_mm or (0.0, float("inf"))))
+    check_scale(cal, cfg, str(calibration))
+    rows, columns = board
     with Progress("characterize-board", total=len(decoded), unit="pose") as bar:
-        result = fit_board(decoded, cal, tuple(board), progress=step_messages(bar))
+        result = fit_board(decoded, cal, (columns, rows), progress=step_messages(bar))
     if out is not None:
         text = io.StringIO()
         writer = csv.DictWriter(text, fieldnames=list(result["held_out"][0]))
