@@ -15,7 +15,12 @@ sigma. The frames themselves say it, before anything is decoded:
   the median ratio of the residual's RMS to B exceeds :data:`MISFIT_SHARE` where a
   correct set leaves noise only, or the residuals follow the phase's 0th and 1st
   harmonics across the pixels (:data:`COHERENT_SHARE`), as one frame of a wrong level,
-  shift or scene makes them, where a projector's gamma adds a 2nd harmonic only. (With
+  shift or scene makes them, where a projector's gamma adds a 2nd harmonic only - and
+  by more than the scan's noise leaves in one pixel (measured on the scan's other
+  phase sets, at least the sensor's): noise correlated over the pixels (scene- and
+  projector-side noise in few cells of a small window, widened by a defocused camera's
+  blur) is not averaged out of the harmonics' fit, and as a share of a modulation that
+  defocus has cut it exceeds :data:`COHERENT_SHARE` on correct sets. (With
   N = 3 the fit is exact for any frames; only the black-frame test applies. With N = 4
   the residual has one degree of freedom, shared by all frames: the set is named, not
   the frame.)
@@ -46,7 +51,11 @@ MISFIT_SHARE = 0.4
 #: averaged over the pixels, and a projector's gamma its 2nd harmonic, which is fitted:
 #: at most 0.0015 on every 4-step set of the sample sweeps and gauge scans, also with a
 #: gamma of 2.2 applied; a frame of another scene leaves 0.014-0.31 (tuned on those
-#: simulated scans; no real 4-step capture was at hand).
+#: simulated scans; no real 4-step capture was at hand). Noise correlated over a small
+#: window exceeds it on correct sets - 0.0101 on the 5 px set of a 40 px window 24 mm
+#: behind the camera's focus (noise 0.031 of the blurred modulation), 0.0102 on a 7 px
+#: set of a 24 px window at focus (scene noise 0.026 of it) - hence the noise floor of
+#: :func:`_misfit`.
 COHERENT_SHARE = 0.01
 #: Fewest well-modulated sampled pixels for the misfit test [-].
 MIN_PIXELS = 200
@@ -77,10 +86,17 @@ def broken_frames(desc: PatternDescription, sample: Sequence[np.ndarray],
         One warning per broken set.
     """
     out = []
-    for pset, frames in zip(desc.sets, sample, strict=True):
+    flat = {pset.name: np.asarray(frames, np.float64).reshape(frames.shape[0], -1)
+            - sensor.black_level_dn
+            for pset, frames in zip(desc.sets, sample, strict=True)
+            if isinstance(pset, PhaseSet)}
+    fits = {pset.name: _fit(pset, flat[pset.name], sensor, quantised)
+            for pset in desc.sets if isinstance(pset, PhaseSet)}
+    noise = {name: _noise_dn(fit) for name, fit in fits.items() if fit is not None}
+    for pset in desc.sets:
         if not isinstance(pset, PhaseSet):
             continue
-        f = np.asarray(frames, np.float64).reshape(frames.shape[0], -1) - sensor.black_level_dn
+        f = flat[pset.name]
         means = f.mean(axis=1)
         black = [k for k in range(len(means))
                  if (sib := np.median(np.delete(means, k))) > 0
@@ -92,7 +108,8 @@ def broken_frames(desc: PatternDescription, sample: Sequence[np.ndarray],
                        "of the other frames): capture it again, or correct the set's frame "
                        "list; no pixel of this decode is trusted")
             continue
-        share = _misfit(pset, f, sensor, quantised)
+        others = [v for k, v in noise.items() if k != pset.name]
+        share = _misfit(fits[pset.name], min(others, default=0.0))
         if share is not None:
             files = f" ({', '.join(pset.files)})" if pset.files else ""
             out.append(f"set {pset.name!r}: its {pset.steps} frames{files} fit no sinusoid "
@@ -103,9 +120,10 @@ def broken_frames(desc: PatternDescription, sample: Sequence[np.ndarray],
     return out
 
 
-def _misfit(pset: PhaseSet, f: np.ndarray, sensor: SensorModel, quantised: bool
-            ) -> float | None:
-    """The median residual RMS / modulation when above :data:`MISFIT_SHARE`, else None."""
+def _fit(pset: PhaseSet, f: np.ndarray, sensor: SensorModel, quantised: bool):
+    """The least-squares sinusoid fit of a set's frames at its well-modulated unclipped
+    pixels: (residuals, modulation, phase, sensor noise std [DN]) there, N; or None
+    (N < 4, or fewer than :data:`MIN_PIXELS` such pixels)."""
     n = f.shape[0]
     if n < 4:
         return None
@@ -120,13 +138,35 @@ def _misfit(pset: PhaseSet, f: np.ndarray, sensor: SensorModel, quantised: bool
     lit = (modulation > 10.0 * np.sqrt(var)) & (f < 0.99 * top).all(axis=0)
     if lit.sum() < MIN_PIXELS:
         return None
-    rms = np.sqrt(np.mean(resid[:, lit] ** 2, axis=0))
-    share = float(np.median(rms / modulation[lit]))
+    return (resid[:, lit], modulation[lit], np.arctan2(coef[2][lit], coef[1][lit]),
+            np.sqrt(var[lit])), n
+
+
+def _noise_dn(fit) -> float:
+    """A set's intensity noise per frame as its residuals measure it (median over the
+    pixels; the fit leaves N - 3 of N degrees of freedom) [DN]."""
+    (resid, _, _, _), n = fit
+    return float(np.median(np.sqrt(np.mean(resid ** 2, axis=0) * n / (n - 3))))
+
+
+def _misfit(fit, other_noise_dn: float) -> float | None:
+    """The median residual RMS / modulation when above :data:`MISFIT_SHARE`, else the
+    coherent share when above both :data:`COHERENT_SHARE` and what noise leaves in one
+    pixel (``other_noise_dn``, the other sets' :func:`_noise_dn`, or the sensor's when
+    larger), else None."""
+    if fit is None:
+        return None
+    (resid, modulation, phi, sensor_std), n = fit
+    rms = np.sqrt(np.mean(resid ** 2, axis=0))
+    share = float(np.median(rms / modulation))
     if share > MISFIT_SHARE:
         return share
-    coherent = _coherent_share(resid[:, lit] / modulation[lit],
-                               np.arctan2(coef[2][lit], coef[1][lit]))
-    return coherent if coherent > COHERENT_SHARE else None
+    coherent = _coherent_share(resid / modulation, phi)
+    # all of one pixel's residual noise, were it shared by every pixel, would pass for
+    # coherent: the most that noise correlated over the window leaves
+    floor = float(np.median(np.maximum(sensor_std, other_noise_dn) / modulation)
+                  * np.sqrt((n - 3) / n))
+    return coherent if coherent > max(COHERENT_SHARE, floor) else None
 
 
 def _coherent_share(q: np.ndarray, phi: np.ndarray) -> float:
