@@ -37,11 +37,13 @@ def paper_config_text() -> str:
 HEAVY_FIRST = (  # CPU seconds per file, measured 2026-11-27 (docs/benchmarks.rst)
     "test_closed_loop.py",      # 98.9
     "test_board_real.py",       # 90.5
+    "test_board_gray.py",       # ~56 (wall, make test of 2026-11-27, session 41)
     "test_batch.py",            # 84.6 (LocalClusters)
     "test_flattening_real.py",  # 46.4
     "test_failures.py",         # 38.5
     "test_describe_real.py",    # 38.1
     "test_sweep_fit.py",        # 36.9
+    "test_api.py",              # ~35 (wall, session 41)
     "test_compare.py",          # 31.0
     "test_demo.py",             # 25.6
     "test_realdata_noise.py",   # 23.7
