@@ -78,8 +78,7 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
                     square_mm: float, board: tuple[int, int] | None = None,
                     lens_model: str = "k1", corners: str = "model", hold_out: bool = False,
                     reference: PathLike | None = None, out: PathLike | None = None):
-    """A camera-projector calibration from chessboard poses (``scanqa calibrate
-    --board``).
+    """A camera-projector calibration from chessboard poses (``scanqa calibrate --board``).
 
     Parameters
     ----------

@@ -13,7 +13,7 @@ residuals, corrected for the parameters spent, Eq. 1; iterated once):
 
 with m_d the device's residuals, m all of them and p the parameters. With J the
 Jacobian of the scaled residuals at the solution (central differences), the covariance
-of all parameters is (J^T J)^-1 (Eq. 2), and that of the calibration's 24
+of all parameters is (J^T J)^-1 (Eq. 2; [1]_, Sec. 9), and that of the calibration's 24
 (:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`) its block, the board poses'
 uncertainty carried in:
 
