@@ -40,13 +40,13 @@ import numpy as np
 from scanqa._version import __version__
 from scanqa.calibration.node_model import (
     MIN_PHASE_CHANGE_PX,  # noqa: F401 (importable from here)
-    _check_phase_changes,
-    _lateral,
-    _node_sigma,
-    _position_residuals,
-    _solve_x,
-    _solve_zeta,
-    _wls,
+    check_phase_changes,
+    lateral_rays,
+    node_sigma,
+    position_residuals,
+    solve_x,
+    solve_zeta,
+    wls,
 )
 from scanqa.calibration.shear import eval_shear, fit_shear
 from scanqa.calibration.table import CalibrationTable
@@ -548,10 +548,10 @@ def _stage2(stats: list[_CellStats], config: ScannerConfig, weights: str,
     # centre each node's phases: the fit's columns 1, z, z^2, -x z stay well conditioned
     centre = np.nansum(np.where(w > 0, x, 0.0), -1) / np.maximum((w > 0).sum(-1), 1)
     x0 = np.where(w > 0, x - centre[..., None], 0.0)
-    _check_phase_changes(x, w, z)
+    check_phase_changes(x, w, z)
     cols = np.stack(np.broadcast_arrays(np.ones_like(x0), zeta, zeta**2, -x0 * zeta), -1)
-    theta, cov, n_obs = _wls(cols, x0, w)
-    _position_residuals(stats, theta, zeta, x0, w, z, report)
+    theta, cov, n_obs = wls(cols, x0, w)
+    position_residuals(stats, theta, zeta, x0, w, z, report)
     return _sample_grid(theta, cov, n_obs, x0, w, z0, half, centre, config, node_u, node_v,
                         s_step, shape, weights, stats, provenance, report)
 
@@ -565,7 +565,7 @@ def _sample_grid(theta, cov, n_obs, x, w, z0, half, centre, config, node_u, node
     """
     uu, vv = np.meshgrid(node_u, node_v)
     size = (int(shape[1]), int(shape[0]))
-    mid = np.where(n_obs >= 5, _solve_x(theta, 0.0), np.nan) + centre
+    mid = np.where(n_obs >= 5, solve_x(theta, 0.0), np.nan) + centre
     coef = fit_shear(uu, vv, mid, size)
     x_ref = eval_shear(coef, uu, vv, size) - centre  # node-centred like x
     has = w > 0
@@ -580,13 +580,13 @@ def _sample_grid(theta, cov, n_obs, x, w, z0, half, centre, config, node_u, node
     hi = np.ceil(np.nanmax(s_hi) / s_step) + 1
     s_nodes = np.arange(lo, hi + 1) * s_step
     xq = x_ref[..., None] + s_nodes
-    zeta, dzdx = _solve_zeta(theta, xq)
+    zeta, dzdx = solve_zeta(theta, xq)
     zz = z0 + half * zeta
     dz = half * dzdx
-    lat = _lateral(stats, w, z0, half, config, node_u, node_v)
+    lat = lateral_rays(stats, w, z0, half, config, node_u, node_v)
     xyz = np.stack([lat[0] + lat[1] * zz, lat[2] + lat[3] * zz, lat[4] + lat[5] * zz], -1)
     dxyz = np.stack([lat[1] * dz, lat[3] * dz, lat[5] * dz], -1)
-    sig = _node_sigma(theta, cov, zeta, xq) * half * np.linalg.norm(
+    sig = node_sigma(theta, cov, zeta, xq) * half * np.linalg.norm(
         np.stack([lat[1] + 0 * zz, lat[3] + 0 * zz, lat[5] + 0 * zz], -1), axis=-1)
     prov = dict(provenance or {})
     prov.setdefault("positions", [{"z_mm": float(s.z_mm)} for s in stats])

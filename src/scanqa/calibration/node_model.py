@@ -21,7 +21,7 @@ from scanqa.errors import InputError
 MIN_PHASE_CHANGE_PX = 0.1
 
 
-def _check_phase_changes(x: np.ndarray, w: np.ndarray, z: np.ndarray) -> None:
+def check_phase_changes(x: np.ndarray, w: np.ndarray, z: np.ndarray) -> None:
     """Refuse a sweep whose phases do not move with the stage (the per-node fit of x
     against Z would be singular or meaningless)."""
     used = (w > 0) & np.isfinite(x)
@@ -35,7 +35,7 @@ def _check_phase_changes(x: np.ndarray, w: np.ndarray, z: np.ndarray) -> None:
                          "scans listed at the positions they were taken at?")
 
 
-def _wls(cols: np.ndarray, x: np.ndarray, w: np.ndarray
+def wls(cols: np.ndarray, x: np.ndarray, w: np.ndarray
          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Weighted LS per node; covariance scaled by the reduced chi-square."""
     ata = np.einsum("...m,...mi,...mj->...ij", w, cols, cols)
@@ -55,7 +55,7 @@ def _wls(cols: np.ndarray, x: np.ndarray, w: np.ndarray
     return theta, inv * chi2[..., None, None], n_obs
 
 
-def _position_residuals(stats, theta, zeta, x, w, z, report) -> None:
+def position_residuals(stats, theta, zeta, x, w, z, report) -> None:
     """Per-position RMS of the fit residual, in projector px and mm along Z, appended to
     ``report.positions`` (a :class:`scanqa.calibration.build.BuildReport`)."""
     a, b, d, g = (theta[..., i, None] for i in range(4))
@@ -74,7 +74,7 @@ def _position_residuals(stats, theta, zeta, x, w, z, report) -> None:
         })
 
 
-def _solve_zeta(theta: np.ndarray, xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def solve_zeta(theta: np.ndarray, xq: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """zeta(x) of the node model and dzeta/dx, for x broadcast against theta[..., 0]."""
     a, b, d, g = (theta[..., i, None] for i in range(4))
     lin = (xq - a) / (b - g * xq)
@@ -86,13 +86,13 @@ def _solve_zeta(theta: np.ndarray, xq: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return zeta, dzdx
 
 
-def _solve_x(theta: np.ndarray, zeta: float) -> np.ndarray:
+def solve_x(theta: np.ndarray, zeta: float) -> np.ndarray:
     """x at a scaled position zeta for every node [px]."""
     a, b, d, g = (theta[..., i] for i in range(4))
     return (a + b * zeta + d * zeta**2) / (1 + g * zeta)
 
 
-def _node_sigma(theta, cov, zeta, xq) -> np.ndarray:
+def node_sigma(theta, cov, zeta, xq) -> np.ndarray:
     """Std of zeta(x) at each grid node from the parameter covariance [-]."""
     b, d, g = theta[..., 1, None], theta[..., 2, None], theta[..., 3, None]
     dfdz = b + 2 * d * zeta - g * xq
@@ -101,7 +101,7 @@ def _node_sigma(theta, cov, zeta, xq) -> np.ndarray:
     return np.sqrt(np.maximum(var, 0.0))
 
 
-def _lateral(stats, w, z0, half, config, node_u, node_v) -> tuple:
+def lateral_rays(stats, w, z0, half, config, node_u, node_v) -> tuple:
     """X = X0 + kx z, Y = Y0 + ky z, Z = Z0 + kz z per node ray [mm], z the stage
     reading: from lateral maps (Z = z where they give no Z) or from the intrinsics."""
     if all(s.lat is not None for s in stats):

@@ -180,10 +180,10 @@ def run_dof(args: argparse.Namespace) -> int:
 
 
 def run_curve(args: argparse.Namespace) -> int:
+    rows = _columns_to_rows  # the curve's columns, one row per depth
     return _tabular(args, lambda c: design.axis_curve(c, *_range(args, c.camera.focus_mm),
                                                       args.period),
-                    _columns_to_rows,
-                    lambda res, path, c: _plots().plot_curve(res, path, c.camera.focus_mm))
+                    rows, lambda res, path, c: _plots().plot_curve(res, path, c.camera.focus_mm))
 
 
 def run_volume(args: argparse.Namespace) -> int:

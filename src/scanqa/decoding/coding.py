@@ -73,19 +73,19 @@ class SensorModel:
     black_level_dn: float = 0.0
 
     def __post_init__(self) -> None:
-        _require(self.bit_depth is None or 1 <= self.bit_depth <= 32,
+        require_setting(self.bit_depth is None or 1 <= self.bit_depth <= 32,
                  "sensor.bit_depth", self.bit_depth, "a whole number in 1..32 [bit]")
-        _require(self.gain_e_per_dn is None or self.gain_e_per_dn > 0,
+        require_setting(self.gain_e_per_dn is None or self.gain_e_per_dn > 0,
                  "sensor.gain_e_per_dn", self.gain_e_per_dn, "> 0 [e-/DN]")
-        _require(self.read_noise_e is None or self.read_noise_e >= 0, "sensor.read_noise_e",
+        require_setting(self.read_noise_e is None or self.read_noise_e >= 0, "sensor.read_noise_e",
                  self.read_noise_e, ">= 0 [e-]")
-        _require((self.gain_e_per_dn is None) == (self.read_noise_e is None),
+        require_setting((self.gain_e_per_dn is None) == (self.read_noise_e is None),
                  "sensor.gain_e_per_dn and sensor.read_noise_e",
                  (self.gain_e_per_dn, self.read_noise_e),
                  "both given (the camera's noise) or both left out (noise from the data)")
-        _require(self.saturation_dn is None or self.saturation_dn > 0,
+        require_setting(self.saturation_dn is None or self.saturation_dn > 0,
                  "sensor.saturation_dn", self.saturation_dn, "> 0 [DN]")
-        _require(self.black_level_dn >= 0, "sensor.black_level_dn", self.black_level_dn,
+        require_setting(self.black_level_dn >= 0, "sensor.black_level_dn", self.black_level_dn,
                  ">= 0 [DN]")
 
     @property
@@ -157,19 +157,19 @@ class Thresholds:
     coincidence_fraction: float = 0.7
 
     def __post_init__(self) -> None:
-        _require(self.min_modulation_dn >= 0, "thresholds.min_modulation_dn",
+        require_setting(self.min_modulation_dn >= 0, "thresholds.min_modulation_dn",
                  self.min_modulation_dn, ">= 0 [DN]")
-        _require(0 < self.unwrap_max_residual < 0.5, "thresholds.unwrap_max_residual",
+        require_setting(0 < self.unwrap_max_residual < 0.5, "thresholds.unwrap_max_residual",
                  self.unwrap_max_residual, "in (0, 0.5) [cycles]")
-        _require(self.unwrap_sigma_margin >= 1, "thresholds.unwrap_sigma_margin",
+        require_setting(self.unwrap_sigma_margin >= 1, "thresholds.unwrap_sigma_margin",
                  self.unwrap_sigma_margin, ">= 1 [-]")
-        _require(0 <= self.gray_edge_cells < 8, "thresholds.gray_edge_cells",
+        require_setting(0 <= self.gray_edge_cells < 8, "thresholds.gray_edge_cells",
                  self.gray_edge_cells, "in [0, 8) [cells]")
-        _require(self.gray_min_contrast_sigma >= 0, "thresholds.gray_min_contrast_sigma",
+        require_setting(self.gray_min_contrast_sigma >= 0, "thresholds.gray_min_contrast_sigma",
                  self.gray_min_contrast_sigma, ">= 0 [-]")
-        _require(self.max_period_ratio > 1, "thresholds.max_period_ratio",
+        require_setting(self.max_period_ratio > 1, "thresholds.max_period_ratio",
                  self.max_period_ratio, "> 1 [-]")
-        _require(0 < self.coincidence_fraction <= 1, "thresholds.coincidence_fraction",
+        require_setting(0 < self.coincidence_fraction <= 1, "thresholds.coincidence_fraction",
                  self.coincidence_fraction, "in (0, 1] [-]")
 
 
@@ -202,11 +202,11 @@ class DecodeOptions:
     response: str = ""
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.fuse_periods, bool), "decode.fuse_periods",
+        require_setting(isinstance(self.fuse_periods, bool), "decode.fuse_periods",
                  self.fuse_periods, "true or false")
-        _require(self.noise in NOISE_SOURCES, "decode.noise", self.noise,
+        require_setting(self.noise in NOISE_SOURCES, "decode.noise", self.noise,
                  "'auto', 'sensor' or 'data'")
-        _require(self.channel in ("", "red", "green", "blue"), "decode.channel",
+        require_setting(self.channel in ("", "red", "green", "blue"), "decode.channel",
                  self.channel, "'red', 'green' or 'blue' (or left out for grey images)")
 
 
@@ -245,14 +245,14 @@ class PhaseSet:
 
     def __post_init__(self) -> None:
         where = f"set {self.name!r}"
-        _require(math.isfinite(self.period_px) and self.period_px > 0,
+        require_setting(math.isfinite(self.period_px) and self.period_px > 0,
                  f"{where}: period_px", self.period_px, "> 0 [projector px]")
-        _require(isinstance(self.steps, int) and self.steps >= 3, f"{where}: steps",
+        require_setting(isinstance(self.steps, int) and self.steps >= 3, f"{where}: steps",
                  self.steps, "a whole number >= 3")
         _check_orientation(where, self.orientation)
         shifts = tuple(float(s) for s in self.shifts_rad) or tuple(
             2 * math.pi * k / self.steps for k in range(self.steps))
-        _require(len(shifts) == self.steps, f"{where}: shifts_rad", list(self.shifts_rad),
+        require_setting(len(shifts) == self.steps, f"{where}: shifts_rad", list(self.shifts_rad),
                  f"{self.steps} values (one per step) [rad]")
         _check_shifts(where, shifts)
         object.__setattr__(self, "shifts_rad", shifts)
@@ -306,15 +306,15 @@ class GrayCodeSet:
 
     def __post_init__(self) -> None:
         where = f"set {self.name!r}"
-        _require(isinstance(self.bits, int) and 1 <= self.bits <= 24, f"{where}: bits",
+        require_setting(isinstance(self.bits, int) and 1 <= self.bits <= 24, f"{where}: bits",
                  self.bits, "a whole number in 1..24")
-        _require(self.cell_px is None or (math.isfinite(self.cell_px) and self.cell_px > 0),
+        require_setting(self.cell_px is None or (math.isfinite(self.cell_px) and self.cell_px > 0),
                  f"{where}: cell_px", self.cell_px, "> 0 [projector px]")
         inverse = {True: "grouped", False: "none"}.get(self.inverse, self.inverse) \
             if isinstance(self.inverse, bool) else self.inverse
-        _require(inverse in INVERSE_LAYOUTS, f"{where}: inverse", self.inverse,
+        require_setting(inverse in INVERSE_LAYOUTS, f"{where}: inverse", self.inverse,
                  "'none', 'grouped' or 'interleaved'")
-        _require(self.threshold in GRAY_THRESHOLDS, f"{where}: threshold", self.threshold,
+        require_setting(self.threshold in GRAY_THRESHOLDS, f"{where}: threshold", self.threshold,
                  "'auto', 'inverse', 'reference' or 'offset'")
         _check_orientation(where, self.orientation)
         object.__setattr__(self, "inverse", inverse)
@@ -360,7 +360,7 @@ class ReferenceSet:
 
     def __post_init__(self) -> None:
         levels = tuple(self.levels)
-        _require(all(v in REFERENCE_LEVELS for v in levels) and "white" in levels
+        require_setting(all(v in REFERENCE_LEVELS for v in levels) and "white" in levels
                  and "black" in levels, f"set {self.name!r}: levels", list(levels),
                  "a list of 'white' and 'black' with at least one of each")
         object.__setattr__(self, "levels", levels)
@@ -408,7 +408,7 @@ class PatternDescription:
     options: DecodeOptions = field(default_factory=DecodeOptions)
 
     def __post_init__(self) -> None:
-        _require(isinstance(self.projector_width_px, int) and self.projector_width_px >= 1,
+        require_setting(isinstance(self.projector_width_px, int) and self.projector_width_px >= 1,
                  "projector_width_px", self.projector_width_px, "a whole number >= 1 [px]")
         object.__setattr__(self, "sets", tuple(self.sets))
         _check_sets(self)
@@ -490,14 +490,14 @@ def _set_dict(pset: PhaseSet | GrayCodeSet | ReferenceSet) -> dict:
     return out
 
 
-def _require(ok: bool, key: str, value: Any, expected: str) -> None:
+def require_setting(ok: bool, key: str, value: Any, expected: str) -> None:
     """Raise ConfigError ``key must be <expected>, got <value>`` unless ok."""
     if not ok:
         raise ConfigError(f"{key} must be {expected}, got {value!r}")
 
 
 def _check_orientation(where: str, orientation: str) -> None:
-    _require(orientation in ORIENTATIONS, f"{where}: orientation", orientation,
+    require_setting(orientation in ORIENTATIONS, f"{where}: orientation", orientation,
              "'vertical' or 'horizontal'")
 
 
@@ -511,18 +511,18 @@ def _check_shifts(where: str, shifts: Sequence[float]) -> None:
 
 def _check_sets(desc: PatternDescription) -> None:
     """Cross-set rules: names, orientation, set counts, a chain that unwraps."""
-    _require(len(desc.sets) > 0, "set", [], "at least one [[set]] table")
+    require_setting(len(desc.sets) > 0, "set", [], "at least one [[set]] table")
     names = [s.name for s in desc.sets]
     dup = sorted({n for n in names if names.count(n) > 1})
-    _require(not dup, "set names", dup, "unique (set a distinct name = ...)")
+    require_setting(not dup, "set names", dup, "unique (set a distinct name = ...)")
     coded = [s for s in desc.sets if not isinstance(s, ReferenceSet)]
-    _require(len(coded) > 0, "set", names, "at least one set with kind = 'phase' or 'gray'")
+    require_setting(len(coded) > 0, "set", names, "at least one set with kind = 'phase' or 'gray'")
     orient = {s.orientation for s in coded}
-    _require(len(orient) == 1, "orientation", sorted(orient),
+    require_setting(len(orient) == 1, "orientation", sorted(orient),
              "the same for every set (decode x_p and y_p from separate pattern folders)")
     for kind in (GrayCodeSet, ReferenceSet):
         many = [s.name for s in desc.sets if isinstance(s, kind)]
-        _require(len(many) <= 1, "set", many, f"at most one set of kind "
+        require_setting(len(many) <= 1, "set", many, f"at most one set of kind "
                  f"{'gray' if kind is GrayCodeSet else 'reference'}")
     gray = desc.gray_set
     if gray is not None:
@@ -540,10 +540,10 @@ def _check_gray(desc: PatternDescription, gray: GrayCodeSet) -> None:
     phase = desc.phase_sets
     where = f"set {gray.name!r}"
     if gray.orders:
-        _require(any(s.name == gray.orders for s in phase), f"{where}: orders", gray.orders,
+        require_setting(any(s.name == gray.orders for s in phase), f"{where}: orders", gray.orders,
                  "the name of a phase set (one of "
                  f"{', '.join(s.name for s in phase) or 'none: the scan has no phase set'})")
-    _require(bool(phase) or gray.cell_px is not None, f"{where}: cell_px", None,
+    require_setting(bool(phase) or gray.cell_px is not None, f"{where}: cell_px", None,
              "given when the scan has no phase set (the Gray code is then decoded alone)")
     cell = desc.gray_cell_px
     covered = 2 ** gray.bits * cell
@@ -581,7 +581,7 @@ def _resolve_threshold(desc: PatternDescription, gray: GrayCodeSet) -> str:
     need = {"inverse": "inverse frames (inverse = 'interleaved' or 'grouped')",
             "reference": "a set with kind = 'reference' (white and black frames)",
             "offset": "a phase set to order"}
-    _require(has[gray.threshold], f"set {gray.name!r}: threshold", gray.threshold,
+    require_setting(has[gray.threshold], f"set {gray.name!r}: threshold", gray.threshold,
              f"a threshold the scan provides ({gray.threshold!r} needs "
              f"{need[gray.threshold]})")
     return gray.threshold

@@ -26,7 +26,7 @@ from scanqa.decoding.coding import (
     ReferenceSet,
     SensorModel,
     Thresholds,
-    _require,
+    require_setting,
 )
 from scanqa.errors import ConfigError
 from scanqa.io.patterns import FORMAT, READ_FORMATS, SCHEMA, read_patterns_file
@@ -95,13 +95,13 @@ def patterns_from_dict(data: dict, source: str = "<dict>") -> PatternDescription
 
 def _from_dict(data: dict, source: str) -> PatternDescription:
     fmt = data.get("format")
-    _require(fmt in READ_FORMATS, "format", fmt,
+    require_setting(fmt in READ_FORMATS, "format", fmt,
              f"one of {', '.join(map(repr, READ_FORMATS))} (the versions this scanqa reads)")
     _reject_unknown("", data, _TOP_KEYS[fmt])
-    _require("projector_width_px" in data, "projector_width_px", None,
+    require_setting("projector_width_px" in data, "projector_width_px", None,
              "given (the coded range along the fringe direction [projector px])")
     raw_sets = data.get("set", [])
-    _require(isinstance(raw_sets, list) and len(raw_sets) > 0, "set", raw_sets,
+    require_setting(isinstance(raw_sets, list) and len(raw_sets) > 0, "set", raw_sets,
              "one or more [[set]] tables")
     sets = tuple(_parse_set(fmt, i, t) for i, t in enumerate(raw_sets))
     return PatternDescription(
@@ -127,17 +127,17 @@ def _thresholds(fmt: str, table: Any) -> Thresholds:
         return Thresholds(**_table("thresholds", table, list(Thresholds.__dataclass_fields__)))
     args = _table("thresholds", table, _V1_THRESHOLDS)
     gray = args.pop("gray_max_residual", 0.375)
-    _require(0.25 < gray < 0.5, "thresholds.gray_max_residual", gray,
+    require_setting(0.25 < gray < 0.5, "thresholds.gray_max_residual", gray,
              "in (0.25, 0.5) [cycles]")
     return Thresholds(**args, gray_edge_cells=2.0 * gray - 0.5)
 
 
 def _options(table: Any) -> DecodeOptions:
-    _require(isinstance(table, dict), "[decode]", table, "a table")
+    require_setting(isinstance(table, dict), "[decode]", table, "a table")
     _reject_unknown("decode.", table, list(DecodeOptions.__dataclass_fields__))
     for key in ("noise", "channel", "response"):
         if key in table:
-            _require(isinstance(table[key], str), f"decode.{key}", table[key], "a string")
+            require_setting(isinstance(table[key], str), f"decode.{key}", table[key], "a string")
     return DecodeOptions(**table)
 
 
@@ -149,7 +149,7 @@ def _reject_unknown(prefix: str, table: dict, known: Sequence[str]) -> None:
 
 def _table(name: str, table: Any, known: Sequence[str]) -> dict:
     """Keys of an optional table of numbers, checked against the known keys."""
-    _require(isinstance(table, dict), f"[{name}]", table, "a table")
+    require_setting(isinstance(table, dict), f"[{name}]", table, "a table")
     _reject_unknown(f"{name}.", table, known)
     out = {}
     for key, value in table.items():
@@ -161,34 +161,34 @@ def _table(name: str, table: Any, known: Sequence[str]) -> dict:
 
 def _number(key: str, value: Any) -> float:
     ok = isinstance(value, (int, float)) and not isinstance(value, bool)
-    _require(ok and math.isfinite(value), key, value, "a finite number")
+    require_setting(ok and math.isfinite(value), key, value, "a finite number")
     return float(value)
 
 
 def _integer(key: str, value: Any) -> int:
     ok = isinstance(value, int) and not isinstance(value, bool)
-    _require(ok, key, value, "a whole number")
+    require_setting(ok, key, value, "a whole number")
     return int(value)
 
 
 def _list(key: str, value: Any) -> list:
-    _require(isinstance(value, list), key, value, "a list")
+    require_setting(isinstance(value, list), key, value, "a list")
     return value
 
 
 def _parse_set(fmt: str, index: int, table: Any) -> PhaseSet | GrayCodeSet | ReferenceSet:
     """One ``[[set]]`` table, with its storage (files or stack) checked."""
     where = f"set[{index}]"
-    _require(isinstance(table, dict), where, table, "a table")
+    require_setting(isinstance(table, dict), where, table, "a table")
     kinds = _SET_KEYS[fmt]
     kind = table.get("kind")
-    _require(kind in kinds, f"{where}.kind", kind, " or ".join(map(repr, kinds)))
+    require_setting(kind in kinds, f"{where}.kind", kind, " or ".join(map(repr, kinds)))
     _reject_unknown(f"{where}.", table, kinds[kind])
     args = {k: v for k, v in table.items() if k != "kind"}
     args.setdefault("name", f"{kind}{index}")
     for key in ("name", "orientation", "stack", "stack_key", "orders", "threshold"):
         if key in args:
-            _require(isinstance(args[key], str), f"{where}.{key}", args[key], "a string")
+            require_setting(isinstance(args[key], str), f"{where}.{key}", args[key], "a string")
     pset = {"phase": _phase_set, "gray": _gray_set, "reference": _reference_set}[kind](
         where, args)
     _check_storage(where, pset, table)
@@ -196,7 +196,7 @@ def _parse_set(fmt: str, index: int, table: Any) -> PhaseSet | GrayCodeSet | Ref
 
 
 def _phase_set(where: str, args: dict) -> PhaseSet:
-    _require("period_px" in args and "steps" in args, where, sorted(args),
+    require_setting("period_px" in args and "steps" in args, where, sorted(args),
              "a table with period_px and steps")
     args["period_px"] = _number(f"{where}.period_px", args["period_px"])
     args["steps"] = _integer(f"{where}.steps", args["steps"])
@@ -207,12 +207,12 @@ def _phase_set(where: str, args: dict) -> PhaseSet:
 
 
 def _gray_set(where: str, args: dict) -> GrayCodeSet:
-    _require("bits" in args, where, sorted(args), "a table with bits")
+    require_setting("bits" in args, where, sorted(args), "a table with bits")
     args["bits"] = _integer(f"{where}.bits", args["bits"])
     if "cell_px" in args:
         args["cell_px"] = _number(f"{where}.cell_px", args["cell_px"])
     inverse = args.get("inverse", "none")
-    _require(isinstance(inverse, (bool, str)), f"{where}.inverse", inverse,
+    require_setting(isinstance(inverse, (bool, str)), f"{where}.inverse", inverse,
              "true, false, 'none', 'grouped' or 'interleaved'")
     return GrayCodeSet(**args)
 
@@ -226,11 +226,11 @@ def _reference_set(where: str, args: dict) -> ReferenceSet:
 def _check_storage(where: str, pset: Any, table: dict) -> None:
     """Exactly one of files (with the right count) and stack."""
     has_files, has_stack = "files" in table, "stack" in table
-    _require(has_files != has_stack, where, sorted(table),
+    require_setting(has_files != has_stack, where, sorted(table),
              "a table with either files = [...] or stack = '...' (not both)")
     if has_files:
         files = _list(f"{where}.files", table["files"])
-        _require(all(isinstance(f, str) for f in files), f"{where}.files", files,
+        require_setting(all(isinstance(f, str) for f in files), f"{where}.files", files,
                  "a list of file names")
         if len(files) != pset.frames:
             raise ConfigError(f"wrong count of files in {where} ({pset.name!r}): got "

@@ -35,10 +35,10 @@ from scanqa.io.las import INTENSITY_SOURCE, grey_levels
 from scanqa.io.ply_display import (  # noqa: F401 - fill_display, display_scale: public here too
     DISPLAY_COMMENT,
     DISPLAY_FIELDS,
-    _fill_display,
-    _fill_display_records,
     display_scale,
     fill_display,
+    fill_display_grey,
+    fill_display_records,
 )
 
 #: Substrings CloudCompare claims for colours/normals before it looks for scalar fields.
@@ -200,7 +200,7 @@ def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np
         fh.write(_header(dtype, n, metadata))
         if rec is not None:
             if display:
-                _fill_display_records(rec)
+                fill_display_records(rec)
             rec.tofile(fh)
         else:
             grey = grey_levels(attributes[INTENSITY_SOURCE]) if display else None
@@ -264,7 +264,7 @@ def vertex_file(path: str | os.PathLike, names, n: int, metadata: dict | None = 
                 records = np.empty(0, dtype=dtype)
         yield records
         if display and INTENSITY_SOURCE in names:
-            _fill_display_records(records)
+            fill_display_records(records)
         records.flags.writeable = False
 
 
@@ -346,7 +346,7 @@ def _write_records(fh, xyz: np.ndarray, attributes: dict[str, np.ndarray],
         for name, values in attributes.items():
             part[_field(name)] = values[a:b]
         if grey is not None:
-            _fill_display(part, grey[a:b])
+            fill_display_grey(part, grey[a:b])
         part.tofile(fh)
 
 

@@ -28,7 +28,7 @@ LEVEL_FIELD = "scalar_" + INTENSITY_SOURCE
 _DISPLAY_CHUNK = 1 << 16
 
 
-def _fill_display_records(records: np.ndarray) -> None:
+def fill_display_records(records: np.ndarray) -> None:
     """Fill the display fields of records from their own ``offset_dn`` field, chunk by
     chunk: the grey levels of :func:`scanqa.io.las.grey_levels` (the same scale and
     rounding, element by element in float64) without its five full-size temporaries."""
@@ -75,10 +75,10 @@ def fill_display(records: np.ndarray, scale: float) -> None:
     level = records[LEVEL_FIELD]
     for a in range(0, records.size, _DISPLAY_CHUNK):
         v = np.nan_to_num(level[a:a + _DISPLAY_CHUNK].astype(float), nan=0.0, copy=False)
-        _fill_display(records[a:a + _DISPLAY_CHUNK], scaled_grey(v, scale))
+        fill_display_grey(records[a:a + _DISPLAY_CHUNK], scaled_grey(v, scale))
 
 
-def _fill_display(records: np.ndarray, grey: np.ndarray) -> None:
+def fill_display_grey(records: np.ndarray, grey: np.ndarray) -> None:
     """Write the display fields of records (:data:`DISPLAY_FIELDS`, the last 8 bytes)
     from 16-bit grey levels: intensity, and red = green = blue = the top 8 bits, alpha
     255, as one little-endian word per record."""
