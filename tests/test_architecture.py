@@ -14,7 +14,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
 #: Layer of every module or subpackage, lowest first. A module may import from its own
 #: layer or lower ones. Longest prefix wins.
 LAYERS = {
-    "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.progress": 0, "scanqa._version": 0,
+    "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.compiled": 0, "scanqa.progress": 0, "scanqa._version": 0,
     "scanqa.io": 1,
     "scanqa.model.config": 2, "scanqa.model.cloud": 2, "scanqa.provenance": 2,
     "scanqa.model.readings": 3, "scanqa.model.geometry": 3, "scanqa.model.optics": 3,
