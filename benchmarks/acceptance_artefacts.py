@@ -48,15 +48,15 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from scanqa.annotation.points import annotate  # noqa: E402
 from scanqa.calibration.sweep import calibrate  # noqa: E402
+from scanqa.characterization.sweep import characterize_sweeps  # noqa: E402
 from scanqa.decoding.decoder import decode_images  # noqa: E402
 from scanqa.io.atomic import write_text  # noqa: E402
 from scanqa.io.spec import read_spec  # noqa: E402
 from scanqa.io.tomlfile import dumps_toml  # noqa: E402
-from scanqa.model.characterization import characterize_sweeps  # noqa: E402
 from scanqa.model.config import load_config  # noqa: E402
 from scanqa.qa.artefacts import load_artefact_layout, run_artefact_qa  # noqa: E402
-from scanqa.runs.annotation import annotate  # noqa: E402
 from scanqa.runs.demo import manifest_config  # noqa: E402
 from scanqa.simulator import render  # noqa: E402
 from scanqa.simulator.experiments import (  # noqa: E402

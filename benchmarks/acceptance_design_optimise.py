@@ -24,8 +24,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from scanqa.design import optimisation  # noqa: E402
 from scanqa.model.config import load_config  # noqa: E402
-from scanqa.runs import optimisation  # noqa: E402
 
 SPECS = sorted((ROOT / "benchmarks" / "design_specs").glob("*.toml"))
 

@@ -31,8 +31,8 @@ sys.path.insert(0, str(HERE))
 def main() -> None:
     from bench_flatten import rig
 
+    from scanqa.annotation.flattening import flatten
     from scanqa.decoding.decoder import decode_images
-    from scanqa.runs.flattening import flatten
     from scanqa.simulator import experiments, render, scene
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -9,7 +9,7 @@ on-axis curve over 438-466 mm). Per depth: the std from the two scans' range dif
 over sqrt 2 before and after, after / target, the predicted sigma after and the filter;
 the pixels the decode masked as inconsistent (their fringe order, not their fringe); and
 the 95 % sampling interval of after / target, from the effective number of independent
-pixels of the range difference (:func:`scanqa.runs.filterbank.effective_pixels`: the
+pixels of the range difference (:func:`scanqa.annotation.filterbank.effective_pixels`: the
 filter and the camera's kernel correlate neighbours, so a 96 px flat holds only about
 400 independent samples), with the verdict on the +-10 % bound: "in", "chance" (outside,
 but the interval reaches inside: a single stream cannot tell the miss from sampling) or
@@ -40,10 +40,10 @@ DEPTHS_MM = (436.0, 441.0, 445.0, 447.0, 450.0, 452.0, 455.0, 458.0, 463.0)
 def main() -> None:
     from bench_flatten import rig
 
+    from scanqa.annotation.filterbank import effective_pixels, std_interval
+    from scanqa.annotation.flattening import flatten
     from scanqa.decoding.decoder import decode_images
     from scanqa.decoding.phasemap import MASK_INCONSISTENT
-    from scanqa.runs.filterbank import effective_pixels, std_interval
-    from scanqa.runs.flattening import flatten
     from scanqa.simulator import experiments, render, scene
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])

@@ -48,12 +48,12 @@ sys.path.insert(0, str(ROOT / "benchmarks"))
 
 from acceptance_calibration import SWEEP_Z, scanner  # noqa: E402
 
+from scanqa.annotation.points import annotate  # noqa: E402
 from scanqa.calibration.sweep import calibrate, geometry_covariance  # noqa: E402
 from scanqa.calibration.sweep_fit import geometry_from_summary  # noqa: E402
 from scanqa.decoding.decoder import decode_pattern_dir  # noqa: E402
 from scanqa.qa.blocks import run_qa  # noqa: E402
 from scanqa.qa.layout import load_layout  # noqa: E402
-from scanqa.runs.annotation import annotate  # noqa: E402
 from scanqa.simulator.experiments import run_experiment  # noqa: E402
 
 

@@ -37,13 +37,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
+from scanqa.annotation.points import annotate  # noqa: E402
 from scanqa.calibration.sweep import calibrate  # noqa: E402
+from scanqa.characterization.noisefit import select  # noqa: E402
+from scanqa.characterization.sweep import characterize_sweeps  # noqa: E402
 from scanqa.decoding.decoder import decode_images, decode_pattern_dir  # noqa: E402
-from scanqa.model.characterization import characterize_sweeps  # noqa: E402
-from scanqa.model.noisefit import select  # noqa: E402
 from scanqa.qa.blocks import run_qa  # noqa: E402
 from scanqa.qa.layout import load_layout  # noqa: E402
-from scanqa.runs.annotation import annotate  # noqa: E402
 from scanqa.runs.demo import manifest_config  # noqa: E402
 
 OFF = (0.85, 1.15)

@@ -35,9 +35,9 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
 from scanqa.calibration.build import PlaneObservation, build_table  # noqa: E402
+from scanqa.characterization.sweep import characterize_sweeps  # noqa: E402
 from scanqa.decoding.decoder import decode_images  # noqa: E402
 from scanqa.model import optics  # noqa: E402
-from scanqa.model.characterization import characterize_sweeps  # noqa: E402
 from scanqa.model.config import ScannerConfig, load_config  # noqa: E402
 from scanqa.simulator import render  # noqa: E402
 from scanqa.simulator.experiments import (  # noqa: E402

@@ -6,7 +6,7 @@ One run per process (a second run in the same process would reuse warm memory); 
 split shows how much went to the kernel: first touches of fresh memory (the cloud's
 records, the page cache of the 602 MB file) are expensive on some virtual machines.
 numba's one-time start of the process (loading the compiled annotate loop from its
-cache, :func:`scanqa.runs.annotkernels.load`) runs before the timer, like the imports,
+cache, :func:`scanqa.annotation.kernels.load`) runs before the timer, like the imports,
 and is printed on its own; the first run after a change of the loop compiles it (8-9 s of CPU).
 
 Run: .venv/bin/python benchmarks/bench_annotate.py [--width 2448 --height 2048]
@@ -29,11 +29,11 @@ sys.path.insert(0, str(ROOT))
 
 from tests.synth_sweep import plane_truth, small_camera, sweep  # noqa: E402
 
+from scanqa.annotation import kernels  # noqa: E402
+from scanqa.annotation.points import annotate  # noqa: E402
 from scanqa.calibration.build import build_table  # noqa: E402
 from scanqa.decoding.phasemap import PhaseMap  # noqa: E402
 from scanqa.model.config import load_config  # noqa: E402
-from scanqa.runs import annotkernels  # noqa: E402
-from scanqa.runs.annotation import annotate  # noqa: E402
 
 
 def main() -> int:
@@ -55,7 +55,7 @@ def main() -> int:
                     offset=np.full(shape, 900.0), mask=np.zeros(shape, np.uint8),
                     sigma_xp=np.full(shape, 0.02), period_px=5.0, projector_width_px=1280)
     start = resource.getrusage(resource.RUSAGE_SELF)
-    annotkernels.load()
+    kernels.load()
     loaded = resource.getrusage(resource.RUSAGE_SELF)
     load_cpu = (loaded.ru_utime + loaded.ru_stime) - (start.ru_utime + start.ru_stime)
     with tempfile.TemporaryDirectory() as tmp:

@@ -1,7 +1,7 @@
 """Benchmark: one redraw of the design page at the paper scanner (target <= 200 ms).
 
 A redraw is what a slider move costs a user: the page posts the settings, the server runs
-the model chain (:func:`scanqa.model.rig.rig_view`: the usable volume on the 1 mm grid of
+the model chain (:func:`scanqa.design.rig.rig_view`: the usable volume on the 1 mm grid of
 ``scanqa volume``, the W curve, the depth of field, the meshes), and plotly.js draws the
 3D scene and the curve. Timed: (1) the model alone, in process, best and median of
 ``--repeats``; (2) the whole redraw in headless Chromium (Playwright), from the input
@@ -27,9 +27,8 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from scanqa.model import rig  # noqa: E402
+from scanqa.design import rig, server  # noqa: E402
 from scanqa.model.config import load_config  # noqa: E402
-from scanqa.runs import designapp  # noqa: E402
 
 CONFIG = ROOT / "calib" / "paper_scanner.toml"
 
@@ -56,7 +55,7 @@ def browser_times(config, repeats: int) -> list[float] | None:
     if not chromium:
         print("no chromium on PATH: browser redraw not measured")
         return None
-    srv = designapp.make_server(config)
+    srv = server.make_server(config)
     threading.Thread(target=srv.serve_forever, daemon=True).start()
     out = []
     with sync_playwright() as pw:

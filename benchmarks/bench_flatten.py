@@ -52,11 +52,11 @@ def rig(size: int):
     """(config, pinhole calibration, pattern description, flattening target [um]) of a
     ``size`` x ``size`` crop of the paper's scanner: the set-up of the flattening
     acceptance scripts, the target being the model's lowest sigma over 438-466 mm."""
-    from scanqa.model import design
+    from scanqa.design import tools
     from scanqa.simulator import experiments
 
     cfg = _config(size, size)
-    curve = design.axis_curve(cfg, 438.0, 466.0, 0.5)
+    curve = tools.axis_curve(cfg, 438.0, 466.0, 0.5)
     target = float(np.min(curve["sigma_um"][curve["model_valid"]]))
     return cfg, _pinhole(cfg), experiments.pattern_description(cfg), target
 
@@ -76,10 +76,10 @@ def _tilted_xp(cfg) -> np.ndarray:
 
 
 def main() -> None:
+    from scanqa.annotation.flattening import flatten
     from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
     from scanqa.decoding.decoder import decode_images
     from scanqa.decoding.patternset import synthesize_images
-    from scanqa.runs.flattening import flatten
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--rows", type=int, default=2048)

@@ -29,8 +29,8 @@ sys.path.insert(0, str(ROOT))
 
 from tests.synth_parametric import phase_map, small_scanner  # noqa: E402
 
+from scanqa.annotation.points import annotate  # noqa: E402
 from scanqa.model.config import load_config  # noqa: E402
-from scanqa.runs.annotation import annotate  # noqa: E402
 
 
 def timed(work):

@@ -24,7 +24,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "src"))
 
-from scanqa.model.cloud import AnnotatedCloud  # noqa: E402
+from scanqa.io.annotated_cloud import AnnotatedCloud  # noqa: E402
 from scanqa.qa.blocks import run_qa  # noqa: E402
 from scanqa.qa.detect import detect_blocks  # noqa: E402
 from scanqa.qa.layout import load_layout  # noqa: E402

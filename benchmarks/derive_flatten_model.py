@@ -6,20 +6,20 @@ Everything here runs on its own noise stream (``--stream``, default "derive39a";
 acceptance is checked on (``flat_heldout`` 0-4 and 50-58, ``flat_s36_heldout`` 60-68,
 ``flat_s37_fresh`` 70-78, ``flat_s38_fresh`` 80-88, ``flat_s38_b`` 90-98, ``flat_s38_c``
 110-118, ``flat_s38_d`` 120-128, ``flat_s39_a``-``d`` and ``flat_s39_e``-``h`` at
-130-168). The filter's predicted gain is :func:`scanqa.runs.filterbank.reduction`'s with
+130-168). The filter's predicted gain is :func:`scanqa.annotation.filterbank.reduction`'s with
 the range given: since session 39 its exact second-order scene factor
-(:func:`scanqa.runs.filterbank.scene_gain`). Two measurements a user can make on their
+(:func:`scanqa.annotation.filterbank.scene_gain`). Two measurements a user can make on their
 own scanner with a flat:
 
 1. *a sweep*: the flat at 49 depths over 432-468 mm (positions 100-124 and 200-223), two
    scans each; the phase noise is the std of the two x_p maps' difference over sqrt 2,
    the decoder's sensor estimate beside it. The two-source sum-form model is fitted with
    the floor of Eq. 17 ("one") and with its smooth form ("smooth"), every parameter free
-   (:func:`scanqa.model.noisefit.fit_variant`), then with gamma held on a grid and
+   (:func:`scanqa.characterization.noisefit.fit_variant`), then with gamma held on a grid and
    sigma_p, sigma_s fitted (the sweep alone pins gamma only loosely);
 2. *known discs*: two scans of the flat at 436, 445, 450, 455 and 463 mm (160 px,
    positions 400-404), their x_p difference filtered by discs of 4, 7 and 10 px at every
-   pixel, against :func:`scanqa.runs.filterbank.reduction` of the model's two parts for each
+   pixel, against :func:`scanqa.annotation.filterbank.reduction` of the model's two parts for each
    gamma of the grid: the filter's gain is what flattening relies on.
 
 Each gamma is tried with sigma_s fitted and with sigma_s held at the decoder's image-based
@@ -68,8 +68,8 @@ def _pair(cfg, desc, z: float, index: int, stream: str):
 
 def sweep(cfg, stream: str):
     """NoiseData of the flat at 49 depths (two scans each)."""
+    from scanqa.characterization.noisefit import NoiseData
     from scanqa.model import geometry
-    from scanqa.model.noisefit import NoiseData
     from scanqa.simulator import experiments
 
     desc = experiments.pattern_description(cfg)
@@ -92,7 +92,7 @@ def fit_held_gamma(cfg, data, gamma: float, sensor: float | None = None
                    ) -> tuple[float, float, np.ndarray]:
     """sigma_p, sigma_s [px] and model / measured with gamma held (log least squares);
     with ``sensor`` given, sigma_s is held there and only sigma_p is fitted."""
-    from scanqa.model.noisefit import model_std
+    from scanqa.characterization.noisefit import model_std
 
     def ratio(x):
         ss = math.exp(x[1]) if sensor is None else sensor
@@ -108,8 +108,8 @@ def disc_errors(cfg, pairs, bank) -> np.ndarray:
     """Measured / predicted std after each known disc, per depth and disc [-]."""
     from bench_flatten import _pinhole
 
-    from scanqa.runs.filterbank import filter_phase, reduction
-    from scanqa.runs.flattening import pixel_noise
+    from scanqa.annotation.filterbank import filter_phase, reduction
+    from scanqa.annotation.flattening import pixel_noise
 
     out = []
     inner = (slice(16, -16),) * 2
@@ -157,8 +157,8 @@ def _rendered(args):
 def main() -> None:
     from bench_flatten import _config
 
-    from scanqa.model.noisefit import _sensor_estimate, fit_variant
-    from scanqa.runs.filterbank import default_bank
+    from scanqa.annotation.filterbank import default_bank
+    from scanqa.characterization.noisefit import _sensor_estimate, fit_variant
 
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--stream", default="derive39a")

@@ -10,7 +10,7 @@ the repeats:
 * after / target, its mean and its std over the repeats (the scatter one stream shows);
 * the sampling error a single pair predicts for it, 1 / sqrt(2 n_eff), n_eff the
   effective independent pixels of the range difference after filtering
-  (:func:`scanqa.runs.filterbank.effective_pixels`): the std over the repeats checks it;
+  (:func:`scanqa.annotation.filterbank.effective_pixels`): the std over the repeats checks it;
 * the two factors the flattened std is the product of: the model's sigma before against
   the measured one (model / measured; above 1 the filter comes out too large and the flat
   ends below the target) and the filter's measured gain (after / before, both measured)
@@ -42,9 +42,9 @@ DEPTHS_MM = (436.0, 441.0, 445.0, 447.0, 450.0, 452.0, 455.0, 458.0, 463.0)
 def _pair(cfg, cal, desc, target: float, z: float, index: int, stream: str) -> dict:
     from acceptance_flatten_sweep import _std
 
+    from scanqa.annotation.filterbank import effective_pixels
+    from scanqa.annotation.flattening import flatten
     from scanqa.decoding.decoder import decode_images
-    from scanqa.runs.filterbank import effective_pixels
-    from scanqa.runs.flattening import flatten
     from scanqa.simulator import experiments, render, scene
 
     pos = experiments.Position(index, 0.0, 0.0, 0.0, scene.plane_scene(z))

@@ -14,7 +14,7 @@ the server closes the connection after its timeout) - never a 500, never a trace
 the server (``server.errors``), never more than :data:`SLOW_S` seconds; a request the
 server must refuse (a rebound Host, another origin, a text/plain POST, a bad length, a
 body of the wrong shape, a config outside the page's ranges) is refused with the status
-the module notes of :mod:`scanqa.runs.designapp` give - one accepted is *silent* - and
+the module notes of :mod:`scanqa.design.server` give - one accepted is *silent* - and
 after every case the page still exports a config that loads.
 
 ``python -m tests.fuzz_http CASES SEED`` (``make fuzz`` runs 1000); test_fuzz_http.py runs
@@ -33,10 +33,10 @@ from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from scanqa.design import rig
+from scanqa.design import server as designapp
 from scanqa.io.tomlfile import loads_toml
-from scanqa.model import rig
 from scanqa.model.config import config_from_dict, load_config
-from scanqa.runs import designapp
 
 ROOT = Path(__file__).resolve().parents[1]
 CONFIG = ROOT / "calib" / "paper_scanner.toml"

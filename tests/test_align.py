@@ -21,7 +21,7 @@ from scipy.spatial.transform import Rotation
 
 from scanqa.cli import main
 from scanqa.errors import InputError
-from scanqa.model.cloud import AnnotatedCloud
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.qa.align import align_reference, fit_alignment, parse_region
 from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
 

@@ -10,6 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 
+from scanqa.annotation.points import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 from scanqa.calibration.build import build_table
 from scanqa.calibration.table import save_table
 from scanqa.cli import main
@@ -18,7 +19,6 @@ from scanqa.errors import InputError
 from scanqa.io.cloud import read_cloud
 from scanqa.io.ply import RESERVED_SUBSTRINGS, check_attribute_name
 from scanqa.model import optics
-from scanqa.runs.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
 from .conftest import paper_config_text
 from .synth_sweep import plane_truth, small_camera, sweep

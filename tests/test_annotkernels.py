@@ -9,14 +9,14 @@ import numpy as np
 import pytest
 from scipy.special import j1
 
+from scanqa.annotation import kernels, points
+from scanqa.annotation.points import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 from scanqa.calibration.build import build_table
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.io import ply
+from scanqa.io.annotated_cloud import AnnotatedCloud, read_cloud
 from scanqa.model import optics
-from scanqa.model.cloud import AnnotatedCloud, read_cloud
 from scanqa.model.config import FILTER_FLOORS, FILTER_FORMS, NOISE_READINGS
-from scanqa.runs import annotation, annotkernels
-from scanqa.runs.annotation import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 
 from .synth_sweep import plane_truth, small_camera, sweep
 
@@ -44,12 +44,12 @@ def test_bessel_j1_matches_scipy_over_the_range():
     # the main lobe and its side lobes, both sides of the series/asymptotic switch at 12
     x = np.concatenate([np.linspace(0.0, 12.0, 4001), np.linspace(12.0, 200.0, 4001),
                         -np.linspace(0.0, 30.0, 301), [1e-300, 1e-9]])
-    got = np.array([annotkernels.bessel_j1(v) for v in x])
+    got = np.array([kernels.bessel_j1(v) for v in x])
     lobe = np.abs(x) < 4.0  # the attenuation's main lobe: to scipy's own accuracy
     np.testing.assert_allclose(got[lobe], j1(x[lobe]), rtol=0, atol=5e-16)
     # the series' cancellation below 12, the asymptotic series' smallest term above
     np.testing.assert_allclose(got, j1(x), rtol=0, atol=2e-12)
-    assert np.isnan(annotkernels.bessel_j1(np.nan))
+    assert np.isnan(kernels.bessel_j1(np.nan))
 
 
 def test_attenuation_matches_optics_to_its_last_bits():
@@ -57,8 +57,8 @@ def test_attenuation_matches_optics_to_its_last_bits():
                         -np.linspace(0.0, 2.0, 51), [1e-12, 1e-9, np.nan, np.inf]])
     want = optics.attenuation(r)
     got = np.empty_like(r)
-    annotkernels.attenuations(r, got)
-    scalar = np.array([annotkernels.attenuation(v) for v in r])
+    kernels.attenuations(r, got)
+    scalar = np.array([kernels.attenuation(v) for v in r])
     np.testing.assert_array_equal(np.isnan(got), np.isnan(want))
     main_lobe = np.abs(r) < 1.2  # A > 1e-3: relative agreement to ~1e-14
     np.testing.assert_allclose(got[main_lobe], want[main_lobe], rtol=2e-14, atol=0)
@@ -78,8 +78,8 @@ def test_point_model_matches_predict(cfg, form, floor, reading):
                     rng.uniform(420.0, 490.0, n)], -1)
     pts[:5] = np.nan
     s_t = rng.uniform(0.02, 0.2, n)
-    par, codes = annotkernels.model_parameters(config)
-    got = annotkernels.model_points(pts, s_t, par, codes)
+    par, codes = kernels.model_parameters(config)
+    got = kernels.model_points(pts, s_t, par, codes)
     want = optics.predict(pts, config, s_t=s_t)
     assert (~want.valid).sum() > 500 and want.valid.sum() > 500
     np.testing.assert_array_equal(got[:, 7].astype(bool), want.valid)
@@ -109,7 +109,7 @@ def phase_map(cfg, sigma=0.02, seed=0, masked_rows=0, far_rows=0):
 def numpy_path(monkeypatch, *args, **kwargs):
     """annotate through the numpy lookup, model and attributes (main's path)."""
     with monkeypatch.context() as m:
-        m.setattr(annotation, "_compiled", lambda *a: None)
+        m.setattr(points, "_compiled", lambda *a: None)
         return annotate(*args, **kwargs)
 
 
@@ -165,7 +165,7 @@ def test_every_sigma_source_matches_the_numpy_path(cfg, table, monkeypatch, nois
                                    characterised_by="test law")
     pm = replace(phase_map(cfg, seed=3), provenance={  # a 4-step working set
         "decode": {"chain": ["p5"]}, "patterns": {"set": [{"name": "p5", "steps": 4}]}})
-    assert annotation.sigma_source(config, pm)["random"] == noise
+    assert points.sigma_source(config, pm)["random"] == noise
     assert_same_cloud(annotate(pm, table, config), numpy_path(monkeypatch, pm, table,
                                                               config))
 
@@ -173,7 +173,7 @@ def test_every_sigma_source_matches_the_numpy_path(cfg, table, monkeypatch, nois
 def test_one_compiled_signature_for_every_output(cfg, table, tmp_path):
     # load() gives the types annotate gives, whatever the PLY header's length: no second
     # compilation (8-9 s of CPU) for another offset of the file's mapping
-    annotkernels.load()
+    kernels.load()
     pm = phase_map(cfg, masked_rows=2)
     for k, name in enumerate(("a.ply", "bb.ply", "ccc.ply", "dddd.ply")):
         annotate(pm, table, cfg, out=tmp_path / name, source="s" * k)
@@ -181,9 +181,9 @@ def test_one_compiled_signature_for_every_output(cfg, table, tmp_path):
     other = replace(pm, xp=np.asfortranarray(pm.xp, dtype=np.float32),
                     modulation=np.asfortranarray(pm.modulation, dtype=np.float32))
     annotate(other, table, cfg)
-    assert len(annotkernels.annotate_band.signatures) == 1
+    assert len(kernels.annotate_band.signatures) == 1
 
 
 def test_attribute_columns_are_annotates_order():
     # the loop writes record columns by position: they must be annotate's names in order
-    assert annotkernels.ATTRIBUTE_COLUMNS == ATTRIBUTES + REPEAT_ATTRIBUTES
+    assert kernels.ATTRIBUTE_COLUMNS == ATTRIBUTES + REPEAT_ATTRIBUTES

@@ -21,13 +21,13 @@ import numpy as np
 import pytest
 
 from scanqa import cluster
+from scanqa.annotation.points import annotate
 from scanqa.calibration.base import load_calibration
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode
 from scanqa.io.atomic import STAGE_PREFIX
 from scanqa.io.ply import read_ply, write_ply
 from scanqa.model.config import load_config
-from scanqa.runs.annotation import annotate
 
 from .conftest import ROOT
 

@@ -11,8 +11,8 @@ import pytest
 
 from scanqa.cli import main
 from scanqa.errors import InputError
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.io.cloud import write_cloud
-from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.blocks import MAX_FLAGGED_FRACTION, run_qa
 from scanqa.qa.budget import coverage_factor, load_budget, welch_satterthwaite
 

@@ -23,7 +23,7 @@ from scanqa.calibration.uncertainty import (
     step_sigma_mm,
 )
 from scanqa.errors import InputError
-from scanqa.model.cloud import AnnotatedCloud
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.qa.blocks import run_qa
 from scanqa.report import qa as qa_report
 from scanqa.report.html import Page

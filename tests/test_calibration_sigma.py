@@ -8,8 +8,8 @@ from dataclasses import replace
 
 import numpy as np
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.uncertainty import pack, unpack
-from scanqa.runs.annotation import annotate
 from tests.synth_parametric import (
     camera_rays,
     layout_scene,
@@ -100,7 +100,7 @@ def test_the_documented_sigma_total_formula_holds_in_a_written_cloud(paper_confi
     import re
     from pathlib import Path
 
-    from scanqa.model.cloud import read_cloud
+    from scanqa.io.annotated_cloud import read_cloud
 
     text = (Path(__file__).resolve().parents[1] / "docs" / "formats.rst").read_text()
     row = text[text.index("* - ``sigma_total_um``"):]

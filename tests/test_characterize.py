@@ -1,4 +1,4 @@
-"""Tests of scanqa.model.characterization on small simulated sweeps (closed loop with known
+"""Tests of scanqa.characterization.sweep on small simulated sweeps (closed loop with known
 optics)."""
 
 from __future__ import annotations
@@ -8,17 +8,17 @@ import json
 import numpy as np
 import pytest
 
-from scanqa.cli import main
-from scanqa.errors import InputError
-from scanqa.model import optics
-from scanqa.model.characterization import (
+from scanqa.characterization.noisefit import JOINT_VARIANTS, SINGLE_SWEEP_VARIANTS
+from scanqa.characterization.sweep import (
     JointCharacterization,
     apply_fitted_model,
     characterize_sweep,
     characterize_sweeps,
     measured_dof,
 )
-from scanqa.model.noisefit import JOINT_VARIANTS, SINGLE_SWEEP_VARIANTS
+from scanqa.cli import main
+from scanqa.errors import InputError
+from scanqa.model import optics
 from scanqa.report.characterization import write_characterization
 from scanqa.simulator.experiments import run_experiment
 

@@ -14,7 +14,7 @@ from scanqa.calibration.parametric import check_config, load_opencv_calibration
 from scanqa.cli import main
 from scanqa.decoding.phasemap import save_phase_map
 from scanqa.errors import ConfigError
-from scanqa.model.cloud import read_cloud
+from scanqa.io.annotated_cloud import read_cloud
 from scanqa.model.config import load_config
 from scanqa.qa.layout import load_layout
 from tests.conftest import ROOT

@@ -42,19 +42,19 @@ import numpy as np
 import pytest
 from scipy.ndimage import binary_erosion, maximum_filter, minimum_filter
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.build import PlaneObservation, build_table
 from scanqa.calibration.sweep import iter_observations
 from scanqa.calibration.table import load_table
+from scanqa.characterization.sweep import apply_fitted_model, characterize_sweeps
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode_images, decode_pattern_dir
 from scanqa.io.manifest import read_manifest
 from scanqa.io.sweep import load_sweep
 from scanqa.model import optics
-from scanqa.model.characterization import apply_fitted_model, characterize_sweeps
 from scanqa.model.config import load_config
 from scanqa.qa.blocks import run_qa
 from scanqa.qa.layout import load_layout
-from scanqa.runs.annotation import annotate
 from scanqa.simulator import render
 from scanqa.simulator.devices import sensor_window
 from scanqa.simulator.experiments import acquisition, build_positions, pattern_description

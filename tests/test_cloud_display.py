@@ -12,13 +12,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from scanqa.annotation import points
+from scanqa.annotation.points import annotate
 from scanqa.chunks import row_bands
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.las import grey_levels, top_level
 from scanqa.io.ply import DISPLAY_COMMENT, read_ply, write_ply
-from scanqa.runs import annotation
-from scanqa.runs.annotation import annotate
 
 from .synth_sweep import plane_truth
 from .test_annotate import H, W, _cloudcompare_asc, cfg, table  # noqa: F401 - fixtures
@@ -181,7 +181,7 @@ def test_bands_fill_the_display_of_the_kept_points_only(scan, cfg, table, monkey
     xp[::7, ::3], offset[::7, ::3] = 1e6, 12000.0  # far outside: left out
     pm = PhaseMap(xp=xp, modulation=scan.modulation, offset=offset, mask=scan.mask,
                   sigma_xp=scan.sigma_xp, period_px=5.0, projector_width_px=1280)
-    monkeypatch.setattr(annotation, "row_bands", lambda rows, size: row_bands(rows, size, 500))
+    monkeypatch.setattr(points, "row_bands", lambda rows, size: row_bands(rows, size, 500))
     direct = annotate(pm, table, cfg, out=tmp_path / "direct.ply")
     assert direct.counts["out_of_volume"] == xp[::7, ::3].size
     assert np.all(direct.attributes["offset_dn"] < 1300.0)

@@ -10,13 +10,13 @@ import numpy as np
 import pytest
 import trimesh
 
+from scanqa.annotation.points import annotate
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
-from scanqa.model.cloud import AnnotatedCloud
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.model.config import load_config
 from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
-from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO
 from tests.synth_parametric import config_pinhole

@@ -153,11 +153,11 @@ def _dataclasses_outside_qa():
 MUTABLE_BY_DESIGN = {
     "calibration/build.py:BuildReport": "counts added position by position during a build",
     "cluster.py:EngineReport": "seconds and worker peaks set when the run ends",
-    "decoding/describe.py:_Group": "questions appended while the frames are read",
+    "description/inference.py:_Group": "questions appended while the frames are read",
     "decoding/unwrap.py:ChainStats": "merge() and per-step counts accumulate into it",
     "decoding/unwrap.py:_Flags": "mask bits or-ed in place (flags.low |= ...) per stage",
     "io/ply.py:_Element": "properties appended as the PLY header is parsed",
-    "runs/optimisation.py:Evaluator": "a memo cache and a call counter",
+    "design/optimisation.py:Evaluator": "a memo cache and a call counter",
 }
 
 

@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import pytest
 
-from scanqa.decoding.describe import describe_frames
+from scanqa.description.inference import describe_frames
 from scanqa.errors import ScanQAError
 from tests import describe_corpus as corpus
 

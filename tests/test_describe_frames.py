@@ -1,4 +1,4 @@
-"""The frame analysis behind ``scanqa describe`` (:mod:`scanqa.decoding.frames`) on
+"""The frame analysis behind ``scanqa describe`` (:mod:`scanqa.description.frames`) on
 small synthetic frames with hand-computed answers, and the command's refusals."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 from PIL import Image
 
 from scanqa.cli import main
-from scanqa.decoding import frames as fr
-from scanqa.decoding.describe import describe_frames
+from scanqa.description import frames as fr
+from scanqa.description.inference import describe_frames
 from scanqa.errors import InputError
 
 SHAPE = (32, 128)
@@ -140,7 +140,7 @@ def test_a_black_frame_between_two_phase_sets_is_left_out_not_read_as_a_gray_bit
 
 
 def test_cell_widths_periods_in_cells_and_phase_starts_hand_computed():
-    from scanqa.decoding import describe_gray as dg
+    from scanqa.description import gray as dg
 
     # object1: 5 column bits over 1920 px (cells 60..120), 4 row bits over 1080 px with
     # cell 10 seen (67.5..108): one setting for both - no whole cell divides both

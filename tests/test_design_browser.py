@@ -20,7 +20,7 @@ import threading
 import pytest
 
 from scanqa.cli import main
-from scanqa.runs import designapp
+from scanqa.design import server
 
 from .conftest import PAPER_CONFIG, paper_config_text
 
@@ -54,7 +54,7 @@ def browser():
 
 @pytest.fixture()
 def page(browser, paper_config):
-    srv = designapp.make_server(paper_config)
+    srv = server.make_server(paper_config)
     threading.Thread(target=srv.serve_forever, daemon=True).start()
     context = browser.new_context(accept_downloads=True, viewport={"width": 1400, "height": 900})
     tab = context.new_page()

@@ -13,9 +13,9 @@ import numpy as np
 import pytest
 
 from scanqa.cli import main
+from scanqa.design import optimisation, tools
 from scanqa.errors import InputError
-from scanqa.model import design, optics
-from scanqa.runs import optimisation
+from scanqa.model import optics
 
 from .conftest import PAPER_CONFIG
 
@@ -52,7 +52,7 @@ def test_optimiser_reaches_the_grid_optimum_with_fewer_evaluations(paper_config,
     assert found.evaluations < grid.evaluations == 100
     # the optimum meets the spec, by the checks' own parts
     assert optimisation.feasible(found.config, spec)
-    vol = design.usable_volume(found.config, spec.level, step=spec.step_mm)
+    vol = tools.usable_volume(found.config, spec.level, step=spec.step_mm)
     assert vol.usable_mm3 == found.usable_mm3
 
 
@@ -126,7 +126,7 @@ def test_box_samples_hold_the_corners():
 
 
 def test_cli_opens_the_best_configuration_in_the_page(capsys, monkeypatch, spec_path):
-    from scanqa.runs import designapp
+    from scanqa.design import server as designapp
 
     served = []
 
@@ -156,7 +156,7 @@ def test_optimiser_finds_what_volume_calls_usable_on_a_dlp_scanner():
     assert config.fringes.working_period_px == 114.0 and config.projector.pitch_um == 5.4
     box = optimisation.Box((-20.0, 20.0, 392.0), (20.0, 60.0, 432.0))
     pts = box.samples()
-    inside, good = design.volume_masks(pts[:, 0], pts[:, 1], pts[:, 2], config, 0.49,
+    inside, good = tools.volume_masks(pts[:, 0], pts[:, 1], pts[:, 2], config, 0.49,
                                        None, None)
     assert (inside & good).all()
     sigma_um = optics.predict(pts, config).sigma * 1e3

@@ -17,9 +17,9 @@ import urllib.request
 import pytest
 
 from scanqa.cli import main
+from scanqa.design import rig
+from scanqa.design import server as designapp
 from scanqa.errors import InputError
-from scanqa.model import rig
-from scanqa.runs import designapp
 
 from .conftest import PAPER_CONFIG
 
@@ -262,7 +262,7 @@ def test_a_load_outside_the_page_ranges_is_refused_and_export_stays_a_config(ser
 
 
 def test_the_exported_page_never_saves_an_error_as_the_toml():
-    from scanqa.report import designpage
+    from scanqa.design import page as designpage
     script = designpage.page_html({k: 1.0 for k in rig.SETTINGS}, "t")
     export = script[script.index("getElementById('export')"):script.index("getElementById('load')")]
     assert "if (!r.ok)" in export and export.index("r.ok") < export.index("a.download")

@@ -1,6 +1,6 @@
 """The usable volume (Sect. 5.1, Fig. 6) against a voxel-by-voxel evaluation.
 
-:func:`scanqa.model.design.usable_volume` evaluates the model once per distinct (Z_c, Z_p) pair
+:func:`scanqa.design.tools.usable_volume` evaluates the model once per distinct (Z_c, Z_p) pair
 and broadcasts the frusta tests; the reference here stacks every voxel centre, projects
 it with the pinhole camera and projector and calls :func:`scanqa.model.optics.predict` on each,
 as the function did before it was made fast enough for the design page.
@@ -13,15 +13,16 @@ import dataclasses
 import numpy as np
 import pytest
 
+from scanqa.design import tools
 from scanqa.errors import RangeError
-from scanqa.model import design, geometry, optics
+from scanqa.model import geometry, optics
 
 
 def reference_counts(config, level, step, coc_max=None):
     """(total, usable) voxel counts of the grid usable_volume uses, one voxel at a time."""
     focus = config.camera.focus_mm
-    zs = design._z_grid(0.75 * focus, 1.25 * focus, step)
-    half = design.field_half_extent(config, 1.25 * focus)
+    zs = tools._z_grid(0.75 * focus, 1.25 * focus, step)
+    half = tools.field_half_extent(config, 1.25 * focus)
     xs = np.arange(-half[0], half[0] + step, step)
     ys = np.arange(-half[1], half[1] + step, step)
     z, y, x = np.meshgrid(zs, ys, xs, indexing="ij")
@@ -55,7 +56,7 @@ def test_usable_volume_counts_every_voxel_as_the_reference(paper_config, variant
                                                            coc_max):
     config = paper_config if variant == "paper" else off_plane(paper_config)
     step = 4.0  # coarse: the reference holds the whole grid in memory
-    vol = design.usable_volume(config, level, step=step, coc_max_mm=coc_max)
+    vol = tools.usable_volume(config, level, step=step, coc_max_mm=coc_max)
     total, usable = reference_counts(config, level, step, coc_max)
     assert (vol.total_mm3, vol.usable_mm3) == (total * step**3, usable * step**3)
     assert 0 < usable < total
@@ -65,17 +66,17 @@ def test_paper_scanner_volume_at_fig6_thresholds(paper_config):
     """The numbers the design page must show (Fig. 6: A_c A_p >= 0.49, c_c < 0.030 mm),
     at the 1 mm voxels of ``scanqa volume``; recorded when the fast path replaced the
     voxel-by-voxel loop, which gave the same 906957 and 92242 mm^3."""
-    vol = design.usable_volume(paper_config, 0.49)
+    vol = tools.usable_volume(paper_config, 0.49)
     assert (vol.total_mm3, vol.usable_mm3) == (906957.0, 92242.0)
-    cut = design.usable_volume(paper_config, 0.49, coc_max_mm=0.030)
+    cut = tools.usable_volume(paper_config, 0.49, coc_max_mm=0.030)
     assert cut.usable_mm3 < vol.usable_mm3
 
 
 def test_coc_band_solves_eq14(paper_config):
-    near, far = design.coc_band(paper_config, 0.030)
+    near, far = tools.coc_band(paper_config, 0.030)
     # c_c at the band's ends is the threshold (Eq. 14), to rounding
-    np.testing.assert_allclose(design.camera_image_blur(np.array([near, far]), paper_config),
+    np.testing.assert_allclose(tools.camera_image_blur(np.array([near, far]), paper_config),
                                0.030, rtol=1e-12)
     assert near < paper_config.camera.focus_mm < far
     with pytest.raises(RangeError, match="coc_max_mm must be > 0"):
-        design.coc_band(paper_config, 0.0)
+        tools.coc_band(paper_config, 0.0)

@@ -17,10 +17,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from scanqa.annotation.points import annotate
 from scanqa.cli import main
 from scanqa.errors import InputError
 from scanqa.io.cloud import read_cloud, write_cloud
-from scanqa.runs.annotation import annotate
 
 from .test_annotate import REQUIRE_CLIENTS, _clean_qt_env, cfg, scan, table  # noqa: F401
 from .test_failures import inputs, one_line_error  # noqa: F401 - fixtures

@@ -67,8 +67,8 @@ def test_the_shipped_configs_name_their_evidence():
 def test_a_config_written_elsewhere_names_its_evidence_by_absolute_path(tmp_path):
     """A loaded config names its evidence by absolute path, so that the design page's
     export, or any copy of its tables, loads from any folder."""
+    from scanqa.design.rig import config_toml_dict
     from scanqa.io.tomlfile import dumps_toml
-    from scanqa.model.rig import config_toml_dict
 
     data = config_toml_dict(load_config(ROOT / "calib" / "paper_scanner.toml"))
     line = data["model"]["characterised_by"]

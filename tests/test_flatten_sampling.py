@@ -1,5 +1,6 @@
 """The sampling error of a std measured on a correlated noise field
-(:func:`scanqa.runs.filterbank.effective_pixels`, :func:`~scanqa.runs.filterbank.std_interval`),
+(:func:`scanqa.annotation.filterbank.effective_pixels`,
+:func:`~scanqa.annotation.filterbank.std_interval`),
 against truth computed here independently: white Gaussian noise filtered by a known disc
 (scipy), whose effective number of independent pixels is n / sum_lag rho^2 with rho the
 kernel's normalised autocorrelation, and the scatter of the std over many such fields."""
@@ -10,7 +11,7 @@ import numpy as np
 import pytest
 from scipy import ndimage, signal
 
-from scanqa.runs.filterbank import disc_kernel, effective_pixels, std_interval
+from scanqa.annotation.filterbank import disc_kernel, effective_pixels, std_interval
 
 SIZE = 96
 
@@ -98,9 +99,9 @@ def test_the_filters_gain_on_scene_noise_is_the_exact_second_order_one(z_mm, lev
     closer than the smooth law (areas add) at both depths (docs/flattening.rst)."""
     from dataclasses import replace
 
+    from scanqa.annotation.filterbank import default_bank, reduction, scene_gain
     from scanqa.model import optics
     from scanqa.model.config import load_config
-    from scanqa.runs.filterbank import default_bank, reduction, scene_gain
     from tests.conftest import ROOT
 
     cfg = load_config(ROOT / "calib" / "paper_scanner.toml", profile="f11")
@@ -126,7 +127,7 @@ def test_the_filters_gain_on_scene_noise_is_the_exact_second_order_one(z_mm, lev
     np.testing.assert_allclose(exact, measured, rtol=0.015)
     print(f"scene gain at {z_mm} mm, level {level}: built here {measured:.4f}, "
           f"exact {exact:.4f}", end=" ")
-    from scanqa.runs.filterbank import camera_noise_area_px2
+    from scanqa.annotation.filterbank import camera_noise_area_px2
 
     smooth = replace(cfg.model, filter_floor="one")  # the areas-add law, gamma held
     gaussian = reduction(camera_noise_area_px2(np.array(z_mm), cfg), np.array(1.0),

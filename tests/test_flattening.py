@@ -30,19 +30,19 @@ import trimesh
 from scipy.optimize import curve_fit
 from scipy.special import erf, j1
 
-from scanqa.calibration.build import build_table
-from scanqa.decoding.decoder import decode_images
-from scanqa.errors import InputError
-from scanqa.model import design
-from scanqa.model.config import ScannerConfig, load_config
-from scanqa.runs.filterbank import (
+from scanqa.annotation.filterbank import (
     FilterBank,
     default_bank,
     disc_kernel,
     filter_phase,
     reduction,
 )
-from scanqa.runs.flattening import flatten, pixel_noise, plan
+from scanqa.annotation.flattening import flatten, pixel_noise, plan
+from scanqa.calibration.build import build_table
+from scanqa.decoding.decoder import decode_images
+from scanqa.design import tools
+from scanqa.errors import InputError
+from scanqa.model.config import ScannerConfig, load_config
 from tests.conftest import ROOT
 from tests.synth_parametric import config_pinhole
 from tests.synth_sweep import sweep
@@ -91,7 +91,7 @@ def _range_std_um(cal, a, b) -> float:
 def _target_um(cfg) -> float:
     """The flattest sigma the volume allows: the lowest valid sigma of the model's own
     on-axis curve (design.axis_curve) between the positions' ends [um]."""
-    curve = design.axis_curve(cfg, 438.0, 466.0, 0.5)
+    curve = tools.axis_curve(cfg, 438.0, 466.0, 0.5)
     return float(np.min(curve["sigma_um"][curve["model_valid"]]))
 
 

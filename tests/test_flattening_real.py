@@ -4,8 +4,8 @@ decoder's image estimate (calib/slstudio_example.toml has no characterisation).
 
 Board poses calseq1..6 (321-403 mm): flattened to one common target, the lowest sigma the
 six scans allow. Measured: each pose's random scatter about its plane per square
-(:func:`scanqa.runs.boardnoise.pose_residual`, independent of the flattening code), bright and
-dark squares apart, against the flattened per-pixel prediction. Nothing is tuned on these
+(:func:`scanqa.characterization.board.pose_residual`, independent of the flattening code),
+bright and dark squares apart, against the flattened per-pixel prediction. Nothing is tuned on these
 captures.
 """
 
@@ -17,14 +17,14 @@ import math
 import numpy as np
 import pytest
 
+from scanqa.annotation.flattening import flatten, pixel_noise, plan
 from scanqa.calibration.parametric import load_opencv_calibration
+from scanqa.characterization import board
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode_images, load_pattern_dir
+from scanqa.io.annotated_cloud import read_cloud
 from scanqa.io.patterns import dumps_patterns
-from scanqa.model.cloud import read_cloud
 from scanqa.model.config import load_config
-from scanqa.runs import boardnoise
-from scanqa.runs.flattening import flatten, pixel_noise, plan
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 
@@ -74,7 +74,7 @@ def boards(tmp_path_factory, calibration):
         flat = flatten(desc, stacks, pm, calibration, config, target)
         row = {"pose": name, "flat": flat}
         for label, m in (("before", pm), ("after", flat.phase_map)):
-            sq = boardnoise.pose_residual(name, m, calibration, (13, 9)).squares
+            sq = board.pose_residual(name, m, calibration, (13, 9)).squares
             random = np.sqrt(sq["var_random_mm2"])
             for colour, sel in (("bright", sq["bright"]), ("dark", ~sq["bright"])):
                 row[f"{label}_{colour}_um"] = 1e3 * float(np.median(random[sel]))
@@ -164,7 +164,7 @@ def test_skull_flattened_through_the_cli(tmp_path, capsys):
         np.pad(zmap, 7, constant_values=np.nan), (15, 15)).reshape(height, width, 225)
     full = np.isfinite(windows).all(axis=2)
     local = 1e3 * (zmap[full] - np.median(windows[full], axis=1))
-    ratio = boardnoise.robust_std(local) / float(np.median(szmap[full]))
+    ratio = board.robust_std(local) / float(np.median(szmap[full]))
     print(f"skull: local scatter / predicted sigma_z {ratio:.3f} (target {target:.1f} um)")
     assert 0.8 <= ratio <= 1.25, ratio
 

@@ -10,8 +10,8 @@ import pytest
 
 from scanqa.cli import main
 from scanqa.errors import InputError
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.io.cloud import read_cloud, write_cloud
-from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.blocks import run_qa
 from scanqa.qa.detect import detect_blocks
 from scanqa.qa.layout import load_layout

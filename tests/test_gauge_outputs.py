@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from scanqa.errors import InputError
-from scanqa.model.cloud import AnnotatedCloud
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.qa import blocks
 from scanqa.qa.blocks import StepResult, analyse_block, run_qa
 from scanqa.qa.layout import BlockSpec, Layout

@@ -18,7 +18,7 @@ import math
 import numpy as np
 import pytest
 
-from scanqa.model.cloud import AnnotatedCloud
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.qa import blocks
 from scanqa.qa.blocks import BlockResult, StepResult, analyse_block, run_qa, step_between
 from scanqa.qa.correlation import noise_correlation

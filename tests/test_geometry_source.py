@@ -13,9 +13,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.parametric_checks import check_config, with_calibrated_geometry
 from scanqa.errors import InputError
-from scanqa.runs.annotation import annotate
 
 from .test_parametric import _scan, scanner  # noqa: F401 - fixture
 

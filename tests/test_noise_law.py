@@ -9,14 +9,14 @@ import json
 import numpy as np
 import pytest
 
+from scanqa.annotation.points import annotate
+from scanqa.characterization import board
+from scanqa.characterization.sweep import apply_fitted_model
 from scanqa.cli import main
 from scanqa.decoding.decoder import decode
 from scanqa.decoding.imagenoise import phase_sigma_px
 from scanqa.errors import InputError
-from scanqa.model.characterization import apply_fitted_model
 from scanqa.model.config import load_config
-from scanqa.runs import boardnoise
-from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.synth_parametric import config_pinhole
 
@@ -47,7 +47,7 @@ def test_repeats_law_holds_on_held_out_rows_and_meets_the_sweep_model(repeats, t
     measured/predicted 1.00 here, simulated); applied through annotate its median sigma is
     within 15 % of the sigma the camera and projector sweeps characterised (7.6 vs 7.2 um
     here), and the cloud says it was characterised from repeats."""
-    result = boardnoise.characterize_repeats(repeats)
+    result = board.characterize_repeats(repeats)
     assert 0.9 <= result["held_out"]["median_ratio"] <= 1.1
     path = tmp_path / "summary.json"
     path.write_text(json.dumps(result))
@@ -68,7 +68,7 @@ def test_repeats_law_holds_on_held_out_rows_and_meets_the_sweep_model(repeats, t
 
 def test_repeats_need_two_captures_and_the_cli_writes_the_summary(repeats, tmp_path, capsys):
     with pytest.raises(InputError, match=">= 2 captures"):
-        boardnoise.repeat_samples(repeats[:1])
+        board.repeat_samples(repeats[:1])
     scans = [str(SAMPLE / "gauge_blocks" / f"p000_r{i}") for i in range(2)]
     code = main(["characterize-repeats", *scans, "--out", str(tmp_path / "n")])
     out = capsys.readouterr().out
@@ -82,7 +82,7 @@ def test_a_characterisation_that_does_not_fit_the_scan_warns_with_both_numbers(r
     """The law the repeats gave: its median random sigma over the scan within [0.5, 2] of
     the images' own (no warning). The same law with 400x the intensity variance (20x the
     sigma, as a datasheet for another camera might give): a warning naming both medians."""
-    result = boardnoise.characterize_repeats(repeats)
+    result = board.characterize_repeats(repeats)
     config = load_config(SAMPLE / "sample_scanner.toml", profile="sample")
     cal = config_pinhole(config)
     path = tmp_path / "summary.json"

@@ -1,4 +1,4 @@
-"""Characterisations refuse what fits nothing (:mod:`scanqa.runs.noisechecks`): board
+"""Characterisations refuse what fits nothing (:mod:`scanqa.characterization.checks`): board
 poses named by their folder, a pose or repeat given twice, a calibration whose scale
 disagrees with the config, and repeats that are not one static scene - each refused in
 one line that names the pose, the repeat or the frame. Repeats are the simulated sample
@@ -13,11 +13,11 @@ import cv2
 import numpy as np
 import pytest
 
+from scanqa.characterization.checks import check_scale, pose_keys
 from scanqa.cli import main
 from scanqa.cli.characterize_board import board_notice
 from scanqa.errors import InputError
 from scanqa.model.config import load_config
-from scanqa.runs.noisechecks import check_scale, pose_keys
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO
 

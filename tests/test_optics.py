@@ -8,7 +8,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.special import j1
 
-from scanqa.model import design, geometry, optics
+from scanqa.design import tools
+from scanqa.model import geometry, optics
 
 from .model_reference import reference_point
 
@@ -141,7 +142,7 @@ def test_triangulation_scale_matches_finite_difference(paper_config):
 
 def test_w_shape(paper_config):
     """Issue 2: a local maximum of sigma at focus, a minimum each side, rising past the DOF."""
-    curve = design.axis_curve(paper_config, 420.0, 480.0, 0.25)
+    curve = tools.axis_curve(paper_config, 420.0, 480.0, 0.25)
     z, s = curve["z_mm"], curve["sigma_um"]
     focus = paper_config.camera.focus_mm
     i_f = int(np.argmin(abs(z - focus)))
@@ -149,7 +150,7 @@ def test_w_shape(paper_config):
     far = (z > focus) & (z < 470)
     i_near = np.flatnonzero(near)[np.argmin(s[near])]
     i_far = np.flatnonzero(far)[np.argmin(s[far])]
-    dof = design.camera_dof(paper_config, 0.49, 5)
+    dof = tools.camera_dof(paper_config, 0.49, 5)
     assert dof.near_mm < z[i_near] < focus < z[i_far] < dof.far_mm
     assert s[i_f] > 2 * s[i_near] and s[i_f] > 2 * s[i_far]
     # rising past the depth of field on both sides
@@ -163,23 +164,23 @@ def test_floor_reading_removes_the_focus_maximum(paper_config):
     # with F >= 1, F = 1 near focus and sigma = s_T sigma_p / A: focus becomes a local
     # minimum, which contradicts Fig. 3 - the reason "none" is the default
     cfg = paper_config.replace_model(filter_floor="one")
-    c = design.axis_curve(cfg, 448.0, 452.0, 0.5)
+    c = tools.axis_curve(cfg, 448.0, 452.0, 0.5)
     i_f = int(np.argmin(abs(c["z_mm"] - 450.0)))
     # (within 0.1 % of the minimum: s_T slants the curve by ~0.1 %/mm)
     assert c["sigma_um"][i_f] < min(c["sigma_um"][0], c["sigma_um"][-1])
     np.testing.assert_allclose(c["sigma_um"][i_f], c["sigma_um"].min(), rtol=1e-3)
-    d = design.axis_curve(paper_config, 448.0, 452.0, 2.0)  # as printed: maximum at focus
+    d = tools.axis_curve(paper_config, 448.0, 452.0, 2.0)  # as printed: maximum at focus
     assert d["sigma_um"][1] > max(d["sigma_um"][0], d["sigma_um"][2])
 
 
 def test_dof_linear_in_period(paper_config):
     for level in (0.3, 0.64):
-        base = design.camera_dof(paper_config, level, 5.0).dof_mm
-        np.testing.assert_allclose(design.camera_dof(paper_config, level, 10.0).dof_mm,
+        base = tools.camera_dof(paper_config, level, 5.0).dof_mm
+        np.testing.assert_allclose(tools.camera_dof(paper_config, level, 10.0).dof_mm,
                                    2 * base, rtol=1e-12)
-        base_p = design.projector_dof(paper_config, level, 5.0).dof_mm
+        base_p = tools.projector_dof(paper_config, level, 5.0).dof_mm
         # projector: linear up to the Eq. 3 asymmetry, below 1 % here
-        np.testing.assert_allclose(design.projector_dof(paper_config, level, 10.0).dof_mm,
+        np.testing.assert_allclose(tools.projector_dof(paper_config, level, 10.0).dof_mm,
                                    2 * base_p, rtol=0.01)
 
 
@@ -201,10 +202,10 @@ def test_circle_of_confusion_symmetric(dz):
 @settings(max_examples=30, deadline=None)
 @given(level=st.floats(min_value=0.05, max_value=0.99))
 def test_camera_dof_symmetric_and_projector_far_side_longer(paper_config, level):
-    cam = design.camera_dof(paper_config, level, 5.0)
+    cam = tools.camera_dof(paper_config, level, 5.0)
     focus = paper_config.camera.focus_mm
     np.testing.assert_allclose(focus - cam.near_mm, cam.far_mm - focus, rtol=1e-12)
-    proj = design.projector_dof(paper_config, level, 5.0)
+    proj = tools.projector_dof(paper_config, level, 5.0)
     z_f = paper_config.projector.focus_mm
     assert proj.far_mm - z_f > z_f - proj.near_mm  # omega_o grows with Z_p
 
@@ -213,14 +214,14 @@ def test_camera_dof_symmetric_and_projector_far_side_longer(paper_config, level)
 @given(lo=st.floats(min_value=0.05, max_value=0.98), d=st.floats(min_value=0.005, max_value=0.5))
 def test_dof_shrinks_as_level_rises(paper_config, lo, d):
     hi = min(lo + d, 0.99)
-    for func in (design.camera_dof, design.projector_dof):
+    for func in (tools.camera_dof, tools.projector_dof):
         assert func(paper_config, lo, 5.0).dof_mm >= func(paper_config, hi, 5.0).dof_mm
 
 
 def test_usable_volume_is_part_of_total(paper_config):
-    vol = design.usable_volume(paper_config, 0.49, step=3.0)
+    vol = tools.usable_volume(paper_config, 0.49, step=3.0)
     assert 0 < vol.usable_mm3 < vol.total_mm3
-    strict = design.usable_volume(paper_config, 0.81, step=3.0)
+    strict = tools.usable_volume(paper_config, 0.81, step=3.0)
     assert strict.usable_mm3 < vol.usable_mm3
     assert vol.total_mm3 == strict.total_mm3
 
@@ -231,7 +232,7 @@ def test_flatten_filter_brings_sigma_to_the_lowest_valid_sigma(paper_config, flo
     sigma of the independent model chain (tests/model_reference.py) to the lowest one;
     sigma is 1 / F_gamma times quantities the filter does not change (Eqs. 18, 19)."""
     cfg = paper_config.replace_model(filter_floor=floor)
-    res = design.flatten_curve(cfg, 434.0, 466.0, 0.5)
+    res = tools.flatten_curve(cfg, 434.0, 466.0, 0.5)
     ref = [reference_point((0.0, 0.0, z), cfg, "power", floor) for z in res["z_mm"]]
     sigma = 1e3 * np.array([r["sigma"] for r in ref])
     valid = np.array([r["valid"] for r in ref])
@@ -264,14 +265,14 @@ def test_flatten_filter_brings_sigma_to_the_lowest_valid_sigma(paper_config, flo
 def test_flatten_hand_value_at_focus(paper_config):
     """At focus b_c = 1 (Eq. 13), so with Eq. 17 as printed the filter area is
     (sigma_focus / target)^2 - 1 and its diameter 2 sqrt(b_f / pi)."""
-    res = design.flatten_curve(paper_config, 438.0, 462.0, 0.5)
+    res = tools.flatten_curve(paper_config, 438.0, 462.0, 0.5)
     i = int(np.flatnonzero(res["z_mm"] == 450.0)[0])
     ok = res["model_valid"]
     ratio = res["sigma_um"][i] / res["sigma_um"][ok].min()
     np.testing.assert_allclose(res["filter_diameter_px"][i],
                                2 * np.sqrt((ratio**2 - 1) / np.pi), rtol=1e-9)
     with pytest.raises(optics.RangeError, match="not valid anywhere"):
-        design.flatten_curve(paper_config, 400.0, 420.0, 1.0)
+        tools.flatten_curve(paper_config, 400.0, 420.0, 1.0)
 
 
 def test_smooth_floor_gamma_follows_the_range(paper_config):

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from scanqa.model import design
+from scanqa.design import tools
 
 LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81, 0.90)
 TABLE1_PREDICTED = {  # Table 1, camera depth of field [mm]
@@ -31,7 +31,7 @@ CASES = [(dev, p, i) for dev in ("camera", "projector") for p in (5, 7, 10)
 @pytest.mark.parametrize(("device", "period", "index"), CASES)
 def test_table_cell_within_3_percent(paper_config, device, period, index):
     table = TABLE1_PREDICTED if device == "camera" else TABLE2_PREDICTED
-    func = design.camera_dof if device == "camera" else design.projector_dof
+    func = tools.camera_dof if device == "camera" else tools.projector_dof
     dof = func(paper_config, LEVELS[index], period).dof_mm
     # acceptance of issue 2: every predicted cell within 3 %
     np.testing.assert_allclose(dof, table[period][index], rtol=0.03)
@@ -39,14 +39,14 @@ def test_table_cell_within_3_percent(paper_config, device, period, index):
 
 def test_inferred_cells_are_exact(paper_config):
     # the two cells the config's pitch and aperture were inferred from (0.1 % = print rounding)
-    np.testing.assert_allclose(design.camera_dof(paper_config, 0.49, 5).dof_mm, 27.9,
+    np.testing.assert_allclose(tools.camera_dof(paper_config, 0.49, 5).dof_mm, 27.9,
                                rtol=1e-3)
-    np.testing.assert_allclose(design.projector_dof(paper_config, 0.49, 5).dof_mm, 43.6,
+    np.testing.assert_allclose(tools.projector_dof(paper_config, 0.49, 5).dof_mm, 43.6,
                                rtol=1e-3)
 
 
 def test_dof_table_rows_cover_both_devices(paper_config):
-    rows = design.dof_table(paper_config, LEVELS, (5, 7, 10))
+    rows = tools.dof_table(paper_config, LEVELS, (5, 7, 10))
     assert len(rows) == 60
     assert {r.device for r in rows} == {"camera", "projector"}
     table = {(r.device, r.period_px, r.level): r.dof_mm for r in rows}

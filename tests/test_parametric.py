@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 from numpy.testing import assert_allclose, assert_array_equal
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.base import Calibration, load_calibration
 from scanqa.calibration.build import build_table
 from scanqa.calibration.parametric import (
@@ -26,7 +27,6 @@ from scanqa.io.opencv import OpenCVCalibration
 from scanqa.model import optics
 from scanqa.qa.blocks import run_qa
 from scanqa.qa.layout import load_layout
-from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 from tests.synth_parametric import (

@@ -16,8 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from scanqa.annotation.points import annotate
 from scanqa.io.las import describe
-from scanqa.runs.annotation import annotate
 
 from .test_annotate import cfg, scan, table  # noqa: F401 - fixtures
 

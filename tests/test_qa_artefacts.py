@@ -13,9 +13,9 @@ from numpy.testing import assert_allclose
 
 from scanqa.cli import main
 from scanqa.errors import InputError
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.io.cloud import write_cloud
 from scanqa.io.spec import BallBarCertificate, FlatCertificate, Mpe, Spec, SphereCertificate
-from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.artefacts import (
     ArtefactLayout,
     ArtefactSpec,

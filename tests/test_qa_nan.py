@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 from scanqa.errors import InputError, MethodError, ScanQAError
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.io.spec import BallBarCertificate, Mpe, Spec, SphereCertificate
-from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa import (
     artefacts,
     ballbar,

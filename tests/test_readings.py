@@ -15,9 +15,10 @@ import re
 import numpy as np
 import pytest
 
+from scanqa.characterization import noisefit
 from scanqa.errors import MethodError, ScanQAError
 from scanqa.model import config as config_module
-from scanqa.model import noisefit, optics, readings
+from scanqa.model import optics, readings
 
 MAPPINGS = {  # mapping -> (the names a config accepts, the ModelConfig field, entry point)
     "reading": (readings.NOISE_READING_METHODS, config_module.NOISE_READINGS,

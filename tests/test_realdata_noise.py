@@ -19,12 +19,12 @@ import math
 import numpy as np
 import pytest
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.parametric import load_opencv_calibration
+from scanqa.characterization import board as boardnoise
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.io.patterns import dumps_patterns
 from scanqa.model.config import load_config
-from scanqa.runs import boardnoise
-from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 
@@ -100,7 +100,7 @@ def test_board_summary_reports_the_systematic_parts_and_the_law(board, tmp_path)
     intervals; --model reads the summary back into the config."""
     import json
 
-    from scanqa.model.characterization import apply_fitted_model
+    from scanqa.characterization.sweep import apply_fitted_model
 
     law = board["noise_law"]
     assert law["read_var_dn2"] > 0 and law["shot_dn"] > 0

@@ -33,11 +33,11 @@ from PIL import Image
 from scipy.io import loadmat
 from scipy.ndimage import map_coordinates
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.parametric import load_opencv_calibration
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.model.config import load_config
-from scanqa.runs.annotation import annotate
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 from tests.synth_parametric import phase_map
@@ -164,7 +164,7 @@ def test_every_point_of_a_real_scan_carries_a_model_sigma(calibration, caplog):
     scan = phase_map(xp, np.full(xp.shape, 0.1), 114.0, PANEL)
     cloud = annotate(scan, calibration, config, source="skull_2x3")
     # the geometry checks (scanqa.calibration.scan_checks) stay quiet on a real scanner
-    assert [r.getMessage() for r in caplog.records if r.name == "scanqa.runs.annotation"
+    assert [r.getMessage() for r in caplog.records if r.name == "scanqa.annotation.points"
             and r.levelno >= 30] == []
     sigma = cloud.attributes["sigma_model_um"]
     assert cloud.counts["written"] > 0.9 * np.isfinite(xp).sum()

@@ -25,10 +25,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration import scan_checks
 from scanqa.calibration.parametric import Lens
 from scanqa.errors import InputError
-from scanqa.runs.annotation import annotate
 from tests.synth_parametric import camera_rays, phase_map, projector_pixels, small_scanner
 
 Z_MM = 450.0  # the paper scanner's working distance (camera.focus_mm)
@@ -65,7 +65,7 @@ def half_rows(cal):
 
 def geometry_warnings(caplog) -> list[str]:
     return [r.getMessage() for r in caplog.records if r.levelno >= logging.WARNING
-            and r.name == "scanqa.runs.annotation"]
+            and r.name == "scanqa.annotation.points"]
 
 
 @pytest.mark.parametrize(("position", "orientation"), [
@@ -154,9 +154,9 @@ def test_cli_refuses_fringes_along_the_epipolar_lines_in_one_line(paper_config, 
     """Through the command line, from files: exit 2, one line, no cloud written."""
     from scanqa.cli import main
     from scanqa.decoding.phasemap import save_phase_map
+    from scanqa.design.rig import config_toml_dict
     from scanqa.io.opencv import OpenCVCalibration, write_opencv_calibration
     from scanqa.io.tomlfile import dumps_toml
-    from scanqa.model.rig import config_toml_dict
 
     cal, cfg = rig(paper_config, (3.0, 140.0, 0.0), "vertical")
     sizes = {"frameWidth": cal.width_px, "frameHeight": cal.height_px,

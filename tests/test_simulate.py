@@ -150,8 +150,8 @@ def test_projector_sweep_attenuation_follows_model(paper_config):
 # ---------------------------------------------------------------------- W shape
 
 def test_phase_noise_has_w_shape_over_camera_sweep(paper_config):
+    from scanqa.characterization.sweep import is_w_shape, surface_residual_std
     from scanqa.decoding.decoder import decode_images
-    from scanqa.model.characterization import is_w_shape, surface_residual_std
 
     config = small(paper_config, 40)
     desc = experiments.pattern_description(config)

@@ -26,11 +26,11 @@ def warm() -> None:
     """Call each family of loops once with the argument types scanqa gives them."""
     import numpy as np
 
+    from scanqa.annotation import kernels
     from scanqa.model.config import load_config
-    from scanqa.runs import annotkernels
     from scanqa.simulator import experiments
 
-    annotkernels.load()  # the annotate loop
+    kernels.load()  # the annotate loop
     config = load_config(ROOT / "calib" / "paper_scanner.toml").replace_simulator(
         roi_width_px=24, roi_height_px=24)
     with tempfile.TemporaryDirectory() as tmp:  # the renderer's loops, the box cast

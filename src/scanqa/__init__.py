@@ -53,7 +53,7 @@ from scanqa._version import __version__
 #: ``import scanqa.cli`` stays light and Ctrl-C during the command line's start-up is
 #: caught by :func:`scanqa.cli.main` instead of printing a traceback.
 _EXPORTS = {
-    "annotate": ("scanqa.runs.annotation", "annotate"),
+    "annotate": ("scanqa.annotation.points", "annotate"),
     "Calibration": ("scanqa.calibration.base", "Calibration"),
     "load_calibration": ("scanqa.calibration.base", "load_calibration"),
     "BuildReport": ("scanqa.calibration.build", "BuildReport"),
@@ -65,10 +65,10 @@ _EXPORTS = {
     "CalibrationTable": ("scanqa.calibration.table", "CalibrationTable"),
     "load_table": ("scanqa.calibration.table", "load_table"),
     "save_table": ("scanqa.calibration.table", "save_table"),
-    "characterize": ("scanqa.model.characterization", "characterize_sweeps"),
-    "AnnotatedCloud": ("scanqa.model.cloud", "AnnotatedCloud"),
-    "read_cloud": ("scanqa.model.cloud", "read_cloud"),
-    "write_cloud": ("scanqa.model.cloud", "write_cloud"),
+    "characterize": ("scanqa.characterization.sweep", "characterize_sweeps"),
+    "AnnotatedCloud": ("scanqa.io.annotated_cloud", "AnnotatedCloud"),
+    "read_cloud": ("scanqa.io.annotated_cloud", "read_cloud"),
+    "write_cloud": ("scanqa.io.annotated_cloud", "write_cloud"),
     "ScannerConfig": ("scanqa.model.config", "ScannerConfig"),
     "load_config": ("scanqa.model.config", "load_config"),
     "PatternDescription": ("scanqa.decoding.coding", "PatternDescription"),

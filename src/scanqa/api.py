@@ -49,8 +49,8 @@ def describe(folder: PathLike, frames: list[str] | None = None,
     list of Path
         The files written, columns first: each one loads with :func:`scanqa.load_patterns`.
     """
-    from scanqa.decoding.describe import describe_frames
-    from scanqa.decoding.describe_text import description_text, frame_files, read_frames
+    from scanqa.description.inference import describe_frames
+    from scanqa.description.text import description_text, frame_files, read_frames
     from scanqa.io.atomic import write_text
 
     paths = frame_files(folder, list(frames or ()))
@@ -164,11 +164,11 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     import io
 
     from scanqa.calibration.base import load_calibration
+    from scanqa.characterization.board import characterize_board as fit_board
+    from scanqa.characterization.checks import check_scale, pose_keys
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
     from scanqa.model.config import load_config
-    from scanqa.runs.boardnoise import characterize_board as fit_board
-    from scanqa.runs.noisechecks import check_scale, pose_keys
 
     cfg = load_config(config, profile=profile)
     decoded = {name: decode(p) for name, p in pose_keys([str(p) for p in poses]).items()}
@@ -201,7 +201,7 @@ def apply_characterization(config, summary: PathLike):
     summary : path
         summary.json of ``characterize`` or ``characterize-board``.
     """
-    from scanqa.model.characterization import apply_fitted_model
+    from scanqa.characterization.sweep import apply_fitted_model
     from scanqa.model.config import ScannerConfig, load_config
 
     cfg = config if isinstance(config, ScannerConfig) else load_config(config)
@@ -234,8 +234,8 @@ def compare(cloud, reference, out: PathLike | None = None, k: float = 2.0,
     scanqa.qa.compare.Comparison
         ``.summary()`` is summary.json; ``.cloud`` has the per-point deviations.
     """
+    from scanqa.io.annotated_cloud import AnnotatedCloud, read_cloud
     from scanqa.io.mesh import is_mesh_file, read_mesh
-    from scanqa.model.cloud import AnnotatedCloud, read_cloud
     from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
 
     scan = cloud if isinstance(cloud, AnnotatedCloud) else read_cloud(cloud)

@@ -8,7 +8,7 @@ Two calibrations turn decoded phase into metric points:
   projector with lens distortion from an OpenCV calibration (``.xml``, ``.yml``,
   ``.yaml``, ``.json``, :func:`~scanqa.calibration.parametric.load_opencv_calibration`).
 
-Both satisfy :class:`Calibration`; :func:`scanqa.runs.annotation.annotate` accepts either.
+Both satisfy :class:`Calibration`; :func:`scanqa.annotation.points.annotate` accepts either.
 """
 
 from __future__ import annotations

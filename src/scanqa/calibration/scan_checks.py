@@ -1,4 +1,4 @@
-"""Checks of a scan's geometry from the data, at annotation (:mod:`scanqa.runs.annotation`).
+"""Checks of a scan's geometry from the data, at annotation (:mod:`scanqa.annotation.points`).
 
 Three checks, each stated in the scan's own numbers and what to do, none tuned to one
 symptom:
@@ -158,7 +158,7 @@ def units_warning(cal: Calibration, config: ScannerConfig, source: str) -> str:
 
 def volume_warning(counts: dict, n_pixels: int, source: str, cal: Calibration) -> str:
     """A warning when a large share of the decoded pixels is out of the calibrated
-    volume ("" otherwise); ``counts`` as :func:`scanqa.runs.annotation.annotate` keeps."""
+    volume ("" otherwise); ``counts`` as :func:`scanqa.annotation.points.annotate` keeps."""
     decoded = n_pixels - counts["decoder_masked"]
     if decoded <= 0:
         return ""

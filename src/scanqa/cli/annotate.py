@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import argparse
 
+from scanqa.annotation.points import annotate
 from scanqa.cli.common import (
     add_calibration_argument,
     add_config_argument,
@@ -24,7 +25,6 @@ from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir
 from scanqa.io.cloud import WRITERS, check_format
-from scanqa.runs.annotation import annotate
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     cloud = annotate(scan, calibration, config, repeats, args.keep_invalid, source=args.scan,
                      out=out if direct else None)
     if "flatten" in scan.provenance:
-        from scanqa.runs.flattening import flattened_attributes
+        from scanqa.annotation.flattening import flattened_attributes
 
         cloud = cloud.with_attributes(**flattened_attributes(cloud.attributes, cloud.xyz,
                                                              scan, config))

@@ -1,6 +1,6 @@
 """``scanqa characterize-board`` and ``characterize-repeats``: a real scanner's noise
 from its calibration board's poses, or from repeated captures of one pose (parsing
-only; :mod:`scanqa.runs.boardnoise`)."""
+only; :mod:`scanqa.characterization.board`)."""
 
 from __future__ import annotations
 
@@ -84,11 +84,11 @@ def board_notice(rows: int, cols: int) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    from scanqa.characterization.board import characterize_board, digest
+    from scanqa.characterization.checks import check_scale, pose_keys
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
     from scanqa.progress import Progress, step_messages
-    from scanqa.runs.boardnoise import characterize_board, digest
-    from scanqa.runs.noisechecks import check_scale, pose_keys
 
     rows, cols = _board(args.board)
     inner = (cols, rows)  # per row, per column
@@ -128,10 +128,10 @@ def run(args: argparse.Namespace) -> int:
 
 
 def run_repeats(args: argparse.Namespace) -> int:
+    from scanqa.characterization.board import characterize_repeats, digest
+    from scanqa.characterization.checks import check_repeats, frame_levels
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
-    from scanqa.runs.boardnoise import characterize_repeats, digest
-    from scanqa.runs.noisechecks import check_repeats, frame_levels
 
     if len(args.scans) < 2:
         raise InputError(f"repeats need >= 2 captures of one pose, got {len(args.scans)}")

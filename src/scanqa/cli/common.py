@@ -102,7 +102,7 @@ def warn(text: str) -> None:
 
 def warn_sigma(clouds) -> None:
     """Warn once per distinct message about clouds whose sigmas are not characterised
-    (:attr:`scanqa.model.cloud.AnnotatedCloud.sigma_warning`)."""
+    (:attr:`scanqa.io.annotated_cloud.AnnotatedCloud.sigma_warning`)."""
     for text in dict.fromkeys(c.sigma_warning for c in clouds if c.sigma_warning):
         warn(text)
 
@@ -146,7 +146,7 @@ def config_from_args(args: argparse.Namespace) -> ScannerConfig:
     """Load the config named by ``--config``/``--profile`` (and ``--model`` if given)."""
     config = load_config(args.config, profile=args.profile)
     if getattr(args, "model", None):
-        from scanqa.model.characterization import apply_fitted_model
+        from scanqa.characterization.sweep import apply_fitted_model
 
         config = apply_fitted_model(config, args.model)
     return config

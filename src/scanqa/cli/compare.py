@@ -46,8 +46,8 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from scanqa.io.annotated_cloud import read_cloud
     from scanqa.io.mesh import is_mesh_file
-    from scanqa.model.cloud import read_cloud
     from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
     from scanqa.report.compare import write_outputs
 

@@ -7,8 +7,8 @@ import os
 from pathlib import Path
 
 from scanqa.cli.common import emit, flags, number, output_path
-from scanqa.decoding.describe import describe_frames
-from scanqa.decoding.describe_text import description_text, frame_files, read_frames
+from scanqa.description.inference import describe_frames
+from scanqa.description.text import description_text, frame_files, read_frames
 from scanqa.errors import InputError
 from scanqa.io.atomic import write_text
 

@@ -21,8 +21,8 @@ from scanqa.cli.common import (
     output_path,
     warn,
 )
+from scanqa.design import tools
 from scanqa.errors import InputError
-from scanqa.model import design
 
 _FMT = argparse.RawDescriptionHelpFormatter
 
@@ -34,7 +34,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                        epilog="example:\n  scanqa dof --config calib/paper_scanner.toml "
                               "--periods 5,7,10 --json")
     add_config_argument(p)
-    p.add_argument("--levels", type=float_list, default=list(design.TABLE_LEVELS),
+    p.add_argument("--levels", type=float_list, default=list(tools.TABLE_LEVELS),
                    help="attenuation levels [-] (default: the ten of Table 1)")
     p.add_argument("--periods", type=float_list, default=None,
                    help="fringe periods [projector px] (default: the config's)")
@@ -174,14 +174,14 @@ def _tabular(args: argparse.Namespace, compute, rows, draw) -> int:
 
 
 def run_dof(args: argparse.Namespace) -> int:
-    return _tabular(args, lambda c: design.dof_table(c, args.levels, args.periods),
+    return _tabular(args, lambda c: tools.dof_table(c, args.levels, args.periods),
                     lambda res: [r.as_row() for r in res],
                     lambda res, path, c: _plots().plot_dof(res, path))
 
 
 def run_curve(args: argparse.Namespace) -> int:
     rows = _columns_to_rows  # the curve's columns, one row per depth
-    return _tabular(args, lambda c: design.axis_curve(c, *_range(args, c.camera.focus_mm),
+    return _tabular(args, lambda c: tools.axis_curve(c, *_range(args, c.camera.focus_mm),
                                                       args.period),
                     rows, lambda res, path, c: _plots().plot_curve(res, path, c.camera.focus_mm))
 
@@ -189,7 +189,7 @@ def run_curve(args: argparse.Namespace) -> int:
 def run_volume(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     plot = output_path(args.plot)
-    vol = design.usable_volume(config, args.level, args.z_min, args.z_max, args.step,
+    vol = tools.usable_volume(config, args.level, args.z_min, args.z_max, args.step,
                                coc_max_mm=args.coc_max)
     if vol.total_mm3 == 0:  # the library answers 0 (the optimiser ranks such designs last)
         raise InputError(
@@ -211,7 +211,7 @@ def run_volume(args: argparse.Namespace) -> int:
 
 
 def run_flatten(args: argparse.Namespace) -> int:
-    return _tabular(args, lambda c: design.flatten_curve(c, *_range(args, c.camera.focus_mm),
+    return _tabular(args, lambda c: tools.flatten_curve(c, *_range(args, c.camera.focus_mm),
                                                          args.period),
                     _columns_to_rows, lambda res, path, c: _plots().plot_flatten(res, path))
 
@@ -220,7 +220,7 @@ def run_page(args: argparse.Namespace) -> int:
     if importlib.util.find_spec("plotly") is None:  # before any work
         raise InputError("the design page needs plotly, which draws it: pip install "
                          "'scanqa[design]'")
-    from scanqa.runs import designapp  # plotly only when the page is served
+    from scanqa.design import server as designapp  # plotly only when the page is served
 
     with flags({"host ": "--host ", "give host": "give --host"}):
         caution = designapp.check_host(args.host)  # refuses --host ''
@@ -250,10 +250,9 @@ def _serve(server, host: str, open_browser: bool) -> int:
 
 
 def run_optimise(args: argparse.Namespace) -> int:
+    from scanqa.design import optimisation, rig
     from scanqa.io.atomic import write_text
     from scanqa.io.tomlfile import dumps_toml
-    from scanqa.model import rig
-    from scanqa.runs import optimisation
 
     config = config_from_args(args)
     spec = optimisation.load_spec(args.spec)
@@ -261,7 +260,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     res = optimisation.optimise(config, spec)
     best = res.config
     focus = best.camera.focus_mm
-    curve = design.axis_curve(best, 0.9 * focus, 1.1 * focus, 0.5)
+    curve = tools.axis_curve(best, 0.9 * focus, 1.1 * focus, 0.5)
     if out:
         write_text(out, "# found by scanqa design optimise --spec " + args.spec + "\n"
                           + dumps_toml(rig.config_toml_dict(best)))
@@ -274,7 +273,7 @@ def run_optimise(args: argparse.Namespace) -> int:
     else:
         emit(format_rows([row], False, args.csv))
     if args.open:
-        from scanqa.runs import designapp
+        from scanqa.design import server as designapp
 
         server = designapp.make_server(best, "127.0.0.1", args.port, spec.level)
         return _serve(server, "127.0.0.1", open_browser=False)

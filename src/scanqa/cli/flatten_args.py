@@ -1,5 +1,5 @@
 """``--flatten``, ``--target-um`` and ``--tradeoff`` of ``scanqa decode`` and ``scanqa
-annotate`` (parsing only: :func:`scanqa.runs.flattening.flatten` does the work)."""
+annotate`` (parsing only: :func:`scanqa.annotation.flattening.flatten` does the work)."""
 
 from __future__ import annotations
 
@@ -46,8 +46,8 @@ def flatten_from_args(args: argparse.Namespace, desc: PatternDescription,
     check_flatten_args(args)
     if not args.flatten:
         return phase_map
+    from scanqa.annotation.flattening import flatten
     from scanqa.report.flattening import plot_tradeoff, tradeoff_table
-    from scanqa.runs.flattening import flatten
 
     config = config_from_args(args)
     calibration = calibration_from_args(args, config, phase_map)

@@ -7,6 +7,7 @@ import argparse
 import math
 from pathlib import Path
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.sweep import geometry_covariance
 from scanqa.cli.common import (
     add_calibration_argument,
@@ -21,10 +22,10 @@ from scanqa.cli.common import (
 )
 from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
+from scanqa.io.annotated_cloud import AnnotatedCloud, read_cloud
 from scanqa.io.artefacts import FORMAT as ARTEFACT_FORMAT
 from scanqa.io.artefacts import layout_format
 from scanqa.io.spec import read_spec
-from scanqa.model.cloud import AnnotatedCloud, read_cloud
 from scanqa.model.config import ScannerConfig
 from scanqa.provenance import build_header, certificate_text, describe_paths
 from scanqa.qa.artefacts import Options, auto_layout, load_artefact_layout, run_artefact_qa
@@ -36,7 +37,6 @@ from scanqa.qa.verdict import EXIT_STATUS
 from scanqa.report import artefacts as artefact_report
 from scanqa.report import qa as qa_report
 from scanqa.report.pdf import check_pdf
-from scanqa.runs.annotation import annotate
 
 _EPILOG = """examples:
   scanqa qa cloud.ply --layout calib/gauge_blocks_paper.toml --out qa/

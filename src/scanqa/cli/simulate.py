@@ -104,7 +104,7 @@ def run_simulate(args: argparse.Namespace) -> int:
 
 
 def run_characterize(args: argparse.Namespace) -> int:
-    from scanqa.model.characterization import characterize_sweeps, sweep_config, sweep_folder
+    from scanqa.characterization.sweep import characterize_sweeps, sweep_config, sweep_folder
     from scanqa.report.characterization import characterization_lines, write_characterization
 
     with flags({"leave the config out": "leave --config out",

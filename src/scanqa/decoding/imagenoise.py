@@ -8,8 +8,8 @@ inverse gain), taken at the mean level A of the frames. In projector pixels:
 
     sigma_xp = P / (2 pi) sqrt(2 (a + b A) / (N B^2))
 
-This is the law that a board characterisation (:mod:`scanqa.runs.boardnoise`) fits and that
-:func:`scanqa.runs.annotation.annotate` applies per pixel.
+This is the law that a board characterisation (:mod:`scanqa.characterization.board`) fits and that
+:func:`scanqa.annotation.points.annotate` applies per pixel.
 """
 
 from __future__ import annotations

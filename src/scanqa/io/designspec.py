@@ -1,5 +1,5 @@
 """Design specs (TOML, ``format = "scanqa-design-spec/1"``): what an optimised scanner
-must cover and what may change (:mod:`scanqa.runs.optimisation`, ``scanqa design
+must cover and what may change (:mod:`scanqa.design.optimisation`, ``scanqa design
 optimise``).
 
 Example::
@@ -20,7 +20,7 @@ Example::
 
 This module reads the file and checks it against :data:`SCHEMA`; which settings may
 vary (the names under ``[limits]``) and the order of the bounds are checked by
-:class:`scanqa.runs.optimisation.DesignSpec`.
+:class:`scanqa.design.optimisation.DesignSpec`.
 """
 
 from __future__ import annotations

@@ -1,2 +1,2 @@
-"""The model: the scanner description, the noise chain of the paper (Eqs. 1-19), its fit to
-data, the design tools and the annotated cloud they produce."""
+"""The model: the scanner description and the noise chain of the paper (Eqs. 1-19): the
+config, the readings of Eqs. 17 and 19, the pinhole geometry and the defocus optics."""

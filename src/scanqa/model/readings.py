@@ -133,7 +133,7 @@ def smooth_floor(f: np.ndarray) -> np.ndarray:
     over N, the Gaussian form in which second moments of convolved kernels add. It is
     the smooth curve that ``"one"`` (max(1, F)) bends at F = 1, and the law by which
     flattening's digital filter reduces the scene noise
-    (:func:`scanqa.runs.filterbank.reduction`), so model and filter are one law. A
+    (:func:`scanqa.annotation.filterbank.reduction`), so model and filter are one law. A
     departure from the paper, whose bound under Eq. 17 only says F >= 1. NaN stays NaN.
 
     Examples

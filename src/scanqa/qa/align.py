@@ -35,7 +35,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa.errors import InputError
-from scanqa.model.cloud import AnnotatedCloud
+from scanqa.io.annotated_cloud import AnnotatedCloud
 
 #: Scan points used by the fit at most (every k-th of those in the region) [-].
 MAX_FIT_POINTS = 100000

@@ -47,7 +47,7 @@ import math
 import numpy as np
 
 from scanqa.errors import InputError
-from scanqa.model.cloud import AnnotatedCloud, random_sigma_name
+from scanqa.io.annotated_cloud import AnnotatedCloud, random_sigma_name
 from scanqa.qa.correlation import noise_correlation
 from scanqa.qa.results import Options
 

@@ -38,9 +38,9 @@ import os
 import numpy as np
 
 from scanqa.errors import InputError
+from scanqa.io.annotated_cloud import AnnotatedCloud, random_sigma_name
 from scanqa.io.artefacts import read_artefact_layout
 from scanqa.io.spec import Spec
-from scanqa.model.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.qa.artefact_sigma import (
     FRONTAL_DEG,
     incidence_cos,

@@ -52,10 +52,10 @@ import numbers
 
 import numpy as np
 
+from scanqa.design import tools
 from scanqa.errors import ConfigError, InputError
+from scanqa.io.annotated_cloud import AnnotatedCloud, random_sigma_name
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
-from scanqa.model import design
-from scanqa.model.cloud import AnnotatedCloud, random_sigma_name
 from scanqa.model.config import ScannerConfig, config_from_dict
 from scanqa.qa.budget import Budget, Component, StepGeometry, coverage_factor, type_b
 from scanqa.qa.correlation import MIN_TILES, TILE_MM, noise_correlation
@@ -361,21 +361,21 @@ def _table_variance(a: BlockResult, b: BlockResult, lever: np.ndarray) -> float:
 
 def model_curve(blocks: list[BlockResult], config: ScannerConfig) -> dict | None:
     """The model's uncertainty curve on the camera axis over the blocks' depths, +- 5 mm
-    (:func:`scanqa.model.design.axis_curve`), or None when no block has points.
+    (:func:`scanqa.design.tools.axis_curve`), or None when no block has points.
 
     Notes
     -----
     sigma(Z) on the camera axis from Eqs. 18-19 of the paper
-    (:func:`scanqa.model.design.axis_curve`), every 0.25 mm over the blocks' depths +- 5 mm.
+    (:func:`scanqa.design.tools.axis_curve`), every 0.25 mm over the blocks' depths +- 5 mm.
     """
     zs = [b.mean_z_mm for b in blocks if math.isfinite(b.mean_z_mm)]
-    return design.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25) if zs else None
+    return tools.axis_curve(config, min(zs) - 5, max(zs) + 5, 0.25) if zs else None
 
 
 def cloud_config(cloud: AnnotatedCloud, config: ScannerConfig | None, notes: list[str]
                  ) -> ScannerConfig | None:
     """The config whose model gave the cloud's sigmas: the one in the cloud's metadata
-    (written by :func:`scanqa.runs.annotation.annotate`), else ``config``."""
+    (written by :func:`scanqa.annotation.points.annotate`), else ``config``."""
     stored = cloud.metadata.get("config")
     if not stored:
         return config
@@ -494,7 +494,7 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
     ----------
     cloud : AnnotatedCloud
         Points in the scanner frame [mm] with the attributes of
-        :func:`scanqa.runs.annotation.annotate` (any may be missing).
+        :func:`scanqa.annotation.points.annotate` (any may be missing).
     layout : Layout
         Blocks with nominal heights and regions.
     config : ScannerConfig, optional

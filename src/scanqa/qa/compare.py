@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa.errors import InputError
-from scanqa.model.cloud import AnnotatedCloud
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.qa.blocks import refuse_bad_sigmas
 from scanqa.qa.verdict import decide
 

@@ -21,8 +21,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from scanqa.errors import InputError
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.io.spec import Spec
-from scanqa.model.cloud import AnnotatedCloud
 from scanqa.qa.budget import Budget
 from scanqa.qa.correlation import TILE_MM
 from scanqa.qa.planes import PlaneFit
@@ -178,7 +178,7 @@ class QAResult:
     """Everything the QA computed; the report layer only renders it.
 
     ``cloud`` is the cloud the QA ran on; ``curve`` the model's uncertainty curve on the
-    camera axis over the blocks' depths (:func:`scanqa.model.design.axis_curve`), from the model
+    camera axis over the blocks' depths (:func:`scanqa.design.tools.axis_curve`), from the model
     that gave the cloud's sigmas, or None when that model is unknown.
     """
 
@@ -420,7 +420,7 @@ class ArtefactQAResult:
     layout: ArtefactLayout
     notes: tuple[str, ...] = ()
     #: where the scans' per-point sigmas come from (the first scan with a warning, else
-    #: the first scan; :func:`scanqa.runs.annotation.sigma_source`), None when unknown
+    #: the first scan; :func:`scanqa.annotation.points.sigma_source`), None when unknown
     sigma_source: dict | None = None
 
     def quantities(self) -> list[Quantity]:

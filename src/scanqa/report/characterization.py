@@ -1,7 +1,7 @@
 """Rendering of a characterisation: its summary.json and plots of the noise and the
 attenuation over the sweep with every fitted reading (Figs. 3 and 4 of the paper).
 
-Rendering only: every number comes from :mod:`scanqa.model.characterization`.
+Rendering only: every number comes from :mod:`scanqa.characterization.sweep`.
 """
 
 from __future__ import annotations
@@ -12,10 +12,10 @@ from pathlib import Path
 
 import numpy as np
 
+from scanqa.characterization.noisefit import select
+from scanqa.characterization.sweep import Characterization, JointCharacterization, VariantFit
 from scanqa.io.atomic import staged_dir, write_text
-from scanqa.model.characterization import Characterization, JointCharacterization, VariantFit
 from scanqa.model.config import ScannerConfig
-from scanqa.model.noisefit import select
 from scanqa.report.plots import new_figure, save_png
 
 

@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.model.design import DepthOfField, UsableVolume
+from scanqa.design.tools import DepthOfField, UsableVolume
 from scanqa.report.plots import new_figure, save_png
 
 

@@ -1,6 +1,6 @@
 """The trade-off of a flattened scan (Sect. 5.2, Fig. 7): sigma and lateral resolution
 against range, as a figure and as a text table. Renders a
-:class:`scanqa.runs.flattening.FlattenCurve`; computes nothing."""
+:class:`scanqa.annotation.flattening.FlattenCurve`; computes nothing."""
 
 from __future__ import annotations
 
@@ -18,7 +18,7 @@ def tradeoff_table(curve) -> str:
     Parameters
     ----------
     curve : FlattenCurve
-        From :func:`scanqa.runs.flattening.flatten`.
+        From :func:`scanqa.annotation.flattening.flatten`.
 
     Returns
     -------
@@ -46,7 +46,7 @@ def plot_tradeoff(curve, path: str | os.PathLike) -> Path:
     Parameters
     ----------
     curve : FlattenCurve
-        From :func:`scanqa.runs.flattening.flatten`.
+        From :func:`scanqa.annotation.flattening.flatten`.
     path : str or PathLike
         Output PNG.
 

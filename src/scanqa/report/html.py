@@ -104,7 +104,7 @@ class Page:
 
     def sigma_source(self, source: dict | None) -> None:
         """Where the per-point sigmas come from, on the first screen; an assumed sigma
-        as a warning (:func:`scanqa.runs.annotation.sigma_source`)."""
+        as a warning (:func:`scanqa.annotation.points.sigma_source`)."""
         source = source or {"kind": "unknown", "detail": "the cloud does not say (a cloud "
                             "from elsewhere or an older scanqa)", "warning": ""}
         warning = source.get("warning", "")

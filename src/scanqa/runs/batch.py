@@ -37,6 +37,7 @@ from pathlib import Path
 import numpy as np
 
 from scanqa._version import __version__
+from scanqa.annotation.points import annotate
 from scanqa.calibration.base import load_calibration
 from scanqa.cluster import EngineOptions, EngineReport, Task, run_tasks
 from scanqa.decoding.decoder import decode
@@ -49,7 +50,6 @@ from scanqa.provenance import ReportHeader, build_header, content_hash, file_has
 from scanqa.qa.blocks import QAResult, run_qa
 from scanqa.qa.layout import Layout, load_layout
 from scanqa.report import qa as qa_report
-from scanqa.runs.annotation import annotate
 
 log = logging.getLogger(__name__)
 

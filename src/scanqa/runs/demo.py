@@ -17,14 +17,15 @@ import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+from scanqa.annotation.points import annotate
 from scanqa.calibration.sweep import calibrate
+from scanqa.characterization.sweep import characterize_sweeps, sweep_folder
 from scanqa.decoding.decoder import decode_pattern_dir
+from scanqa.design import tools
 from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir, staged_dir, write_text
 from scanqa.io.manifest import read_manifest
 from scanqa.io.spec import read_spec
-from scanqa.model import design
-from scanqa.model.characterization import characterize_sweeps, sweep_folder
 from scanqa.model.config import ScannerConfig, config_from_dict
 from scanqa.progress import Progress
 from scanqa.provenance import build_header, certificate_text
@@ -36,7 +37,6 @@ from scanqa.report import calibration as calibration_report
 from scanqa.report import design as design_plots
 from scanqa.report import qa as qa_report
 from scanqa.report.characterization import characterization_lines, write_characterization
-from scanqa.runs.annotation import annotate
 
 #: Simulation plan of ``--full``: (experiment, camera window, positions, repeats, folder).
 #: About 14 min on 2 idle cores (docs/benchmarks.rst): 14 sweep positions and 3 gauge
@@ -288,12 +288,12 @@ def pooled_steps(result: DemoResult) -> tuple[int, int]:
 def _design(config, out: Path) -> None:
     make_out_dir(out)
     focus = config.camera.focus_mm
-    rows = design.dof_table(config)
+    rows = tools.dof_table(config)
     write_text(out / "dof.json", json.dumps([r.as_row() for r in rows], indent=1))
     design_plots.plot_dof(rows, out / "dof.png")
-    design_plots.plot_curve(design.axis_curve(config, focus - 40, focus + 40, 0.25),
+    design_plots.plot_curve(tools.axis_curve(config, focus - 40, focus + 40, 0.25),
                             out / "curve.png", focus)
-    design_plots.plot_volume(design.usable_volume(config, 0.49, step=2.0), out / "volume.png")
+    design_plots.plot_volume(tools.usable_volume(config, 0.49, step=2.0), out / "volume.png")
 
 
 def summary_lines(result: DemoResult) -> list[str]:

@@ -1,6 +1,6 @@
 """Compiled per-point loop of ``annotate`` (numba): table lookup, model and records in one pass.
 
-``annotate`` (:mod:`scanqa.runs.annotation`) took about a hundred numpy passes per band
+``annotate`` (:mod:`scanqa.annotation.points`) took about a hundred numpy passes per band
 of a 5 MP scan: the table lookup (the sheared phase, the node rows, four Hermite row
 gathers and the blend; :func:`scanqa.calibration.lookup.apply_rows`), the optics model
 per point (:func:`scanqa.model.optics.predict`, ~60 passes and two Bessel functions) and
@@ -55,7 +55,7 @@ _DISC_SERIES = np.array([(-1) ** k / (math.factorial(k) * math.factorial(k + 1))
 #: Largest pi r at which :func:`attenuations` uses the fixed polynomial [-] (the main
 #: lobe, past the first zero 3.83, is below it).
 POLYNOMIAL_LIMIT = 4.0
-#: Columns of the attribute block (``scanqa.runs.annotation.ATTRIBUTES`` order).
+#: Columns of the attribute block (``scanqa.annotation.points.ATTRIBUTES`` order).
 ATTRIBUTE_COLUMNS = ("sigma_total_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
                      "sigma_sensor_um", "sigma_phase_um", "sigma_table_um",
                      "sigma_random_um", "sigma_model_um", "att_camera", "att_projector",
@@ -248,10 +248,10 @@ def model_parameters(config: ScannerConfig, random: str = "model",
     config : ScannerConfig
         Optics, poses and the model's parameters and readings.
     random : {"model", "law", "images"}
-        The per-point random sigma's source (``scanqa.runs.annotation.sigma_source``).
+        The per-point random sigma's source (``scanqa.annotation.points.sigma_source``).
     table_corr_px : float
         The calibration table's correlation length
-        (``scanqa.runs.annotation.table_correlation_px``) [camera px]; NaN without one.
+        (``scanqa.annotation.points.table_correlation_px``) [camera px]; NaN without one.
 
     Returns
     -------
@@ -445,7 +445,7 @@ def _fill_record(i: int, z: float, sx: float, sy: float, sz: float, sig_tab: flo
                  inside: bool, u: int, v: int, coc_c: float, r_c: float, r_p: float,
                  a_c: float, a_p: float, mod: float, off: float, sxp: float, phase: float,
                  par: np.ndarray, codes: np.ndarray, block: np.ndarray) -> int:
-    """The attributes of record ``i`` (``scanqa.runs.annotation._annotate_points``) from
+    """The attributes of record ``i`` (``scanqa.annotation.points._annotate_points``) from
     its lookup and blur ratios, but the repeats' two; returns 1 where the model is not
     valid, else 0."""
     s_t = math.sqrt(sx * sx + sy * sy + sz * sz)

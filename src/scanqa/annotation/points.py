@@ -61,22 +61,22 @@ from pathlib import Path
 import numpy as np
 
 from scanqa._version import __version__
+from scanqa.annotation import kernels
 from scanqa.calibration import scan_checks
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.build import SMOOTH_HALF_WIDTH
 from scanqa.calibration.lookup import TableLookup
 from scanqa.calibration.parametric_checks import with_calibrated_geometry
 from scanqa.calibration.table import CalibrationTable
+from scanqa.characterization.checks import evidence_check
 from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.io import ply
+from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.model import optics
-from scanqa.model.cloud import AnnotatedCloud
 from scanqa.model.config import ScannerConfig
-from scanqa.runs import annotkernels
-from scanqa.runs.noisechecks import evidence_check
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 #: ``sigma_total_um`` first: viewers (CloudCompare) select a cloud's first scalar field.
@@ -310,7 +310,7 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
     """Look up, model and write the kept points of image rows ``rows`` into the records
     ``out`` (and their display fields with the grey scale ``grey`` [1/DN], if given);
     returns the number outside the model's validity. With ``compiled``
-    (:func:`_compiled`), in one compiled pass (:func:`annotkernels.annotate_band`)."""
+    (:func:`_compiled`), in one compiled pass (:func:`kernels.annotate_band`)."""
     r0, r1 = rows
     select = None if out.size == keep.size else np.flatnonzero(keep)
     if compiled is not None:
@@ -332,13 +332,13 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
 
 
 def _compiled(table: Calibration, config: ScannerConfig, source: dict) -> tuple | None:
-    """The constants of the compiled pass (:mod:`scanqa.runs.annotkernels`) for a
+    """The constants of the compiled pass (:mod:`scanqa.annotation.kernels`) for a
     nonparametric table, made once per scan; None for other calibrations (numpy path)."""
     if not isinstance(table, CalibrationTable):
         return None
-    par, codes = annotkernels.model_parameters(config, source["random"],
+    par, codes = kernels.model_parameters(config, source["random"],
                                                table_correlation_px(table))
-    grid, packed = annotkernels.table_arrays(table)
+    grid, packed = kernels.table_arrays(table)
     g = table.image_grid
     return grid, packed, par, codes, g.shear_u, g.shear_c
 
@@ -346,7 +346,7 @@ def _compiled(table: Calibration, config: ScannerConfig, source: dict) -> tuple 
 def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndarray | None,
                    rows: tuple[int, int], keep_invalid: bool, out: np.ndarray,
                    source: dict, grey: float | None) -> int:
-    """One band through :func:`annotkernels.annotate_band`: its per-point inputs picked,
+    """One band through :func:`kernels.annotate_band`: its per-point inputs picked,
     the random source's phase sigma [px], a band of plain records filled (the display
     fields too with the grey scale ``grey`` [1/DN], if given) and copied into ``out``."""
     grid, packed, par, codes, shear_u, shear_c = compiled
@@ -361,7 +361,7 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
     per_point = tuple(np.ascontiguousarray(a, dtype=float) for a in (
         inputs["modulation"], inputs["offset"], inputs["sigma_xp"], phase,
         inputs.get("std", empty), inputs.get("count", empty)))
-    band = (*grid, annotkernels.shear_rows(shear_u, shear_c, range(r0, r1), grid[4].size),
+    band = (*grid, kernels.shear_rows(shear_u, shear_c, range(r0, r1), grid[4].size),
             shear_u)
     chosen = np.empty(0, dtype=np.intp) if select is None else select
     phases = np.ascontiguousarray(xp[r0:r1]).view()
@@ -369,7 +369,7 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
     # the loop fills plain records, then one copy into ``out`` (a mapping at any offset)
     records, points = np.empty(out.size, dtype=out.dtype), np.empty((out.size, 3))
     words = records.view(np.uint32).reshape(out.size, out.itemsize // 4)
-    invalid = annotkernels.annotate_band(phases, chosen, r0, band, packed, bool(keep_invalid),
+    invalid = kernels.annotate_band(phases, chosen, r0, band, packed, bool(keep_invalid),
                                          per_point, par, codes, points, words,
                                          words.view(np.float32),
                                          -1.0 if grey is None else float(grey))

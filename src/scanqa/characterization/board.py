@@ -36,10 +36,10 @@ from scipy.optimize import nnls
 
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.board import Board, find_corners
+from scanqa.characterization.boardshape import board_coordinates, split_smooth
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
-from scanqa.runs.boardshape import board_coordinates, split_smooth
 
 #: Degree of the polynomial surface taken as the smooth part [-].
 SMOOTH_DEGREE = 4
@@ -145,7 +145,7 @@ class PoseResidual:
     #: robust std of the whole residual about the plane over all points of the bright
     #: and of the dark squares (smooth part and ripple included) [um]
     about_plane_um: dict = field(default_factory=dict)
-    #: sampled points for splitting the smooth part (:func:`scanqa.runs.boardshape.
+    #: sampled points for splitting the smooth part (:func:`scanqa.characterization.boardshape.
     #: split_smooth`): board and image coordinates, plane coordinates, smooth part
     shape_samples: dict = field(default_factory=dict, repr=False)
 

@@ -5,7 +5,7 @@ the Plotly bundle of the installed ``plotly`` package (no network), and three JS
 endpoints run the one Python model chain:
 
 * ``POST /api/view`` ``{"settings": {...}, "coc_cuts_volume": bool}``: the figures, the
-  grid and the numbers of :func:`scanqa.model.rig.rig_view` (``model_ms`` is its time);
+  grid and the numbers of :func:`scanqa.design.rig.rig_view` (``model_ms`` is its time);
 * ``POST /api/export`` ``{"settings": {...}}``: the scanner config TOML every command
   reads (``--config``);
 * ``POST /api/load`` ``{"toml": TEXT}``: makes that scanner config TOML the page's config
@@ -44,11 +44,11 @@ import traceback
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from urllib.parse import urlsplit
 
+from scanqa.design import page as designpage
+from scanqa.design import rig
 from scanqa.errors import ConfigError, InputError, ScanQAError
 from scanqa.io.tomlfile import dumps_toml, loads_toml
-from scanqa.model import rig
 from scanqa.model.config import ScannerConfig, config_from_dict
-from scanqa.report import designpage
 
 log = logging.getLogger(__name__)
 
@@ -116,7 +116,7 @@ class DesignState:
             Not a valid scanner config.
         InputError
             A valid config the page cannot show: one of its settings lies outside the
-            page's range (:data:`scanqa.model.rig.SETTINGS`); the page's config is kept.
+            page's range (:data:`scanqa.design.rig.SETTINGS`); the page's config is kept.
         """
         data = loads_toml(text.encode("utf-8"), "the loaded scanner config", ConfigError)
         config = config_from_dict(data, source="<loaded TOML>")

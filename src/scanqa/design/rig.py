@@ -5,8 +5,8 @@ f-numbers, focus distances, baseline and convergence angle, fringe period, pixel
 the two thresholds) laid over a scanner config; :func:`rig_view` turns a config and the
 thresholds into everything the page draws - the view pyramids, the focus planes, the
 circle-of-confusion band, the total and usable volume, the W curve, the depth of field
-and the numbers - by the one model chain (:mod:`scanqa.model.design`, :mod:`scanqa.model.optics`).
-The usable volume is :func:`scanqa.model.design.usable_volume` at its default 1 mm voxels, so
+and the numbers - by the one model chain (:mod:`scanqa.design.tools`, :mod:`scanqa.model.optics`).
+The usable volume is :func:`scanqa.design.tools.usable_volume` at its default 1 mm voxels, so
 the page's number is ``scanqa volume``'s.
 
 References
@@ -25,8 +25,9 @@ import numpy as np
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull, HalfspaceIntersection
 
+from scanqa.design import tools
 from scanqa.errors import InputError
-from scanqa.model import design, geometry, optics
+from scanqa.model import geometry, optics
 from scanqa.model.config import ScannerConfig, config_from_dict
 
 
@@ -167,7 +168,7 @@ class RigView:
     level: float
     coc_max_mm: float
     coc_cuts_volume: bool
-    volume: design.UsableVolume
+    volume: tools.UsableVolume
     camera_pyramid: np.ndarray
     projector_pyramid: np.ndarray
     camera_focus_plane: np.ndarray
@@ -178,8 +179,8 @@ class RigView:
     total_mesh: tuple[np.ndarray, np.ndarray]
     usable_mesh: tuple[np.ndarray, np.ndarray]
     curve: dict
-    camera_dof: design.DepthOfField
-    projector_dof: design.DepthOfField
+    camera_dof: tools.DepthOfField
+    projector_dof: tools.DepthOfField
     numbers: dict
 
 
@@ -207,12 +208,12 @@ def rig_view(config: ScannerConfig, level: float = 0.49, coc_max_mm: float = 0.0
         The drawing's geometry, the W curve, the depth of field and the numbers.
     """
     cut = coc_max_mm if coc_cuts_volume else None
-    vol = design.usable_volume(config, level, coc_max_mm=cut)
+    vol = tools.usable_volume(config, level, coc_max_mm=cut)
     z_lo, z_hi = vol.z_min_mm, vol.z_max_mm
-    curve = design.axis_curve(config, z_lo, z_hi, 0.5)
-    cam_dof = design.camera_dof(config, level, config.fringes.working_period_px)
-    proj_dof = design.projector_dof(config, level, config.fringes.working_period_px)
-    band = design.coc_band(config, coc_max_mm)
+    curve = tools.axis_curve(config, z_lo, z_hi, 0.5)
+    cam_dof = tools.camera_dof(config, level, config.fringes.working_period_px)
+    proj_dof = tools.projector_dof(config, level, config.fringes.working_period_px)
+    band = tools.coc_band(config, coc_max_mm)
     total_mesh = _hull_mesh(config, z_lo, z_hi)
     usable_mesh = _usable_mesh(config, vol, cut, picture_voxels)
     return RigView(
@@ -332,31 +333,31 @@ def _face(idx: np.ndarray, axis: int) -> list:
     return out
 
 
-def _usable_mesh(config: ScannerConfig, vol: design.UsableVolume, cut: float | None,
+def _usable_mesh(config: ScannerConfig, vol: tools.UsableVolume, cut: float | None,
                  voxels: int) -> tuple[np.ndarray, np.ndarray]:
     """The usable volume on a coarse grid of about ``voxels`` cubes, as its boundary mesh."""
     x_lo, x_hi = vol.slice_x_mm[0], vol.slice_x_mm[-1]
-    half_y = design.field_half_extent(config, vol.z_max_mm)[1]
+    half_y = tools.field_half_extent(config, vol.z_max_mm)[1]
     box = (x_hi - x_lo) * 2 * half_y * (vol.z_max_mm - vol.z_min_mm)
     step = (box / voxels) ** (1 / 3)
     xs = np.arange(x_lo, x_hi + step, step)
     ys = np.arange(-half_y, half_y + step, step)
     zs = np.arange(vol.z_min_mm, vol.z_max_mm + step, step)
-    inside, good = design.volume_masks(xs[None, None, :], ys[None, :, None],
+    inside, good = tools.volume_masks(xs[None, None, :], ys[None, :, None],
                                        zs[:, None, None], config, vol.level, None, cut)
     return _voxel_surface(inside & good, xs, ys, zs)
 
 
-def _numbers(config: ScannerConfig, vol: design.UsableVolume, curve: dict, level: float,
+def _numbers(config: ScannerConfig, vol: tools.UsableVolume, curve: dict, level: float,
              cut: float | None, band: tuple[float, float]) -> dict:
     """The page's numbers: volumes, the usable depth on the camera axis, sigma [um]."""
     z = curve["z_mm"]
     good = curve["attenuation_camera"] * curve["attenuation_projector"] >= level
     if cut is not None:
-        good &= design.camera_image_blur(z, config) <= cut
+        good &= tools.camera_image_blur(z, config) <= cut
     focus = config.camera.focus_mm
     near, far = _run_around(z, good, focus)
-    sigma = design.axis_curve(config, focus, focus + 1.0, 1.0)["sigma_um"][0]
+    sigma = tools.axis_curve(config, focus, focus + 1.0, 1.0)["sigma_um"][0]
     at_ends = [_sigma_at(config, zz) for zz in (near, far)]
     return {"total_cm3": vol.total_mm3 / 1e3, "usable_cm3": vol.usable_mm3 / 1e3,
             "usable_fraction": vol.fraction, "usable_near_mm": near, "usable_far_mm": far,

@@ -1,8 +1,9 @@
 """The smooth part of a board's residuals, split into the board's shape and the scanner's
 calibration error where the poses can tell them apart.
 
-Each pose's residual about its fitted plane has a smooth part (:mod:`scanqa.runs.boardnoise`).
-Two things make it, and a characterisation must not mix them up:
+Each pose's residual about its fitted plane has a smooth part
+(:mod:`scanqa.characterization.board`). Two things make it, and a characterisation must
+not mix them up:
 
 * the board's own shape (bow, a warped print): fixed in the board's coordinates, the
   same at every pose; it is no error of the scanner and must not be added to later scans;

@@ -1,6 +1,6 @@
 """``scanqa describe``: the pattern description of existing captures, inferred from them.
 
-The frames are split into sets by :mod:`scanqa.decoding.frames`; this module measures
+The frames are split into sets by :mod:`scanqa.description.frames`; this module measures
 what each set codes and checks the guess with scanqa's decoder:
 
 * the direction of a set is that of its fringe slope (along the camera rows: vertical
@@ -10,17 +10,17 @@ what each set codes and checks the guess with scanqa's decoder:
   coordinate (the camera beside the projector, neither mirrored); with a Gray code, the
   Gray code's own direction decides;
 * period ratios come from the phase slopes of two sets on the same image segments
-  (:func:`scanqa.decoding.frames.frequency_ratio`), a phase set's period in Gray cells
-  from its phase at the Gray code's cell edges (:func:`~scanqa.decoding.describe_gray.
+  (:func:`scanqa.description.frames.frequency_ratio`), a phase set's period in Gray cells
+  from its phase at the Gray code's cell edges (:func:`~scanqa.description.gray.
   refine_ratio`, snapped to a simple fraction), and its phase start from the same
-  edges (:func:`~scanqa.decoding.describe_gray.edge_offsets`, added to its shifts);
+  edges (:func:`~scanqa.description.gray.edge_offsets`, added to its shifts);
 * the absolute scale needs the projector size along the coded direction: phase sets
   are taken to repeat a whole number of times over it (``P = W / n``, the fewest that
   fit, e.g. a coarse set of one period over the panel or a heterodyne triple whose
   beat covers it); a Gray code is taken to need all its bits with whole-pixel cells
   that put the last cell seen on the panel - pinned when the panel's far edge is in
   view, else the same cell for columns and rows, then cells dividing the width, the
-  roundest, the finest (:func:`~scanqa.decoding.describe_gray.rank_cells`);
+  roundest, the finest (:func:`~scanqa.description.gray.rank_cells`);
 * the candidates the measurement leaves open are decoded (on about 200 x 400 pixels);
   the likeliest is kept unless another decodes clearly more, the others are reported,
   and the description says how sure it is.
@@ -36,10 +36,10 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from scanqa.decoding import frames as fr
 from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, ReferenceSet
 from scanqa.decoding.decoder import decode_images
-from scanqa.decoding.describe_gray import (
+from scanqa.description import frames as fr
+from scanqa.description.gray import (
     GrayRun,
     cell_range,
     cells_seen,

@@ -13,9 +13,9 @@ of a rigid scanner (its ``sweep.toml``: both devices defocus together):
    nearest to focus.
 
 The measured attenuation is compared with A(C/omega_o) (Eq. 12) and the depth of field
-per level with :mod:`scanqa.model.design`. The phase noise is fitted by every variant of the
+per level with :mod:`scanqa.design.tools`. The phase noise is fitted by every variant of the
 model where the moving devices' attenuation is at least ``min_attenuation``
-(:mod:`scanqa.model.noisefit`): each parameter is reported as fitted, bounded or not
+(:mod:`scanqa.characterization.noisefit`): each parameter is reported as fitted, bounded or not
 identifiable with its 95 % profile-likelihood interval, the variant that predicts
 held-out positions best is selected, and it is compared with a constant. One sweep
 moves one device: the other's attenuation is constant, so the "mixed" reading is only
@@ -32,14 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.decoding.decoder import decode, decode_pattern_dir
-from scanqa.errors import InputError, ScanQAError
-from scanqa.io.fitted_model import read_fitted_model
-from scanqa.io.manifest import read_manifest
-from scanqa.io.sweep import load_sweep
-from scanqa.model import design, geometry, optics
-from scanqa.model.config import ScannerConfig, config_from_dict, first_difference
-from scanqa.model.noisefit import (
+from scanqa.characterization.noisefit import (
     JOINT_VARIANTS,
     SINGLE_SWEEP_VARIANTS,
     ConstantFit,
@@ -50,6 +43,14 @@ from scanqa.model.noisefit import (
     model_std,
     select,
 )
+from scanqa.decoding.decoder import decode, decode_pattern_dir
+from scanqa.design import tools
+from scanqa.errors import InputError, ScanQAError
+from scanqa.io.fitted_model import read_fitted_model
+from scanqa.io.manifest import read_manifest
+from scanqa.io.sweep import load_sweep
+from scanqa.model import geometry, optics
+from scanqa.model.config import ScannerConfig, config_from_dict, first_difference
 from scanqa.progress import Progress
 
 __all__ = ["Characterization", "JointCharacterization", "PositionResult", "VariantFit",
@@ -254,9 +255,9 @@ def _dof_rows(config: ScannerConfig, experiment: str, z: np.ndarray, att: np.nda
     rows = []
     for level in DOF_LEVELS:
         if experiment == "camera-sweep":
-            model = design.camera_dof(config, level, period).dof_mm
+            model = tools.camera_dof(config, level, period).dof_mm
         else:
-            model = design.projector_dof(config, level, period).dof_mm
+            model = tools.projector_dof(config, level, period).dof_mm
         sim = measured_dof(z, att, level)
         rows.append({"level": level, "dof_measured_mm": sim, "dof_model_mm": model,
                      "deviation_pct": 100.0 * (sim - model) / model})

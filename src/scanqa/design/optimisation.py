@@ -2,8 +2,8 @@
 
 A design spec names the volume the scanner must cover (a box in the scanner frame), the
 largest sigma allowed in it, the settings that may vary and their limits (the names of
-:data:`scanqa.model.rig.SETTINGS`) and obstacles, boxes that no view pyramid may cross. The
-optimiser maximises the usable volume (:func:`scanqa.model.design.usable_volume`), or with
+:data:`scanqa.design.rig.SETTINGS`) and obstacles, boxes that no view pyramid may cross. The
+optimiser maximises the usable volume (:func:`scanqa.design.tools.usable_volume`), or with
 ``objective = "worst_sigma"`` minimises the largest sigma over the box, over the
 settings among the configurations that cover the box at that sigma and clear the
 obstacles: a coarse grid of the box of limits, then a compass search (pattern search
@@ -22,10 +22,11 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.optimize import linprog
 
+from scanqa.design import rig, tools
 from scanqa.errors import InputError, ScanQAError
 from scanqa.io import designspec
 from scanqa.io.designspec import read_design_spec
-from scanqa.model import design, optics, rig
+from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
 
 SPEC_FORMAT = designspec.FORMAT
@@ -140,7 +141,7 @@ class Evaluator:
             return -np.inf
         if self.spec.objective == "worst_sigma":
             return -worst_sigma_um(config, self.spec)
-        return design.usable_volume(config, self.spec.level, step=self.spec.step_mm).usable_mm3
+        return tools.usable_volume(config, self.spec.level, step=self.spec.step_mm).usable_mm3
 
 
 def worst_sigma_um(config: ScannerConfig, spec: DesignSpec) -> float:
@@ -151,7 +152,7 @@ def worst_sigma_um(config: ScannerConfig, spec: DesignSpec) -> float:
 def feasible(config: ScannerConfig, spec: DesignSpec) -> bool:
     """The cover box usable at sigma <= sigma_max_um, and no obstacle in a view pyramid."""
     pts = spec.cover.samples()
-    inside, good = design.volume_masks(pts[:, 0], pts[:, 1], pts[:, 2], config, spec.level,
+    inside, good = tools.volume_masks(pts[:, 0], pts[:, 1], pts[:, 2], config, spec.level,
                                        None, None)
     if not (inside & good).all():
         return False
@@ -190,7 +191,7 @@ class OptimisationResult:
 def _result(config: ScannerConfig, spec: DesignSpec, ev: Evaluator, values: dict
             ) -> OptimisationResult:
     best = rig.apply_settings(config, ev.settings(values))
-    vol = design.usable_volume(best, spec.level, step=spec.step_mm)
+    vol = tools.usable_volume(best, spec.level, step=spec.step_mm)
     return OptimisationResult(values, ev.calls, best, vol.usable_mm3,
                               worst_sigma_um(best, spec))
 
@@ -202,7 +203,7 @@ def optimise(config: ScannerConfig, spec: DesignSpec, coarse: int = 3,
     Parameters
     ----------
     config : ScannerConfig
-        The scanner the settings are laid over (:func:`scanqa.model.rig.apply_settings`).
+        The scanner the settings are laid over (:func:`scanqa.design.rig.apply_settings`).
     spec : DesignSpec
         Cover box, sigma threshold, limits and obstacles.
     coarse : int

@@ -1,6 +1,6 @@
 """Annotated point clouds: metric points with per-point attributes and their provenance.
 
-An :class:`AnnotatedCloud` is what :func:`scanqa.runs.annotation.annotate` returns and what
+An :class:`AnnotatedCloud` is what :func:`scanqa.annotation.points.annotate` returns and what
 the QA reads. Its ``metadata`` travels with it into every file format (a PLY header
 comment, a LAS variable-length record, a CSV comment line, Parquet key-value metadata),
 so that a cloud read back still says which model variant and parameters gave its
@@ -42,7 +42,7 @@ class AnnotatedCloud:
     attributes : dict of str to (n,) array
         Per-point values, units in the names (``sigma_model_um`` [um], ...).
     counts : dict
-        From :func:`~scanqa.runs.annotation.annotate`: pixels written and left out, by reason.
+        From :func:`~scanqa.annotation.points.annotate`: pixels written and left out, by reason.
     metadata : dict
         Plain JSON: ``model`` (the variant and parameters that gave ``sigma_model_um``),
         ``config`` (the scanner config, as :meth:`ScannerConfig.to_dict`), ``table``,
@@ -50,7 +50,7 @@ class AnnotatedCloud:
 
     Notes
     -----
-    From :func:`~scanqa.runs.annotation.annotate`, ``xyz`` and the float32 attributes are views
+    From :func:`~scanqa.annotation.points.annotate`, ``xyz`` and the float32 attributes are views
     of one record array in the binary PLY layout, which :meth:`write` writes as it is.
     """
 
@@ -80,16 +80,16 @@ class AnnotatedCloud:
     def sigma_source(self) -> dict:
         """Where the per-point random sigma comes from: ``kind`` ("characterised",
         "images", "assumed"), ``random`` ("law", "model", "images"), ``detail`` and
-        ``warning`` (:func:`scanqa.runs.annotation.sigma_source`); ``{"kind": "unknown"}`` for
+        ``warning`` (:func:`scanqa.annotation.points.sigma_source`); ``{"kind": "unknown"}`` for
         a cloud that does not say."""
         return dict(self.metadata.get("sigma_source") or {"kind": "unknown"})
 
     @property
     def sigma_warning(self) -> str:
         """What the user must know about where the sigmas come from ("" when they were
-        characterised; :func:`scanqa.runs.annotation.sigma_source`), and that the
+        characterised; :func:`scanqa.annotation.points.sigma_source`), and that the
         calibration carries no term of its own when it does not
-        (:func:`scanqa.runs.annotation.calibration_source`)."""
+        (:func:`scanqa.annotation.points.calibration_source`)."""
         source = self.sigma_source
         return "; ".join(t for t in (str(source.get("warning", "")),
                                      str(source.get("calibration_warning", ""))) if t)

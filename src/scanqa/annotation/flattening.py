@@ -4,10 +4,10 @@ it costs in lateral resolution.
 
 The scan is decoded once; each pixel's range comes from the calibration (a table or a
 parametric model). The per-point random sigma - the source the cloud would use
-(:func:`scanqa.runs.annotation.sigma_source`: the characterised model, a board's noise law or
+(:func:`scanqa.annotation.points.sigma_source`: the characterised model, a board's noise law or
 the decoder's own image estimate) - is binned by range; its median per bin is the curve
 to flatten, and the target is its lowest value (the flattest sigma the volume allows, as
-:func:`scanqa.model.design.flatten_curve` takes it) unless one is given. For every bin the
+:func:`scanqa.design.tools.flatten_curve` takes it) unless one is given. For every bin the
 filter that brings the bin's sigma to the target is solved for, and each pixel gets the
 filter of its range.
 
@@ -29,7 +29,7 @@ noise sources of docs/noise_model.rst:
 
 * the sensor part, white at the pixel scale, falls as 1 / sqrt(NEA);
 * the scene part, already filtered by the camera's own kernel, falls by the exact
-  second-order factor of :func:`scanqa.runs.filterbank.scene_gain` (square cells of
+  second-order factor of :func:`scanqa.annotation.filterbank.scene_gain` (square cells of
   side gamma, following the point's range, :func:`scanqa.model.optics.correlation_gamma`,
   through pixel, defocus disc, Airy pattern and the filter) when the model has the
   smooth floor (``filter_floor = "smooth"``), which gives the unflattened sigma by the
@@ -62,6 +62,15 @@ from dataclasses import dataclass, replace
 import numpy as np
 from scipy import ndimage
 
+from scanqa.annotation.filterbank import (
+    FilterBank,
+    camera_noise_area_px2,
+    default_bank,
+    filter_phase,
+    optics_moment_px2,
+    reduction,
+)
+from scanqa.annotation.points import sigma_source
 from scanqa.calibration.base import Calibration
 from scanqa.calibration.parametric_checks import with_calibrated_geometry
 from scanqa.decoding.coding import PatternDescription
@@ -70,15 +79,6 @@ from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
-from scanqa.runs.annotation import sigma_source
-from scanqa.runs.filterbank import (
-    FilterBank,
-    camera_noise_area_px2,
-    default_bank,
-    filter_phase,
-    optics_moment_px2,
-    reduction,
-)
 
 #: Range bins of the curve: at most this many, each with at least MIN_BIN_PIXELS and at
 #: least MIN_BIN_MM wide (the model's sigma changes over millimetres, not microns).
@@ -487,7 +487,7 @@ def flattened_attributes(attributes: dict, xyz: np.ndarray, phase_map: PhaseMap,
     Parameters
     ----------
     attributes : dict of (n,) array
-        The cloud's attributes (:func:`scanqa.runs.annotation.annotate` of the flattened map).
+        The cloud's attributes (:func:`scanqa.annotation.points.annotate` of the flattened map).
     xyz : (n, 3) float
         Its points [mm].
     phase_map : PhaseMap

@@ -1,6 +1,6 @@
 """The design page (``scanqa design page``): its HTML and the Plotly figures of a view.
 
-Rendering only: :func:`view_payload` turns a :class:`scanqa.model.rig.RigView` (computed by the
+Rendering only: :func:`view_payload` turns a :class:`scanqa.design.rig.RigView` (computed by the
 model chain in Python) into Plotly figure dicts and the numbers, and :func:`page_html`
 writes the page whose script sends the inputs to the local server and draws what comes
 back with plotly.js. The script computes nothing of the model.
@@ -14,7 +14,7 @@ import math
 
 import numpy as np
 
-from scanqa.model.rig import SETTINGS, RigView
+from scanqa.design.rig import SETTINGS, RigView
 
 _CAM, _PROJ = "#1f77b4", "#9467bd"
 

@@ -1,7 +1,7 @@
 """What each captured frame is: the frame analysis behind ``scanqa describe``.
 
 Camera frames of an unknown coding are split into runs that form one set each, from
-the frames alone (:mod:`scanqa.decoding.describe` turns the runs into a
+the frames alone (:mod:`scanqa.description.inference` turns the runs into a
 ``patterns.toml``):
 
 * every frame is normalised per pixel, ``n = (I - lo) / (hi - lo)`` with ``lo``, ``hi``

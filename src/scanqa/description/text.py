@@ -1,6 +1,6 @@
 """The ``patterns.toml`` text of an inferred description, with what it is sure of.
 
-:func:`description_text` renders one :class:`~scanqa.decoding.describe.Description`
+:func:`description_text` renders one :class:`~scanqa.description.inference.Description`
 as the file ``scanqa decode`` reads, with a comment block above every ``[[set]]``: how
 sure the set is, what it rests on, and the questions the frames could not answer
 (lines starting ``# ?``). :func:`read_frames` lists and reads the frames of a folder.
@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.decoding.describe import Description
+from scanqa.description.inference import Description
 from scanqa.errors import InputError
 from scanqa.io.images import read_image
 from scanqa.io.patterns import dumps_patterns

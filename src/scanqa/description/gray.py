@@ -1,6 +1,6 @@
 """The Gray code of a capture, read from its frames (part of ``scanqa describe``).
 
-A run of binary frames (:mod:`scanqa.decoding.frames`) is read as a Gray code: bits
+A run of binary frames (:mod:`scanqa.description.frames`) is read as a Gray code: bits
 and inverse frames from the anti-correlated pairs (interleaved or grouped), the bit
 order from the stripe density (coarse bits first), the inverse frames' place from
 which reading gives neighbouring cells to neighbouring pixels; the cell width from the
@@ -14,7 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from scanqa.decoding import frames as fr
+from scanqa.description import frames as fr
 
 
 @dataclass(frozen=True)

@@ -6,7 +6,7 @@ field the filter (and the scene's correlated noise) has correlated.
 A pixel's filter is a blend of two neighbouring discs of the bank, indexed by a
 continuous level t; the blend's noise-equivalent area NEA = 1 / sum(K^2), second moment
 and transfer at a fringe period follow exactly from those of the two discs.
-:mod:`scanqa.runs.flattening` chooses the level of every pixel.
+:mod:`scanqa.annotation.flattening` chooses the level of every pixel.
 
 References
 ----------
