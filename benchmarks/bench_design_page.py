@@ -2,7 +2,7 @@
 
 A redraw is what a slider move costs a user: the page posts the settings, the server runs
 the model chain (:func:`scanqa.design.rig.rig_view`: the usable volume on the 1 mm grid of
-``scanqa volume``, the W curve, the depth of field, the meshes), and plotly.js draws the
+``scanqa design volume``, the W curve, the depth of field, the meshes), and plotly.js draws the
 3D scene and the curve. Timed: (1) the model alone, in process, best and median of
 ``--repeats``; (2) the whole redraw in headless Chromium (Playwright), from the input
 event to both figures drawn, as the page itself measures it (``#redraw-ms``), median of

@@ -20,7 +20,7 @@ from .realdata import SLSTUDIO, needs_slstudio
 COMMANDS = {
     "describe": ("describe", {"folder": "folder", "force": "force"}),
     "calibrate_board": ("calibrate", {"sweep": "poses"}),
-    "characterize_board": ("characterize-board", {}),
+    "characterize_board": ("characterize board", {}),
     "compare": ("compare", {}),
 }
 
@@ -28,14 +28,18 @@ COMMANDS = {
 def _options(command: str) -> set[str]:
     """The options of a command; of ``calibrate``, the board calibration's group and
     the poses and output (the rest is the sweep calibration's)."""
-    parser = build_parser(command)
-    sub = next(a for a in parser._actions if a.dest == "command").choices[command]
+    name, *action = command.split()
+    parser = build_parser(name)
+    sub = next(a for a in parser._actions if a.dest == "command").choices[name]
+    if action:  # a command's action (characterize board)
+        sub = next(a for a in sub._actions if a.dest == "action").choices[action[0]]
     actions = sub._actions
     if command == "calibrate":
         group = next(g for g in sub._action_groups if g.title.startswith("board"))
         actions = [*group._group_actions, *(a for a in sub._actions
                                            if a.dest in ("sweep", "out"))]
-    return {a.dest for a in actions if a.dest not in ("help", "verbose", "quiet", "func")}
+    return {a.dest for a in actions
+            if a.dest not in ("help", "verbose", "quiet", "func", "action")}
 
 
 @pytest.mark.parametrize("name", sorted(COMMANDS))

@@ -205,7 +205,7 @@ def test_characterize_cli_writes_summary_and_plots(camera_sweep, tmp_path):
     data = read_toml(folder / "manifest.toml", "manifest")["config"]
     data.pop("name")
     cfg.write_text(dump_toml(data))
-    code = main(["characterize", str(folder), "--config", str(cfg), "--out",
+    code = main(["characterize", "sweep", str(folder), "--config", str(cfg), "--out",
                  str(tmp_path / "out")])
     assert code == 0
     summary = json.loads((tmp_path / "out" / "summary.json").read_text())

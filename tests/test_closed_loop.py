@@ -194,8 +194,8 @@ def characterised(tmp_path_factory, sample_config):
     """``scanqa characterize`` of the committed camera and projector sweeps: (summary.json,
     config with the model they select)."""
     out = tmp_path_factory.mktemp("characterise")
-    assert main(["characterize", str(CAMERA_SWEEP), str(PROJECTOR_SWEEP), "--config", SAMPLE,
-                 "--out", str(out)]) == 0
+    assert main(["characterize", "sweep", str(CAMERA_SWEEP), str(PROJECTOR_SWEEP),
+                 "--config", SAMPLE, "--out", str(out)]) == 0
     summary = out / "summary.json"
     return summary, apply_fitted_model(sample_config, summary)
 

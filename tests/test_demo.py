@@ -106,11 +106,14 @@ def test_demo_prints_summary_and_report_path(demo_run):
     assert "Type B is not included" in out
 
 
+#: Every command (a command with actions: each action) -> bad arguments.
 BAD_INPUTS = {
-    "dof": ["--config", "nope.toml"],
-    "curve": ["--config", "nope.toml"],
-    "volume": ["--config", "nope.toml"],
-    "flatten": ["--config", "nope.toml"],
+    "design dof": ["--config", "nope.toml"],
+    "design curve": ["--config", "nope.toml"],
+    "design volume": ["--config", "nope.toml"],
+    "design flatten": ["--config", "nope.toml"],
+    "design page": ["--config", "nope.toml", "--port", "0", "--no-browser"],
+    "design optimise": ["--spec", "nope.toml", "--config", "nope.toml"],
     "decode": ["nope_dir", "--out", "x.npz"],
     "describe": ["nope_dir", "--projector-width", "1824"],
     "sweep-manifest": ["nope_folder", "--stage-mm", "1,2,3"],
@@ -119,23 +122,26 @@ BAD_INPUTS = {
                  "--out", "c.ply"],
     "qa": ["nope.ply", "--layout", "calib/gauge_blocks_paper.toml", "--out", "qa_out"],
     "simulate": ["warp-drive", "--config", "calib/paper_scanner.toml", "--out", "sim"],
-    "characterize": ["nope_dir", "--config", "calib/paper_scanner.toml"],
+    "characterize sweep": ["nope_dir", "--config", "calib/paper_scanner.toml"],
     "demo": ["--out", "/proc/forbidden/demo"],
     "init": ["i.toml", "--calibration", "nope.xml"],
     "patterns": ["sim", "--config", "nope.toml"],
     "batch": ["nothing/*", "--calibration", "t.npz", "--config", "c.toml", "--out", "o"],
     "campaign": ["nope.toml", "--out", "o"],
-    "characterize-board": ["nope_pose", "nope_pose2", "--calibration", "nope.xml", "--config",
+    "characterize board": ["nope_pose", "nope_pose2", "--calibration", "nope.xml", "--config",
                            "calib/slstudio_example.toml", "--out", "o"],
-    "characterize-repeats": ["nope_a", "nope_b", "--out", "o"],
+    "characterize repeats": ["nope_a", "nope_b", "--out", "o"],
     "compare": ["nope.ply", "nope.stl", "--out", "o"],
-    "design": ["optimise", "--spec", "nope.toml", "--config", "nope.toml"],
 }
 
 
 def test_every_subcommand_is_covered():
     sub = next(a for a in build_parser()._actions if a.dest == "command")
-    assert set(sub.choices) == set(BAD_INPUTS)
+    names = set()
+    for name, parser in sub.choices.items():
+        actions = [a for a in parser._actions if a.dest == "action"]
+        names |= {f"{name} {a}" for a in actions[0].choices} if actions else {name}
+    assert names == set(BAD_INPUTS)
 
 
 @pytest.mark.parametrize("command", sorted(BAD_INPUTS))
@@ -145,7 +151,7 @@ def test_bad_input_gives_one_line_and_exit_2(command, capsys, tmp_path, monkeypa
     argv = [a if a != "qa_out" else str(tmp_path / "qa") for a in BAD_INPUTS[command]]
     argv = [str(tmp_path / a) if a in ("x.npz", "t.npz", "c.ply", "sim", "i.toml") else a
             for a in argv]
-    code = main([command, *argv])
+    code = main([*command.split(), *argv])
     err = capsys.readouterr().err
     assert code == 2, err
     assert err.startswith("scanqa: ") and err.count("\n") == 1, err

@@ -1,6 +1,6 @@
 """The design page in a real headless Chromium, driven by Playwright.
 
-The page loads and shows the paper scanner's usable volume of ``scanqa volume``; moving
+The page loads and shows the paper scanner's usable volume of ``scanqa design volume``; moving
 a slider with the keyboard changes the drawn usable volume and the numbers, and records
 its redraw time (how long a redraw takes is measured by benchmarks/bench_design_page.py,
 not asserted here); the exported TOML (the page's download) loads in ``scanqa`` and
@@ -94,7 +94,7 @@ def usable_trace(tab) -> dict:
 
 def cli_volume(capsys, config: str, level: str = "0.49") -> dict:
     capsys.readouterr()
-    assert main(["volume", "--json", "--config", config, "--level", level]) == 0
+    assert main(["design", "volume", "--json", "--config", config, "--level", level]) == 0
     return json.loads(capsys.readouterr().out)
 
 

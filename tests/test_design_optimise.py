@@ -95,7 +95,7 @@ def test_cli_writes_a_config_that_gives_the_reported_volume(capsys, tmp_path, sp
     assert main(["design", "optimise", "--config", str(PAPER_CONFIG), "--spec",
                  str(spec_path), "--out", str(out), "--json"]) == 0
     row = json.loads(capsys.readouterr().out)
-    assert main(["volume", "--config", str(out), "--step", "4", "--json"]) == 0
+    assert main(["design", "volume", "--config", str(out), "--step", "4", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["usable_mm3"] == row["usable_mm3"]
 
 
@@ -147,7 +147,7 @@ SLSTUDIO_CONFIG = PAPER_CONFIG.parent / "slstudio_example.toml"
 
 def test_optimiser_finds_what_volume_calls_usable_on_a_dlp_scanner():
     """SLStudio's scanner (a DLP of 5.4 um pitch, 114 px fringes): a 40 mm box that the
-    usable-volume model (``scanqa volume``'s) calls usable everywhere is covered by the
+    usable-volume model (``scanqa design volume``'s) calls usable everywhere is covered by the
     config itself, so the optimiser must find a configuration (it found none while the
     page's period range stopped at 64 px)."""
     from scanqa.model.config import load_config

@@ -1,6 +1,6 @@
 """The design page's server (``scanqa design page``) through its HTTP endpoints.
 
-The numbers the page shows must be ``scanqa volume``'s for the same thresholds (Fig. 6:
+The numbers the page shows must be ``scanqa design volume``'s for the same thresholds (Fig. 6:
 A_c A_p >= 0.49, c_c < 0.030 mm), and the TOML it exports must load in ``scanqa`` and
 give the same numbers. The browser side is tests/test_design_browser.py.
 """
@@ -49,7 +49,7 @@ def post(url: str, body: str) -> bytes:
 
 def cli_volume(capsys, *argv) -> dict:
     capsys.readouterr()
-    assert main(["volume", "--json", *argv]) == 0
+    assert main(["design", "volume", "--json", *argv]) == 0
     return json.loads(capsys.readouterr().out)
 
 

@@ -64,7 +64,7 @@ def test_usable_volume_counts_every_voxel_as_the_reference(paper_config, variant
 
 def test_paper_scanner_volume_at_fig6_thresholds(paper_config):
     """The numbers the design page must show (Fig. 6: A_c A_p >= 0.49, c_c < 0.030 mm),
-    at the 1 mm voxels of ``scanqa volume``; recorded when the fast path replaced the
+    at the 1 mm voxels of ``scanqa design volume``; recorded when the fast path replaced the
     voxel-by-voxel loop, which gave the same 906957 and 92242 mm^3."""
     vol = tools.usable_volume(paper_config, 0.49)
     assert (vol.total_mm3, vol.usable_mm3) == (906957.0, 92242.0)

@@ -30,7 +30,7 @@ def test_free_text_is_refused_in_one_line(tmp_path, capsys):
     path = _config(tmp_path, "vendor datasheet")
     with pytest.raises(ConfigError, match="does not name a characterisation"):
         load_config(path)
-    code = main(["dof", "--config", str(path)])
+    code = main(["design", "dof", "--config", str(path)])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "vendor datasheet" in err
     assert "summary.json sha256" in err
@@ -41,8 +41,8 @@ def test_a_named_summary_is_checked_by_its_hash(tmp_path):
     summary.parent.mkdir()
     summary.write_text(json.dumps({"kind": "board", "noise_law": {
         "read_var_dn2": 0.32, "shot_dn": 0.027, "systematic_um": 64.0}}))
-    line = evidence(summary, "scanqa characterize-board").replace(f"{tmp_path}/", "")
-    assert line.startswith("board/summary.json sha256 ") and line.endswith("-board)")
+    line = evidence(summary, "scanqa characterize board").replace(f"{tmp_path}/", "")
+    assert line.startswith("board/summary.json sha256 ") and line.endswith(" board)")
     config = load_config(_config(tmp_path, line))  # relative to the config's folder
     assert config.model.characterised_by == f"{tmp_path.resolve()}/{line}"  # from here on
     summary.write_text(summary.read_text() + "\n")

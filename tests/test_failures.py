@@ -128,8 +128,8 @@ def test_demo_and_characterize_publish_together_or_not_at_all(tmp_path, capsys, 
     code = main(["demo", "--out", str(tmp_path / "d"), "--data", str(SAMPLE), "-q"])
     assert "No space left" in one_line_error(capsys, code)
     monkeypatch.setattr(report, "_plot", fail)
-    code = main(["characterize", str(SAMPLE / "camera_sweep"), "--out", str(tmp_path / "c"),
-                 "-q"])
+    code = main(["characterize", "sweep", str(SAMPLE / "camera_sweep"),
+                 "--out", str(tmp_path / "c"), "-q"])
     assert "No space left" in one_line_error(capsys, code)
     assert list(tmp_path.iterdir()) == []
 
@@ -340,7 +340,7 @@ def test_sizes_are_checked_before_allocation(inputs, tmp_path, capsys):
 def test_volume_step_is_checked_before_allocation(tmp_path):
     """In a subprocess with a time limit: unchecked, this grid takes hours."""
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    run = subprocess.run([sys.executable, "-c", CLI, "volume", "--config",
+    run = subprocess.run([sys.executable, "-c", CLI, "design", "volume", "--config",
                           str(ROOT / "calib" / "paper_scanner.toml"), "--step", "0.01"],
                          capture_output=True, text=True, env=env, timeout=120)
     assert run.returncode == 2
@@ -435,8 +435,10 @@ def test_nan_and_negative_qa_numbers(case, inputs, tmp_path, capsys):
     assert not (tmp_path / "qa").exists()
 
 
-@pytest.mark.parametrize("argv", [["curve", "--period", "0"], ["curve", "--step", "nan"],
-                                  ["volume", "--level", "nan"], ["dof", "--periods", "5,inf"],
+@pytest.mark.parametrize("argv", [["design", "curve", "--period", "0"],
+                                  ["design", "curve", "--step", "nan"],
+                                  ["design", "volume", "--level", "nan"],
+                                  ["design", "dof", "--periods", "5,inf"],
                                   ["calibrate", "sweep", "--cell", "0", "--out", "t.npz"]])
 def test_design_and_calibrate_numbers(argv, capsys):
     with pytest.raises(SystemExit) as exc:
@@ -483,12 +485,12 @@ def test_wrong_toml_types(tmp_path, capsys):
     """A table where a number is expected, a list of numbers where tables are."""
     cfg = (ROOT / "calib" / "paper_scanner.toml").read_text()
     (tmp_path / "c.toml").write_text(cfg + "\n[profiles]\nx = 3\n")
-    code = main(["dof", "--config", f"{tmp_path / 'c.toml'}#x"])
+    code = main(["design", "dof", "--config", f"{tmp_path / 'c.toml'}#x"])
     assert "[profiles.x] must be a table" in one_line_error(capsys, code)
     base = cfg[:cfg.index("[profiles.")]
     (tmp_path / "d.toml").write_text(base.replace('name = "paper_scanner"',
                                                   'name = "p"\nprofiles = 3'))
-    code = main(["dof", "--config", str(tmp_path / "d.toml")])
+    code = main(["design", "dof", "--config", str(tmp_path / "d.toml")])
     assert "profiles must be [profiles.NAME] tables" in one_line_error(capsys, code)
     sweep = tmp_path / "sweep.toml"
     sweep.write_text('format = "scanqa-sweep/1"\nposition = [1, 2, 3]\n')
@@ -506,7 +508,7 @@ def test_stdout_closed_early_and_full(tmp_path):
     stdout on /dev/full is one line and exit 2. (The reader of the pipe is gone before
     the command writes: the same EPIPE as 'head' exiting, without a race.)"""
     env = {**os.environ, "PYTHONPATH": str(ROOT / "src")}
-    argv = [sys.executable, "-c", CLI, "curve", "--config",
+    argv = [sys.executable, "-c", CLI, "design", "curve", "--config",
             str(ROOT / "calib" / "paper_scanner.toml")]
     read_end, write_end = os.pipe()
     os.close(read_end)
@@ -540,12 +542,12 @@ def test_calibrate_refuses_a_config_of_another_camera(tmp_path, capsys):
 def test_characterize_uses_or_checks_the_manifest_config(tmp_path, capsys):
     """Without --config the sweep's recorded config is used (the fit matches the sample
     profile's sigma_p, which came from this sweep); the paper's config is refused."""
-    code = main(["characterize", str(SAMPLE / "camera_sweep"), "--config",
+    code = main(["characterize", "sweep", str(SAMPLE / "camera_sweep"), "--config",
                  str(ROOT / "calib" / "paper_scanner.toml"), "--out", str(tmp_path / "a")])
     line = one_line_error(capsys, code)
     assert "camera.f_number = 8.0 but the sweep was made with 11.0" in line
-    assert main(["characterize", str(SAMPLE / "camera_sweep"), "--out", str(tmp_path / "b"),
-                 "-q"]) == 0
+    assert main(["characterize", "sweep", str(SAMPLE / "camera_sweep"),
+                 "--out", str(tmp_path / "b"), "-q"]) == 0
     best = json.loads((tmp_path / "b" / "summary.json").read_text())["best_variant"]
     from scanqa.model.config import load_config
 

@@ -421,7 +421,7 @@ def test_ctrl_c_during_start_up_is_one_line(monkeypatch, capsys):
         raise KeyboardInterrupt
 
     monkeypatch.setattr(importlib, "import_module", interrupted)
-    assert cli.main(["dof", "--config", "x.toml"]) == 130
+    assert cli.main(["design", "dof", "--config", "x.toml"]) == 130
     assert capsys.readouterr().err == "scanqa: interrupted\n"
 
 

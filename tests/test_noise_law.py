@@ -55,7 +55,7 @@ def test_repeats_law_holds_on_held_out_rows_and_meets_the_sweep_model(repeats, t
     law = apply_fitted_model(config, path)
     assert law.model.has_noise_law
     assert "summary.json sha256 " in law.model.characterised_by
-    assert "(scanqa characterize-repeats" in law.model.characterised_by
+    assert "(scanqa characterize repeats" in law.model.characterised_by
     cal = config_pinhole(config)
     swept = annotate(repeats[0], cal, config).attributes
     lawful = annotate(repeats[0], cal, law)
@@ -70,7 +70,7 @@ def test_repeats_need_two_captures_and_the_cli_writes_the_summary(repeats, tmp_p
     with pytest.raises(InputError, match=">= 2 captures"):
         board.repeat_samples(repeats[:1])
     scans = [str(SAMPLE / "gauge_blocks" / f"p000_r{i}") for i in range(2)]
-    code = main(["characterize-repeats", *scans, "--out", str(tmp_path / "n")])
+    code = main(["characterize", "repeats", *scans, "--out", str(tmp_path / "n")])
     out = capsys.readouterr().out
     assert code == 0 and "held-out rows" in out
     data = json.loads((tmp_path / "n" / "summary.json").read_text())

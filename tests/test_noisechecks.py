@@ -15,7 +15,7 @@ import pytest
 
 from scanqa.characterization.checks import check_scale, pose_keys
 from scanqa.cli import main
-from scanqa.cli.characterize_board import board_notice
+from scanqa.cli.characterize import board_notice
 from scanqa.errors import InputError
 from scanqa.model.config import load_config
 from tests.conftest import ROOT
@@ -85,7 +85,7 @@ def _copy(tmp_path, name, change=None, files=None):
 
 
 def _refused(capsys, tmp_path, scans) -> str:
-    code = main(["characterize-repeats", *scans, "--out", str(tmp_path / "out")])
+    code = main(["characterize", "repeats", *scans, "--out", str(tmp_path / "out")])
     lines = capsys.readouterr().err.strip().splitlines()
     # the decoder's own warnings (a black frame in a set) may precede the one refusal
     errors = [line for line in lines if not line.startswith("scanqa: warning:")]

@@ -114,7 +114,7 @@ def test_board_summary_reports_the_systematic_parts_and_the_law(board, tmp_path)
     path.write_text(json.dumps(board))
     config = apply_fitted_model(load_config(ROOT / "calib" / "slstudio_example.toml"), path)
     assert config.model.noise_shot_dn == pytest.approx(law["shot_dn"])
-    assert "(scanqa characterize-board" in config.model.characterised_by
+    assert "(scanqa characterize board" in config.model.characterised_by
 
 
 def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):

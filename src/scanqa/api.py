@@ -3,7 +3,7 @@ frames, calibrate from board poses, characterise the noise on the board, annotat
 that characterisation, compare with a reference.
 
 Each function does what its command does (``scanqa describe``, ``scanqa calibrate
---board``, ``scanqa characterize-board``, ``scanqa compare``), takes the same arguments
+--board``, ``scanqa characterize board``, ``scanqa compare``), takes the same arguments
 under the same names (``--square-mm`` is ``square_mm``), accepts file names or the objects
 scanqa already loaded, and returns the result; with ``out`` it also writes the command's
 files. Nothing is printed: progress goes to the ``scanqa`` logger (a bar in a terminal,
@@ -136,7 +136,7 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
                        board: tuple[int, int] = (9, 13), profile: str | None = None,
                        depth_range_mm: tuple[float, float] | None = None,
                        out: PathLike | None = None) -> dict:
-    """The scanner's noise law from board poses (``scanqa characterize-board``).
+    """The scanner's noise law from board poses (``scanqa characterize board``).
 
     Parameters
     ----------
@@ -177,7 +177,7 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
                            tuple(depth_range_mm or (0.0, float("inf"))))
     check_scale(cal, cfg, str(calibration))
     rows, columns = board
-    with Progress("characterize-board", total=len(decoded), unit="pose") as bar:
+    with Progress("characterize board", total=len(decoded), unit="pose") as bar:
         result = fit_board(decoded, cal, (columns, rows), progress=step_messages(bar))
     if out is not None:
         text = io.StringIO()
@@ -199,7 +199,7 @@ def apply_characterization(config, summary: PathLike):
     config : ScannerConfig or path
         The scanner config.
     summary : path
-        summary.json of ``characterize`` or ``characterize-board``.
+        summary.json of ``characterize`` or ``characterize board``.
     """
     from scanqa.characterization.sweep import apply_fitted_model
     from scanqa.model.config import ScannerConfig, load_config

@@ -277,12 +277,12 @@ def sigma_source(config: ScannerConfig, phase_map: PhaseMap) -> dict:
         return {"kind": "assumed", "random": "images", "detail": noise,
                 "warning": f"{assumed}, and the decoder found no noise in the images "
                            "(default camera model): every sigma is assumed; characterise "
-                           "the scanner (scanqa characterize-board) or give [sensor] gain"}
+                           "the scanner (scanqa characterize board) or give [sensor] gain"}
     return {"kind": "images", "random": "images",
             "detail": noise or "the phase map's sigma_xp (its noise source not recorded)",
             "warning": f"{assumed}: sigma_random/sigma_total come from the scan's own "
                        "images instead; sigma_model_um is only the assumed model "
-                       "(characterise the scanner: scanqa characterize-board)"}
+                       "(characterise the scanner: scanqa characterize board)"}
 
 
 def _random_sigma(inputs: dict, sigma_model: np.ndarray, s_t: np.ndarray) -> np.ndarray:

@@ -1,6 +1,6 @@
 """What a noise characterisation refuses before it fits: inputs that fit nothing.
 
-``scanqa characterize-board`` and ``characterize-repeats`` fit a law to whatever they are
+``scanqa characterize board`` and ``characterize repeats`` fit a law to whatever they are
 given; these checks make sure that what they are given is what the law means:
 
 * board poses are named by their folder (``pose1/phase.npz`` is pose ``pose1``), and a

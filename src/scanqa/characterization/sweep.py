@@ -138,7 +138,7 @@ class Characterization:
         """``config`` with the model the data supported (:attr:`best`), saying so in
         ``[model] characterised_by``."""
         return self.best.apply_to(config).replace_model(
-            characterised_by=f"scanqa characterize: the {self.experiment} sweep")
+            characterised_by=f"scanqa characterize sweep: the {self.experiment} sweep")
 
     def model_std(self, fit: VariantFit, config: ScannerConfig) -> np.ndarray:
         """sigma_p * s_O of a fit at every position [projector px]."""
@@ -427,7 +427,7 @@ class JointCharacterization:
         """``config`` with the model the data supported (:attr:`best`), saying so in
         ``[model] characterised_by``."""
         return self.best.apply_to(config).replace_model(
-            characterised_by=f"scanqa characterize: the {self.experiment} sweeps")
+            characterised_by=f"scanqa characterize sweep: the {self.experiment} sweeps")
 
     @property
     def experiment(self) -> str:

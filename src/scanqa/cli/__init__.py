@@ -1,11 +1,13 @@
 """The ``scanqa`` command line: argument parsing only (load, call the library, write).
 
 Each job has its own module here with ``register(subparsers)``; the module list below
-is the one place that adds a subcommand, and every subcommand gets ``-v``/``-q``
-(:func:`scanqa.cli.common.verbosity_parent`). Every error a user can cause is a
-:class:`~scanqa.errors.ScanQAError`, printed as ``scanqa: <message>`` with exit code 2
-and no traceback; SIGTERM cleans up like Ctrl-C (temporaries and staged outputs are
-removed) and exits 143.
+is the one place that adds a command, and every command and sub-command gets ``-v``/``-q``
+(:func:`scanqa.cli.common.verbosity_parent`). The commands follow the pipeline; the design
+tools are ``scanqa design ...`` and the noise characterisations ``scanqa characterize ...``
+(their old flat names, :data:`RENAMED`, still run, with a one-line notice). Every error a
+user can cause is a :class:`~scanqa.errors.ScanQAError`, printed as ``scanqa: <message>``
+with exit code 2 and no traceback; SIGTERM cleans up like Ctrl-C (temporaries and staged
+outputs are removed) and exits 143.
 """
 
 from __future__ import annotations
@@ -22,26 +24,40 @@ from collections.abc import Iterator, Sequence
 from scanqa._version import __version__
 from scanqa.errors import ScanQAError
 
-#: Modules that register subcommands, in the order ``--help`` lists them, with the
-#: subcommands each registers (tests/test_cli_startup.py holds the names to what the
-#: modules add): ``scanqa dof`` imports the one module that runs it, not all fourteen,
-#: whose libraries (matplotlib, scipy.stats, numba, open3d) take seconds to load.
+#: Modules that register commands, in the order ``--help`` lists them (the pipeline's),
+#: with the commands each registers (tests/test_cli_startup.py holds the names to what the
+#: modules add): ``scanqa design dof`` imports the one module that runs it, not all
+#: fourteen, whose libraries (matplotlib, scipy.stats, numba, open3d) take seconds to load.
 COMMANDS = {
     "scanqa.cli.init": ("init",),
-    "scanqa.cli.design": ("dof", "curve", "volume", "flatten", "design"),
-    "scanqa.cli.sweep_manifest": ("sweep-manifest",),
-    "scanqa.cli.calibrate": ("calibrate",),
-    "scanqa.cli.annotate": ("annotate",),
-    "scanqa.cli.qa": ("qa",),
-    "scanqa.cli.compare": ("compare",),
-    "scanqa.cli.demo": ("demo",),
+    "scanqa.cli.simulate": ("simulate",),
     "scanqa.cli.patterns": ("patterns",),
     "scanqa.cli.describe": ("describe",),
     "scanqa.cli.decode": ("decode",),
-    "scanqa.cli.simulate": ("simulate", "characterize"),
-    "scanqa.cli.characterize_board": ("characterize-board", "characterize-repeats"),
+    "scanqa.cli.sweep_manifest": ("sweep-manifest",),
+    "scanqa.cli.calibrate": ("calibrate",),
+    "scanqa.cli.characterize": ("characterize",),
+    "scanqa.cli.annotate": ("annotate",),
+    "scanqa.cli.qa": ("qa",),
+    "scanqa.cli.compare": ("compare",),
+    "scanqa.cli.design": ("design",),
     "scanqa.cli.batch": ("batch", "campaign"),
+    "scanqa.cli.demo": ("demo",),
 }
+#: Commands renamed in 0.1 (issue 47), with the words they became. They run for one more
+#: release, with a one-line notice on stderr; ``scanqa characterize SWEEP...`` (the sweep
+#: form, from before ``characterize`` took sub-commands) likewise, see :func:`renamed`.
+RENAMED = {
+    "dof": ("design", "dof"),
+    "curve": ("design", "curve"),
+    "volume": ("design", "volume"),
+    "flatten": ("design", "flatten"),
+    "characterize-board": ("characterize", "board"),
+    "characterize-repeats": ("characterize", "repeats"),
+}
+#: The sub-commands of ``scanqa characterize``: a first word after it that is none of
+#: these (nor -h/-v/-q) is the old sweep form's SWEEP or option.
+CHARACTERIZE = ("sweep", "board", "repeats")
 COMMAND_MODULES = tuple(COMMANDS)
 
 log = logging.getLogger(__name__)
@@ -68,7 +84,35 @@ class _SubParsers(argparse._SubParsersAction):
 
         kwargs["parents"] = [*kwargs.get("parents", ()), verbosity_parent()]
         kwargs.setdefault("conflict_handler", "resolve")  # a subcommand may refine -q
-        return super().add_parser(name, **kwargs)
+        parser = super().add_parser(name, **kwargs)
+        parser.register("action", "parsers", _SubParsers)  # sub-commands get -v/-q too
+        return parser
+
+
+def renamed(words: list[str]) -> list[str]:
+    """The words of a command given by its old name (:data:`RENAMED`, or
+    ``characterize SWEEP...``) in its new form, after a one-line notice on stderr naming
+    the new command; other words as they are."""
+    if words and words[0] in RENAMED:
+        new = [*RENAMED[words[0]], *words[1:]]
+        old, now = words[0], " ".join(RENAMED[words[0]])
+    elif words[:1] == ["characterize"] and _old_characterize(words[1:]):
+        new = ["characterize", "sweep", *words[1:]]
+        old, now = "characterize SWEEP", "characterize sweep SWEEP"
+    else:
+        return words
+    sys.stderr.write(f"scanqa: 'scanqa {old}' is now 'scanqa {now}'; the old form goes in "
+                     "the next release\n")
+    sys.stderr.flush()
+    return new
+
+
+def _old_characterize(rest: list[str]) -> bool:
+    """Whether the words after ``characterize`` are its sweep form of before 0.1: the first
+    that is not -v/-q is neither a sub-command nor -h (a SWEEP folder named like a
+    sub-command is written ./sweep)."""
+    first = next((w for w in rest if w not in ("-v", "--verbose", "-q", "--quiet")), None)
+    return first is not None and first not in (*CHARACTERIZE, "-h", "--help")
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
@@ -124,7 +168,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 def _main(argv: Sequence[str] | None) -> int:
-    words = list(sys.argv[1:] if argv is None else argv)
+    words = renamed(list(sys.argv[1:] if argv is None else argv))
     named = words[0] if words and any(words[0] in c for c in COMMANDS.values()) else None
     if words == ["--version"]:
         named = "--version"  # no subcommand's module is needed to print the version
@@ -145,7 +189,7 @@ def _main(argv: Sequence[str] | None) -> int:
     except ScanQAError as err:
         _fail(str(err))
         return 2
-    except StdoutClosed:  # 'scanqa curve | head -1': stop quietly, like any Unix filter
+    except StdoutClosed:  # 'scanqa design curve | head -1': stop quietly, like any Unix filter
         silence_stdout()
         return 141
     except OSError as err:  # the environment, not the input: say which file and why

@@ -31,6 +31,13 @@ def verbosity_parent() -> argparse.ArgumentParser:
     return parent
 
 
+def add_actions(parser: argparse.ArgumentParser) -> argparse._SubParsersAction:
+    """The sub-commands of a command (``scanqa design dof``); the command given alone
+    prints its help and exits 2."""
+    parser.set_defaults(func=lambda args: parser.print_help() or 2)
+    return parser.add_subparsers(dest="action", metavar="ACTION", parser_class=type(parser))
+
+
 @contextlib.contextmanager
 def flags(names: dict[str, str]):
     """Re-raise a library error in this command's words: the library names its parameter
@@ -58,7 +65,7 @@ def flags(names: dict[str, str]):
 
 
 class StdoutClosed(Exception):
-    """The reader of stdout went away (``scanqa curve | head -1``)."""
+    """The reader of stdout went away (``scanqa design curve | head -1``)."""
 
 
 def silence_stdout() -> None:

@@ -1,5 +1,5 @@
-"""Design tools: ``scanqa dof``, ``curve``, ``volume``, ``flatten`` and ``scanqa design page``
-(parsing only)."""
+"""``scanqa design``: ``dof``, ``curve``, ``volume``, ``flatten``, ``page`` and ``optimise``
+(parsing only; :mod:`scanqa.design` does the work)."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import json
 import numpy as np
 
 from scanqa.cli.common import (
+    add_actions,
     add_config_argument,
     add_output_arguments,
     config_from_args,
@@ -28,11 +29,20 @@ _FMT = argparse.RawDescriptionHelpFormatter
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    """Add the four design subcommands."""
-    p = sub.add_parser("dof", formatter_class=_FMT,
-                       help="depth of field per attenuation level and period (Tables 1, 2)",
-                       epilog="example:\n  scanqa dof --config calib/paper_scanner.toml "
-                              "--periods 5,7,10 --json")
+    """Add ``scanqa design`` and its six tools."""
+    group = sub.add_parser(
+        "design", formatter_class=_FMT,
+        help="design tools: depth of field, W curve, usable volume, flattening, the design "
+             "page, the optimiser",
+        description="What a scanner will do before it is built (Sect. 5 of the paper), "
+                    "from its config alone.",
+        epilog="examples:\n  scanqa design dof --config calib/paper_scanner.toml --json\n"
+               "  scanqa design page --config calib/paper_scanner.toml")
+    actions = add_actions(group)
+    p = actions.add_parser("dof", formatter_class=_FMT,
+                           help="depth of field per attenuation level and period (Tables 1, 2)",
+                           epilog="example:\n  scanqa design dof --config "
+                                  "calib/paper_scanner.toml --periods 5,7,10 --json")
     add_config_argument(p)
     p.add_argument("--levels", type=float_list, default=list(tools.TABLE_LEVELS),
                    help="attenuation levels [-] (default: the ten of Table 1)")
@@ -41,17 +51,19 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_output_arguments(p)
     p.set_defaults(func=run_dof)
 
-    p = sub.add_parser("curve", formatter_class=_FMT,
-                       help="attenuation, F_gamma and sigma over range on the camera axis",
-                       epilog="example:\n  scanqa curve --config calib/paper_scanner.toml "
-                              "--z-min 420 --z-max 480 --step 0.5 --plot w.png")
+    p = actions.add_parser("curve", formatter_class=_FMT,
+                           help="attenuation, F_gamma and sigma over range on the camera axis",
+                           epilog="example:\n  scanqa design curve --config "
+                                  "calib/paper_scanner.toml --z-min 420 --z-max 480 --step 0.5 "
+                                  "--plot w.png")
     _add_range(p)
     p.set_defaults(func=run_curve)
 
-    p = sub.add_parser("volume", formatter_class=_FMT,
-                       help="usable reconstruction volume at an attenuation level (Sect. 5.1)",
-                       epilog="example:\n  scanqa volume --config calib/paper_scanner.toml "
-                              "--level 0.49 --plot volume.png")
+    p = actions.add_parser("volume", formatter_class=_FMT,
+                           help="usable reconstruction volume at an attenuation level "
+                                "(Sect. 5.1)",
+                           epilog="example:\n  scanqa design volume --config "
+                                  "calib/paper_scanner.toml --level 0.49 --plot volume.png")
     add_config_argument(p)
     p.add_argument("--level", type=number(), default=0.49,
                    help="combined attenuation threshold A_c*A_p [-] (default 0.49)")
@@ -65,18 +77,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     add_output_arguments(p)
     p.set_defaults(func=run_volume)
 
-    p = sub.add_parser("flatten", formatter_class=_FMT,
-                       help="digital filter diameter that flattens the W curve (Sect. 5.2)",
-                       epilog="example:\n  scanqa flatten --config calib/paper_scanner.toml "
-                              "--plot flat.png --csv")
+    p = actions.add_parser("flatten", formatter_class=_FMT,
+                           help="digital filter diameter that flattens the W curve (Sect. 5.2)",
+                           epilog="example:\n  scanqa design flatten --config "
+                                  "calib/paper_scanner.toml --plot flat.png --csv")
     _add_range(p)
     p.set_defaults(func=run_flatten)
 
-    p = sub.add_parser("design", formatter_class=_FMT,
-                       help="the design page: reconfigure a scanner and see its volumes live",
-                       epilog="example:\n  scanqa design page --config calib/paper_scanner.toml")
-    actions = p.add_subparsers(dest="design_command", metavar="ACTION",
-                               parser_class=type(p))
     page = actions.add_parser("page", formatter_class=_FMT,
                               help="serve the design page locally (Sect. 5.1, Fig. 6)",
                               epilog="example:\n  scanqa design page --config "

@@ -7,7 +7,7 @@ thresholds into everything the page draws - the view pyramids, the focus planes,
 circle-of-confusion band, the total and usable volume, the W curve, the depth of field
 and the numbers - by the one model chain (:mod:`scanqa.design.tools`, :mod:`scanqa.model.optics`).
 The usable volume is :func:`scanqa.design.tools.usable_volume` at its default 1 mm voxels, so
-the page's number is ``scanqa volume``'s.
+the page's number is ``scanqa design volume``'s.
 
 References
 ----------
@@ -162,7 +162,7 @@ class RigView:
     intersection of the pyramids and the near and far planes) and ``usable_mesh`` (the
     boundary of the usable voxels of a coarse grid) are (vertices (n, 3) [mm], triangles
     (m, 3)) for the picture; the numbers come from ``volume``, the 1 mm grid of
-    ``scanqa volume``.
+    ``scanqa design volume``.
     """
 
     level: float

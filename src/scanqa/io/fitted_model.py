@@ -54,7 +54,7 @@ def check_characterised_by(text: str, config_path: str | os.PathLike) -> None:
     if found is None:
         raise ConfigError(
             f"{key} does not name a characterisation: give the summary.json that scanqa "
-            "characterize, characterize-board or characterize-repeats wrote and the start "
+            "characterize (sweep, board or repeats) wrote and the start "
             "of its sha256, as \"board_noise/summary.json sha256 <16 hex digits>\" (relative "
             "to the config; apply a summary with the model option to get the line), or "
             "leave it out: every point's sigma then comes from the scan's own images")
@@ -103,7 +103,7 @@ def read_fitted_model(path: str | os.PathLike) -> dict:
             kind = "board" if data["kind"] == "board" else "repeats"
             return _board_law(data["noise_law"], where, kind)
         best = data["best_variant"]
-        return {"characterised_by": f"{where} (scanqa characterize)",
+        return {"characterised_by": f"{where} (scanqa characterize sweep)",
                 "filter_floor": str(best["filter_floor"]),
                 "noise_reading": str(best["noise_reading"]),
                 "filter_form": str(best.get("filter_form", "product")),
@@ -127,7 +127,7 @@ def _number(value, key: str) -> float:
 
 def _board_law(law: dict, where: str, kind: str) -> dict:
     """``[model]`` overrides of a board characterisation's noise law (``scanqa
-    characterize-board``): the law, its systematic term and where it came from."""
+    characterize board``): the law, its systematic term and where it came from."""
     values = {"noise_read_var_dn2": float(law["read_var_dn2"]),
               "noise_shot_dn": float(law["shot_dn"]),
               "systematic_sigma_mm": 1e-3 * float(law["systematic_um"])}
@@ -135,5 +135,5 @@ def _board_law(law: dict, where: str, kind: str) -> dict:
     if bad:
         raise ValueError(f"noise_law {bad[0]} (must be a finite number >= 0)")
     data_hash = str(law.get("data_sha256", ""))[:16]
-    return {"characterised_by": f"{where} (scanqa characterize-{kind}, images sha256 "
+    return {"characterised_by": f"{where} (scanqa characterize {kind}, images sha256 "
                                 f"{data_hash})", **values}

@@ -286,7 +286,7 @@ class ModelConfig(_Section):
     #: written down as a kind = "published" file). An assumed sigma_p does not set the
     #: per-point sigma: the images' own noise does (docs/noise_model.rst)
     characterised_by: str = _spec(kind="text", default="")
-    #: per-pixel noise law fitted to a board (scanqa characterize-board): intensity
+    #: per-pixel noise law fitted to a board (scanqa characterize board): intensity
     #: variance a + b A per frame at offset A; 0 and 0 = no law
     noise_read_var_dn2: float = _spec("DN^2", ge=0, default=0.0)
     noise_shot_dn: float = _spec("DN", ge=0, default=0.0)

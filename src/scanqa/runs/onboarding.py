@@ -251,7 +251,7 @@ def _model() -> list[tuple]:
             ("characterised_by", "", "the characterisation file and the start of its "
              "sha256, 'SUMMARY.json sha256 HEX' (never free words); empty = ASSUMED, so "
              "every point's sigma comes from the scan's own images and every command warns "
-             "('scanqa characterize-board' or --model SUMMARY.json fill it)")]
+             "('scanqa characterize board' or --model SUMMARY.json fill it)")]
 
 
 def _from(cal: ParametricCalibration | None, key: str) -> str:

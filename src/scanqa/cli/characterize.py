@@ -1,6 +1,7 @@
-"""``scanqa characterize-board`` and ``characterize-repeats``: a real scanner's noise
-from its calibration board's poses, or from repeated captures of one pose (parsing
-only; :mod:`scanqa.characterization.board`)."""
+"""``scanqa characterize``: ``sweep`` fits the noise model to a simulated or measured sweep,
+``board`` finds a real scanner's noise from its calibration board's poses, ``repeats``
+from repeated captures of one pose (parsing only; :mod:`scanqa.characterize` does the
+work)."""
 
 from __future__ import annotations
 
@@ -11,17 +12,20 @@ import json
 from pathlib import Path
 
 from scanqa.cli.common import (
+    add_actions,
     add_calibration_argument,
     add_config_argument,
     calibration_from_args,
     config_from_args,
     emit,
     flags,
+    number,
 )
 from scanqa.errors import InputError
 
+_FMT = argparse.RawDescriptionHelpFormatter
 _EPILOG = """examples:
-  scanqa characterize-board pose1/ pose2/ pose3/ --calibration calibration.xml \\
+  scanqa characterize board pose1/ pose2/ pose3/ --calibration calibration.xml \\
       --config scanner.toml --board 9x13 --out board_noise
   scanqa annotate scan/ --calibration calibration.xml --config scanner.toml \\
       --model board_noise/summary.json --out cloud.ply
@@ -36,9 +40,51 @@ phase-locked ripple per pose) and cells.csv."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
-    p = sub.add_parser("characterize-board", formatter_class=argparse.RawDescriptionHelpFormatter,
-                       help="a real scanner's per-point noise from its board poses (no stage)",
-                       epilog=_EPILOG)
+    """Add ``scanqa characterize`` and its three sources of noise."""
+    group = sub.add_parser(
+        "characterize", formatter_class=_FMT,
+        help="the scanner's noise, measured and fitted: from a sweep, board poses or repeats",
+        description="Measure the scanner's noise and fit the model to it: from a sweep of a "
+                    "flat (sweep), from the calibration board's poses (board) or from "
+                    "repeated captures of one pose (repeats).",
+        epilog="examples:\n  scanqa characterize sweep cam --out cam/characterize\n"
+               "  scanqa characterize board pose1/ pose2/ --calibration calibration.xml "
+               "--config scanner.toml --out board_noise")
+    actions = add_actions(group)
+    p = actions.add_parser(
+        "sweep", formatter_class=_FMT,
+        help="fit the noise model to a simulated or measured sweep and say what the data "
+             "identify",
+        description="Decode a camera, projector or calibration sweep, fit a low-order "
+                    "surface to the flat's x_p map per position, compare the residual std "
+                    "and the attenuation with the model (Figs. 3/4), and fit every variant "
+                    "of the model (the paper's readings and the two-source model). Each "
+                    "parameter is reported as fitted, bounded or not identifiable with its "
+                    "95 % profile-likelihood interval; the variant that predicts held-out "
+                    "positions best is selected and compared with a constant. Several "
+                    "sweeps are fitted together.",
+        epilog="The scanner config defaults to the one recorded in the sweep's manifest; a "
+               "--config given must have the same camera and projector.\n\n"
+               "examples:\n  scanqa characterize sweep cam --out cam/characterize\n"
+               "  scanqa characterize sweep cam proj --config calib/paper_scanner.toml "
+               "--out both\n"
+               "  scanqa characterize sweep sweep/sweep.toml   # a rigid scanner's "
+               "calibration sweep")
+    p.add_argument("sweep", metavar="SWEEP", nargs="+",
+                   help="folder(s) written by scanqa simulate camera-sweep/projector-sweep, "
+                        "or a calibration sweep's sweep.toml (both devices defocus)")
+    add_config_argument(p, required=False)
+    p.add_argument("--out", default=None, metavar="DIR",
+                   help="folder for summary.json and plots (default: SWEEP_DIR/characterize)")
+    p.add_argument("--min-attenuation", type=number(gt=0), default=0.49,
+                   help="fit where the moving devices' model attenuation is at least this "
+                        "[-] (default 0.49)")
+    p.set_defaults(func=run_sweep)
+
+    p = actions.add_parser("board", formatter_class=_FMT,
+                           help="a real scanner's per-point noise from its board poses "
+                                "(no stage)",
+                           epilog=_EPILOG)
     p.add_argument("poses", nargs="+", metavar="POSE", help="board poses (>= 2)")
     add_calibration_argument(p)
     add_config_argument(p)
@@ -46,11 +92,11 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="inner corners (saddle points) of the chessboard, rows x columns as "
                         "for calibrate (default 9x13)")
     p.add_argument("--out", required=True, help="output folder")
-    p.set_defaults(func=run)
-    r = sub.add_parser("characterize-repeats",
-                       formatter_class=argparse.RawDescriptionHelpFormatter,
-                       help="a scanner's per-pixel noise law from repeated captures of one pose",
-                       epilog="example:\n  scanqa characterize-repeats rep0/ rep1/ rep2/ --out "
+    p.set_defaults(func=run_board)
+    r = actions.add_parser("repeats", formatter_class=_FMT,
+                           help="a scanner's per-pixel noise law from repeated captures of "
+                                "one pose",
+                           epilog="example:\n  scanqa characterize repeats rep0/ rep1/ rep2/ --out "
                               "noise\n\nEach SCAN is a pattern folder or phase.npz of the same "
                               "static scene (each a separate capture; nothing moved between "
                               "them: repeats that differ beyond their noise are refused). "
@@ -78,12 +124,31 @@ def board_notice(rows: int, cols: int) -> str:
     if rows <= cols:
         return ""
     return (f"note: --board {rows}x{cols} is read as ROWSxCOLS ({rows} rows x {cols} columns "
-            "of inner corners), as calibrate reads it; characterize-board read COLSxROWS "
+            "of inner corners), as calibrate reads it; characterize board read COLSxROWS "
             "before. The board is found in either orientation, so it fits the same board as "
             f"{cols}x{rows}")
 
 
-def run(args: argparse.Namespace) -> int:
+def run_sweep(args: argparse.Namespace) -> int:
+    from scanqa.characterization.sweep import characterize_sweeps, sweep_config, sweep_folder
+    from scanqa.report.characterization import characterization_lines, write_characterization
+
+    with flags({"leave the config out": "leave --config out",
+                "give the config the sweep was made with":
+                    "give the config the sweep was made with (--config)"}):
+        config = config_from_args(args) if args.config else sweep_config(args.sweep[0])
+        result = characterize_sweeps(args.sweep, config, min_attenuation=args.min_attenuation)
+    default = sweep_folder(args.sweep[0]) / "characterize"
+    out = write_characterization(result, args.out or default, config)
+    summary = result.summary()
+    emit(summary["verdict"])
+    for line in characterization_lines(summary):
+        emit(f"  {line}")
+    emit(f"wrote {out}")
+    return 0
+
+
+def run_board(args: argparse.Namespace) -> int:
     from scanqa.characterization.board import characterize_board, digest
     from scanqa.characterization.checks import check_scale, pose_keys
     from scanqa.decoding.decoder import decode
@@ -105,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
     with flags({"wrong square size": "wrong --square-mm"}):
         check_scale(calibration, config, args.calibration)
     with flags({"check the board given": "check --board"}), \
-            Progress("characterize-board", total=len(poses), unit="pose") as bar:
+            Progress("characterize board", total=len(poses), unit="pose") as bar:
         result = characterize_board(poses, calibration, inner, progress=step_messages(bar))
     files = [f for pm in poses.values() for f in _files(pm)]
     result["noise_law"]["data_sha256"] = digest(files) if files else ""
