@@ -18,6 +18,7 @@ LAYERS = {
     "scanqa.io": 1,
     "scanqa.model.config": 2, "scanqa.model.cloud": 2, "scanqa.provenance": 2,
     "scanqa.model.readings": 3, "scanqa.model.geometry": 3, "scanqa.model.optics": 3,
+    "scanqa.model.equations": 3,
     "scanqa.decoding": 4, "scanqa.model.design": 4, "scanqa.model.noisefit": 4,
     "scanqa.model.rig": 4,
     "scanqa.runs.filterbank": 4, "scanqa.runs.flattening": 6,
