@@ -1,14 +1,12 @@
 """The model's chain at one point (Eqs. 1-4, 13-19 of [1]_), written once for two callers.
 
-Each function here is an equation, or a step of the chain, made only of arithmetic and
-numpy ufuncs, so that it runs as written on floats and on whole numpy arrays, and numba
-compiles it into the annotate loop that calls it per point (:func:`scanqa.compiled.jitable`).
-:func:`scanqa.model.optics.optical_terms` calls it on arrays, ``scanqa.runs.annotkernels``
-per point; ``tests/test_annotkernels.py`` holds the two against each other. The config
-reaches both as one :class:`ModelRecord`, its readings as codes (:func:`model_record`).
-What differs between the callers is what selects values: NaN past the first zero of J1
-or before the camera lens (``np.where`` on arrays, ``if`` per point), and J1 itself
-(scipy's on arrays; a series per point, ``annotkernels.bessel_j1``).
+Each function is an equation or a step of the chain made of arithmetic and numpy ufuncs
+only: :func:`scanqa.model.optics.optical_terms` runs it on arrays, and numba compiles it
+into the annotate loop (``scanqa.runs.annotkernels``), which calls it per point
+(:func:`scanqa.compiled.jitable`); the config reaches both as one :class:`ModelRecord`.
+The callers differ in what selects values (NaN past the first zero of J1 or before the
+camera lens: ``np.where`` on arrays, ``if`` per point) and in J1 (scipy's on arrays, a
+series per point); ``tests/test_annotkernels.py`` holds them together.
 
 References
 ----------
@@ -25,20 +23,8 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from scanqa.compiled import jitable
+from scanqa.model import readings
 from scanqa.model.config import ScannerConfig
-from scanqa.model.readings import (
-    FILTER_FLOOR_METHODS,
-    FILTER_FORM_METHODS,
-    NOISE_READING_METHODS,
-    PRODUCT,
-    SMOOTH,
-    TWO_SOURCE,
-    UNCLAMPED,
-    blur_area,
-    camera_noise_area,
-    code,
-    filter_by_code,
-)
 
 #: Validity limit of the disc-kernel model, r = C / omega_o (Sect. 3.1 of [1]) [-].
 VALID_RATIO = 0.5
@@ -92,12 +78,11 @@ def model_record(config: ScannerConfig, period_px: float | None = None,
         diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number), pixel),
         model.gamma if gamma is None else gamma,
         model.sensor_sigma_p_px / sp if sensor_ratio is None else sensor_ratio, sp)),
-        code(FILTER_FORM_METHODS, model.filter_form if filter_form is None else filter_form,
-             "form"),
-        code(FILTER_FLOOR_METHODS,
-             model.filter_floor if filter_floor is None else filter_floor, "floor"),
-        code(NOISE_READING_METHODS,
-             model.noise_reading if noise_reading is None else noise_reading, "reading"))
+        *(readings.code(methods, default if given is None else given, what)
+          for methods, given, default, what in (
+              (readings.FILTER_FORM_METHODS, filter_form, model.filter_form, "form"),
+              (readings.FILTER_FLOOR_METHODS, filter_floor, model.filter_floor, "floor"),
+              (readings.NOISE_READING_METHODS, noise_reading, model.noise_reading, "reading"))))
 
 
 @jitable
@@ -204,7 +189,7 @@ def camera_blur_area(c_image: ArrayLike, pixel: float) -> np.ndarray:
     ndarray
         b_c = max(pi (c_c / (2 s_c))^2, 1) [px^2]; NaN stays NaN.
     """
-    return np.maximum(blur_area(c_image, pixel), 1.0)
+    return np.maximum(readings.blur_area(c_image, pixel), 1.0)
 
 
 def airy_diameter(wavelength: float, f_number: float) -> float:
@@ -252,24 +237,25 @@ def filter_factors(z_c: ArrayLike, c_image: ArrayLike, m: ModelRecord) -> tuple:
     """b_c (Eq. 13) [px^2], F_1 (gamma 1, no floor) and F_gamma (Eq. 17, the record's
     form and floor, gamma at range Z_c [mm]) [-], from the image blur c_c [mm]."""
     b_c = camera_blur_area(c_image, m.pixel_mm)
-    area = b_c if m.form == PRODUCT else camera_noise_area(c_image, m.pixel_mm, m.b_d)
+    area = b_c if m.form == readings.PRODUCT else \
+        readings.camera_noise_area(c_image, m.pixel_mm, m.b_d)
     gamma = range_gamma(m.gamma, m.cam_focus_mm, z_c, m.floor)
-    return (b_c, filter_by_code(area, m.b_d, 1.0, m.form, UNCLAMPED),
-            filter_by_code(area, m.b_d, gamma, m.form, m.floor))
+    return (b_c, readings.filter_by_code(area, m.b_d, 1.0, m.form, readings.UNCLAMPED),
+            readings.filter_by_code(area, m.b_d, gamma, m.form, m.floor))
 
 
 @jitable
 def range_gamma(gamma: float, focus: float, z_c: ArrayLike, floor: int) -> np.ndarray:
     """gamma focus / Z_c with the smooth floor, else gamma [px]; focus and Z_c [mm]
     (:func:`scanqa.model.optics.correlation_gamma`)."""
-    return gamma * focus / z_c if floor == SMOOTH else gamma
+    return gamma * focus / z_c if floor == readings.SMOOTH else gamma
 
 
 @jitable
 def optical_scale_of(scene: ArrayLike, sensor: ArrayLike, m: ModelRecord) -> np.ndarray:
     """s_O (Eq. 19) [-] from its scene-side and sensor parts [-]: their root sum of
     squares for the two-source reading, else the scene part."""
-    return np.hypot(scene, sensor) if m.reading == TWO_SOURCE else scene
+    return np.hypot(scene, sensor) if m.reading == readings.TWO_SOURCE else scene
 
 
 @jitable

@@ -8,32 +8,12 @@ The model in one line (Eq. 18/19)::
     sigma(Q) = s_T(Q) * sigma_p
                / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
 
-The paper leaves readings open (docs/model.rst, "Readings"); they are explicit options,
-and the two-source noise model (docs/noise_model.rst) is a third. Each reading is a short
-function in a mapping of name to function in :mod:`scanqa.model.readings` (the noise
-chain of Eqs. 17 and 19), whose public names this module re-exports:
-
-* ``filter_floor``: "none" applies Eq. 17 as printed; "one" clamps F >= 1, the bound
-  1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17 (filtering never amplifies noise);
-  "smooth" takes F^2 + 1 instead, the curve "one" bends at F = 1: with the sum form
-  1 / F^2 = gamma^2 / (gamma^2 + N), the variance share of noise correlated over
-  gamma^2 px^2 that a kernel of noise-equivalent area N keeps (a departure from the
-  paper; docs/noise_model.rst).
-* ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
-  takes F^2 as the noise-equivalent area of the camera's whole kernel - pixel, defocus
-  disc and Airy disc, whose second moments add under convolution - over the noise's own
-  correlation area gamma^2: F = sqrt(1 + b_disc + b_d) / gamma
-  (:func:`~scanqa.model.readings.camera_noise_area`). The two agree in shape once the
-  disc dominates; "sum" stays right for pixels larger than the Airy disc (b_d << 1),
-  where the product collapses.
-* ``noise_reading``: "power" divides by A, the squared magnitude ratio, as Eq. 19 is
-  printed; "amplitude" divides by sqrt(A), which is what additive intensity noise gives;
-  "mixed" divides by A_c sqrt(A_p). "two_source" is the physical model: scene-side
-  noise (sigma_p at focus), filtered by the camera blur, plus sensor noise
-  (``sensor_sigma_p_px`` at focus), which the blur does not filter, both additive in
-  intensity and therefore both divided by the fringe amplitude sqrt(A_c A_p):
-  sigma_x^2 = (sigma_p^2 / F^2 + sigma_s^2) / (A_c A_p). The characterisation fit
-  (``scanqa characterize``) selects among them on held-out sweep positions.
+The paper leaves readings open; each is an explicit option (``filter_form``,
+``filter_floor``, ``noise_reading``; docs/model.rst, "Readings"; the two-source model,
+docs/noise_model.rst), a short function in a mapping of name to function in
+:mod:`scanqa.model.readings`, whose public names this module re-exports. The chain is
+written once, in :mod:`scanqa.model.equations`, for this module's arrays and the compiled
+annotate loop; the characterisation fit selects the readings on held-out positions.
 
 Validity: the paper calls the disc-kernel model valid for r = C / omega_o <= 1/2. Past
 the first zero of J1 (r = 1.2197) the fringe contrast inverts. :func:`predict` flags
@@ -60,18 +40,10 @@ from scanqa.model import equations
 from scanqa.model.config import ScannerConfig
 from scanqa.model.equations import (  # noqa: F401 - re-exported: optics is the entry
     VALID_RATIO,
-    ModelRecord,
     airy_diameter,
-    blur_ratios,
     camera_blur_area,
     circle_of_confusion,
     diffraction_blur_area,
-    filter_factors,
-    image_blur,
-    model_record,
-    optical_scale_of,
-    point_sigma,
-    range_gamma,
 )
 from scanqa.model.geometry import projector_depth, triangulation_scale
 from scanqa.model.readings import (  # noqa: F401 - re-exported: optics is the entry
@@ -168,7 +140,7 @@ def image_blur_diameter(z_c: ArrayLike, focal: float, focus: float, aperture: fl
     """
     z_c = np.asarray(z_c, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):  # no image there
-        blur = image_blur(z_c, focal, circle_of_confusion(z_c, focus, aperture))
+        blur = equations.image_blur(z_c, focal, circle_of_confusion(z_c, focus, aperture))
     return np.where(z_c > focal, blur, np.nan)
 
 
@@ -200,7 +172,7 @@ class OpticalTerms:
     s_o_sensor: np.ndarray | None = None
     filter_base: np.ndarray | None = None
     object_scale: np.ndarray | None = None
-    record: ModelRecord | None = None
+    record: equations.ModelRecord | None = None
 
     @property
     def within_validity(self) -> np.ndarray:
@@ -257,7 +229,7 @@ def correlation_gamma(gamma: float, z_c: ArrayLike, config: ScannerConfig,
     """
     z = np.asarray(z_c, dtype=float)
     floor = code(FILTER_FLOOR_METHODS, filter_floor, "floor")
-    return range_gamma(float(gamma), config.camera.focus_mm, z, floor) + np.zeros(z.shape)
+    return equations.range_gamma(float(gamma), config.camera.focus_mm, z, floor) + np.zeros(z.shape)
 
 
 def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
@@ -295,20 +267,20 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
     OpticalTerms
         Every intermediate quantity, broadcast to one shape.
     """
-    m = model_record(config, period_px, gamma, filter_floor, noise_reading, filter_form,
+    m = equations.model_record(config, period_px, gamma, filter_floor, noise_reading, filter_form,
                      sensor_ratio, sigma_p)
     z_c, z_p = np.broadcast_arrays(np.asarray(z_c, dtype=float), np.asarray(z_p, dtype=float))
     with np.errstate(divide="ignore", invalid="ignore"):
-        omega_o, _, r_c, r_p = blur_ratios(z_c, z_p, m)
+        omega_o, _, r_c, r_p = equations.blur_ratios(z_c, z_p, m)
         a_c, a_p = attenuation(r_c), attenuation(r_p)
         c_image = image_blur_diameter(z_c, m.cam_focal_mm, m.cam_focus_mm, m.cam_aperture_mm)
-        b_c, base, f_gamma = filter_factors(z_c, c_image, m)
+        b_c, base, f_gamma = equations.filter_factors(z_c, c_image, m)
         scene, sensor = scales_by_code(f_gamma, a_p, a_c, m.reading, m.sensor_ratio)
     beyond = (r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO)
     scene, sensor = np.where(beyond, np.nan, scene), np.where(beyond, np.nan, sensor)
     return OpticalTerms(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma,
-                        optical_scale_of(scene, sensor, m), list(FILTER_FLOOR_METHODS)[m.floor],
-                        list(NOISE_READING_METHODS)[m.reading],
+                        equations.optical_scale_of(scene, sensor, m),
+                        list(FILTER_FLOOR_METHODS)[m.floor], list(NOISE_READING_METHODS)[m.reading],
                         list(FILTER_FORM_METHODS)[m.form], scene, sensor, base,
                         m.cam_focus_mm / z_c, m)
 
@@ -367,7 +339,7 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
     t = optical_terms(q[..., 2], projector_depth(q, config), config, period_px,
                       filter_floor=filter_floor, noise_reading=noise_reading, sigma_p=sigma_p)
     s_t = triangulation_scale(q, config) if s_t is None else np.asarray(s_t, dtype=float)
-    sigma, scene, sensor, valid = point_sigma(s_t, t.s_o, t.s_o_scene, t.s_o_sensor,
+    sigma, scene, sensor, valid = equations.point_sigma(s_t, t.s_o, t.s_o_scene, t.s_o_sensor,
                                               t.ratio_camera, t.ratio_projector, t.record)
     return Prediction(**vars(t), s_t=np.broadcast_to(s_t, np.shape(sigma)), sigma=sigma,
                       valid=valid, sigma_scene=scene, sigma_sensor=sensor)

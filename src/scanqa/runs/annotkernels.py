@@ -195,23 +195,10 @@ def _scales(z: float, coc_c: float, r_c: float, r_p: float, a_c: float, a_p: flo
 
 def model_parameters(config: ScannerConfig, random: str = "model",
                      table_corr_px: float = np.nan) -> tuple[ModelRecord, Constants]:
-    """The config's numbers and readings as :func:`annotate_band` takes them.
-
-    Parameters
-    ----------
-    config : ScannerConfig
-        Optics, poses and the model's parameters and readings.
-    random : {"model", "law", "images"}
-        The per-point random sigma's source (``scanqa.runs.annotation.sigma_source``).
-    table_corr_px : float
-        The calibration table's correlation length
-        (``scanqa.runs.annotation.table_correlation_px``) [camera px]; NaN without one.
-
-    Returns
-    -------
-    ModelRecord, Constants
-        The model's record (:func:`scanqa.model.equations.model_record`) and annotate's.
-    """
+    """The config's numbers and readings as :func:`annotate_band` takes them: the
+    model's record (:func:`scanqa.model.equations.model_record`) and annotate's, with
+    the random sigma's source ``random`` (``scanqa.runs.annotation.sigma_source``) and
+    the table's correlation length ``table_corr_px`` [camera px] (NaN without one)."""
     proj = config.projector
     rz = geometry.projector_rotation(proj)[2]
     return equations.model_record(config), Constants(
