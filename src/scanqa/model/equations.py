@@ -87,24 +87,10 @@ def model_record(config: ScannerConfig, period_px: float | None = None,
 
 @jitable
 def circle_of_confusion(z: ArrayLike, focus: float, aperture: float) -> np.ndarray:
-    """Diameter of the circle of confusion in the object plane (Eqs. 1, 2).
+    """C(Z) = Phi |Z - Z'| / Z', the circle of confusion in the object plane (Eqs. 1, 2)
+    [mm], at the distance ``z`` from the lens, Z_c or Z_p [mm], with the on-focus distance
+    ``focus`` Z' [mm] and the aperture diameter ``aperture`` Phi = f / N [mm].
 
-    Parameters
-    ----------
-    z : array_like
-        Distance of the object plane from the lens, Z_c or Z_p [mm].
-    focus : float
-        On-focus distance Z' [mm].
-    aperture : float
-        Aperture diameter Phi = f / N [mm].
-
-    Returns
-    -------
-    ndarray
-        C(Z) = Phi |Z - Z'| / Z' [mm].
-
-    Examples
-    --------
     >>> float(circle_of_confusion(460.0, 450.0, 12.5))
     0.2777777777777778
     """
@@ -113,22 +99,10 @@ def circle_of_confusion(z: ArrayLike, focus: float, aperture: float) -> np.ndarr
 
 @jitable
 def projector_magnification(z_p: ArrayLike, focus: float, focal: float) -> np.ndarray:
-    """Projector magnification m_p (Eq. 3), implemented as printed.
-
-    Parameters
-    ----------
-    z_p : array_like
-        Distance of the object plane from the projector lens, Z_p [mm].
-    focus : float
-        Projector on-focus distance Z_p' [mm].
-    focal : float
-        Projector focal length f_p [mm].
-
-    Returns
-    -------
-    ndarray
-        m_p = 2 f_p / (Z_p' - 2 f_p + sqrt(Z_p (Z_p - 4 f_p))) [-]; NaN where
-        Z_p < 4 f_p (the square root is undefined).
+    """m_p = 2 f_p / (Z_p' - 2 f_p + sqrt(Z_p (Z_p - 4 f_p))), the projector's magnification
+    (Eq. 3, as printed) [-], at the distance ``z_p`` Z_p from the projector lens, with the
+    on-focus distance ``focus`` Z_p' and focal length ``focal`` f_p [mm]; NaN where
+    Z_p < 4 f_p (the square root is undefined).
 
     Notes
     -----
@@ -144,23 +118,10 @@ def projector_magnification(z_p: ArrayLike, focus: float, focal: float) -> np.nd
 @jitable
 def fringe_period_on_object(z_p: ArrayLike, period_px: float, pitch_mm: float,
                             focus: float, focal: float) -> np.ndarray:
-    """Period of the projected sine wave on the object, omega_o (Eq. 4).
-
-    Parameters
-    ----------
-    z_p : array_like
-        Distance from the projector lens, Z_p [mm].
-    period_px : float
-        Fringe period omega in the projector image [projector px].
-    pitch_mm : float
-        Projector pixel pitch [mm].
-    focus, focal : float
-        Projector on-focus distance Z_p' and focal length f_p [mm].
-
-    Returns
-    -------
-    ndarray
-        omega_o = omega * pitch / m_p(Z_p) [mm].
+    """omega_o = omega pitch / m_p(Z_p), the period of the projected sine wave on the
+    object (Eq. 4) [mm], at the distance ``z_p`` from the projector lens [mm], for the
+    period ``period_px`` [projector px], the pixel pitch ``pitch_mm``, the on-focus
+    distance ``focus`` and focal length ``focal`` (:func:`projector_magnification`) [mm].
     """
     return period_px * pitch_mm / projector_magnification(z_p, focus, focal)
 
@@ -175,40 +136,17 @@ def image_blur(z_c: ArrayLike, focal: float, coc: ArrayLike) -> np.ndarray:
 
 @jitable
 def camera_blur_area(c_image: ArrayLike, pixel: float) -> np.ndarray:
-    """Area of the camera-induced blur in pixel units, b_c (Eq. 13).
-
-    Parameters
-    ----------
-    c_image : array_like
-        Image-side blur diameter c_c [mm].
-    pixel : float
-        Camera pixel size s_c [mm].
-
-    Returns
-    -------
-    ndarray
-        b_c = max(pi (c_c / (2 s_c))^2, 1) [px^2]; NaN stays NaN.
-    """
+    """b_c = max(pi (c_c / (2 s_c))^2, 1), the camera-induced blur area in pixel units
+    (Eq. 13) [px^2], for the image-side blur diameter ``c_image`` c_c [mm] and the camera
+    pixel ``pixel`` s_c [mm]; NaN stays NaN."""
     return np.maximum(readings.blur_area(c_image, pixel), 1.0)
 
 
 def airy_diameter(wavelength: float, f_number: float) -> float:
-    """Diameter of the Airy disc in the camera image, d_c (Eq. 15).
+    """d_c = 2 * 1.22 * lambda * N, the Airy disc's diameter in the camera image (Eq. 15)
+    [mm], for the wavelength lambda [mm] (the paper's 450 um is a typo for 450 nm) and
+    the camera's f-number N [-].
 
-    Parameters
-    ----------
-    wavelength : float
-        Wavelength lambda [mm] (the paper's 450 um is a typo for 450 nm).
-    f_number : float
-        Camera f-number N [-].
-
-    Returns
-    -------
-    float
-        d_c = 2 * 1.22 * lambda * N [mm].
-
-    Examples
-    --------
     >>> round(airy_diameter(450e-6, 8.0) * 1e3, 4)
     8.784
     """
