@@ -32,14 +32,16 @@ References
 
 from __future__ import annotations
 
+import hashlib
 import math
+from pathlib import Path
 from typing import NamedTuple
 
 import numpy as np
 
 from scanqa.calibration.lookup import TableGrid
 from scanqa.compiled import njit
-from scanqa.model import equations, geometry, optics
+from scanqa.model import equations, geometry, optics, readings
 from scanqa.model.config import ScannerConfig
 from scanqa.model.equations import ModelRecord
 
@@ -428,5 +430,24 @@ def load() -> None:
     phases.flags.writeable = False  # as ``annotate`` passes them
     annotate_band(phases, np.empty(0, dtype=np.intp), 0, grid, table, False, (f8,) * 6,
                   ModelRecord(*(1.0,) * 13, 0, 0, 0),
-                  Constants((0.0,) * 3, (0.0,) * 3, 0.0, 0.0, 1.0, False), np.zeros((1, 3)), words,
-                  words.view(np.float32), -1.0)
+                  Constants((0.0,) * 3, (0.0,) * 3, 0.0, 0.0, 1.0, False), np.zeros((1, 3)),
+                  words, words.view(np.float32), -1.0)
+
+
+def stamp_equations(*functions: object) -> None:
+    """Key numba's cache of ``functions`` by the equations they inline too.
+
+    numba keeps a compiled function while its own file is unchanged, not the files of the
+    functions it calls; the loop inlines :mod:`scanqa.model.equations`,
+    :mod:`~scanqa.model.readings` and :mod:`~scanqa.model.geometry`, so their sources
+    join the stamp numba compares, and a change of an equation compiles the loop again.
+    """
+    digest = hashlib.sha256(b"".join(Path(m.__file__).read_bytes()
+                                     for m in (equations, readings, geometry))).hexdigest()
+    for func in functions:  # numba's own cache record; none without numba
+        cache_file = getattr(getattr(func, "_cache", None), "_cache_file", None)
+        if cache_file is not None:
+            cache_file._source_stamp = (cache_file._source_stamp, digest)
+
+
+stamp_equations(annotate_band, model_points)
