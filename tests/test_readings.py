@@ -128,3 +128,13 @@ def test_each_method_is_short_and_cites_its_equation(methods):
         assert re.search(r"Eq\. 1[79]|docs/noise_model\.rst", doc), name
         body = inspect.getsource(func).split('"""')[-1]
         assert len([x for x in body.splitlines() if x.strip()]) <= 5, name
+
+
+def test_codes_are_the_names_places_in_their_mappings():
+    # compiled code branches on these constants; code() turns a config's name into one
+    for methods, constants in ((readings.FILTER_FORM_METHODS, ("PRODUCT", "SUM")),
+                               (readings.FILTER_FLOOR_METHODS, ("UNCLAMPED", "CLAMPED", "SMOOTH")),
+                               (readings.NOISE_READING_METHODS,
+                                ("POWER", "AMPLITUDE", "MIXED", "TWO_SOURCE"))):
+        assert [readings.code(methods, name, "x") for name in methods] == \
+            [getattr(readings, c) for c in constants]

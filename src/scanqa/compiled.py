@@ -43,3 +43,12 @@ def njit(*args: Any, **kwargs: Any) -> Any:
     def identity(func: Callable[..., Any]) -> Callable[..., Any]:
         return func
     return identity
+
+
+def jitable(func: Callable[..., Any]) -> Callable[..., Any]:
+    """``func``, callable from compiled code too (numba's ``register_jitable``): Python
+    callers run it as written, on floats or numpy arrays (:mod:`scanqa.model.equations`)."""
+    if _numba_njit is None:
+        return func
+    from numba.extending import register_jitable
+    return register_jitable(func)

@@ -11,17 +11,19 @@ thread with the GIL released (the band pool runs one per core), with a few band-
 scratch arrays that stay in the core's cache, writing each record once.
 
 The loop repeats numpy's arithmetic in numpy's order: the lookup's float32 blend of the
-four nodes, its float64 Hermite cubic, the model's chain of Eqs. 1-4 and 12-19 as
-:func:`scanqa.model.optics.optical_terms` forms it, each attribute rounded once to
-float32 from the same float64 value. What differs is J1, which numba cannot call from
-scipy: :func:`bessel_j1` sums its power series below x = 12 and the Hankel asymptotic
-expansion above (Eqs. 9.1.10 and 9.2.5 in [1]_), within 4e-16 of scipy's J1 on the main
-lobe of the attenuation, and the shear polynomial is summed in another order than
-BLAS's, so an attribute may differ from the numpy path's by one float32 rounding step.
-``tests/test_annotkernels.py`` checks J1 and A(r) against scipy and
-:func:`scanqa.model.optics.attenuation`, the model against
-:func:`~scanqa.model.optics.predict` for every reading, and the records against the
-numpy path.
+four nodes, its float64 Hermite cubic, each attribute rounded once to float32 from the
+same float64 value. The model's chain (Eqs. 1-4, 13-19) it does not repeat: it calls
+per point the equations :func:`scanqa.model.optics.optical_terms` calls on arrays
+(:mod:`scanqa.model.equations`), the config one named record
+(:class:`~scanqa.model.equations.ModelRecord`, :class:`Constants`). What differs is J1,
+which numba cannot call from scipy: :func:`bessel_j1` sums its power series below x = 12
+and the Hankel asymptotic expansion above (Eqs. 9.1.10 and 9.2.5 in [1]_), within 4e-16
+of scipy's J1 on the main lobe of the attenuation, and the shear polynomial is summed in
+another order than BLAS's, so an attribute may differ from the numpy path's by one
+float32 rounding step. ``tests/test_annotkernels.py`` checks J1 and A(r) against scipy
+and :func:`scanqa.model.optics.attenuation`, the model against
+:func:`~scanqa.model.optics.predict` for every reading (to a tolerance from A's
+agreement and the chain's roundings), and the records against the numpy path.
 
 References
 ----------
@@ -30,19 +32,19 @@ References
 
 from __future__ import annotations
 
+import hashlib
 import math
+from pathlib import Path
+from typing import NamedTuple
 
 import numpy as np
-from numba import njit
 
 from scanqa.calibration.lookup import TableGrid
-from scanqa.model import geometry, optics
+from scanqa.compiled import njit
+from scanqa.model import equations, geometry, optics, readings
 from scanqa.model.config import ScannerConfig
+from scanqa.model.equations import ModelRecord
 
-#: Codes of the model's readings in the kernel (the names of :mod:`scanqa.model.readings`).
-FORM_CODES = {"product": 0, "sum": 1}
-FLOOR_CODES = {"none": 0, "one": 1, "smooth": 2}
-READING_CODES = {"power": 0, "amplitude": 1, "mixed": 2, "two_source": 3}
 #: Below this argument J1 is its power series, above it the asymptotic expansion [-].
 SERIES_LIMIT = 12.0
 #: 1 / (k (k + 1)), the ratio of J1's series terms without a division per term [-].
@@ -152,147 +154,73 @@ def attenuations(r: np.ndarray, out: np.ndarray) -> None:
             out[i] = attenuation(r[i])
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _nan_max(a: float, b: float) -> float:
-    """np.maximum of two floats (NaN propagates)."""
-    if a != a:
-        return a
-    return a if a >= b else b
+class Constants(NamedTuple):
+    """What annotate adds to the model's record (:func:`model_parameters`).
 
-
-@njit(cache=True, nogil=True)
-def point_model(x: float, y: float, z: float, s_t: float, par: np.ndarray,
-                codes: np.ndarray) -> tuple:
-    """The model at one point, as :func:`scanqa.model.optics.predict` forms it.
-
-    Parameters
-    ----------
-    x, y, z : float
-        Point in the scanner frame [mm].
-    s_t : float
-        Triangulation scale |dQ/dx_p| [mm / projector px].
-    par : (22,) float
-        :func:`model_parameters` (poses, optics, gamma, sigma_p, ...; units there).
-    codes : (4,) int
-        Filter form, floor, noise reading (:data:`FORM_CODES`, ...), random source.
-
-    Returns
-    -------
-    tuple
-        A_c, A_p, F_gamma, s_O [-], sigma, its scene and sensor parts [mm], valid.
+    The projector's position [mm] and its rotation's third row [-] (Z_p of a point); the
+    systematic sigma [mm]; the table's correlation length [camera px] (NaN without one)
+    and the camera's principal distance [px]; whether the random sigma is s_T times a
+    phase sigma per point (else the model's).
     """
-    _, coc_c, r_c, r_p = _ratios(x, y, z, par)
-    a_c, a_p = attenuation(r_c), attenuation(r_p)
-    f, s_o, sigma, scene, sensor, valid = _scales(z, coc_c, r_c, r_p, a_c, a_p, s_t, par,
-                                                  codes)
-    return a_c, a_p, f, s_o, sigma, scene, sensor, valid
+
+    position_mm: tuple
+    rz: tuple
+    systematic_mm: float
+    table_corr_px: float
+    principal_px: float
+    random_phase: bool
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
-def _ratios(x: float, y: float, z: float, par: np.ndarray) -> tuple:
-    """Z_p, C_c [mm] and the blur ratios r_c, r_p [-] of one point (Eqs. 1-4)."""
-    z_p = par[3] * (x - par[0]) + par[4] * (y - par[1])
-    z_p = z_p + par[5] * (z - par[2])
-    focal_p = par[9]
-    root = math.sqrt(z_p * (z_p - 4.0 * focal_p)) if z_p * (z_p - 4.0 * focal_p) >= 0 \
-        else np.nan
-    omega_o = par[6] * par[7] / (2.0 * focal_p / (par[8] - 2.0 * focal_p + root))
-    coc_c = par[12] * abs(z - par[11]) / par[11]
-    return z_p, coc_c, coc_c / omega_o, par[10] * abs(z_p - par[8]) / par[8] / omega_o
+def _ratios(x: float, y: float, z: float, m: ModelRecord, run: Constants) -> tuple:
+    """C_c [mm] and the blur ratios r_c, r_p [-] of one point (Eqs. 1-4)."""
+    z_p = geometry.depth_along(x, y, z, run.rz, run.position_mm)
+    _, coc_c, r_c, r_p = equations.blur_ratios(z, z_p, m)
+    return coc_c, r_c, r_p
 
 
 @njit(cache=True, nogil=True, error_model="numpy", inline="always")
 def _scales(z: float, coc_c: float, r_c: float, r_p: float, a_c: float, a_p: float,
-            s_t: float, par: np.ndarray, codes: np.ndarray) -> tuple:
+            s_t: float, m: ModelRecord) -> tuple:
     """F_gamma, s_O [-], sigma, its scene and sensor parts [mm] and the validity of one
     point from its ratios and attenuations (Eqs. 13-19 and the readings)."""
-    c_image = par[13] / (z - par[13]) * coc_c
-    half = c_image / (2.0 * par[14])
-    disc = math.pi * (half * half)
-    b_d = par[15]
-    gamma = par[16] if codes[1] != 2 else par[16] * par[11] / z
-    if codes[0] == 0:
-        f = math.sqrt(_nan_max(disc, 1.0) * b_d) / gamma
-    else:
-        f = math.sqrt(1.0 + disc + b_d) / gamma
-    if codes[1] == 1:
-        f = _nan_max(f, 1.0)
-    elif codes[1] == 2:
-        f = math.sqrt(1.0 + f * f)
-    sensor = 0.0
-    if codes[2] == 0:
-        scene = 1.0 / (f * (a_p * a_c))
-    elif codes[2] == 1:
-        scene = 1.0 / (f * math.sqrt(a_p * a_c))
-    elif codes[2] == 2:
-        scene = 1.0 / (f * (math.sqrt(a_p) * a_c))
-    else:
-        amp = math.sqrt(a_p * a_c)
-        scene = 1.0 / (f * amp)
-        sensor = par[17] / amp if par[17] > 0 else 0.0
+    c_image = equations.image_blur(z, m.cam_focal_mm, coc_c) if z > m.cam_focal_mm \
+        else np.nan
+    f = equations.filter_factors(z, c_image, m)[2]
+    scene, sensor = optics.scales_by_code(f, a_p, a_c, m.reading, m.sensor_ratio)
     if r_c >= optics.FIRST_ZERO_RATIO or r_p >= optics.FIRST_ZERO_RATIO:
         scene, sensor = np.nan, np.nan
-    s_o = math.hypot(scene, sensor) if codes[2] == 3 else scene
-    sp = par[18]
-    sigma = s_t * s_o * sp
-    valid = r_c <= optics.VALID_RATIO and r_p <= optics.VALID_RATIO and math.isfinite(sigma)
-    return f, s_o, sigma, s_t * scene * sp, s_t * sensor * sp, valid
+    s_o = equations.optical_scale_of(scene, sensor, m)
+    sigma, scene, sensor, valid = equations.point_sigma(s_t, s_o, scene, sensor, r_c, r_p, m)
+    return f, s_o, sigma, scene, sensor, valid
 
 
 def model_parameters(config: ScannerConfig, random: str = "model",
-                     table_corr_px: float = np.nan) -> tuple:
-    """The config's numbers and readings as :func:`point_model` takes them.
-
-    Parameters
-    ----------
-    config : ScannerConfig
-        Optics, poses and the model's parameters and readings.
-    random : {"model", "law", "images"}
-        The per-point random sigma's source (``scanqa.annotation.points.sigma_source``).
-    table_corr_px : float
-        The calibration table's correlation length
-        (``scanqa.annotation.points.table_correlation_px``) [camera px]; NaN without one.
-
-    Returns
-    -------
-    par : (22,) float
-        Projector position [mm], its rotation's third row [-], working period [px],
-        pitch, focus, focal, aperture [mm]; camera focus, aperture, focal, pixel [mm];
-        b_d [px^2]; gamma [-]; rho [-]; sigma_p [px]; systematic sigma [mm]; table
-        correlation [px]; camera principal distance [px].
-    codes : (4,) int64
-        Filter form, floor, reading; random source 0 (model) or 1 (s_T times a phase
-        sigma per point).
-    """
-    cam, proj, model = config.camera, config.projector, config.model
-    pixel = cam.pixel_um * 1e-3
-    b_d = optics.diffraction_blur_area(optics.airy_diameter(model.wavelength_nm * 1e-6,
-                                                            cam.f_number), pixel)
+                     table_corr_px: float = np.nan) -> tuple[ModelRecord, Constants]:
+    """The config's numbers and readings as :func:`annotate_band` takes them: the
+    model's record (:func:`scanqa.model.equations.model_record`) and annotate's, with
+    the random sigma's source ``random`` (``scanqa.annotation.points.sigma_source``) and
+    the table's correlation length ``table_corr_px`` [camera px] (NaN without one)."""
+    proj = config.projector
     rz = geometry.projector_rotation(proj)[2]
-    par = np.array([*proj.position_mm, *rz, config.fringes.working_period_px,
-                    proj.pitch_um * 1e-3, proj.focus_mm, proj.focal_mm, proj.aperture_mm,
-                    cam.focus_mm, cam.aperture_mm, cam.focal_mm, pixel, b_d, model.gamma,
-                    model.sensor_sigma_p_px / model.sigma_p_px, model.sigma_p_px,
-                    model.systematic_sigma_mm, table_corr_px, cam.principal_distance_px],
-                   dtype=np.float64)
-    codes = np.array([optics.lookup(FORM_CODES, model.filter_form, "form"),
-                      optics.lookup(FLOOR_CODES, model.filter_floor, "floor"),
-                      optics.lookup(READING_CODES, model.noise_reading, "reading"),
-                      0 if random == "model" else 1], dtype=np.int64)
-    return par, codes
+    return equations.model_record(config), Constants(
+        tuple(float(v) for v in proj.position_mm), tuple(float(v) for v in rz),
+        float(config.model.systematic_sigma_mm), float(table_corr_px),
+        float(config.camera.principal_distance_px), random != "model")
 
 
 @njit(cache=True, nogil=True)
-def model_points(points: np.ndarray, s_t: np.ndarray, par: np.ndarray,
-                 codes: np.ndarray) -> np.ndarray:
-    """:func:`point_model` over points: (n, 8) float, the columns of its tuple [-, mm].
-
-    ``points`` are (n, 3) [mm], ``s_t`` (n,) [mm / projector px]; ``valid`` as 0/1.
-    """
+def model_points(points: np.ndarray, s_t: np.ndarray, m: ModelRecord,
+                 run: Constants) -> np.ndarray:
+    """The model at ``points`` (n, 3) [mm] with triangulation scales ``s_t`` (n,) [mm / px]
+    as the loop forms it, for :func:`~scanqa.model.optics.predict` to check: (n, 8), A_c,
+    A_p, F_gamma, s_O [-], sigma, its scene and sensor parts [mm], valid (0/1)."""
     out = np.empty((points.shape[0], 8))
     for i in range(points.shape[0]):
-        a_c, a_p, f, s_o, sigma, scene, sensor, valid = point_model(
-            points[i, 0], points[i, 1], points[i, 2], s_t[i], par, codes)
+        x, y, z = points[i, 0], points[i, 1], points[i, 2]
+        coc_c, r_c, r_p = _ratios(x, y, z, m, run)
+        a_c, a_p = attenuation(r_c), attenuation(r_p)
+        f, s_o, sigma, scene, sensor, valid = _scales(z, coc_c, r_c, r_p, a_c, a_p, s_t[i], m)
         out[i, 0], out[i, 1], out[i, 2], out[i, 3] = a_c, a_p, f, s_o
         out[i, 4], out[i, 5], out[i, 6], out[i, 7] = sigma, scene, sensor, valid
     return out
@@ -329,7 +257,7 @@ def _lookup_point(s: float, base: int, w0: np.float32, w1: np.float32, w2: np.fl
 
 @njit(cache=True, nogil=True, error_model="numpy")
 def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, table: tuple,
-                  extrapolate: bool, per_point: tuple, par: np.ndarray, codes: np.ndarray,
+                  extrapolate: bool, per_point: tuple, m: ModelRecord, run: Constants,
                   xyz: np.ndarray, words: np.ndarray, floats: np.ndarray,
                   grey: float) -> int:
     """Look up, model and write the kept points of one band of image rows.
@@ -352,8 +280,8 @@ def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, ta
     per_point : tuple of (n,) float
         Modulation, offset [DN], decoder sigma_xp [px], the random source's phase sigma
         [px], the repeats' std [mm] and count (empty arrays without repeats).
-    par, codes : ndarray
-        :func:`model_parameters` (with the table's correlation) and the readings' codes.
+    m, run : ModelRecord, Constants
+        :func:`model_parameters` (with the table's correlation).
     xyz : (n, 3) float64
         The points, written [mm] (the caller copies them into the records).
     words, floats : (n, m) uint32, float32
@@ -402,19 +330,18 @@ def annotate_band(xp: np.ndarray, select: np.ndarray, row0: int, grid: tuple, ta
             slope[i, 0] = slope[i, 1] = slope[i, 2] = np.nan
         xyz[i, 0], xyz[i, 1], xyz[i, 2] = x, y, z
         sig_tab[i], pixel[i, 0], pixel[i, 1] = sig, cu, r
-        _, coc[i], ratio[0, i], ratio[1, i] = _ratios(x, y, z, par)
+        coc[i], ratio[0, i], ratio[1, i] = _ratios(x, y, z, m, run)
     att = np.empty((2, n))
     attenuations(ratio[0], att[0])
     attenuations(ratio[1], att[1])
     mod, off, sxp, phase, std, count = per_point
-    random = codes[3] != 0
     invalid = 0
     for i in range(n):  # the model's scales and the records
         invalid += _fill_record(i, xyz[i, 2], slope[i, 0], slope[i, 1], slope[i, 2],
                                 sig_tab[i], inside[i], pixel[i, 0], pixel[i, 1], coc[i],
                                 ratio[0, i], ratio[1, i], att[0, i], att[1, i], mod[i],
-                                off[i], sxp[i], phase[i] if random else 0.0, par, codes,
-                                block)
+                                off[i], sxp[i], phase[i] if run.random_phase else 0.0, m,
+                                run, block)
     if std.size:
         for i in range(n):
             block[i, 22], block[i, 23] = std[i] * 1e3, count[i]
@@ -444,29 +371,28 @@ def _fill_display(block: np.ndarray, words: np.ndarray, floats: np.ndarray,
 def _fill_record(i: int, z: float, sx: float, sy: float, sz: float, sig_tab: float,
                  inside: bool, u: int, v: int, coc_c: float, r_c: float, r_p: float,
                  a_c: float, a_p: float, mod: float, off: float, sxp: float, phase: float,
-                 par: np.ndarray, codes: np.ndarray, block: np.ndarray) -> int:
+                 m: ModelRecord, run: Constants, block: np.ndarray) -> int:
     """The attributes of record ``i`` (``scanqa.annotation.points._annotate_points``) from
     its lookup and blur ratios, but the repeats' two; returns 1 where the model is not
     valid, else 0."""
     s_t = math.sqrt(sx * sx + sy * sy + sz * sz)
-    f, s_o, sigma, scene, sensor, valid = _scales(z, coc_c, r_c, r_p, a_c, a_p, s_t, par,
-                                                  codes)
+    f, s_o, sigma, scene, sensor, valid = _scales(z, coc_c, r_c, r_p, a_c, a_p, s_t, m)
     if not valid:
         sigma = scene = sensor = np.nan
-    random = sigma if codes[3] == 0 else s_t * phase
+    random = s_t * phase if run.random_phase else sigma
     um, random_um = 1e3 * s_t, 1e3 * random
     block[i, 9], block[i, 4], block[i, 5] = sigma * 1e3, scene * 1e3, sensor * 1e3
     block[i, 6], block[i, 7], block[i, 8] = um * sxp, sig_tab * 1e3, random_um
     total = random * random
     total += sig_tab * sig_tab
-    total += par[19] * par[19]
+    total += run.systematic_mm * run.systematic_mm
     block[i, 0] = math.sqrt(total) * 1e3  # first: the field viewers colour by by default
     block[i, 1], block[i, 2], block[i, 3] = random_um * abs(sx / s_t), random_um * abs(sy / s_t), \
         random_um * abs(sz / s_t)
     block[i, 10], block[i, 11], block[i, 12], block[i, 13], block[i, 14] = a_c, a_p, f, s_o, um
     block[i, 15], block[i, 16], block[i, 17], block[i, 18] = mod, off, 1.0 if inside else 0.0, \
         1.0 if valid else 0.0
-    block[i, 19], block[i, 20], block[i, 21] = u, v, par[20] * z / par[21]
+    block[i, 19], block[i, 20], block[i, 21] = u, v, run.table_corr_px * z / run.principal_px
     return 0 if valid else 1
 
 
@@ -503,5 +429,25 @@ def load() -> None:
     phases = plane.view()
     phases.flags.writeable = False  # as ``annotate`` passes them
     annotate_band(phases, np.empty(0, dtype=np.intp), 0, grid, table, False, (f8,) * 6,
-                  np.ones(22), np.zeros(4, dtype=np.int64), np.zeros((1, 3)), words,
-                  words.view(np.float32), -1.0)
+                  ModelRecord(*(1.0,) * 13, 0, 0, 0),
+                  Constants((0.0,) * 3, (0.0,) * 3, 0.0, 0.0, 1.0, False), np.zeros((1, 3)),
+                  words, words.view(np.float32), -1.0)
+
+
+def stamp_equations(*functions: object) -> None:
+    """Key numba's cache of ``functions`` by the equations they inline too.
+
+    numba keeps a compiled function while its own file is unchanged, not the files of the
+    functions it calls; the loop inlines :mod:`scanqa.model.equations`,
+    :mod:`~scanqa.model.readings` and :mod:`~scanqa.model.geometry`, so their sources
+    join the stamp numba compares, and a change of an equation compiles the loop again.
+    """
+    digest = hashlib.sha256(b"".join(Path(m.__file__).read_bytes()
+                                     for m in (equations, readings, geometry))).hexdigest()
+    for func in functions:  # numba's own cache record; none without numba
+        cache_file = getattr(getattr(func, "_cache", None), "_cache_file", None)
+        if cache_file is not None:
+            cache_file._source_stamp = (cache_file._source_stamp, digest)
+
+
+stamp_equations(annotate_band, model_points)

@@ -336,11 +336,11 @@ def _compiled(table: Calibration, config: ScannerConfig, source: dict) -> tuple 
     nonparametric table, made once per scan; None for other calibrations (numpy path)."""
     if not isinstance(table, CalibrationTable):
         return None
-    par, codes = kernels.model_parameters(config, source["random"],
+    model, run = kernels.model_parameters(config, source["random"],
                                                table_correlation_px(table))
     grid, packed = kernels.table_arrays(table)
     g = table.image_grid
-    return grid, packed, par, codes, g.shear_u, g.shear_c
+    return grid, packed, model, run, g.shear_u, g.shear_c
 
 
 def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndarray | None,
@@ -349,7 +349,7 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
     """One band through :func:`kernels.annotate_band`: its per-point inputs picked,
     the random source's phase sigma [px], a band of plain records filled (the display
     fields too with the grey scale ``grey`` [1/DN], if given) and copied into ``out``."""
-    grid, packed, par, codes, shear_u, shear_c = compiled
+    grid, packed, model, run, shear_u, shear_c = compiled
     r0, r1 = rows
     inputs = {k: np.asarray(_pick(v[r0:r1], select), dtype=float) for k, v in extra.items()}
     empty = np.empty(0)
@@ -370,7 +370,7 @@ def _compiled_band(compiled: tuple, xp: np.ndarray, extra: dict, select: np.ndar
     records, points = np.empty(out.size, dtype=out.dtype), np.empty((out.size, 3))
     words = records.view(np.uint32).reshape(out.size, out.itemsize // 4)
     invalid = kernels.annotate_band(phases, chosen, r0, band, packed, bool(keep_invalid),
-                                         per_point, par, codes, points, words,
+                                         per_point, model, run, points, words,
                                          words.view(np.float32),
                                          -1.0 if grey is None else float(grey))
     np.ndarray((out.size, 3), dtype="<f8", buffer=records,

@@ -10,6 +10,7 @@ import functools
 import numpy as np
 from numpy.typing import ArrayLike
 
+from scanqa.compiled import jitable
 from scanqa.model.config import ProjectorConfig, ScannerConfig
 
 
@@ -57,9 +58,17 @@ def projector_depth(points: ArrayLike, config: ScannerConfig) -> np.ndarray:
     """Z of scanner-frame points in the projector frame, Z_p [mm]; shape (...)."""
     q = np.asarray(points, dtype=float)
     proj = config.projector
-    rz, pos = projector_rotation(proj)[2], proj.position_mm
-    depth = rz[0] * (q[..., 0] - pos[0]) + rz[1] * (q[..., 1] - pos[1])
-    return depth + rz[2] * (q[..., 2] - pos[2])
+    return depth_along(q[..., 0], q[..., 1], q[..., 2], projector_rotation(proj)[2],
+                       proj.position_mm)
+
+
+@jitable
+def depth_along(x: ArrayLike, y: ArrayLike, z: ArrayLike, rz: ArrayLike,
+                position: ArrayLike) -> np.ndarray:
+    """Z_p of the points (x, y, z) [mm] for a projector at ``position`` [mm] whose
+    rotation's third row is ``rz`` [-] (:func:`projector_depth`)."""
+    depth = rz[0] * (x - position[0]) + rz[1] * (y - position[1])
+    return depth + rz[2] * (z - position[2])
 
 
 def triangulation_scale(points: ArrayLike, config: ScannerConfig) -> np.ndarray:

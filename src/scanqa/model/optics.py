@@ -8,32 +8,12 @@ The model in one line (Eq. 18/19)::
     sigma(Q) = s_T(Q) * sigma_p
                / (F_gamma(Z_c) * A(C_p(Z_p)/omega_o(Z_p)) * A(C_c(Z_c)/omega_o(Z_p)))
 
-The paper leaves readings open (docs/model.rst, "Readings"); they are explicit options,
-and the two-source noise model (docs/noise_model.rst) is a third. Each reading is a short
-function in a mapping of name to function in :mod:`scanqa.model.readings` (the noise
-chain of Eqs. 17 and 19), whose public names this module re-exports:
-
-* ``filter_floor``: "none" applies Eq. 17 as printed; "one" clamps F >= 1, the bound
-  1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17 (filtering never amplifies noise);
-  "smooth" takes F^2 + 1 instead, the curve "one" bends at F = 1: with the sum form
-  1 / F^2 = gamma^2 / (gamma^2 + N), the variance share of noise correlated over
-  gamma^2 px^2 that a kernel of noise-equivalent area N keeps (a departure from the
-  paper; docs/noise_model.rst).
-* ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
-  takes F^2 as the noise-equivalent area of the camera's whole kernel - pixel, defocus
-  disc and Airy disc, whose second moments add under convolution - over the noise's own
-  correlation area gamma^2: F = sqrt(1 + b_disc + b_d) / gamma
-  (:func:`~scanqa.model.readings.camera_noise_area`). The two agree in shape once the
-  disc dominates; "sum" stays right for pixels larger than the Airy disc (b_d << 1),
-  where the product collapses.
-* ``noise_reading``: "power" divides by A, the squared magnitude ratio, as Eq. 19 is
-  printed; "amplitude" divides by sqrt(A), which is what additive intensity noise gives;
-  "mixed" divides by A_c sqrt(A_p). "two_source" is the physical model: scene-side
-  noise (sigma_p at focus), filtered by the camera blur, plus sensor noise
-  (``sensor_sigma_p_px`` at focus), which the blur does not filter, both additive in
-  intensity and therefore both divided by the fringe amplitude sqrt(A_c A_p):
-  sigma_x^2 = (sigma_p^2 / F^2 + sigma_s^2) / (A_c A_p). The characterisation fit
-  (``scanqa characterize``) selects among them on held-out sweep positions.
+The paper leaves readings open; each is an explicit option (``filter_form``,
+``filter_floor``, ``noise_reading``; docs/model.rst, "Readings"; the two-source model,
+docs/noise_model.rst), a short function in a mapping of name to function in
+:mod:`scanqa.model.readings`, whose public names this module re-exports. The chain is
+written once, in :mod:`scanqa.model.equations`, for this module's arrays and the compiled
+annotate loop; the characterisation fit selects the readings on held-out positions.
 
 Validity: the paper calls the disc-kernel model valid for r = C / omega_o <= 1/2. Past
 the first zero of J1 (r = 1.2197) the fringe contrast inverts. :func:`predict` flags
@@ -56,103 +36,34 @@ from scipy.optimize import brentq
 from scipy.special import j1
 
 from scanqa.errors import RangeError
+from scanqa.model import equations
 from scanqa.model.config import ScannerConfig
+from scanqa.model.equations import (  # noqa: F401 - re-exported: optics is the entry
+    VALID_RATIO,
+    airy_diameter,
+    camera_blur_area,
+    circle_of_confusion,
+    diffraction_blur_area,
+)
 from scanqa.model.geometry import projector_depth, triangulation_scale
 from scanqa.model.readings import (  # noqa: F401 - re-exported: optics is the entry
     FILTER_FLOOR_METHODS,
     FILTER_FORM_METHODS,
     NOISE_READING_METHODS,
     camera_noise_area,
+    code,
     filter_factor,
     lookup,
     noise_scales,
     optical_scale,
+    scales_by_code,
 )
 
-#: Validity limit of the disc-kernel model, r = C / omega_o (Sect. 3.1 of [1]) [-].
-VALID_RATIO = 0.5
+#: Eqs. 3 and 4 (:mod:`scanqa.model.equations`), silent where they give NaN (Z_p < 4 f_p).
+projector_magnification = np.errstate(invalid="ignore")(equations.projector_magnification)
+fringe_period_on_object = np.errstate(invalid="ignore")(equations.fringe_period_on_object)
 #: First zero of J1(pi r): r = j_{1,1} / pi, where the fringe contrast inverts [-].
 FIRST_ZERO_RATIO = 3.8317059702075125 / np.pi
-
-
-def circle_of_confusion(z: ArrayLike, focus: float, aperture: float) -> np.ndarray:
-    """Diameter of the circle of confusion in the object plane (Eqs. 1, 2).
-
-    Parameters
-    ----------
-    z : array_like
-        Distance of the object plane from the lens, Z_c or Z_p [mm].
-    focus : float
-        On-focus distance Z' [mm].
-    aperture : float
-        Aperture diameter Phi = f / N [mm].
-
-    Returns
-    -------
-    ndarray
-        C(Z) = Phi |Z - Z'| / Z' [mm].
-
-    Examples
-    --------
-    >>> float(circle_of_confusion(460.0, 450.0, 12.5))
-    0.2777777777777778
-    """
-    z = np.asarray(z, dtype=float)
-    return aperture * np.abs(z - focus) / focus
-
-
-def projector_magnification(z_p: ArrayLike, focus: float, focal: float) -> np.ndarray:
-    """Projector magnification m_p (Eq. 3), implemented as printed.
-
-    Parameters
-    ----------
-    z_p : array_like
-        Distance of the object plane from the projector lens, Z_p [mm].
-    focus : float
-        Projector on-focus distance Z_p' [mm].
-    focal : float
-        Projector focal length f_p [mm].
-
-    Returns
-    -------
-    ndarray
-        m_p = 2 f_p / (Z_p' - 2 f_p + sqrt(Z_p (Z_p - 4 f_p))) [-]; NaN where
-        Z_p < 4 f_p (the square root is undefined).
-
-    Notes
-    -----
-    Eq. 3 is the thin-lens magnification written for a total object-image distance; the
-    paper applies it with Z_p as the object distance and so does this function, so that
-    the paper's tables are reproduced. It differs from the pinhole magnification of the
-    geometry (:attr:`ProjectorConfig.principal_distance_px`) by a few percent.
-    """
-    z_p = np.asarray(z_p, dtype=float)
-    with np.errstate(invalid="ignore"):
-        root = np.sqrt(z_p * (z_p - 4.0 * focal))
-    return 2.0 * focal / (focus - 2.0 * focal + root)
-
-
-def fringe_period_on_object(z_p: ArrayLike, period_px: float, pitch_mm: float,
-                            focus: float, focal: float) -> np.ndarray:
-    """Period of the projected sine wave on the object, omega_o (Eq. 4).
-
-    Parameters
-    ----------
-    z_p : array_like
-        Distance from the projector lens, Z_p [mm].
-    period_px : float
-        Fringe period omega in the projector image [projector px].
-    pitch_mm : float
-        Projector pixel pitch [mm].
-    focus, focal : float
-        Projector on-focus distance Z_p' and focal length f_p [mm].
-
-    Returns
-    -------
-    ndarray
-        omega_o = omega * pitch / m_p(Z_p) [mm].
-    """
-    return period_px * pitch_mm / projector_magnification(z_p, focus, focal)
 
 
 def attenuation(r: ArrayLike) -> np.ndarray:
@@ -229,69 +140,8 @@ def image_blur_diameter(z_c: ArrayLike, focal: float, focus: float, aperture: fl
     """
     z_c = np.asarray(z_c, dtype=float)
     with np.errstate(divide="ignore", invalid="ignore"):  # no image there
-        blur = focal / (z_c - focal) * circle_of_confusion(z_c, focus, aperture)
+        blur = equations.image_blur(z_c, focal, circle_of_confusion(z_c, focus, aperture))
     return np.where(z_c > focal, blur, np.nan)
-
-
-def camera_blur_area(c_image: ArrayLike, pixel: float) -> np.ndarray:
-    """Area of the camera-induced blur in pixel units, b_c (Eq. 13).
-
-    Parameters
-    ----------
-    c_image : array_like
-        Image-side blur diameter c_c [mm].
-    pixel : float
-        Camera pixel size s_c [mm].
-
-    Returns
-    -------
-    ndarray
-        b_c = max(pi (c_c / (2 s_c))^2, 1) [px^2]; NaN stays NaN.
-    """
-    c_image = np.asarray(c_image, dtype=float)
-    area = np.pi * (c_image / (2.0 * pixel)) ** 2
-    return np.maximum(area, 1.0)  # propagates NaN
-
-
-def airy_diameter(wavelength: float, f_number: float) -> float:
-    """Diameter of the Airy disc in the camera image, d_c (Eq. 15).
-
-    Parameters
-    ----------
-    wavelength : float
-        Wavelength lambda [mm] (the paper's 450 um is a typo for 450 nm).
-    f_number : float
-        Camera f-number N [-].
-
-    Returns
-    -------
-    float
-        d_c = 2 * 1.22 * lambda * N [mm].
-
-    Examples
-    --------
-    >>> round(airy_diameter(450e-6, 8.0) * 1e3, 4)
-    8.784
-    """
-    return 2.0 * 1.22 * wavelength * f_number
-
-
-def diffraction_blur_area(airy: float, pixel: float) -> float:
-    """Area of the diffraction blur in pixel units, b_d (Eq. 16).
-
-    Parameters
-    ----------
-    airy : float
-        Airy disc diameter d_c [mm].
-    pixel : float
-        Camera pixel size s_c [mm].
-
-    Returns
-    -------
-    float
-        b_d = pi (d_c / (2 s_c))^2 [px^2].
-    """
-    return float(np.pi * (airy / (2.0 * pixel)) ** 2)
 
 
 @dataclass(frozen=True)
@@ -301,7 +151,8 @@ class OpticalTerms:
     Lengths in mm, ratios and factors dimensionless. ``s_o`` is NaN past the first zero
     of J1 (the fringe contrast inverts there). ``s_o_scene`` and ``s_o_sensor`` are its
     scene-side and sensor parts (:func:`noise_scales`; the sensor part is 0 but for
-    the two-source reading), s_o^2 = s_o_scene^2 + s_o_sensor^2 for "two_source".
+    the two-source reading), s_o^2 = s_o_scene^2 + s_o_sensor^2 for "two_source";
+    ``record`` holds the config's numbers and readings they were computed with.
     """
 
     z_c: np.ndarray
@@ -321,6 +172,7 @@ class OpticalTerms:
     s_o_sensor: np.ndarray | None = None
     filter_base: np.ndarray | None = None
     object_scale: np.ndarray | None = None
+    record: equations.ModelRecord | None = None
 
     @property
     def within_validity(self) -> np.ndarray:
@@ -376,16 +228,15 @@ def correlation_gamma(gamma: float, z_c: ArrayLike, config: ScannerConfig,
     (:func:`scanqa.model.readings.smooth_floor`), follows the range (docs/flattening.rst).
     """
     z = np.asarray(z_c, dtype=float)
-    if filter_floor != "smooth":
-        return np.full(z.shape, float(gamma))
-    return gamma * config.camera.focus_mm / z
+    floor = code(FILTER_FLOOR_METHODS, filter_floor, "floor")
+    return equations.range_gamma(float(gamma), config.camera.focus_mm, z, floor) + np.zeros(z.shape)
 
 
 def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
                   period_px: float | None = None, gamma: float | None = None,
                   filter_floor: str | None = None, noise_reading: str | None = None,
-                  filter_form: str | None = None, sensor_ratio: float | None = None
-                  ) -> OpticalTerms:
+                  filter_form: str | None = None, sensor_ratio: float | None = None,
+                  sigma_p: float | None = None) -> OpticalTerms:
     """The model chain from the distances to the camera and the projector to s_O.
 
     This is the one implementation of Eqs. 1-4 and 12-19 (without s_T): prediction
@@ -407,70 +258,48 @@ def optical_terms(z_c: ArrayLike, z_p: ArrayLike, config: ScannerConfig,
         Override the config's readings (module notes).
     sensor_ratio : float, optional
         Sensor over scene-side phase noise at focus [-]; default
-        ``sensor_sigma_p_px / sigma_p_px`` of the config (two-source reading only).
+        ``sensor_sigma_p_px / sigma_p`` of the config (two-source reading only).
+    sigma_p : float, optional
+        Scene-side phase noise at focus [projector px]; default the config's.
 
     Returns
     -------
     OpticalTerms
         Every intermediate quantity, broadcast to one shape.
     """
-    cam, proj, model = config.camera, config.projector, config.model
+    m = equations.model_record(config, period_px, gamma, filter_floor, noise_reading, filter_form,
+                     sensor_ratio, sigma_p)
     z_c, z_p = np.broadcast_arrays(np.asarray(z_c, dtype=float), np.asarray(z_p, dtype=float))
-    period = config.fringes.working_period_px if period_px is None else period_px
-    floor = model.filter_floor if filter_floor is None else filter_floor
-    reading = model.noise_reading if noise_reading is None else noise_reading
-    form = model.filter_form if filter_form is None else filter_form
-    rho = model.sensor_sigma_p_px / model.sigma_p_px if sensor_ratio is None else sensor_ratio
-    omega_o = fringe_period_on_object(z_p, period, proj.pitch_um * 1e-3, proj.focus_mm,
-                                      proj.focal_mm)
-    coc_c = circle_of_confusion(z_c, cam.focus_mm, cam.aperture_mm)
-    r_c = coc_c / omega_o
-    r_p = circle_of_confusion(z_p, proj.focus_mm, proj.aperture_mm) / omega_o
-    a_c, a_p = attenuation(r_c), attenuation(r_p)
-    c_image = image_blur_diameter(z_c, cam.focal_mm, cam.focus_mm, cam.aperture_mm)
-    b_c = camera_blur_area(c_image, cam.pixel_um * 1e-3)
-    b_d = diffraction_blur_area(airy_diameter(model.wavelength_nm * 1e-6, cam.f_number),
-                                cam.pixel_um * 1e-3)
-    area = b_c if form == "product" else camera_noise_area(c_image, cam.pixel_um * 1e-3, b_d)
-    base = filter_factor(area, b_d, 1.0, "none", form)
-    gamma_z = correlation_gamma(model.gamma if gamma is None else gamma, z_c, config, floor)
-    f_gamma = filter_factor(area, b_d, gamma_z, floor, form)
-    scene, sensor = noise_scales(f_gamma, a_p, a_c, reading, rho)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        omega_o, _, r_c, r_p = equations.blur_ratios(z_c, z_p, m)
+        a_c, a_p = attenuation(r_c), attenuation(r_p)
+        c_image = image_blur_diameter(z_c, m.cam_focal_mm, m.cam_focus_mm, m.cam_aperture_mm)
+        b_c, base, f_gamma = equations.filter_factors(z_c, c_image, m)
+        scene, sensor = scales_by_code(f_gamma, a_p, a_c, m.reading, m.sensor_ratio)
     beyond = (r_c >= FIRST_ZERO_RATIO) | (r_p >= FIRST_ZERO_RATIO)
     scene, sensor = np.where(beyond, np.nan, scene), np.where(beyond, np.nan, sensor)
-    s_o = np.hypot(scene, sensor) if reading == "two_source" else scene
-    return OpticalTerms(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma, s_o, floor,
-                        reading, form, scene, sensor, base, cam.focus_mm / z_c)
+    return OpticalTerms(z_c, z_p, omega_o, r_c, r_p, a_c, a_p, b_c, f_gamma,
+                        equations.optical_scale_of(scene, sensor, m),
+                        list(FILTER_FLOOR_METHODS)[m.floor], list(NOISE_READING_METHODS)[m.reading],
+                        list(FILTER_FORM_METHODS)[m.form], scene, sensor, base,
+                        m.cam_focus_mm / z_c, m)
 
 
-@dataclass(frozen=True)
-class Prediction:
-    """Every intermediate quantity of the model for a set of points (arrays of one shape).
+@dataclass(frozen=True, kw_only=True)
+class Prediction(OpticalTerms):
+    """The model's terms (:class:`OpticalTerms`) and sigma for a set of points.
 
-    Lengths in mm, ratios and factors dimensionless, ``sigma`` in mm. ``valid`` is False
-    where a blur ratio exceeds 1/2 (outside the paper's validity); ``sigma`` is NaN past
-    the first zero of J1 and for NaN input. ``sigma_scene`` and ``sigma_sensor`` are its
+    ``s_t`` [mm / px] and ``sigma`` [mm] have the terms' shape. ``valid`` is False where a
+    blur ratio exceeds 1/2 (outside the paper's validity); ``sigma`` is NaN past the
+    first zero of J1 and for NaN input. ``sigma_scene`` and ``sigma_sensor`` are its
     scene-side and sensor parts [mm] (the sensor part is 0 but for "two_source").
     """
 
-    z_c: np.ndarray
-    z_p: np.ndarray
-    omega_o: np.ndarray
-    ratio_camera: np.ndarray
-    ratio_projector: np.ndarray
-    attenuation_camera: np.ndarray
-    attenuation_projector: np.ndarray
-    blur_area_camera: np.ndarray
-    filter_factor: np.ndarray
-    s_o: np.ndarray
     s_t: np.ndarray
     sigma: np.ndarray
     valid: np.ndarray
-    filter_floor: str
-    noise_reading: str
-    filter_form: str = "product"
-    sigma_scene: np.ndarray | None = None
-    sigma_sensor: np.ndarray | None = None
+    sigma_scene: np.ndarray
+    sigma_sensor: np.ndarray
 
     @property
     def sigma_trusted(self) -> np.ndarray:
@@ -507,15 +336,10 @@ def predict(points: ArrayLike, config: ScannerConfig, period_px: float | None = 
         sigma along the line of sight [mm] and every intermediate quantity.
     """
     q = np.asarray(points, dtype=float)
-    sp = config.model.sigma_p_px if sigma_p is None else sigma_p
     t = optical_terms(q[..., 2], projector_depth(q, config), config, period_px,
-                      filter_floor=filter_floor, noise_reading=noise_reading,
-                      sensor_ratio=config.model.sensor_sigma_p_px / sp)
+                      filter_floor=filter_floor, noise_reading=noise_reading, sigma_p=sigma_p)
     s_t = triangulation_scale(q, config) if s_t is None else np.asarray(s_t, dtype=float)
-    sigma = s_t * t.s_o * sp
-    valid = t.within_validity & np.isfinite(sigma)
-    return Prediction(t.z_c, t.z_p, t.omega_o, t.ratio_camera, t.ratio_projector,
-                      t.attenuation_camera, t.attenuation_projector, t.blur_area_camera,
-                      t.filter_factor, t.s_o, np.broadcast_to(s_t, np.shape(sigma)), sigma,
-                      valid, t.filter_floor, t.noise_reading, t.filter_form,
-                      s_t * t.s_o_scene * sp, s_t * t.s_o_sensor * sp)
+    sigma, scene, sensor, valid = equations.point_sigma(s_t, t.s_o, t.s_o_scene, t.s_o_sensor,
+                                              t.ratio_camera, t.ratio_projector, t.record)
+    return Prediction(**vars(t), s_t=np.broadcast_to(s_t, np.shape(sigma)), sigma=sigma,
+                      valid=valid, sigma_scene=scene, sigma_sensor=sensor)

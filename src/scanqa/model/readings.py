@@ -28,7 +28,14 @@ from collections.abc import Callable, Mapping
 import numpy as np
 from numpy.typing import ArrayLike
 
+from scanqa.compiled import jitable
 from scanqa.errors import MethodError
+
+#: Codes of the readings in compiled code (:class:`scanqa.model.equations.ModelRecord`):
+#: each name's place in its mapping below (:func:`code`).
+PRODUCT, SUM = 0, 1
+UNCLAMPED, CLAMPED, SMOOTH = 0, 1, 2
+POWER, AMPLITUDE, MIXED, TWO_SOURCE = 0, 1, 2, 3
 
 
 def method_names(methods: Mapping[str, Callable]) -> str:
@@ -64,6 +71,13 @@ def lookup(methods: Mapping[str, Callable], name: str, what: str) -> Callable:
     raise MethodError(f"{what} must be {method_names(methods)}, got {name!r}")
 
 
+def code(methods: Mapping[str, Callable], name: str, what: str) -> int:
+    """The code of ``name`` in compiled code: its place in ``methods`` (:func:`lookup`)."""
+    lookup(methods, name, what)
+    return list(methods).index(name)
+
+
+@jitable
 def camera_noise_area(c_image: ArrayLike, pixel: float, b_d: float) -> np.ndarray:
     """Noise-equivalent area of the camera's kernel: pixel, defocus disc and Airy disc.
 
@@ -87,10 +101,17 @@ def camera_noise_area(c_image: ArrayLike, pixel: float, b_d: float) -> np.ndarra
     >>> float(camera_noise_area(0.0, 0.008, 1.0))
     2.0
     """
-    c_image = np.asarray(c_image, dtype=float)
-    return 1.0 + np.pi * (c_image / (2.0 * pixel)) ** 2 + b_d
+    return 1.0 + blur_area(c_image, pixel) + b_d
 
 
+@jitable
+def blur_area(c_image: ArrayLike, pixel: float) -> np.ndarray:
+    """pi (c_c / (2 s_c))^2, the area of the image blur c_c [mm] on pixels of s_c [mm],
+    Eq. 13 without its floor [px^2]."""
+    return np.pi * np.divide(c_image, 2.0 * pixel) ** 2
+
+
+@jitable
 def product_filter(b_c: np.ndarray, b_d: float, gamma: float) -> np.ndarray:
     """F_gamma = sqrt(b_c b_d) / gamma, Eq. 17 of the paper as printed [-].
 
@@ -100,6 +121,7 @@ def product_filter(b_c: np.ndarray, b_d: float, gamma: float) -> np.ndarray:
     return np.sqrt(b_c * b_d) / gamma
 
 
+@jitable
 def sum_filter(b_c: np.ndarray, b_d: float, gamma: float) -> np.ndarray:
     """F_gamma = sqrt(1 + b_disc + b_d) / gamma, Eq. 17 with the areas added [-].
 
@@ -107,15 +129,16 @@ def sum_filter(b_c: np.ndarray, b_d: float, gamma: float) -> np.ndarray:
     (:func:`camera_noise_area`, docs/noise_model.rst) [px^2], so ``b_d`` is not used
     again [px^2]; ``gamma`` is the noise correlation [-].
     """
-    del b_d  # held by b_c
     return np.sqrt(b_c) / gamma
 
 
+@jitable
 def unclamped(f: np.ndarray) -> np.ndarray:
     """F_gamma as Eq. 17 of the paper prints it: no floor, F may be < 1 [-]."""
     return f
 
 
+@jitable
 def clamped_at_one(f: np.ndarray) -> np.ndarray:
     """F_gamma >= 1: the bound 1 <= gamma <= sqrt(b_c b_d) stated under Eq. 17 [-].
 
@@ -124,6 +147,7 @@ def clamped_at_one(f: np.ndarray) -> np.ndarray:
     return np.maximum(f, 1.0)
 
 
+@jitable
 def smooth_floor(f: np.ndarray) -> np.ndarray:
     """F_gamma^2 = 1 + F^2: noise correlated over gamma^2 px^2, filtered by a kernel [-].
 
@@ -177,14 +201,22 @@ def filter_factor(b_c: ArrayLike, b_d: float, gamma: float, floor: str = "none",
     ndarray
         F_gamma [-].
     """
-    f = lookup(FILTER_FORM_METHODS, form, "form")(np.asarray(b_c, dtype=float), b_d, gamma)
-    return lookup(FILTER_FLOOR_METHODS, floor, "floor")(f)
+    return filter_by_code(np.asarray(b_c, dtype=float), b_d, gamma,
+                          code(FILTER_FORM_METHODS, form, "form"),
+                          code(FILTER_FLOOR_METHODS, floor, "floor"))
 
 
-def _zeros(scene: np.ndarray) -> np.ndarray:
-    return np.zeros_like(scene)
+@jitable
+def filter_by_code(area: ArrayLike, b_d: float, gamma: ArrayLike, form: int, floor: int
+                   ) -> np.ndarray:
+    """:func:`filter_factor` by the codes of its form and floor (:func:`code`) [-]."""
+    f = product_filter(area, b_d, gamma) if form == PRODUCT else sum_filter(area, b_d, gamma)
+    if floor == CLAMPED:
+        return clamped_at_one(f)
+    return smooth_floor(f) if floor == SMOOTH else f
 
 
+@jitable
 def power_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
                   sensor_ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """s_O = 1 / (F_gamma A_p A_c), Eq. 19 of the paper as printed; no sensor part [-].
@@ -193,9 +225,10 @@ def power_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
     of the fringe, not its amplitude. ``sensor_ratio`` is not used.
     """
     scene = 1.0 / (f_gamma * (a_p * a_c))
-    return scene, _zeros(scene)
+    return scene, 0.0
 
 
+@jitable
 def amplitude_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
                       sensor_ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """s_O = 1 / (F_gamma sqrt(A_p A_c)): Eq. 19 with the fringe amplitude [-].
@@ -204,9 +237,10 @@ def amplitude_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
     (docs/model.rst, reading (ii)). ``sensor_ratio`` is not used.
     """
     scene = 1.0 / (f_gamma * np.sqrt(a_p * a_c))
-    return scene, _zeros(scene)
+    return scene, 0.0
 
 
+@jitable
 def mixed_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
                   sensor_ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """s_O = 1 / (F_gamma sqrt(A_p) A_c): Eq. 19, amplitude for the projector [-].
@@ -214,9 +248,10 @@ def mixed_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
     docs/model.rst, reading (ii). ``sensor_ratio`` is not used.
     """
     scene = 1.0 / (f_gamma * (np.sqrt(a_p) * a_c))
-    return scene, _zeros(scene)
+    return scene, 0.0
 
 
+@jitable
 def two_source_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
                        sensor_ratio: float) -> tuple[np.ndarray, np.ndarray]:
     """The two-source model: s_O^2 = (1 / F_gamma^2 + rho^2) / (A_p A_c) [-].
@@ -229,7 +264,7 @@ def two_source_reading(f_gamma: np.ndarray, a_p: np.ndarray, a_c: np.ndarray,
     """
     a = np.sqrt(a_p * a_c)
     scene = 1.0 / (f_gamma * a)
-    return scene, sensor_ratio / a if sensor_ratio > 0 else _zeros(scene)
+    return scene, sensor_ratio / a if sensor_ratio > 0 else 0.0
 
 
 #: How the attenuations enter s_O (Eq. 19): name -> f(F, A_p, A_c, rho) returning the
@@ -253,10 +288,25 @@ def noise_scales(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
         1 / (F a) with a the reading's attenuation, and rho / sqrt(A_p A_c) [-]
         (:data:`NOISE_READING_METHODS`).
     """
-    method = lookup(NOISE_READING_METHODS, reading, "reading")
+    reading = code(NOISE_READING_METHODS, reading, "reading")
     a_p, a_c = np.asarray(a_p, dtype=float), np.asarray(a_c, dtype=float)
     with np.errstate(divide="ignore"):
-        return method(np.asarray(f_gamma, dtype=float), a_p, a_c, sensor_ratio)
+        scene, sensor = scales_by_code(np.asarray(f_gamma, dtype=float), a_p, a_c, reading,
+                                       sensor_ratio)
+    return scene, sensor + np.zeros_like(scene)
+
+
+@jitable
+def scales_by_code(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike, reading: int,
+                   sensor_ratio: float) -> tuple:
+    """:func:`noise_scales` by the code of its reading (:func:`code`) [-]."""
+    if reading == POWER:
+        return power_reading(f_gamma, a_p, a_c, sensor_ratio)
+    if reading == AMPLITUDE:
+        return amplitude_reading(f_gamma, a_p, a_c, sensor_ratio)
+    if reading == MIXED:
+        return mixed_reading(f_gamma, a_p, a_c, sensor_ratio)
+    return two_source_reading(f_gamma, a_p, a_c, sensor_ratio)
 
 
 def optical_scale(f_gamma: ArrayLike, a_p: ArrayLike, a_c: ArrayLike,
