@@ -33,9 +33,9 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
 
 from scanqa.calibration.lookup import TableGrid
+from scanqa.compiled import njit
 from scanqa.model import geometry, optics
 from scanqa.model.config import ScannerConfig
 
