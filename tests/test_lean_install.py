@@ -153,3 +153,16 @@ def test_a_scan_without_numba_agrees_with_the_compiled_one(paper_config, tmp_pat
             # the light differs by float32 roundings (~1e-3 e-), so a pixel's
             # quantisation (or the Poisson draw) can fall the other way: by 1 DN, rarely
             assert diff.max() <= 1 and diff.mean() < 1e-2, (i, diff.max(), diff.mean())
+
+
+def test_a_long_simulation_without_numba_says_so_once(monkeypatch, caplog):
+    monkeypatch.setattr(compiled, "HAVE_NUMBA", False)
+    what = "a test's simulation"  # its own text: said once per process
+    with caplog.at_level("INFO", logger="scanqa"):
+        for _ in range(3):
+            compiled.note_numpy_path(render.log, what)
+    notes = [r.getMessage() for r in caplog.records]
+    assert len(notes) == 1 and "pip install 'scanqa[fast]'" in notes[0], notes
+    monkeypatch.setattr(compiled, "HAVE_NUMBA", True)
+    compiled.note_numpy_path(render.log, "a test's annotate")  # with numba: nothing to say
+    assert len(caplog.records) == 1

@@ -12,6 +12,7 @@ one machine; numba is then not even imported.
 
 from __future__ import annotations
 
+import logging
 import os
 from collections.abc import Callable
 from typing import Any
@@ -56,3 +57,24 @@ def njit(*args: Any, **kwargs: Any) -> Any:
     def identity(func: Callable[..., Any]) -> Callable[..., Any]:
         return func
     return identity
+
+
+_NOTED: set[str] = set()
+
+
+def note_numpy_path(logger: logging.Logger, what: str) -> None:
+    """Say once per process, at INFO, that ``what`` runs on numpy for want of numba.
+
+    Parameters
+    ----------
+    logger : logging.Logger
+        The caller's logger (a child of ``scanqa``: shown by the command line, silent in
+        a program that did not configure logging).
+    what : str
+        What is slower, e.g. ``"the simulator (about 1.3 x the CPU)"``.
+    """
+    if HAVE_NUMBA or what in _NOTED:
+        return
+    _NOTED.add(what)
+    logger.info(f"note: numba is not installed, so {what} runs on numpy; "
+                f"{INSTALL_HINT} compiles it")
