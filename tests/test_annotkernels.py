@@ -114,9 +114,10 @@ def phase_map(cfg, sigma=0.02, seed=0, masked_rows=0, far_rows=0):
 
 
 def numpy_path(monkeypatch, *args, **kwargs):
-    """annotate through the numpy lookup, model and attributes (main's path)."""
+    """annotate through the numpy lookup, model and attributes: the path of an install
+    without numba (the ``fast`` extra), taken by the same switch."""
     with monkeypatch.context() as m:
-        m.setattr(points, "_compiled", lambda *a: None)
+        m.setattr(points, "HAVE_NUMBA", False)
         return annotate(*args, **kwargs)
 
 

@@ -4,17 +4,31 @@ numba compiles scanqa's per-sample loops (the simulator's ray kernels, the annot
 loop); it is an optional speed-up, so every compiled function imports its decorator from
 here. Without numba, :func:`njit` returns the function unchanged and :data:`HAVE_NUMBA`
 is False: callers with a vectorised numpy path take it instead of a Python loop.
+
+``SCANQA_NO_NUMBA=1`` in the environment makes scanqa run as if numba were not
+installed (the paths of a lean install), so that the tests can compare both paths on
+one machine; numba is then not even imported.
 """
 
 from __future__ import annotations
 
+import logging
+import os
 from collections.abc import Callable
 from typing import Any
 
-try:  # numba is optional: pip install 'scanqa[fast]'
-    from numba import njit as _numba_njit
-except ImportError:  # pragma: no cover - exercised in the lean-install check
-    _numba_njit = None
+#: The environment variable that, set to a non-empty value other than ``0``, makes
+#: scanqa take its numpy paths even where numba is installed.
+NO_NUMBA_ENV = "SCANQA_NO_NUMBA"
+#: pip's name for numba in scanqa's extras (``pip install 'scanqa[fast]'``).
+INSTALL_HINT = "pip install 'scanqa[fast]'"
+
+_numba_njit: Any = None
+if os.environ.get(NO_NUMBA_ENV, "0") in ("", "0"):
+    try:  # numba is optional: pip install 'scanqa[fast]'
+        from numba import njit as _numba_njit
+    except ImportError:  # pragma: no cover - exercised in the lean-install check
+        _numba_njit = None
 
 #: True when numba is importable and :func:`njit` compiles.
 HAVE_NUMBA = _numba_njit is not None
@@ -52,3 +66,22 @@ def jitable(func: Callable[..., Any]) -> Callable[..., Any]:
         return func
     from numba.extending import register_jitable
     return register_jitable(func)
+_NOTED: set[str] = set()
+
+
+def note_numpy_path(logger: logging.Logger, what: str) -> None:
+    """Say once per process, at INFO, that ``what`` runs on numpy for want of numba.
+
+    Parameters
+    ----------
+    logger : logging.Logger
+        The caller's logger (a child of ``scanqa``: shown by the command line, silent in
+        a program that did not configure logging).
+    what : str
+        What is slower, e.g. ``"the simulator (about 1.3 x the CPU)"``.
+    """
+    if HAVE_NUMBA or what in _NOTED:
+        return
+    _NOTED.add(what)
+    logger.info(f"note: numba is not installed, so {what} runs on numpy; "
+                f"{INSTALL_HINT} compiles it")

@@ -70,6 +70,7 @@ from scanqa.calibration.parametric_checks import with_calibrated_geometry
 from scanqa.calibration.table import CalibrationTable
 from scanqa.characterization.checks import evidence_check
 from scanqa.chunks import row_bands, run_bands
+from scanqa.compiled import HAVE_NUMBA
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
@@ -333,8 +334,9 @@ def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
 
 def _compiled(table: Calibration, config: ScannerConfig, source: dict) -> tuple | None:
     """The constants of the compiled pass (:mod:`scanqa.annotation.kernels`) for a
-    nonparametric table, made once per scan; None for other calibrations (numpy path)."""
-    if not isinstance(table, CalibrationTable):
+    nonparametric table, made once per scan; None for other calibrations or without numba
+    (:mod:`scanqa.compiled`): the numpy path."""
+    if not HAVE_NUMBA or not isinstance(table, CalibrationTable):
         return None
     model, run = kernels.model_parameters(config, source["random"],
                                                table_correlation_px(table))

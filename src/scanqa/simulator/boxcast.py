@@ -17,13 +17,15 @@ triangle's diagonal, or hit two faces at nearly the same distance. Every ray wit
 :data:`AMBIGUOUS_MM` of such a decision (in the face's plane, or along the ray) is
 marked ambiguous and cast by open3d instead (:meth:`scanqa.simulator.scene.Scene.first_hits`),
 so the triangles are open3d's for every ray (``tests/test_simulator_boxcast.py``
-compares every ray of the gauge scene's tiles and shadow rays with open3d's).
+compares every ray of the gauge scene's tiles and shadow rays with open3d's). Without
+numba (:mod:`scanqa.compiled`) the scene casts every ray with open3d.
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from scanqa.compiled import njit
 
 #: Distance from a decision (a face's edge, a diagonal, a tie between two faces) within
 #: which a ray is left to open3d [mm]. open3d's float32 arithmetic on coordinates of

@@ -20,13 +20,20 @@ machine (docs/benchmarks.rst, "Fourth pass"); on a BLAS that sums otherwise the
 geometry may differ by an ulp. ``tests/test_simulator_raykernels.py`` checks each
 loop against the numpy expressions it replaces; the numpy geometry stays for a
 distorted projector.
+
+numba is optional (``pip install 'scanqa[fast]'``, :mod:`scanqa.compiled`). Without it
+:func:`tile_geometry` answers None (the renderer's numpy geometry), and the frame and
+plan loops are replaced by their numpy twins (``*_numpy`` below: the expressions the
+loops replaced, vectorised, never a Python loop over samples), which agree with the
+loops to rounding (``tests/test_lean_install.py``).
 """
 
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from scanqa import compiled
+from scanqa.compiled import njit
 from scanqa.model.config import ScannerConfig
 from scanqa.simulator import devices
 from scanqa.simulator.devices import Pose
@@ -58,9 +65,9 @@ def tile_geometry(config: ScannerConfig, scene: Scene, camera: Pose, projector: 
     tuple or None
         hit, world (H, W, 3) [mm], z_c [mm], x_p, y_p [projector px], z_p [mm], lit and
         shade [-] as the renderer's ``_geometry`` computes them; None for a distorted
-        projector (the caller then uses the numpy path).
+        projector or without numba (the caller then uses the numpy path).
     """
-    if any(devices.distortion(config, "projector")):
+    if not compiled.HAVE_NUMBA or any(devices.distortion(config, "projector")):
         return None
     shape = np.shape(u)
     origins, dirs = devices.camera_rays(config, camera, u, v)
@@ -394,3 +401,70 @@ def ladder_groups(diameter: np.ndarray, hit: np.ndarray, d_step: float, d_lin: f
         fill[level[k] - lo] += 1
     present = np.flatnonzero(counts[1:]) if m else np.zeros(0, np.int64)
     return out_flat, out_frac, present + lo, starts[present], starts[present + 1]
+
+
+# --------------------------------------------------------------- numpy twins (no numba)
+
+def add_fringe_numpy(radiance: np.ndarray, cos_h: np.float32, q_re: np.ndarray,
+                     sin_h: np.float32, q_im: np.ndarray) -> None:
+    """:func:`add_fringe` in two numpy passes (the same float32 operations) [e-]."""
+    radiance += cos_h * q_re
+    radiance -= sin_h * q_im
+
+
+def add_cell_noise_numpy(radiance: np.ndarray, cells: np.ndarray, index: np.ndarray,
+                         scale: np.ndarray) -> None:
+    """:func:`add_cell_noise` by numpy fancy indexing, float32 [e-]."""
+    radiance += cells.reshape(-1)[index] * scale
+
+
+def add_pixel_means_numpy(out: np.ndarray, fine: np.ndarray, s: int) -> None:
+    """:func:`add_pixel_means` by numpy's mean over each pixel's s x s supersamples [e-]."""
+    n0, n1 = out.shape
+    out += fine[:n0 * s, :n1 * s].reshape(n0, s, n1, s).mean(axis=(1, 3), dtype=np.float32)
+
+
+def noise_cells_numpy(world: np.ndarray, hit: np.ndarray, cell: float
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`noise_cells` in numpy passes (int64 cell indices) [-]."""
+    first = np.flatnonzero(hit)
+    fill = world[first[0], :2] if first.size else np.zeros(2)
+    xy = np.where(hit[:, None], world[:, :2], fill[None, :])
+    cells = np.floor(xy / cell).astype(np.int64)
+    return cells[:, 0].copy(), cells[:, 1].copy()
+
+
+def phasor_parts_numpy(lit: np.ndarray, d_panel: np.ndarray, x_p: np.ndarray,
+                       harmonic: int, period: float, table_u: np.ndarray,
+                       table_m: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`phasor_parts` by ``np.interp`` and float64 passes, float32 results [-], [rad]."""
+    contrast = np.where(lit, np.interp(np.pi * d_panel * harmonic / period, table_u,
+                                       table_m), 0.0).astype(np.float32)
+    cycles = np.where(lit, x_p, 0.0) * (harmonic / period)
+    angle = np.where(lit, (cycles - np.floor(cycles)) * (2.0 * np.pi), 0.0)
+    return contrast, angle.astype(np.float32)
+
+
+def ladder_groups_numpy(diameter: np.ndarray, hit: np.ndarray, d_step: float, d_lin: float,
+                        log_ratio: float):
+    """:func:`ladder_groups` by a stable numpy argsort of the ladder layers (the same
+    flat indices and layers; fractions to rounding)."""
+    flat = np.flatnonzero(hit)
+    d = diameter[flat]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lam = np.where(d <= d_lin, d / d_step,
+                       d_lin / d_step + np.log(np.maximum(d, d_lin) / d_lin) / log_ratio)
+    level = np.floor(lam).astype(np.int64)
+    order = np.argsort(level, kind="stable")
+    flat, level, frac = flat[order], level[order], (lam - np.floor(lam))[order]
+    present, start, count = np.unique(level, return_index=True, return_counts=True)
+    return flat, frac, present, start, start + count
+
+
+#: The compiled loops and their numpy twins, by name.
+NUMPY_TWINS = {"add_fringe": add_fringe_numpy, "add_cell_noise": add_cell_noise_numpy,
+               "add_pixel_means": add_pixel_means_numpy, "noise_cells": noise_cells_numpy,
+               "phasor_parts": phasor_parts_numpy, "ladder_groups": ladder_groups_numpy}
+
+if not compiled.HAVE_NUMBA:  # a Python loop over every sample would be far too slow
+    globals().update(NUMPY_TWINS)

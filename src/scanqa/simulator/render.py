@@ -32,6 +32,7 @@ threads do not wait for each other's cast.
 
 from __future__ import annotations
 
+import logging
 import math
 import os
 from collections.abc import Callable, Sequence
@@ -40,6 +41,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from scanqa import compiled
 from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding.coding import PatternDescription, PhaseSet
 from scanqa.errors import InputError
@@ -55,6 +57,10 @@ from scanqa.simulator.scene import Scene
 TILE_PX = 256
 #: Largest halo around a tile; blur beyond it is clipped [camera px].
 MAX_HALO_PX = 64
+#: Windows from this size on say so when numba is missing (a scan of seconds) [px].
+NOTE_NUMPY_PX = 1 << 20
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -319,6 +325,8 @@ def render_images(config: ScannerConfig, acq: Acquisition, desc: PatternDescript
     """
     _check_desc(desc)
     win = devices.sensor_window(config)
+    if win.width * win.height >= NOTE_NUMPY_PX:
+        compiled.note_numpy_path(log, "the simulator (about 1.15 x the CPU)")
     images = [np.zeros((s.steps, win.height, win.width), np.uint16) for s in desc.sets]
     if not _render_tiles(config, acq, desc, win, images, progress):
         raise InputError("zero valid pixels: no pixel of the camera sees a point of scene "

@@ -30,6 +30,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from scanqa import compiled
 from scanqa.errors import InputError
 from scanqa.io.mesh import read_mesh
 from scanqa.simulator import boxcast
@@ -150,7 +151,7 @@ class Scene:
         prim, t : (n,) uint32, float32
             Hit triangle (``2**32 - 1`` for none) and its ray parameter (inf for none).
         """
-        if self.boxes is None:
+        if self.boxes is None or not compiled.HAVE_NUMBA:  # no Python loop over rays
             return self._open3d_hits(rays, threads)
         code, t = boxcast.first_triangles(rays, self.boxes, boxcast.AMBIGUOUS_MM)
         prim = np.where(code >= 0, code, np.iinfo(np.uint32).max).astype(np.uint32)
