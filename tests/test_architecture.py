@@ -16,7 +16,8 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
 LAYERS = {
     "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.compiled": 0, "scanqa.progress": 0, "scanqa._version": 0,
     "scanqa.io": 1,
-    "scanqa.model.config": 2, "scanqa.model.cloud": 2, "scanqa.provenance": 2,
+    "scanqa.model.config": 2, "scanqa.model.cloud": 2, "scanqa.model.normals": 2,
+    "scanqa.provenance": 2,
     "scanqa.model.readings": 3, "scanqa.model.geometry": 3, "scanqa.model.optics": 3,
     "scanqa.decoding": 4, "scanqa.model.design": 4, "scanqa.model.noisefit": 4,
     "scanqa.model.rig": 4,
