@@ -97,6 +97,9 @@ def test_annotate_writes_grid_normals_and_says_so(cfg, table, tmp_path):  # noqa
     # the table's interpolation leaves sub-um bumps over ~0.3 mm between pixels
     assert np.percentile(np.degrees(np.arccos(-normals[:, 2])), 99) < 1.0
     assert cloud.metadata["normals"] == GRID_METHOD
+    pcd = cloud.to_open3d()  # Open3D's own normals, as its PLY reader loads them
+    np.testing.assert_array_equal(pcd.point["normals"].numpy(), normals)
+    assert "nx" not in pcd.point
     plain = annotate(pm, table, cfg, normals=False)
     assert not set(NORMAL_ATTRIBUTES) & set(plain.attributes)
     assert "normals" not in plain.metadata
