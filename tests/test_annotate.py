@@ -243,7 +243,10 @@ def test_las_extra_bytes_follow_the_spec(cfg, table, tmp_path):
     import laspy  # and the library most LAS users read with sees the same descriptions
 
     dims = laspy.read(str(path)).point_format.extra_dimensions
-    assert {d.name: d.description for d in dims}["sigma_random_um"] == "sigma_random [um]"
+    described = {d.name: d.description for d in dims}
+    assert described["sigma_random_um"] == "sigma_random [um]"
+    assert [described[n] for n in NORMAL_ATTRIBUTES] == ["normal x [-]", "normal y [-]",
+                                                          "normal z [-]"]  # extra bytes
 
 
 def test_keep_invalid_and_counts(cfg, table):
