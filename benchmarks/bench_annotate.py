@@ -9,7 +9,10 @@ numba's one-time start of the process (loading the compiled annotate loop from i
 cache, :func:`scanqa.annotation.kernels.load`) runs before the timer, like the imports,
 and is printed on its own; the first run after a change of the loop compiles it (8-9 s of CPU).
 
-Run: .venv/bin/python benchmarks/bench_annotate.py [--width 2448 --height 2048]
+``--no-normals`` leaves out the normals from the pixel grid (``scanqa annotate
+--no-normals``), to read their cost off the two runs.
+
+Run: .venv/bin/python benchmarks/bench_annotate.py [--width 2448 --height 2048] [--no-normals]
 """
 
 from __future__ import annotations
@@ -43,7 +46,10 @@ def main() -> int:
     ap.add_argument("--separate", action="store_true",
                     help="annotate in memory, then write (AnnotatedCloud.write), as before "
                          "issue 31's file mapping; default: annotate(out=...), the CLI's way")
+    ap.add_argument("--no-normals", action="store_true",
+                    help="without the normals (annotate(normals=False))")
     args = ap.parse_args()
+    normals = not args.no_normals
     cfg = small_camera(load_config(ROOT / "calib" / "paper_scanner.toml"), args.width,
                        args.height)
     table, _ = build_table((o for z in np.linspace(430, 470, 21) for o in sweep(cfg, [z])),
@@ -63,11 +69,11 @@ def main() -> int:
         cpu0 = resource.getrusage(resource.RUSAGE_SELF)
         t0 = time.perf_counter()
         if args.separate:
-            cloud = annotate(scan, table, cfg)
+            cloud = annotate(scan, table, cfg, normals=normals)
             t1 = time.perf_counter()
             cloud.write(out)
         else:  # the records are filled inside the output file's mapping
-            cloud = annotate(scan, table, cfg, out=out)
+            cloud = annotate(scan, table, cfg, out=out, normals=normals)
             t1 = time.perf_counter()
         t2 = time.perf_counter()
         cpu1 = resource.getrusage(resource.RUSAGE_SELF)

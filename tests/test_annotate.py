@@ -10,7 +10,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from scanqa.annotation.points import ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
+from scanqa.annotation.points import ATTRIBUTES, NORMAL_ATTRIBUTES, REPEAT_ATTRIBUTES, annotate
 from scanqa.calibration.build import build_table
 from scanqa.calibration.table import save_table
 from scanqa.cli import main
@@ -67,7 +67,7 @@ def test_points_and_sigmas_are_consistent(cfg, table):
     np.testing.assert_allclose(comp, a["sigma_model_um"], rtol=1e-5)
     np.testing.assert_allclose(a["sigma_total_um"], np.hypot(a["sigma_model_um"],
                                                              a["sigma_table_um"]), rtol=1e-5)
-    assert set(a) == set(ATTRIBUTES)
+    assert set(a) == set(ATTRIBUTES + NORMAL_ATTRIBUTES)
 
 
 def test_repeats_give_measured_std(cfg, table):
@@ -114,7 +114,13 @@ def test_open3d_tensor_reader_round_trip(cfg, table, tmp_path):
     pcd = o3d.t.io.read_point_cloud(str(path))
     np.testing.assert_array_equal(pcd.point["positions"].numpy(), cloud.xyz)
     for name, values in cloud.attributes.items():
-        np.testing.assert_array_equal(pcd.point[f"scalar_{name}"].numpy().ravel(), values)
+        if name not in NORMAL_ATTRIBUTES:
+            np.testing.assert_array_equal(pcd.point[f"scalar_{name}"].numpy().ravel(), values)
+    normals = np.stack([cloud.attributes[n] for n in NORMAL_ATTRIBUTES], -1)
+    np.testing.assert_array_equal(pcd.point["normals"].numpy(), normals)
+    legacy = o3d.io.read_point_cloud(str(path))  # the reader most Open3D code uses
+    assert legacy.has_normals()
+    np.testing.assert_allclose(np.asarray(legacy.normals), normals, rtol=1e-6)
 
 
 def _clean_qt_env() -> dict:
@@ -147,11 +153,16 @@ def test_cloudcompare_reads_every_attribute(cfg, table, tmp_path):
     path = cloud.write(tmp_path / "cloud.ply")
     header, data = _cloudcompare_asc(path, tmp_path)
     # the grey colour and intensity of the fringe offset (tests/test_cloud_display.py)
-    assert header[:6] == ["X", "Y", "Z", "R", "G", "B"] and header[-1] == "intensity"
-    assert header[6:-1] == list(cloud.attributes)  # every attribute, under its own name
+    assert header[:6] == ["X", "Y", "Z", "R", "G", "B"] and header[-4:] == [
+        "intensity", "Nx", "Ny", "Nz"]  # the normals as CloudCompare's own normals
+    scalars = [n for n in cloud.attributes if n not in NORMAL_ATTRIBUTES]
+    assert header[6:-4] == scalars  # every attribute, under its own name
     # CloudCompare keeps coordinates in float32: 0.03 um resolution at 450 mm
     np.testing.assert_allclose(data[:, :3], cloud.xyz, atol=1e-4)
-    for i, name in enumerate(header[6:-1], start=6):
+    # and normals compressed to one of ~2 million directions (about 1e-3 apart)
+    normals = np.stack([cloud.attributes[n] for n in NORMAL_ATTRIBUTES], -1)
+    np.testing.assert_allclose(data[:, -3:], normals, atol=3e-3)
+    for i, name in enumerate(header[6:-4], start=6):
         np.testing.assert_allclose(data[:, i], cloud.attributes[name], rtol=1e-6,
                                    equal_nan=True, err_msg=name)
 
@@ -232,7 +243,10 @@ def test_las_extra_bytes_follow_the_spec(cfg, table, tmp_path):
     import laspy  # and the library most LAS users read with sees the same descriptions
 
     dims = laspy.read(str(path)).point_format.extra_dimensions
-    assert {d.name: d.description for d in dims}["sigma_random_um"] == "sigma_random [um]"
+    described = {d.name: d.description for d in dims}
+    assert described["sigma_random_um"] == "sigma_random [um]"
+    assert [described[n] for n in NORMAL_ATTRIBUTES] == ["normal x [-]", "normal y [-]",
+                                                          "normal z [-]"]  # extra bytes
 
 
 def test_keep_invalid_and_counts(cfg, table):

@@ -21,6 +21,7 @@ from scanqa.annotation.points import annotate
 from scanqa.cli import main
 from scanqa.errors import InputError
 from scanqa.io.cloud import read_cloud, write_cloud
+from scanqa.io.e57 import NORMAL_FIELDS, NORMALS
 
 from .test_annotate import REQUIRE_CLIENTS, _clean_qt_env, cfg, scan, table  # noqa: F401
 from .test_failures import inputs, one_line_error  # noqa: F401 - fixtures
@@ -59,18 +60,22 @@ def test_pye57_reads_every_field_with_its_unit_and_the_provenance(cloud, tmp_pat
     path = cloud.write(tmp_path / "c.e57")
     fields, data, (e57, header) = _pye57_fields(path)
     assert fields[:4] == ["cartesianX", "cartesianY", "cartesianZ", "intensity"]
-    assert fields[4:] == [f"scanqa:{name}" for name in cloud.attributes]
+    # annotate's normals in the E57 surface-normals extension, the rest in scanqa's
+    field = {name: NORMAL_FIELDS.get(name, f"scanqa:{name}") for name in cloud.attributes}
+    assert fields[4:] == list(field.values())
+    assert ("nor", NORMALS[1]) in _extensions(e57)
     # metres, 64-bit
     for i, axis in enumerate("XYZ"):
         np.testing.assert_allclose(data[f"cartesian{axis}"], cloud.xyz[:, i] / 1000,
                                    rtol=0, atol=1e-15)
     np.testing.assert_array_equal(data["intensity"], cloud.attributes["offset_dn"])
     for name, values in cloud.attributes.items():  # float32 as written
-        np.testing.assert_array_equal(data[f"scanqa:{name}"], values.astype(np.float64),
+        np.testing.assert_array_equal(data[field[name]], values.astype(np.float64),
                                       err_msg=name)
     node = header.node
     assert ("scanqa", "urn:x-scanqa:e57:1.0") in _extensions(e57)
-    units = {name: node["scanqa:fields"][name]["unit"].value() for name in cloud.attributes}
+    units = {name: node["scanqa:fields"][name]["unit"].value() for name in cloud.attributes
+             if name not in NORMAL_FIELDS}
     assert units["sigma_total_um"] == "um" and units["offset_dn"] == "DN"
     assert units["s_t_um_px"] == "um/px" and units["s_o"] == "-"
     assert json.loads(node["scanqa:metadata"].value()) == json.loads(

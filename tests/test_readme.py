@@ -30,6 +30,12 @@ def test_readme_api_examples_run(tmp_path, monkeypatch):
         for block in blocks:
             exec(compile(block, "README.md", "exec"), namespace)
     assert namespace["data"] == scanqa.sample_data_path()
+    # the API's real-scanner calls on the sample data: describe, compare with a best fit,
+    # a characterisation applied (its sigmas then come from the characterised model)
+    assert [p.name for p in namespace["described"]] == ["described.toml"]
+    assert (tmp_path / "cmp" / "summary.json").exists()
+    assert namespace["cloud"].sigma_source["kind"] == "characterised"
+    assert "characterisation" in namespace["characterised"].model.characterised_by
     # what the examples made is real: a table, a cloud with its model, a QA report
     assert (tmp_path / "table.npz").stat().st_size > 0
     cloud = scanqa.read_cloud(tmp_path / "cloud.ply")

@@ -31,6 +31,9 @@ def warm() -> None:
     from scanqa.simulator import experiments
 
     kernels.load()  # the annotate loop
+    from scanqa.model.normals import grid_normals, pixel_index
+
+    grid_normals(np.zeros((4, 3)), pixel_index(np.ones((2, 2), bool)), 1.0)  # normals
     config = load_config(ROOT / "calib" / "paper_scanner.toml").replace_simulator(
         roi_width_px=24, roi_height_px=24)
     with tempfile.TemporaryDirectory() as tmp:  # the renderer's loops, the box cast

@@ -48,6 +48,10 @@ table_corr_mm      mm     distance over which the table's errors are correlated 
                           (NaN for a parametric calibration)
 sigma_meas_um      um     with repeats: std over the repeats along the line of sight
 n_repeats          -      with repeats: number of scans valid at that pixel
+nx, ny, nz         -      the surface normal, estimated from the pixel grid and turned
+                          towards the camera (:mod:`scanqa.model.normals`; (0, 0, 0) where
+                          it cannot be); PLY ``float nx, ny, nz``, which viewers load as
+                          normals. Left out with ``normals=False``
 =================  =====  ==================================================================
 """
 
@@ -78,6 +82,7 @@ from scanqa.io import ply
 from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
+from scanqa.model.normals import GRID_METHOD, grid_normals, pixel_index
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 #: ``sigma_total_um`` first: viewers (CloudCompare) select a cloud's first scalar field.
@@ -88,6 +93,8 @@ ATTRIBUTES = ("sigma_total_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
               "modulation_dn", "offset_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
 REPEAT_ATTRIBUTES = ("sigma_meas_um", "n_repeats")
+#: The normals, last (``float nx, ny, nz`` in PLY): :mod:`scanqa.model.normals`.
+NORMAL_ATTRIBUTES = ply.NORMALS
 
 log = logging.getLogger(__name__)
 
@@ -101,7 +108,8 @@ def check_compatible(table: Calibration, config: ScannerConfig, phase_map: Phase
 
 def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
              repeats: Sequence[PhaseMap] = (), keep_invalid: bool = False,
-             source: str = "scan", out: str | os.PathLike | None = None) -> AnnotatedCloud:
+             source: str = "scan", out: str | os.PathLike | None = None,
+             normals: bool = True) -> AnnotatedCloud:
     """Annotate a decoded scan with per-point sigmas.
 
     Parameters
@@ -129,6 +137,10 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
         are filled inside the output file's mapping (:func:`scanqa.io.ply.vertex_file`),
         the same bytes as :meth:`AnnotatedCloud.write` without a second copy of the
         cloud; published atomically.
+    normals : bool
+        Estimate each point's surface normal from its neighbouring pixels
+        (:func:`scanqa.model.normals.grid_normals`; attributes ``nx, ny, nz``, and the
+        metadata's ``normals`` says how).
 
     Returns
     -------
@@ -167,13 +179,16 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
         raise InputError(f"{source}: no point lies inside the calibrated volume; nothing "
                          f"written to {out} (keep_invalid extrapolates)")
     warnings.append(scan_checks.volume_warning(counts, xp.size, source, table))
-    names = ATTRIBUTES + (REPEAT_ATTRIBUTES if repeats else ())
+    names = (ATTRIBUTES + (REPEAT_ATTRIBUTES if repeats else ())
+             + (NORMAL_ATTRIBUTES if normals else ()))
     extra = {"sigma_xp": phase_map.sigma_xp, "modulation": phase_map.modulation,
              "offset": phase_map.offset}
     origin = sigma_source(config, phase_map)
     meta = cloud_metadata(config, table, source)
     meta["sigma_source"] = {k: v for k, v in origin.items() if k != "law"}
     meta["sigma_source"].update(calibration_source(table))
+    if normals:
+        meta["normals"] = GRID_METHOD
     if repeats:
         extra["std"], extra["count"] = measured_std(table, [phase_map, *repeats])
     starts = np.cumsum([0, *kept])
@@ -191,6 +206,18 @@ def annotate(phase_map: PhaseMap, table: Calibration, config: ScannerConfig,
                                   grey, compiled)
 
         counts["model_invalid"] = int(sum(run_bands(band, bands)))
+        if normals:  # a second pass: a band's normals need the rows beside it
+            pixels = pixel_index(np.concatenate(keep))
+            xyz = ply.vertex_views(records)[0]
+            focal = config.camera.principal_distance_px
+
+            def normal_band(r0: int, r1: int) -> None:
+                i = index[(r0, r1)]
+                part = records[starts[i]:starts[i + 1]]
+                found = grid_normals(xyz, pixels, focal, (r0, r1))
+                part["nx"], part["ny"], part["nz"] = found.T
+
+            run_bands(normal_band, bands)
 
     if out is None:
         records = np.empty(counts["written"], dtype=ply.vertex_dtype(names))
@@ -438,7 +465,7 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
     sig_tab = inputs.get("sigma_calibration", look.sigma_table.ravel())
     random = _random_sigma(inputs, sigma, s_t)
     ply.vertex_views(out)[0][...] = points
-    names = ply.attribute_names(out.dtype)
+    names = [n for n in ply.attribute_names(out.dtype) if n not in ply.NORMALS]
     block = np.empty((len(names), out.size), dtype=np.float32)
     row = dict(zip(names, block, strict=True))
     um = 1e3 * s_t

@@ -52,6 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="further scans of the same scene: adds the measured per-point std")
     p.add_argument("--keep-invalid", action="store_true",
                    help="keep points outside the calibrated volume (extrapolated, flagged)")
+    p.add_argument("--no-normals", dest="normals", action="store_false",
+                   help="leave out the normals nx, ny, nz estimated from the pixel grid")
     add_flatten_arguments(p)
     p.set_defaults(func=run)
 
@@ -68,7 +70,7 @@ def run(args: argparse.Namespace) -> int:
     # a .ply is filled while it is computed (no second copy), unless attributes follow
     direct = out.suffix.lower() == ".ply" and "flatten" not in scan.provenance
     cloud = annotate(scan, calibration, config, repeats, args.keep_invalid, source=args.scan,
-                     out=out if direct else None)
+                     out=out if direct else None, normals=args.normals)
     if "flatten" in scan.provenance:
         from scanqa.annotation.flattening import flattened_attributes
 

@@ -131,15 +131,22 @@ class AnnotatedCloud:
 
         ``positions`` are float64 [mm] (Open3D has no units: they stay millimetres);
         every attribute is an (n, 1) float32 tensor under its own name, as Open3D's
-        tensor PLY reader would load it.
+        tensor PLY reader would load it, except the normals ``nx, ny, nz``, which are
+        its ``normals`` (n, 3).
         """
         import open3d as o3d
 
         pcd = o3d.t.geometry.PointCloud(o3d.core.Tensor(np.ascontiguousarray(self.xyz,
                                                                              np.float64)))
+        normals = ("nx", "ny", "nz")
         for name, values in self.attributes.items():
+            if name in normals and set(normals) <= set(self.attributes):
+                continue
             col = np.ascontiguousarray(np.asarray(values, np.float32).reshape(-1, 1))
             pcd.point[name] = o3d.core.Tensor(col)
+        if set(normals) <= set(self.attributes):
+            stack = np.stack([self.attributes[n] for n in normals], -1).astype(np.float32)
+            pcd.point["normals"] = o3d.core.Tensor(np.ascontiguousarray(stack))
         return pcd
 
 

@@ -99,7 +99,10 @@ INTENSITY_SOURCE = "offset_dn"
 
 def describe(name: str) -> str:
     """The LAS extra-byte description of an attribute: its name with the unit its suffix
-    names, in brackets (``[-]`` for none), within LAS's 32 characters."""
+    names, in brackets (``[-]`` for none), within LAS's 32 characters; the normals
+    ``nx, ny, nz`` are ``normal x [-]`` and so on (LAS has no normals of its own)."""
+    if name in ("nx", "ny", "nz"):
+        return f"normal {name[1]} [-]"
     unit, stem = "-", name
     for suffix, u in sorted(UNIT_SUFFIXES.items(), key=lambda kv: -len(kv[0])):
         if name.endswith(suffix):

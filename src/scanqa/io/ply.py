@@ -47,6 +47,9 @@ PREFIX = "scalar_"
 #: Normals and colours of clouds from Open3D, CloudCompare and others: read and written
 #: under their own names (and types), so that those tools show them as such.
 STANDARD_PROPERTIES = ("nx", "ny", "nz", "red", "green", "blue", "alpha")
+#: The normals among them: float32 fields after the ``scalar_`` ones in
+#: :func:`vertex_dtype` (annotate estimates them, :mod:`scanqa.model.normals`).
+NORMALS = STANDARD_PROPERTIES[:3]
 
 log = logging.getLogger(__name__)
 #: Start of the header comments that carry scanqa's metadata as JSON, in pieces of at
@@ -82,7 +85,8 @@ def vertex_dtype(names) -> np.dtype:
     -------
     numpy.dtype
         Packed little-endian ``x, y, z`` (float64, [mm]), one float32 field
-        ``scalar_<name>`` per attribute and, with an ``offset_dn`` attribute, the
+        ``scalar_<name>`` per attribute, then float32 ``nx, ny, nz`` where the names hold
+        the :data:`NORMALS` and, with an ``offset_dn`` attribute, the
         :data:`DISPLAY_FIELDS` (filled by :func:`write_ply`).
     """
     return _vertex_dtype(tuple(names))
@@ -93,19 +97,23 @@ def _vertex_dtype(names: tuple[str, ...]) -> np.dtype:
     """:func:`vertex_dtype` of a tuple of names, made once (chunked producers ask for it
     per chunk)."""
     display = list(DISPLAY_FIELDS) if INTENSITY_SOURCE in names else []
+    normals = [(name, "<f4") for name in names if name in NORMALS]
     return np.dtype([("x", "<f8"), ("y", "<f8"), ("z", "<f8")]
-                    + [(PREFIX + name, "<f4") for name in names] + display)
+                    + [(PREFIX + name, "<f4") for name in names if name not in NORMALS]
+                    + normals + display)
 
 
 def attribute_names(dtype: np.dtype) -> list[str]:
-    """The attribute names of a record layout (:func:`vertex_dtype`), in file order."""
+    """The attribute names of a record layout (:func:`vertex_dtype`), in file order: the
+    ``scalar_`` ones, then the normals."""
     return list(_attribute_names(dtype))
 
 
 @functools.lru_cache(maxsize=32)
 def _attribute_names(dtype: np.dtype) -> tuple[str, ...]:
     """:func:`attribute_names`, worked out once per layout."""
-    return tuple(name[len(PREFIX):] for name in dtype.names[3:] if name.startswith(PREFIX))
+    return tuple(name[len(PREFIX):] if name.startswith(PREFIX) else name
+                 for name in dtype.names[3:] if name.startswith(PREFIX) or name in NORMALS)
 
 
 def vertex_views(records: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]]:
@@ -122,7 +130,7 @@ def vertex_views(records: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]
     xyz : (n, 3) float64
         Coordinates [mm] (a strided, unaligned view).
     attributes : dict of str to (n,) float32
-        One view per ``scalar_<name>`` field, names without the prefix.
+        One view per ``scalar_<name>`` field, names without the prefix, and per normal.
 
     Notes
     -----
@@ -135,7 +143,7 @@ def vertex_views(records: np.ndarray) -> tuple[np.ndarray, dict[str, np.ndarray]
         raise ValueError(f"records must have the layout of vertex_dtype, got {records.dtype}")
     xyz = np.ndarray((records.size, 3), dtype="<f8", buffer=records,
                      strides=(records.itemsize, 8))
-    return xyz, {name: records[PREFIX + name] for name in names}
+    return xyz, {name: records[_field(name)] for name in names}
 
 
 def attribute_block(records: np.ndarray) -> np.ndarray:
@@ -149,11 +157,13 @@ def attribute_block(records: np.ndarray) -> np.ndarray:
     Returns
     -------
     (n, k) float32 ndarray
-        A view: column j is attribute j. Assigning a whole block writes every record's
-        attributes in one sequential pass (cheaper than k strided field writes).
+        A view: column j is ``scalar_`` attribute j (normals not included). Assigning
+        a whole block writes every record's attributes in one sequential pass (cheaper
+        than k strided field writes).
     """
     words = records.view(np.float32).reshape(records.size, records.itemsize // 4)
-    return words[:, 6:6 + len(attribute_names(records.dtype))]
+    count = sum(name not in NORMALS for name in attribute_names(records.dtype))
+    return words[:, 6:6 + count]
 
 
 def write_ply(path: str | os.PathLike, xyz: np.ndarray, attributes: dict[str, np.ndarray],
