@@ -223,7 +223,7 @@ def _block_fields(block_id: int, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray
     out["in_volume_fraction"] = float(np.mean(_attr(attrs, "in_volume", idx, 1.0)))
     out["model_valid_fraction"] = float(np.mean(_attr(attrs, "model_valid", idx, 1.0)))
     out["mean_z_mm"] = float(pts[:, 2].mean())
-    tab = _attr(attrs, "sigma_table_um", idx, 0.0) * cos
+    tab = _attr(attrs, "sigma_calibration_um", idx, 0.0) * cos
     out["table_sigma_um"] = float(np.sqrt(np.nanmean(tab**2))) if np.isfinite(tab).any() \
         else 0.0
     corr = _attr(attrs, "table_corr_mm", idx)
