@@ -28,7 +28,7 @@ calibrations' spread at the skull's points against the predicted sigma.
 Usage::
 
     python benchmarks/calibration_covariance.py sim [--tuning]
-    python benchmarks/calibration_covariance.py gray
+    python benchmarks/calibration_covariance.py gray [--tuning]
     python benchmarks/calibration_covariance.py real
 """
 
@@ -64,6 +64,12 @@ HELD_OUT_SEEDS = tuple(range(2000, 2012))
 #: 1.45, 0.96, 2.64): the renderer was fixed, not the method, and these seeds named
 #: afresh.
 GRAY_SEEDS = tuple(range(4100, 4110))
+#: Session 42 (the coverage of part "gray" was 0.998 on 4100-4106, above 0.99): the
+#: seeds its cause was investigated and the method changed on, and the seeds named
+#: before that work began and run once after it (none of them run before: 4107-4109
+#: were left out, as 4107 had been run once and 4105-4106 reported).
+GRAY_TUNING_SEEDS = tuple(range(4100, 4105))
+GRAY_HELD_OUT_SEEDS = tuple(range(4110, 4118))
 
 
 def seed_errors(seed: int) -> dict:
@@ -170,11 +176,14 @@ def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("part", choices=("sim", "real", "gray"))
     parser.add_argument("--tuning", action="store_true", help="the tuning seeds")
+    parser.add_argument("--seeds", default=None, metavar="A,B,...",
+                        help="these seeds instead (e.g. to split a long run)")
     args = parser.parse_args(argv)
+    chosen = None if args.seeds is None else tuple(int(s) for s in args.seeds.split(","))
     if args.part == "sim":
-        run_sim(TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS)
+        run_sim(chosen or (TUNING_SEEDS if args.tuning else HELD_OUT_SEEDS))
     elif args.part == "gray":
-        run_gray(GRAY_SEEDS)
+        run_gray(chosen or (GRAY_TUNING_SEEDS if args.tuning else GRAY_HELD_OUT_SEEDS))
     else:
         from benchmarks.calibration_covariance_real import run_real
 
