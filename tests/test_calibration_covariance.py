@@ -78,3 +78,14 @@ def test_a_baseline_far_from_the_configs_is_refused():
                             covariance=False)
     with pytest.raises(InputError, match=r"\+5\d % off the config.s projector position"):
         check_baseline(wrong.data, truth_centre, 15.0)
+
+
+def test_the_full_lens_model_gives_a_covariance_too():
+    """The "full" model leaves no lens term out (no nuisance of Eq. 3): its joint fit
+    ended in a matmul ValueError (the nuisance slice [-0:] took every parameter)."""
+    sim = simulate(1000, n_poses=4)
+    result = calibrate_board(sim.poses, BOARD, PANEL, "full")
+    cov = result.data.covariance
+    assert cov.shape == (24, 24) and np.isfinite(cov).all()
+    assert np.all(np.diag(cov)[[0, 5, 6, 7, 8]] > 0)  # f_x, k2, p1, p2, k3 of the camera
+    assert set(result.bundle["model_terms"]) == {"bow_x", "bow_y", "bow_xy"}

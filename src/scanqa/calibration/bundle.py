@@ -326,8 +326,9 @@ def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, mod
         full_inv = np.linalg.inv(full.T @ full)
     except np.linalg.LinAlgError:
         full_inv = np.linalg.pinv(full.T @ full)
-    est = -(full_inv @ (full.T @ res))[-problem.n_nuis:]
-    std = np.sqrt(np.clip(np.diag(full_inv)[-problem.n_nuis:], 0, None))
+    first = full.shape[1] - problem.n_nuis  # the "full" model leaves nothing out
+    est = -(full_inv @ (full.T @ res))[first:]
+    std = np.sqrt(np.clip(np.diag(full_inv)[first:], 0, None))
     gain = (inverse @ (jac.T @ jn))[:n_theta]
     shift = to24 @ gain - problem.nuisance_24()  # fitted minus true, per unit of eta
     stated = np.clip(est**2 - std**2, 0.0, None)
