@@ -37,9 +37,10 @@ pixels off), the error at every point of the volume is that one bias, about one 
 everywhere, and the share within 2 sigma is near 1 rather than 0.95. With ``release``
 (off by default, issue 42): the corner noise of Eq. 1 is measured on the residuals the
 nuisances' step leaves (Eq. 4: model error is not counted as noise too), and a left-out
-term whose estimate lies beyond :data:`RELEASE_STD` of its std is fitted, not stated
-(Eq. 5): the calibration takes the nuisance step for it, and its uncertainty enters
-C_fit through the extended fit's (J^T J)^-1, the other left-out terms Eq. 3's.
+term whose estimate lies beyond :data:`scanqa.calibration.bundle.RELEASE_STD` of its
+std is fitted, not stated (Eq. 5): the calibration takes the nuisance step for it, and
+its uncertainty enters C_fit through the extended fit's (J^T J)^-1, the other left-out
+terms Eq. 3's.
 
 The calibrations that leave one pose out (the jackknife) remain a check
 (:func:`scanqa.calibration.uncertainty.jackknife_covariance`); with five poses their
