@@ -137,7 +137,8 @@ def test_a_cloud_with_the_old_name_sigma_table_um_is_read_under_the_new_one(tmp_
     old = {"sigma_total_um": np.full(n, 30.0, np.float32),
            "sigma_table_um": np.linspace(1.0, 20.0, n).astype(np.float32),
            "sigma_random_um": np.full(n, 10.0, np.float32)}
-    suffixes = [".ply", ".csv"] + [".las"] * (importlib.util.find_spec("laspy") is not None)
+    suffixes = [".ply", ".csv"] + [".las"] * (importlib.util.find_spec("laspy") is not None) \
+        + [".e57"] * (importlib.util.find_spec("pye57") is not None)
     for suffix in suffixes:
         path = write_cloud(tmp_path / f"old{suffix}", xyz, old)
         back = read_cloud(path).attributes
