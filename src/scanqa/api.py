@@ -139,7 +139,9 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
 def characterize_board(poses: list[PathLike], calibration: PathLike, config: PathLike,
                        board: tuple[int, int] = (9, 13), profile: str | None = None,
                        depth_range_mm: tuple[float, float] | None = None,
-                       out: PathLike | None = None) -> dict:
+                       out: PathLike | None = None,
+                       calibration_covariance: PathLike | None = None,
+                       calibration_sigma_um: float | None = None) -> dict:
     """The scanner's noise law from board poses (``scanqa characterize-board``).
 
     Parameters
@@ -158,6 +160,9 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     out : path, optional
         Folder for summary.json and cells.csv; the summary is what
         :func:`apply_characterization` and ``annotate --model`` take.
+    calibration_covariance, calibration_sigma_um : path or float, optional
+        An OpenCV calibration's term given beside it: a covariance file or a stated std
+        [um] (:func:`scanqa.load_calibration`'s ``covariance`` and ``sigma_um``).
 
     Returns
     -------
@@ -178,7 +183,8 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     decoded = {name: decode(p) for name, p in pose_keys([str(p) for p in poses]).items()}
     first = next(iter(decoded.values()))
     cal = load_calibration(calibration, cfg, first.orientation,
-                           tuple(depth_range_mm or (0.0, float("inf"))))
+                           tuple(depth_range_mm or (0.0, float("inf"))),
+                           calibration_covariance, calibration_sigma_um)
     check_scale(cal, cfg, str(calibration))
     rows, columns = board
     with Progress("characterize-board", total=len(decoded), unit="pose") as bar:
