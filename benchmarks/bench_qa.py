@@ -51,7 +51,7 @@ def artefact_cloud(spacing: float, sigma_um: float = 8.0, seed: int = 0):
     xyz = np.column_stack([x, y, z])
     n = len(xyz)
     attrs = {"sigma_model_um": np.full(n, sigma_um / 3, np.float32),
-             "sigma_table_um": np.full(n, 0.4, np.float32),
+             "sigma_calibration_um": np.full(n, 0.4, np.float32),
              "table_corr_mm": np.full(n, 2.0, np.float32),
              "att_camera": np.full(n, 0.8, np.float32),
              "att_projector": np.full(n, 0.9, np.float32),

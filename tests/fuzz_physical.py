@@ -41,7 +41,7 @@ from .smallcases import command, write_inputs
 
 KINDS = ("config", "phase", "cloud", "frames", "repeats")
 #: Values no per-point column can hold, by column (the oracle's own physics).
-IMPOSSIBLE = {"sigma_model_um": (-1.0, 1e30, float("inf")), "sigma_table_um": (-5.0, 1e30),
+IMPOSSIBLE = {"sigma_model_um": (-1.0, 1e30, float("inf")), "sigma_calibration_um": (-5.0, 1e30),
               "in_volume": (-4.0, 7.0), "model_valid": (-1.0, 2.0), "x_mm": (1e30, -1e30),
               "z_mm": (float("inf"), 1e25)}
 #: Coordinate units of other conventions: scale from mm.

@@ -49,7 +49,7 @@ def gauge_cloud(spacing_mm: float = 0.5, noise_mm: float = 0.004, seed: int = 0
     xyz = np.concatenate(parts)
     n = len(xyz)
     attrs = {"sigma_model_um": np.full(n, 4.0, np.float32),
-             "sigma_table_um": np.full(n, 0.5, np.float32),
+             "sigma_calibration_um": np.full(n, 0.5, np.float32),
              "table_corr_mm": np.full(n, 0.5, np.float32),
              "in_volume": np.ones(n, np.float32), "model_valid": np.ones(n, np.float32),
              "att_camera": np.full(n, 0.8, np.float32),

@@ -66,7 +66,7 @@ def test_points_and_sigmas_are_consistent(cfg, table):
     comp = np.sqrt(a["sx_um"] ** 2 + a["sy_um"] ** 2 + a["sz_um"] ** 2)
     np.testing.assert_allclose(comp, a["sigma_model_um"], rtol=1e-5)
     np.testing.assert_allclose(a["sigma_total_um"], np.hypot(a["sigma_model_um"],
-                                                             a["sigma_table_um"]), rtol=1e-5)
+                                                             a["sigma_calibration_um"]), rtol=1e-5)
     assert set(a) == set(ATTRIBUTES + NORMAL_ATTRIBUTES)
 
 
@@ -327,7 +327,7 @@ def test_sigma_source_picks_the_random_sigma(cfg, table):
     # s_T x 0.03 px, the slope from differences of the table (rtol: float32, differences)
     np.testing.assert_allclose(a["sigma_random_um"], 1e3 * s_t * 0.03, rtol=2e-3)
     np.testing.assert_allclose(a["sigma_total_um"], np.hypot(a["sigma_random_um"],
-                                                             a["sigma_table_um"]), rtol=1e-5)
+                                                             a["sigma_calibration_um"]), rtol=1e-5)
 
     lawful = replace_prov(pm)
     law = cfg.replace_model(characterised_by="board test", noise_read_var_dn2=4.0,
@@ -339,7 +339,7 @@ def test_sigma_source_picks_the_random_sigma(cfg, table):
     np.testing.assert_allclose(sigma_xp, 0.021288, rtol=1e-4)
     np.testing.assert_allclose(a["sigma_random_um"], 1e3 * s_t * sigma_xp, rtol=2e-3)
     np.testing.assert_allclose(a["sigma_total_um"], np.sqrt(
-        a["sigma_random_um"].astype(float) ** 2 + a["sigma_table_um"].astype(float) ** 2
+        a["sigma_random_um"].astype(float) ** 2 + a["sigma_calibration_um"].astype(float) ** 2
         + 2.0**2), rtol=1e-5)
     with pytest.raises(InputError, match="how many phase steps"):
         annotate(pm, table, law)

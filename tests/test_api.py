@@ -8,6 +8,7 @@ from __future__ import annotations
 import inspect
 import json
 
+import numpy as np
 import pytest
 
 import scanqa
@@ -71,6 +72,10 @@ def test_calibrate_board_writes_what_the_command_writes(tmp_path):
     assert (tmp_path / "board_report.html").exists()
     cal = scanqa.load_opencv_calibration(tmp_path / "board.xml")
     assert cal.covariance is not None
+    # its covariance file too, which load_calibration(..., covariance=) takes
+    with_file = scanqa.load_calibration(tmp_path / "board.xml",
+                                        covariance=tmp_path / "board_covariance.json")
+    np.testing.assert_allclose(with_file.covariance, cal.covariance, rtol=1e-12, atol=0)
 
 
 def test_per_pose_messages_become_one_log_line_per_step_off_a_terminal(caplog):

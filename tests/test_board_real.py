@@ -188,6 +188,11 @@ def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys
                  *patterns, *poses, "--out", str(out), "-q"]) == 0  # model corners: default
     cal = load_opencv_calibration(out)
     assert cal.covariance is not None and cal.covariance.shape == (24, 24)
+    # the same covariance as a covariance file beside it (--calibration-covariance reads it)
+    from scanqa.io.covariance import read_covariance
+
+    np.testing.assert_allclose(read_covariance(tmp_path / "board_covariance.json"),
+                               cal.covariance, rtol=1e-12, atol=0)
     report = json.loads((tmp_path / "board_report.json").read_text())
     assert [p["pose"] for p in report["poses"]] == ["calseq1", "calseq3", "calseq6"]
     assert report["corner_method"] == "model"

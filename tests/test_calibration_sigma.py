@@ -1,4 +1,4 @@
-"""A parametric calibration's own uncertainty in every point's sigma_table_um / sigma_total:
+"""A parametric calibration's own uncertainty in every point's sigma_calibration_um / sigma_total:
 annotate against a Monte Carlo over parameters drawn from the covariance (independent of
 the sigma-point propagation in scanqa.calibration.uncertainty)."""
 
@@ -33,7 +33,7 @@ def test_calibration_covariance_reaches_every_point(paper_config):
     cloud = annotate(scan, cal_cov, cfg)
     plain = annotate(scan, cal, cfg)
     a = cloud.attributes
-    assert np.all(plain.attributes["sigma_table_um"] == 0)
+    assert np.all(plain.attributes["sigma_calibration_um"] == 0)
     # Monte Carlo: 400 calibrations drawn from the covariance, the same pixels and phases
     rng = np.random.default_rng(5)
     idx = rng.choice(len(cloud), 30, replace=False)
@@ -46,9 +46,9 @@ def test_calibration_covariance_reaches_every_point(paper_config):
     mc = np.std(along, axis=0, ddof=1)
     # 400 draws: the std is known to ~3.5 %; the propagation is linear to within that
     assert 1e3 * mc.min() > 10  # tens of um: the term is not negligible here
-    np.testing.assert_allclose(a["sigma_table_um"][idx], 1e3 * mc, rtol=0.12)
+    np.testing.assert_allclose(a["sigma_calibration_um"][idx], 1e3 * mc, rtol=0.12)
     np.testing.assert_allclose(a["sigma_total_um"], np.sqrt(
-        a["sigma_random_um"].astype(float) ** 2 + a["sigma_table_um"].astype(float) ** 2),
+        a["sigma_random_um"].astype(float) ** 2 + a["sigma_calibration_um"].astype(float) ** 2),
         rtol=1e-5)
 
 
@@ -86,7 +86,7 @@ def test_a_calibration_without_covariance_says_so_and_a_stated_sigma_is_used(pap
     a = stated.attributes
     assert stated.sigma_source["calibration"] == "stated"
     assert stated.sigma_source["calibration_warning"] == ""
-    np.testing.assert_allclose(a["sigma_table_um"], 250.0, rtol=1e-6)
+    np.testing.assert_allclose(a["sigma_calibration_um"], 250.0, rtol=1e-6)
     np.testing.assert_allclose(a["sigma_total_um"], np.sqrt(
         a["sigma_random_um"].astype(float) ** 2 + 250.0**2), rtol=1e-5)
     cov = replace(cal, covariance=np.diag(np.r_[np.ones(18) * 1e-6, np.zeros(6)]))
@@ -107,7 +107,7 @@ def test_the_documented_sigma_total_formula_holds_in_a_written_cloud(paper_confi
     formula = re.search(r"``sqrt\(([^`]*)\)``", row).group(1)
     terms = [t.strip() for t in formula.split("+")]
     names = [re.fullmatch(r"(\w+)\^2", t).group(1) for t in terms]
-    assert names == ["sigma_random_um", "sigma_table_um", "systematic_um"]
+    assert names == ["sigma_random_um", "sigma_calibration_um", "systematic_um"]
     cal, cfg = small_scanner(paper_config, 40, 30)
     cfg = cfg.replace_model(systematic_sigma_mm=0.05)
     xp = projector_pixels(cal, layout_scene(camera_rays(cal), 450.0, []))[..., 0]
@@ -120,4 +120,33 @@ def test_the_documented_sigma_total_formula_holds_in_a_written_cloud(paper_confi
     values["systematic_um"] = 1e3 * back.metadata["config"]["model"]["systematic_sigma_mm"]
     expect = np.sqrt(sum(values[n] ** 2 for n in names))
     np.testing.assert_allclose(back.attributes["sigma_total_um"], expect, rtol=1e-5)
-    assert values["systematic_um"] == 50.0 and np.all(values["sigma_table_um"] > 99)
+    assert values["systematic_um"] == 50.0 and np.all(values["sigma_calibration_um"] > 99)
+
+
+def test_a_cloud_with_the_old_name_sigma_table_um_is_read_under_the_new_one(tmp_path):
+    """Clouds written before the rename carry the calibration term as sigma_table_um:
+    every reader gives it back as sigma_calibration_um, in its place and with its values;
+    a file holding both names keeps the new one's values."""
+    import importlib.util
+
+    from scanqa.io.annotated_cloud import read_cloud
+    from scanqa.io.cloud import write_cloud
+
+    n = 50
+    xyz = np.c_[np.arange(n, dtype=float), np.zeros(n), np.full(n, 400.0)]
+    old = {"sigma_total_um": np.full(n, 30.0, np.float32),
+           "sigma_table_um": np.linspace(1.0, 20.0, n).astype(np.float32),
+           "sigma_random_um": np.full(n, 10.0, np.float32)}
+    suffixes = [".ply", ".csv"] + [".las"] * (importlib.util.find_spec("laspy") is not None) \
+        + [".e57"] * (importlib.util.find_spec("pye57") is not None)
+    for suffix in suffixes:
+        path = write_cloud(tmp_path / f"old{suffix}", xyz, old)
+        back = read_cloud(path).attributes
+        assert list(back)[:3] == ["sigma_total_um", "sigma_calibration_um",
+                                  "sigma_random_um"], suffix
+        np.testing.assert_allclose(back["sigma_calibration_um"], old["sigma_table_um"],
+                                   rtol=1e-6)
+    both = write_cloud(tmp_path / "both.ply", xyz,
+                       {**old, "sigma_calibration_um": np.full(n, 7.0, np.float32)})
+    back = read_cloud(both).attributes
+    assert "sigma_table_um" not in back and np.all(back["sigma_calibration_um"] == 7.0)

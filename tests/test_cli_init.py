@@ -143,7 +143,8 @@ def test_annotate_takes_an_opencv_calibration(cli_files, spelling, capsys):
     assert main(["annotate", str(folder / "scan.npz"), spelling, str(path), "--config",
                  str(config), "--out", str(out)]) == 0, capsys.readouterr().err
     cloud = read_cloud(out)
-    assert cloud.xyz.shape == (400 * 300, 3) and np.all(cloud.attributes["sigma_table_um"] == 0)
+    assert cloud.xyz.shape == (400 * 300, 3)
+    assert np.all(cloud.attributes["sigma_calibration_um"] == 0)
     table = cloud.metadata["table"]
     assert table["kind"] == "parametric" and table["calibration"] == str(path)
     assert np.median(cloud.xyz[:, 2]) == pytest.approx(469.05, abs=0.01)  # the base plane

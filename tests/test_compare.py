@@ -178,7 +178,7 @@ def test_the_summary_says_what_u_is_made_of():
     n = len(xyz)
     total = np.full(n, np.sqrt(30.0**2 + 40.0**2 + 20.0**2), np.float32)
     cloud = AnnotatedCloud(xyz, {"sigma_random_um": np.full(n, 30.0, np.float32),
-                                 "sigma_table_um": np.full(n, 40.0, np.float32),
+                                 "sigma_calibration_um": np.full(n, 40.0, np.float32),
                                  "sigma_total_um": total})
     fine = np.linspace(-6.0, 6.0, 121)
     rx, ry = np.meshgrid(fine, fine)

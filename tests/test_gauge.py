@@ -55,7 +55,7 @@ def synthetic_cloud(seed=0, step=0.25, sigma_um=SIGMA_UM, drop_block=None, tilt=
         xyz[:, 2] += rng.normal(0, sigma_um * 1e-3, patch.max() + 1)[patch.ravel()]
     n = len(xyz)
     attrs = {"sigma_model_um": np.full(n, sigma_um, np.float32),
-             "sigma_table_um": np.full(n, 0.5, np.float32),
+             "sigma_calibration_um": np.full(n, 0.5, np.float32),
              "att_camera": np.full(n, 0.9, np.float32), "att_projector": np.ones(n, np.float32),
              "in_volume": np.ones(n, np.float32), "model_valid": np.ones(n, np.float32)}
     return xyz, attrs, layout
@@ -107,7 +107,7 @@ def test_step_uncertainty_is_honest_over_seeds():
     z = []
     for seed in range(12):
         xyz, attrs, layout = synthetic_cloud(seed=seed, step=0.5)
-        attrs["sigma_table_um"][:] = 0.0
+        attrs["sigma_calibration_um"][:] = 0.0
         res = run_qa(AnnotatedCloud(xyz, attrs), layout)
         z += [s.error_um / s.u_um for s in res.steps]
     assert 0.7 < np.std(z) < 1.3, np.std(z)
@@ -137,7 +137,7 @@ def test_step_uncertainty_is_honest_with_correlated_noise():
     z, z_indep = [], []
     for seed in range(12):
         xyz, attrs, layout = synthetic_cloud(seed=seed, patch_mm=0.5)
-        attrs["sigma_table_um"][:] = 0.0
+        attrs["sigma_calibration_um"][:] = 0.0
         z += [s.error_um / s.u_um for s in run_qa(AnnotatedCloud(xyz, attrs), layout).steps]
         res = run_qa(AnnotatedCloud(xyz, attrs), layout, tile_mm=0.1)
         assert any("too few to measure the noise correlation" in n for n in res.notes)

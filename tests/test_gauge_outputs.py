@@ -335,7 +335,7 @@ def test_missing_or_nan_attributes_are_silent(recwarn):
     assert math.isnan(res.predicted_std_um) and math.isnan(res.mean_attenuation)
     assert math.isnan(res.table_corr_mm) and res.table_sigma_um == 0.0
     nan = np.full(len(xyz), np.nan)
-    res = analyse_block(xyz, {"sigma_table_um": nan, "table_corr_mm": nan}, BLOCK_A,
+    res = analyse_block(xyz, {"sigma_calibration_um": nan, "table_corr_mm": nan}, BLOCK_A,
                         margin=0.0, outlier_k=None)
     assert res.table_sigma_um == 0.0 and math.isnan(res.table_corr_mm)
     assert [str(w.message) for w in recwarn] == []

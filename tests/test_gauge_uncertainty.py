@@ -62,7 +62,7 @@ def _table_error_cloud(rng, corr_mm: float | None, sigma_tab_um: float, noise_um
         tab = _bilinear_field(rng, xyz[:, :2], corr_mm, sigma_tab_um * 1e-3)
     xyz[:, 2] += tab + rng.normal(0.0, noise_um * 1e-3, len(xyz))
     attrs = {"sigma_model_um": np.full(len(xyz), noise_um),
-             "sigma_table_um": np.full(len(xyz), sigma_tab_um)}
+             "sigma_calibration_um": np.full(len(xyz), sigma_tab_um)}
     if corr_mm is not None:
         attrs["table_corr_mm"] = np.full(len(xyz), corr_mm)
     return xyz, attrs
@@ -178,7 +178,7 @@ def _checkerboard_block(step: float = 0.5, delta_um: float = 3.0):
     n = len(pts)
     rng = np.random.default_rng(5)
     attrs = {"sigma_model_um": rng.uniform(2.0, 6.0, n),
-             "sigma_table_um": rng.uniform(0.5, 1.5, n),
+             "sigma_calibration_um": rng.uniform(0.5, 1.5, n),
              "table_corr_mm": rng.choice([0.4, 0.5, 0.9], n),
              "att_camera": rng.uniform(0.5, 1.0, n), "att_projector": rng.uniform(0.6, 1.0, n),
              "in_volume": (rng.uniform(size=n) < 0.8).astype(float),
@@ -207,7 +207,7 @@ def test_block_statistics_by_explicit_sums():
                                math.sqrt(sum((attrs["sigma_model_um"] * cos) ** 2) / n),
                                rtol=1e-9)
     np.testing.assert_allclose(res.table_sigma_um,
-                               math.sqrt(sum((attrs["sigma_table_um"] * cos) ** 2) / n),
+                               math.sqrt(sum((attrs["sigma_calibration_um"] * cos) ** 2) / n),
                                rtol=1e-9)
     assert res.table_corr_mm == float(np.median(attrs["table_corr_mm"]))
     np.testing.assert_allclose(res.mean_attenuation,
@@ -562,7 +562,7 @@ def test_run_qa_with_a_budget_file_and_the_table_planes():
 
     xyz = np.concatenate([_grid(BLOCK_A, 0.5), _grid(BLOCK_B, 0.5)])
     n = len(xyz)
-    attrs = {"sigma_model_um": np.full(n, 1.0), "sigma_table_um": np.full(n, 0.5)}
+    attrs = {"sigma_model_um": np.full(n, 1.0), "sigma_calibration_um": np.full(n, 0.5)}
     cloud = AnnotatedCloud(xyz, attrs, metadata={"table": {"n_planes": 12}})
     inputs = BudgetInputs("budget.toml", flatness_um=0.6, coverage_k="welch-satterthwaite")
     res = run_qa(cloud, TWO, budget=inputs)

@@ -275,7 +275,7 @@ def test_table_metadata_and_arrays_are_type_checked(edit, small_inputs, tmp_path
 
 @pytest.mark.parametrize(("name", "value", "suffix"), [
     ("in_volume", -4.0, ".ply"), ("sigma_total_um", 1e30, ".ply"), ("x_mm", 1e30, ".ply"),
-    ("sigma_table_um", -1.0, ".csv")])
+    ("sigma_calibration_um", -1.0, ".csv")])
 def test_per_point_values_outside_physical_limits_are_refused(name, value, suffix, tmp_path,
                                                               capsys):
     """A flag of -4 or a sigma of 1e30 reached summary.json (issue 45): the cloud readers
@@ -286,7 +286,7 @@ def test_per_point_values_outside_physical_limits_are_refused(name, value, suffi
     from scanqa.io.cloud import write_cloud
 
     xyz = _plane_cloud(100)
-    attrs = {"sigma_total_um": np.full(100, 5.0), "sigma_table_um": np.full(100, 0.5),
+    attrs = {"sigma_total_um": np.full(100, 5.0), "sigma_calibration_um": np.full(100, 0.5),
              "in_volume": np.ones(100)}
     if name == "x_mm":
         xyz[3, 0] = value

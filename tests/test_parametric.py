@@ -369,7 +369,7 @@ def test_annotate_and_qa_through_a_parametric_calibration(gauge_scanner, gauge_s
     assert cloud.counts["written"] == scan.xp.size  # the whole artefact is in volume
     attrs = cloud.attributes
     assert np.isfinite(attrs["sigma_model_um"]).all()
-    assert np.all(attrs["sigma_table_um"] == 0) and np.isnan(attrs["table_corr_mm"]).all()
+    assert np.all(attrs["sigma_calibration_um"] == 0) and np.isnan(attrs["table_corr_mm"]).all()
     assert cloud.metadata["table"]["kind"] == "parametric"
     assert cloud.metadata["table"]["z_range_mm"] == [0.0, None]
     qa = run_qa(cloud, layout, config=cfg)

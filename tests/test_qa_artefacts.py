@@ -49,7 +49,7 @@ def attributes(points, normals, sigma_mm=SIGMA_MM):
             "s_t_um_px": np.full(n, 500.0, np.float32),
             "att_camera": np.ones(n, np.float32), "att_projector": np.ones(n, np.float32),
             "modulation_dn": (60.0 * cos).astype(np.float32),
-            "sigma_table_um": np.full(n, 0.25, np.float32),
+            "sigma_calibration_um": np.full(n, 0.25, np.float32),
             "table_corr_mm": np.full(n, 4.4, np.float32)}
 
 

@@ -222,8 +222,8 @@ RAISES = {
         r"the artefact has no points"),
     "table_uncertainty sigma inf": (
         lambda: artefacts.table_uncertainty(
-            AnnotatedCloud(FLAT, {"sigma_table_um": with_value(np.full(400, 3.0), 1, INF)}),
-            np.arange(5), 10.0), r"sigma_table_um holds negative or infinite"),
+            AnnotatedCloud(FLAT, {"sigma_calibration_um": with_value(np.full(400, 3.0), 1, INF)}),
+            np.arange(5), 10.0), r"sigma_calibration_um holds negative or infinite"),
 }
 
 

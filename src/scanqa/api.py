@@ -95,8 +95,9 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
     reference : path, optional
         A calibration to compare with (``--reference``).
     out : path, optional
-        The OpenCV file to write (.xml, .yml, .yaml, .json), with ``<stem>_report.json``
-        and ``<stem>_report.html`` beside it.
+        The OpenCV file to write (.xml, .yml, .yaml, .json), with ``<stem>_report.json``,
+        ``<stem>_report.html`` and ``<stem>_covariance.json`` (the calibration's parameter
+        covariance as a covariance file, :mod:`scanqa.io.covariance`) beside it.
 
     Returns
     -------
@@ -107,6 +108,7 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
     from scanqa.calibration.board_fit import calibrate_poses
     from scanqa.decoding.parsing import load_patterns
     from scanqa.io.atomic import check_out_dir, staged_dir, write_text
+    from scanqa.io.covariance import write_covariance
     from scanqa.io.opencv import is_opencv_file, read_opencv_calibration, write_opencv_calibration
     from scanqa.report import board as report_board
 
@@ -126,6 +128,8 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
         stem = target.with_suffix("").name
         with staged_dir(target.parent) as stage:
             write_opencv_calibration(stage / target.name, result.data)
+            if result.data.covariance is not None:
+                write_covariance(stage / f"{stem}_covariance.json", result.data.covariance)
             write_text(stage / f"{stem}_report.json",
                        json.dumps(report_board.summary(result), indent=1))
             write_text(stage / f"{stem}_report.html", report_board.render(result))
@@ -135,7 +139,9 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
 def characterize_board(poses: list[PathLike], calibration: PathLike, config: PathLike,
                        board: tuple[int, int] = (9, 13), profile: str | None = None,
                        depth_range_mm: tuple[float, float] | None = None,
-                       out: PathLike | None = None) -> dict:
+                       out: PathLike | None = None,
+                       calibration_covariance: PathLike | None = None,
+                       calibration_sigma_um: float | None = None) -> dict:
     """The scanner's noise law from board poses (``scanqa characterize board``).
 
     Parameters
@@ -154,6 +160,9 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     out : path, optional
         Folder for summary.json and cells.csv; the summary is what
         :func:`apply_characterization` and ``annotate --model`` take.
+    calibration_covariance, calibration_sigma_um : path or float, optional
+        An OpenCV calibration's term given beside it: a covariance file or a stated std
+        [um] (:func:`scanqa.load_calibration`'s ``covariance`` and ``sigma_um``).
 
     Returns
     -------
@@ -174,7 +183,8 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     decoded = {name: decode(p) for name, p in pose_keys([str(p) for p in poses]).items()}
     first = next(iter(decoded.values()))
     cal = load_calibration(calibration, cfg, first.orientation,
-                           tuple(depth_range_mm or (0.0, float("inf"))))
+                           tuple(depth_range_mm or (0.0, float("inf"))),
+                           calibration_covariance, calibration_sigma_um)
     check_scale(cal, cfg, str(calibration))
     rows, columns = board
     with Progress("characterize board", total=len(decoded), unit="pose") as bar:

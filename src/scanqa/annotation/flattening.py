@@ -531,7 +531,7 @@ def flattened_attributes(attributes: dict, xyz: np.ndarray, phase_map: PhaseMap,
         optics_moment_px2(z, config) + bank.moment_px2(level))
     with np.errstate(invalid="ignore", divide="ignore"):
         scale = flat / random
-    table = attributes["sigma_table_um"].astype(float)
+    table = attributes["sigma_calibration_um"].astype(float)
     total = np.sqrt(flat ** 2 + table ** 2 + (1e3 * model.systematic_sigma_mm) ** 2)
     out = {"sigma_flat_um": flat, "sigma_unflattened_um": before,
            "filter_diameter_px": 4 * np.sqrt(bank.moment_px2(level)),

@@ -59,7 +59,7 @@ _DISC_SERIES = np.array([(-1) ** k / (math.factorial(k) * math.factorial(k + 1))
 POLYNOMIAL_LIMIT = 4.0
 #: Columns of the attribute block (``scanqa.annotation.points.ATTRIBUTES`` order).
 ATTRIBUTE_COLUMNS = ("sigma_total_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
-                     "sigma_sensor_um", "sigma_phase_um", "sigma_table_um",
+                     "sigma_sensor_um", "sigma_phase_um", "sigma_calibration_um",
                      "sigma_random_um", "sigma_model_um", "att_camera", "att_projector",
                      "filter_factor", "s_o", "s_t_um_px", "modulation_dn", "offset_dn",
                      "in_volume", "model_valid", "pixel_u", "pixel_v", "table_corr_mm",

@@ -11,48 +11,50 @@ calibration's, the random and total sigma, and with repeats the measured per-poi
 
 Attribute names (PLY ``scalar_<name>``, LAS extra bytes, CSV columns), all float32:
 
-=================  =====  ==================================================================
-name               unit   meaning
-=================  =====  ==================================================================
-sigma_model_um     um     model sigma along the line of sight; NaN where the model is not
-                          valid (a blur ratio > 1/2)
-sx_um, sy_um,      um     the X, Y, Z components of sigma_random along dQ/dx_p (CloudCompare
-sz_um                     M3C2 precision maps pick fields containing "sx", "sy", "sz")
-sigma_scene_um     um     the model sigma's scene-side part (filtered by the camera blur;
-                          the whole model sigma for the paper's readings)
-sigma_sensor_um    um     the model sigma's sensor part (two-source model; 0 otherwise)
-sigma_phase_um     um     s_T x decoder sigma_xp (intensity noise and measured modulation)
-sigma_table_um     um     the calibration's own std at that point along the line of
-                          sight (the calibration term): a table's cell std, or a
-                          parametric calibration's from its parameter covariance or a
-                          stated std; 0 when it carries none, and the cloud's
-                          ``sigma_source.calibration`` then says "none"
-sigma_random_um    um     the per-point random sigma along the line of sight, from the
-                          source the cloud's ``sigma_source`` names: the model where a
-                          characterisation pinned it, a board's noise law applied to the
-                          pixel's own A and B, else the decoder's image estimate
-                          (sigma_phase_um)
-sigma_total_um     um     sqrt(sigma_random^2 + sigma_table^2 + systematic^2), systematic
-                          the config's [model] systematic_sigma_mm
-att_camera         -      camera attenuation A_c
-att_projector      -      projector attenuation A_p
-filter_factor      -      F_gamma (Eq. 17)
-s_o                -      optical scale s_O (Eq. 19)
-s_t_um_px          um/px  triangulation scale |dQ/dx_p|
-modulation_dn      DN     fringe modulation B
-offset_dn          DN     fringe offset A (the mean level; A / B is the inverse contrast)
-in_volume          0/1    phase inside the pixel's calibrated range
-model_valid        0/1    both blur ratios <= 1/2
-pixel_u, pixel_v   px     camera pixel (column, row)
-table_corr_mm      mm     distance over which the table's errors are correlated here
-                          (NaN for a parametric calibration)
-sigma_meas_um      um     with repeats: std over the repeats along the line of sight
-n_repeats          -      with repeats: number of scans valid at that pixel
-nx, ny, nz         -      the surface normal, estimated from the pixel grid and turned
-                          towards the camera (:mod:`scanqa.model.normals`; (0, 0, 0) where
-                          it cannot be); PLY ``float nx, ny, nz``, which viewers load as
-                          normals. Left out with ``normals=False``
-=================  =====  ==================================================================
+====================  =====  ==================================================================
+name                  unit   meaning
+====================  =====  ==================================================================
+sigma_model_um        um     model sigma along the line of sight; NaN where the model is not
+                             valid (a blur ratio > 1/2)
+sx_um, sy_um,         um     the X, Y, Z components of sigma_random along dQ/dx_p (CloudCompare
+sz_um                        M3C2 precision maps pick fields containing "sx", "sy", "sz")
+sigma_scene_um        um     the model sigma's scene-side part (filtered by the camera blur;
+                             the whole model sigma for the paper's readings)
+sigma_sensor_um       um     the model sigma's sensor part (two-source model; 0 otherwise)
+sigma_phase_um        um     s_T x decoder sigma_xp (intensity noise and measured modulation)
+sigma_calibration_um  um     the calibration's term (parametric covariance or the table's):
+                             the calibration's own std at that point along the line of
+                             sight - a parametric calibration's from its parameter
+                             covariance or a stated std, a table's cell std; 0 when it
+                             carries none, and the cloud's ``sigma_source.calibration``
+                             then says "none". Its old name ``sigma_table_um`` (clouds
+                             written before the rename) is mapped to it on reading
+sigma_random_um       um     the per-point random sigma along the line of sight, from the
+                             source the cloud's ``sigma_source`` names: the model where a
+                             characterisation pinned it, a board's noise law applied to the
+                             pixel's own A and B, else the decoder's image estimate
+                             (sigma_phase_um)
+sigma_total_um        um     sqrt(sigma_random^2 + sigma_calibration^2 + systematic^2),
+                             systematic the config's [model] systematic_sigma_mm
+att_camera            -      camera attenuation A_c
+att_projector         -      projector attenuation A_p
+filter_factor         -      F_gamma (Eq. 17)
+s_o                   -      optical scale s_O (Eq. 19)
+s_t_um_px             um/px  triangulation scale |dQ/dx_p|
+modulation_dn         DN     fringe modulation B
+offset_dn             DN     fringe offset A (the mean level; A / B is the inverse contrast)
+in_volume             0/1    phase inside the pixel's calibrated range
+model_valid           0/1    both blur ratios <= 1/2
+pixel_u, pixel_v      px     camera pixel (column, row)
+table_corr_mm         mm     distance over which the table's errors are correlated here
+                             (NaN for a parametric calibration)
+sigma_meas_um         um     with repeats: std over the repeats along the line of sight
+n_repeats             -      with repeats: number of scans valid at that pixel
+nx, ny, nz            -      the surface normal, estimated from the pixel grid and turned
+                             towards the camera (:mod:`scanqa.model.normals`; (0, 0, 0) where
+                             it cannot be); PLY ``float nx, ny, nz``, which viewers load as
+                             normals. Left out with ``normals=False``
+====================  =====  ==================================================================
 """
 
 from __future__ import annotations
@@ -87,8 +89,8 @@ from scanqa.model.normals import GRID_METHOD, grid_normals, pixel_index
 #: Attribute names in export order (repeat fields only when repeats are given).
 #: ``sigma_total_um`` first: viewers (CloudCompare) select a cloud's first scalar field.
 ATTRIBUTES = ("sigma_total_um", "sx_um", "sy_um", "sz_um", "sigma_scene_um",
-              "sigma_sensor_um", "sigma_phase_um", "sigma_table_um", "sigma_random_um",
-              "sigma_model_um",
+              "sigma_sensor_um", "sigma_phase_um", "sigma_calibration_um",
+              "sigma_random_um", "sigma_model_um",
               "att_camera", "att_projector", "filter_factor", "s_o", "s_t_um_px",
               "modulation_dn", "offset_dn", "in_volume", "model_valid", "pixel_u", "pixel_v",
               "table_corr_mm")
@@ -261,7 +263,7 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
 
 
 def calibration_source(table: Calibration) -> dict:
-    """Where a cloud's calibration term (``sigma_table_um``) comes from, for its
+    """Where a cloud's calibration term (``sigma_calibration_um``) comes from, for its
     ``sigma_source``: ``calibration`` ("table": a table's cell std; "covariance",
     "stated" or "none" for a parametric calibration,
     :attr:`~scanqa.calibration.parametric.ParametricCalibration.calibration_term`),
@@ -269,7 +271,7 @@ def calibration_source(table: Calibration) -> dict:
     term = getattr(table, "calibration_term", None)
     if term is None:
         return {"calibration": "table", "calibration_detail": "the calibration table's own "
-                "cell std (sigma_table_um)", "calibration_warning": ""}
+                "cell std (sigma_calibration_um)", "calibration_warning": ""}
     return {"calibration": term["kind"], "calibration_detail": term["detail"],
             "calibration_warning": term["detail"] if term["kind"] == "none" else ""}
 
@@ -471,7 +473,8 @@ def _annotate_points(look: TableLookup, pixels: tuple, inputs: dict, config: Sca
     um = 1e3 * s_t
     random_um = 1e3 * random
     for name, values in (("sigma_model_um", pred.sigma), ("sigma_scene_um", pred.sigma_scene),
-                         ("sigma_sensor_um", pred.sigma_sensor), ("sigma_table_um", sig_tab)):
+                         ("sigma_sensor_um", pred.sigma_sensor),
+                         ("sigma_calibration_um", sig_tab)):
         np.multiply(values, 1e3, out=row[name], casting="same_kind")
     if n_invalid:  # NaN where the model is not valid
         for name in ("sigma_model_um", "sigma_scene_um", "sigma_sensor_um"):

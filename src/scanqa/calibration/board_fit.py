@@ -147,7 +147,8 @@ def _std(cov: np.ndarray | None) -> dict | None:
 
 
 def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
-                    model: str = "k1", covariance: bool = True) -> BoardCalibration:
+                    model: str = "k1", covariance: bool = True, release: bool = False
+                    ) -> BoardCalibration:
     """Calibrate camera, projector and their pose from board poses (module notes).
 
     Parameters
@@ -164,6 +165,9 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
         Refine jointly and give the joint fit's covariance
         (:mod:`scanqa.calibration.bundle`); with three or more poses also fit every
         leave-one-out subset for the jackknife covariance (the check).
+    release : bool
+        Fit the left-out lens terms the data show instead of stating them
+        (:func:`~scanqa.calibration.bundle.bundle_adjust`'s ``release``).
 
     Returns
     -------
@@ -177,11 +181,12 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
     data, residuals, fit_std = _fit(poses, board, projector_size, model)
     if not covariance:
         return BoardCalibration(data, tuple(_flag(residuals)), model, fit_std=fit_std)
-    joint = joint_fit(poses, board, data, model)
+    joint = joint_fit(poses, board, data, model, release)
     jack = None
     if len(poses) >= 3:
         thetas = [pack_opencv(joint_fit(poses[:k] + poses[k + 1:], board, _fit(
-            poses[:k] + poses[k + 1:], board, projector_size, model)[0], model).data)
+            poses[:k] + poses[k + 1:], board, projector_size, model)[0], model,
+            release).data)
                   for k in range(len(poses))]
         jack = jackknife_covariance(np.array(thetas))
     return BoardCalibration(joint.data, tuple(_flag(residuals)), model, fit_std=fit_std,
@@ -191,10 +196,11 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
 
 
 def joint_fit(poses: list[BoardPose], board: Board, start: OpenCVCalibration,
-              model: str) -> BundleResult:
+              model: str, release: bool = False) -> BundleResult:
     """The joint fit of ``poses`` from ``start`` (:func:`bundle_adjust`)."""
     obj, cam, proj = _points(poses, board)
-    return bundle_adjust(start, obj, cam, proj, model, board.object_points)
+    return bundle_adjust(start, obj, cam, proj, model, board.object_points,
+                         release=release)
 
 
 def calibrate_poses(folders: list[str | os.PathLike], columns: PatternDescription,

@@ -26,10 +26,21 @@ the model leaves out (k2 of both devices for "k1", the camera's principal point 
 "k1" too, k3 for "k1k2"). Each such nuisance parameter eta is estimated with its std
 sigma_eta by adding its columns J_eta to the fit (one Gauss-Newton step from the
 solution); ignoring it biases the calibration by G eta with G = (J^T J)^-1 J^T J_eta,
-so its contribution, with a variance eta_hat^2 + sigma_eta^2 for what the calibration
-assumed to be zero, is
+so its contribution, with max(eta_hat^2 - sigma_eta^2, 0) (an unbiased estimate of
+eta^2) for what the calibration assumed to be zero, is
 
-    C = C_fit + G diag(eta_hat^2 + sigma_eta^2) G^T                                (3)
+    C = C_fit + G diag(max(eta_hat^2 - sigma_eta^2, 0)) G^T                        (3)
+
+Eq. 3 states an estimated bias as a zero-mean variance: where it dominates (corner
+noise of a few hundredths of a pixel, as Gray-code poses give, against a principal point
+pixels off), the error at every point of the volume is that one bias, about one sigma
+everywhere, and the share within 2 sigma is near 1 rather than 0.95. With ``release``
+(off by default, issue 42): the corner noise of Eq. 1 is measured on the residuals the
+nuisances' step leaves (Eq. 4: model error is not counted as noise too), and a left-out
+term whose estimate lies beyond :data:`scanqa.calibration.bundle.RELEASE_STD` of its
+std is fitted, not stated (Eq. 5): the calibration takes the nuisance step for it, and
+its uncertainty enters C_fit through the extended fit's (J^T J)^-1, the other left-out
+terms Eq. 3's.
 
 The calibrations that leave one pose out (the jackknife) remain a check
 (:func:`scanqa.calibration.uncertainty.jackknife_covariance`); with five poses their
@@ -59,6 +70,9 @@ FREE = {"k1": (("f", "k1"), ("f", "cx", "cy", "k1")),
 #: Lens terms a model leaves out that enter Eq. 3 as stated model errors, per device.
 LEFT_OUT = {"k1": (("cx", "cy", "k2"), ("k2",)), "k1k2": (("k3",), ("k3",)),
             "full": ((), ())}
+#: A left-out lens term whose estimate lies beyond this many of its std is released
+#: (Eq. 5) [-].
+RELEASE_STD = 2.0
 #: Board-shape terms of Eq. 3: the quadric's coefficients [mm].
 BOW_TERMS = ("bow_x", "bow_y", "bow_xy")
 _LENS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -245,10 +259,11 @@ class _Problem:
         out[9:18, q0:q0 + q1] = self.nuis_basis[1]
         return out
 
-    def calibration(self, x: np.ndarray, like: OpenCVCalibration) -> OpenCVCalibration:
+    def calibration(self, x: np.ndarray, like: OpenCVCalibration,
+                    eta: np.ndarray | None = None) -> OpenCVCalibration:
         import cv2
 
-        lens = self.lenses(x)
+        lens = self.lenses(x, eta)
         kc_m, kc = _kd(lens[0], self.skew[0])
         kp_m, kp = _kd(lens[1], self.skew[1])
         k = self.sizes[0] + self.sizes[1]
@@ -265,8 +280,40 @@ def _noise(problem: _Problem, x: np.ndarray) -> np.ndarray:
                      for r in (rc, rp)])
 
 
+def _solve(jac: np.ndarray, res: np.ndarray, strict: bool = True
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """(J^T J)^-1 and the Gauss-Newton step -(J^T J)^-1 J^T r of scaled residuals
+    (not ``strict``: the pseudo-inverse where J^T J is singular)."""
+    try:
+        inverse = np.linalg.inv(jac.T @ jac)
+    except np.linalg.LinAlgError:
+        if not strict:
+            inverse = np.linalg.pinv(jac.T @ jac)
+            return inverse, -(inverse @ (jac.T @ res))
+        raise InputError("the board poses do not fix the calibration (a singular joint "
+                         "fit): are two poses the same? use poses that tilt the board "
+                         "differently") from None
+    return inverse, -(inverse @ (jac.T @ res))
+
+
+def _extended_noise(res: np.ndarray, jac: np.ndarray, jn: np.ndarray, scale: np.ndarray,
+                    counts: list[int]) -> np.ndarray:
+    """Eq. 4: s_c, s_p [px], Eq. 1 on the residuals left after one Gauss-Newton step of
+    the fit with the nuisances' columns added, their parameters counted too.
+
+    ``res``, ``jac``, ``jn``: the residuals and Jacobians scaled by ``scale`` (s_c, s_p
+    of Eq. 1), ``counts`` the camera's and the projector's number of residuals."""
+    full = np.hstack([jac, jn])
+    left = (res + full @ np.linalg.lstsq(full, -res, rcond=None)[0]) * np.repeat(scale,
+                                                                                counts)
+    m, p = len(left), full.shape[1]
+    return np.array([np.sqrt(np.sum(r**2) / max(len(r) - p * len(r) / m, 1.0))
+                     for r in np.split(left, [counts[0]])])
+
+
 def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, model: str,
-                  extent: np.ndarray, refine: bool = True) -> BundleResult:
+                  extent: np.ndarray, refine: bool = True, release: bool = False
+                  ) -> BundleResult:
     """Refine a board calibration jointly and give its covariance (Eqs. 1-3).
 
     Parameters
@@ -281,6 +328,10 @@ def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, mod
         The board's corners, to scale the bow terms [mm].
     refine : bool
         Refine the parameters (else the covariance at ``data`` as it is).
+    release : bool
+        Eqs. 4-5 (module notes): left-out lens terms the data show are fitted, not
+        stated, and the corner noise is measured after the nuisances. Off by default
+        until checked on real poses and held-out rendered seeds.
 
     Returns
     -------
@@ -307,43 +358,52 @@ def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, mod
                           method="lm").x
         problem.scale = _noise(problem, x)
     jac = problem.jacobian(x)
-    info = jac.T @ jac
-    try:
-        inverse = np.linalg.inv(info)
-    except np.linalg.LinAlgError:
-        raise InputError("the board poses do not fix the calibration (a singular joint "
-                         "fit): are two poses the same? use poses that tilt the board "
-                         "differently") from None
+    jn = problem.jacobian(x, nuisance=True) if problem.n_nuis else np.zeros((len(jac), 0))
+    if release:  # Eq. 4: the corner noise from what the nuisances leave
+        counts = [len(r) for r in problem.residuals(x, split=True)]
+        noise = _extended_noise(problem.residuals(x), jac, jn, problem.scale, counts)
+        ratio = np.repeat(problem.scale / noise, counts)
+        jac, jn = jac * ratio[:, None], jn * ratio[:, None]
+        problem.scale = noise
+    res = problem.residuals(x)
     n_theta = sum(problem.sizes[:3])
     to24 = problem.to_24()
-    fit_cov = to24 @ inverse[:n_theta, :n_theta] @ to24.T
     # Eq. 3: the nuisances, estimated by one Gauss-Newton step with their columns added
-    res = problem.residuals(x)
-    jn = (problem.jacobian(x, nuisance=True) if problem.n_nuis
-          else np.zeros((len(res), 0)))
-    full = np.hstack([jac, jn])
-    try:
-        full_inv = np.linalg.inv(full.T @ full)
-    except np.linalg.LinAlgError:
-        full_inv = np.linalg.pinv(full.T @ full)
-    est = -(full_inv @ (full.T @ res))[-problem.n_nuis:]
-    std = np.sqrt(np.clip(np.diag(full_inv)[-problem.n_nuis:], 0, None))
-    gain = (inverse @ (jac.T @ jn))[:n_theta]
-    shift = to24 @ gain - problem.nuisance_24()  # fitted minus true, per unit of eta
-    stated = np.clip(est**2 - std**2, 0.0, None)
+    inverse, step = _solve(jac, res)
+    full_inv, full_step = _solve(np.hstack([jac, jn]), res, strict=False)
+    est, std = full_step[jac.shape[1]:], np.sqrt(np.clip(np.diag(full_inv)[jac.shape[1]:],
+                                                         0, None))
+    # Eq. 5: those the data show are released - fitted, not stated
+    shown = (np.abs(est) > RELEASE_STD * std) if release else np.zeros(len(est), bool)
+    eta = np.zeros(problem.n_nuis)
+    if shown.any():
+        inverse, step = _solve(np.hstack([jac, jn[:, shown]]), res)
+        x = x + step[:jac.shape[1]]
+        eta[shown] = step[jac.shape[1]:]
+    to_all = np.zeros((24, inverse.shape[0]))
+    to_all[:, :n_theta] = to24
+    to_all[:, jac.shape[1]:] = problem.nuisance_24()[:, shown]
+    fit_cov = to_all @ inverse @ to_all.T
+    left = ~shown
+    aug = np.hstack([jac, jn[:, shown]])
+    shift = to_all @ (inverse @ (aug.T @ jn[:, left])) - problem.nuisance_24()[:, left]
+    stated = np.clip(est[left] ** 2 - std[left] ** 2, 0.0, None)
     model_cov = shift @ np.diag(stated) @ shift.T
-    names = [f"camera_{n}" for n in problem.left[0]] + [
-        f"projector_{n}" for n in problem.left[1]]
+    names = np.array([f"camera_{n}" for n in problem.left[0]]
+                     + [f"projector_{n}" for n in problem.left[1]], dtype=object)
     terms = {name: {"estimate": float(e), "std": float(s),
                     "tz_std_mm": float(abs(shift[-1, k]) * np.sqrt(var))}
-             for k, (name, e, s, var) in enumerate(zip(names, est, std, stated,
-                                                       strict=True))}
+             for k, (name, e, s, var) in enumerate(zip(names[left], est[left], std[left],
+                                                       stated, strict=True))}
+    released = np.sqrt(np.clip(np.diag(inverse)[jac.shape[1]:], 0, None))
+    for name, value, s in zip(names[shown], eta[shown], released, strict=True):
+        terms[name] = {"estimate": float(value), "std": float(s), "released": True}
     k = n_theta
     for name, value, var in zip(BOW_TERMS, x[k:k + 3], np.diag(inverse)[k:k + 3],
                                 strict=True):
         terms[name] = {"estimate": float(value), "std": float(np.sqrt(max(var, 0.0))),
                        "fitted": True}
-    out = problem.calibration(x, data)
+    out = problem.calibration(x, data, eta)
     cov = fit_cov + model_cov
     out = OpenCVCalibration(**{**out.__dict__, "covariance": (cov + cov.T) / 2})
     k = n_theta + len(BOW_TERMS)

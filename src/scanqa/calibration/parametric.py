@@ -58,6 +58,7 @@ from scanqa.calibration.parametric_checks import (  # noqa: F401 (importable fro
     AXIS_TOLERANCE_DEG,
     ORIENTATIONS,
     POSITION_TOLERANCE_MM,
+    calibration_term,
     check_calibration,
     check_config,
     check_scan,
@@ -205,6 +206,9 @@ class ParametricCalibration:
     stated_sigma_mm : float or None
         A stated calibration std of every point along its line of sight, used when
         there is no covariance [mm]; None: unknown.
+    term_source : str
+        Where ``covariance`` or ``stated_sigma_mm`` came from when not from the
+        calibration file itself (a covariance file, ``--calibration-sigma-um``).
     """
 
     camera: Lens
@@ -217,6 +221,7 @@ class ParametricCalibration:
     source: str = ""
     covariance: np.ndarray | None = None
     stated_sigma_mm: float | None = None
+    term_source: str = ""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rotation", np.asarray(self.rotation, dtype=float))
@@ -262,19 +267,10 @@ class ParametricCalibration:
 
     @property
     def calibration_term(self) -> dict:
-        """Where the calibration's own sigma comes from: ``kind`` "covariance" (its
-        parameters' covariance propagated per point), "stated" (a std stated in the
-        file) or "none" (no term: sigma_table_um is 0), and ``detail`` in words."""
-        if self.covariance is not None:
-            return {"kind": "covariance", "detail": f"{self.source}: the covariance of its "
-                    "24 parameters (calibration_covariance) propagated to every point"}
-        if self.stated_sigma_mm is not None:
-            return {"kind": "stated", "detail": f"{self.source}: a stated "
-                    f"{1e3 * self.stated_sigma_mm:g} um at every point (calibration_sigma_um)"}
-        return {"kind": "none", "detail": f"{self.source} carries no covariance: the "
-                "calibration's own error is not in sigma_total_um; add "
-                "calibration_covariance or calibration_sigma_um to the file, or calibrate "
-                "from board poses (scanqa calibrate --board)"}
+        """Where the calibration's own sigma comes from: ``kind`` "covariance", "stated"
+        or "none", and ``detail`` in words (:func:`~scanqa.calibration.parametric_checks.
+        calibration_term`)."""
+        return calibration_term(self)
 
     @functools.cached_property
     def image_grid(self) -> CameraRays:

@@ -35,6 +35,34 @@ LENS_GRID = 33
 DISTORTION_WARNED = 0.3
 
 
+def calibration_term(cal) -> dict:
+    """Where a parametric calibration's own sigma comes from.
+
+    Returns
+    -------
+    dict
+        ``kind``: "covariance" (its parameters' covariance propagated per point),
+        "stated" (a std stated for every point) or "none" (no term:
+        sigma_calibration_um is 0); ``detail``: in words, naming the file that gave it
+        (the calibration's own keys, or a covariance file / stated std given beside it).
+    """
+    given = cal.term_source
+    if cal.covariance is not None:
+        where = given or f"{cal.source} (calibration_covariance)"
+        return {"kind": "covariance", "detail": f"{where}: the covariance of the 24 "
+                "parameters of " + (cal.source or "the calibration")
+                + " propagated to every point"}
+    if cal.stated_sigma_mm is not None:
+        where = given or f"{cal.source} (calibration_sigma_um)"
+        return {"kind": "stated", "detail": f"{where}: a stated "
+                f"{1e3 * cal.stated_sigma_mm:g} um at every point"}
+    return {"kind": "none", "detail": f"{cal.source} carries no covariance: the "
+            "calibration's own error is not in sigma_total_um; give a covariance file "
+            "(--calibration-covariance) or a stated std (--calibration-sigma-um), add "
+            "calibration_covariance or calibration_sigma_um to the file, or calibrate "
+            "from board poses (scanqa calibrate --board)"}
+
+
 def check_calibration(cal) -> None:
     """Raise one :class:`InputError` naming the file and field of an implausible model."""
     where = cal.source or "the parametric calibration"

@@ -9,6 +9,7 @@ from scanqa.cli.common import (
     add_calibration_argument,
     add_config_argument,
     add_model_argument,
+    calibration_term_args,
     config_from_args,
     emit,
     flags,
@@ -134,7 +135,8 @@ def run_batch(args: argparse.Namespace) -> int:
                              tolerance_um=args.tolerance, k=args.k, tile_mm=args.tile,
                              report=not args.no_report, keep_invalid=args.keep_invalid)
     depth = tuple(args.depth_range_mm) if args.depth_range_mm else (0.0, float("inf"))
-    ctx = prepare(config, source, args.calibration, args.out, args.layout, settings, depth)
+    ctx = prepare(config, source, args.calibration, args.out, args.layout, settings, depth,
+                  calibration_term_args(args))
     with flags(_SCHEDULER):
         return _finish(run(scans, ctx, options), args.out)
 

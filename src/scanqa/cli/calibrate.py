@@ -24,6 +24,7 @@ from scanqa.cli.common import (
 from scanqa.decoding.parsing import load_patterns
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, staged_dir, write_text
+from scanqa.io.covariance import write_covariance
 from scanqa.io.opencv import is_opencv_file, read_opencv_calibration, write_opencv_calibration
 from scanqa.io.sweep import load_sweep
 from scanqa.progress import Progress, step_messages
@@ -160,6 +161,8 @@ def run_board(args: argparse.Namespace) -> int:
     stem = out.with_suffix("").name
     with staged_dir(out.parent) as stage:
         write_opencv_calibration(stage / out.name, result.data)
+        if result.data.covariance is not None:  # the same term, for copies of the matrices
+            write_covariance(stage / f"{stem}_covariance.json", result.data.covariance)
         write_text(stage / f"{stem}_report.json", json.dumps(report_board.summary(result),
                                                             indent=1))
         write_text(stage / f"{stem}_report.html", report_board.render(result))

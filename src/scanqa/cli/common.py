@@ -170,6 +170,14 @@ def add_calibration_argument(parser: argparse.ArgumentParser, required: bool = T
     parser.add_argument("--depth-range-mm", type=float_list, default=None, metavar="NEAR,FAR",
                         help="with an OpenCV calibration: the Z range [mm] counted as in "
                              "volume (default: everything in front of both devices)")
+    term = parser.add_mutually_exclusive_group()
+    term.add_argument("--calibration-covariance", metavar="FILE", default=None,
+                      help="with an OpenCV calibration: its parameters' covariance "
+                           "(.json or .npz, docs/formats.rst; 'calibrate --board' writes "
+                           "one beside its result), the calibration term of every point")
+    term.add_argument("--calibration-sigma-um", type=number(ge=0, unit="um"), default=None,
+                      metavar="UM", help="with an OpenCV calibration without covariance: a "
+                      "stated std of every point from the calibration's own error [um]")
 
 
 def calibration_from_args(args: argparse.Namespace, config: ScannerConfig, scan: PhaseMap
@@ -179,7 +187,15 @@ def calibration_from_args(args: argparse.Namespace, config: ScannerConfig, scan:
     depth = args.depth_range_mm or [0.0, math.inf]
     if len(depth) != 2:
         raise InputError(f"--depth-range-mm takes NEAR,FAR [mm], got {depth}")
-    return load_calibration(args.calibration, config, scan.orientation, tuple(depth))
+    return load_calibration(args.calibration, config, scan.orientation, tuple(depth),
+                            **calibration_term_args(args))
+
+
+def calibration_term_args(args: argparse.Namespace) -> dict:
+    """``--calibration-covariance`` / ``--calibration-sigma-um`` as the ``covariance`` and
+    ``sigma_um`` of :func:`~scanqa.calibration.base.load_calibration`."""
+    return {"covariance": getattr(args, "calibration_covariance", None),
+            "sigma_um": getattr(args, "calibration_sigma_um", None)}
 
 
 def float_list(text: str) -> list[float]:

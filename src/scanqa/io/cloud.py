@@ -59,6 +59,21 @@ def _write_csv(path: Path, xyz: np.ndarray, attributes: dict, metadata: dict | N
     return path
 
 
+#: Old attribute names still read, each mapped to the name scanqa writes now:
+#: ``sigma_table_um`` (the calibration's term, a table's or a parametric calibration's)
+#: became ``sigma_calibration_um``.
+OLD_NAMES = {"sigma_table_um": "sigma_calibration_um"}
+
+
+def renamed(attributes: dict) -> dict:
+    """``attributes`` with every old name (:data:`OLD_NAMES`) under its new one, in the
+    same place; an old name beside its new one is dropped (the new one holds)."""
+    if not set(OLD_NAMES) & set(attributes):
+        return attributes
+    return {OLD_NAMES.get(k, k): v for k, v in attributes.items()
+            if not (k in OLD_NAMES and OLD_NAMES[k] in attributes)}
+
+
 #: Parquet engines pandas can use; scanqa does not depend on one (the ``parquet`` extra
 #: installs pyarrow).
 PARQUET_ENGINES = ("pyarrow", "fastparquet")
@@ -186,12 +201,14 @@ def write_cloud(path: str | os.PathLike, xyz: np.ndarray, attributes: dict,
 
 def read_cloud(path: str | os.PathLike) -> tuple[np.ndarray, dict, dict]:
     """Read a cloud written by :func:`write_cloud`: (xyz (n, 3) [mm], attributes,
-    metadata), its values checked against :data:`VALUE_LIMITS`."""
+    metadata), its values checked against :data:`VALUE_LIMITS`; attributes under an old
+    name (:data:`OLD_NAMES`) come back under their new one."""
     path = check_format(path, write=False)
     if not path.is_file():
         raise InputError(f"point cloud {path} does not exist" if not path.exists() else
                          f"point cloud {path} is a folder, not a file")
     xyz, attributes, metadata = READERS[path.suffix.lower()](path)
+    attributes = renamed(attributes)
     check_values(path, xyz, attributes)
     return xyz, attributes, metadata
 

@@ -190,7 +190,7 @@ def _read_nodes(fs, p: Path) -> OpenCVCalibration:
     errors = {name: _real(fs, p, name) for name in ERRORS}
     n = len(COVARIANCE_PARAMETERS)
     cov = (None if fs.getNode("calibration_covariance").empty()
-           else _covariance(p, _matrix(fs, p, "calibration_covariance", (n, n))))
+           else check_covariance(p, _matrix(fs, p, "calibration_covariance", (n, n))))
     stated = _real(fs, p, "calibration_sigma_um", "um (a std along the line of sight)")
     return OpenCVCalibration(**mats, sizes={k: v for k, v in sizes.items() if v is not None},
                              errors={k: v for k, v in errors.items() if v is not None},
@@ -287,20 +287,28 @@ def _matrix(fs, p: Path, name: str, shape) -> np.ndarray:
 COVARIANCE_TOLERANCE = 1e-9
 
 
-def _covariance(p: Path, cov: np.ndarray) -> np.ndarray:
-    """``calibration_covariance`` checked to be a covariance: symmetric and without a
-    negative eigenvalue (to :data:`COVARIANCE_TOLERANCE` of its largest)."""
+def check_covariance(p: str | os.PathLike, cov: np.ndarray,
+                     name: str = "calibration_covariance") -> np.ndarray:
+    """A parameter covariance ``cov`` (field ``name`` of file ``p``) checked to be one:
+    symmetric and without a negative eigenvalue (to :data:`COVARIANCE_TOLERANCE` of its
+    largest entry); returned unchanged.
+
+    Raises
+    ------
+    InputError
+        Naming the file and the field.
+    """
     scale = float(np.abs(cov).max())
     asym = float(np.abs(cov - cov.T).max())
     if asym > COVARIANCE_TOLERANCE * scale:
-        raise InputError(f"{p}: 'calibration_covariance' is not symmetric (largest "
-                         f"|C - C^T| {asym:.3g} against entries up to {scale:.3g}): write "
-                         "the fit's covariance matrix, or leave the key out")
+        raise InputError(f"{p}: {name!r} is not symmetric (largest |C - C^T| {asym:.3g} "
+                         f"against entries up to {scale:.3g}): write the fit's covariance "
+                         "matrix, or leave the key out")
     low = float(np.linalg.eigvalsh((cov + cov.T) / 2).min())
     if low < -COVARIANCE_TOLERANCE * scale:
-        raise InputError(f"{p}: 'calibration_covariance' has a negative eigenvalue ({low:.3g}), "
-                         "so it is no covariance: write the fit's covariance matrix, or "
-                         "leave the key out")
+        raise InputError(f"{p}: {name!r} has a negative eigenvalue ({low:.3g}), so it is "
+                         "no covariance: write the fit's covariance matrix, or leave the "
+                         "key out")
     return cov
 
 

@@ -28,9 +28,9 @@ without the two parts or the offset (a one-source reading, an older file) is sca
 the decoder's sigma alone. ``oblique="modulation"`` scales by the modulation alone
 (1 / B: an upper bound), ``"none"`` keeps the model's sigma.
 
-Shared errors. The calibration table's own error (``sigma_table_um``, correlated over
+Shared errors. The calibration table's own error (``sigma_calibration_um``, correlated over
 ``table_corr_mm``) shifts a ball as a whole: its standard uncertainty on a radius or a
-centre coordinate is taken as the RMS sigma_table over sqrt(n_eff), n_eff the number of
+centre coordinate is taken as the RMS sigma_calibration over sqrt(n_eff), n_eff the number of
 correlation cells the ball's seen area covers (at least 1).
 
 Noise correlation. Neighbouring points share noise (blur); the fits' covariances from
@@ -185,7 +185,7 @@ def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -
 
     Notes
     -----
-    u = sqrt(mean sigma_table,i^2) / sqrt(n_eff), n_eff = max(1, area / l^2) with l the
+    u = sqrt(mean sigma_calibration,i^2) / sqrt(n_eff), n_eff = max(1, area / l^2) with l the
     table's correlation length: the standard uncertainty of a mean of n_eff independent
     errors (GUM 4.2.3, Eq. 5); scanqa's model of the table's shared error (module notes,
     docs/artefacts.rst).
@@ -196,11 +196,11 @@ def table_uncertainty(cloud: AnnotatedCloud, idx: np.ndarray, area_mm2: float) -
     if np.asarray(idx).size == 0:
         raise InputError("table uncertainty: the artefact has no points")
     attrs = cloud.attributes
-    if "sigma_table_um" not in attrs:
+    if "sigma_calibration_um" not in attrs:
         return 0.0
-    tab = np.asarray(attrs["sigma_table_um"], float)[idx]
+    tab = np.asarray(attrs["sigma_calibration_um"], float)[idx]
     if np.any(np.isinf(tab) | (tab < 0)):
-        raise InputError("the cloud's sigma_table_um holds negative or infinite values: a "
+        raise InputError("the cloud's sigma_calibration_um holds negative or infinite values: a "
                          "table sigma must be >= 0 um, or NaN where there is none (annotate "
                          "the scan again)")
     if not np.isfinite(tab).any():

@@ -57,6 +57,7 @@ from scanqa.errors import ConfigError, InputError
 from scanqa.io.annotated_cloud import AnnotatedCloud, random_sigma_name
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
 from scanqa.model.config import ScannerConfig, config_from_dict
+from scanqa.qa import budget as gum
 from scanqa.qa.budget import Budget, Component, StepGeometry, coverage_factor, type_b
 from scanqa.qa.correlation import MIN_TILES, TILE_MM, noise_correlation
 from scanqa.qa.layout import BlockSpec, Layout
@@ -223,7 +224,7 @@ def _block_fields(block_id: int, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray
     out["in_volume_fraction"] = float(np.mean(_attr(attrs, "in_volume", idx, 1.0)))
     out["model_valid_fraction"] = float(np.mean(_attr(attrs, "model_valid", idx, 1.0)))
     out["mean_z_mm"] = float(pts[:, 2].mean())
-    tab = _attr(attrs, "sigma_table_um", idx, 0.0) * cos
+    tab = _attr(attrs, "sigma_calibration_um", idx, 0.0) * cos
     out["table_sigma_um"] = float(np.sqrt(np.nanmean(tab**2))) if np.isfinite(tab).any() \
         else 0.0
     corr = _attr(attrs, "table_corr_mm", idx)
@@ -260,13 +261,16 @@ def _block_status(block_id: int, in_volume: float, model_valid: float) -> dict:
 
 def step_between(a: BlockResult, b: BlockResult, k: float | str | None, tolerance_um: float,
                  inputs: BudgetInputs | None = None, n_planes: int | None = None,
-                 geometry: Component | None = None) -> StepResult:
+                 geometry: Component | None = None, calibration: str | None = "table"
+                 ) -> StepResult:
     """Height difference of block b relative to block a with its budget (module notes).
 
     ``k`` is a stated coverage factor or "welch-satterthwaite" (None: the budget file's
     ``[coverage] k``, else 2); ``inputs`` the budget file's Type B inputs; ``n_planes``
     the number of planes the calibration table was built from (its degrees of freedom);
-    ``geometry`` the calibration-geometry line (:func:`geometry_component`), if known.
+    ``geometry`` the calibration-geometry line (:func:`geometry_component`), if known;
+    ``calibration`` the cloud's ``sigma_source`` "calibration"
+    (:func:`scanqa.qa.budget.calibration_rows`).
 
     Notes
     -----
@@ -288,10 +292,8 @@ def step_between(a: BlockResult, b: BlockResult, k: float | str | None, toleranc
         Component(f"noise, mean height of block {b.block_id}", "A",
                   f"model sigma x measured correlation ({b.n_tiles} tiles)",
                   1e3 * math.sqrt(float(b.u_plane[0, 0])), "um", 1.0, b.noise_dof),
-        Component("calibration table", "A", "node fits over the calibration planes, "
-                  "scaled by their reduced chi-square",
-                  1e3 * math.sqrt(_table_variance(a, b, g[1:])), "um", 1.0, table_dof)]
-    components += [geometry] if geometry is not None else []
+        *gum.calibration_rows(calibration, 1e3 * math.sqrt(_table_variance(a, b, g[1:])),
+                              table_dof, geometry)]
     extra, correction = type_b(inputs, a.nominal_height_mm, b.nominal_height_mm)
     budget = Budget(tuple(components + extra), coverage_rule(k, inputs), inputs is not None,
                     correction)
@@ -565,9 +567,10 @@ def run_qa(cloud: AnnotatedCloud, layout: Layout, *, config: ScannerConfig | Non
               "computed (the blocks' points do not map through the calibration); left out"
               for (a, b), line in zip(pairs, lines, strict=True)
               if line is not None and not math.isfinite(line.u)]
+    term = (cloud.metadata.get("sigma_source") or {}).get("calibration")
     fitted = {(a.block_id, b.block_id): step_between(
         a, b, k, tolerance_um, budget, n_planes,
-        line if line is not None and math.isfinite(line.u) else None)
+        line if line is not None and math.isfinite(line.u) else None, term)
         for (a, b), line in zip(pairs, lines, strict=True)}
     steps = [fitted.get((a.block_id, b.block_id)) or unmeasured_step(a, b, tolerance_um)
              for a, b in itertools.pairwise(ordered)]

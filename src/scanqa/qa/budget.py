@@ -10,9 +10,13 @@ Type A (evaluated from the data):
   from the points' predicted sigmas scaled by each block's measured noise-correlation
   factor; the variance of that factor, measured over K tiles, has K - 3 degrees of
   freedom (K the block's tile count), and so has the noise term;
-* the calibration table's own error, from the node fits' covariance scaled by their
-  reduced chi-square (the calibration's residuals over its planes), with M - 4 degrees
-  of freedom for a table from M planes.
+* the calibration's own error, one row named by where the cloud's
+  ``sigma_calibration_um`` comes from (its ``sigma_source`` "calibration",
+  :func:`calibration_rows`): a table's node fits' covariance scaled by their reduced
+  chi-square (the calibration's residuals over its planes), with M - 4 degrees of
+  freedom for a table from M planes; a parametric calibration's covariance (carried to
+  the step by the "calibration geometry" line when the calibration is given, else each
+  block's per-point term as its own shift); a stated std (Type B); or none, listed at 0.
 
 Type B (from a budget file, :mod:`scanqa.io.budget`; infinite degrees of freedom):
 
@@ -124,6 +128,57 @@ class Budget:
                 else "stated", "U_um": self.expanded_um,
                 "type_b_included": self.type_b_included,
                 "reference_correction_um": self.correction_um}
+
+
+#: A step's calibration row by the cloud's ``sigma_source`` "calibration" (where its
+#: ``sigma_calibration_um`` comes from): (row name, GUM type, source in words).
+CALIBRATION_ROWS = {
+    "table": ("calibration table", "A", "node fits over the calibration planes, scaled by "
+              "their reduced chi-square"),
+    "covariance": ("calibration term (covariance)", "A", "the calibration's parameter "
+                   "covariance at each point (sigma_calibration_um), each block's as its "
+                   "own shift"),
+    "stated": ("calibration term (stated)", "B", "a std stated for the calibration "
+               "(sigma_calibration_um), each block's as its own shift"),
+    "none": ("calibration term (none)", "B", "the calibration carries no term of its own "
+             "(sigma_source): 0 here, and U leaves the calibration's error out"),
+}
+#: The row of a cloud that does not say where its calibration term comes from.
+UNKNOWN_CALIBRATION_ROW = ("calibration table", "A", "the cloud's sigma_calibration_um "
+                           "(its source not stated), each block's as its own shift")
+
+
+def calibration_rows(kind: str | None, u_um: float, dof: float,
+                     geometry: Component | None = None) -> list[Component]:
+    """The calibration's rows of a step's budget.
+
+    Parameters
+    ----------
+    kind : str or None
+        The cloud's ``sigma_source`` "calibration": "table", "covariance", "stated",
+        "none" (:data:`CALIBRATION_ROWS`), None when the cloud does not say.
+    u_um : float
+        The step's std from the blocks' ``sigma_calibration_um`` [um] (0 for "none").
+    dof : float
+        Its degrees of freedom (a table's M - 4; a Type B row has infinite dof) [-].
+    geometry : Component, optional
+        The "calibration geometry" line: the calibration's parameter covariance carried
+        to the step (:func:`scanqa.qa.blocks.geometry_component`).
+
+    Returns
+    -------
+    list of Component
+        The calibration row and the geometry line. For "covariance" with the geometry
+        line, that line alone: it carries the very covariance that gave
+        ``sigma_calibration_um``, with its correlation between the blocks, and the
+        per-point row would count it twice.
+    """
+    if kind == "covariance" and geometry is not None:
+        return [geometry]
+    name, gum, source = CALIBRATION_ROWS.get(kind or "", UNKNOWN_CALIBRATION_ROW)
+    row = Component(name, gum, source, 0.0 if kind == "none" else u_um, "um", 1.0,
+                    dof if gum == "A" else math.inf)
+    return [row] + ([geometry] if geometry is not None else [])
 
 
 def welch_satterthwaite(parts: list[tuple[float, float]]) -> float:

@@ -18,7 +18,7 @@ The point's own sigma along the normal is ``sigma_total_um`` x |cos| of its line
 to the normal. Points beyond ``max_distance_mm`` from the reference are left out (NaN).
 
 What U is made of (:func:`u_by_term`): the scan's sigma_total splits into its random part
-(``sigma_random_um``), its calibration term (``sigma_table_um``) and the rest (the
+(``sigma_random_um``), its calibration term (``sigma_calibration_um``) and the rest (the
 config's systematic term), each projected on the normal like the total, beside the
 reference's u_ref; the summary gives each one's median expanded uncertainty k u over
 the judged points, the dominant one, and the smallest deviation the comparison can call
@@ -294,7 +294,7 @@ def u_by_term(cloud: AnnotatedCloud, cos: np.ndarray, u_ref: np.ndarray, k: floa
     Parameters
     ----------
     cloud : AnnotatedCloud
-        The scan (``sigma_total_um``; ``sigma_random_um`` and ``sigma_table_um`` when
+        The scan (``sigma_total_um``; ``sigma_random_um`` and ``sigma_calibration_um`` when
         it has them).
     cos : (n,) float
         |cos| of each point's line of sight to the normal [-].
@@ -317,7 +317,7 @@ def u_by_term(cloud: AnnotatedCloud, cos: np.ndarray, u_ref: np.ndarray, k: floa
     -----
     U_i = k sqrt((sigma_total,i |cos_i|)^2 + u_ref,i^2) (GUM 6.2.1); each term's share is
     k |cos_i| times its own sigma, the systematic one what sigma_total leaves after the
-    random and calibration terms, sqrt(sigma_total^2 - sigma_random^2 - sigma_table^2)
+    random and calibration terms, sqrt(sigma_total^2 - sigma_random^2 - sigma_calibration^2)
     (docs/formats.rst). A deviation below U_i cannot be called significant at that point.
     """
     if not judged.any():
@@ -326,7 +326,7 @@ def u_by_term(cloud: AnnotatedCloud, cos: np.ndarray, u_ref: np.ndarray, k: floa
     total = np.asarray(a["sigma_total_um"], float)[judged]
     parts = {name: np.asarray(a[attr], float)[judged] if attr in a else None
              for name, attr in (("random", "sigma_random_um"),
-                                ("calibration", "sigma_table_um"))}
+                                ("calibration", "sigma_calibration_um"))}
     known = sum(np.nan_to_num(p) ** 2 for p in parts.values() if p is not None)
     parts["systematic"] = np.sqrt(np.clip(total**2 - known, 0.0, None)) if any(
         p is not None for p in parts.values()) else None

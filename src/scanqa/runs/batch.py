@@ -138,7 +138,8 @@ def resolve_scans(spec: str) -> list[ScanEntry]:
 def prepare(config: ScannerConfig, config_source: str, calibration: str,
             out: str | os.PathLike, layout: str | None = None,
             settings: BatchSettings | None = None,
-            depth_range_mm: tuple[float, float] = (0.0, math.inf)) -> BatchContext:
+            depth_range_mm: tuple[float, float] = (0.0, math.inf),
+            calibration_term: dict | None = None) -> BatchContext:
     """Load the calibration and layout once and fix the settings' fingerprint.
 
     Parameters
@@ -157,17 +158,24 @@ def prepare(config: ScannerConfig, config_source: str, calibration: str,
         QA and output settings.
     depth_range_mm : (float, float)
         Z range of an OpenCV calibration's volume [mm].
+    calibration_term : dict, optional
+        An OpenCV calibration's term given beside it: ``covariance`` (a covariance file)
+        or ``sigma_um`` (:func:`~scanqa.calibration.base.load_calibration`).
     """
     settings = settings or BatchSettings()
-    first = load_calibration(calibration, config, "vertical", depth_range_mm)
+    term = {k: v for k, v in (calibration_term or {}).items() if v is not None}
+    first = load_calibration(calibration, config, "vertical", depth_range_mm, **term)
     cals = {"vertical": first,  # a table serves both orientations: one copy is shipped
-            "horizontal": load_calibration(calibration, config, "horizontal", depth_range_mm)
+            "horizontal": load_calibration(calibration, config, "horizontal", depth_range_mm,
+                                           **term)
             if is_opencv_file(calibration) else first}
     lay = load_layout(layout) if layout else None
     header = build_header(config.to_dict(), config_source, calibration)
     fingerprint = content_hash({
         "version": __version__, "config": config.to_dict(), "calibration": header.table_hash,
         "depth_range_mm": [str(v) for v in depth_range_mm],
+        "calibration_term": {k: file_hash(v) if k == "covariance" else v
+                             for k, v in term.items()},
         "layout": file_hash(layout) if layout else None, "settings": asdict(settings)})
     return BatchContext(config, cals, lay, settings, header, fingerprint,
                         Path(out).absolute())
