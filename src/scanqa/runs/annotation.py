@@ -75,6 +75,7 @@ from scanqa.io import ply
 from scanqa.model import optics
 from scanqa.model.cloud import AnnotatedCloud
 from scanqa.model.config import ScannerConfig
+from scanqa.numeric import json_ready
 from scanqa.runs import annotkernels
 from scanqa.runs.noisechecks import evidence_check
 
@@ -225,8 +226,8 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
             "config": config.to_dict(),
             "config_source": config.source + (f"#{config.profile}" if config.profile else ""),
             "table": {"kind": table.provenance.get("kind", "table"), "weights": table.weights,
-                      "z_range_mm": [_json_number(z) for z in table.z_range_mm],
-                      "cell_px": _json_number(table.cell_px),
+                      "z_range_mm": [json_ready(z) for z in table.z_range_mm],
+                      "cell_px": json_ready(table.cell_px),
                       "n_planes": len(table.provenance.get("positions", [])) or None,
                       "sweep": table.provenance.get("sweep", ""),
                       "calibration": table.provenance.get("calibration", "")}}
@@ -296,11 +297,6 @@ def _random_sigma(inputs: dict, sigma_model: np.ndarray, s_t: np.ndarray) -> np.
         return s_t * phase_sigma_px(inputs["modulation"], inputs["offset"], a, b, period,
                                     steps)
     return s_t * inputs["sigma_xp"]
-
-
-def _json_number(value: float) -> float | None:
-    """A float for JSON metadata: None where it is not finite (no range limit, no cells)."""
-    return float(value) if np.isfinite(value) else None
 
 
 def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,
