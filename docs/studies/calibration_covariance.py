@@ -27,9 +27,9 @@ calibrations' spread at the skull's points against the predicted sigma.
 
 Usage::
 
-    python benchmarks/calibration_covariance.py sim [--tuning]
-    python benchmarks/calibration_covariance.py gray
-    python benchmarks/calibration_covariance.py real
+    python docs/studies/calibration_covariance.py sim [--tuning]
+    python docs/studies/calibration_covariance.py gray
+    python docs/studies/calibration_covariance.py real
 """
 
 from __future__ import annotations
@@ -42,9 +42,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # calibration_covariance_real
 
 from scanqa.calibration.board_fit import calibrate_board  # noqa: E402
 from scanqa.calibration.parametric import from_opencv  # noqa: E402
@@ -176,7 +177,7 @@ def main(argv=None) -> int:
     elif args.part == "gray":
         run_gray(GRAY_SEEDS)
     else:
-        from benchmarks.calibration_covariance_real import run_real
+        from calibration_covariance_real import run_real
 
         run_real()
     return 0
