@@ -1,10 +1,5 @@
-"""Small numeric helpers every layer shares, each written once (issue 47).
-
-:func:`robust_std` is the robust spread (1.4826 x the median absolute deviation),
-:func:`inclusive_range` and :func:`parse_range` the START:STOP:STEP ranges of stage
-positions and range samples, :func:`json_ready` the cleaning of values for JSON (which
-has no NaN). ``tests/test_conventions.py`` fails where a second copy appears.
-"""
+"""Numeric helpers every layer shares, each written once (issue 47; a second copy fails
+``tests/test_conventions.py``): the robust spread, START:STOP:STEP ranges, JSON values."""
 
 from __future__ import annotations
 
@@ -12,75 +7,47 @@ import math
 
 import numpy as np
 
-#: 1 / Phi^-1(3/4): the median absolute deviation times this is the standard deviation
-#: of a normal distribution [-].
+#: Median absolute deviation to the std of a normal distribution, 1 / Phi^-1(3/4) [-].
 MAD_TO_SIGMA = 1.4826
 
 
 def robust_std(values, centre: float | None = None) -> float:
-    """The robust standard deviation: :data:`MAD_TO_SIGMA` x the median absolute
-    deviation of the finite values [their unit].
+    """:data:`MAD_TO_SIGMA` x the median absolute deviation of the finite values.
 
     Parameters
     ----------
     values : array_like
         The sample [any unit]; NaN and inf are left out.
     centre : float, optional
-        The value deviations are taken from [same unit]: the sample's median by default;
-        0 for residuals whose expected value is zero.
+        Where deviations are taken from [same unit]: the median by default, 0 for
+        residuals expected to be zero.
 
     Returns
     -------
     float
-        The spread [same unit]; NaN for a sample without a finite value.
+        The robust std [same unit]; NaN without a finite value.
     """
     v = np.asarray(values, float).ravel()
     v = v[np.isfinite(v)]
     if v.size == 0:
         return math.nan
-    c = np.median(v) if centre is None else centre
-    return float(MAD_TO_SIGMA * np.median(np.abs(v - c)))
+    return float(MAD_TO_SIGMA * np.median(np.abs(v - (np.median(v) if centre is None
+                                                      else centre))))
 
 
 def inclusive_range(start: float, stop: float, step: float) -> np.ndarray:
-    """``start, start + step, ...`` up to ``stop`` inclusive (a hair's tolerance) [unit].
-
-    Parameters
-    ----------
-    start, stop : float
-        First and last value [any unit]; ``stop >= start``.
-    step : float
-        Spacing [same unit], > 0.
-
-    Returns
-    -------
-    numpy.ndarray
-        ``floor((stop - start) / step + 1e-9) + 1`` values [same unit].
-    """
-    n = int(np.floor((stop - start) / step + 1e-9)) + 1
-    return start + step * np.arange(n)
+    """``start, start + step, ...`` up to ``stop`` inclusive, within 1e-9 step [unit]
+    (``start``, ``stop`` [any unit], ``step`` > 0 [same unit])."""
+    return start + step * np.arange(int(np.floor((stop - start) / step + 1e-9)) + 1)
 
 
 def parse_range(text: str, most: int = 10000) -> list[float]:
-    """The values of a ``START:STOP:STEP`` range (inclusive), rounded to 1e-9 [unit].
-
-    Parameters
-    ----------
-    text : str
-        ``START:STOP:STEP`` [any unit], e.g. ``"-30:30:2"``.
-    most : int
-        Most values the range may hold [-].
-
-    Returns
-    -------
-    list of float
-        The values [same unit].
+    """The values of ``"START:STOP:STEP"`` (inclusive) rounded to 1e-9 [its unit].
 
     Raises
     ------
     ValueError
-        When the text is not three numbers, or not finite, STEP <= 0, STOP < START or the
-        range holds more than ``most`` values.
+        Not three numbers; not finite, STEP <= 0, STOP < START or over ``most`` values.
     """
     try:
         start, stop, step = (float(t) for t in text.split(":"))
@@ -94,27 +61,15 @@ def parse_range(text: str, most: int = 10000) -> list[float]:
 
 
 def json_ready(value):
-    """``value`` ready for strict JSON: NaN and inf become None (null), numpy scalars
-    Python numbers, through dicts, lists and tuples; anything else as it is.
-
-    Parameters
-    ----------
-    value : object
-        A number, a container of numbers, or anything JSON takes.
-
-    Returns
-    -------
-    object
-        The same structure with every non-finite float replaced by None.
-    """
+    """``value`` for strict JSON: non-finite floats become None (null) and numpy scalars
+    Python ones, through dicts, lists and tuples; anything else is returned as it is."""
     if isinstance(value, np.generic):
         value = value.item()
     if isinstance(value, float):
         return value if math.isfinite(value) else None
     if isinstance(value, dict):
         return {k: json_ready(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [json_ready(v) for v in value]
-    if isinstance(value, tuple):
-        return tuple(json_ready(v) for v in value)
+    if isinstance(value, list | tuple):
+        out = [json_ready(v) for v in value]
+        return tuple(out) if isinstance(value, tuple) else out
     return value
