@@ -324,11 +324,11 @@ def u_by_term(cloud: AnnotatedCloud, cos: np.ndarray, u_ref: np.ndarray, k: floa
     parts = {name: np.asarray(a[attr], float)[judged] if attr in a else None
              for name, attr in (("random", "sigma_random_um"),
                                 ("calibration", "sigma_table_um"))}
-    known = sum(np.nan_tojson_ready(p) ** 2 for p in parts.values() if p is not None)
+    known = sum(np.nan_to_num(p) ** 2 for p in parts.values() if p is not None)
     parts["systematic"] = np.sqrt(np.clip(total**2 - known, 0.0, None)) if any(
         p is not None for p in parts.values()) else None
     scale = k * np.asarray(cos, float)[judged]
-    terms = {name: None if p is None else float(np.median(scale * np.nan_tojson_ready(p)))
+    terms = {name: None if p is None else float(np.median(scale * np.nan_to_num(p)))
              for name, p in parts.items()}
     terms["reference"] = float(np.median(k * 1e3 * np.asarray(u_ref, float)[judged]))
     big_u = k * np.sqrt((1e-3 * total * cos[judged]) ** 2 + u_ref[judged] ** 2) * 1e3
