@@ -252,3 +252,20 @@ def test_the_one_way_finders_are_not_blind():
     assert _range_parsers(ast.parse("n = int(np.floor((stop - start) / step + 1e-9)) + 1"))
     home = ast.parse((SRC / NUMERIC).read_text())
     assert _robust_stds(home) and _json_cleanings(home) and _range_parsers(home)
+
+
+def test_benchmarks_hold_speed_and_memory_benchmarks_only():
+    """One-off studies live in docs/studies/ beside the pages that keep their numbers
+    (docs/studies.rst); benchmarks/ holds what ``make bench`` times, and no test imports
+    a study."""
+    root = SRC.parents[1]
+    others = [p.name for p in sorted((root / "benchmarks").glob("*.py"))
+              if not re.fullmatch(r"(bench_\w+|profile_\w+|run_all)\.py", p.name)]
+    assert others == []
+    studies = {p.stem for p in (root / "docs" / "studies").glob("*.py")}
+    importing = [p.name for p in sorted((root / "tests").glob("*.py"))
+                 if any(isinstance(n, ast.Import | ast.ImportFrom) and studies & {
+                     *(a.name.split(".")[-1] for a in n.names),
+                     *(str(getattr(n, "module", "") or "").split("."))}
+                        for n in ast.walk(ast.parse(p.read_text())))]
+    assert importing == []
