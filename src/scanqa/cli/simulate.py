@@ -17,7 +17,7 @@ def _positions(text: str) -> list[float]:
     try:
         return parse_range(text)
     except ValueError as err:
-        raise argparse.ArgumentTypeError(str(err)) from None
+        raise argparse.ArgumentTypeError(f"{err} (or give a comma-separated list)") from None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
