@@ -226,8 +226,8 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
             "config": config.to_dict(),
             "config_source": config.source + (f"#{config.profile}" if config.profile else ""),
             "table": {"kind": table.provenance.get("kind", "table"), "weights": table.weights,
-                      "z_range_mm": [json_ready(z) for z in table.z_range_mm],
-                      "cell_px": json_ready(table.cell_px),
+                      "z_range_mm": [json_ready(float(z)) for z in table.z_range_mm],
+                      "cell_px": json_ready(float(table.cell_px)),
                       "n_planes": len(table.provenance.get("positions", [])) or None,
                       "sweep": table.provenance.get("sweep", ""),
                       "calibration": table.provenance.get("calibration", "")}}
