@@ -111,7 +111,7 @@ docs: $(STAMP)
 	@echo "docs: docs/_build/html/index.html"
 
 lint: $(STAMP)
-	@$(BIN)/ruff check src tests benchmarks
+	@$(BIN)/ruff check src tests benchmarks docs/studies
 
 # Mutation testing (docs/mutation.rst, config in pyproject.toml [tool.mutmut]): every mutant
 # of optics.py, the QA core (qa/blocks, results, correlation, planes, vdi2634, verdict,

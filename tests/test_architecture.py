@@ -20,7 +20,7 @@ SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
 #: scanqa.characterize and scanqa.describe are the public API's functions.
 LAYERS = {
     "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.compiled": 0, "scanqa.progress": 0,
-    "scanqa._version": 0,
+    "scanqa._version": 0, "scanqa.numeric": 0,
     "scanqa.io": 1,
     "scanqa.decoding": 2, "scanqa.model": 2, "scanqa.provenance": 2,
     "scanqa.description": 3, "scanqa.calibration": 3, "scanqa.design": 3,
@@ -132,3 +132,22 @@ def test_the_test_can_see_a_cycle_and_an_upward_import(tmp_path, monkeypatch):
         test_no_import_runs_upwards()
     with pytest.raises(pytest.fail.Exception, match="import cycle"):
         test_no_import_cycle()
+
+
+def private_imports(deps: dict) -> list[str]:
+    """``module:line imports _name`` for every private (single-underscore) name imported
+    from another scanqa module."""
+    return [f"{name}:{line} imports {n} from {dep}" for name, rows in deps.items()
+            for dep, line, names in rows if dep != name
+            for n in names if n.startswith("_") and not n.startswith("__")]
+
+
+def test_no_private_name_is_imported_across_modules():
+    """A name another module needs is public (issue 47): splitting a file to stay under
+    600 lines makes the pieces it shares public, not ``from .x import _y``."""
+    assert private_imports(graph()) == []
+
+
+def test_the_private_import_finder_is_not_blind():
+    rows = {"scanqa.a": [("scanqa.b", 3, ("_helper", "public", "__version__"))]}
+    assert private_imports(rows) == ["scanqa.a:3 imports _helper from scanqa.b"]

@@ -72,7 +72,7 @@ def test_gray_code_only_poses_calibrate(gray_poses):
     result = calibrate_board(poses, BOARD, PANEL, "k1")
     diff = compare(result.data, sim.truth)
     # the held-out bound on focal lengths: within 2 % (part gray of
-    # benchmarks/calibration_covariance.py: within 0.34 % on seeds 4100-4106)
+    # docs/studies/calibration_covariance.py: within 0.34 % on seeds 4100-4106)
     assert abs(diff["camera_focal_rel"]) < 0.02
     assert abs(diff["projector_focal_rel"]) < 0.02
     assert abs(diff["baseline_rel"]) < 0.02 and diff["rotation_deg"] < 0.5

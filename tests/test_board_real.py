@@ -21,7 +21,7 @@ camera's bound met, the baseline direction still missed (by both detectors). It 
 default since (more accurate by every measure independent of the bounds); the tests on
 `poses` ask for OpenCV's corners explicitly.
 
-The baseline direction's miss, looked into (benchmarks/board_direction.py): the row set's
+The baseline direction's miss, looked into (docs/studies/board_direction.py): the row set's
 71.25 px period is right (the decoder's drift warning on poses 3-6 is a step in the cue,
 not a period), no corner-level or stereo variant passes the rule chosen beforehand
 (held-out predicted projector RMS), and calibration.xml predicts our projector corners to
@@ -175,7 +175,7 @@ def test_skull_against_slstudio_within_the_calibration_sigma(corners, request, t
     # issue 42: the joint fit's sigma (median 0.82 mm with model corners, where the
     # jackknife over the five poses said 3.7 mm) predicts the difference from SLStudio's
     # calibration: median |dXYZ| / median sigma in [0.5, 2] (measured 0.87 model, see
-    # benchmarks/calibration_covariance.py real)
+    # docs/studies/calibration_covariance.py real)
     assert 0.5 <= np.median(diff[ok]) / np.median(sigma[ok]) <= 2.0
     assert np.mean(diff[ok] <= 2 * sigma[ok]) >= 0.8
 
@@ -293,7 +293,7 @@ def test_model_corners_against_slstudio(model_calibration):
     # too) lies further from SLStudio's baseline: +1.30 %, 1.79 deg, where its covariance
     # gives 0.16 % and 0.21 deg. It predicts the held-out poses' projector corners better
     # (each of the six left out: mean 0.653 px against 0.704 px), is 4 x closer to the
-    # truth in the simulated study (benchmarks/calibration_covariance.py), and its
+    # truth in the simulated study (docs/studies/calibration_covariance.py), and its
     # skull_2x3 points lie as close to calibration.xml's (median 0.71 mm against 0.68 mm):
     # the baseline trades against the other parameters.
     assert abs(diff["baseline_rel"]) < 0.02

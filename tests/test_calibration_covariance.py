@@ -1,6 +1,6 @@
 """The board calibration's covariance (scanqa.calibration.bundle) against simulated truth:
 the calibration's own 3-D error at points over the volume, divided by its predicted
-sigma (benchmarks/calibration_covariance.py runs the full study: held-out seeds
+sigma (docs/studies/calibration_covariance.py runs the full study: held-out seeds
 2000-2011, RMS(error / sigma) 1.06, 2-sigma coverage 0.967). Here four further seeds,
 named before they were run; the truth is projected by OpenCV, not by the code under test.
 """

@@ -11,7 +11,8 @@ from .conftest import ROOT
 
 SOURCES = [*ROOT.glob("src/scanqa/**/*.py"), *ROOT.glob("calib/*.toml"),
            *ROOT.glob("sample_data/*.toml"), *ROOT.glob("sample_data/*.sh"),
-           *ROOT.glob("benchmarks/*.py"), ROOT / "README.md", ROOT / "Makefile",
+           *ROOT.glob("benchmarks/*.py"), *ROOT.glob("docs/studies/*.py"),
+           ROOT / "README.md", ROOT / "Makefile",
            ROOT / "pyproject.toml", *ROOT.glob("docs/*.rst")]
 CITE = re.compile(r"docs/([A-Za-z_]+)\.rst(?:,? ?\(?[\"']([^\"']+)[\"']\)?)?")
 

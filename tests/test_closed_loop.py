@@ -490,7 +490,7 @@ def test_weighting_pays_past_the_depth_of_field(request, sample_config, calibrat
     assert rms["model"] <= 0.8 * rms["none"]
 
 
-#: Noise seeds of the weighting comparison (benchmarks/acceptance_weighting.py runs 12).
+#: Noise seeds of the weighting comparison (docs/studies/acceptance_weighting.py runs 12).
 WEIGHTING_SEEDS = (0, 1, 2)
 
 

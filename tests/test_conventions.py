@@ -173,3 +173,99 @@ def test_dataclasses_outside_qa_are_frozen_unless_mutated_by_design():
 def test_results_outside_qa_are_frozen(name):
     frozen = {f"{m}:{c}": f for m, c, f in _dataclasses_outside_qa()}
     assert frozen[name], f"{name} is a mutable dataclass"
+
+
+# ------------------------------------------------- one way to do each thing (issue 47)
+
+#: The one home of the robust spread, the START:STOP:STEP range and the JSON cleaning.
+NUMERIC = "numeric.py"
+
+
+def _sources():
+    """(module path relative to src/scanqa, parsed tree) of every module but the home."""
+    for path in sorted(SRC.rglob("*.py")):
+        rel = path.relative_to(SRC).as_posix()
+        if rel != NUMERIC:
+            yield rel, ast.parse(path.read_text())
+
+
+#: 1.4826 MAD written out: median(abs(x - median(x))).
+_MAD = re.compile(r"median\(np\.abs\((\w+) - np\.(nan)?median\(\1\)")
+
+
+def _robust_stds(tree) -> list[int]:
+    """Lines that write the robust spread again: the constant 1.4826 (or its inverse
+    0.6745) or a median absolute deviation."""
+    lines = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Constant)
+             and isinstance(n.value, float) and round(n.value, 4) in (1.4826, 0.6745)]
+    return lines + [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Call)
+                    and _MAD.search(ast.unparse(n))]
+
+
+def _json_cleanings(tree) -> list[int]:
+    """Lines that turn a non-finite number into None (JSON null) themselves: ``x if
+    isfinite(x) else None``, or a type test with isfinite that returns None."""
+    found = []
+    for n in ast.walk(tree):
+        test = ast.unparse(n.test) if isinstance(n, ast.IfExp | ast.If) else ""
+        if isinstance(n, ast.IfExp) and isinstance(n.orelse, ast.Constant) \
+                and n.orelse.value is None:
+            found += [n.lineno for c in ast.walk(n.test) if isinstance(c, ast.Call)
+                      and ast.unparse(c.func).endswith("isfinite") and c.args
+                      and ast.unparse(c.args[0]) in ast.unparse(n.body)]
+        elif isinstance(n, ast.If) and "isfinite" in test and "isinstance" in test \
+                and any(isinstance(b, ast.Return) and isinstance(b.value, ast.Constant)
+                        and b.value.value is None for b in n.body):
+            found.append(n.lineno)
+    return found
+
+
+#: A START:STOP:STEP text split into numbers, or the count of an inclusive range.
+_RANGE = re.compile(r"float\(\w+\) for \w+ in \w+\.split\(['\"]:['\"]\)|"
+                    r"\(\w+ - \w+\) / \w+ \+ 1e-0?9")
+
+
+def _range_parsers(tree) -> list[int]:
+    return sorted({n.lineno for n in ast.walk(tree) if isinstance(n, ast.stmt)
+                   and not isinstance(n, ast.FunctionDef | ast.ClassDef | ast.If | ast.For
+                                      | ast.While | ast.With | ast.Try)
+                   and _RANGE.search(ast.unparse(n))})
+
+
+@pytest.mark.parametrize("finder", [_robust_stds, _json_cleanings, _range_parsers])
+def test_one_robust_std_json_cleaning_and_range_parser(finder):
+    """scanqa.numeric's robust_std, json_ready and inclusive_range / parse_range are the
+    only ones: a second copy elsewhere in src fails here."""
+    found = {rel: lines for rel, tree in _sources() if (lines := finder(tree))}
+    assert found == {}
+
+
+def test_the_one_way_finders_are_not_blind():
+    """Each finder sees the copies it replaced, and the home module itself."""
+    assert _robust_stds(ast.parse("s = 1.4826 * float(np.median(np.abs(z)))"))
+    assert _robust_stds(ast.parse("s = k * np.median(np.abs(r - np.median(r)))"))
+    assert _json_cleanings(ast.parse("x = v if np.isfinite(v) else None"))
+    assert _json_cleanings(ast.parse(
+        "def c(v):\n    if isinstance(v, float) and not math.isfinite(v):\n"
+        "        return None\n    return v\n"))
+    assert _range_parsers(ast.parse("a, b, c = (float(t) for t in text.split(':'))"))
+    assert _range_parsers(ast.parse("n = int(np.floor((stop - start) / step + 1e-9)) + 1"))
+    home = ast.parse((SRC / NUMERIC).read_text())
+    assert _robust_stds(home) and _json_cleanings(home) and _range_parsers(home)
+
+
+def test_benchmarks_hold_speed_and_memory_benchmarks_only():
+    """One-off studies live in docs/studies/ beside the pages that keep their numbers
+    (docs/studies.rst); benchmarks/ holds what ``make bench`` times, and no test imports
+    a study."""
+    root = SRC.parents[1]
+    others = [p.name for p in sorted((root / "benchmarks").glob("*.py"))
+              if not re.fullmatch(r"(bench_\w+|profile_\w+|run_all)\.py", p.name)]
+    assert others == []
+    studies = {p.stem for p in (root / "docs" / "studies").glob("*.py")}
+    importing = [p.name for p in sorted((root / "tests").glob("*.py"))
+                 if any(isinstance(n, ast.Import | ast.ImportFrom) and studies & {
+                     *(a.name.split(".")[-1] for a in n.names),
+                     *(str(getattr(n, "module", "") or "").split("."))}
+                        for n in ast.walk(ast.parse(p.read_text())))]
+    assert importing == []

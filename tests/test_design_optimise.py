@@ -2,7 +2,7 @@
 feasibility checks (cover box, sigma, obstacles) and the spec's errors.
 
 The acceptance comparison on three full specs (one with an obstacle) is
-benchmarks/acceptance_design_optimise.py; its table is in docs/cli.rst.
+docs/studies/acceptance_design_optimise.py; its table is in docs/cli.rst.
 """
 
 from __future__ import annotations

@@ -4,7 +4,7 @@ The scanner is the paper's f/11 camera at full resolution (8 um pixels), its cen
 96 x 96 px rendered, with the smooth two-source sum-form model (its gamma following the
 range) and the filter's exact second-order gain on the scene noise
 (filterbank.scene_gain), chosen on the derivation stream "derive39a"
-(benchmarks/derive_flatten_model.py, docs/flattening.rst: gamma = 2.10 at focus,
+(docs/studies/derive_flatten_model.py, docs/flattening.rst: gamma = 2.10 at focus,
 sigma_p = 0.0341 px fitted, sigma_s = 0.00514 px held at the decoder's image-based
 estimate; never fitted on the streams
 below). A

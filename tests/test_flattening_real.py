@@ -25,6 +25,7 @@ from scanqa.decoding.decoder import decode_images, load_pattern_dir
 from scanqa.io.annotated_cloud import read_cloud
 from scanqa.io.patterns import dumps_patterns
 from scanqa.model.config import load_config
+from scanqa.numeric import robust_std
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 
@@ -164,7 +165,7 @@ def test_skull_flattened_through_the_cli(tmp_path, capsys):
         np.pad(zmap, 7, constant_values=np.nan), (15, 15)).reshape(height, width, 225)
     full = np.isfinite(windows).all(axis=2)
     local = 1e3 * (zmap[full] - np.median(windows[full], axis=1))
-    ratio = board.robust_std(local) / float(np.median(szmap[full]))
+    ratio = robust_std(local) / float(np.median(szmap[full]))
     print(f"skull: local scatter / predicted sigma_z {ratio:.3f} (target {target:.1f} um)")
     assert 0.8 <= ratio <= 1.25, ratio
 

@@ -11,10 +11,10 @@ import pytest
 
 from scanqa.errors import InputError
 from scanqa.io.annotated_cloud import AnnotatedCloud
+from scanqa.numeric import json_ready
 from scanqa.qa import blocks
 from scanqa.qa.blocks import StepResult, analyse_block, run_qa
 from scanqa.qa.layout import BlockSpec, Layout
-from scanqa.qa.results import finite
 
 from .model_reference import reference_point
 
@@ -119,8 +119,8 @@ def test_rows_and_summary_have_their_documented_names():
 
 def test_nan_becomes_null_in_the_summary():
     step = StepResult(1, 2, 1.0, math.nan, math.inf, 2.0, 20.0)
-    assert finite(math.nan) is None and finite(math.inf) is None
-    assert finite(1.5) == 1.5 and finite("ok") == "ok"
+    assert json_ready(math.nan) is None and json_ready(math.inf) is None
+    assert json_ready(1.5) == 1.5 and json_ready("ok") == "ok"
     assert step.row()["decision"] == "not evaluated"  # a NaN decides nothing (issue 27)
 
 

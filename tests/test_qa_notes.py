@@ -28,8 +28,6 @@ NOT_NUMERIC = {
     "blocks.coverage_notes": "writes text",
     "budget.load_budget": "reads a budget file",
     "layout.load_layout": "reads a layout file",
-    "results.finite": "turns NaN into None for JSON",
-    "results.finite_tree": "turns NaN into None for JSON",
     "sphere.check_points": "checks an array",
     "verdict.verdict": "counts decisions",
     "paper.table3_rows": "joins rows by block number",

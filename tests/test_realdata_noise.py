@@ -25,6 +25,7 @@ from scanqa.characterization import board as boardnoise
 from scanqa.decoding.decoder import decode_pattern_dir
 from scanqa.io.patterns import dumps_patterns
 from scanqa.model.config import load_config
+from scanqa.numeric import robust_std
 from tests.conftest import ROOT
 from tests.realdata import SLSTUDIO, needs_slstudio
 
@@ -134,7 +135,7 @@ def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):
     # fringes) against the median sigma_xp, in [0.85, 1.15] (1.00 measured; held out)
     d = (fine.xp[:-6] - 2 * fine.xp[3:-3] + fine.xp[6:]) / math.sqrt(6)
     ok = np.isfinite(d) & np.isfinite(fine.sigma_xp[3:-3])
-    ratio = float(np.median(fine.sigma_xp[3:-3][ok])) / boardnoise.robust_std(d[ok])
+    ratio = float(np.median(fine.sigma_xp[3:-3][ok])) / robust_std(d[ok])
     assert 0.85 <= ratio <= 1.15, ratio
     both = np.isfinite(fine.xp) & np.isfinite(cue.xp)
     diff = (cue.xp - fine.xp)[both]
@@ -144,7 +145,7 @@ def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):
     basis = np.column_stack([np.ones_like(theta)] + [f(k * theta) for k in (1, 2, 3)
                                                       for f in (np.cos, np.sin)])
     diff = diff - basis @ np.linalg.lstsq(basis, diff, rcond=None)[0]
-    measured = boardnoise.robust_std(diff)
+    measured = robust_std(diff)
     predicted = float(np.median(np.hypot(cue.sigma_xp[both], fine.sigma_xp[both])))
     assert 0.8 <= measured / predicted <= 1.25, (measured, predicted)
 
@@ -161,5 +162,5 @@ def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):
         np.pad(z, 2, constant_values=np.nan), (5, 5)).reshape(height, width, 25)
     full = np.isfinite(windows).all(axis=2)
     local = 1e3 * (z[full] - np.median(windows[full], axis=1))
-    ratio = boardnoise.robust_std(local) / float(np.median(sz[full]))
+    ratio = robust_std(local) / float(np.median(sz[full]))
     assert 0.67 <= ratio <= 1.5, ratio

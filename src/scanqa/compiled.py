@@ -12,8 +12,10 @@ one machine; numba is then not even imported.
 
 from __future__ import annotations
 
+import importlib.util
 import logging
 import os
+import sys
 from collections.abc import Callable
 from typing import Any
 
@@ -23,15 +25,20 @@ NO_NUMBA_ENV = "SCANQA_NO_NUMBA"
 #: pip's name for numba in scanqa's extras (``pip install 'scanqa[fast]'``).
 INSTALL_HINT = "pip install 'scanqa[fast]'"
 
-_numba_njit: Any = None
-if os.environ.get(NO_NUMBA_ENV, "0") in ("", "0"):
-    try:  # numba is optional: pip install 'scanqa[fast]'
-        from numba import njit as _numba_njit
-    except ImportError:  # pragma: no cover - exercised in the lean-install check
-        _numba_njit = None
+#: True when numba is installed (and not switched off by :data:`NO_NUMBA_ENV`): then
+#: :func:`njit` compiles. numba itself is imported only when a function is compiled, so
+#: a command that compiles nothing (``scanqa design dof``) does not load it.
+HAVE_NUMBA = (os.environ.get(NO_NUMBA_ENV, "0") in ("", "0")
+              and importlib.util.find_spec("numba") is not None)
+#: :func:`jitable` functions declared before numba was loaded, registered with it at the
+#: first :func:`njit`.
+_PENDING: list[Callable[..., Any]] = []
 
-#: True when numba is importable and :func:`njit` compiles.
-HAVE_NUMBA = _numba_njit is not None
+
+def _register_pending() -> None:
+    from numba.extending import register_jitable
+    while _PENDING:
+        register_jitable(_PENDING.pop())
 
 
 def njit(*args: Any, **kwargs: Any) -> Any:
@@ -49,8 +56,10 @@ def njit(*args: Any, **kwargs: Any) -> Any:
         The compiled function (a numba dispatcher, with ``.py_func`` the Python one), the
         decorator, or without numba the function itself.
     """
-    if _numba_njit is not None:
-        return _numba_njit(*args, **kwargs)
+    if HAVE_NUMBA:
+        from numba import njit as numba_njit
+        _register_pending()
+        return numba_njit(*args, **kwargs)
     if len(args) == 1 and callable(args[0]) and not kwargs:
         return args[0]
 
@@ -62,10 +71,13 @@ def njit(*args: Any, **kwargs: Any) -> Any:
 def jitable(func: Callable[..., Any]) -> Callable[..., Any]:
     """``func``, callable from compiled code too (numba's ``register_jitable``): Python
     callers run it as written, on floats or numpy arrays (:mod:`scanqa.model.equations`)."""
-    if _numba_njit is None:
-        return func
-    from numba.extending import register_jitable
-    return register_jitable(func)
+    if HAVE_NUMBA:
+        _PENDING.append(func)
+        if "numba" in sys.modules:
+            _register_pending()
+    return func
+
+
 _NOTED: set[str] = set()
 
 

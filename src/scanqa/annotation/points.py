@@ -85,6 +85,7 @@ from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
 from scanqa.model.normals import GRID_METHOD, grid_normals, pixel_index
+from scanqa.numeric import json_ready
 
 #: Attribute names in export order (repeat fields only when repeats are given).
 #: ``sigma_total_um`` first: viewers (CloudCompare) select a cloud's first scalar field.
@@ -255,8 +256,8 @@ def cloud_metadata(config: ScannerConfig, table: Calibration, source: str) -> di
             "config": config.to_dict(),
             "config_source": config.source + (f"#{config.profile}" if config.profile else ""),
             "table": {"kind": table.provenance.get("kind", "table"), "weights": table.weights,
-                      "z_range_mm": [_json_number(z) for z in table.z_range_mm],
-                      "cell_px": _json_number(table.cell_px),
+                      "z_range_mm": [json_ready(float(z)) for z in table.z_range_mm],
+                      "cell_px": json_ready(float(table.cell_px)),
                       "n_planes": len(table.provenance.get("positions", [])) or None,
                       "sweep": table.provenance.get("sweep", ""),
                       "calibration": table.provenance.get("calibration", "")}}
@@ -326,11 +327,6 @@ def _random_sigma(inputs: dict, sigma_model: np.ndarray, s_t: np.ndarray) -> np.
         return s_t * phase_sigma_px(inputs["modulation"], inputs["offset"], a, b, period,
                                     steps)
     return s_t * inputs["sigma_xp"]
-
-
-def _json_number(value: float) -> float | None:
-    """A float for JSON metadata: None where it is not finite (no range limit, no cells)."""
-    return float(value) if np.isfinite(value) else None
 
 
 def _annotate_band(table: Calibration, config: ScannerConfig, xp: np.ndarray,

@@ -54,6 +54,7 @@ from scanqa.chunks import row_bands, run_bands
 from scanqa.errors import InputError
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
+from scanqa.numeric import MAD_TO_SIGMA
 from scanqa.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -205,7 +206,7 @@ def _robust_sigma(res: np.ndarray, ok: np.ndarray) -> np.ndarray:
     n = ok.sum(-1)[..., None]
     lo = np.take_along_axis(r, np.maximum(n - 1, 0) // 2, -1)[..., 0]
     hi = np.take_along_axis(r, np.minimum(n // 2, r.shape[-1] - 1), -1)[..., 0]
-    return np.where(n[..., 0] > 0, 1.4826 * ((lo + hi) / 2), np.nan)
+    return np.where(n[..., 0] > 0, MAD_TO_SIGMA * ((lo + hi) / 2), np.nan)
 
 @dataclass(frozen=True)
 class _CellStats:

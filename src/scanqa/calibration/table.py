@@ -25,9 +25,6 @@ from scanqa.errors import ConfigError, InputError
 from scanqa.io import table as table_file
 from scanqa.model.config import ScannerConfig, config_from_dict
 
-#: Version of the table file this scanqa writes and reads.
-TABLE_FORMAT = table_file.FORMAT
-
 
 @dataclass(frozen=True)
 class CalibrationTable:

@@ -40,6 +40,7 @@ from scanqa.characterization.boardshape import board_coordinates, split_smooth
 from scanqa.decoding.imagenoise import phase_sigma_px, working_steps
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
+from scanqa.numeric import robust_std
 
 #: Degree of the polynomial surface taken as the smooth part [-].
 SMOOTH_DEGREE = 4
@@ -54,15 +55,6 @@ MIN_SQUARE_POINTS = 200
 SHAPE_SAMPLES = 4000
 #: Format tag of the summary written by :func:`characterize_board`.
 SUMMARY_FORMAT = "scanqa-board-noise/1"
-
-
-def robust_std(values: np.ndarray) -> float:
-    """1.4826 x the median absolute deviation of the finite values [their unit]."""
-    v = np.asarray(values, float)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return math.nan
-    return float(1.4826 * np.median(np.abs(v - np.median(v))))
 
 
 def find_board_corners(image: np.ndarray, inner: tuple[int, int]) -> np.ndarray | None:

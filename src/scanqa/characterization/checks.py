@@ -29,6 +29,7 @@ from scanqa.calibration.base import Calibration
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError
 from scanqa.model.config import ScannerConfig
+from scanqa.numeric import robust_std
 
 #: The calibration's baseline may differ from the config's by this factor [-].
 SCALE_TOLERANCE = 1.25
@@ -170,7 +171,7 @@ def _check_same_scene(first: PhaseMap, scan: PhaseMap, name0: str, name: str) ->
         raise InputError(f"repeat {name} shares no decoded pixel with {name0}: not the same "
                          "scene")
     med = float(np.median(d))
-    spread = float(1.4826 * np.median(np.abs(d - med)))
+    spread = robust_std(d, centre=med)
     noise = float(np.nanmedian(np.hypot(first.sigma_xp[both], scan.sigma_xp[both])))
     if not math.isfinite(noise) or noise <= 0:
         return

@@ -18,6 +18,7 @@ from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError, OutputError, ScanQAError
 from scanqa.io.atomic import check_out_dir
 from scanqa.model.config import ScannerConfig, load_config
+from scanqa.numeric import json_ready
 
 
 def verbosity_parent() -> argparse.ArgumentParser:
@@ -222,17 +223,10 @@ def add_output_arguments(parser: argparse.ArgumentParser, plot: bool = True) -> 
                             help="also write a PNG plot to this file")
 
 
-def _clean(value: object) -> object:
-    """JSON-safe value: NaN and inf become null."""
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def format_rows(rows: Sequence[dict], as_json: bool, as_csv: bool) -> str:
     """Rows as JSON, CSV or an aligned text table."""
     if as_json:
-        return json.dumps([{k: _clean(v) for k, v in r.items()} for r in rows], indent=1)
+        return json.dumps([json_ready(r) for r in rows], indent=1)
     if not rows:
         return ""
     keys = list(rows[0])

@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import argparse
-import math
 
 from scanqa.cli.common import add_config_argument, config_from_args, emit, float_list, number
+from scanqa.numeric import parse_range
 
 _FMT = argparse.RawDescriptionHelpFormatter
 
@@ -15,16 +15,9 @@ def _positions(text: str) -> list[float]:
     if ":" not in text:
         return float_list(text)
     try:
-        start, stop, step = (float(t) for t in text.split(":"))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"expected START:STOP:STEP or a comma-separated list, got {text!r}") from None
-    if not (math.isfinite(start) and math.isfinite(stop) and step > 0 and stop >= start
-            and (stop - start) / step <= 10000):
-        raise argparse.ArgumentTypeError(f"need finite numbers, STEP > 0, STOP >= START and "
-                                         f"at most 10000 positions, got {text!r}")
-    n = int((stop - start) / step + 1e-9) + 1
-    return [round(start + i * step, 9) for i in range(n)]
+        return parse_range(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(f"{err} (or give a comma-separated list)") from None
 
 
 def register(sub: argparse._SubParsersAction) -> None:

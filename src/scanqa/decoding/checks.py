@@ -40,6 +40,7 @@ from scanqa.decoding.gray import (
     resolved_bits,
 )
 from scanqa.errors import InputError
+from scanqa.numeric import robust_std
 
 #: Rows of the image the sample checks read (evenly spread).
 SAMPLE_ROWS = 64
@@ -251,7 +252,7 @@ def _drift(x: np.ndarray, d: np.ndarray) -> tuple[float, float, float, float]:
         return 0.0, 0.0, 0.0, 0.0
     slope, intercept = np.polyfit(xm, dm, 1)
     resid = d - (slope * x + intercept)
-    spread = 1.4826 * float(np.median(np.abs(resid - np.median(resid))))
+    spread = robust_std(resid)
     bend = float(np.max(np.abs(dm - (slope * xm + intercept))))
     return float(slope), float(slope * np.ptp(xm)), spread, bend
 

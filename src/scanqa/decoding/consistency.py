@@ -39,6 +39,7 @@ import numpy as np
 from scanqa.decoding import checks
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
 from scanqa.decoding.demodulate import ShiftFit, demodulate_flat
+from scanqa.numeric import json_ready
 
 #: Residual spread (in periods of the finer set) below which a pixel enters the test:
 #: its expected resultant length is at least exp(-(2 pi / 6)^2 / 2) = 0.58 [-].
@@ -93,7 +94,7 @@ class PairConsistency:
     def as_dict(self) -> dict:
         """Plain values for provenance (None for a test that had too few pixels)."""
         def num(v: float, digits: int) -> float | None:
-            return round(v, digits) if np.isfinite(v) else None
+            return json_ready(round(v, digits))
 
         return {"coarse": self.coarse, "fine": self.fine, "pixels": self.pixels,
                 "resultant": num(self.resultant, 4), "predicted": num(self.predicted, 4),

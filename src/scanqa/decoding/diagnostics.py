@@ -20,6 +20,7 @@ import numpy as np
 from scanqa.decoding.coding import PatternDescription
 from scanqa.decoding.phasemap import MASK_INCONSISTENT, MASK_REASONS, MASK_VALID
 from scanqa.decoding.unwrap import LOW_GRAY, LOW_PHASE, LOW_REASONS, LOW_STEP, ChainStats
+from scanqa.numeric import robust_std
 
 #: Fewest checked pixels for the guard to judge a step.
 GUARD_MIN_PIXELS = 200
@@ -79,7 +80,7 @@ def disagreement(stats: ChainStats) -> list[dict]:
             continue
         p05, med, p95 = (float(q) for q in np.quantile(d, [0.05, 0.5, 0.95]))  # one sort
         rows.append({"set": name, "median_px": round(med, 4),
-                     "spread_px": round(float(1.4826 * np.median(np.abs(d - med))), 4),
+                     "spread_px": round(robust_std(d, centre=med), 4),
                      "p05_px": round(float(p05), 4), "p95_px": round(float(p95), 4),
                      "samples": int(d.size)})
     return rows

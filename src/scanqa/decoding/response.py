@@ -40,6 +40,7 @@ import numpy as np
 from scanqa.decoding.coding import PhaseSet
 from scanqa.errors import ConfigError
 from scanqa.io.response import read_response_file, write_response_file
+from scanqa.numeric import robust_std
 
 #: Bins of a measured table over one cycle of the wrapped phase.
 DEFAULT_BINS = 64
@@ -225,7 +226,7 @@ def smooth_surface(xp: np.ndarray, valid: np.ndarray, degree: int = 3,
     for _ in range(4):
         coef = np.linalg.lstsq(design[keep], target[keep], rcond=None)[0]
         res = target - design @ coef
-        scale = 1.4826 * np.median(np.abs(res[keep])) + 1e-12
+        scale = robust_std(res[keep], centre=0.0) + 1e-12
         keep = np.abs(res) < 4 * scale
     vv, uu = np.mgrid[0:h, 0:w]
     return sum(c * ((uu - w / 2) / norm) ** a * ((vv - h / 2) / norm) ** b

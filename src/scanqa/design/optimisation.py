@@ -29,7 +29,6 @@ from scanqa.io.designspec import read_design_spec
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
 
-SPEC_FORMAT = designspec.FORMAT
 #: What the search maximises: the usable volume, or minus the largest sigma over the
 #: cover box (its points of :meth:`Box.samples`).
 OBJECTIVES = ("usable_volume", "worst_sigma")

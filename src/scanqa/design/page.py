@@ -15,6 +15,7 @@ import math
 import numpy as np
 
 from scanqa.design.rig import SETTINGS, RigView
+from scanqa.numeric import json_ready
 
 _CAM, _PROJ = "#1f77b4", "#9467bd"
 
@@ -168,17 +169,7 @@ def view_payload(view: RigView, settings: dict) -> dict:
 
 def dumps_payload(payload: dict) -> str:
     """JSON text; non-finite numbers become null (JSON has no NaN)."""
-    return json.dumps(_clean(payload), allow_nan=False)
-
-
-def _clean(obj):
-    if isinstance(obj, (float, np.floating)):
-        return float(obj) if math.isfinite(obj) else None
-    if isinstance(obj, dict):
-        return {k: _clean(v) for k, v in obj.items()}
-    if isinstance(obj, list):
-        return [_clean(v) for v in obj]
-    return obj
+    return json.dumps(json_ready(payload), allow_nan=False)
 
 
 #: The numbers panel: payload key, label, unit, decimals.

@@ -15,6 +15,7 @@ from scipy.optimize import brentq
 from scanqa.errors import InputError, RangeError
 from scanqa.model import geometry, optics
 from scanqa.model.config import ScannerConfig
+from scanqa.numeric import inclusive_range
 
 #: The ten attenuation levels of Tables 1 and 2 [-].
 TABLE_LEVELS = (0.25, 0.30, 0.36, 0.42, 0.49, 0.56, 0.64, 0.72, 0.81, 0.90)
@@ -169,8 +170,7 @@ def _z_grid(z_min: float, z_max: float, step: float) -> np.ndarray:
             f"{(z_max - z_min) / step + 1:.3g} samples (at most {MAX_RANGE_SAMPLES}): give "
             f"a step of at least {(z_max - z_min) / (MAX_RANGE_SAMPLES - 1):.3g} mm or a "
             "narrower range")
-    n = int(np.floor((z_max - z_min) / step + 1e-9)) + 1
-    return z_min + step * np.arange(n)
+    return inclusive_range(z_min, z_max, step)
 
 
 def axis_curve(config: ScannerConfig, z_min: float, z_max: float, step: float,

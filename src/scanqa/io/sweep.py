@@ -80,8 +80,6 @@ SCHEMA = declare(Schema("sweep manifest", (
     Field("target", "table", table=_TARGET, doc="the printed target, with markers"),
     Field("scanner", "table", table=_SCANNER, doc="the config the images came from"),
 ), formats=(FORMAT,)))
-#: Keys of the ``[target]`` table.
-TARGET_KEYS = tuple(f.name for f in _TARGET.fields)
 #: Keys of the ``[scanner]`` table: the config values the sweep was captured with.
 SCANNER_KEYS = tuple(f.name for f in _SCANNER.fields)
 

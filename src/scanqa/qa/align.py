@@ -36,6 +36,7 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.annotated_cloud import AnnotatedCloud
+from scanqa.numeric import robust_std
 
 #: Scan points used by the fit at most (every k-th of those in the region) [-].
 MAX_FIT_POINTS = 100000
@@ -385,7 +386,7 @@ def _linearise(target, p: np.ndarray, sig: np.ndarray, lateral: float, ray: np.n
                          "of the reference: bring it closer first or raise the alignment's "
                          "max distance")
     z = np.where(near, d / u, 0.0)
-    scale = 1.4826 * float(np.median(np.abs(z[near])))
+    scale = robust_std(z[near], centre=0.0)
     w = np.where(near, 1.0, 0.0)
     if scale > 0 and loss == "tukey":
         t = z / (TUKEY_C * scale)

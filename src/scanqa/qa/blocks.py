@@ -57,6 +57,7 @@ from scanqa.errors import ConfigError, InputError
 from scanqa.io.annotated_cloud import AnnotatedCloud, random_sigma_name
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs
 from scanqa.model.config import ScannerConfig, config_from_dict
+from scanqa.numeric import robust_std
 from scanqa.qa import budget as gum
 from scanqa.qa.budget import Budget, Component, StepGeometry, coverage_factor, type_b
 from scanqa.qa.correlation import MIN_TILES, TILE_MM, noise_correlation
@@ -155,7 +156,7 @@ def analyse_block(xyz: np.ndarray, attrs: dict, spec: BlockSpec, margin: float,
     try:
         fit = fit_plane(xyz[idx], f"block {spec.block_id}")
         if outlier_k:
-            keep = np.abs(fit.residuals) <= outlier_k * _robust_std(fit.residuals)
+            keep = np.abs(fit.residuals) <= outlier_k * _spread(fit.residuals)
             outliers = int((~keep).sum())
             idx = idx[keep]
             fit = fit_plane(xyz[idx], f"block {spec.block_id}")
@@ -201,8 +202,8 @@ def refuse_bad_sigmas(values: np.ndarray, name: str) -> None:
                          "(annotate the scan again)")
 
 
-def _robust_std(r: np.ndarray) -> float:
-    return float(1.4826 * np.median(np.abs(r - np.median(r)))) or float(np.std(r)) or 1e-12
+def _spread(r: np.ndarray) -> float:
+    return robust_std(r) or float(np.std(r)) or 1e-12
 
 
 def _block_fields(block_id: int, fit: PlaneFit, idx: np.ndarray, xyz: np.ndarray,

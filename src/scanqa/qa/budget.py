@@ -46,6 +46,7 @@ from scipy.stats import t as student_t
 
 from scanqa.errors import RangeError
 from scanqa.io.budget import WELCH_SATTERTHWAITE, BudgetInputs, read_budget_file
+from scanqa.numeric import json_ready
 
 #: Coverage probability of U when k comes from the degrees of freedom.
 COVERAGE = 0.95
@@ -87,7 +88,7 @@ class Component:
         return {"component": self.name, "type": self.kind, "source": self.source,
                 "u": self.u, "unit": self.unit, "c_um_per_unit": self.c,
                 "contribution_um": self.contribution_um,
-                "dof": self.dof if math.isfinite(self.dof) else None}
+                "dof": json_ready(self.dof)}
 
 
 @dataclass(frozen=True)
@@ -123,7 +124,7 @@ class Budget:
     def summary(self) -> dict:
         nu = self.nu_eff
         return {"components": [c.row() for c in self.components], "u_um": self.u_um,
-                "nu_eff": nu if math.isfinite(nu) else None, "k": self.k,
+                "nu_eff": json_ready(nu), "k": self.k,
                 "k_rule": "welch-satterthwaite" if self.k_rule == WELCH_SATTERTHWAITE
                 else "stated", "U_um": self.expanded_um,
                 "type_b_included": self.type_b_included,

@@ -34,6 +34,7 @@ import numpy as np
 
 from scanqa.errors import InputError
 from scanqa.io.annotated_cloud import AnnotatedCloud
+from scanqa.numeric import json_ready
 from scanqa.qa.blocks import refuse_bad_sigmas
 from scanqa.qa.verdict import decide
 
@@ -91,13 +92,13 @@ class Comparison:
                "points": int(dev.size), "compared": int(ok.sum()),
                "not_compared": int((~ok).sum()),
                "compared_without_sigma": int((ok & ~judged).sum()),
-               "median_deviation_um": _num(np.median(dev[ok])) if ok.any() else None,
-               "rms_deviation_um": _num(np.sqrt(np.mean(dev[ok] ** 2))) if ok.any() else None,
-               "p95_abs_deviation_um": _num(np.percentile(np.abs(dev[ok]), 95))
+               "median_deviation_um": json_ready(np.median(dev[ok])) if ok.any() else None,
+               "rms_deviation_um": json_ready(np.sqrt(np.mean(dev[ok] ** 2))) if ok.any() else None,
+               "p95_abs_deviation_um": json_ready(np.percentile(np.abs(dev[ok]), 95))
                if ok.any() else None,
-               "median_U_um": _num(np.median(np.asarray(a["U_deviation_um"])[judged]))
+               "median_U_um": json_ready(np.median(np.asarray(a["U_deviation_um"])[judged]))
                if judged.any() else None,
-               "significant_fraction": _num(sig.mean()) if judged.any() else None,
+               "significant_fraction": json_ready(sig.mean()) if judged.any() else None,
                "sigma_source": self.cloud.sigma_source, "notes": list(self.notes)}
         if self.alignment is not None:
             out["alignment"] = self.alignment
@@ -105,14 +106,10 @@ class Comparison:
         if self.tolerance_mm is not None:
             inside = np.asarray(a["in_tolerance"])[ok]
             out["tolerance_um"] = 1e3 * self.tolerance_mm
-            out["out_of_tolerance_fraction"] = _num(1 - inside.mean()) if ok.any() else None
+            out["out_of_tolerance_fraction"] = json_ready(1 - inside.mean()) if ok.any() else None
             out["verdict"] = _verdict(dev[judged], np.asarray(a["U_deviation_um"])[judged],
                                       1e3 * self.tolerance_mm)
         return out
-
-
-def _num(value: float) -> float | None:
-    return float(value) if math.isfinite(value) else None
 
 
 def _verdict(dev_um: np.ndarray, big_u_um: np.ndarray, tol_um: float) -> str:

@@ -23,6 +23,7 @@ import numpy as np
 from scanqa.errors import InputError
 from scanqa.io.annotated_cloud import AnnotatedCloud
 from scanqa.io.spec import Spec
+from scanqa.numeric import json_ready
 from scanqa.qa.budget import Budget
 from scanqa.qa.correlation import TILE_MM
 from scanqa.qa.planes import PlaneFit
@@ -38,20 +39,6 @@ from scanqa.qa.verdict import DECISIONS, decide, verdict
 
 #: How per-point sigmas are scaled for oblique views (:mod:`scanqa.qa.artefacts`).
 OBLIQUE = ("decoder", "modulation", "none")
-
-
-def finite(v):
-    """NaN and inf become None (JSON null); anything else is returned as is."""
-    return v if not isinstance(v, float) or math.isfinite(v) else None
-
-
-def finite_tree(value):
-    """:func:`finite` applied through dicts and lists."""
-    if isinstance(value, dict):
-        return {k: finite_tree(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [finite_tree(v) for v in value]
-    return finite(value)
 
 
 # ------------------------------------------------------------------------ gauge blocks
@@ -232,12 +219,12 @@ class QAResult:
             "sigma_source": (self.cloud.metadata.get("sigma_source")
                              if self.cloud is not None else None),
             "has_prediction": self.has_prediction,
-            "blocks": [{k: finite(v) for k, v in b.row().items()} for b in self.blocks],
+            "blocks": [json_ready(b.row()) for b in self.blocks],
             "blocks_ok": sum(b.status == "ok" for b in self.blocks),
             "blocks_flagged": sum(b.status != "ok" for b in self.blocks),
-            "steps": [{k: finite(v) for k, v in s.row().items()} for s in self.steps],
+            "steps": [json_ready(s.row()) for s in self.steps],
             "budgets": [{"block_a": s.block_a, "block_b": s.block_b,
-                         **finite_tree(s.budget.summary())}
+                         **json_ready(s.budget.summary())}
                         for s in self.steps if s.budget is not None],
             "type_b_included": self.type_b_included,
             "steps_evaluated": len(evaluated),
@@ -438,7 +425,7 @@ class ArtefactQAResult:
         return {"verdict": self.verdict(), "layout": self.layout.source,
                 "spec": None if self.spec is None else {"name": self.spec.name,
                                                         "source": self.spec.source},
-                "quantities": [{k: finite(v) for k, v in row.items()} for row in self.rows()],
+                "quantities": [json_ready(row) for row in self.rows()],
                 "selections": [{"scan": r.scan, "artefact": r.spec.id,
                                 "ball": "ab"[i] if len(r.selections) == 2 else "",
                                 **s.counts} for r in self.results

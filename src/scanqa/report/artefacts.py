@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import math
 import os
-from pathlib import Path
 
 import numpy as np
 
@@ -212,9 +211,3 @@ def _method(page: Page, result: ArtefactQAResult) -> None:
         f"at least {100 * o.min_coverage:.0f} % of a hemisphere. The minimum-zone form "
         "(thinnest shell or slab holding the kept points) is shown beside PF and F.",
         note=True)
-
-
-def report_paths(out_dir: str | os.PathLike, pdf: bool) -> list[Path]:
-    """The files :func:`write_outputs` writes."""
-    names = ["report.html", "quantities.csv", "budget.csv", "selection.csv", "summary.json"]
-    return [Path(out_dir) / n for n in names + (["report.pdf"] if pdf else [])]

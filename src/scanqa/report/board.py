@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 
 from scanqa.calibration.board_fit import FLAG_FACTOR, BoardCalibration
+from scanqa.numeric import json_ready
 from scanqa.report.html import Page
 from scanqa.report.plots import new_figure
 
@@ -34,8 +35,7 @@ def summary(result: BoardCalibration) -> dict:
                       "model_terms": result.bundle.get("model_terms", {})},
         "held_out": list(result.held_out),
         "comparison": dict(result.comparison),
-        "board_flatness": {k: v if np.isfinite(v) else None  # JSON has no NaN
-                           for k, v in result.flatness.items()},
+        "board_flatness": json_ready(dict(result.flatness)),  # JSON has no NaN
     }
 
 

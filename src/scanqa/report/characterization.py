@@ -16,6 +16,7 @@ from scanqa.characterization.noisefit import select
 from scanqa.characterization.sweep import Characterization, JointCharacterization, VariantFit
 from scanqa.io.atomic import staged_dir, write_text
 from scanqa.model.config import ScannerConfig
+from scanqa.numeric import json_ready
 from scanqa.report.plots import new_figure, save_png
 
 
@@ -24,7 +25,7 @@ def write_characterization(result: Characterization | JointCharacterization,
                            config: ScannerConfig | None = None) -> Path:
     """Write ``summary.json`` and ``std.png``/``attenuation.png`` into ``out_dir`` (for a
     joint fit, one pair per sweep: ``std_camera-sweep.png``, ...)."""
-    summary = json.dumps(_json_safe(result.summary()), indent=1)
+    summary = json.dumps(json_ready(result.summary()), indent=1)
     with staged_dir(out_dir) as out:  # the summary and its plots together, or none
         write_text(out / "summary.json", summary + "\n")
         if config is not None:
@@ -34,16 +35,6 @@ def write_characterization(result: Characterization | JointCharacterization,
             else:
                 _plot(result, config, out)
     return Path(out_dir) / "summary.json"
-
-
-def _json_safe(value: object) -> object:
-    if isinstance(value, dict):
-        return {k: _json_safe(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_json_safe(v) for v in value]
-    if isinstance(value, float) and not np.isfinite(value):
-        return None
-    return value
 
 
 def _plot(result: Characterization, config: ScannerConfig, out: Path,

@@ -34,8 +34,6 @@ import shutil
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
-import numpy as np
-
 from scanqa._version import __version__
 from scanqa.annotation.points import annotate
 from scanqa.calibration.base import load_calibration
@@ -46,6 +44,7 @@ from scanqa.io.atomic import STAGE_PREFIX, make_out_dir, staged_dir, write_text
 from scanqa.io.batchfiles import ScanEntry, default_name, read_batch_manifest, unique_scans
 from scanqa.io.opencv import is_opencv_file
 from scanqa.model.config import ScannerConfig
+from scanqa.numeric import json_ready
 from scanqa.provenance import ReportHeader, build_header, content_hash, file_hash
 from scanqa.qa.blocks import QAResult, run_qa
 from scanqa.qa.layout import Layout, load_layout
@@ -189,15 +188,6 @@ def scan_date(path: Path) -> str:
     return when.strftime("%Y-%m-%d %H:%M UTC") + " (date of the scan's files)"
 
 
-def _clean(value: object) -> object:
-    """A JSON- and CSV-ready scalar: numpy to Python, NaN to None."""
-    if isinstance(value, np.generic):
-        value = value.item()
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def qa_row(result: QAResult) -> dict:
     """The verdict, per-block and per-step numbers of one scan's QA."""
     v = qa_report.step_verdict(result)
@@ -210,7 +200,7 @@ def qa_row(result: QAResult) -> dict:
         name = f"step{s.block_a}_{s.block_b}"
         row |= {f"{name}_error_um": s.error_um, f"{name}_U_um": s.expanded_um,
                 f"{name}_decision": s.decision}
-    return {k: _clean(v) for k, v in row.items()}
+    return {k: json_ready(v) for k, v in row.items()}
 
 
 def _outputs(ctx: BatchContext, task: ScanTask, stage: Path) -> dict:
@@ -313,7 +303,7 @@ def columns(rows: list[dict], base: tuple = BASE_COLUMNS) -> list[str]:
 
 
 def _cell(value: object) -> str:
-    value = _clean(value)
+    value = json_ready(value)
     if value is None:
         return ""
     return repr(value) if isinstance(value, float) else str(value)
@@ -342,7 +332,7 @@ def write_results(rows: list[dict], out: Path, base: tuple = BASE_COLUMNS) -> li
             import pandas as pd
 
             cols = columns(rows, base)
-            frame = pd.DataFrame([{c: _clean(r.get(c)) for c in cols} for r in rows],
+            frame = pd.DataFrame([{c: json_ready(r.get(c)) for c in cols} for r in rows],
                                  columns=cols)
             frame.to_parquet(stage / "results.parquet", index=False)
     return [out / "results.csv"] + ([out / "results.parquet"] if pyarrow is not None else [])

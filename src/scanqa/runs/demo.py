@@ -27,6 +27,7 @@ from scanqa.io.atomic import make_out_dir, staged_dir, write_text
 from scanqa.io.manifest import read_manifest
 from scanqa.io.spec import read_spec
 from scanqa.model.config import ScannerConfig, config_from_dict
+from scanqa.numeric import parse_range
 from scanqa.progress import Progress
 from scanqa.provenance import build_header, certificate_text
 from scanqa.qa.artefacts import ArtefactQAResult, load_artefact_layout, run_artefact_qa
@@ -96,18 +97,12 @@ def simulate_full(config: ScannerConfig, data: Path) -> Path:
         cfg = config
         if window:  # the device sweeps need only the central part of the sensor
             cfg = config.replace_simulator(roi_width_px=window, roi_height_px=window)
-        pos = None if positions is None else _positions(positions)
+        pos = None if positions is None else parse_range(positions)
         log.info(f"simulating {experiment} at {cfg.camera.width_px} x "
                  f"{cfg.camera.height_px} px into {folder}")
         run_experiment(experiment, cfg, data / folder, positions=pos, repeats=repeats,
                        progress=True)
     return data
-
-
-def _positions(text: str) -> list[float]:
-    start, stop, step = (float(v) for v in text.split(":"))
-    n = round((stop - start) / step) + 1
-    return [start + i * step for i in range(n)]
 
 
 def manifest_config(folder: Path) -> ScannerConfig:

@@ -56,6 +56,7 @@ from scanqa.io.images import write_image
 from scanqa.io.sweep import scanner_table, target_table
 from scanqa.io.tomlfile import dumps_toml as dump_toml
 from scanqa.model.config import ScannerConfig
+from scanqa.numeric import inclusive_range, parse_range
 from scanqa.progress import Progress
 from scanqa.simulator import devices, render, scene, texture
 from scanqa.simulator.render import Acquisition
@@ -131,20 +132,15 @@ def bisector_flat(config: ScannerConfig) -> scene.Scene:
     return scene.flat_target(c, normal, (160.0, 130.0), name="optical_flat")
 
 
-def _range(start: float, stop: float, step: float) -> list[float]:
-    n = int(np.floor((stop - start) / step + 1e-9)) + 1
-    return [round(start + i * step, 9) for i in range(n)]
-
-
 def default_positions(name: str, config: ScannerConfig) -> list[float]:
     """Default stage positions of an experiment [mm]."""
     focus = config.camera.focus_mm
     if name == "camera-sweep":
-        return _range(-30.0, 30.0, 1.0)
+        return parse_range("-30:30:1")
     if name == "projector-sweep":
-        return _range(-45.0, 45.0, 1.5)
+        return parse_range("-45:45:1.5")
     if name == "calibration-sweep":
-        return _range(focus - 30.0, focus + 30.0, 2.0)
+        return [round(float(z), 9) for z in inclusive_range(focus - 30.0, focus + 30.0, 2.0)]
     if name == "ball-bar":
         return [float(i) for i in range(1, len(scene.BALL_BAR_POSITIONS) + 1)]
     if name in ("sphere", "flat"):

@@ -16,7 +16,7 @@ among them) for comparison, and the characterisation of the calibration sweep al
 
 Usage::
 
-    .venv/bin/python benchmarks/acceptance_uncertainty.py DATA [--extra-scans N]
+    .venv/bin/python docs/studies/acceptance_uncertainty.py DATA [--extra-scans N]
 
 DATA holds ``camera_sweep/``, ``projector_sweep/``, ``calibration_sweep/`` and
 ``gauge_blocks/`` (``sample_data/``, or the folders ``scanqa demo --full`` simulates);
@@ -34,7 +34,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from scanqa.annotation.points import annotate  # noqa: E402

@@ -21,7 +21,7 @@ direction's jackknife, split into two components; (5) calibration.xml's predicti
 projector corners; (6) how far the direction moves with the correspondences shifted or
 scaled.
 
-Run: .venv/bin/python benchmarks/board_direction.py [scratch folder]  (about 3 min wall,
+Run: .venv/bin/python docs/studies/board_direction.py [scratch folder]  (about 3 min wall,
 2 min CPU, on two shared cores)
 """
 
@@ -35,7 +35,7 @@ from unittest import mock
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from tests.realdata import SLSTUDIO, slstudio_board_patterns  # noqa: E402

@@ -8,7 +8,7 @@ script prints, per seed and tree, the measured std of every gauge block, the ste
 and the sphere test's quantities, and the new/old ratios. Use seeds that were not used
 while the new version was developed.
 
-Run: .venv/bin/python benchmarks/compare_simulator_statistics.py OLD_SRC NEW_SRC
+Run: .venv/bin/python docs/studies/compare_simulator_statistics.py OLD_SRC NEW_SRC
          [--seeds 11,12] [--work /tmp/stats]
 (``OLD_SRC``: e.g. the ``src`` folder of a git worktree of the old commit.)
 """
@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 CFG = str(ROOT / "sample_data" / "sample_scanner.toml")
 #: The simulations of sample_data/regenerate.sh: experiment, profile, extra arguments.
 PLAN = (("gauge-blocks", "sample", ["--repeats", "3"]),)

@@ -31,7 +31,7 @@ keeps the renders (about 40 s of CPU) so that the fits can be re-run.
 
 Usage::
 
-    .venv/bin/python benchmarks/derive_flatten_model.py [--stream derive39a] [--cache renders.pkl]
+    .venv/bin/python docs/studies/derive_flatten_model.py [--stream derive39a] [--cache renders.pkl]
 """
 
 from __future__ import annotations
@@ -46,6 +46,7 @@ from scipy.optimize import least_squares
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parents[1] / "benchmarks"))  # bench_flatten
 
 #: Gammas tried with sigma_p and sigma_s refitted [-].
 GAMMAS = (2.0, 2.1, 2.2, 2.3, 2.4)

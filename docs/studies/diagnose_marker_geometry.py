@@ -25,9 +25,9 @@ marker-only draws (no acceptance seed).
 
 Usage::
 
-    python benchmarks/diagnose_marker_geometry.py [--sweep DIR]
-    python benchmarks/diagnose_marker_geometry.py --radial-bias [--seed N]
-    python benchmarks/diagnose_marker_geometry.py --frames K --seed N
+    python docs/studies/diagnose_marker_geometry.py [--sweep DIR]
+    python docs/studies/diagnose_marker_geometry.py --radial-bias [--seed N]
+    python docs/studies/diagnose_marker_geometry.py --frames K --seed N
 
 DIR defaults to ``acceptance_calibration_data/sweep`` (simulate it with
 ``acceptance_calibration.py --simulate-only``).

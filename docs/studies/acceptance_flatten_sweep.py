@@ -17,7 +17,7 @@ but the interval reaches inside: a single stream cannot tell the miss from sampl
 
 Usage::
 
-    .venv/bin/python benchmarks/acceptance_flatten_sweep.py [--size 96]
+    .venv/bin/python docs/studies/acceptance_flatten_sweep.py [--size 96]
         [--stream flat_heldout] [--first 50] [--depths 441 447 ...]
 """
 
@@ -32,6 +32,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parents[1] / "benchmarks"))  # bench_flatten
 
 #: The nine depths [mm] (docs/flattening.rst).
 DEPTHS_MM = (436.0, 441.0, 445.0, 447.0, 450.0, 452.0, 455.0, 458.0, 463.0)

@@ -10,7 +10,7 @@ least 10x fewer evaluations; then the same with ``objective = "worst_sigma"`` (t
 optimiser's worst sigma at most 2 % above the grid's best). For the obstacle spec the
 optimum without the obstacle is printed too, to show that the obstacle binds.
 
-Run: .venv/bin/python benchmarks/acceptance_design_optimise.py [--grid 12]
+Run: .venv/bin/python docs/studies/acceptance_design_optimise.py [--grid 12]
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import sys
 import time
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from scanqa.design import optimisation  # noqa: E402

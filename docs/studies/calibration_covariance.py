@@ -27,10 +27,10 @@ calibrations' spread at the skull's points against the predicted sigma.
 
 Usage::
 
-    python benchmarks/calibration_covariance.py sim [--tuning] [--release]
-    python benchmarks/calibration_covariance.py sim --noise-px 0.02,0.02 --seeds ...
-    python benchmarks/calibration_covariance.py gray [--tuning] [--release]
-    python benchmarks/calibration_covariance.py real
+    python docs/studies/calibration_covariance.py sim [--tuning] [--release]
+    python docs/studies/calibration_covariance.py sim --noise-px 0.02,0.02 --seeds ...
+    python docs/studies/calibration_covariance.py gray [--tuning] [--release]
+    python docs/studies/calibration_covariance.py real
 """
 
 from __future__ import annotations
@@ -43,9 +43,10 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(Path(__file__).resolve().parent))  # calibration_covariance_real
 
 from scanqa.calibration.board_fit import calibrate_board  # noqa: E402
 from scanqa.calibration.parametric import from_opencv  # noqa: E402
@@ -207,7 +208,7 @@ def main(argv=None) -> int:
     elif args.part == "gray":
         run_gray(chosen or (GRAY_TUNING_SEEDS if args.tuning else GRAY_HELD_OUT_SEEDS))
     else:
-        from benchmarks.calibration_covariance_real import run_real
+        from calibration_covariance_real import run_real
 
         run_real()
     return 0

@@ -17,7 +17,7 @@ of field (where scans are measured). Prints one line per seed and the mean and s
 
 Usage::
 
-    .venv/bin/python benchmarks/acceptance_weighting.py [--seeds 12] [--json out.json]
+    .venv/bin/python docs/studies/acceptance_weighting.py [--seeds 12] [--json out.json]
 """
 
 from __future__ import annotations
@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from scanqa.calibration.build import PlaneObservation, build_table  # noqa: E402

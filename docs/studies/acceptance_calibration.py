@@ -23,7 +23,7 @@ along the line of sight over the hold-out range.
 
 Usage::
 
-    python benchmarks/acceptance_calibration.py [--out DIR] [--quick]
+    python docs/studies/acceptance_calibration.py [--out DIR] [--quick]
         [--config calib/paper_scanner.toml --profile f11] [--square-mm MM] [--seed N]
         [--marker-frames N]   # default 5, the capture the docs advise
 
@@ -42,7 +42,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from scipy.ndimage import binary_erosion, maximum_filter, minimum_filter  # noqa: E402

@@ -26,7 +26,7 @@ U, so the single artefacts get 20 scans (>= 18 within U: 92 % of runs) and the b
 
 Usage::
 
-    .venv/bin/python benchmarks/acceptance_artefacts.py [--scans 5] [--single-scans 20]
+    .venv/bin/python docs/studies/acceptance_artefacts.py [--scans 5] [--single-scans 20]
         [--json out.json]
 
 About 13 min on 2 cores with the defaults (rendering: ~5 s a sphere, ~9 s a ball-bar
@@ -45,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
 
 from scanqa.annotation.points import annotate  # noqa: E402

@@ -1,7 +1,7 @@
 """Gauge-block steps on the realistic simulated scanner, with and without the
 calibration-geometry term of the step budget (simulated throughout).
 
-The scanner of ``benchmarks/acceptance_calibration.py`` (the sample camera with 5 px of
+The scanner of ``docs/studies/acceptance_calibration.py`` (the sample camera with 5 px of
 distortion at the sensor corners and a principal point 5.8 px off centre, projector
 distortion, the stage axis tilted 1 deg, the target tilted 2 deg, a printed chessboard of
 ``--square-mm`` squares) per seed N: a sweep of 27 positions x ``--sweep-repeats``
@@ -23,7 +23,7 @@ geometry to the other's).
 
 Usage::
 
-    python benchmarks/acceptance_step_budget.py --seeds 0 1 2 3 4 [--out DIR]
+    python docs/studies/acceptance_step_budget.py --seeds 0 1 2 3 4 [--out DIR]
         [--scans 2] [--sweep-repeats 1] [--square-mm 2] [--json out.json]
 
 About 7 min a seed on 2 quiet cores (27 sweep positions with their marker frames, 2 gauge
@@ -42,9 +42,9 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "src"))
-sys.path.insert(0, str(ROOT / "benchmarks"))
+sys.path.insert(0, str(ROOT / "docs" / "studies"))
 
 from acceptance_calibration import SWEEP_Z, scanner  # noqa: E402
 

@@ -2,7 +2,7 @@
 stream's scatter is chance (simulated; docs/flattening.rst, "Bias and chance").
 
 Derivation streams only (``--stream``, default "derive39b"; never the check streams of
-``benchmarks/acceptance_flatten_sweep.py``). At each depth the flat is rendered
+``docs/studies/acceptance_flatten_sweep.py``). At each depth the flat is rendered
 ``--repeats`` times (independent noise, two scans each; positions from ``--first`` on),
 every pair flattened to the volume's target as the acceptance does. Per depth and over
 the repeats:
@@ -19,7 +19,7 @@ the repeats:
 
 Usage::
 
-    .venv/bin/python benchmarks/diagnose_flatten_bias.py [--stream derive39b] [--size 96]
+    .venv/bin/python docs/studies/diagnose_flatten_bias.py [--stream derive39b] [--size 96]
         [--repeats 8] [--first 600] [--depths 445 450 463]
 """
 
@@ -34,6 +34,7 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parents[1] / "benchmarks"))  # bench_flatten
 
 #: The acceptance's nine depths [mm].
 DEPTHS_MM = (436.0, 441.0, 445.0, 447.0, 450.0, 452.0, 455.0, 458.0, 463.0)

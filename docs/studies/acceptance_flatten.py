@@ -10,7 +10,7 @@ predicted sigma after. Nothing here was tuned: the noise streams are this script
 
 Usage::
 
-    .venv/bin/python benchmarks/acceptance_flatten.py [--size 1024]
+    .venv/bin/python docs/studies/acceptance_flatten.py [--size 1024]
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ from scipy import ndimage
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
+sys.path.insert(0, str(HERE.parents[1] / "benchmarks"))  # bench_flatten
 
 
 def main() -> None:

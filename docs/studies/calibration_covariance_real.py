@@ -1,4 +1,4 @@
-"""Part "real" of benchmarks/calibration_covariance.py: SLStudio's board poses and skull.
+"""Part "real" of docs/studies/calibration_covariance.py: SLStudio's board poses and skull.
 
 scanqa's board calibration of poses 1, 3-6 (model corners, lens model "k1", what
 ``scanqa calibrate --board 9x13 --square-mm 10`` does) against SLStudio's

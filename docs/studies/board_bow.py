@@ -9,7 +9,7 @@ SLStudio's example data (real; the folder of tests/realdata.py), lens model "k1"
 compared with SLStudio's calibration.xml; then each pose left out (bow refitted on the
 other four). Not part of the library and not a test: measured once.
 
-Run: .venv/bin/python benchmarks/board_bow.py
+Run: .venv/bin/python docs/studies/board_bow.py
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT))
 
 from tests.realdata import SLSTUDIO, slstudio_board_patterns  # noqa: E402
