@@ -245,6 +245,30 @@ def held_out_layouts() -> list[Layout]:
     ]
 
 
+def held_out_binary_and_starts() -> list[Layout]:
+    """Layouts of issue 44's second round (plain binary codes read by the decoder, the
+    phase start of phase sets without a Gray code), written down before describe was
+    changed for them and kept back from its tuning (reported apart)."""
+    return [
+        Layout("binary_half_cells_lsb_grouped", 1024, 768, tuple(
+            gray("vertical", 5, 32, "grouped", msb_first=False, binary=True)
+            + phase("vertical", 64, 4) + [WHITE, BLACK]),
+            notes="plain binary, cells half the period, LSB first, grouped inverses"),
+        Layout("binary_rows_period_cells_no_refs", 1280, 800, tuple(
+            gray("horizontal", 4, 50, binary=True) + phase("horizontal", 50, 3)),
+            notes="plain binary rows, cells equal to the period, no reference frames"),
+        Layout("cue_and_fine_sets_starting_off_zero", 1280, 800, tuple(
+            phase("vertical", 1280, 4) + phase("vertical", 80, 4, 1, 1.2)
+            + phase("vertical", 16, 4, 1, -2.0)),
+            notes="a cue and two nested sets whose phase starts 1.2 and -2.0 rad off the "
+                  "cue's"),
+        Layout("heterodyne_starting_off_zero", 1280, 800, tuple(
+            phase("vertical", 1280, 5) + phase("vertical", 1280 / 36, 5, 1, 0.8)
+            + phase("vertical", 1280 / 31, 5, 1, -1.5)),
+            notes="a cue and two non-nested periods whose phases start off the cue's"),
+    ]
+
+
 # ------------------------------------------------------------------------------ judge
 
 @dataclass
