@@ -215,8 +215,8 @@ def tuning_layouts() -> list[Layout]:
         Layout("plain_binary", 1024, 768, tuple(
             gray("vertical", 4, 64, binary=True) + phase("vertical", 64, 4)
             + phase("vertical", 1024, 4) + [WHITE, BLACK]),
-            notes="plain binary code of period-wide cells (which the decoder does not "
-                  "read: describe must say so and leave it out), 4 steps and a cue"),
+            notes="plain binary code of period-wide cells (read as code = \"binary\"), "
+                  "4 steps and a cue"),
         Layout("lsb_grouped_mid_refs", 1280, 720, tuple(
             [*phase("vertical", 40, 6), WHITE, BLACK,
              *gray("vertical", 6, 20, "grouped", msb_first=False)]),
@@ -317,9 +317,9 @@ def judge(layout: Layout, images: np.ndarray, sc: dict, described: list) -> Verd
         near = float(np.mean(err <= 0.1 * scale)) if err.size else 0.0
         med = float(np.median(err)) / scale if err.size else 1.0
         shares[desc.orientation] = (round(float(valid), 3), round(near, 4), round(med, 4))
-        binary = any(f.binary for f in layout.frames)
-        if binary and (isinstance(desc.gray_set, GrayCodeSet)
-                       or "plain binary" not in " ".join(d.notes + d.questions)):
+        binary = any(f.binary for f in layout.frames if f.orientation == desc.orientation)
+        gray = desc.gray_set
+        if binary and not (isinstance(gray, GrayCodeSet) and gray.code == "binary"):
             return Verdict(layout.name, False, "plain binary not recognised", shares)
         if desc.gray_set is None and _same_phase_sets(layout, desc):
             continue  # right, whether or not the decoder can unwrap such a set
