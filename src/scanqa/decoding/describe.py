@@ -45,6 +45,7 @@ from scanqa.decoding.describe_gray import (
     cells_seen,
     code_note,
     confidence_line,
+    cue_offsets,
     edge_offsets,
     gray_layout,
     panel_edge_seen,
@@ -322,8 +323,9 @@ def _candidates(data, norm, phase, zs, gray, cells, axis, group, signs) -> list:
     usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
                                 for z in zs], axis=0) if zs else norm.lit
     scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs)
-              if gray is not None
-              else _phase_scales(phase, zs, axis, usable, group))
+              if gray is not None else [replace(s, offsets=cue_offsets(  # phase starts
+                  zs, signs, s.periods, s.width_px, usable))
+                  for s in _phase_scales(phase, zs, axis, usable, group)])
     out = []
     for scale in scales:
         try:

@@ -243,16 +243,49 @@ def edge_offsets(zs: list, signs: list, cells: np.ndarray, cell: float, periods:
         psi = sign * np.angle(_edge_phasor(z, ok, axis))
         theta = float(np.angle(np.sum(weight * np.exp(1j * (psi - 2 * np.pi * edge
                                                            / period)))))
-        for step, within in ((np.pi / 6, 0.1), (np.pi / 12, 0.04), (None, 0)):
-            if step is None:
-                theta = round(theta, 3)
-                break
-            snap = round(theta / step) * step
-            if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
-                theta = snap
-                break
-        out.append(0.0 if abs(theta) < 1e-12 else theta)
+        out.append(_snapped(theta))
     return tuple(out)
+
+
+def cue_offsets(zs: list, signs: list, periods: tuple, width: int, usable: np.ndarray
+                ) -> tuple:
+    """Phase start of each phase set relative to a cue [rad], for phase sets without a
+    Gray code: the coarsest set, when its period covers the coded width, starts at 0
+    (it defines x = 0: nothing in the frames tells its own start) and gives each pixel
+    x; a finer set's start is its phase less ``2 pi x / P`` there, averaged as unit
+    phasors over the usable pixels (a whole number of its periods fits the cue's, so
+    the cue's wrap does not matter), snapped as :func:`edge_offsets` snaps. Zeros
+    without a cue, or where the average is weak (resultant below 0.5)."""
+    if not zs or usable.sum() < 20:
+        return tuple(0.0 for _ in zs)
+    cue = int(np.argmax(periods))
+    if periods[cue] < width:
+        return tuple(0.0 for _ in zs)
+    unit = [np.exp(1j * sign * np.angle(z[usable])) for z, sign in zip(zs, signs,
+                                                                      strict=True)]
+    out = []
+    for i, period in enumerate(periods):
+        ratio = periods[cue] / period
+        if i == cue or abs(ratio - round(ratio)) > 1e-6:
+            out.append(0.0)
+            continue
+        mean = np.mean(unit[i] * np.conj(unit[cue]) ** round(ratio))
+        out.append(_snapped(float(np.angle(mean))) if abs(mean) >= 0.5 else 0.0)
+    return tuple(out)
+
+
+def _snapped(theta: float) -> float:
+    """A phase start snapped to a multiple of pi / 6 within 0.1 rad (a projector's gamma
+    biases the phase by a few hundredths), or of pi / 12 within 0.04 rad, else rounded
+    to 1 mrad; 0 for a start within 1e-12 of it."""
+    for step, within in ((np.pi / 6, 0.1), (np.pi / 12, 0.04)):
+        snap = round(theta / step) * step
+        if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
+            theta = snap
+            break
+    else:
+        theta = round(theta, 3)
+    return 0.0 if abs(theta) < 1e-12 else theta
 
 
 def cell_edges(cells: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
