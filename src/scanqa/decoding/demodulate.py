@@ -162,10 +162,14 @@ def demodulate_flat(fit: ShiftFit, frames: np.ndarray, sensor: SensorModel,
                      quantised: bool) -> tuple[np.ndarray, ...]:
     """Offset, modulation, phase fraction [cycles in [0, 1)] and phase variance."""
     a, c, s = _fit_rows(fit, frames)
-    b2 = c * c + s * s
-    frac = np.arctan2(-s, c) * (1.0 / TWO_PI)
+    b2 = c * c
+    b2 += s * s
+    var = _phase_variance(fit, a, c, s, b2, sensor, quantised)
+    frac = np.negative(s, out=s)  # the fit's S is not needed again: reused in place
+    np.arctan2(frac, c, out=frac)
+    frac *= 1.0 / TWO_PI
     frac += frac < 0
-    return a, np.sqrt(b2), frac, _phase_variance(fit, a, c, s, b2, sensor, quantised)
+    return a, np.sqrt(b2), frac, var
 
 
 def demodulate_sample(sets: Sequence, sample: Sequence[np.ndarray], sensor: SensorModel,
