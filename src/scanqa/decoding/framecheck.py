@@ -59,6 +59,10 @@ MISFIT_SHARE = 0.4
 COHERENT_SHARE = 0.01
 #: Fewest well-modulated sampled pixels for the misfit test [-].
 MIN_PIXELS = 200
+#: Most pixels the sinusoid fit reads (every k-th of a larger sample, evenly spread):
+#: its medians and its five-term harmonic fit are as well determined by 40 000 pixels
+#: as by the 157 000 of 64 rows of a 2448-px camera, at a quarter of the cost [-].
+MAX_FIT_PIXELS = 40000
 
 
 def _frame_name(pset: PhaseSet, k: int) -> str:
@@ -90,7 +94,8 @@ def broken_frames(desc: PatternDescription, sample: Sequence[np.ndarray],
             - sensor.black_level_dn
             for pset, frames in zip(desc.sets, sample, strict=True)
             if isinstance(pset, PhaseSet)}
-    fits = {pset.name: _fit(pset, flat[pset.name], sensor, quantised)
+    stride = max(1, -(-next(iter(flat.values())).shape[1] // MAX_FIT_PIXELS)) if flat else 1
+    fits = {pset.name: _fit(pset, flat[pset.name][:, ::stride], sensor, quantised)
             for pset in desc.sets if isinstance(pset, PhaseSet)}
     noise = {name: _noise_dn(fit) for name, fit in fits.items() if fit is not None}
     for pset in desc.sets:
