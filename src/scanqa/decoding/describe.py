@@ -249,8 +249,7 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     _ask_about_runs(group, phase, zs, axis, names)
     candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group, signs)
     if gray is not None:  # the other code too: decoding tells a plain binary code apart
-        candidates += [(with_code(d, "binary" if gray.code == "reflected" else "reflected"),
-                        offsets) for d, offsets in candidates]
+        candidates += [(with_code(d), offsets) for d, offsets in candidates]
     stacks_for = _stacks_factory(images, group, phase, gray, ref)
     best, share, tried = None, -1.0, []
     for desc, offsets in candidates:
@@ -322,10 +321,9 @@ def _candidates(data, norm, phase, zs, gray, cells, axis, group, signs) -> list:
     """Descriptions the measurement leaves open (decoded later to choose)."""
     usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
                                 for z in zs], axis=0) if zs else norm.lit
-    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs)
-              if gray is not None else [replace(s, offsets=cue_offsets(  # phase starts
-                  zs, signs, s.periods, s.width_px, usable))
-                  for s in _phase_scales(phase, zs, axis, usable, group)])
+    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs) if gray
+              else [replace(s, offsets=cue_offsets(zs, signs, s.periods, s.width_px, usable))
+                    for s in _phase_scales(phase, zs, axis, usable, group)])
     out = []
     for scale in scales:
         try:

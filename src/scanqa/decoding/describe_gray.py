@@ -361,10 +361,13 @@ def periods_differ(a, b) -> bool:
                                       for x, y in zip(pa, pb, strict=True))
 
 
-def with_code(desc, code: str):
-    """The description with its Gray set read as ``code``."""
-    return replace(desc, sets=tuple(replace(s, code=code) if isinstance(s, GrayCodeSet)
-                                    else s for s in desc.sets))
+def with_code(desc):
+    """The description with its Gray set read as the other code (reflected Gray or
+    plain binary)."""
+    other = {"reflected": "binary", "binary": "reflected"}
+    return replace(desc, sets=tuple(replace(s, code=other[s.code])
+                                    if isinstance(s, GrayCodeSet) else s
+                                    for s in desc.sets))
 
 
 def code_note(best, tried: list, gray: GrayRun, notes: list) -> None:
