@@ -38,6 +38,8 @@ ORIENTATIONS = ("vertical", "horizontal")
 INVERSE_LAYOUTS = ("none", "grouped", "interleaved")
 #: How a Gray code's bits are thresholded.
 GRAY_THRESHOLDS = ("auto", "inverse", "reference", "offset")
+#: How a Gray-code set writes its cell index: reflected binary Gray, or plain binary.
+GRAY_CODES = ("reflected", "binary")
 #: Levels of a reference set's frames.
 REFERENCE_LEVELS = ("white", "black")
 #: Where the decoder takes the camera noise from.
@@ -291,6 +293,9 @@ class GrayCodeSet:
         "vertical" (columns, x_p) or "horizontal" (rows, y_p).
     files, stack, stack_key
         As for :class:`PhaseSet`.
+    code : str
+        "reflected" (a reflected binary Gray code, the default) or "binary" (the cell
+        index written as a plain binary number).
     """
 
     name: str
@@ -303,9 +308,12 @@ class GrayCodeSet:
     files: tuple = ()
     stack: str = ""
     stack_key: str = ""
+    code: str = "reflected"
 
     def __post_init__(self) -> None:
         where = f"set {self.name!r}"
+        require_setting(self.code in GRAY_CODES, f"{where}: code", self.code,
+                        "'reflected' (Gray) or 'binary' (plain binary)")
         require_setting(isinstance(self.bits, int) and 1 <= self.bits <= 24, f"{where}: bits",
                  self.bits, "a whole number in 1..24")
         require_setting(self.cell_px is None or (math.isfinite(self.cell_px) and self.cell_px > 0),
@@ -485,6 +493,8 @@ def _set_dict(pset: PhaseSet | GrayCodeSet | ReferenceSet) -> dict:
     for key, value in asdict(pset).items():
         if value is None or (value in ("", ()) and key in ("files", "stack", "stack_key",
                                                           "orders")):
+            continue
+        if key == "code" and value == "reflected":  # the default, as before the key
             continue
         out[key] = list(value) if isinstance(value, tuple) else value
     return out

@@ -38,7 +38,7 @@ import numpy as np
 
 from scanqa.decoding import checks
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
-from scanqa.decoding.demodulate import ShiftFit, demodulate_flat
+from scanqa.decoding.demodulate import ShiftFit, demodulate_flat, demodulate_sample
 from scanqa.numeric import json_ready
 
 #: Residual spread (in periods of the finer set) below which a pixel enters the test:
@@ -111,7 +111,9 @@ class _Demod:
 
 
 def _demod(pset: PhaseSet, frames: np.ndarray, sensor: SensorModel, quantised: bool,
-           sign: float = 1.0) -> _Demod:
+           sign: float = 1.0, given: tuple | None = None) -> _Demod:
+    if given is not None:  # (A, B, frac, var) of these frames, as demodulate_flat gives
+        return _Demod(given[2], np.sqrt(given[3]) / (2.0 * np.pi))
     fit = ShiftFit.from_shifts([sign * s for s in pset.shifts_rad])
     flat = frames.reshape(frames.shape[0], -1)
     with np.errstate(invalid="ignore", divide="ignore"):
@@ -133,8 +135,8 @@ def _spread(coarse: _Demod, fine: _Demod, ratio: float) -> np.ndarray:
 
 
 def pair_consistency(coarse: PhaseSet, fine: PhaseSet, frames_c: np.ndarray,
-                     frames_f: np.ndarray, sensor: SensorModel, quantised: bool
-                     ) -> PairConsistency:
+                     frames_f: np.ndarray, sensor: SensorModel, quantised: bool,
+                     demods: dict | None = None) -> PairConsistency:
     """The residual test of a cue set against a finer set, with the likely cause.
 
     Parameters
@@ -147,6 +149,9 @@ def pair_consistency(coarse: PhaseSet, fine: PhaseSet, frames_c: np.ndarray,
         The camera noise (given or estimated from the images).
     quantised : bool
         Integer images (quantisation noise).
+    demods : dict, optional
+        The sets' demodulation of these frames by name
+        (:func:`scanqa.decoding.demodulate.demodulate_sample`); default: demodulated here.
 
     Returns
     -------
@@ -154,8 +159,9 @@ def pair_consistency(coarse: PhaseSet, fine: PhaseSet, frames_c: np.ndarray,
         R, R_pred, the pixel count and - when contradicted - the cause.
     """
     ratio = coarse.period_px / fine.period_px
-    dc, df = (_demod(coarse, frames_c, sensor, quantised),
-              _demod(fine, frames_f, sensor, quantised))
+    demods = demods or {}
+    dc, df = (_demod(coarse, frames_c, sensor, quantised, given=demods.get(coarse.name)),
+              _demod(fine, frames_f, sensor, quantised, given=demods.get(fine.name)))
     spread = _spread(dc, df, ratio)
     with np.errstate(invalid="ignore"):
         pixels = spread < MAX_SPREAD_PERIODS
@@ -247,7 +253,8 @@ def cue_pairs(desc: PatternDescription) -> list[tuple[PhaseSet, PhaseSet]]:
 
 
 def set_consistency(desc: PatternDescription, sample: Sequence[np.ndarray],
-                    sensor: SensorModel, quantised: bool) -> list[PairConsistency]:
+                    sensor: SensorModel, quantised: bool, demods: dict | None = None
+                    ) -> list[PairConsistency]:
     """The residual test of every cue set against every finer phase set.
 
     Parameters
@@ -260,6 +267,9 @@ def set_consistency(desc: PatternDescription, sample: Sequence[np.ndarray],
         The camera noise.
     quantised : bool
         Integer images.
+    demods : dict, optional
+        The sample's sets demodulated once, by name
+        (:func:`scanqa.decoding.demodulate.demodulate_sample`); default: done here.
 
     Returns
     -------
@@ -267,8 +277,11 @@ def set_consistency(desc: PatternDescription, sample: Sequence[np.ndarray],
         One per pair (none without a cue set).
     """
     by_name = {s.name: st for s, st in zip(desc.sets, sample, strict=True)}
-    return [pair_consistency(c, f, by_name[c.name], by_name[f.name], sensor, quantised)
-            for c, f in cue_pairs(desc)]
+    pairs = cue_pairs(desc)
+    if demods is None and pairs:  # a cue pairs with every finer set: demodulate once
+        demods = demodulate_sample(desc.sets, sample, sensor, quantised)
+    return [pair_consistency(c, f, by_name[c.name], by_name[f.name], sensor, quantised,
+                             demods) for c, f in pairs]
 
 
 def consistency_warnings(pairs: Sequence[PairConsistency]) -> list[str]:

@@ -24,6 +24,7 @@ import numpy as np
 from scanqa.chunks import row_bands, run_bands
 from scanqa.decoding import checks, consistency, diagnostics, framecheck, waveform
 from scanqa.decoding.coding import PatternDescription
+from scanqa.decoding.demodulate import demodulate_sample
 from scanqa.decoding.noise import NoiseEstimate, resolve_noise
 from scanqa.decoding.parsing import load_patterns
 from scanqa.decoding.patternset import lossy_image_note, read_pattern_images
@@ -116,10 +117,11 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     if check:
         corrected = () if response is None else \
             tuple(s.name for s in desc.phase_sets if response.table_for(s) is not None)
-        shapes = [s for s in waveform.fringe_shapes(desc, sample, noise.sensor, quantised)
-                  if s.name not in corrected]
+        demods = demodulate_sample(desc.sets, sample, noise.sensor, quantised)  # once
+        shapes = [s for s in waveform.fringe_shapes(desc, sample, noise.sensor, quantised,
+                                                    demods) if s.name not in corrected]
         bits, notes = checks.gray_bits(desc, sample, noise.sensor, quantised)
-        pairs = consistency.set_consistency(desc, sample, noise.sensor, quantised)
+        pairs = consistency.set_consistency(desc, sample, noise.sensor, quantised, demods)
         repeated = consistency.repeated_frames(desc, sample)
         broken = framecheck.broken_frames(desc, sample, noise.sensor, quantised)
         contradicted = bool(repeated or broken) or any(p.contradicted for p in pairs)

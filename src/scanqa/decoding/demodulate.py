@@ -27,7 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from scanqa.decoding.coding import DEFAULT_SENSOR, SensorModel
+from scanqa.decoding.coding import DEFAULT_SENSOR, PhaseSet, SensorModel
 from scanqa.errors import InputError
 
 TWO_PI = 2.0 * np.pi
@@ -108,8 +108,13 @@ def sample_variance(intensity_dn: np.ndarray, sensor: SensorModel,
     29.0
     """
     floor = sensor.read_noise_dn ** 2 + (1.0 / 12.0 if quantised else 0.0)
-    signal = np.maximum(np.asarray(intensity_dn, dtype=np.float64) - sensor.black_level_dn, 0)
-    return floor + signal / sensor.gain_e_per_dn
+    signal = np.asarray(intensity_dn, dtype=np.float64) - sensor.black_level_dn
+    if signal.ndim == 0:
+        return floor + max(float(signal), 0.0) / sensor.gain_e_per_dn
+    np.maximum(signal, 0.0, out=signal)  # one temporary, updated in place
+    signal /= sensor.gain_e_per_dn
+    signal += floor
+    return signal
 
 
 def _fit_rows(fit: ShiftFit, frames: np.ndarray) -> np.ndarray:
@@ -123,16 +128,22 @@ def _phase_variance(fit: ShiftFit, a: np.ndarray, c: np.ndarray, s: np.ndarray,
 
     ``dphi/dI_k = (S p1_k - C p2_k) / B^2`` and ``var I_k = e + (C cos d_k + S sin d_k)
     / g`` with ``e = var(A)`` of the noise model; the sum over k is a polynomial in C, S
-    whose constant coefficients come from the fit rows p1, p2.
+    whose constant coefficients come from the fit rows p1, p2. For N >= 4 equal shifts
+    the cubic vanishes and the quadratic is ``q B^2``: the variance is ``e q / B^2``.
     """
     q11, q12, q22 = fit.quad
-    quad = q11 * s * s - 2.0 * q12 * s * c + q22 * c * c
-    var = sample_variance(a, sensor, quantised) * quad
-    if any(fit.cubic):
-        t1, t2, t3, t4 = fit.cubic
-        var += (((t1 * s + t2 * c) * s + t3 * c * c) * s + t4 * c * c * c) \
-            / sensor.gain_e_per_dn
+    var = sample_variance(a, sensor, quantised)
     with np.errstate(divide="ignore", invalid="ignore"):
+        if not any(fit.cubic) and abs(q12) <= 1e-12 * q11 and abs(q11 - q22) <= 1e-12 * q11:
+            var *= q11
+            var /= b2
+            var[~(b2 > 0)] = np.inf
+            return var
+        var *= q11 * s * s - 2.0 * q12 * s * c + q22 * c * c
+        if any(fit.cubic):
+            t1, t2, t3, t4 = fit.cubic
+            var += (((t1 * s + t2 * c) * s + t3 * c * c) * s + t4 * c * c * c) \
+                / sensor.gain_e_per_dn
         return np.where(b2 > 0, var / (b2 * b2), np.inf)
 
 
@@ -151,10 +162,46 @@ def demodulate_flat(fit: ShiftFit, frames: np.ndarray, sensor: SensorModel,
                      quantised: bool) -> tuple[np.ndarray, ...]:
     """Offset, modulation, phase fraction [cycles in [0, 1)] and phase variance."""
     a, c, s = _fit_rows(fit, frames)
-    b2 = c * c + s * s
-    frac = np.arctan2(-s, c) * (1.0 / TWO_PI)
+    b2 = c * c
+    b2 += s * s
+    var = _phase_variance(fit, a, c, s, b2, sensor, quantised)
+    frac = np.negative(s, out=s)  # the fit's S is not needed again: reused in place
+    np.arctan2(frac, c, out=frac)
+    frac *= 1.0 / TWO_PI
     frac += frac < 0
-    return a, np.sqrt(b2), frac, _phase_variance(fit, a, c, s, b2, sensor, quantised)
+    return a, np.sqrt(b2), frac, var
+
+
+def demodulate_sample(sets: Sequence, sample: Sequence[np.ndarray], sensor: SensorModel,
+                      quantised: bool) -> dict[str, tuple[np.ndarray, ...]]:
+    """Every phase set of a sample demodulated once, for the checks that read it.
+
+    Parameters
+    ----------
+    sets : sequence of PatternSet
+        The description's sets, in the order of ``sample``; only the phase sets are
+        demodulated.
+    sample : sequence of (N, h, W) arrays
+        The sets' frames at the sampled rows [DN].
+    sensor : SensorModel
+        Resolved noise model.
+    quantised : bool
+        Integer images.
+
+    Returns
+    -------
+    dict of str to tuple
+        ``{set name: (A [DN], B [DN], phase fraction [cycles], phase variance
+        [rad^2])}``, flat (h W,) arrays, as :func:`demodulate_flat` gives them.
+    """
+    out = {}
+    with np.errstate(divide="ignore", invalid="ignore"):
+        for pset, frames in zip(sets, sample, strict=True):
+            if isinstance(pset, PhaseSet):
+                out[pset.name] = demodulate_flat(ShiftFit.from_shifts(pset.shifts_rad),
+                                                 frames.reshape(frames.shape[0], -1),
+                                                 sensor, quantised)
+    return out
 
 
 def demodulate(images: np.ndarray, shifts_rad: Sequence[float] | None = None,

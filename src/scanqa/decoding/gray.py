@@ -5,7 +5,8 @@ inverse frame, the mid level of the white and black reference frames, or the off
 of the phase set it orders. The difference must exceed ``gray_min_contrast_sigma``
 times its predicted noise, else the bit is undecidable (dark, in shadow, or on a cell
 edge blurred to grey). Bits come most significant first and are decoded as the
-reflected binary code: ``b_i = b_(i-1) xor g_i``.
+reflected binary code, ``b_i = b_(i-1) xor g_i``, or as a plain binary number
+(``code = "binary"``).
 
 The edge rule. Every physical edge between two neighbouring cells flips exactly one bit
 of a reflected Gray code, so a pixel that sees such an edge blurred to grey has exactly
@@ -121,7 +122,7 @@ def decode_gray(gray: GrayCodeSet, frames: np.ndarray, sensor: SensorModel,
     """
     diff, var, mid = _bit_contrast(gray, frames, sensor, quantised, threshold)
     weak = diff * diff < min_sigma * min_sigma * var
-    cell, edge = _edge_rule(diff > 0, weak)
+    cell, edge = _edge_rule(diff > 0, weak, gray.code == "binary")
     magnitude = np.abs(diff)
     contrast = np.where(weak & edge, np.inf, magnitude).min(axis=0)
     contrast = np.where(np.isfinite(contrast), contrast, magnitude.min(axis=0))
@@ -161,17 +162,21 @@ def _spans(cell: np.ndarray, edge: np.ndarray, weak: np.ndarray
     return np.where(edge, cell, first), np.where(edge, 2, span)
 
 
-def _edge_rule(bits: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def _edge_rule(bits: np.ndarray, weak: np.ndarray, binary: bool = False
+               ) -> tuple[np.ndarray, np.ndarray]:
     """(M,) cells and edge pixels of bit planes (bits, M) with undecidable bits ``weak``.
 
     An edge pixel has one weak bit, and its cell with that bit flipped is a neighbour;
     its cell is then the lower of the two. Flipping Gray bit i (most significant first)
     flips binary bit i and all below it, so the two candidates are neighbours only where
-    those binary bits read 10...0 or 01...1 (always for the least significant bit).
+    those binary bits read 10...0 or 01...1 (always for the least significant bit). In a
+    plain binary code (``binary``) only the least significant bit's flip gives a
+    neighbour; the edges where several bits flip at once leave several bits weak, and
+    such pixels keep the span of cells those bits reach (:func:`_spans`).
     """
-    cell = _cells(bits)
+    cell = _cells(bits, binary)
     single = np.flatnonzero(weak.sum(axis=0) == 1)
-    other = _cells(bits[:, single] ^ weak[:, single])
+    other = _cells(bits[:, single] ^ weak[:, single], binary)
     adjacent = np.abs(other - cell[single]) == 1
     single, other = single[adjacent], other[adjacent]
     cell[single] = np.minimum(cell[single], other)
@@ -180,12 +185,16 @@ def _edge_rule(bits: np.ndarray, weak: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return cell, edge
 
 
-def _cells(bits: np.ndarray) -> np.ndarray:
-    """(M,) cell index of reflected-Gray bit planes (bits, M), most significant first."""
+def _cells(bits: np.ndarray, plain: bool = False) -> np.ndarray:
+    """(M,) cell index of reflected-Gray bit planes (bits, M), most significant first;
+    of plain binary bit planes with ``plain``."""
     binary = np.zeros(bits.shape[1], bool)
     cell = np.zeros(bits.shape[1], np.int64)
     for bit in bits:
-        binary ^= bit
+        if plain:
+            binary = bit
+        else:
+            binary ^= bit
         cell = (cell << 1) | binary
     return cell
 

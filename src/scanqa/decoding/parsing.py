@@ -40,7 +40,7 @@ _SET_KEYS = {
     FORMAT: {"phase": ("kind", "period_px", "steps", "shifts_rad", "orientation",
                        *_STORAGE_KEYS),
              "gray": ("kind", "bits", "cell_px", "orders", "inverse", "threshold",
-                      "orientation", *_STORAGE_KEYS),
+                      "orientation", "code", *_STORAGE_KEYS),
              "reference": ("kind", "levels", *_STORAGE_KEYS)},
 }
 #: Top-level keys per version: the declared ones (:data:`scanqa.io.patterns.SCHEMA`),

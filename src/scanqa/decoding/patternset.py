@@ -138,7 +138,7 @@ def ideal_patterns(desc: PatternDescription, index: int,
 def _gray_frames(gray: GrayCodeSet, cell_px: float, x: np.ndarray) -> np.ndarray:
     """Bit frames (and inverses, in the set's layout) of a Gray code at coordinates x."""
     cell = np.clip(np.floor((x + 0.5) / cell_px), 0, 2 ** gray.bits - 1).astype(np.int64)
-    code = cell ^ (cell >> 1)
+    code = cell if gray.code == "binary" else cell ^ (cell >> 1)
     bits = np.stack([(code >> (gray.bits - 1 - b)) & 1 for b in range(gray.bits)])
     frames = np.empty((gray.frames, *x.shape))
     plain, inverse = gray.frame_order()

@@ -96,10 +96,10 @@ class PhaseMap:
             raise InputError(f"PhaseMap.mask holds unknown reason codes {unknown.tolist()} "
                              f"(known: {MASK_REASONS})")
         finite, valid = np.isfinite(self.xp), self.mask == MASK_VALID
-        if (finite & ~valid).any():
-            raise InputError("PhaseMap.xp must be NaN where mask != 0 (masked pixels carry "
-                             "no coordinate)")
-        if (valid & ~finite).any():
+        if (finite != valid).any():  # one pass; which way, only when it fails
+            if (finite & ~valid).any():
+                raise InputError("PhaseMap.xp must be NaN where mask != 0 (masked pixels "
+                                 "carry no coordinate)")
             raise InputError("PhaseMap.xp must be finite where mask == 0; mask the pixel")
         if not (np.isfinite(self.period_px) and self.period_px > 0):
             raise InputError(f"PhaseMap.period_px must be > 0 [px], got {self.period_px!r}")

@@ -387,7 +387,12 @@ def _absolute(plan: UnwrapPlan, step: chain.Step, frac: np.ndarray) -> np.ndarra
     """
     period = step.period_px
     margin = 0.5 + 0.5 * (period - plan.desc.projector_width_px)
-    return np.mod(frac * period + margin, period) - margin
+    x = frac * period
+    x += margin
+    # x lies in [0, 2 P) for frac in [0, 1): the modulo is one exact subtraction
+    x -= np.where(x >= period, period, 0.0)
+    x -= margin
+    return x
 
 
 def defers_orders(plan: UnwrapPlan) -> bool:

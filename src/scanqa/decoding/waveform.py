@@ -89,7 +89,7 @@ class FringeShape:
 
 
 def fringe_shape(pset: PhaseSet, frames: np.ndarray, sensor: SensorModel,
-                 quantised: bool) -> FringeShape | None:
+                 quantised: bool, demod: tuple | None = None) -> FringeShape | None:
     """The profile error of one set from a sample of its pixels, or None when its
     fringes are sine waves (or too few pixels are lit to tell).
 
@@ -103,10 +103,16 @@ def fringe_shape(pset: PhaseSet, frames: np.ndarray, sensor: SensorModel,
         Resolved noise model (gain and read noise known).
     quantised : bool
         Integer images.
+    demod : tuple, optional
+        (A, B, phase fraction, variance) of these frames as
+        :func:`scanqa.decoding.demodulate.demodulate_flat` gives them; default:
+        demodulated here.
     """
-    fit = ShiftFit.from_shifts(pset.shifts_rad)
     with np.errstate(divide="ignore", invalid="ignore"):
-        a, b, frac, _ = demodulate_flat(fit, frames, sensor, quantised)
+        if demod is None:
+            demod = demodulate_flat(ShiftFit.from_shifts(pset.shifts_rad), frames, sensor,
+                                    quantised)
+        a, b, frac, _ = demod
         # chosen by a noise that does not depend on the phase (a 3-step set's does,
         # through the shot noise, and a cut on it would carve a 3-fold pattern)
         lit = 2.0 * sample_variance(a, sensor, quantised) < \
@@ -136,13 +142,16 @@ def fringe_shape(pset: PhaseSet, frames: np.ndarray, sensor: SensorModel,
 
 
 def fringe_shapes(desc: PatternDescription, sample: Sequence[np.ndarray],
-                  sensor: SensorModel, quantised: bool) -> list[FringeShape]:
+                  sensor: SensorModel, quantised: bool, demods: dict | None = None
+                  ) -> list[FringeShape]:
     """:func:`fringe_shape` of every phase set whose period is short enough for a scene
-    to spread its phase (a quarter of the coded range or less), on the sample rows."""
-    out = []
+    to spread its phase (a quarter of the coded range or less), on the sample rows
+    (``demods``: their demodulation by set name, when done already)."""
+    out, demods = [], demods or {}
     for pset, stack in zip(desc.sets, sample, strict=True):
         if isinstance(pset, PhaseSet) and 4 * pset.period_px <= desc.projector_width_px:
-            shape = fringe_shape(pset, stack.reshape(stack.shape[0], -1), sensor, quantised)
+            shape = fringe_shape(pset, stack.reshape(stack.shape[0], -1), sensor, quantised,
+                                 demods.get(pset.name))
             if shape is not None:
                 out.append(shape)
     return out

@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from scanqa.decoding.coding import GrayCodeSet
 from scanqa.description import frames as fr
 
 
@@ -25,6 +26,7 @@ class GrayRun:
     bits: int
     inverse: str
     order: tuple  # frame indices in the file order the decoder reads
+    code: str = "reflected"  # or "binary": the likelier reading (decoding checks both)
 
 
 def gray_layout(norm: fr.Normalised, grays: list, axis: int, group,
@@ -111,23 +113,27 @@ def _smoothness(cells: np.ndarray, axis: int) -> float:
 
 
 def read_gray(data, norm, gray: GrayRun, axis: int, group) -> tuple:
-    """The Gray code's cells, with the inverse frames first when that reads smoother;
-    None for the cells of a code that reads smoother as plain binary."""
-    cells = _gray_cells(data, norm, gray)
+    """The Gray code's cells, read in the smoothest of up to four ways: each bit before
+    or after its inverse frame, as a reflected Gray code or a plain binary number
+    (``code = "binary"``); a later reading must be clearly smoother (by 0.05) to be
+    taken. Describe then decodes both codes to choose."""
+    readings = [gray]
     if gray.inverse != "none":
         plain, inv = _bit_frames(gray)
         order = ([k for pair in zip(inv, plain, strict=True) for k in pair]
                  if gray.inverse == "interleaved" else inv + plain)
-        swapped = replace(gray, order=tuple(order))
-        other = _gray_cells(data, norm, swapped)
-        if _smoothness(other, axis) > _smoothness(cells, axis) + 0.05:
-            group.notes.append("each Gray bit's inverse frame comes before the bit (the "
-                               "code reads as neighbouring cells only that way)")
-            gray, cells = swapped, other
-    if _smoothness(_gray_cells(data, norm, gray, True), axis) > \
-            _smoothness(cells, axis) + 0.05:
-        return gray, None  # a plain binary code: the caller leaves it out
-    return gray, cells
+        readings.append(replace(gray, order=tuple(order)))
+    best, cells, score = gray, None, -1.0
+    for reading in readings:
+        for code in ("reflected", "binary"):
+            got = _gray_cells(data, norm, reading, code == "binary")
+            smooth = _smoothness(got, axis)
+            if cells is None or smooth > score + 0.05:
+                best, cells, score = replace(reading, code=code), got, smooth
+    if best.order != gray.order:
+        group.notes.append("each Gray bit's inverse frame comes before the bit (the "
+                           "code reads as neighbouring cells only that way)")
+    return best, cells
 
 
 def slope_sign(cells: np.ndarray, lit: np.ndarray, axis: int) -> float:
@@ -237,16 +243,49 @@ def edge_offsets(zs: list, signs: list, cells: np.ndarray, cell: float, periods:
         psi = sign * np.angle(_edge_phasor(z, ok, axis))
         theta = float(np.angle(np.sum(weight * np.exp(1j * (psi - 2 * np.pi * edge
                                                            / period)))))
-        for step, within in ((np.pi / 6, 0.1), (np.pi / 12, 0.04), (None, 0)):
-            if step is None:
-                theta = round(theta, 3)
-                break
-            snap = round(theta / step) * step
-            if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
-                theta = snap
-                break
-        out.append(0.0 if abs(theta) < 1e-12 else theta)
+        out.append(_snapped(theta))
     return tuple(out)
+
+
+def cue_offsets(zs: list, signs: list, periods: tuple, width: int, usable: np.ndarray
+                ) -> tuple:
+    """Phase start of each phase set relative to a cue [rad], for phase sets without a
+    Gray code: the coarsest set, when its period covers the coded width, starts at 0
+    (it defines x = 0: nothing in the frames tells its own start) and gives each pixel
+    x; a finer set's start is its phase less ``2 pi x / P`` there, averaged as unit
+    phasors over the usable pixels (a whole number of its periods fits the cue's, so
+    the cue's wrap does not matter), snapped as :func:`edge_offsets` snaps. Zeros
+    without a cue, or where the average is weak (resultant below 0.5)."""
+    if not zs or usable.sum() < 20:
+        return tuple(0.0 for _ in zs)
+    cue = int(np.argmax(periods))
+    if periods[cue] < width:
+        return tuple(0.0 for _ in zs)
+    unit = [np.exp(1j * sign * np.angle(z[usable])) for z, sign in zip(zs, signs,
+                                                                      strict=True)]
+    out = []
+    for i, period in enumerate(periods):
+        ratio = periods[cue] / period
+        if i == cue or abs(ratio - round(ratio)) > 1e-6:
+            out.append(0.0)
+            continue
+        mean = np.mean(unit[i] * np.conj(unit[cue]) ** round(ratio))
+        out.append(_snapped(float(np.angle(mean))) if abs(mean) >= 0.5 else 0.0)
+    return tuple(out)
+
+
+def _snapped(theta: float) -> float:
+    """A phase start snapped to a multiple of pi / 6 within 0.1 rad (a projector's gamma
+    biases the phase by a few hundredths), or of pi / 12 within 0.04 rad, else rounded
+    to 1 mrad; 0 for a start within 1e-12 of it."""
+    for step, within in ((np.pi / 6, 0.1), (np.pi / 12, 0.04)):
+        snap = round(theta / step) * step
+        if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
+            theta = snap
+            break
+    else:
+        theta = round(theta, 3)
+    return 0.0 if abs(theta) < 1e-12 else theta
 
 
 def cell_edges(cells: np.ndarray, axis: int) -> tuple[np.ndarray, np.ndarray]:
@@ -320,3 +359,34 @@ def periods_differ(a, b) -> bool:
     pb = [s.period_px for s in b.phase_sets] + [b.gray_cell_px]
     return len(pa) != len(pb) or any(abs(x - y) > 1e-3 * max(abs(y), 1e-9)
                                       for x, y in zip(pa, pb, strict=True))
+
+
+def with_code(desc):
+    """The description with its Gray set read as the other code (reflected Gray or
+    plain binary)."""
+    other = {"reflected": "binary", "binary": "reflected"}
+    return replace(desc, sets=tuple(replace(s, code=other[s.code])
+                                    if isinstance(s, GrayCodeSet) else s
+                                    for s in desc.sets))
+
+
+def code_note(best, tried: list, gray: GrayRun, notes: list) -> None:
+    """A note (appended to ``notes``) on how the Gray frames were read, reflected Gray or
+    plain binary, with the share of the lit pixels each reading decoded (``tried``:
+    (description, share) of every candidate)."""
+    code = best.gray_set.code
+    shares = {}
+    for d, got in tried:
+        c = d.gray_set.code
+        shares[c] = max(shares.get(c, -1.0), got)
+    first, last = gray.run.frames[0], gray.run.frames[-1]
+    names = {"binary": "plain binary", "reflected": "reflected Gray"}
+    both = " and ".join(f"{100 * max(v, 0):.0f} % as {names[c]}"
+                        for c, v in sorted(shares.items()))
+    if code == "binary":
+        notes.append(f"frames {first}..{last} (indices) read as a plain binary code "
+                     f"(code = \"binary\"), not a reflected Gray code: the lit pixels "
+                     f"decode {both}")
+    elif gray.code == "binary":
+        notes.append(f"frames {first}..{last} (indices) read smoother as plain binary "
+                     f"but decode better as a reflected Gray code ({both})")

@@ -43,7 +43,9 @@ from scanqa.description.gray import (
     GrayRun,
     cell_range,
     cells_seen,
+    code_note,
     confidence_line,
+    cue_offsets,
     edge_offsets,
     gray_layout,
     panel_edge_seen,
@@ -52,6 +54,7 @@ from scanqa.description.gray import (
     refine_ratio,
     simple_ratio,
     slope_sign,
+    with_code,
 )
 from scanqa.errors import ConfigError, InputError
 
@@ -203,14 +206,6 @@ def _read_group_gray(data: np.ndarray, norm: fr.Normalised, group: _Group) -> No
                                "only the first is used as the Gray code - are the others "
                                "part of it?")
     gray, cells = read_gray(data, norm, gray, axis, group)
-    if cells is None:
-        first, last = gray.run.frames[0], gray.run.frames[-1]
-        group.notes.append(
-            f"frames {first}..{last} (indices) read as a plain binary code, not a reflected "
-            "Gray code: left out, as the decoder reads reflected Gray codes only (the "
-            "phase sets alone must then order the fringes)")
-        group.runs = [r for r in group.runs if r is not gray.run]
-        return
     group.gray, group.cells = gray, cells
     if group.width_px is not None:
         top = cells_seen(group.cells, 2 ** gray.bits)
@@ -253,6 +248,8 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     signs = [direction * _sign(fr.phase_frequency(z, axis)) for z in zs]
     _ask_about_runs(group, phase, zs, axis, names)
     candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group, signs)
+    if gray is not None:  # the other code too: decoding tells a plain binary code apart
+        candidates += [(with_code(d), offsets) for d, offsets in candidates]
     stacks_for = _stacks_factory(images, group, phase, gray, ref)
     best, share, tried = None, -1.0, []
     for desc, offsets in candidates:
@@ -270,6 +267,8 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
         raise InputError(f"no consistent description of the {group.orientation} sets was "
                          f"found ({'; '.join(group.questions) or 'nothing decoded'})")
     best = _with_files(best, names, group, phase, gray, ref)
+    if gray is not None:
+        code_note(best, tried, gray, group.notes)
     _alternatives(best, tried, share, group)
     set_notes = _set_notes(best, phase, gray, ref, signs, direction, notes, group)
     sample = (len(range(0, images.shape[1], row_step(images.shape[1]))),
@@ -322,9 +321,9 @@ def _candidates(data, norm, phase, zs, gray, cells, axis, group, signs) -> list:
     """Descriptions the measurement leaves open (decoded later to choose)."""
     usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
                                 for z in zs], axis=0) if zs else norm.lit
-    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs)
-              if gray is not None
-              else _phase_scales(phase, zs, axis, usable, group))
+    scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs) if gray
+              else [replace(s, offsets=cue_offsets(zs, signs, s.periods, s.width_px, usable))
+                    for s in _phase_scales(phase, zs, axis, usable, group)])
     out = []
     for scale in scales:
         try:
@@ -421,7 +420,7 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group, signs) -> list[_Sc
         zg = np.exp(2j * np.pi * np.nan_to_num(cells) / count)
         r, _ = fr.frequency_ratio(z, zg, axis, usable & np.isfinite(cells),
                                   len(run.frames))
-        if not math.isfinite(r):
+        if not (math.isfinite(r) and r != 0):
             group.questions.append(f"the period of frames {run.frames[0]}.. could not be "
                                    "measured against the Gray code (too few clean image "
                                    "segments): what is it?")
@@ -456,7 +455,8 @@ def _build(scale: _Scale, phase, gray, group) -> PatternDescription:
         sets.append(ReferenceSet("white_black", group.levels))
     if gray is not None:
         sets.append(GrayCodeSet("gray", gray.bits, cell_px=scale.cell_px,
-                                inverse=gray.inverse, orientation=group.orientation))
+                                inverse=gray.inverse, orientation=group.orientation,
+                                code=gray.code))
     for run, period in zip(phase, scale.periods, strict=True):
         sets.append(PhaseSet(_phase_name(period, sets), float(period), len(run.frames),
                              orientation=group.orientation))
@@ -569,10 +569,12 @@ def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
             out.append(SetNote(s.name, "sure", ("uniform frames: " + ", ".join(s.levels),)))
         elif isinstance(s, GrayCodeSet):
             cell = desc.description.removeprefix("scanqa describe: ")
+            code = ("plain binary code (its bits a base-2 number), checked by decoding "
+                    "against a reflected Gray code" if s.code == "binary" else
+                    "reflected Gray code, checked by decoding against plain binary")
             out.append(SetNote(s.name, "sure" if not group.questions else "likely", (
                 f"{s.bits} bits, most significant first; inverse frames: {s.inverse}",
-                f"cell_px = {s.cell_px:g}: {cell}",
-                "reflected Gray code assumed (the only one the decoder reads)")))
+                f"cell_px = {s.cell_px:g}: {cell}", code)))
     for s, sign, run in zip(phase_sets, signs, phase, strict=True):
         way = "negative" if sign < 0 else "positive"
         if run.order:

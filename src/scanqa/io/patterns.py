@@ -34,6 +34,7 @@ _SET = Schema("[[set]]", (
     Field("orders", "string", doc="gray: the phase set it orders"),
     Field("inverse", "boolean or string", doc="gray: inverse frames"),
     Field("threshold", "string", doc="gray: bit threshold (version 2)"),
+    Field("code", "string", doc='gray: "reflected" (default) or "binary" (version 2)'),
     Field("orientation", "string", doc="fringe direction"),
     Field("levels", "strings", doc='reference: default ["white", "black"]'),
     Field("files", "strings", doc="image files, one per frame (or stack)"),
