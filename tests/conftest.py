@@ -32,25 +32,35 @@ def paper_config_text() -> str:
 # ------------------------------------------------------------ heavy test files first
 #: The files with the most CPU per file (docs/benchmarks.rst, "The test suite"), largest
 #: first. make test runs ``-n 2 --dist loadfile``: a file stays on one worker, so its
-#: module fixtures are built once, and workers take files in collection order; started
-#: first, the long files no longer leave one worker running alone at the end.
-HEAVY_FIRST = (  # CPU seconds per file, measured 2026-11-27 (docs/benchmarks.rst)
-    "test_closed_loop.py",      # 98.9
-    "test_board_real.py",       # 90.5
-    "test_board_gray.py",       # ~56 (wall, make test of 2026-11-27, session 41)
-    "test_batch.py",            # 84.6 (LocalClusters)
-    "test_flattening_real.py",  # 46.4
-    "test_failures.py",         # 38.5
+#: module fixtures are built once, and workers take files in collection order (xdist's
+#: reordering is turned off below); started first, the long files no longer leave one
+#: worker running alone at the end.
+HEAVY_FIRST = (  # CPU seconds per file, docs/benchmarks.rst (2026-11-27, session 42)
+    "test_closed_loop.py",      # 98.9 (builds the sample table others read: shared_runs)
+    "test_board_real.py",       # ~89 (runs the board calibration test_api.py reads)
+    "test_batch.py",            # ~67 (LocalClusters)
+    "test_board_gray.py",       # ~56
+    "test_failures.py",         # 45.5
+    "test_flattening_real.py",  # ~38
     "test_describe_real.py",    # 38.1
     "test_sweep_fit.py",        # 36.9
-    "test_api.py",              # ~35 (wall, session 41)
-    "test_compare.py",          # 31.0
     "test_demo.py",             # 25.6
     "test_realdata_noise.py",   # 23.7
     "test_characterize.py",     # 21.9
     "test_target.py",           # 18.8
+    "test_decoding_checks.py",  # 18.1
     "test_fuzz.py",             # 17.6
+    "test_generic_cpu.py",      # 14.3 (one child pytest)
+    "test_compare.py",          # ~14
 )
+
+
+def pytest_configure(config):
+    # pytest-xdist >= 3.6 reorders the files by their number of tests, largest first,
+    # unless told not to: HEAVY_FIRST (few tests, most CPU) would then start last and leave
+    # one worker running them alone at the end.
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(config, items):
