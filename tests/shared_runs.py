@@ -44,8 +44,11 @@ def _board_key(folders, columns, rows, board, model="k1", held_out=False, refere
 
     if reference is not None:
         raise ValueError("the board calibration is cached without a reference only")
-    return ([Path(f) for f in folders], repr(replace(columns, source="")),
-            repr(replace(rows, source="")), board, model, held_out, corner_method)
+    if isinstance(board, (int, float)):  # a square size: decode_pose takes float(board)
+        board = float(board)
+    poses = [(str(Path(f).resolve()), Path(f)) for f in folders]  # path and frames
+    return (poses, repr(replace(columns, source="")), repr(replace(rows, source="")), board,
+            model, held_out, corner_method)
 
 
 def share_board_calibration(monkeypatch) -> None:
@@ -66,3 +69,23 @@ def share_board_calibration(monkeypatch) -> None:
     for name, module in list(sys.modules.items()):
         if name.startswith("scanqa") and getattr(module, "calibrate_poses", None) is original:
             monkeypatch.setattr(module, "calibrate_poses", shared)
+
+
+def _characterisation_key(sweep_dirs, config=None, min_attenuation=0.49, roi_px=256) -> tuple:
+    """What characterize_sweeps's result depends on: the sweeps (path and bytes), the
+    config (a frozen dataclass: its repr is its value), the options."""
+    sweeps = [(str(Path(d).resolve()), Path(d)) for d in sweep_dirs]
+    return sweeps, repr(config), float(min_attenuation), int(roi_px)
+
+
+def share_demo_characterisation(monkeypatch) -> None:
+    """Make the fit of the demo's first stage
+    (:func:`scanqa.model.characterization.characterize_sweeps` of the sample sweeps, ~4 s
+    of CPU; its plots are drawn by each run) run once per make test: test_demo.py's demo run and
+    test_failures.py's demo that fails in its third stage characterise the same sweeps;
+    each writes and checks its own outputs from the result."""
+    from scanqa.runs import demo
+    from tests.diskcache import memoized
+
+    monkeypatch.setattr(demo, "characterize_sweeps", memoized(
+        "demo_characterisation", demo.characterize_sweeps, _characterisation_key))
