@@ -19,6 +19,7 @@ a whole file or none. ``SCANQA_TEST_CACHE=0`` turns the cache off (every call co
 
 from __future__ import annotations
 
+import contextlib
 import fcntl
 import functools
 import hashlib
@@ -119,17 +120,24 @@ def cached(name: str, build: Callable[[], Any], *inputs: Any) -> Any:
     value = _read(path)
     if value is not None:
         return value[0]
-    CACHE.mkdir(parents=True, exist_ok=True)
-    with open(path.with_suffix(".lock"), "w") as lock:
+    try:
+        CACHE.mkdir(parents=True, exist_ok=True)
+        lock = open(path.with_suffix(".lock"), "w")  # closed by the with below
+    except OSError:  # a read-only checkout: no cache, the value is computed
+        return build()
+    with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # the other worker computes it: wait for it
         value = _read(path)
         if value is not None:
             return value[0]
         result = build()
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-        with open(tmp, "wb") as fh:
-            pickle.dump(result, fh, protocol=pickle.HIGHEST_PROTOCOL)
-        os.replace(tmp, path)
+        try:
+            with open(tmp, "wb") as fh:
+                pickle.dump(result, fh, protocol=pickle.HIGHEST_PROTOCOL)
+            os.replace(tmp, path)
+        except OSError:  # a full disk: the value is still right, only not kept
+            tmp.unlink(missing_ok=True)
     return result
 
 
@@ -150,7 +158,8 @@ def _read(path: Path) -> tuple[Any] | None:
             value = pickle.load(fh)
     except (FileNotFoundError, EOFError, pickle.UnpicklingError):
         return None
-    os.utime(path)  # read now: kept by _prune
+    with contextlib.suppress(OSError):
+        os.utime(path)  # read now: kept by _prune
     return (value,)
 
 
