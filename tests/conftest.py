@@ -32,25 +32,40 @@ def paper_config_text() -> str:
 # ------------------------------------------------------------ heavy test files first
 #: The files with the most CPU per file (docs/benchmarks.rst, "The test suite"), largest
 #: first. make test runs ``-n 2 --dist loadfile``: a file stays on one worker, so its
-#: module fixtures are built once, and workers take files in collection order; started
-#: first, the long files no longer leave one worker running alone at the end.
-HEAVY_FIRST = (  # CPU seconds per file, measured 2026-11-27 (docs/benchmarks.rst)
-    "test_closed_loop.py",      # 98.9
-    "test_board_real.py",       # 90.5
-    "test_board_gray.py",       # ~56 (wall, make test of 2026-11-27, session 41)
-    "test_batch.py",            # 84.6 (LocalClusters)
-    "test_flattening_real.py",  # 46.4
-    "test_failures.py",         # 38.5
-    "test_describe_real.py",    # 38.1
-    "test_sweep_fit.py",        # 36.9
-    "test_api.py",              # ~35 (wall, session 41)
-    "test_compare.py",          # 31.0
-    "test_demo.py",             # 25.6
-    "test_realdata_noise.py",   # 23.7
-    "test_characterize.py",     # 21.9
-    "test_target.py",           # 18.8
-    "test_fuzz.py",             # 17.6
+#: module fixtures are built once, and workers take files in collection order (xdist's
+#: reordering is turned off below); started first, the long files no longer leave one
+#: worker running alone at the end.
+HEAVY_FIRST = (  # CPU seconds per file: one -n 2 run, session 42 (docs/benchmarks.rst)
+    "test_closed_loop.py",              # 146.3 (computes the sample table: shared_runs)
+    "test_board_real.py",               # 108.4 (the board calibration test_api reads)
+    "test_board_gray.py",               # 77.8
+    "test_batch.py",                    # 75.6 (LocalClusters)
+    "test_flattening_real.py",          # 53.2
+    "test_failures.py",                 # 44.8
+    "test_describe_real.py",            # 39.0
+    "test_sweep_fit.py",                # 36.1
+    "test_realdata_noise.py",           # 24.7
+    "test_characterize.py",             # 23.2
+    "test_generic_cpu.py",              # 19.4 (one child pytest)
+    "test_fuzz.py",                     # 19.3
+    "test_demo.py",                     # 18.7
+    "test_target.py",                   # 18.0
+    "test_readme.py",                   # 17.3
+    "test_compare.py",                  # 17.2
+    "test_describe.py",                 # 17.0
+    "test_describe_kamino.py",          # 16.9
+    "test_decoding_checks.py",          # 16.9
+    "test_calibration_covariance.py",   # 16.4
+    "test_report_pdf.py",               # 15.8
 )
+
+
+def pytest_configure(config):
+    # pytest-xdist >= 3.6 reorders the files by their number of tests, largest first,
+    # unless told not to: HEAVY_FIRST (few tests, most CPU) would then start last and leave
+    # one worker running them alone at the end.
+    if hasattr(config.option, "loadscopereorder"):
+        config.option.loadscopereorder = False
 
 
 def pytest_collection_modifyitems(config, items):

@@ -60,8 +60,12 @@ def test_the_path_is_exported_and_listed():
 
 @needs_slstudio
 @pytest.mark.slow
-def test_calibrate_board_writes_what_the_command_writes(tmp_path):
+def test_calibrate_board_writes_what_the_command_writes(tmp_path, monkeypatch):
     from .realdata import slstudio_board_patterns
+    from .shared_runs import share_board_calibration
+
+    # the decode and calibration the command's test runs (test_board_real), computed once
+    share_board_calibration(monkeypatch)
 
     patterns = slstudio_board_patterns(tmp_path)
     poses = [SLSTUDIO / "calibration" / f"calseq{k}" for k in (1, 3, 6)]

@@ -30,6 +30,7 @@ from scanqa.io.ply import read_ply, write_ply
 from scanqa.model.config import load_config
 
 from .conftest import ROOT
+from .shared_runs import sample_table
 
 SAMPLE = ROOT / "sample_data"
 CONFIG = f"{SAMPLE / 'sample_scanner.toml'}#sample"
@@ -55,10 +56,9 @@ def rows(path: Path) -> list[dict]:
 
 @pytest.fixture(scope="module")
 def table(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("table") / "table.npz"
-    assert main(["calibrate", str(SAMPLE / "calibration_sweep" / "sweep.toml"), "--config",
-                 CONFIG, "--out", str(out), "-q"]) == 0
-    return out
+    # `scanqa calibrate sample_data/calibration_sweep/sweep.toml --config CONFIG`, run once
+    # per make test (tests/shared_runs.py)
+    return sample_table(tmp_path_factory.mktemp("table"))
 
 
 @pytest.fixture(scope="module")
@@ -244,34 +244,43 @@ def _campaign(tmp_path: Path, runs: list[str]) -> Path:
     return path
 
 
-def test_campaign_run_is_what_simulate_writes_with_the_derived_seed(tmp_path):
+@pytest.fixture(scope="module")
+def serial_campaign(tmp_path_factory) -> tuple[Path, Path]:
+    """(campaign file, its output folder) of the campaign of runs "sweep" and "cam" run
+    serially: once for the two tests below."""
+    tmp = tmp_path_factory.mktemp("campaign")
+    campaign = _campaign(tmp, ["sweep", "cam"])
+    assert main(["campaign", str(campaign), "--out", str(tmp / "serial"), "--serial",
+                 "-q"]) == 0
+    return campaign, tmp / "serial"
+
+
+def test_campaign_run_is_what_simulate_writes_with_the_derived_seed(tmp_path,
+                                                                    serial_campaign):
     """Each run's folder equals 'scanqa simulate' with the run's seed, and the seed is
     SHA-256 of 'campaign seed/run name' (computed here by hand): reordering the runs
     changes nothing."""
     seed = int.from_bytes(hashlib.sha256(b"11/sweep").digest()[:8], "big") % 10**9
-    assert main(["campaign", str(_campaign(tmp_path, ["sweep", "cam"])), "--out",
-                 str(tmp_path / "a"), "--serial", "-q"]) == 0
+    first = serial_campaign[1]
     assert main(["simulate", "calibration-sweep", "--config", ROI64, "--positions",
                  "440,452", "--repeats", "2", "--seed", str(seed), "--out",
                  str(tmp_path / "sim"), "-q"]) == 0
-    assert tree(tmp_path / "a" / "sweep") == tree(tmp_path / "sim")
-    assert {r["seed"] for r in rows(tmp_path / "a" / "results.csv")
+    assert tree(first / "sweep") == tree(tmp_path / "sim")
+    assert {r["seed"] for r in rows(first / "results.csv")
             if r["run"] == "sweep"} == {str(seed)}
     assert main(["campaign", str(_campaign(tmp_path, ["cam", "sweep"])), "--out",
                  str(tmp_path / "b"), "--serial", "-q"]) == 0
     for run in ("sweep", "cam"):
-        assert tree(tmp_path / "a" / run) == tree(tmp_path / "b" / run)
+        assert tree(first / run) == tree(tmp_path / "b" / run)
 
 
 @pytest.mark.slow
 @needs_dask
-def test_campaign_is_the_same_on_two_workers(tmp_path, local_cluster):
-    campaign = _campaign(tmp_path, ["sweep", "cam"])
-    assert main(["campaign", str(campaign), "--out", str(tmp_path / "serial"), "--serial",
-                 "-q"]) == 0
+def test_campaign_is_the_same_on_two_workers(tmp_path, local_cluster, serial_campaign):
+    campaign, serial_out = serial_campaign  # the serial run, shared with the test above
     assert main(["campaign", str(campaign), "--out", str(tmp_path / "dask"), "--scheduler",
                  local_cluster[0], "-q"]) == 0
-    serial = tree(tmp_path / "serial")
+    serial = tree(serial_out)
     assert len([k for k in serial if k.endswith("patterns.toml")]) == 5
     assert tree(tmp_path / "dask") == serial
     # an interrupted scan: its marker is missing, so a rerun redoes it (and only it)

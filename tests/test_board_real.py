@@ -52,6 +52,7 @@ from tests.realdata import (
     needs_slstudio,
     slstudio_board_patterns,
 )
+from tests.shared_runs import share_board_calibration
 
 pytestmark = needs_slstudio
 
@@ -147,22 +148,30 @@ def test_each_pose_left_out_is_as_flat_as_with_slstudio(poses):
         assert row["projector_rms_px"] < 1.5, row  # predicted, measured 0.55-1.19 px
 
 
-@pytest.mark.parametrize("corners", ["opencv", "model"])
-def test_skull_against_slstudio_within_the_calibration_sigma(corners, request, tmp_path):
-    """skull_2x3 triangulated with our calibration (either corner detector; "model" is the
-    default's) against calibration.xml: within the calibration's own 2 sigma."""
-    calibration = request.getfixturevalue(
-        "slstudio_poses" if corners == "opencv" else "model_calibration")
+@pytest.fixture(scope="module")
+def skull(tmp_path_factory):
+    """skull_2x3 decoded (once for both corner detectors): every 7th valid pixel's u, v,
+    x_p [px]."""
+    folder = tmp_path_factory.mktemp("skull")
     frames = [str(SLSTUDIO / "skull_2x3" / f"frameSeq_{i:02d}.bmp") for i in range(6)]
-    (tmp_path / "patterns.toml").write_text(dumps_patterns({
+    (folder / "patterns.toml").write_text(dumps_patterns({
         "format": "scanqa-patterns/2", "projector_width_px": 1824, "set": [
             {"kind": "phase", "name": "p114", "period_px": 114.0, "steps": 3,
              "shifts_rad": SLSTUDIO_SHIFTS, "files": frames[:3]},
             {"kind": "phase", "name": "p1824", "period_px": 1824.0, "steps": 3,
              "shifts_rad": SLSTUDIO_SHIFTS, "files": frames[3:]}]}))
-    pm = decode_pattern_dir(tmp_path)
+    pm = decode_pattern_dir(folder)
     v, u = (a[::7] for a in np.nonzero(pm.valid))
-    xp = pm.xp[v, u]
+    return u, v, pm.xp[v, u]
+
+
+@pytest.mark.parametrize("corners", ["opencv", "model"])
+def test_skull_against_slstudio_within_the_calibration_sigma(corners, request, skull):
+    """skull_2x3 triangulated with our calibration (either corner detector; "model" is the
+    default's) against calibration.xml: within the calibration's own 2 sigma."""
+    calibration = request.getfixturevalue(
+        "slstudio_poses" if corners == "opencv" else "model_calibration")
+    u, v, xp = skull
     ours = from_opencv(calibration.data)
     ref = load_opencv_calibration(CALIBRATION / "calibration.xml")
     diff = np.linalg.norm(ours.apply(u, v, xp).xyz - ref.apply(u, v, xp).xyz, axis=1)
@@ -181,7 +190,9 @@ def test_skull_against_slstudio_within_the_calibration_sigma(corners, request, t
 
 
 @pytest.mark.slow  # ~30 s of CPU: three poses decoded and calibrated through the CLI
-def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys):
+def test_cli_writes_a_calibration_every_command_reads(patterns, tmp_path, capsys,
+                                                     monkeypatch):
+    share_board_calibration(monkeypatch)  # computed once with test_api's
     out = tmp_path / "board.xml"
     poses = [str(CALIBRATION / f"calseq{k}") for k in (1, 3, 6)]
     assert main(["calibrate", "--square-mm", "10", "--patterns",  # grid from the frames

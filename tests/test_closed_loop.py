@@ -60,6 +60,7 @@ from scanqa.simulator.devices import sensor_window
 from scanqa.simulator.experiments import acquisition, build_positions, pattern_description
 
 from .conftest import ROOT
+from .shared_runs import sample_table
 from .synth_sweep import small_camera
 
 SAMPLE_DATA = ROOT / "sample_data"
@@ -209,9 +210,8 @@ def sweep_observations():
 @pytest.fixture(scope="session")
 def calibrated(tmp_path_factory, sample_config, sweep_observations):
     """(table file of ``scanqa calibrate`` with model weights, {"model", "none"} tables)."""
-    path = tmp_path_factory.mktemp("calibrate") / "table.npz"
-    assert main(["calibrate", str(SWEEP_DIR / "sweep.toml"), "--config", SAMPLE, "--out",
-                 str(path)]) == 0
+    # `scanqa calibrate SWEEP_DIR/sweep.toml --config SAMPLE`, run once per make test
+    path = sample_table(tmp_path_factory.mktemp("calibrate"))
     unweighted, _ = build_table(sweep_observations, sample_config, weights="none")
     return path, {"model": load_table(path), "none": unweighted}
 

@@ -14,6 +14,7 @@ from scanqa.cli import build_parser, main
 from scanqa.model.config import load_config
 
 from .conftest import ROOT
+from .shared_runs import share_demo_characterisation
 
 
 @pytest.fixture(scope="module")
@@ -22,7 +23,8 @@ def demo_run(tmp_path_factory):
     Without --data: the sample data of scanqa.sample_data_path()."""
     out = tmp_path_factory.mktemp("demo")
     printed = io.StringIO()
-    with contextlib.redirect_stdout(printed):
+    with contextlib.redirect_stdout(printed), pytest.MonkeyPatch.context() as mp:
+        share_demo_characterisation(mp)  # its first stage, computed once with test_failures'
         assert main(["demo", "--out", str(out)]) == 0
     return out, printed.getvalue()
 

@@ -27,6 +27,7 @@ from scanqa.errors import InputError
 from scanqa.io import atomic
 from scanqa.io.ply import read_ply, write_ply
 
+from .shared_runs import share_demo_characterisation
 from .smallcases import BLOCKS, LAYOUT_TOML, gauge_cloud, small_config, write_inputs
 from .synth_sweep import sweep
 
@@ -125,6 +126,7 @@ def test_demo_and_characterize_publish_together_or_not_at_all(tmp_path, capsys, 
         raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
 
     monkeypatch.setattr(demo, "calibrate", fail)
+    share_demo_characterisation(monkeypatch)  # the demo's first stage, as test_demo's
     code = main(["demo", "--out", str(tmp_path / "d"), "--data", str(SAMPLE), "-q"])
     assert "No space left" in one_line_error(capsys, code)
     monkeypatch.setattr(report, "_plot", fail)

@@ -11,6 +11,8 @@ captures.
 
 from __future__ import annotations
 
+import contextlib
+import io
 import itertools
 import math
 
@@ -127,20 +129,32 @@ def _sampled(flat, calibration):
     return z[ok], flat.sigma_flat_mm[ok]
 
 
-def test_skull_flattened_through_the_cli(tmp_path, capsys):
+@pytest.fixture(scope="module")
+def skull_flattened(tmp_path_factory):
+    """`scanqa annotate skull --flatten --tradeoff` of skull_2x3, run once for the two
+    tests that read it: (the skull's pattern folder, the cloud, what was printed)."""
+    tmp = tmp_path_factory.mktemp("skull")
+    frames = [SLSTUDIO / "skull_2x3" / f"frameSeq_{i:02d}.bmp" for i in range(6)]
+    folder = _folder(tmp, "skull", frames)
+    out = tmp / "skull.ply"
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        code = main(["annotate", str(folder), "--calibration",
+                     str(SLSTUDIO / "calibration" / "calibration.xml"), "--config",
+                     str(CONFIG), "--out", str(out), "--flatten", "--tradeoff",
+                     str(tmp / "t.png")])
+    assert code == 0
+    return folder, out, printed.getvalue()
+
+
+def test_skull_flattened_through_the_cli(skull_flattened):
     """Real: `scanqa annotate skull --flatten`: every point carries its flattened sigma and
     lateral resolution; the predicted sigma, median per 10 mm of depth, is within +-15 %
     of the target; the measured local scatter agrees with it; the trade-off is printed
     and drawn."""
-    frames = [SLSTUDIO / "skull_2x3" / f"frameSeq_{i:02d}.bmp" for i in range(6)]
-    folder = _folder(tmp_path, "skull", frames)
-    out = tmp_path / "skull.ply"
-    code = main(["annotate", str(folder), "--calibration",
-                 str(SLSTUDIO / "calibration" / "calibration.xml"), "--config", str(CONFIG),
-                 "--out", str(out), "--flatten", "--tradeoff", str(tmp_path / "t.png")])
-    assert code == 0
-    printed = capsys.readouterr().out
-    assert "flatten: target sigma" in printed and (tmp_path / "t.png").stat().st_size > 0
+    _, out, printed = skull_flattened
+    assert "flatten: target sigma" in printed
+    assert (out.parent / "t.png").stat().st_size > 0
     cloud = read_cloud(out)
     a = cloud.attributes
     for name in ("sigma_flat_um", "lateral_resolution_mm", "filter_diameter_px"):
@@ -182,22 +196,20 @@ def test_flatten_flags_are_checked_before_any_work(tmp_path, capsys):
     assert "give --calibration FILE and --config FILE" in capsys.readouterr().err
 
 
-def test_decode_flatten_writes_a_map_that_annotate_reads_back(tmp_path, capsys):
+def test_decode_flatten_writes_a_map_that_annotate_reads_back(tmp_path, capsys,
+                                                             skull_flattened):
     """Real: `scanqa decode --flatten` keeps the curve in the phase map; `scanqa annotate`
     of that map gives the same flattened attributes as `annotate --flatten` (same
     sigma_flat_um per pixel within float32 rounding)."""
-    frames = [SLSTUDIO / "skull_2x3" / f"frameSeq_{i:02d}.bmp" for i in range(6)]
-    folder = _folder(tmp_path, "skull", frames)
+    folder, flattened, _ = skull_flattened  # `annotate folder --flatten` (its cloud)
     cal = str(SLSTUDIO / "calibration" / "calibration.xml")
     phase = tmp_path / "phase.npz"
     assert main(["decode", str(folder), "--out", str(phase), "--flatten", "--calibration",
                  cal, "--config", str(CONFIG)]) == 0
     assert main(["annotate", str(phase), "--calibration", cal, "--config", str(CONFIG),
                  "--out", str(tmp_path / "a.ply")]) == 0
-    assert main(["annotate", str(folder), "--calibration", cal, "--config", str(CONFIG),
-                 "--out", str(tmp_path / "b.ply"), "--flatten"]) == 0
     capsys.readouterr()
-    a, b = read_cloud(tmp_path / "a.ply"), read_cloud(tmp_path / "b.ply")
+    a, b = read_cloud(tmp_path / "a.ply"), read_cloud(flattened)
     assert len(a) == len(b)
     for name in ("sigma_flat_um", "lateral_resolution_mm", "filter_diameter_px"):
         np.testing.assert_allclose(a.attributes[name], b.attributes[name], rtol=1e-4,

@@ -21,6 +21,7 @@ from scanqa.simulator import scene
 from scanqa.simulator.experiments import artefact_geometry
 
 from .conftest import ROOT
+from .shared_runs import sample_table
 
 SAMPLE = str(ROOT / "sample_data" / "sample_scanner.toml") + "#sample"
 
@@ -115,9 +116,7 @@ def test_simulated_sphere_files_and_qa(tmp_path, capsys):
     assert valid.sum() > 1000
     assert r.max() <= 1e-9 and r.min() >= -truth["mesh_deviation_mm"] - 1e-9
 
-    table = tmp_path / "table.npz"
-    assert main(["calibrate", str(ROOT / "sample_data" / "calibration_sweep" / "sweep.toml"),
-                 "--config", SAMPLE, "--out", str(table)]) == 0
+    table = sample_table(tmp_path)  # scanqa calibrate of the committed sweep, SAMPLE
     out = tmp_path / "qa"
     assert main(["qa", str(data / "p000_r0"), "--table", str(table), "--config", SAMPLE,
                  "--layout", str(data / "artefacts.toml"), "--spec", str(data / "spec.toml"),
