@@ -80,7 +80,7 @@ def _characterisation_key(sweep_dirs, config=None, min_attenuation=0.49, roi_px=
 
 def share_demo_characterisation(monkeypatch) -> None:
     """Make the fit of the demo's first stage
-    (:func:`scanqa.model.characterization.characterize_sweeps` of the sample sweeps, ~4 s
+    (:func:`scanqa.characterization.sweep.characterize_sweeps` of the sample sweeps, ~4 s
     of CPU; its plots are drawn by each run) run once per make test: test_demo.py's demo run and
     test_failures.py's demo that fails in its third stage characterise the same sweeps;
     each writes and checks its own outputs from the result."""
