@@ -43,9 +43,9 @@ $(STAMP): pyproject.toml | syslibs
 fringes-ref:
 	@if $(BIN)/python -m pip show -q opencv-contrib-python 2>/dev/null; then \
 		$(BIN)/python -m pip uninstall --quiet -y opencv-contrib-python; fi
-	@if ! $(BIN)/python -c "import cv2; cv2.structured_light" 2>/dev/null; then \
+	@if ! $(BIN)/python -c "import cv2; cv2.structured_light.GrayCodePattern" 2>/dev/null; then \
 		v=$$($(BIN)/python -m pip show opencv-python-headless 2>/dev/null | sed -n 's/^Version: //p'); \
-		$(BIN)/python -m pip uninstall --quiet -y opencv-python-headless; \
+		$(BIN)/python -m pip uninstall --quiet -y opencv-python-headless opencv-contrib-python-headless; \
 		$(BIN)/python -m pip install --quiet --no-deps "opencv-contrib-python-headless$${v:+==$$v}"; fi
 	@$(BIN)/python -m pip install --quiet --no-deps 'fringes==2.1.0'
 

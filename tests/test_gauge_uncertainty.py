@@ -372,10 +372,10 @@ def test_robust_std_hand_values():
     """1.4826 x the median absolute deviation; the plain std when the MAD is 0; 1e-12 mm
     when both are 0 (a perfectly flat block)."""
     r = np.array([1.0, 2.0, 3.0, 4.0, 100.0])  # median 3, |r - 3| = 2 1 0 1 97: MAD 1
-    assert blocks._robust_std(r) == pytest.approx(1.4826, rel=1e-15)
+    assert blocks._spread(r) == pytest.approx(1.4826, rel=1e-15)
     r = np.array([0.0, 0.0, 0.0, 0.0, 5.0])  # MAD 0: std = sqrt(mean((r - 1)^2)) = 2
-    assert blocks._robust_std(r) == pytest.approx(2.0, rel=1e-15)
-    assert blocks._robust_std(np.zeros(6)) == 1e-12
+    assert blocks._spread(r) == pytest.approx(2.0, rel=1e-15)
+    assert blocks._spread(np.zeros(6)) == 1e-12
 
 
 def test_outliers_beyond_k_robust_std_are_dropped():

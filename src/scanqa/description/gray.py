@@ -269,16 +269,30 @@ def cue_offsets(zs: list, signs: list, periods: tuple, width: int, usable: np.nd
         if i == cue or abs(ratio - round(ratio)) > 1e-6:
             out.append(0.0)
             continue
-        mean = np.mean(unit[i] * np.conj(unit[cue]) ** round(ratio))
-        out.append(_snapped(float(np.angle(mean))) if abs(mean) >= 0.5 else 0.0)
+        diff = unit[i] * np.conj(unit[cue]) ** round(ratio)
+        mean = np.mean(diff)
+        out.append(_snapped(float(np.angle(mean)), _spread(diff, unit[cue]))
+                   if abs(mean) >= 0.5 else 0.0)
     return tuple(out)
 
 
-def _snapped(theta: float) -> float:
+def _spread(diff: np.ndarray, cue: np.ndarray, parts: int = 4) -> float:
+    """How far the start measured on each quarter of the cue's period strays from the
+    whole's [rad]: the cue's own distortion (a projector's gamma on one wide period)
+    biases each part differently, and a start no larger than that is not told apart
+    from the nearest usual one."""
+    whole = np.angle(np.mean(diff))
+    order = np.argsort(np.angle(cue))
+    return max(abs(float(np.angle(np.mean(diff[p]) * np.exp(-1j * whole))))
+               for p in np.array_split(order, parts) if p.size)
+
+
+def _snapped(theta: float, spread: float = 0.0) -> float:
     """A phase start snapped to a multiple of pi / 6 within 0.1 rad (a projector's gamma
-    biases the phase by a few hundredths), or of pi / 12 within 0.04 rad, else rounded
-    to 1 mrad; 0 for a start within 1e-12 of it."""
-    for step, within in ((np.pi / 6, 0.1), (np.pi / 12, 0.04)):
+    biases the phase by a few hundredths) or within ``spread`` [rad], what the parts of
+    the measurement disagree by, or of pi / 12 within 0.04 rad, else rounded to 1 mrad;
+    0 for a start within 1e-12 of it."""
+    for step, within in ((np.pi / 6, max(0.1, spread)), (np.pi / 12, 0.04)):
         snap = round(theta / step) * step
         if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
             theta = snap

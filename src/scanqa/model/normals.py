@@ -109,7 +109,7 @@ def _compiled_normals(xyz: np.ndarray, index: np.ndarray, focal_px: float, r0: i
     """:func:`grid_normals` through :func:`_normals_kernel`: the points of rows
     ``r0 - 1 .. r1`` (one contiguous run of records) copied into one aligned array."""
     height = index.shape[0]
-    first = _first_point(index, r0, r1)
+    first = _first_point(index, r0, height)  # a band with no points: the next one's first
     out = np.zeros((_first_point(index, r1, height) - first, 3), dtype=np.float32)
     lo = _first_point(index, max(r0 - 1, 0), height)
     hi = _first_point(index, min(r1 + 1, height), height)

@@ -173,6 +173,13 @@ def calibration_rows(kind: str | None, u_um: float, dof: float,
         line, that line alone: it carries the very covariance that gave
         ``sigma_calibration_um``, with its correlation between the blocks, and the
         per-point row would count it twice.
+
+    Notes
+    -----
+    A table's or a stated calibration std is a component with sensitivity c = 1 (GUM
+    5.1.3): Type A with the table's dof for a table (GUM 4.2), Type B with infinite dof
+    for a stated std (GUM 4.3); "none" is listed at u = 0 so the budget shows that the
+    term is missing rather than hiding it (docs/uncertainty_budget.rst).
     """
     if kind == "covariance" and geometry is not None:
         return [geometry]
