@@ -475,20 +475,38 @@ def _filtered_at(weighted: np.ndarray, kernel: np.ndarray, index: np.ndarray, wi
     r0, r1 = int(index.min()) // width, int(index.max()) // width + 1
     b0, b1 = max(r0 - r, 0), min(r1 + r, weighted.shape[1])
     local = index - b0 * width
-    den, cw, sw = (_convolve(np.ascontiguousarray(x[b0:b1]), kernel).ravel()[local]
+    den, cw, sw = (convolve_reflected(np.ascontiguousarray(x[b0:b1]), kernel).ravel()[local]
                    for x in weighted)
     with np.errstate(invalid="ignore", divide="ignore"):
         return np.stack([cw / den, sw / den])
 
 
-def _convolve(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
-    """``image`` (float32) convolved with a symmetric kernel, edges reflected."""
+def convolve_reflected(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
+    """``image`` (float32) correlated with ``kernel``, edges reflected (fedcba|abcdef,
+    OpenCV's BORDER_REFLECT, numpy's 'symmetric', scipy.ndimage's 'reflect').
+
+    The sums are float64 (float32 out): directly for kernels up to
+    :data:`DIRECT_KERNEL_SIZE` taps, by FFT over the padded image above, where direct sums
+    cost more. ``cv2.filter2D(image, CV_32F, kernel, borderType=BORDER_REFLECT)`` agrees
+    to float32 rounding (tests/test_opencv_twins.py).
+    """
     if kernel.size == 1:
         return image
-    import cv2
+    k = np.asarray(kernel, dtype=float)
+    if k.size <= DIRECT_KERNEL_SIZE:
+        from scipy.ndimage import correlate
 
-    return cv2.filter2D(image, cv2.CV_32F, kernel.astype(np.float32),
-                        borderType=cv2.BORDER_REFLECT)
+        return correlate(image.astype(float), k, mode="reflect").astype(np.float32)
+    from scipy.signal import fftconvolve
+
+    ry, rx = k.shape[0] // 2, k.shape[1] // 2
+    padded = np.pad(image.astype(float), ((ry, k.shape[0] - 1 - ry), (rx, k.shape[1] - 1 - rx)),
+                    mode="symmetric")
+    return fftconvolve(padded, k[::-1, ::-1], mode="valid").astype(np.float32)
+
+
+#: Largest kernel (taps) :func:`convolve_reflected` sums directly; larger ones go through FFTs.
+DIRECT_KERNEL_SIZE = 121
 
 
 #: Largest lag of the autocorrelation summed by :func:`effective_pixels` [camera px]:
