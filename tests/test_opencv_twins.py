@@ -66,7 +66,7 @@ def test_gaussian_blur_equals_opencv(sigma):
 
 @pytest.mark.parametrize("radius", [1, 3, 8, 16])
 def test_filter_bank_convolution_equals_filter2d(radius):
-    """Direct sums (up to 11 x 11) and FFTs (above) against cv2.filter2D, BORDER_REFLECT."""
+    """Direct sums (up to 7 x 7) and FFTs (above) against cv2.filter2D, BORDER_REFLECT."""
     from scanqa.annotation.filterbank import convolve_reflected
 
     yy, xx = np.mgrid[-radius:radius + 1, -radius:radius + 1]

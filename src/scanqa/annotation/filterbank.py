@@ -506,7 +506,7 @@ def convolve_reflected(image: np.ndarray, kernel: np.ndarray) -> np.ndarray:
 
 
 #: Largest kernel (taps) :func:`convolve_reflected` sums directly; larger ones go through FFTs.
-DIRECT_KERNEL_SIZE = 121
+DIRECT_KERNEL_SIZE = 49
 
 
 #: Largest lag of the autocorrelation summed by :func:`effective_pixels` [camera px]:
