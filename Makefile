@@ -34,7 +34,7 @@ $(STAMP): pyproject.toml | syslibs
 	@touch $(STAMP)
 
 # The reference decoder of tests/test_fringes_agreement.py without its dependencies: it
-# asks for opencv-contrib-python, and a second cv2 wheel beside scanqa's
+# asks for opencv-contrib-python, and a second cv2 wheel beside scanqa[calib]'s
 # opencv-python-headless breaks both (its other dependencies are in [test]). The tests
 # that write OpenCV's own Gray code (cv2.structured_light.GrayCodePattern, a contrib
 # module scanqa itself never uses) need the contrib build: the test venv swaps the
@@ -70,8 +70,9 @@ test: syslibs-test $(STAMP)
 # Python in a scratch folder (on the wheel's sample data, scanqa.sample_data_path()),
 # then `scanqa demo --help`. The whole demo runs in the suite (tests/test_demo.py) and
 # from a wheel when docs/install.rst was measured; here it would repeat ~20 s of CPU.
-# No extras, so no numba: the examples take the numpy paths (scanqa.compiled), and the
-# check fails if numba is there all the same. The venv is made anew, with the
+# No extras, so no numba and no OpenCV: the examples take the numpy paths
+# (scanqa.compiled, scanqa.calibration.pinhole), and the check fails if numba or cv2 is
+# there all the same. The venv is made anew, with the
 # dependencies the wheel asks for, only when pyproject.toml changes; scanqa itself is
 # reinstalled always.
 WHEEL_STAMP := $(WHEEL_VENV)/.deps
@@ -93,8 +94,10 @@ wheel-check: $(STAMP) $(WHEEL_STAMP)
 		|| (tail -20 ../wheel-readme.log; exit 1)
 	@if $(WHEEL_VENV)/bin/python -c "import numba" 2>/dev/null; then \
 		echo "wheel-check: numba is installed without the fast extra"; exit 1; fi
+	@if $(WHEEL_VENV)/bin/python -c "import cv2" 2>/dev/null; then \
+		echo "wheel-check: OpenCV (cv2) is installed without the calib extra"; exit 1; fi
 	@$(WHEEL_VENV)/bin/scanqa demo --help > /dev/null
-	@echo "wheel: $$(ls build/dist | tr "\n" " ")built; installed without extras (no numba); $$(cat build/wheel-readme.log)"
+	@echo "wheel: $$(ls build/dist | tr "\n" " ")built; installed without extras (no numba, no OpenCV); $$(cat build/wheel-readme.log)"
 
 # The documentation site (docs/): warnings are errors, so a broken reference, a malformed
 # docstring or a module missing from docs/api.rst fails the build.

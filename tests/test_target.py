@@ -269,3 +269,27 @@ def test_marker_fit_radial_profile_unbiased(cfg, monkeypatch):
           f"k2 {k2:+.3f} (std {geo.std['k2']:.3f}), tilt {geo.target_tilt_deg:.5f} deg")
     assert abs(df) < 2 * geo.std["focal_px"]
     assert abs(k2) < 2 * geo.std["k2"]
+
+
+def test_a_sweep_with_marker_frames_names_the_calib_extra(tmp_path, capsys, monkeypatch):
+    """Without OpenCV a sweep's printed target cannot be found: calibrate refuses at once
+    (after reading the manifest, before decoding a scan), naming the extra and the way
+    round it (--no-markers); no table is written."""
+    import sys
+
+    paper = load_config(ROOT / "calib" / "paper_scanner.toml")
+    _write_sweep(tmp_path, small_camera(paper), repeats=1)
+    (tmp_path / "sweep.toml").unlink()
+    for k in range(6):
+        (tmp_path / f"m{k}.png").write_bytes(b"")
+    monkeypatch.chdir(tmp_path)
+    assert main(["sweep-manifest", str(tmp_path), "--stage-mm", "440,445,450,455,460,465",
+                 "--markers", "m*.png", "--square-mm", "4"]) == 0
+    capsys.readouterr()
+    monkeypatch.setitem(sys.modules, "cv2", None)  # as if not installed
+    out = tmp_path / "table.npz"
+    code = main(["calibrate", str(tmp_path / "sweep.toml"), "--config",
+                 str(ROOT / "calib" / "paper_scanner.toml"), "--out", str(out)])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "pip install 'scanqa[calib]'" in err and "--no-markers" in err, err
+    assert len(err.splitlines()) == 1 and not out.exists()

@@ -109,9 +109,15 @@ def calibrate_board(poses: list[PathLike], patterns: tuple[PathLike, PathLike],
     from scanqa.decoding.parsing import load_patterns
     from scanqa.io.atomic import check_out_dir, staged_dir, write_text
     from scanqa.io.covariance import write_covariance
-    from scanqa.io.opencv import is_opencv_file, read_opencv_calibration, write_opencv_calibration
+    from scanqa.io.opencv import (
+        is_opencv_file,
+        read_opencv_calibration,
+        require_opencv,
+        write_opencv_calibration,
+    )
     from scanqa.report import board as report_board
 
+    require_opencv("a board calibration (its corner detector and solvers)")
     target = None
     if out is not None:
         target = check_out_dir(out)
@@ -177,8 +183,10 @@ def characterize_board(poses: list[PathLike], calibration: PathLike, config: Pat
     from scanqa.characterization.checks import check_scale, pose_keys
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
+    from scanqa.io.opencv import require_opencv
     from scanqa.model.config import load_config
 
+    require_opencv("a board characterization (its corner detector)")
     cfg = load_config(config, profile=profile)
     decoded = {name: decode(p) for name, p in pose_keys([str(p) for p in poses]).items()}
     first = next(iter(decoded.values()))

@@ -35,6 +35,7 @@ from scanqa.decoding.decoder import decode
 from scanqa.errors import InputError
 from scanqa.io import manifest as manifest_file
 from scanqa.io.images import read_image
+from scanqa.io.opencv import require_opencv
 from scanqa.io.sweep import SCANNER_FIELDS, Sweep, load_sweep, read_lateral
 from scanqa.io.tomlfile import read_toml
 from scanqa.model import geometry, optics
@@ -85,6 +86,7 @@ def marker_geometry(sweep: Sweep, config: ScannerConfig) -> SweepGeometry:
         The sweep has no marker frames, a frame is not the camera's size, the target is
         not found, or the fitted focal length contradicts the config's pixel size.
     """
+    require_opencv("the printed target of a sweep's marker frames")
     if not sweep.has_markers or sweep.target is None:
         raise InputError(f"{sweep.path}: no marker frames (give 'markers' on every "
                          "position and a [target] table)")

@@ -30,6 +30,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from scanqa.calibration.parametric import Lens
+from scanqa.calibration.pinhole import rotation_matrix
 from scanqa.calibration.target import Detection
 from scanqa.errors import InputError
 from scanqa.model.config import ScannerConfig
@@ -40,9 +41,7 @@ PRINCIPAL_POINT_LIMIT_PX = 1.0
 
 
 def _rodrigues(rvec: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.Rodrigues(np.asarray(rvec, float))[0]
+    return rotation_matrix(rvec)
 
 
 def plane_to_camera(xy: np.ndarray, rotation: np.ndarray, translation: np.ndarray

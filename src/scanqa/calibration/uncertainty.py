@@ -44,6 +44,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from scanqa.calibration.pinhole import rotation_matrix, rotation_vector
 from scanqa.errors import InputError
 from scanqa.io.opencv import COVARIANCE_PARAMETERS, OpenCVCalibration
 
@@ -52,15 +53,11 @@ RANK_TOLERANCE = 1e-12
 
 
 def _rodrigues(rotation: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.Rodrigues(np.asarray(rotation, dtype=float))[0].ravel()
+    return rotation_vector(rotation)
 
 
 def _rotation(vector: np.ndarray) -> np.ndarray:
-    import cv2
-
-    return cv2.Rodrigues(np.asarray(vector, dtype=float).reshape(3, 1))[0]
+    return rotation_matrix(vector)
 
 
 def _lens_vector(matrix: np.ndarray, distortion: np.ndarray) -> list[float]:

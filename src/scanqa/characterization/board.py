@@ -75,6 +75,38 @@ def find_board_corners(image: np.ndarray, inner: tuple[int, int]) -> np.ndarray 
     return None
 
 
+def fill_convex(image: np.ndarray, polygon: np.ndarray, value: int) -> None:
+    """Set to ``value`` the pixels of ``image`` inside a convex polygon of whole-pixel
+    vertices or on its edges' lines (``cv2.fillConvexPoly`` on them, to a pixel of the
+    edges where the two draw lines apart; tests/test_opencv_twins.py).
+
+    Parameters
+    ----------
+    image : (H, W) array
+        Written in place.
+    polygon : (n, 2) array_like
+        Vertices (x, y) in order (either sense) [px].
+    value : int
+        The label written.
+    """
+    poly = np.asarray(polygon, dtype=float)
+    lo = np.maximum(np.floor(poly.min(axis=0)).astype(int), 0)
+    hi = np.minimum(np.ceil(poly.max(axis=0)).astype(int) + 1, image.shape[::-1])
+    if np.any(hi <= lo):
+        return
+    y, x = np.mgrid[lo[1]:hi[1], lo[0]:hi[0]]
+    edges = np.roll(poly, -1, axis=0) - poly
+    cross = (edges[:, 0, None, None] * (y - poly[:, 1, None, None])
+             - edges[:, 1, None, None] * (x - poly[:, 0, None, None]))
+    # OpenCV includes the pixels its edge lines pass through: those within half a pixel
+    # of an edge along its minor axis (cross product / the edge's larger extent)
+    sense = np.sign(np.sum(poly[:, 0] * np.roll(poly[:, 1], -1) - np.roll(poly[:, 0], -1)
+                           * poly[:, 1])) or 1.0
+    reach = 0.5 * np.maximum(np.abs(edges).max(axis=1), 1e-12)[:, None, None]
+    inside = np.all(sense * cross >= -reach, axis=0)
+    image[lo[1]:hi[1], lo[0]:hi[0]][inside] = value
+
+
 def square_labels(corners: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Label image of the board's squares between its inner corners, and their colours.
 
@@ -85,8 +117,6 @@ def square_labels(corners: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, 
     bright : (n_squares,) bool
         True for the bright squares (the parity class with the higher median offset).
     """
-    import cv2
-
     labels = np.zeros(offset.shape, np.int32)
     rows, cols = corners.shape[:2]
     parity = []
@@ -96,7 +126,7 @@ def square_labels(corners: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, 
                              corners[i + 1, j]])
             centre = quad.mean(axis=0)
             quad = centre + SQUARE_SHRINK * (quad - centre)
-            cv2.fillConvexPoly(labels, np.round(quad).astype(np.int32), len(parity) + 1)
+            fill_convex(labels, np.round(quad), len(parity) + 1)
             parity.append((i + j) % 2)
     parity = np.array(parity)
     level = np.array([np.nanmedian(offset[labels == k + 1]) for k in range(parity.size)])

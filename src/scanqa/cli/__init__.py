@@ -185,6 +185,9 @@ def _main(argv: Sequence[str] | None) -> int:
 
     try:
         with _sigterm_raises(), command_inputs():
+            from scanqa.cli.common import check_calibration_extra
+
+            check_calibration_extra(args)
             return int(args.func(args) or 0)
     except ScanQAError as err:
         _fail(str(err))

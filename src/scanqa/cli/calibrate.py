@@ -25,7 +25,12 @@ from scanqa.decoding.parsing import load_patterns
 from scanqa.errors import InputError
 from scanqa.io.atomic import check_out_dir, staged_dir, write_text
 from scanqa.io.covariance import write_covariance
-from scanqa.io.opencv import is_opencv_file, read_opencv_calibration, write_opencv_calibration
+from scanqa.io.opencv import (
+    is_opencv_file,
+    read_opencv_calibration,
+    require_opencv,
+    write_opencv_calibration,
+)
 from scanqa.io.sweep import load_sweep
 from scanqa.progress import Progress, step_messages
 from scanqa.report import board as report_board
@@ -107,6 +112,9 @@ def run(args: argparse.Namespace) -> int:
     config = config_from_args(args)
     out = check_out_dir(args.out)
     sweep = load_sweep(args.sweep)
+    if sweep.has_markers and not args.no_markers:
+        require_opencv("the printed target of a sweep's marker frames (--no-markers: "
+                       "without them)")
     stem = out.with_suffix("").name
     with staged_dir(out.parent) as stage:  # the table and its reports, together or none
         table, report = calibrate(sweep, config, weights=args.weights, cell_px=args.cell,
@@ -135,6 +143,7 @@ def run(args: argparse.Namespace) -> int:
 
 def run_board(args: argparse.Namespace) -> int:
     """Board poses: decode them, calibrate, write the file and its reports."""
+    require_opencv("calibrate --board (its corner detector and OpenCV's solvers)")
     if args.square_mm is None or args.patterns is None:
         raise InputError("a board calibration needs --square-mm and --patterns "
                          "COLUMNS.toml ROWS.toml")

@@ -153,8 +153,10 @@ def run_board(args: argparse.Namespace) -> int:
     from scanqa.characterization.checks import check_scale, pose_keys
     from scanqa.decoding.decoder import decode
     from scanqa.io.atomic import staged_dir, write_text
+    from scanqa.io.opencv import require_opencv
     from scanqa.progress import Progress, step_messages
 
+    require_opencv("characterize board (its corner detector)")
     rows, cols = _board(args.board)
     inner = (cols, rows)  # per row, per column
     notice = board_notice(rows, cols)

@@ -17,6 +17,7 @@ from scanqa.calibration.base import Calibration, load_calibration
 from scanqa.decoding.phasemap import PhaseMap
 from scanqa.errors import InputError, OutputError, ScanQAError
 from scanqa.io.atomic import check_out_dir
+from scanqa.io.opencv import is_opencv_file, require_opencv
 from scanqa.model.config import ScannerConfig, load_config
 from scanqa.numeric import json_ready
 
@@ -179,6 +180,14 @@ def add_calibration_argument(parser: argparse.ArgumentParser, required: bool = T
     term.add_argument("--calibration-sigma-um", type=number(ge=0, unit="um"), default=None,
                       metavar="UM", help="with an OpenCV calibration without covariance: a "
                       "stated std of every point from the calibration's own error [um]")
+
+
+def check_calibration_extra(args: argparse.Namespace) -> None:
+    """Refuse, before any work, a ``--calibration`` OpenCV file when OpenCV is absent
+    (every command's arguments pass here first; :func:`scanqa.io.opencv.require_opencv`)."""
+    value = getattr(args, "calibration", None)
+    if isinstance(value, str | os.PathLike) and is_opencv_file(value):
+        require_opencv(f"--calibration {Path(value).suffix} (an OpenCV calibration file)")
 
 
 def calibration_from_args(args: argparse.Namespace, config: ScannerConfig, scan: PhaseMap

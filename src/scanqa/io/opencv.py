@@ -52,6 +52,7 @@ past k3 are all zero. This module parses and checks shapes; what the numbers mea
 
 from __future__ import annotations
 
+import importlib.util
 import os
 import re
 from dataclasses import dataclass, field
@@ -60,6 +61,27 @@ from pathlib import Path
 import numpy as np
 
 from scanqa.errors import InputError
+
+#: pip's name for OpenCV in scanqa's extras: the board and printed-target detectors,
+#: OpenCV's calibration solvers and its FileStorage files (``pip install 'scanqa[calib]'``).
+INSTALL_HINT = "pip install 'scanqa[calib]'"
+
+
+def opencv_available() -> bool:
+    """True when OpenCV (``cv2``) can be imported (the ``calib`` extra)."""
+    return importlib.util.find_spec("cv2") is not None
+
+
+def require_opencv(what: str) -> None:
+    """Refuse ``what`` at once, naming the extra, when OpenCV is not installed.
+
+    Raises
+    ------
+    InputError
+        ``"{what} needs OpenCV (pip install 'scanqa[calib]')"``.
+    """
+    if not opencv_available():
+        raise InputError(f"{what} needs OpenCV ({INSTALL_HINT})")
 
 #: Suffixes OpenCV's FileStorage reads (optionally gzip-compressed: ``.xml.gz``).
 SUFFIXES = (".xml", ".yml", ".yaml", ".json")
@@ -151,6 +173,7 @@ def read_opencv_calibration(path: str | os.PathLike) -> OpenCVCalibration:
         not a matrix, of the wrong shape or not finite, or a size is not a positive whole
         number.
     """
+    require_opencv("reading an OpenCV calibration file (.xml, .yml, .yaml, .json)")
     p = Path(path)
     if not p.is_file():
         raise InputError(f"OpenCV calibration {p} does not exist")
@@ -225,6 +248,7 @@ def write_opencv_calibration(path: str | os.PathLike, data: OpenCVCalibration) -
     Path
         The file written.
     """
+    require_opencv("writing an OpenCV calibration file")
     import cv2
 
     p = Path(path)

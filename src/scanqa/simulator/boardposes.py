@@ -17,6 +17,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanqa.calibration.board import Board, BoardPose
+from scanqa.calibration.pinhole import (
+    project_points,
+    rotation_matrix,
+    rotation_vector,
+    undistort_points,
+)
 from scanqa.io.opencv import OpenCVCalibration
 
 CAMERA = (1280, 1024)
@@ -59,6 +65,17 @@ def sag_mm(board: Board, bow: np.ndarray, xy: np.ndarray) -> np.ndarray:
     return bow[0] * x**2 + bow[1] * y**2 + bow[2] * x * y
 
 
+def gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
+    """``cv2.GaussianBlur(image, (0, 0), sigma_px)`` of a float image in scipy: OpenCV's
+    kernel (radius round(4 sigma) for a float image, sampled and normalised) and its
+    default border (reflect-101, scipy's 'mirror') [DN]."""
+    from scipy.ndimage import gaussian_filter
+
+    radius = (int(np.rint(sigma_px * 8 + 1)) | 1) // 2
+    return gaussian_filter(np.asarray(image, dtype=float), sigma_px, mode="mirror",
+                           radius=radius)
+
+
 def bowed_points(board: Board, bow: np.ndarray) -> np.ndarray:
     """(n, 3) board corners with the quadric sag as Z [mm]."""
     pts = board.object_points.astype(float)
@@ -67,14 +84,12 @@ def bowed_points(board: Board, bow: np.ndarray) -> np.ndarray:
 
 
 def _truth(rng: np.random.Generator) -> OpenCVCalibration:
-    import cv2
-
     f_c, f_p = rng.uniform(1700, 1900), rng.uniform(1250, 1400)
     kc = np.array([rng.uniform(-0.12, -0.02), rng.normal(0, 0.05), 0, 0, 0])
     kp = np.array([rng.uniform(-0.06, 0.0), rng.normal(0, 0.03), 0, 0, 0])
     cc = np.array([(CAMERA[0] - 1) / 2, (CAMERA[1] - 1) / 2]) + rng.normal(0, 4, 2)
-    rot = cv2.Rodrigues(np.array([rng.normal(0.03, 0.02), rng.uniform(0.2, 0.3),
-                                  rng.normal(0, 0.02)]))[0]
+    rot = rotation_matrix(np.array([rng.normal(0.03, 0.02), rng.uniform(0.2, 0.3),
+                                 rng.normal(0, 0.02)]))
     centre = np.array([rng.uniform(100, 140), rng.normal(10, 5), rng.normal(-10, 5)])
     return OpenCVCalibration(
         Kc=np.array([[f_c, 0, cc[0]], [0, f_c, cc[1]], [0, 0, 1.0]]), kc=kc,
@@ -107,8 +122,6 @@ def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 
     -------
     SimulatedBoardScanner
     """
-    import cv2
-
     rng = np.random.default_rng(seed)
     truth = _truth(rng)
     bow = rng.normal(0, bow_mm, 3)
@@ -120,12 +133,11 @@ def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 
         rvec = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4),
                          rng.uniform(-0.2, 0.2)])
         depth = rng.uniform(360, 440)
-        rmat = cv2.Rodrigues(rvec)[0]
+        rmat = rotation_matrix(rvec)
         tvec = np.array([rng.normal(10, 15), rng.normal(0, 15), depth]) - rmat @ centre
-        cam = cv2.projectPoints(obj, rvec, tvec, truth.Kc, truth.kc)[0].reshape(-1, 2)
-        rp = cv2.Rodrigues(truth.Rp @ rmat)[0]
-        proj = cv2.projectPoints(obj, rp, truth.Rp @ tvec + truth.Tp, truth.Kp,
-                                 truth.kp)[0].reshape(-1, 2)
+        cam = project_points(obj, rvec, tvec, truth.Kc, truth.kc)
+        rp = rotation_vector(truth.Rp @ rmat)
+        proj = project_points(obj, rp, truth.Rp @ tvec + truth.Tp, truth.Kp, truth.kp)
         if not (_inside(cam, CAMERA, 20) and _inside(proj, PANEL, 5)):
             continue
         cam = cam + noise[0] * rng.standard_normal(cam.shape)
@@ -157,17 +169,14 @@ def volume_points(truth: OpenCVCalibration, depth_mm: tuple, grid: int = 7,
     xyz : (n, 3) float
         The true points in the camera frame [mm].
     """
-    import cv2
-
     uu, vv = np.meshgrid(np.linspace(0.1, 0.9, grid) * CAMERA[0],
                          np.linspace(0.1, 0.9, grid) * CAMERA[1])
     pix = np.column_stack([uu.ravel(), vv.ravel()])
-    norm = cv2.undistortPoints(pix.reshape(-1, 1, 2), truth.Kc, truth.kc).reshape(-1, 2)
+    norm = undistort_points(pix, truth.Kc, truth.kc)
     out = []
     for z in np.linspace(*depth_mm, depths):
         xyz = np.column_stack([norm * z, np.full(len(norm), z)])
-        prj = cv2.projectPoints(xyz, cv2.Rodrigues(truth.Rp)[0], truth.Tp, truth.Kp,
-                                truth.kp)[0].reshape(-1, 2)
+        prj = project_points(xyz, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
         ok = (prj[:, 0] > 0) & (prj[:, 0] < PANEL[0]) & (prj[:, 1] > 0) & (
             prj[:, 1] < PANEL[1])
         out.append((pix[ok, 0], pix[ok, 1], prj[ok, 0], xyz[ok]))
@@ -196,17 +205,15 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
         ``columns`` and ``rows``: (2 bits, H, W) uint8 frames; ``white``, ``black``:
         (H, W) uint8 [DN].
     """
-    import cv2
-
     width, height = int(truth.sizes["frameWidth"]), int(truth.sizes["frameHeight"])
     v, u = np.mgrid[0:height, 0:width].astype(float)
-    rot = cv2.Rodrigues(np.asarray(rvec, float))[0]
+    rot = rotation_matrix(rvec)
     normal, origin = rot[:, 2], np.asarray(tvec, float)
 
     def surface(du: float, dv: float) -> tuple[np.ndarray, np.ndarray]:
         """Camera-frame points and board coordinates seen at pixel offset (du, dv)."""
-        norm = cv2.undistortPoints(np.column_stack([u.ravel() + du, v.ravel() + dv])
-                                   .reshape(-1, 1, 2), truth.Kc, truth.kc).reshape(-1, 2)
+        norm = undistort_points(np.column_stack([u.ravel() + du, v.ravel() + dv]),
+                                truth.Kc, truth.kc)
         rays = np.column_stack([norm, np.ones(len(norm))])
         pts = rays * ((normal @ origin) / (rays @ normal))[:, None]
         local = (pts - origin) @ rot
@@ -229,15 +236,14 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
     # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it
     albedo = np.mean([reflectance(surface(du, dv)[1]) for du in (-1 / 3, 0, 1 / 3)
                       for dv in (-1 / 3, 0, 1 / 3)], axis=0)
-    proj = cv2.projectPoints(pts, cv2.Rodrigues(truth.Rp)[0], truth.Tp, truth.Kp,
-                             truth.kp)[0].reshape(-1, 2)
+    proj = project_points(pts, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
     panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
     lit = ((proj[:, 0] > -0.5) & (proj[:, 0] < panel[0] - 0.5) & (proj[:, 1] > -0.5)
            & (proj[:, 1] < panel[1] - 0.5))
 
     def shoot(light: np.ndarray) -> np.ndarray:
         image = (8.0 + 230.0 * albedo * np.where(lit, light, 0.0)).reshape(height, width)
-        image = cv2.GaussianBlur(image, (0, 0), blur_px)
+        image = gaussian_blur(image, blur_px)
         return np.clip(np.round(image + noise_dn * rng.standard_normal(image.shape)), 0,
                        255).astype(np.uint8)
 
