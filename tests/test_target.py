@@ -285,7 +285,18 @@ def test_a_sweep_with_marker_frames_names_the_calib_extra(tmp_path, capsys, monk
     monkeypatch.chdir(tmp_path)
     assert main(["sweep-manifest", str(tmp_path), "--stage-mm", "440,445,450,455,460,465",
                  "--markers", "m*.png", "--square-mm", "4"]) == 0
-    capsys.readouterr()
+    relative = (tmp_path / "sweep.toml").read_text()
+    # an absolute glob (a shell user's habit) gives the same manifest, no traceback
+    assert main(["sweep-manifest", str(tmp_path), "--stage-mm", "440,445,450,455,460,465",
+                 "--markers", str(tmp_path / "m*.png"), "--square-mm", "4"]) == 0
+    assert (tmp_path / "sweep.toml").read_text() == relative
+    # one outside the folder: one line naming it, exit 2
+    (tmp_path.parent / "m_elsewhere.png").write_bytes(b"")
+    assert main(["sweep-manifest", str(tmp_path), "--stage-mm", "440,445,450,455,460,465",
+                 "--markers", str(tmp_path.parent / "m_elsewhere.png"),
+                 "--square-mm", "4"]) == 2
+    err = capsys.readouterr().err
+    assert "outside" in err and "Traceback" not in err and "m_elsewhere.png" in err
     monkeypatch.setitem(sys.modules, "cv2", None)  # as if not installed
     out = tmp_path / "table.npz"
     code = main(["calibrate", str(tmp_path / "sweep.toml"), "--config",

@@ -4,6 +4,7 @@ readings, so that nobody writes one by hand."""
 from __future__ import annotations
 
 import argparse
+import glob
 from pathlib import Path
 
 from scanqa.cli.common import add_config_argument, config_from_args, emit, flags
@@ -53,6 +54,21 @@ def _captures(folder: Path) -> tuple[list[str], bool]:
                      "patterns.toml, or phase files *.npz)")
 
 
+def _marker_files(folder: Path, pattern: str) -> list[str]:
+    """The marker frames ``pattern`` matches, relative to ``folder`` (name order); an
+    absolute pattern too, as long as what it matches lies in ``folder``."""
+    if not Path(pattern).is_absolute():
+        return sorted(str(p.relative_to(folder)) for p in folder.glob(pattern))
+    base = folder.resolve()
+    found = sorted(Path(p).resolve() for p in glob.glob(pattern))
+    outside = [p for p in found if not p.is_relative_to(base)]
+    if outside:
+        raise InputError(f"--markers {pattern!r} matches {outside[0]}, outside {folder}: "
+                         "the manifest's paths are relative to its folder; put the marker "
+                         "frames under it")
+    return [str(p.relative_to(base)) for p in found]
+
+
 def run(args: argparse.Namespace) -> int:
     folder = Path(args.folder)
     if not folder.is_dir():
@@ -63,7 +79,7 @@ def run(args: argparse.Namespace) -> int:
         else read_stage_readings(args.stage_mm, "--stage-mm")
     markers = None
     if args.markers:
-        markers = sorted(str(p.relative_to(folder)) for p in folder.glob(args.markers))
+        markers = _marker_files(folder, args.markers)
         if not markers:
             raise InputError(f"--markers {args.markers!r} matches no file in {folder}")
     scanner = scanner_table(config_from_args(args).camera) if args.config else None
