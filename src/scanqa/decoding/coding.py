@@ -492,9 +492,8 @@ def _set_dict(pset: PhaseSet | GrayCodeSet | ReferenceSet) -> dict:
     out: dict[str, Any] = {"kind": kind}
     for key, value in asdict(pset).items():
         if value is None or (value in ("", ()) and key in ("files", "stack", "stack_key",
-                                                          "orders")):
-            continue
-        if key == "code" and value == "reflected":  # the default, as before the key
+                                                          "orders")) or (
+                key == "code" and value == "reflected"):  # the default, as before the key
             continue
         out[key] = list(value) if isinstance(value, tuple) else value
     return out
