@@ -214,13 +214,20 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
         """Camera-frame points and board coordinates seen at pixel offset (du, dv)."""
         norm = undistort_points(np.column_stack([u.ravel() + du, v.ravel() + dv]),
                                 truth.Kc, truth.kc)
-        rays = np.column_stack([norm, np.ones(len(norm))])
-        pts = rays * ((normal @ origin) / (rays @ normal))[:, None]
-        local = (pts - origin) @ rot
+        rays = (norm[:, 0], norm[:, 1], 1.0)
+        along = rays[0] * normal[0] + rays[1] * normal[1] + normal[2]  # ray . normal
+        # column by column: numpy's (n, 3) @ (3, 3) is ~5x slower for a million rows
+        def at(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            scale = depth / along
+            pts = np.column_stack([rays[0] * scale, rays[1] * scale, scale])
+            rel = pts - origin
+            local = np.column_stack([rel[:, 0] * rot[0, j] + rel[:, 1] * rot[1, j]
+                                     + rel[:, 2] * rot[2, j] for j in range(3)])
+            return pts, local
+
+        pts, local = at(np.full(len(along), normal @ origin))
         for _ in range(2 if bow is not None else 0):  # onto the bowed board, along the ray
-            pts = rays * ((normal @ origin + sag_mm(board, bow, local)) / (rays @ normal)
-                          )[:, None]
-            local = (pts - origin) @ rot
+            pts, local = at(normal @ origin + sag_mm(board, bow, local))
         return pts, local
 
     def reflectance(local: np.ndarray) -> np.ndarray:
