@@ -4,8 +4,19 @@ from __future__ import annotations
 
 import os
 import resource
+import sys
 import time
+import warnings
 from pathlib import Path
+
+# One OpenBLAS thread per test process, set before numpy loads OpenBLAS (the xdist
+# workers and the CLI's subprocesses inherit it): on 2 cores shared by two workers its
+# threads only compete, and they make numpy's tall-skinny products, (n, 3) @ (3, 3) with
+# n ~ 1e6, ~30x slower in CPU (docs/benchmarks.rst, "The test suite").
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+if "numpy" in sys.modules:  # loaded by a plugin before this file: too late for the variable
+    warnings.warn("numpy was imported before tests/conftest.py: OpenBLAS keeps its "
+                  "threads (set OPENBLAS_NUM_THREADS=1)", stacklevel=1)
 
 import pytest
 
