@@ -245,21 +245,25 @@ def _phase_map(desc: PatternDescription, run: _Run, response: ProjectorResponse 
                images: Sequence[np.ndarray], notes: Sequence[str]) -> PhaseMap:
     """Apply the guard, gather the diagnostics and warnings, and build the map."""
     out, stats = run.out, run.stats
-    misstated = diagnostics.misstated_steps(desc, stats)
-    warnings = [*([run.noise.warning] if run.noise.warning else []), *run.warnings]
-    if misstated:
-        diagnostics.apply_guard(out)
-        warnings += checks.likely_cause(desc, run.sample, _trips_guard)
-    else:
-        warnings += _decoded_checks(desc, run)
-    if run.contradicted:  # the sets disagree before any mask: no pixel is trusted
-        diagnostics.apply_guard(out)
+    # the spread of every set against x_p reads the counts alone: a second thread
+    # summarises it while this one checks the decoded map
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        spread = pool.submit(diagnostics.disagreement, stats)
+        misstated = diagnostics.misstated_steps(desc, stats)
+        warnings = [*([run.noise.warning] if run.noise.warning else []), *run.warnings]
+        if misstated:
+            diagnostics.apply_guard(out)
+            warnings += checks.likely_cause(desc, run.sample, _trips_guard)
+        else:
+            warnings += _decoded_checks(desc, run)
+        if run.contradicted:  # the sets disagree before any mask: no pixel is trusted
+            diagnostics.apply_guard(out)
+        counts = count_reasons(out["mask"])
+        info = _decode_info(desc, run, response, misstated, [*run.notes, *notes],
+                            counts["valid"], spread.result())
     for text in warnings:
         log.warning(text)
     arrays = {k: v for k, v in out.items() if not k.startswith("x:")}
-    counts = count_reasons(out["mask"])
-    info = _decode_info(desc, run, response, misstated, [*run.notes, *notes],
-                        counts["valid"])
     info["warnings"] = warnings
     info["hint"] = diagnostics.mask_hint(desc, counts, stats,
                                          contradicted=bool(misstated) or run.contradicted)
@@ -289,7 +293,8 @@ def _trips_guard(desc: PatternDescription, sample: list) -> bool:
 
 
 def _decode_info(desc: PatternDescription, run: _Run, response: ProjectorResponse | None,
-                 misstated: list, notes: Sequence[str], valid: int) -> dict:
+                 misstated: list, notes: Sequence[str], valid: int,
+                 spread: list[dict]) -> dict:
     phase, stats, noise = desc.phase_sets, run.stats, run.noise
     if not phase:
         working = _gray_working(run.plan.gray_cell_px, sum(stats.edges.values()), valid)
@@ -308,7 +313,7 @@ def _decode_info(desc: PatternDescription, run: _Run, response: ProjectorRespons
                                              "only decide fringe orders)" if left else ""))
     return {"noise": noise.as_dict(), "working": working,
             "chain": [s.name for s in UnwrapPlan.build(desc, noise.sensor, False).steps],
-            "disagreement": diagnostics.disagreement(stats), "misstated": misstated,
+            "disagreement": spread, "misstated": misstated,
             "consistency": [p.as_dict() for p in run.pairs],
             "gray_edge_pixels": int(sum(stats.edges.values())),
             "low_modulation_reasons": {diagnostics.LOW_REASONS[b]: int(n)
