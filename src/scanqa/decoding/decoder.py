@@ -16,14 +16,15 @@ import logging
 import os
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from scanqa.chunks import row_bands, run_bands
+from scanqa.chunks import row_bands
 from scanqa.decoding import checks, consistency, diagnostics, framecheck, waveform
-from scanqa.decoding.coding import PatternDescription
+from scanqa.decoding.coding import PatternDescription, SensorModel
 from scanqa.decoding.demodulate import demodulate_sample
 from scanqa.decoding.noise import NoiseEstimate, resolve_noise
 from scanqa.decoding.parsing import load_patterns
@@ -112,22 +113,11 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     stacks = _checked_stacks(desc, images)
     quantised = stacks[0].dtype.kind in "ui"
     noise = resolve_noise(desc, stacks, desc.sensor.resolved(stacks[0].dtype), quantised)
-    sample, bits, notes, warnings, pairs = checks.sample_rows(stacks), None, [], [], []
-    contradicted, shapes = False, []
-    if check:
-        corrected = () if response is None else \
-            tuple(s.name for s in desc.phase_sets if response.table_for(s) is not None)
-        demods = demodulate_sample(desc.sets, sample, noise.sensor, quantised)  # once
-        shapes = [s for s in waveform.fringe_shapes(desc, sample, noise.sensor, quantised,
-                                                    demods) if s.name not in corrected]
-        bits, notes = checks.gray_bits(desc, sample, noise.sensor, quantised)
-        pairs = consistency.set_consistency(desc, sample, noise.sensor, quantised, demods)
-        repeated = consistency.repeated_frames(desc, sample)
-        broken = framecheck.broken_frames(desc, sample, noise.sensor, quantised)
-        contradicted = bool(repeated or broken) or any(p.contradicted for p in pairs)
-        warnings = [*broken, *checks.reference_swapped(desc, sample, noise.sensor, quantised),
-                    *checks.inverse_layout(desc, sample, noise.sensor, quantised),
-                    *repeated, *consistency.consistency_warnings(pairs)]
+    sample = checks.sample_rows(stacks)
+    # the plan reads the Gray bits only: every other check of the sample runs in the
+    # band pool, beside the bands, and is joined before its findings are used
+    bits, notes = checks.gray_bits(desc, sample, noise.sensor, quantised) if check \
+        else (None, [])
     plan = UnwrapPlan.build(desc, noise.sensor, quantised, response, gray_bits=bits)
     if defers_orders(plan):
         plan = replace(plan, systematic=_systematic(plan, desc, sample))
@@ -142,11 +132,44 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
                     {k: v[r0:r1] for k, v in out.items()}, part)
         return part
 
+    bands = row_bands(height, width, step * width)
+    with ThreadPoolExecutor(max_workers=max(min(os.cpu_count() or 1, len(bands)), 1)) as pool:
+        found = pool.submit(_sample_checks, desc, sample, noise.sensor, quantised, response,
+                            check)  # first: one worker takes it while the others decode
+        try:
+            parts = list(pool.map(lambda b: band(*b), bands))
+        except Exception:
+            found.result()  # a check's error first, as when the checks ran before
+            raise
+    shapes, pairs, warnings, contradicted = found.result()
     stats = ChainStats()
-    for part in run_bands(band, row_bands(height, width, step * width)):
+    for part in parts:
         stats.merge(part)
     warnings += _carry_shapes(desc, shapes, out)
     return _Run(out, stats, noise, plan, sample, notes, warnings, pairs, contradicted)
+
+
+def _sample_checks(desc: PatternDescription, sample: list, sensor: SensorModel, quantised: bool,
+                   response: ProjectorResponse | None, check: bool
+                   ) -> tuple[list, list, list[str], bool]:
+    """The description's checks on the sample rows (all but the Gray bits): the sets
+    whose fringes are not sine waves, the pairs' consistency, the warnings, and whether
+    the sets contradict one another."""
+    if not check:
+        return [], [], [], False
+    corrected = () if response is None else \
+        tuple(s.name for s in desc.phase_sets if response.table_for(s) is not None)
+    demods = demodulate_sample(desc.sets, sample, sensor, quantised)  # once
+    shapes = [s for s in waveform.fringe_shapes(desc, sample, sensor, quantised, demods)
+              if s.name not in corrected]
+    pairs = consistency.set_consistency(desc, sample, sensor, quantised, demods)
+    repeated = consistency.repeated_frames(desc, sample)
+    broken = framecheck.broken_frames(desc, sample, sensor, quantised)
+    contradicted = bool(repeated or broken) or any(p.contradicted for p in pairs)
+    warnings = [*broken, *checks.reference_swapped(desc, sample, sensor, quantised),
+                *checks.inverse_layout(desc, sample, sensor, quantised),
+                *repeated, *consistency.consistency_warnings(pairs)]
+    return shapes, pairs, warnings, contradicted
 
 
 def _carry_shapes(desc: PatternDescription, shapes: list, out: dict) -> list[str]:
@@ -222,21 +245,25 @@ def _phase_map(desc: PatternDescription, run: _Run, response: ProjectorResponse 
                images: Sequence[np.ndarray], notes: Sequence[str]) -> PhaseMap:
     """Apply the guard, gather the diagnostics and warnings, and build the map."""
     out, stats = run.out, run.stats
-    misstated = diagnostics.misstated_steps(desc, stats)
-    warnings = [*([run.noise.warning] if run.noise.warning else []), *run.warnings]
-    if misstated:
-        diagnostics.apply_guard(out)
-        warnings += checks.likely_cause(desc, run.sample, _trips_guard)
-    else:
-        warnings += _decoded_checks(desc, run)
-    if run.contradicted:  # the sets disagree before any mask: no pixel is trusted
-        diagnostics.apply_guard(out)
+    # the spread of every set against x_p reads the counts alone: a second thread
+    # summarises it while this one checks the decoded map
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        spread = pool.submit(diagnostics.disagreement, stats)
+        misstated = diagnostics.misstated_steps(desc, stats)
+        warnings = [*([run.noise.warning] if run.noise.warning else []), *run.warnings]
+        if misstated:
+            diagnostics.apply_guard(out)
+            warnings += checks.likely_cause(desc, run.sample, _trips_guard)
+        else:
+            warnings += _decoded_checks(desc, run)
+        if run.contradicted:  # the sets disagree before any mask: no pixel is trusted
+            diagnostics.apply_guard(out)
+        counts = count_reasons(out["mask"])
+        info = _decode_info(desc, run, response, misstated, [*run.notes, *notes],
+                            counts["valid"], spread.result())
     for text in warnings:
         log.warning(text)
     arrays = {k: v for k, v in out.items() if not k.startswith("x:")}
-    counts = count_reasons(out["mask"])
-    info = _decode_info(desc, run, response, misstated, [*run.notes, *notes],
-                        counts["valid"])
     info["warnings"] = warnings
     info["hint"] = diagnostics.mask_hint(desc, counts, stats,
                                          contradicted=bool(misstated) or run.contradicted)
@@ -266,7 +293,8 @@ def _trips_guard(desc: PatternDescription, sample: list) -> bool:
 
 
 def _decode_info(desc: PatternDescription, run: _Run, response: ProjectorResponse | None,
-                 misstated: list, notes: Sequence[str], valid: int) -> dict:
+                 misstated: list, notes: Sequence[str], valid: int,
+                 spread: list[dict]) -> dict:
     phase, stats, noise = desc.phase_sets, run.stats, run.noise
     if not phase:
         working = _gray_working(run.plan.gray_cell_px, sum(stats.edges.values()), valid)
@@ -285,7 +313,7 @@ def _decode_info(desc: PatternDescription, run: _Run, response: ProjectorRespons
                                              "only decide fringe orders)" if left else ""))
     return {"noise": noise.as_dict(), "working": working,
             "chain": [s.name for s in UnwrapPlan.build(desc, noise.sensor, False).steps],
-            "disagreement": diagnostics.disagreement(stats), "misstated": misstated,
+            "disagreement": spread, "misstated": misstated,
             "consistency": [p.as_dict() for p in run.pairs],
             "gray_edge_pixels": int(sum(stats.edges.values())),
             "low_modulation_reasons": {diagnostics.LOW_REASONS[b]: int(n)

@@ -13,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
+from scanqa.chunks import row_bands, run_bands
 from scanqa.errors import InputError
 from scanqa.io import phasemap as phasemap_file
 
@@ -35,6 +36,8 @@ ORIENTATIONS = ("vertical", "horizontal")
 MASK_REASONS = {MASK_VALID: "valid", MASK_SATURATED: "saturated",
                 MASK_LOW_MODULATION: "low_modulation", MASK_INCONSISTENT: "inconsistent",
                 MASK_OUT_OF_RANGE: "out_of_range"}
+#: Pixels per band of the validation of a map (:meth:`PhaseMap._consistent`) [-].
+VALIDATE_PIXELS = 1 << 18
 
 
 @dataclass(frozen=True, eq=False)
@@ -85,7 +88,32 @@ class PhaseMap:
                                  f"{shape}, got {arr.shape}")
             arr.flags.writeable = False  # on the view only: the caller's array is untouched
             object.__setattr__(self, name, arr)
-        self._check_consistency()
+        if not self._consistent():
+            self._check_consistency()  # raises the one clear error
+
+    def _consistent(self) -> bool:
+        """True when every rule of :meth:`_check_consistency` holds, checked in bands of
+        rows on every core (the arrays of a 5 MP map are read once, in parallel)."""
+        if self.orientation not in ORIENTATIONS or \
+                not (np.isfinite(self.period_px) and self.period_px > 0):
+            return False
+        height, width = self.xp.shape
+        parts = run_bands(self._band_consistent, row_bands(height, width, VALIDATE_PIXELS))
+        if not all(ok for ok, _ in parts):
+            return False
+        counts = np.sum([n for _, n in parts], axis=0) if parts else np.zeros(256, int)
+        return not np.setdiff1d(np.flatnonzero(counts), list(MASK_REASONS)).size
+
+    def _band_consistent(self, r0: int, r1: int) -> tuple[bool, np.ndarray]:
+        """Whether rows r0..r1 keep the rules, and their count of each mask code."""
+        mask = self.mask[r0:r1]
+        valid = mask == MASK_VALID
+        sigma, mod, off = self.sigma_xp[r0:r1], self.modulation[r0:r1], self.offset[r0:r1]
+        bad = (np.isfinite(self.xp[r0:r1]) != valid).any() or \
+            (np.isinf(sigma) | (sigma < 0)).any() or \
+            (np.isinf(mod) | (mod < 0) | (valid & np.isnan(mod))).any() or \
+            (np.isinf(off) | (valid & np.isnan(off))).any()
+        return not bad, np.bincount(mask.ravel(), minlength=256)
 
     def _check_consistency(self) -> None:
         mask = self.mask

@@ -255,11 +255,12 @@ def _demodulate_set(plan: UnwrapPlan, sp: _SetPlan, frames: np.ndarray,
         var_phi = var_phi * gain * gain
     th = plan.desc.thresholds
     if th.min_modulation_dn > 0:
-        flags.low |= np.where(b < th.min_modulation_dn, LOW_FLOOR, 0).astype(np.uint8)
+        flags.low |= (b < th.min_modulation_dn).view(np.uint8) * np.uint8(LOW_FLOOR)
     # the wrapped phase itself must be reliable to within the accepted residual
     noisy = ~(var_phi * (th.unwrap_sigma_margin / TWO_PI) ** 2 <= th.unwrap_max_residual ** 2)
     flags.low |= noisy.view(np.uint8) * np.uint8(LOW_PHASE)
-    return a, b, frac, var_phi * (sp.period_px / TWO_PI) ** 2
+    var_phi *= (sp.period_px / TWO_PI) ** 2  # this set's own array: scaled in place
+    return a, b, frac, var_phi
 
 
 def _gray(plan: UnwrapPlan, flat: dict, sets: list, flags: _Flags):
