@@ -136,12 +136,10 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
     with ThreadPoolExecutor(max_workers=max(min(os.cpu_count() or 1, len(bands)), 1)) as pool:
         found = pool.submit(_sample_checks, desc, sample, noise.sensor, quantised, response,
                             check)  # first: one worker takes it while the others decode
-        try:
-            parts = list(pool.map(lambda b: band(*b), bands))
-        except Exception:
-            found.result()  # a check's error first, as when the checks ran before
-            raise
-    shapes, pairs, warnings, contradicted = found.result()
+        running = [pool.submit(band, *b) for b in bands]
+        # a check's error first, as when the checks ran before the bands
+        shapes, pairs, warnings, contradicted = found.result()
+        parts = [r.result() for r in running]
     stats = ChainStats()
     for part in parts:
         stats.merge(part)
