@@ -3,7 +3,8 @@
 Each seed draws a scanner (camera and projector lenses with radial k1 and k2, the
 camera's principal point off the image centre by a few pixels, the projector beside the
 camera), a chessboard bowed by a quadric sag, and board poses tilted about both axes. The
-corners are projected by OpenCV's ``projectPoints`` through the true lenses - the
+corners are projected (:func:`scanqa.calibration.pinhole.project_points`, OpenCV's
+model) through the true lenses - the
 camera's image corners and the projector's (what a perfect decode with local
 homographies gives) - with Gaussian corner noise added. The study then calibrates from
 these corners and compares the calibration's 3-D points with the truth
@@ -239,10 +240,16 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
         out = np.where(inside, 0.85, 0.05)
         return np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), 0.15, out)
 
-    pts = surface(0.0, 0.0)[0]
-    # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it
-    albedo = np.mean([reflectance(surface(du, dv)[1]) for du in (-1 / 3, 0, 1 / 3)
-                      for dv in (-1 / 3, 0, 1 / 3)], axis=0)
+    # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it; the
+    # centre's points (offset 0, 0) are the ones lit and projected
+    shades = []
+    for du in (-1 / 3, 0, 1 / 3):
+        for dv in (-1 / 3, 0, 1 / 3):
+            seen, local = surface(du, dv)
+            shades.append(reflectance(local))
+            if du == dv == 0:
+                pts = seen
+    albedo = np.mean(shades, axis=0)
     proj = project_points(pts, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
     panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
     lit = ((proj[:, 0] > -0.5) & (proj[:, 0] < panel[0] - 0.5) & (proj[:, 1] > -0.5)
