@@ -52,14 +52,6 @@ from scanqa.io.opencv import COVARIANCE_PARAMETERS, OpenCVCalibration
 RANK_TOLERANCE = 1e-12
 
 
-def _rodrigues(rotation: np.ndarray) -> np.ndarray:
-    return rotation_vector(rotation)
-
-
-def _rotation(vector: np.ndarray) -> np.ndarray:
-    return rotation_matrix(vector)
-
-
 def _lens_vector(matrix: np.ndarray, distortion: np.ndarray) -> list[float]:
     return [matrix[0, 0], matrix[1, 1], matrix[0, 2], matrix[1, 2], *distortion[:5]]
 
@@ -72,14 +64,14 @@ def _lens_matrix(values: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def pack_opencv(data: OpenCVCalibration) -> np.ndarray:
     """The (24,) parameter vector of an OpenCV calibration (``COVARIANCE_PARAMETERS``)."""
     return np.array([*_lens_vector(data.Kc, data.kc), *_lens_vector(data.Kp, data.kp),
-                     *_rodrigues(data.Rp), *np.ravel(data.Tp)], dtype=float)
+                     *rotation_vector(data.Rp), *np.ravel(data.Tp)], dtype=float)
 
 
 def pack(cal) -> np.ndarray:
     """The (24,) parameter vector of a :class:`ParametricCalibration`."""
     return np.array([*_lens_vector(cal.camera.matrix, cal.camera.distortion),
                      *_lens_vector(cal.projector.matrix, cal.projector.distortion),
-                     *_rodrigues(cal.rotation), *cal.translation], dtype=float)
+                     *rotation_vector(cal.rotation), *cal.translation], dtype=float)
 
 
 def unpack(cal, theta: np.ndarray):
@@ -90,7 +82,7 @@ def unpack(cal, theta: np.ndarray):
     cam_m[0, 1], proj_m[0, 1] = cal.camera.matrix[0, 1], cal.projector.matrix[0, 1]
     return replace(cal, camera=replace(cal.camera, matrix=cam_m, distortion=cam_k),
                    projector=replace(cal.projector, matrix=proj_m, distortion=proj_k),
-                   rotation=_rotation(theta[18:21]), translation=np.array(theta[21:24]),
+                   rotation=rotation_matrix(theta[18:21]), translation=np.array(theta[21:24]),
                    covariance=None)
 
 
