@@ -40,6 +40,20 @@ MASK_REASONS = {MASK_VALID: "valid", MASK_SATURATED: "saturated",
 VALIDATE_PIXELS = 1 << 18
 
 
+def value_rules(sigma_xp: np.ndarray, modulation: np.ndarray, offset: np.ndarray,
+                valid: np.ndarray) -> tuple:
+    """The rules of a map's per-pixel values, stated once for the banded check and the
+    error: (name, where broken, rule) of sigma_xp [projector px], modulation and offset
+    [DN] over the same pixels, ``valid`` where the mask is 0."""
+    return (("sigma_xp", np.isinf(sigma_xp) | (sigma_xp < 0),
+             "must be >= 0 [projector px] (NaN where masked), never negative or infinite"),
+            ("modulation", np.isinf(modulation) | (modulation < 0)
+             | (valid & np.isnan(modulation)),
+             "must be finite and >= 0 [DN] where the pixel is valid"),
+            ("offset", np.isinf(offset) | (valid & np.isnan(offset)),
+             "must be finite [DN] where the pixel is valid"))
+
+
 @dataclass(frozen=True, eq=False)
 class PhaseMap:
     """Decoded projector coordinate of every camera pixel, with mask and noise.
@@ -108,11 +122,9 @@ class PhaseMap:
         """Whether rows r0..r1 keep the rules, and their count of each mask code."""
         mask = self.mask[r0:r1]
         valid = mask == MASK_VALID
-        sigma, mod, off = self.sigma_xp[r0:r1], self.modulation[r0:r1], self.offset[r0:r1]
-        bad = (np.isfinite(self.xp[r0:r1]) != valid).any() or \
-            (np.isinf(sigma) | (sigma < 0)).any() or \
-            (np.isinf(mod) | (mod < 0) | (valid & np.isnan(mod))).any() or \
-            (np.isinf(off) | (valid & np.isnan(off))).any()
+        bad = (np.isfinite(self.xp[r0:r1]) != valid).any() or any(
+            broken.any() for _, broken, _ in value_rules(
+                self.sigma_xp[r0:r1], self.modulation[r0:r1], self.offset[r0:r1], valid))
         return not bad, np.bincount(mask.ravel(), minlength=256)
 
     def _check_consistency(self) -> None:
@@ -140,15 +152,8 @@ class PhaseMap:
         if self.orientation not in ORIENTATIONS:
             raise InputError(f"PhaseMap.orientation must be one of {', '.join(ORIENTATIONS)}"
                              f", got {self.orientation!r}")
-        checks = (("sigma_xp", np.isinf(self.sigma_xp) | (self.sigma_xp < 0),
-                   "must be >= 0 [projector px] (NaN where masked), never negative or "
-                   "infinite"),
-                  ("modulation", np.isinf(self.modulation) | (self.modulation < 0)
-                   | (valid & np.isnan(self.modulation)),
-                   "must be finite and >= 0 [DN] where the pixel is valid"),
-                  ("offset", np.isinf(self.offset) | (valid & np.isnan(self.offset)),
-                   "must be finite [DN] where the pixel is valid"))
-        for name, bad, rule in checks:
+        for name, bad, rule in value_rules(self.sigma_xp, self.modulation, self.offset,
+                                           valid):
             if bad.any():
                 where = np.argwhere(bad)[0]
                 value = float(getattr(self, name)[tuple(where)])
