@@ -22,14 +22,14 @@ from __future__ import annotations
 
 import math
 import textwrap
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq
 
 from scanqa.calibration.parametric import ParametricCalibration
 from scanqa.errors import InputError
-from scanqa.model.config import PLACEHOLDER, ProjectorConfig
+from scanqa.model.config import PLACEHOLDER, SCHEMA, ProjectorConfig
 
 #: Model parameters written when nothing better is known (``scanqa characterize`` fits
 #: sigma_p and gamma; the wavelength is the projector's light).
@@ -89,8 +89,8 @@ def projector_focal_mm(fx_px: float, pitch_um: float, focus_mm: float) -> float:
         return cfg.principal_distance_px - fx_px
 
     # search only the focal lengths a config accepts (its field range, and focus >= 4 f)
-    spec = next(f.metadata for f in fields(ProjectorConfig) if f.name == "focal_mm")
-    lower, upper = spec["ge"], min(spec["le"], focus_mm / 4.0 * (1 - 1e-12))
+    limit = SCHEMA.field("projector").table.field("focal_mm").check
+    lower, upper = limit.ge, min(limit.le, focus_mm / 4.0 * (1 - 1e-12))
     if not (lower < upper and excess(lower) < 0 < excess(upper)):
         raise InputError(f"the projector's f_x = {fx_px:g} px times the pitch {pitch_um:g} um "
                          f"is not a lens that can focus at {focus_mm:g} mm: check pitch_um")
