@@ -333,7 +333,8 @@ def _rows(schema: Schema, prefix: str) -> list[tuple[str, ...]]:
         doc = "; ".join(x for x in (f.doc, limit) if x)
         if f.table is not None and f.table.open and f.table.each is None:
             doc = "; ".join(x for x in (doc, "keys checked by its reader") if x)
-        default = "" if f.default is None else f"``{f.default!r}``".replace("'", '"')
+        value = list(f.default) if isinstance(f.default, tuple) else f.default  # TOML's
+        default = "" if value is None else f"``{value!r}``".replace("'", '"')
         rows.append((f"``{prefix}{f.name}``", f.type, f.unit, "yes" if f.required else "no",
                      default, doc))
         if f.table is not None:

@@ -379,7 +379,7 @@ SCHEMA = Schema("scanner config", (
                                              for f in fields(cls))))
       for name, cls in _SECTIONS.items()),
     Field("profiles", "table", doc="[profiles.NAME] tables of overrides of the keys above, "
-          "e.g. camera.f_number = 11.0", table=Schema("[profiles]", (), open=True))))
+          "e.g. camera.f_number = 11.0")))
 
 
 @dataclass(frozen=True)
