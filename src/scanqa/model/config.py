@@ -143,7 +143,7 @@ class CameraConfig(_Section):
     width_px: int = _spec("integer", "px", _SIDE, "image width")
     height_px: int = _spec("integer", "px", _SIDE, "image height")
     focus_mm: float = _spec("number", "mm", greater(0), "distance the camera is focused "
-                            "at, along its axis; > focal_mm")
+                            "at along its axis, beyond focal_mm")
     def _check_cross(self) -> None:
         if self.focus_mm <= self.focal_mm:
             raise ConfigError(
@@ -184,9 +184,10 @@ class ProjectorConfig(_Section):
     width_px: int = _spec("integer", "px", _SIDE, "panel width")
     height_px: int = _spec("integer", "px", _SIDE, "panel height")
     focus_mm: float = _spec("number", "mm", greater(0), "distance the projector is "
-                            "focused at, along its axis; >= 4 x focal_mm")
-    position_mm: tuple = _spec("numbers", "mm", count(3), "its centre in the scanner frame")
-    look_at_mm: tuple = _spec("numbers", "mm", count(3), "a point on its optical axis")
+                            "focused at along its axis, at least 4 x focal_mm")
+    position_mm: tuple = _spec("numbers", "mm", count(3), "the projector's centre in the "
+                               "scanner frame")
+    look_at_mm: tuple = _spec("numbers", "mm", count(3), "a point on the projector's axis")
 
     def _check_cross(self) -> None:
         if self.focus_mm < 4.0 * self.focal_mm:
@@ -255,8 +256,8 @@ class ModelConfig(_Section):
     section: ClassVar[str] = "model"
     wavelength_nm: float = _spec("number", "nm", within(100, 20000),
                                  "wavelength of the projected light")
-    gamma: float = _spec("number", "-", within(1, 1000), "camera noise-filtering factor of "
-                         "Eq. 17 ('scanqa characterize' fits it)")
+    gamma: float = _spec("number", "-", within(1, 1000),
+                         "camera noise-filtering factor of Eq. 17")
     sigma_p_px: float = _spec("number", "px", within(0, 100, open_low=True), "phase noise at "
                               "focus before the optical scale [projector px]")
     filter_floor: str = _spec("string", "", one_of(*FILTER_FLOORS), '"none" applies Eq. 17 '
