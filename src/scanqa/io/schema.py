@@ -85,7 +85,8 @@ class Check:
             return value in self.choices
         return (self.n is None or len(value) == self.n) and all(
             (self.gt is None or x > self.gt) and (self.ge is None or x >= self.ge)
-            and (self.le is None or x <= self.le) for x in _items(value))
+            and (self.le is None or x <= self.le)
+            for x in (value if isinstance(value, list) else [value]))
 
 
 def _num(x: float) -> str:
@@ -116,10 +117,6 @@ def count(n: int, then: Check | None = None) -> Check:
 def one_of(*choices: Any) -> Check:
     """One of the listed values."""
     return Check(choices=choices)
-
-
-def _items(value: Any) -> list:
-    return list(value) if isinstance(value, list) else [value]
 
 
 @dataclass(frozen=True)

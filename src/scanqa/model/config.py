@@ -92,14 +92,13 @@ def _check_value(key: str, value: Any, f: Field) -> Any:
         raise ConfigError(f"{key} is still the placeholder {value!r} that 'scanqa init' wrote: "
                           f"replace it with the measured value ({_expected(f)}; the "
                           "comment above it says what to measure)")
-    if f.type == "string" and f.check is None:
-        if not isinstance(value, str) or len(value) > 2000 or not value.isprintable():
-            raise ConfigError(f"{key} must be one line of text (at most 2000 characters), "
-                              f"got {value!r:.80}")
-        return value
+    if f.type == "string" and f.check is None and not (
+            isinstance(value, str) and len(value) <= 2000 and value.isprintable()):
+        raise ConfigError(f"{key} must be one line of text (at most 2000 characters), "
+                          f"got {value!r:.80}")
+    if f.type == "string" and f.check is not None and value not in f.check.choices:
+        raise ConfigError(f"{key} must be {_expected(f)}, got {value!r}")
     if f.type == "string":
-        if value not in f.check.choices:  # type: ignore[union-attr]
-            raise ConfigError(f"{key} must be {_expected(f)}, got {value!r}")
         return value
     if f.type == "numbers":
         n = f.check.n if f.check else None
@@ -119,9 +118,8 @@ class _Section:
 
     def __post_init__(self) -> None:
         for f in fields(self):  # type: ignore[arg-type]
-            value = _check_value(f"{self.section}.{f.name}", getattr(self, f.name),
-                                 f.metadata["field"])
-            object.__setattr__(self, f.name, value)
+            key, declared = f"{self.section}.{f.name}", f.metadata["field"]
+            object.__setattr__(self, f.name, _check_value(key, getattr(self, f.name), declared))
         self._check_cross()
 
     def _check_cross(self) -> None:
@@ -138,8 +136,7 @@ class CameraConfig(_Section):
     section: ClassVar[str] = "camera"
     focal_mm: float = _spec("number", "mm", within(0.5, 5000), "focal length of the lens")
     f_number: float = _spec("number", "-", within(0.5, 256), "f-number N the lens is set to")
-    pixel_um: float = _spec("number", "um", within(0.1, 1000),  # 1 mm: binned simulations
-                            "pixel size of the sensor")
+    pixel_um: float = _spec("number", "um", within(0.1, 1000), "pixel size of the sensor")
     width_px: int = _spec("integer", "px", _SIDE, "image width")
     height_px: int = _spec("integer", "px", _SIDE, "image height")
     focus_mm: float = _spec("number", "mm", greater(0), "distance the camera is focused "
@@ -301,12 +298,8 @@ class ModelConfig(_Section):
 class SimulatorConfig(_Section):
     """Simulator-only settings (ignored by the model), all optional (docs/simulator.rst).
 
-    The light reaching the camera is ``mean_signal_e`` electrons per pixel for a white
-    surface lit at normal incidence: ``(1 - modulation_ratio)`` of it ambient, the rest
-    the projected pattern. The scene-side noise is added before the camera blur, which
-    filters it. The realism settings (distortion, decentring, tilts, a printed target)
-    are off by default.
-    """
+    A white surface at normal incidence gives ``mean_signal_e``, ``1 - modulation_ratio``
+    of it ambient; the realism settings (distortion, tilts, a printed target) are off."""
 
     section: ClassVar[str] = "simulator"
     seed: int = _spec("integer", "-", at_least(0), "seed of every random stream", 0)
