@@ -362,13 +362,12 @@ class SimulatorConfig(_Section):
 
 _SECTIONS = {"camera": CameraConfig, "projector": ProjectorConfig, "fringes": FringeConfig,
              "model": ModelConfig, "simulator": SimulatorConfig}
-_OPTIONAL = {"simulator"}
 
 #: The scanner config's tables and keys, declared once: each key's type, unit, limits,
 #: default and meaning are its section's dataclass field (docs/formats.rst shows them).
 SCHEMA = Schema("scanner config", (
     Field("name", "string", doc="the scanner's name (default: the file's stem)"),
-    *(Field(name, "table", required=name not in _OPTIONAL, doc=cls.__doc__.split("\n")[0],
+    *(Field(name, "table", required=name != "simulator", doc=cls.__doc__.split("\n")[0],
             table=Schema(f"[{name}]", tuple(replace(f.metadata["field"], name=f.name)
                                              for f in fields(cls))))
       for name, cls in _SECTIONS.items()),
@@ -391,13 +390,9 @@ class ScannerConfig:
 
     def to_dict(self) -> dict:
         """Plain dict of every section (for provenance in output files)."""
-        out = {name: asdict(getattr(self, name)) for name in _SECTIONS}
-        for sec in out.values():
-            for k, v in sec.items():
-                if isinstance(v, tuple):
-                    sec[k] = list(v)
-        out["name"] = self.name
-        return out
+        out: dict = {name: {k: list(v) if isinstance(v, tuple) else v for k, v in
+                            asdict(getattr(self, name)).items()} for name in _SECTIONS}
+        return {**out, "name": self.name}
 
     @property
     def axes_crossing_mm(self) -> np.ndarray:
@@ -412,15 +407,12 @@ class ScannerConfig:
 
     def replace_model(self, **changes: Any) -> ScannerConfig:
         """Copy with some model parameters changed (validated again)."""
-        model = ModelConfig(**{**asdict(self.model), **changes})
-        return ScannerConfig(self.camera, self.projector, self.fringes, model,
-                             self.simulator, self.name, self.source, self.profile)
+        return replace(self, model=ModelConfig(**{**asdict(self.model), **changes}))
 
     def replace_simulator(self, **changes: Any) -> ScannerConfig:
         """Copy with some simulator settings changed (validated again)."""
-        sim = SimulatorConfig(**{**asdict(self.simulator), **changes})
-        return ScannerConfig(self.camera, self.projector, self.fringes, self.model,
-                             sim, self.name, self.source, self.profile)
+        return replace(self, simulator=SimulatorConfig(**{**asdict(self.simulator),
+                                                          **changes}))
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -488,7 +480,7 @@ def _config_from_dict(data: dict, source: str, profile: str | None) -> ScannerCo
         raise ConfigError(f"unknown table or key {unknown[0]!r} (known: "
                           f"{', '.join(_SECTIONS)}, name, profiles)")
     for sec in _SECTIONS:
-        if sec not in data and sec not in _OPTIONAL:
+        if sec not in data and SCHEMA.field(sec).required:
             raise ConfigError(f"missing table [{sec}]")
     built = {sec: _build_section(sec, data.get(sec, {})) for sec in _SECTIONS}
     return ScannerConfig(**built, name=str(name), source=source, profile=profile or "")
