@@ -284,10 +284,6 @@ _UNIT = re.compile(r"(mm|um|nm|px|deg|rad|bit|e-|e-/DN|DN|DN\^2|ms|s|-|%|ppm)")
 OTHER_DECLARATIONS = {
     "cli/common.py:number": "an argparse type: one flag's bound, given where the flag is "
                             "declared; no table of keys",
-    "design/rig.py:Setting": "the design page's inputs: label, unit, slider range and step "
-                             "(not yet a schema.Field; the page's and the optimiser's "
-                             "messages read low/high)",
-    "design/rig.py:SETTINGS": "the table of those inputs",
 }
 
 
