@@ -332,7 +332,8 @@ def _rows(schema: Schema, prefix: str) -> list[tuple[str, ...]]:
             doc = "; ".join(x for x in (doc, "keys checked by its reader") if x)
         value = list(f.default) if isinstance(f.default, tuple) else f.default  # TOML's
         default = "" if value is None else f"``{value!r}``".replace("'", '"')
-        rows.append((f"``{prefix}{f.name}``", f.type, f.unit, "yes" if f.required else "no",
+        unit = "\\-" if f.unit == "-" else f.unit  # a bare "-" is a list item in RST
+        rows.append((f"``{prefix}{f.name}``", f.type, unit, "yes" if f.required else "no",
                      default, doc))
         if f.table is not None:
             sub = f"{prefix}{f.name}[]." if "tables" in f.types else f"{prefix}{f.name}."

@@ -32,15 +32,11 @@ from scanqa.io.fitted_model import absolute_evidence, check_characterised_by
 from scanqa.io.schema import Check, Field, Schema, at_least, count, greater, one_of, within
 from scanqa.io.tomlfile import read_toml
 
-#: The readings of Eq. 17 (docs/model.rst, reading (i)) and its smooth form
-#: (docs/noise_model.rst).
+#: The values of ``model.filter_floor``: Eq. 17's readings (docs/model.rst, reading (i)).
 FILTER_FLOORS = ("none", "one", "smooth")
-#: How the camera blur's filter factor F is formed: "product" is Eq. 17 as printed,
-#: sqrt(b_c b_d) / gamma; "sum" adds the areas of pixel, defocus disc and Airy disc
-#: (docs/noise_model.rst).
+#: The values of ``model.filter_form``: how F is formed (docs/noise_model.rst).
 FILTER_FORMS = ("product", "sum")
-#: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)); the paper's
-#: readings first, then the two-source model (docs/noise_model.rst).
+#: The values of ``model.noise_reading`` (docs/model.rst, reading (ii); the paper's first).
 NOISE_READINGS = ("power", "amplitude", "mixed", "two_source")
 #: Largest sensor or panel side a config may declare [px] (bounds every image allocation).
 MAX_SIDE_PX = 100_000
@@ -102,8 +98,7 @@ def _check_value(key: str, value: Any, f: Field) -> Any:
         return value
     if f.type == "numbers":
         n = f.check.n if f.check else None
-        if not isinstance(value, (list, tuple)) or len(value) == 0 or len(value) != (
-                n or len(value)):
+        if not isinstance(value, (list, tuple)) or not value or n not in (None, len(value)):
             what = f"a list of {n} numbers" if n else "a non-empty list of numbers"
             raise ConfigError(f"{key} must be {what} [{f.unit}], got {value!r}")
         item = replace(f, type="number", check=f.check and replace(f.check, n=None))
@@ -230,7 +225,7 @@ class ProjectorConfig(_Section):
 
 @dataclass(frozen=True)
 class FringeConfig(_Section):
-    """Fringe periods in projector pixels; the first is the working (finest) period."""
+    """The projected fringe periods; the smallest is the working period."""
 
     section: ClassVar[str] = "fringes"
     periods_px: tuple = _spec("numbers", "px", within(2, MAX_SIDE_PX * 100), "the "
