@@ -230,11 +230,12 @@ VALUE_LIMITS: tuple[Field, ...] = (
     Field("*", "number", check=within(-1e15, 1e15), doc="anything else: a finite float64"))
 
 
-def value_limits(name: str) -> Field:
-    """The declaration of a per-point value named ``name`` (:data:`VALUE_LIMITS`)."""
+def value_limits(name: str) -> tuple[float, float, str]:
+    """(low, high, unit) of a per-point value named ``name`` (:data:`VALUE_LIMITS`)."""
     from fnmatch import fnmatchcase
 
-    return next(f for f in VALUE_LIMITS if fnmatchcase(name, f.name))
+    return next((f.check.ge, f.check.le, f.unit) for f in VALUE_LIMITS  # type: ignore
+                if fnmatchcase(name, f.name))
 
 
 def check_values(path: str | os.PathLike, xyz: np.ndarray, attributes: dict) -> None:
@@ -250,8 +251,7 @@ def check_values(path: str | os.PathLike, xyz: np.ndarray, attributes: dict) -> 
         v = np.asarray(values)
         if v.dtype.kind not in "iuf":
             continue
-        declared = value_limits(str(name))
-        lo, hi, unit = declared.check.ge, declared.check.le, declared.unit  # type: ignore
+        lo, hi, unit = value_limits(str(name))
         with np.errstate(invalid="ignore"):
             bad = np.flatnonzero(~((v >= lo) & (v <= hi)) & ~np.isnan(v)) \
                 if v.dtype.kind == "f" else np.flatnonzero((v < lo) | (v > hi))

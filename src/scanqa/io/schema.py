@@ -7,7 +7,10 @@ the declaration: it names the file, the key (with the table or entry it sits in)
 the fix. What a schema cannot say (an entry's cross-checks, files that must exist,
 a sorted order) stays in the reader, after validation. ``docs/formats.rst`` shows each
 schema as a table (:func:`rst_table`; ``tests/test_io_schema.py`` keeps the docs equal
-to the declarations).
+to the declarations). :class:`Field` is scanqa's one field declaration: the scanner
+config's keys (:data:`scanqa.model.config.SCHEMA`, validated with the config's own
+messages), the per-point value limits of :mod:`scanqa.io.cloud` and the design page's
+inputs are Fields too (``tests/test_conventions.py`` finds any other system).
 
 Types are named in words, alternatives joined by " or "::
 
