@@ -117,7 +117,7 @@ def _settings_body(rng: random.Random, base: dict, path: str) -> tuple[bytes, bo
     for key, new in settings.items():
         spec = rig.SETTINGS[key]
         invalid |= not (isinstance(new, (int, float)) and not isinstance(new, bool)
-                        and spec.low <= new <= spec.high)
+                        and spec.check.test(new))
     body: dict = {"settings": settings}
     roll = rng.random()
     if roll < 0.08:

@@ -269,3 +269,89 @@ def test_benchmarks_hold_speed_and_memory_benchmarks_only():
                      *(str(getattr(n, "module", "") or "").split("."))}
                         for n in ast.walk(ast.parse(p.read_text())))]
     assert importing == []
+
+
+# ------------------------------------------ one field-declaration system (issue 47)
+
+#: The one home of field declarations: a key's name, type, unit, limits, default and
+#: meaning are one :class:`scanqa.io.schema.Field` (the scanner config's too).
+SCHEMA_HOME = "io/schema.py"
+#: Names of a limit (as parameters, record fields or dict keys) and what a unit looks like.
+_LIMITS = {"gt", "ge", "lt", "le", "low", "high", "lower", "upper", "min", "max"}
+_UNIT = re.compile(r"(mm|um|nm|px|deg|rad|bit|e-|e-/DN|DN|DN\^2|ms|s|-|%|ppm)")
+
+#: Declarations outside the home that remain, each with the reason. Shrinks, never grows.
+OTHER_DECLARATIONS = {
+    "cli/common.py:number": "an argparse type: one flag's bound, given where the flag is "
+                            "declared; no table of keys",
+}
+
+
+def _number(node) -> bool:
+    if isinstance(node, ast.UnaryOp) and isinstance(node.op, ast.USub):
+        node = node.operand
+    return isinstance(node, ast.Constant) and type(node.value) in (int, float)
+
+
+def _row(node) -> bool:
+    """A row of a declaration table: a tuple or a call giving a unit and two numbers."""
+    items = (node.elts if isinstance(node, ast.Tuple) else [
+        *node.args, *(k.value for k in node.keywords)] if isinstance(node, ast.Call) else [])
+    unit = any(isinstance(i, ast.Constant) and isinstance(i.value, str)
+               and _UNIT.fullmatch(i.value) for i in items)
+    return unit and sum(map(_number, items)) >= 2
+
+
+def _declares(node) -> bool:
+    """A record type (class) or a helper (function) taking a unit and a limit, a dict
+    with a unit and a limit as keys, or a table (dict, tuple or list) of >= 3 rows."""
+    if isinstance(node, ast.ClassDef):
+        names = {s.target.id for s in node.body
+                 if isinstance(s, ast.AnnAssign) and isinstance(s.target, ast.Name)}
+    elif isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+        names = {a.arg for a in (*node.args.args, *node.args.kwonlyargs)}
+    elif isinstance(node, ast.Dict):
+        names = {k.value for k in node.keys if isinstance(k, ast.Constant)}
+    else:
+        names = set()
+    rows = (node.values if isinstance(node, ast.Dict)
+            else node.elts if isinstance(node, ast.Tuple | ast.List) else [])
+    return ("unit" in names and bool(names & _LIMITS)) or sum(map(_row, rows)) >= 3
+
+
+def _field_declarations(tree) -> list[str]:
+    """Names of the top-level statements of a module that declare fields by a system of
+    their own (:func:`_declares` anywhere inside them)."""
+    found = []
+    for stmt in tree.body:
+        name = getattr(stmt, "name", None) or ast.unparse(
+            getattr(stmt, "target", None) or (getattr(stmt, "targets", None) or [stmt])[0])
+        if any(_declares(n) for n in ast.walk(stmt)):
+            found.append(name)
+    return found
+
+
+def test_one_field_declaration_system():
+    """Keys with a unit and limits are declared as io.schema.Field records only: a second
+    system (a spec helper, a metadata dict, a table of (name, unit, low, high)) fails."""
+    found = {f"{path.relative_to(SRC).as_posix()}:{name}" for path in sorted(SRC.rglob("*.py"))
+             if path.relative_to(SRC).as_posix() != SCHEMA_HOME
+             for name in _field_declarations(ast.parse(path.read_text()))}
+    assert found == set(OTHER_DECLARATIONS)
+
+
+def test_the_declaration_finder_is_not_blind():
+    """It sees the scanner config's former system (a _spec helper filling a metadata dict
+    of unit and bounds), a record type and a table of (unit, low, high) rows."""
+    old = ast.parse(
+        "def _spec(unit='', gt=None, ge=None, le=None, kind='float', default=dataclass):\n"
+        "    meta = {'unit': unit, 'gt': gt, 'ge': ge, 'le': le, 'kind': kind}\n"
+        "    return field(metadata=meta)\n"
+        "class CameraConfig(_Section):\n"
+        "    focal_mm: float = _spec('mm', ge=0.5, le=5000)\n")
+    assert _field_declarations(old) == ["_spec"]
+    assert _field_declarations(ast.parse("class S:\n    unit: str\n    low: float\n"))
+    assert _field_declarations(ast.parse(
+        "T = {'a_mm': ('mm', 0, 1), 'b_deg': ('deg', -5, 5), 'c': ('-', 0.1, 2.0)}"))
+    assert not _field_declarations(ast.parse(
+        "x: float = _spec('number', 'mm', within(0.5, 5000), 'focal length', 3)"))

@@ -12,6 +12,7 @@ import importlib
 import pkgutil
 import re
 import sys
+from dataclasses import replace
 from pathlib import Path
 
 import pytest
@@ -29,6 +30,7 @@ from scanqa.io.patterns import read_patterns_file
 from scanqa.io.response import read_response_file
 from scanqa.io.spec import read_spec
 from scanqa.io.sweep import load_sweep
+from scanqa.model.config import SCHEMA as CONFIG
 
 ROOT = Path(__file__).resolve().parents[1]
 IO = ROOT / "src" / "scanqa" / "io"
@@ -263,19 +265,43 @@ def schema_docs() -> str:
     return "\n".join([*parts, END])
 
 
-def test_the_docs_show_every_declared_schema():
-    text = FORMATS_RST.read_text()
-    assert BEGIN in text and END in text, "run python tests/test_io_schema.py"
-    block = text[text.index(BEGIN):text.index(END) + len(END)]
-    assert block == schema_docs(), "docs/formats.rst is stale: run python " \
-                                   "tests/test_io_schema.py to regenerate its schema tables"
+def config_docs() -> str:
+    """The scanner config's table (its [simulator] keys are docs/simulator.rst's)."""
+    sim = CONFIG.field("simulator")
+    top = replace(CONFIG, fields=tuple(replace(f, table=None) if f is sim else f
+                                       for f in CONFIG.fields))
+    return "\n".join([".. config table: begin", "", schema.rst_table(top),
+                      ".. config table: end"])
 
 
-if __name__ == "__main__":  # rewrite the generated block of docs/formats.rst
+def simulator_docs() -> str:
+    """The [simulator] keys' table of docs/simulator.rst."""
+    return "\n".join([".. simulator table: begin", "",
+                      schema.rst_table(CONFIG.field("simulator").table),
+                      ".. simulator table: end"])
+
+
+#: The generated blocks of the docs: (file, the block's text), the block from the first
+#: line of its text to its last.
+BLOCKS = ((FORMATS_RST, config_docs), (FORMATS_RST, schema_docs),
+          (ROOT / "docs" / "simulator.rst", simulator_docs))
+
+
+@pytest.mark.parametrize("path, block", BLOCKS, ids=lambda x: getattr(x, "__name__", ""))
+def test_the_docs_show_every_declared_schema(path, block):
+    want = block()
+    begin, end = want.split("\n")[0], want.split("\n")[-1]
+    text = path.read_text()
+    assert begin in text and end in text, "run python tests/test_io_schema.py"
+    assert text[text.index(begin):text.index(end) + len(end)] == want, \
+        f"{path.name} is stale: run python tests/test_io_schema.py to regenerate its tables"
+
+
+if __name__ == "__main__":  # rewrite the generated blocks of the docs
     sys.path.insert(0, str(ROOT / "src"))
-    text = FORMATS_RST.read_text()
-    if BEGIN in text:
-        text = text[:text.index(BEGIN)] + schema_docs() + text[text.index(END) + len(END):]
-    else:
-        text = text.rstrip("\n") + "\n\n" + schema_docs() + "\n"
-    FORMATS_RST.write_text(text)
+    for path, block in BLOCKS:
+        want = block()
+        begin, end = want.split("\n")[0], want.split("\n")[-1]
+        text = path.read_text()
+        text = text[:text.index(begin)] + want + text[text.index(end) + len(end):]
+        path.write_text(text)

@@ -77,9 +77,10 @@ class DesignSpec:
                 raise InputError(f"limits.{key} needs low < high, got [{lo}, {hi}] "
                                  f"({self.source})")
             spec = rig.SETTINGS[key]
-            if lo < spec.low or hi > spec.high:  # else every point outside is infeasible
+            low, high = spec.check.ge, spec.check.le  # type: ignore[union-attr]
+            if lo < low or hi > high:  # else every point outside is infeasible
                 raise InputError(f"limits.{key} = [{lo:g}, {hi:g}] must lie within "
-                                 f"[{spec.low:g}, {spec.high:g}] {spec.unit} (the range "
+                                 f"[{low:g}, {high:g}] {spec.unit} (the range "
                                  f"of the setting) ({self.source})")
         if self.objective not in OBJECTIVES:
             raise InputError(f"objective must be one of {', '.join(OBJECTIVES)}, got "

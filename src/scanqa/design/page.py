@@ -192,9 +192,9 @@ def _inputs_html(settings: dict) -> str:
     rows = []
     for key, spec in SETTINGS.items():
         unit = f" [{spec.unit}]" if spec.unit else ""
-        rng = f'min="{spec.low:g}" max="{spec.high:g}"'
+        rng = f'min="{spec.check.ge:g}" max="{spec.check.le:g}"'  # type: ignore[union-attr]
         value = f'value="{settings[key]:.6g}"'
-        rows.append(f'<label>{html.escape(spec.label)}{html.escape(unit)}<br>'
+        rows.append(f'<label>{html.escape(spec.doc)}{html.escape(unit)}<br>'
                     f'<input type="range" id="{key}" data-key="{key}" {rng} '
                     f'step="{spec.step:g}" {value}> '
                     f'<input type="number" id="{key}-n" data-key="{key}" {rng} step="any" '

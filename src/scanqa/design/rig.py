@@ -27,38 +27,41 @@ from scipy.spatial import ConvexHull, HalfspaceIntersection
 
 from scanqa.design import tools
 from scanqa.errors import InputError
+from scanqa.io.schema import Field, within
 from scanqa.model import geometry, optics
 from scanqa.model.config import ScannerConfig, config_from_dict
 
 
 @dataclass(frozen=True)
-class Setting:
-    """One input of the design page: its label, unit and slider range."""
+class Setting(Field):
+    """One input of the design page: a declared number (its meaning is the label, its
+    limits the slider's range) and the slider's step."""
 
-    label: str
-    unit: str
-    low: float
-    high: float
-    step: float
+    type: str = "number"
+    step: float = 1.0
 
 
-#: The page's inputs, in display order: name -> label, unit, slider range and step.
-SETTINGS: dict[str, Setting] = {
-    "camera_focal_mm": Setting("camera focal length", "mm", 8.0, 200.0, 1.0),
-    "camera_f_number": Setting("camera f-number", "", 1.4, 32.0, 0.1),
-    "camera_focus_mm": Setting("camera focus distance", "mm", 150.0, 1500.0, 1.0),
-    "camera_pixel_um": Setting("camera pixel size", "um", 1.0, 20.0, 0.1),
-    "projector_focal_mm": Setting("projector focal length", "mm", 8.0, 100.0, 0.5),
-    "projector_f_number": Setting("projector f-number", "", 1.0, 16.0, 0.05),
-    "projector_focus_mm": Setting("projector focus distance", "mm", 150.0, 1500.0, 1.0),
-    "baseline_mm": Setting("baseline (projector X)", "mm", 20.0, 500.0, 1.0),
-    "angle_deg": Setting("convergence angle", "deg", 0.0, 45.0, 0.1),
+#: The page's inputs, in display order.
+SETTINGS: dict[str, Setting] = {s.name: s for s in (
+    Setting("camera_focal_mm", unit="mm", check=within(8, 200), doc="camera focal length"),
+    Setting("camera_f_number", check=within(1.4, 32), doc="camera f-number", step=0.1),
+    Setting("camera_focus_mm", unit="mm", check=within(150, 1500), doc="camera focus distance"),
+    Setting("camera_pixel_um", unit="um", check=within(1, 20), doc="camera pixel size",
+            step=0.1),
+    Setting("projector_focal_mm", unit="mm", check=within(8, 100),
+            doc="projector focal length", step=0.5),
+    Setting("projector_f_number", check=within(1, 16), doc="projector f-number", step=0.05),
+    Setting("projector_focus_mm", unit="mm", check=within(150, 1500),
+            doc="projector focus distance"),
+    Setting("baseline_mm", unit="mm", check=within(20, 500), doc="baseline (projector X)"),
+    Setting("angle_deg", unit="deg", check=within(0, 45), doc="convergence angle", step=0.1),
     # any period the decoder orders (a Gray code, a coarser set or a beat), from two
     # projector pixels (the finest period a panel can show) to the widest panels (8K)
-    "period_px": Setting("fringe period", "px", 2.0, 8192.0, 0.25),
-    "level": Setting("combined attenuation threshold A_c A_p", "", 0.05, 0.95, 0.01),
-    "coc_max_mm": Setting("camera circle of confusion threshold c_c", "mm", 0.005, 0.2, 0.001),
-}
+    Setting("period_px", unit="px", check=within(2, 8192), doc="fringe period", step=0.25),
+    Setting("level", check=within(0.05, 0.95), doc="combined attenuation threshold A_c A_p",
+            step=0.01),
+    Setting("coc_max_mm", unit="mm", check=within(0.005, 0.2),
+            doc="camera circle of confusion threshold c_c", step=0.001))}
 
 
 def settings_from_config(config: ScannerConfig, level: float = 0.49,
@@ -136,8 +139,8 @@ def check_settings(settings: dict) -> dict[str, float]:
             value = float(settings[key])
         except (TypeError, ValueError):
             raise InputError(f"{key} must be a number, got {settings[key]!r}") from None
-        if not spec.low <= value <= spec.high:
-            raise InputError(f"{key} must be in [{spec.low:g}, {spec.high:g}] {spec.unit}, "
+        if not spec.check.test(value):  # type: ignore[union-attr]
+            raise InputError(f"{key} must be {spec.check.text} {spec.unit}, "  # type: ignore
                              f"got {value!r}")
         out[key] = value
     return out

@@ -26,6 +26,7 @@ from scanqa.errors import InputError
 from scanqa.io import e57, las, ply
 from scanqa.io.atomic import atomic_path
 from scanqa.io.guard import MAX_TEXT_BYTES, loads_json_object, regular_file
+from scanqa.io.schema import Field, within
 
 #: First-line prefix of a CSV point table that carries scanqa's metadata (read only).
 CSV_META = "# scanqa-meta "
@@ -213,26 +214,28 @@ def read_cloud(path: str | os.PathLike) -> tuple[np.ndarray, dict, dict]:
     return xyz, attributes, metadata
 
 
-#: Physical limits of per-point values, by name pattern (first match): (pattern, low,
-#: high, unit). NaN means "no value" and passes; a value outside its limits (a negative
+#: Physical limits of per-point values, declared as fields named by pattern (first
+#: match). NaN means "no value" and passes; a value outside its limits (a negative
 #: sigma, a flag of -4, 1e30 anywhere, an overflowed CSV cell read as inf) is a damaged
 #: file or one in other units, refused naming the column.
-VALUE_LIMITS: tuple[tuple[str, float, float, str], ...] = (
-    ("[xyz]_mm", -1e6, 1e6, "mm"),           # coordinates: within a kilometre
-    ("sigma_*_um", 0.0, 1e6, "um"), ("s[xyz]_um", 0.0, 1e6, "um"),
-    ("*u_deviation_um", 0.0, 1e6, "um"), ("table_corr_mm", 0.0, 1e4, "mm"),
-    ("in_volume", 0.0, 1.0, "-"), ("model_valid", 0.0, 1.0, "-"),
-    ("significant", 0.0, 1.0, "-"), ("in_tolerance", 0.0, 1.0, "-"),
-    ("att_*", 0.0, 1e3, "-"), ("n_repeats", 0.0, 1e6, "-"),
-    ("*", -1e15, 1e15, ""))                  # anything else: a finite float64 value
+VALUE_LIMITS: tuple[Field, ...] = (
+    Field("[xyz]_mm", "number", "mm", check=within(-1e6, 1e6), doc="within a kilometre"),
+    *(Field(p, "number", "um", check=within(0, 1e6), doc="a spread")
+      for p in ("sigma_*_um", "s[xyz]_um", "*u_deviation_um")),
+    Field("table_corr_mm", "number", "mm", check=within(0, 1e4)),
+    *(Field(p, "number", "-", check=within(0, 1), doc="a flag")
+      for p in ("in_volume", "model_valid", "significant", "in_tolerance")),
+    Field("att_*", "number", "-", check=within(0, 1e3)),
+    Field("n_repeats", "number", "-", check=within(0, 1e6)),
+    Field("*", "number", check=within(-1e15, 1e15), doc="anything else: a finite float64"))
 
 
 def value_limits(name: str) -> tuple[float, float, str]:
     """(low, high, unit) of a per-point value named ``name`` (:data:`VALUE_LIMITS`)."""
     from fnmatch import fnmatchcase
 
-    return next((lo, hi, unit) for pattern, lo, hi, unit in VALUE_LIMITS
-                if fnmatchcase(name, pattern))
+    return next((f.check.ge, f.check.le, f.unit) for f in VALUE_LIMITS  # type: ignore
+                if fnmatchcase(name, f.name))
 
 
 def check_values(path: str | os.PathLike, xyz: np.ndarray, attributes: dict) -> None:

@@ -7,7 +7,10 @@ the declaration: it names the file, the key (with the table or entry it sits in)
 the fix. What a schema cannot say (an entry's cross-checks, files that must exist,
 a sorted order) stays in the reader, after validation. ``docs/formats.rst`` shows each
 schema as a table (:func:`rst_table`; ``tests/test_io_schema.py`` keeps the docs equal
-to the declarations).
+to the declarations). :class:`Field` is scanqa's one field declaration: the scanner
+config's keys (:data:`scanqa.model.config.SCHEMA`, validated with the config's own
+messages), the per-point value limits of :mod:`scanqa.io.cloud` and the design page's
+inputs are Fields too (``tests/test_conventions.py`` finds any other system).
 
 Types are named in words, alternatives joined by " or "::
 
@@ -52,12 +55,41 @@ TYPES: dict[str, tuple[Callable[[Any], bool], str]] = {
 
 @dataclass(frozen=True)
 class Check:
-    """A limit on a value beyond its type: ``text`` says it ("> 0"), ``test`` tests it;
-    ``noun``, when given, says the type more precisely ("a list of 3 finite numbers")."""
+    """A limit on a value beyond its type: bounds on a number (on every number of a
+    list), a list's length ``n``, or the values allowed (``choices``). ``text`` says it
+    ("> 0", "in [0.5, 5000]"), ``noun`` says the type more precisely ("a list of 3
+    finite numbers"), :meth:`test` tests it."""
 
-    text: str
-    test: Callable[[Any], bool]
-    noun: str = ""
+    gt: float | None = None
+    ge: float | None = None
+    le: float | None = None
+    n: int | None = None
+    choices: tuple = ()
+
+    @property
+    def text(self) -> str:
+        """The limit in words, for messages and the docs."""
+        if self.choices:
+            return "one of " + ", ".join(map(repr, self.choices))
+        low = self.ge if self.gt is None else self.gt
+        if low is not None and self.le is not None:
+            return f"in {'(' if self.gt is not None else '['}{_num(low)}, {_num(self.le)}]"
+        return " ".join(f"{op} {_num(b)}" for op, b in
+                        ((">", self.gt), (">=", self.ge), ("<=", self.le)) if b is not None)
+
+    @property
+    def noun(self) -> str:
+        """The type, when the limit says it more precisely than the field's type."""
+        return f"a list of {self.n} finite numbers" if self.n else ""
+
+    def test(self, value: Any) -> bool:
+        """Whether ``value`` (a number, or a list of numbers) keeps the limit."""
+        if self.choices:
+            return value in self.choices
+        return (self.n is None or len(value) == self.n) and all(
+            (self.gt is None or x > self.gt) and (self.ge is None or x >= self.ge)
+            and (self.le is None or x <= self.le)
+            for x in (value if isinstance(value, list) else [value]))
 
 
 def _num(x: float) -> str:
@@ -67,37 +99,27 @@ def _num(x: float) -> str:
 
 def greater(bound: float) -> Check:
     """Numbers (or every number of a list) strictly above ``bound``."""
-    return Check(f"> {_num(bound)}", lambda v: all(x > bound for x in _items(v)))
+    return Check(gt=bound)
 
 
 def at_least(bound: float) -> Check:
     """Numbers (or every number of a list) at or above ``bound``."""
-    return Check(f">= {_num(bound)}", lambda v: all(x >= bound for x in _items(v)))
+    return Check(ge=bound)
 
 
 def within(low: float, high: float, open_low: bool = False) -> Check:
     """Numbers (or every number of a list) in [low, high] (``open_low``: in (low, high])."""
-    if open_low:
-        return Check(f"in ({_num(low)}, {_num(high)}]",
-                     lambda v: all(low < x <= high for x in _items(v)))
-    return Check(f"in [{_num(low)}, {_num(high)}]",
-                 lambda v: all(low <= x <= high for x in _items(v)))
+    return Check(gt=low, le=high) if open_low else Check(ge=low, le=high)
 
 
 def count(n: int, then: Check | None = None) -> Check:
     """Lists of exactly ``n`` numbers (each also passing ``then``)."""
-    return Check(then.text if then else "",
-                 lambda v: len(v) == n and (then is None or then.test(v)),
-                 noun=f"a list of {n} finite numbers")
+    return replace(then or Check(), n=n)
 
 
 def one_of(*choices: Any) -> Check:
     """One of the listed values."""
-    return Check("one of " + ", ".join(map(repr, choices)), lambda v: v in choices)
-
-
-def _items(value: Any) -> list:
-    return list(value) if isinstance(value, list) else [value]
+    return Check(choices=choices)
 
 
 @dataclass(frozen=True)
@@ -311,8 +333,10 @@ def _rows(schema: Schema, prefix: str) -> list[tuple[str, ...]]:
         doc = "; ".join(x for x in (f.doc, limit) if x)
         if f.table is not None and f.table.open and f.table.each is None:
             doc = "; ".join(x for x in (doc, "keys checked by its reader") if x)
-        default = "" if f.default is None else f"``{f.default!r}``".replace("'", '"')
-        rows.append((f"``{prefix}{f.name}``", f.type, f.unit, "yes" if f.required else "no",
+        value = list(f.default) if isinstance(f.default, tuple) else f.default  # TOML's
+        default = "" if value is None else f"``{value!r}``".replace("'", '"')
+        unit = "\\-" if f.unit == "-" else f.unit  # a bare "-" is a list item in RST
+        rows.append((f"``{prefix}{f.name}``", f.type, unit, "yes" if f.required else "no",
                      default, doc))
         if f.table is not None:
             sub = f"{prefix}{f.name}[]." if "tables" in f.types else f"{prefix}{f.name}."

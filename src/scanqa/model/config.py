@@ -21,7 +21,7 @@ from __future__ import annotations
 import copy
 import math
 import os
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -29,17 +29,14 @@ import numpy as np
 
 from scanqa.errors import ConfigError
 from scanqa.io.fitted_model import absolute_evidence, check_characterised_by
+from scanqa.io.schema import Check, Field, Schema, at_least, count, greater, one_of, within
 from scanqa.io.tomlfile import read_toml
 
-#: The readings of Eq. 17 (docs/model.rst, reading (i)) and its smooth form
-#: (docs/noise_model.rst).
+#: The values of ``model.filter_floor``: Eq. 17's readings (docs/model.rst, reading (i)).
 FILTER_FLOORS = ("none", "one", "smooth")
-#: How the camera blur's filter factor F is formed: "product" is Eq. 17 as printed,
-#: sqrt(b_c b_d) / gamma; "sum" adds the areas of pixel, defocus disc and Airy disc
-#: (docs/noise_model.rst).
+#: The values of ``model.filter_form``: how F is formed (docs/noise_model.rst).
 FILTER_FORMS = ("product", "sum")
-#: The readings of how attenuation enters s_O (docs/model.rst, reading (ii)); the paper's
-#: readings first, then the two-source model (docs/noise_model.rst).
+#: The values of ``model.noise_reading`` (docs/model.rst, reading (ii); the paper's first).
 NOISE_READINGS = ("power", "amplitude", "mixed", "two_source")
 #: Largest sensor or panel side a config may declare [px] (bounds every image allocation).
 MAX_SIDE_PX = 100_000
@@ -48,85 +45,65 @@ MAX_SIDE_PX = 100_000
 MIN_MAGNITUDE, MAX_MAGNITUDE = 1e-9, 1e9
 
 
-def _spec(unit: str = "", gt: float | None = None, ge: float | None = None,
-          le: float | None = None, kind: str = "float", choices: tuple = (),
-          default: Any = dataclass) -> Any:
-    """A dataclass field carrying its unit and valid range for validation."""
-    meta = {"unit": unit, "gt": gt, "ge": ge, "le": le, "kind": kind, "choices": choices}
-    if default is dataclass:
-        return field(metadata=meta)
-    if isinstance(default, (list, dict)):
-        return field(default_factory=lambda: copy.deepcopy(default), metadata=meta)
-    return field(default=default, metadata=meta)
+def _spec(type_: str, unit: str = "", check: Check | None = None, doc: str = "",
+          default: Any = MISSING) -> Any:
+    """A key of a section: a dataclass field whose metadata holds its declaration, an
+    :class:`~scanqa.io.schema.Field` (named by :data:`SCHEMA` after the attribute)."""
+    declared = Field("", type_, unit, default is MISSING, None if default is MISSING
+                     else default, check, doc)
+    return field(default=default, metadata={"field": declared})
 
 
-def _expected(meta: dict) -> str:
-    """Human-readable expected range of a field, e.g. '> 0 mm'."""
-    unit = f" {meta['unit']}" if meta["unit"] else ""
-    parts = []
-    if meta["gt"] is not None:
-        parts.append(f"> {meta['gt']:g}{unit}")
-    if meta["ge"] is not None:
-        parts.append(f">= {meta['ge']:g}{unit}")
-    if meta["le"] is not None:
-        parts.append(f"<= {meta['le']:g}{unit}")
-    if meta["choices"]:
-        parts.append("one of " + ", ".join(repr(c) for c in meta["choices"]))
-    return " and ".join(parts) or f"a {meta['kind']}"
+def _expected(f: Field) -> str:
+    """The field's limit as messages say it, e.g. '>= 0.5 mm and <= 5000 mm'."""
+    unit = f" {f.unit}" if f.unit not in ("", "-") else ""
+    c = f.check or Check()
+    parts = [f"{op} {b:g}{unit}" for op, b in ((">", c.gt), (">=", c.ge), ("<=", c.le))
+             if b is not None]
+    return " and ".join(parts) or c.text or f.expected()
 
 
-def _check_number(key: str, value: Any, meta: dict) -> float:
-    """Validate one scalar against its field spec and return it as float or int."""
-    kind = meta["kind"]
+def _check_number(key: str, value: Any, f: Field) -> float:
+    """Validate one scalar against its declaration and return it as float or int."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ConfigError(f"{key} must be a number ({_expected(meta)}), got {value!r}")
-    if kind == "int" and (not float(value).is_integer()):
-        raise ConfigError(f"{key} must be a whole number ({_expected(meta)}), got {value!r}")
+        raise ConfigError(f"{key} must be a number ({_expected(f)}), got {value!r}")
+    if f.type == "integer" and (not float(value).is_integer()):
+        raise ConfigError(f"{key} must be a whole number ({_expected(f)}), got {value!r}")
     v = float(value)
     if math.isfinite(v) and v != 0 and not MIN_MAGNITUDE <= abs(v) <= MAX_MAGNITUDE:
-        raise ConfigError(f"{key} must be {_expected(meta)}, between {MIN_MAGNITUDE:g} and "
+        raise ConfigError(f"{key} must be {_expected(f)}, between {MIN_MAGNITUDE:g} and "
                           f"{MAX_MAGNITUDE:g} in magnitude (or 0 where allowed), got {value!r}")
-    bad = (not math.isfinite(v)
-           or (meta["gt"] is not None and not v > meta["gt"])
-           or (meta["ge"] is not None and not v >= meta["ge"])
-           or (meta["le"] is not None and not v <= meta["le"]))
-    if bad:
-        raise ConfigError(f"{key} must be {_expected(meta)}, got {value!r}")
-    return int(v) if kind == "int" else v
+    if not math.isfinite(v) or (f.check is not None and not f.check.test(v)):
+        raise ConfigError(f"{key} must be {_expected(f)}, got {value!r}")
+    return int(v) if f.type == "integer" else v
 
 
 #: Value ``scanqa init`` writes where the user must measure or look up a number.
 PLACEHOLDER = "MEASURE"
 
 
-def _check_value(key: str, value: Any, meta: dict) -> Any:
-    """Validate a field of any kind (float, int, bool, str, vec3, list)."""
-    kind = meta["kind"]
+def _check_value(key: str, value: Any, f: Field) -> Any:
+    """Validate a key of any declared type (number, integer, string, numbers)."""
     if isinstance(value, str) and value.startswith(PLACEHOLDER):
         raise ConfigError(f"{key} is still the placeholder {value!r} that 'scanqa init' wrote: "
-                          f"replace it with the measured value ({_expected(meta)}; the "
+                          f"replace it with the measured value ({_expected(f)}; the "
                           "comment above it says what to measure)")
-    if kind == "bool":
-        if not isinstance(value, bool):
-            raise ConfigError(f"{key} must be true or false, got {value!r}")
+    if f.type == "string" and f.check is None and not (
+            isinstance(value, str) and len(value) <= 2000 and value.isprintable()):
+        raise ConfigError(f"{key} must be one line of text (at most 2000 characters), "
+                          f"got {value!r:.80}")
+    if f.type == "string" and f.check is not None and value not in f.check.choices:
+        raise ConfigError(f"{key} must be {_expected(f)}, got {value!r}")
+    if f.type == "string":
         return value
-    if kind == "text":
-        if not isinstance(value, str) or len(value) > 2000 or not value.isprintable():
-            raise ConfigError(f"{key} must be one line of text (at most 2000 characters), "
-                              f"got {value!r:.80}")
-        return value
-    if kind == "str":
-        if value not in meta["choices"]:
-            raise ConfigError(f"{key} must be {_expected(meta)}, got {value!r}")
-        return value
-    if kind in ("vec3", "list"):
-        if not isinstance(value, (list, tuple)) or (kind == "vec3" and len(value) != 3) \
-                or len(value) == 0:
-            what = "a list of 3 numbers" if kind == "vec3" else "a non-empty list of numbers"
-            raise ConfigError(f"{key} must be {what} [{meta['unit']}], got {value!r}")
-        item = dict(meta, kind="float")
+    if f.type == "numbers":
+        n = f.check.n if f.check else None
+        if not isinstance(value, (list, tuple)) or not value or n not in (None, len(value)):
+            what = f"a list of {n} numbers" if n else "a non-empty list of numbers"
+            raise ConfigError(f"{key} must be {what} [{f.unit}], got {value!r}")
+        item = replace(f, type="number", check=f.check and replace(f.check, n=None))
         return tuple(_check_number(f"{key}[{i}]", v, item) for i, v in enumerate(value))
-    return _check_number(key, value, meta)
+    return _check_number(key, value, f)
 
 
 class _Section:
@@ -136,26 +113,29 @@ class _Section:
 
     def __post_init__(self) -> None:
         for f in fields(self):  # type: ignore[arg-type]
-            value = _check_value(f"{self.section}.{f.name}", getattr(self, f.name), f.metadata)
-            object.__setattr__(self, f.name, value)
+            key, declared = f"{self.section}.{f.name}", f.metadata["field"]
+            object.__setattr__(self, f.name, _check_value(key, getattr(self, f.name), declared))
         self._check_cross()
 
     def _check_cross(self) -> None:
         """Checks that involve several fields (overridden where needed)."""
 
 
+_SIDE = within(1, MAX_SIDE_PX)
+
+
 @dataclass(frozen=True)
 class CameraConfig(_Section):
-    """Camera lens and sensor. Its frame is the scanner frame."""
+    """Camera lens and sensor; its frame is the scanner frame."""
 
     section: ClassVar[str] = "camera"
-    focal_mm: float = _spec("mm", ge=0.5, le=5000)
-    f_number: float = _spec("", ge=0.5, le=256)
-    pixel_um: float = _spec("um", ge=0.1, le=1000)  # up to 1 mm: binned simulations
-    width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
-    height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
-    focus_mm: float = _spec("mm", gt=0)
-
+    focal_mm: float = _spec("number", "mm", within(0.5, 5000), "focal length of the lens")
+    f_number: float = _spec("number", "-", within(0.5, 256), "f-number N the lens is set to")
+    pixel_um: float = _spec("number", "um", within(0.1, 1000), "pixel size of the sensor")
+    width_px: int = _spec("integer", "px", _SIDE, "image width")
+    height_px: int = _spec("integer", "px", _SIDE, "image height")
+    focus_mm: float = _spec("number", "mm", greater(0), "distance the camera is focused "
+                            "at along its axis, beyond focal_mm")
     def _check_cross(self) -> None:
         if self.focus_mm <= self.focal_mm:
             raise ConfigError(
@@ -188,14 +168,18 @@ class ProjectorConfig(_Section):
     """
 
     section: ClassVar[str] = "projector"
-    focal_mm: float = _spec("mm", ge=0.5, le=5000)
-    aperture_mm: float = _spec("mm", ge=0.01, le=1000)
-    pitch_um: float = _spec("um", ge=0.1, le=1000)
-    width_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
-    height_px: int = _spec("px", ge=1, le=MAX_SIDE_PX, kind="int")
-    focus_mm: float = _spec("mm", gt=0)
-    position_mm: tuple = _spec("mm", kind="vec3")
-    look_at_mm: tuple = _spec("mm", kind="vec3")
+    focal_mm: float = _spec("number", "mm", within(0.5, 5000), "focal length of the lens")
+    aperture_mm: float = _spec("number", "mm", within(0.01, 1000),
+                               "aperture diameter of the lens (focal length / f-number)")
+    pitch_um: float = _spec("number", "um", within(0.1, 1000), "pixel pitch of the panel "
+                            "along x (active width / width_px)")
+    width_px: int = _spec("integer", "px", _SIDE, "panel width")
+    height_px: int = _spec("integer", "px", _SIDE, "panel height")
+    focus_mm: float = _spec("number", "mm", greater(0), "distance the projector is "
+                            "focused at along its axis, at least 4 x focal_mm")
+    position_mm: tuple = _spec("numbers", "mm", count(3), "the projector's centre in the "
+                               "scanner frame")
+    look_at_mm: tuple = _spec("numbers", "mm", count(3), "a point on the projector's axis")
 
     def _check_cross(self) -> None:
         if self.focus_mm < 4.0 * self.focal_mm:
@@ -241,10 +225,11 @@ class ProjectorConfig(_Section):
 
 @dataclass(frozen=True)
 class FringeConfig(_Section):
-    """Fringe periods in projector pixels; the first is the working (finest) period."""
+    """The projected fringe periods; the smallest is the working period."""
 
     section: ClassVar[str] = "fringes"
-    periods_px: tuple = _spec("px", ge=2, le=MAX_SIDE_PX * 100, kind="list")
+    periods_px: tuple = _spec("numbers", "px", within(2, MAX_SIDE_PX * 100), "the "
+                              "projected periods [projector px]; the smallest is the working one")
 
     @property
     def working_period_px(self) -> float:
@@ -256,43 +241,47 @@ class FringeConfig(_Section):
 class ModelConfig(_Section):
     """Parameters and readings of the defocus model (paper Sect. 3; docs/noise_model.rst).
 
-    ``filter_floor``: "none" applies Eq. 17 as printed, F can be < 1 (filtering amplifies
-    noise); "one" clamps F >= 1 as the paper's bound 1 <= gamma <= sqrt(b_c b_d) implies;
-    "smooth" takes F^2 + 1, noise correlated over gamma^2 keeping the variance share
-    gamma^2 / (gamma^2 + N) under a kernel of noise-equivalent area N (the law by which
-    flattening's filter reduces it; docs/noise_model.rst).
-    ``filter_form``: "product" is Eq. 17 as printed, F = sqrt(b_c b_d) / gamma; "sum"
-    takes F^2 as the noise-equivalent area of pixel, defocus disc and Airy disc together,
-    (1 + b_disc + b_d) / gamma^2. ``noise_reading``: "power" divides s_O by the
-    attenuation A (squared magnitude ratio, Eq. 19 as printed); "amplitude" by sqrt(A);
-    "mixed" by A_c sqrt(A_p); "two_source" adds scene-side noise (sigma_p, filtered by
-    F) and sensor noise (``sensor_sigma_p_px``, not filtered), each divided by
-    sqrt(A_c A_p). The defaults are the model the simulated camera and projector sweeps
-    select on held-out positions (floor "one", form "sum", reading "two_source"); the
-    paper's config sets the paper's reading explicitly.
+    The readings' defaults are the model the simulated camera and projector sweeps select
+    on held-out positions; the paper's config sets the paper's reading explicitly.
     """
 
     section: ClassVar[str] = "model"
-    wavelength_nm: float = _spec("nm", ge=100, le=20000)
-    gamma: float = _spec("", ge=1, le=1000)
-    sigma_p_px: float = _spec("px", gt=0, le=100)
-    filter_floor: str = _spec(kind="str", choices=FILTER_FLOORS, default="one")
-    noise_reading: str = _spec(kind="str", choices=NOISE_READINGS, default="two_source")
-    filter_form: str = _spec(kind="str", choices=FILTER_FORMS, default="sum")
-    #: phase noise of the sensor at focus (A_c = A_p = 1) [projector px]; two_source only
-    sensor_sigma_p_px: float = _spec("px", ge=0, le=100, default=0.0)
-    #: where sigma_p comes from ("" = assumed, not characterised): a characterisation file
-    #: and the start of its sha256, "summary.json sha256 HEX" (a published measurement
-    #: written down as a kind = "published" file). An assumed sigma_p does not set the
-    #: per-point sigma: the images' own noise does (docs/noise_model.rst)
-    characterised_by: str = _spec(kind="text", default="")
-    #: per-pixel noise law fitted to a board (scanqa characterize board): intensity
-    #: variance a + b A per frame at offset A; 0 and 0 = no law
-    noise_read_var_dn2: float = _spec("DN^2", ge=0, default=0.0)
-    noise_shot_dn: float = _spec("DN", ge=0, default=0.0)
-    #: systematic error per point a characterisation measured (board flatness and
-    #: calibration), added in quadrature to the total sigma [mm]
-    systematic_sigma_mm: float = _spec("mm", ge=0, default=0.0)
+    wavelength_nm: float = _spec("number", "nm", within(100, 20000),
+                                 "wavelength of the projected light")
+    gamma: float = _spec("number", "-", within(1, 1000),
+                         "camera noise-filtering factor of Eq. 17")
+    sigma_p_px: float = _spec("number", "px", within(0, 100, open_low=True), "phase noise at "
+                              "focus before the optical scale [projector px]")
+    filter_floor: str = _spec("string", "", one_of(*FILTER_FLOORS), '"none" applies Eq. 17 '
+                              'as printed (F < 1 amplifies noise); "one" clamps F >= 1 as the '
+                              "paper's bound 1 <= gamma <= sqrt(b_c b_d) implies; \"smooth\" "
+                              "takes F^2 + 1, the variance share gamma^2 / (gamma^2 + N) kept "
+                              "under a kernel of noise-equivalent area N", "one")
+    noise_reading: str = _spec("string", "", one_of(*NOISE_READINGS), "how attenuation "
+                               'enters s_O: "power" divides it by A (Eq. 19 as printed), '
+                               '"amplitude" by sqrt(A), "mixed" by A_c sqrt(A_p); '
+                               '"two_source" adds scene-side noise (sigma_p, filtered by F) '
+                               "and sensor noise (sensor_sigma_p_px, not filtered), each "
+                               "divided by sqrt(A_c A_p)", "two_source")
+    filter_form: str = _spec("string", "", one_of(*FILTER_FORMS), '"product" is Eq. 17 as '
+                             'printed, F = sqrt(b_c b_d) / gamma; "sum" takes F^2 as the '
+                             "noise-equivalent area of pixel, defocus disc and Airy disc "
+                             "together, (1 + b_disc + b_d) / gamma^2", "sum")
+    sensor_sigma_p_px: float = _spec("number", "px", within(0, 100), "phase noise of the "
+                                     "sensor at focus (A_c = A_p = 1) [projector px]; "
+                                     "two_source only", 0.0)
+    characterised_by: str = _spec("string", "", None, "where sigma_p comes from: a "
+                                  "characterisation file and the start of its sha256, "
+                                  "'summary.json sha256 HEX'; empty: assumed, and the "
+                                  "images' own noise sets each point's sigma", "")
+    noise_read_var_dn2: float = _spec("number", "DN^2", at_least(0), "per-pixel noise law "
+                                      "fitted to a board ('scanqa characterize board'): "
+                                      "intensity variance a + b A per frame at offset A; "
+                                      "this is a (0 and 0: no law)", 0.0)
+    noise_shot_dn: float = _spec("number", "DN", at_least(0), "b of that law", 0.0)
+    systematic_sigma_mm: float = _spec("number", "mm", at_least(0), "systematic error per "
+                                       "point a characterisation measured (board flatness "
+                                       "and calibration), added in quadrature", 0.0)
 
     @property
     def has_noise_law(self) -> bool:
@@ -302,74 +291,83 @@ class ModelConfig(_Section):
 
 @dataclass(frozen=True)
 class SimulatorConfig(_Section):
-    """Simulator-only settings (ignored by the model). All optional.
+    """Simulator-only settings (ignored by the model), all optional (docs/simulator.rst).
 
-    The light reaching the camera is ``mean_signal_e`` electrons per pixel for a white
-    surface lit at normal incidence: ``(1 - modulation_ratio)`` of it ambient, the rest
-    the projected pattern (so B / A = modulation_ratio at focus). ``scene_noise_rel``
-    is the std of the scene/projector-side temporal noise relative to that level, i.i.d.
-    per pattern and per object cell of ``scene_noise_cell_mm`` (0: white per
-    supersample, scaled so its std per camera pixel is ``scene_noise_rel``); it is
-    added before the camera blur, which filters it. ``unwrap_periods_px`` are the
-    coarser phase sets (``steps`` frames each, like the working period) that unwrap
-    the working period. ``roi_width_px``/``roi_height_px`` render a centred window of
-    the sensor (0: the whole sensor) with unchanged optics. ``projector_gamma`` is the
-    projector's response: it emits ``p**projector_gamma`` for a pattern value p in
-    [0, 1] (1: linear, the default).
-
-    Real-hardware realism (see docs/simulator.rst,
-    "Distortion, tilted stage, printed target"), all off by default:
-    ``camera_k1 .. camera_p2`` and ``projector_k1 .. projector_p2`` are Brown-Conrady
-    (OpenCV) coefficients on normalised pinhole coordinates;
-    ``camera_cx_offset_px``/``camera_cy_offset_px`` move the camera's principal point off
-    the sensor centre (as on a real camera; the config's ``camera.principal_point_px``
-    stays the nominal centre); ``stage_tilt_deg`` tilts the calibration stage's axis
-    against the camera axis towards ``stage_tilt_azimuth_deg`` (0: +X, 90: +Y);
-    ``target_tilt_deg`` turns the flat about the X axis; ``target = "chessboard"`` prints
-    a marked chessboard of ``target_square_mm`` squares on the flat, of albedo contrast
-    ``target_contrast`` in the marker frame and ``target_fringe_contrast`` under the
-    fringe light.
-    """
+    A white surface at normal incidence gives ``mean_signal_e``, ``1 - modulation_ratio``
+    of it ambient; the realism settings (distortion, tilts, a printed target) are off."""
 
     section: ClassVar[str] = "simulator"
-    seed: int = _spec("", ge=0, kind="int", default=0)
-    supersampling: int = _spec("", ge=1, le=16, kind="int", default=3)
-    bit_depth: int = _spec("bit", ge=8, le=16, kind="int", default=12)
-    gain_e_per_dn: float = _spec("e-/DN", gt=0, default=10.0)
-    read_noise_e: float = _spec("e-", ge=0, default=10.0)
-    full_well_e: float = _spec("e-", gt=0, default=40000.0)
-    scene_noise_rel: float = _spec("", ge=0, default=0.05)
-    scene_noise_cell_mm: float = _spec("mm", ge=0, default=0.06)
-    mean_signal_e: float = _spec("e-", gt=0, default=20000.0)
-    modulation_ratio: float = _spec("", gt=0, le=1, default=0.8)
-    projector_samples: int = _spec("", ge=16, le=65536, kind="int", default=256)
-    steps: int = _spec("", ge=3, le=64, kind="int", default=4)
-    unwrap_periods_px: tuple = _spec("px", gt=0, kind="list", default=[80.0, 1280.0])
-    roi_width_px: int = _spec("px", ge=0, kind="int", default=0)
-    roi_height_px: int = _spec("px", ge=0, kind="int", default=0)
-    projector_gamma: float = _spec("", gt=0, le=10, default=1.0)
-    camera_k1: float = _spec("", ge=-50, le=50, default=0.0)
-    camera_k2: float = _spec("", ge=-5000, le=5000, default=0.0)
-    camera_p1: float = _spec("", ge=-1, le=1, default=0.0)
-    camera_p2: float = _spec("", ge=-1, le=1, default=0.0)
-    camera_cx_offset_px: float = _spec("px", ge=-1000, le=1000, default=0.0)
-    camera_cy_offset_px: float = _spec("px", ge=-1000, le=1000, default=0.0)
-    projector_k1: float = _spec("", ge=-50, le=50, default=0.0)
-    projector_k2: float = _spec("", ge=-5000, le=5000, default=0.0)
-    projector_p1: float = _spec("", ge=-1, le=1, default=0.0)
-    projector_p2: float = _spec("", ge=-1, le=1, default=0.0)
-    stage_tilt_deg: float = _spec("deg", ge=0, le=20, default=0.0)
-    stage_tilt_azimuth_deg: float = _spec("deg", ge=-360, le=360, default=0.0)
-    target_tilt_deg: float = _spec("deg", ge=-30, le=30, default=0.0)
-    target: str = _spec(kind="str", choices=("none", "chessboard"), default="none")
-    target_square_mm: float = _spec("mm", gt=0, default=4.0)
-    target_contrast: float = _spec("", ge=0, le=1, default=0.8)
-    target_fringe_contrast: float = _spec("", ge=0, le=1, default=0.0)
+    seed: int = _spec("integer", "-", at_least(0), "seed of every random stream", 0)
+    supersampling: int = _spec("integer", "-", within(1, 16), "s x s rays per pixel", 3)
+    bit_depth: int = _spec("integer", "bit", within(8, 16), "image quantisation", 12)
+    gain_e_per_dn: float = _spec("number", "e-/DN", greater(0), "sensor gain", 10.0)
+    read_noise_e: float = _spec("number", "e-", at_least(0), "read noise", 10.0)
+    full_well_e: float = _spec("number", "e-", greater(0), "saturation", 40000.0)
+    scene_noise_rel: float = _spec("number", "-", at_least(0), "std of the scene-side noise "
+                                   "relative to the local level, per pattern", 0.05)
+    scene_noise_cell_mm: float = _spec("number", "mm", at_least(0), "size of its object "
+                                       "cells; 0: white per supersample", 0.06)
+    mean_signal_e: float = _spec("number", "e-", greater(0), "signal of a white surface at "
+                                 "normal incidence", 20000.0)
+    modulation_ratio: float = _spec("number", "-", within(0, 1, open_low=True), "fringe "
+                                    "modulation B / A at focus", 0.8)
+    projector_samples: int = _spec("integer", "-", within(16, 65536), "points of the "
+                                   "projector's disc quadrature", 256)
+    steps: int = _spec("integer", "-", within(3, 64), "frames per phase set", 4)
+    unwrap_periods_px: tuple = _spec("numbers", "px", greater(0), "coarser periods (steps "
+                                     "frames each) that unwrap the working one [projector px]",
+                                     (80.0, 1280.0))
+    roi_width_px: int = _spec("integer", "px", at_least(0), "width of a centred window of "
+                              "the sensor to render, optics unchanged (0: the whole sensor)", 0)
+    roi_height_px: int = _spec("integer", "px", at_least(0), "its height (0: the whole "
+                               "sensor)", 0)
+    projector_gamma: float = _spec("number", "-", within(0, 10, open_low=True), "projector "
+                                   "response: it emits p**projector_gamma for a pattern "
+                                   "value p in [0, 1] (1: linear)", 1.0)
+    camera_k1: float = _spec("number", "-", within(-50, 50), "camera distortion, "
+                             "Brown-Conrady (OpenCV) on normalised coordinates", 0.0)
+    camera_k2: float = _spec("number", "-", within(-5000, 5000), "the same, k2", 0.0)
+    camera_p1: float = _spec("number", "-", within(-1, 1), "the same, p1", 0.0)
+    camera_p2: float = _spec("number", "-", within(-1, 1), "the same, p2", 0.0)
+    camera_cx_offset_px: float = _spec("number", "px", within(-1000, 1000), "the camera's "
+                                       "principal point off the sensor centre, along x (the "
+                                       "config's principal_point_px stays the centre)", 0.0)
+    camera_cy_offset_px: float = _spec("number", "px", within(-1000, 1000), "the same, "
+                                       "along y", 0.0)
+    projector_k1: float = _spec("number", "-", within(-50, 50), "projector distortion, the "
+                                "camera's model", 0.0)
+    projector_k2: float = _spec("number", "-", within(-5000, 5000), "the same, k2", 0.0)
+    projector_p1: float = _spec("number", "-", within(-1, 1), "the same, p1", 0.0)
+    projector_p2: float = _spec("number", "-", within(-1, 1), "the same, p2", 0.0)
+    stage_tilt_deg: float = _spec("number", "deg", within(0, 20), "the calibration stage's "
+                                  "axis tilted against the camera axis", 0.0)
+    stage_tilt_azimuth_deg: float = _spec("number", "deg", within(-360, 360), "towards "
+                                          "where (0: +X, 90: +Y)", 0.0)
+    target_tilt_deg: float = _spec("number", "deg", within(-30, 30), "the calibration flat "
+                                   "turned about the X axis", 0.0)
+    target: str = _spec("string", "", one_of("none", "chessboard"), '"chessboard": print '
+                        "the marked chessboard on the calibration flat and render a marker "
+                        "frame per position", "none")
+    target_square_mm: float = _spec("number", "mm", greater(0), "its square", 4.0)
+    target_contrast: float = _spec("number", "-", within(0, 1), "albedo contrast of the "
+                                   "print in the marker frame", 0.8)
+    target_fringe_contrast: float = _spec("number", "-", within(0, 1), "the same under the "
+                                          "fringe light", 0.0)
 
 
 _SECTIONS = {"camera": CameraConfig, "projector": ProjectorConfig, "fringes": FringeConfig,
              "model": ModelConfig, "simulator": SimulatorConfig}
-_OPTIONAL = {"simulator"}
+
+#: The scanner config's tables and keys, declared once: each key's type, unit, limits,
+#: default and meaning are its section's dataclass field (docs/formats.rst shows them).
+SCHEMA = Schema("scanner config", (
+    Field("name", "string", doc="the scanner's name (default: the file's stem)"),
+    *(Field(name, "table", required=name != "simulator", doc=cls.__doc__.split("\n")[0],
+            table=Schema(f"[{name}]", tuple(replace(f.metadata["field"], name=f.name)
+                                             for f in fields(cls))))
+      for name, cls in _SECTIONS.items()),
+    Field("profiles", "table", doc="[profiles.NAME] tables of overrides of the keys above, "
+          "e.g. camera.f_number = 11.0")))
 
 
 @dataclass(frozen=True)
@@ -387,13 +385,9 @@ class ScannerConfig:
 
     def to_dict(self) -> dict:
         """Plain dict of every section (for provenance in output files)."""
-        out = {name: asdict(getattr(self, name)) for name in _SECTIONS}
-        for sec in out.values():
-            for k, v in sec.items():
-                if isinstance(v, tuple):
-                    sec[k] = list(v)
-        out["name"] = self.name
-        return out
+        out: dict = {name: {k: list(v) if isinstance(v, tuple) else v for k, v in
+                            asdict(getattr(self, name)).items()} for name in _SECTIONS}
+        return {**out, "name": self.name}
 
     @property
     def axes_crossing_mm(self) -> np.ndarray:
@@ -408,15 +402,12 @@ class ScannerConfig:
 
     def replace_model(self, **changes: Any) -> ScannerConfig:
         """Copy with some model parameters changed (validated again)."""
-        model = ModelConfig(**{**asdict(self.model), **changes})
-        return ScannerConfig(self.camera, self.projector, self.fringes, model,
-                             self.simulator, self.name, self.source, self.profile)
+        return replace(self, model=ModelConfig(**{**asdict(self.model), **changes}))
 
     def replace_simulator(self, **changes: Any) -> ScannerConfig:
         """Copy with some simulator settings changed (validated again)."""
-        sim = SimulatorConfig(**{**asdict(self.simulator), **changes})
-        return ScannerConfig(self.camera, self.projector, self.fringes, self.model,
-                             sim, self.name, self.source, self.profile)
+        return replace(self, simulator=SimulatorConfig(**{**asdict(self.simulator),
+                                                          **changes}))
 
 
 def _merge(base: dict, over: dict) -> dict:
@@ -432,23 +423,18 @@ def _merge(base: dict, over: dict) -> dict:
 
 def _build_section(name: str, table: Any) -> Any:
     """Build one section dataclass, rejecting unknown and missing keys."""
-    cls = _SECTIONS[name]
     if not isinstance(table, dict):
         raise ConfigError(f"[{name}] must be a table, got {table!r}")
-    known = {f.name: f for f in fields(cls)}
-    unknown = sorted(set(table) - set(known))
+    declared = SCHEMA.field(name).table.fields  # type: ignore[union-attr]
+    unknown = sorted(set(table) - {f.name for f in declared})
     if unknown:
         raise ConfigError(f"unknown key {name}.{unknown[0]} (known keys of [{name}]: "
-                          f"{', '.join(sorted(known))})")
-    missing = [k for k, f in known.items()
-               if k not in table and f.default is f.default_factory is _MISSING]
+                          f"{', '.join(sorted(f.name for f in declared))})")
+    missing = [f for f in declared if f.required and f.name not in table]
     if missing:
-        meta = known[missing[0]].metadata
-        raise ConfigError(f"missing key {name}.{missing[0]} (expected {_expected(meta)})")
-    return cls(**table)
-
-
-_MISSING = fields(CameraConfig)[0].default  # dataclasses.MISSING without importing it
+        raise ConfigError(f"missing key {name}.{missing[0].name} (expected "
+                          f"{_expected(missing[0])})")
+    return _SECTIONS[name](**table)
 
 
 def config_from_dict(data: dict, source: str = "<dict>", profile: str | None = None
@@ -489,7 +475,7 @@ def _config_from_dict(data: dict, source: str, profile: str | None) -> ScannerCo
         raise ConfigError(f"unknown table or key {unknown[0]!r} (known: "
                           f"{', '.join(_SECTIONS)}, name, profiles)")
     for sec in _SECTIONS:
-        if sec not in data and sec not in _OPTIONAL:
+        if sec not in data and SCHEMA.field(sec).required:
             raise ConfigError(f"missing table [{sec}]")
     built = {sec: _build_section(sec, data.get(sec, {})) for sec in _SECTIONS}
     return ScannerConfig(**built, name=str(name), source=source, profile=profile or "")

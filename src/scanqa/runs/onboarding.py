@@ -22,14 +22,15 @@ from __future__ import annotations
 
 import math
 import textwrap
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import brentq
 
 from scanqa.calibration.parametric import ParametricCalibration
 from scanqa.errors import InputError
-from scanqa.model.config import PLACEHOLDER, ProjectorConfig
+from scanqa.io.schema import Field
+from scanqa.model.config import PLACEHOLDER, SCHEMA, ProjectorConfig
 
 #: Model parameters written when nothing better is known (``scanqa characterize`` fits
 #: sigma_p and gamma; the wavelength is the projector's light).
@@ -89,8 +90,8 @@ def projector_focal_mm(fx_px: float, pitch_um: float, focus_mm: float) -> float:
         return cfg.principal_distance_px - fx_px
 
     # search only the focal lengths a config accepts (its field range, and focus >= 4 f)
-    spec = next(f.metadata for f in fields(ProjectorConfig) if f.name == "focal_mm")
-    lower, upper = spec["ge"], min(spec["le"], focus_mm / 4.0 * (1 - 1e-12))
+    limit = SCHEMA.field("projector").table.field("focal_mm").check
+    lower, upper = limit.ge, min(limit.le, focus_mm / 4.0 * (1 - 1e-12))
     if not (lower < upper and excess(lower) < 0 < excess(upper)):
         raise InputError(f"the projector's f_x = {fx_px:g} px times the pitch {pitch_um:g} um "
                          f"is not a lens that can focus at {focus_mm:g} mm: check pitch_um")
@@ -132,14 +133,13 @@ def scanner_config_text(cal: ParametricCalibration | None = None,
     geo = calibration_geometry(cal) if cal is not None else None
     sections = {"camera": _camera(cal, geo, pixel_um, camera_focus_mm),
                 "projector": _projector(cal, geo, pitch_um, projector_focus_mm),
-                "fringes": [("periods_px", periods_px, "fringe periods of the phase sets, "
-                             "the working (finest) one first [projector px]")],
+                "fringes": [("periods_px", periods_px, "")],
                 "model": _model()}
     lines = _header(cal, name)
     for section, entries in sections.items():
         lines += [f"[{section}]", ""]
-        for key, value, comment in entries:
-            lines += _key(key, value, comment)
+        for key, value, how in entries:
+            lines += _key(SCHEMA.field(section).table.field(key), value, how)  # type: ignore
     return "\n".join(lines).rstrip("\n") + "\n"
 
 
@@ -168,11 +168,13 @@ def _value(value: object) -> str:
     return text + "0" if text.endswith(".") else text
 
 
-def _key(key: str, value: object, comment: str) -> list[str]:
-    """``key = value`` under its comment (unit and meaning; how to measure it)."""
+def _key(declared: Field, value: object, how: str) -> list[str]:
+    """``key = value`` under its comment: the declared meaning and unit, how to measure."""
+    unit = f" [{declared.unit}]" if declared.unit and "[" not in declared.doc else ""
+    comment = f"{declared.doc}{unit}{how}"
     lines = [line for part in comment.split("\n")
-             for line in textwrap.wrap(part, width=86, break_long_words=False)]
-    return [f"# {line}" for line in lines] + [f"{key} = {_value(value)}", ""]
+             for line in textwrap.wrap(part, 86, break_long_words=False, break_on_hyphens=False)]
+    return [f"# {line}" for line in lines] + [f"{declared.name} = {_value(value)}", ""]
 
 
 def _header(cal: ParametricCalibration | None, name: str) -> list[str]:
@@ -195,14 +197,10 @@ def _camera(cal, geo, pixel_um, focus_mm) -> list[tuple]:
     how = (f"from Kc f_x = {fx:.2f} px x pixel_um at focus_mm (thin lens)" if focal else
            "the lens's focal length (data sheet), or give --pixel-um with --calibration")
     size = (cal.camera.width_px, cal.camera.height_px) if cal is not None else (None, None)
-    return [("focal_mm", focal, f"focal length of the camera lens [mm]: {how}"),
-            ("f_number", None, "f-number N the lens is set to [-] (read the aperture ring; "
-             "the blur circle scales as f / N)"),
-            ("pixel_um", pixel_um, "pixel size of the sensor [um] (data sheet)"),
-            ("width_px", size[0], "image width [px]" + _from(cal, "frameWidth")),
-            ("height_px", size[1], "image height [px]" + _from(cal, "frameHeight")),
-            ("focus_mm", focus, f"distance at which the camera is focused, along its axis "
-             f"[mm]{note}")]
+    return [("focal_mm", focal, f": {how}"), ("f_number", None, " (read the aperture "
+             "ring; the blur circle scales as f / N)"), ("pixel_um", pixel_um, " (data sheet)"),
+            ("width_px", size[0], _from(cal, "frameWidth")),
+            ("height_px", size[1], _from(cal, "frameHeight")), ("focus_mm", focus, note)]
 
 
 def _projector(cal, geo, pitch_um, focus_mm) -> list[tuple]:
@@ -220,38 +218,23 @@ def _projector(cal, geo, pitch_um, focus_mm) -> list[tuple]:
     axis = (": where the axis Rp^T e_z passes closest to the camera axis. The config has no "
             "roll about this axis and needs none: the model uses only the depth along it"
             if cal is not None else measure)
-    return [("focal_mm", focal, f"focal length of the projector lens [mm]: {how}"),
-            ("aperture_mm", None, "aperture diameter of the projector lens [mm] (focal "
-             "length / f-number)"),
-            ("pitch_um", pitch_um, "pixel pitch of the projector panel along x [um] (data "
-             "sheet: active width / width_px)"),
-            ("width_px", size[0], "panel width [px]" + _from(cal, "screenResX")),
-            ("height_px", size[1], "panel height [px]" + _from(cal, "screenResY")),
-            ("focus_mm", focus, f"distance at which the projector is focused, along its "
-             f"axis [mm]{note}"),
-            ("position_mm", None if geo is None else geo.position_mm,
-             "projector centre in the scanner frame [mm]" + pose),
-            ("look_at_mm", None if geo is None else geo.look_at_mm,
-             "a point on the projector's optical axis [mm]" + axis)]
+    return [("focal_mm", focal, f": {how}"), ("aperture_mm", None, ""),
+            ("pitch_um", pitch_um, " (data sheet)"),
+            ("width_px", size[0], _from(cal, "screenResX")),
+            ("height_px", size[1], _from(cal, "screenResY")), ("focus_mm", focus, note),
+            ("position_mm", None if geo is None else geo.position_mm, pose),
+            ("look_at_mm", None if geo is None else geo.look_at_mm, axis)]
 
 
 def _model() -> list[tuple]:
     """(key, value, comment) of the [model] table."""
     d = MODEL_DEFAULTS
-    fitted = "(STARTING VALUE: 'scanqa characterize' fits it)"
-    return [("wavelength_nm", d["wavelength_nm"], "wavelength of the projected light [nm] "
-             "(ASSUMED: white light; 460 for a blue LED)"),
-            ("gamma", d["gamma"], f"camera noise-filtering factor of Eq. 17 [-] {fitted}"),
-            ("sigma_p_px", d["sigma_p_px"], "phase noise at focus before the optical scale "
-             f"[projector px] {fitted}"),
-            ("filter_floor", "none", 'reading of Eq. 17: "none" as printed, "one" clamps '
-             'F >= 1, "smooth" takes sqrt(1 + F^2)'),
-            ("noise_reading", "power", 'how attenuation enters s_O: "power" (1/A), '
-             '"amplitude" (1/sqrt(A)) or "mixed"'),
-            ("characterised_by", "", "the characterisation file and the start of its "
-             "sha256, 'SUMMARY.json sha256 HEX' (never free words); empty = ASSUMED, so "
-             "every point's sigma comes from the scan's own images and every command warns "
-             "('scanqa characterize board' or --model SUMMARY.json fill it)")]
+    fitted = " (STARTING VALUE: 'scanqa characterize' fits it)"
+    return [("wavelength_nm", d["wavelength_nm"], " (ASSUMED: white light; 460 for a blue "
+             "LED)"), ("gamma", d["gamma"], fitted), ("sigma_p_px", d["sigma_p_px"], fitted),
+            ("filter_floor", "none", ""), ("noise_reading", "power", ""),
+            ("characterised_by", "", " (never free words: 'scanqa characterize board' or "
+             "--model SUMMARY.json fill it; every command warns while it is empty)")]
 
 
 def _from(cal: ParametricCalibration | None, key: str) -> str:
