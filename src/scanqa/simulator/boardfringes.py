@@ -5,8 +5,9 @@ that ``scanqa calibrate --board``, ``scanqa characterize board`` and their Pytho
 
 The scanner and the board come from :func:`scanqa.simulator.boardposes.simulate` (a
 camera and a projector with radial lens distortion, a chessboard bowed by a quadric sag),
-optionally binned to fewer camera pixels (:func:`binned`). The image formation is the
-Gray-code renderer's (:func:`scanqa.simulator.boardposes.gray_frames`): each camera
+optionally binned to fewer camera pixels (:func:`binned`). The image formation follows
+the Gray-code renderer's (:func:`scanqa.simulator.boardposes.gray_frames`, whose steps
+live inside that function, so :func:`board_view` writes them out again): each camera
 pixel's ray meets the bowed board, the board coordinates of that point give the
 reflectance (0.15 on black squares, 0.85 on white, a white margin of one square, averaged
 over 3 x 3 points of the pixel's area) and its projector pixel the light. Here the light
@@ -44,8 +45,8 @@ from scanqa.simulator.boardposes import gaussian_blur, sag_mm, simulate
 #: The board of the simulated captures: 7 x 9 inner corners of 15 mm squares (a 120 x
 #: 150 mm grid), about 34 camera px a square at 400 mm with a 2 x 2 binned camera.
 BOARD = Board(rows=7, columns=9, square_mm=15.0)
-#: Fringe periods of each direction, coarsest first: the panel's size (one period over
-#: the coded range), then 96 and 16 px [projector px].
+#: The finer fringe periods of each direction [projector px]; the coarsest set before them
+#: has the panel's size along the direction (one period over the coded range).
 PERIODS_PX = (96.0, 16.0)
 #: Phase steps per set [-].
 STEPS = 4
