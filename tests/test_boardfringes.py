@@ -117,3 +117,12 @@ def test_rows_code_the_panel_rows(pose):
     ok = view["lit"] & (view["albedo"] > 0.84)
     want = np.angle(np.exp(2j * np.pi * view["yp"][ok] / coarse.period_px))
     assert np.median(np.abs(np.angle(np.exp(1j * (phase[ok] - want))))) < 0.02
+
+
+def test_a_board_that_cannot_fit_is_one_clear_error(pose):
+    from scanqa.calibration.board import Board
+    from scanqa.errors import InputError
+
+    with pytest.raises(InputError, match=r"0 of 1 board poses of a 20 x 30 board fit the "
+                                         r"camera and the projector: give a smaller board"):
+        draw_poses(pose[0], Board(20, 30, 15.0), 1, np.random.default_rng(0))

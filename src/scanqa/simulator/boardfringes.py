@@ -37,6 +37,7 @@ from scanqa.calibration.pinhole import (
 )
 from scanqa.decoding.coding import PatternDescription, PhaseSet
 from scanqa.decoding.patternset import ideal_patterns, write_pattern_set
+from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir, write_text
 from scanqa.io.opencv import OpenCVCalibration
 from scanqa.io.patterns import dumps_patterns
@@ -287,8 +288,9 @@ def draw_poses(truth: OpenCVCalibration, board: Board, n_poses: int,
         if _within(cam, camera, 4) and _within(proj, panel, 4):
             poses.append((rvec, tvec))
     if len(poses) < n_poses:
-        raise ValueError(f"only {len(poses)} of {n_poses} board poses fit the camera and "
-                         "the projector: a smaller board or a larger depth")
+        raise InputError(f"only {len(poses)} of {n_poses} board poses of a {board.rows} x "
+                         f"{board.columns} board fit the camera and the projector: give a "
+                         "smaller board or a larger depth_mm")
     return poses
 
 
