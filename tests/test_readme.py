@@ -145,6 +145,13 @@ def test_readme_board_example_runs_on_simulated_captures(tmp_path, monkeypatch):
     with contextlib.redirect_stdout(io.StringIO()) as out:
         exec(compile(blocks[0], "README.md", "exec"), namespace)
     assert out.getvalue() == "characterised\n"  # what the example's comment says
+    # one geometry: the config written for the earlier calibration keeps working with
+    # the board's recalibration, whose projector pose the cloud's config holds: -Rp^T Tp
+    # (warned about only past a recalibration's tolerance)
+    fitted = namespace["result"].data
+    np.testing.assert_allclose(
+        namespace["cloud"].metadata["config"]["projector"]["position_mm"],
+        -fitted.Rp.T @ fitted.Tp, atol=1e-6)
     for name in ("board.xml", "board_report.html", "board_covariance.json",
                  "board_noise/summary.json", "board_noise/cells.csv"):
         assert (tmp_path / name).is_file(), name
