@@ -157,6 +157,8 @@ def test_cloudcompare_reads_every_attribute(cfg, table, tmp_path):
         "intensity", "Nx", "Ny", "Nz"]  # the normals as CloudCompare's own normals
     scalars = [n for n in cloud.attributes if n not in NORMAL_ATTRIBUTES]
     assert header[6:-4] == scalars  # every attribute, under its own name
+    # the first scalar field, the one CloudCompare shows a cloud by: sigma_total
+    assert header[6] == "sigma_total_um"
     # CloudCompare keeps coordinates in float32: 0.03 um resolution at 450 mm
     np.testing.assert_allclose(data[:, :3], cloud.xyz, atol=1e-4)
     # and normals compressed to one of ~2 million directions (about 1e-3 apart)

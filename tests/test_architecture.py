@@ -25,6 +25,7 @@ LAYERS = {
     "scanqa.decoding": 2, "scanqa.model": 2, "scanqa.provenance": 2,
     "scanqa.description": 3, "scanqa.calibration": 3, "scanqa.design": 3,
     "scanqa.characterization": 4, "scanqa.qa": 4, "scanqa.simulator": 4,
+    "scanqa.simulator.boardfringes": 4,  # board poses under fringes, for the board path
     "scanqa.annotation": 5,
     "scanqa.report": 6,
     "scanqa.runs": 7, "scanqa.cluster": 7, "scanqa.api": 7, "scanqa": 7,

@@ -23,9 +23,10 @@ from .test_annotate import cfg, scan, table  # noqa: F401 - fixtures
 
 ROOT = Path(__file__).resolve().parents[1]
 PDAL = shutil.which("pdal")
-needs_pdal = pytest.mark.skipif(PDAL is None, reason="pdal not installed (Debian 12 packages "
-                                "none; tools/install_syslibs.sh test installs it where "
-                                "the archive has it)")
+needs_pdal = pytest.mark.skipif(PDAL is None, reason=(
+    "pdal not installed: Debian 12 packages none and PyPI's pdal is bindings without a "
+    "binary wheel (tools/install_syslibs.sh test installs Debian's where the archive has "
+    "it; docs/formats.rst, PDAL, says how a lab runs the pipeline)"))
 
 
 def documented_pipeline() -> list:
