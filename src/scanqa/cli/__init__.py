@@ -58,7 +58,6 @@ RENAMED = {
 #: The sub-commands of ``scanqa characterize``: a first word after it that is none of
 #: these (nor -h/-v/-q) is the old sweep form's SWEEP or option.
 CHARACTERIZE = ("sweep", "board", "repeats")
-COMMAND_MODULES = tuple(COMMANDS)
 
 log = logging.getLogger(__name__)
 

@@ -1,5 +1,5 @@
 """``scanqa compare``: an annotated cloud against a reference cloud or mesh (parsing only;
-:mod:`scanqa.qa.compare`)."""
+:func:`scanqa.api.compare`)."""
 
 from __future__ import annotations
 
@@ -46,38 +46,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from scanqa.api import compare
     from scanqa.io.annotated_cloud import read_cloud
-    from scanqa.io.mesh import is_mesh_file
-    from scanqa.qa.compare import compare_to_cloud, compare_to_mesh
     from scanqa.report.compare import write_outputs
 
     cloud = read_cloud(args.cloud)
     warn_sigma([cloud])
-    tol = None if args.tolerance_um is None else 1e-3 * args.tolerance_um
-    ref_sigma = 1e-3 * args.reference_sigma_um
-    region = None
-    if args.align_region is not None:
+    if args.align_region is not None:  # a bad region is named before the reference is read
         from scanqa.qa.align import parse_region
 
-        region = parse_region(args.align_region)
-    mesh = is_mesh_file(args.reference)
-    reference = _mesh(args.reference) if mesh else read_cloud(args.reference)
-    fit = None
-    if args.align or region is not None:
-        from scanqa.qa.align import align_reference
-
-        reference, fit = align_reference(cloud, reference, region,
-                                         args.align_max_distance_mm, args.neighbours,
-                                         ref_sigma)
+        parse_region(args.align_region)
     try:
-        if mesh:
-            result = compare_to_mesh(cloud, reference, args.k, ref_sigma,
-                                     args.max_distance_mm, tol, name=args.reference,
-                                     alignment=fit)
-        else:
-            result = compare_to_cloud(cloud, reference, args.k, args.neighbours, ref_sigma,
-                                      args.max_distance_mm, tolerance_mm=tol,
-                                      name=args.reference, alignment=fit)
+        result = compare(cloud, args.reference, None, args.k, args.tolerance_um,
+                         args.reference_sigma_um, args.neighbours, args.max_distance_mm,
+                         args.align, args.align_region, args.align_max_distance_mm)
     except InputError as err:   # the library names its parameter; the CLI names the flag
         raise InputError(str(err).replace("max_distance_mm", "--max-distance-mm")) from None
     info = write_outputs(result, args.out)
@@ -87,9 +69,3 @@ def run(args: argparse.Namespace) -> int:
          + (f"; verdict {info['verdict']}" if "verdict" in info else ""))
     emit(f"report: {Path(args.out) / 'report.html'}")
     return 0
-
-
-def _mesh(path: str):
-    from scanqa.io.mesh import read_mesh
-
-    return read_mesh(path)

@@ -137,13 +137,3 @@ def _skeleton_header(gamma: float) -> str:
             "# under the name listed in 'files' below (or edit the names), next to this\n"
             "# file, then run 'scanqa decode' on this folder. Without [sensor] gain and read\n"
             "# noise the camera noise is estimated from the images.\n")
-
-
-def camera_names(desc: PatternDescription) -> list[str]:
-    """Every camera file name of a written coding, in projection order."""
-    return [name for s in desc.sets for name in s.files]
-
-
-def panel_names(directory: str | os.PathLike) -> list[Path]:
-    """The projector images of a folder written by :func:`write_projector_patterns`."""
-    return sorted((Path(directory) / PROJECTOR_DIR).glob("*.png"))

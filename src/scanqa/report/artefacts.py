@@ -39,8 +39,6 @@ LABELS = {"value_um": "E [um]", "U_test_um": "U test [um]", "mpe_um": "MPE [um]"
           "noise_corr_factor": "kappa", "u_um": "u [um]",
           "minimum_zone_um": "min. zone [um]", "measured_mm": "fitted size [mm]"}
 BUDGET_COLUMNS = ("scan", "artefact", "quantity", "component", "u_um", "enters")
-SECTIONS = ("Results", "Form: predicted and measured", "Sphere spacing over the positions",
-            "Residuals", "Uncertainty budget", "Point selection", "Method", "Notes")
 
 
 def write_outputs(result: ArtefactQAResult, out_dir: str | os.PathLike,
