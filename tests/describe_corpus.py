@@ -143,20 +143,25 @@ def _pattern(f: Frame, xp: np.ndarray, yp: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- camera
 
-def scene(layout: Layout, seed: int = 0, texture: str = "smooth") -> dict:
+def scene(layout: Layout, seed: int = 0, texture: str = "smooth",
+          roll_deg: float = 0.0) -> dict:
     """Projector coordinates, albedo and object mask of the camera pixels.
 
     texture: "smooth" (a slow cosine pattern), "checker" (a printed checkerboard of
     8-px squares, albedo 0.25 / 0.85), "speckle" (albedo varying from pixel to pixel,
     0.3 to 0.9, lightly smoothed) or "stripes" (dark bands across the fringes).
+    roll_deg: the camera rolled about its axis against the projector [deg] (the fringes
+    run obliquely across the image).
     """
     h, w = layout.camera
     v, u = np.mgrid[0:h, 0:w].astype(float)
     s, t = u / (w - 1), v / (h - 1)
     rng = np.random.default_rng(seed)
     a, b = rng.uniform(-0.02, 0.02, 2)
-    xp = layout.width * (0.06 + 0.86 * s + 0.03 * t + 0.03 * np.sin(math.pi * s) + a)
-    yp = layout.height * (0.06 + 0.86 * t + 0.03 * s + 0.03 * np.sin(math.pi * t) + b)
+    c, r = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+    sr, tr = 0.5 + c * (s - 0.5) - r * (t - 0.5), 0.5 + r * (s - 0.5) + c * (t - 0.5)
+    xp = layout.width * (0.06 + 0.86 * sr + 0.03 * tr + 0.03 * np.sin(math.pi * sr) + a)
+    yp = layout.height * (0.06 + 0.86 * tr + 0.03 * sr + 0.03 * np.sin(math.pi * tr) + b)
     inside = ((s - 0.5) / 0.47) ** 2 + ((t - 0.5) / 0.46) ** 2 < 1
     if texture == "checker":
         texture = np.where((u // 8 + v // 8) % 2 == 0, 0.85, 0.25)
@@ -187,7 +192,7 @@ def capture(layout: Layout, seed: int = 0, gamma: float = 1.15, blur_px: float =
     stray = given.get("stray", stray)
     gain_dn = given.get("gain_dn", gain_dn)
     texture = given.get("texture", texture)
-    sc = scene(layout, seed, texture)
+    sc = scene(layout, seed, texture, given.get("roll_deg", 0.0))
     rng = np.random.default_rng(seed + 1)
     frames = []
     for f in layout.frames:
@@ -361,6 +366,14 @@ def held_out_round3() -> list[Layout]:
             [*_dlp("horizontal", 600, 50, 3, 1.6), BLACK]),
             capture=(("gain_dn", 380.0),),
             notes="rows, 50-px cells, the camera clipping the bright fringes at 255 DN"),
+        Layout("dlp_1280x720_phases_then_grays_rolled", 1280, 720, tuple(
+            phase("vertical", 80, 3, 1, 0.8, profile="square")
+            + phase("horizontal", 80, 3, 1, -1.0, profile="square")
+            + gray("vertical", 4, 80, msb_first=False)
+            + gray("horizontal", 4, 80, msb_first=False) + [BLACK]),
+            capture=(("gamma", 1.0), ("roll_deg", 25.0)),
+            notes="both phase sets first, then both LSB-first Gray codes (the coarsest "
+                  "column bit next to the finest row bit), the camera rolled 25 deg"),
     ]
 
 
