@@ -1,0 +1,206 @@
+"""What the frames say beyond their sets, for ``scanqa describe``.
+
+:mod:`scanqa.description.inference` measures sets, ratios and cells; what is left open
+(the absolute scale, the fringe counts) it settles here:
+
+* the decoding check: each candidate description is decoded on a sample of the frames
+  (:func:`check`), and candidates that decode nearly as well are reported
+  (:func:`alternatives`);
+* the fringes' profile (:func:`fringe_profile`): a set whose phase clusters at a few
+  values was projected as binary (square-wave) fringes, which a projector can only
+  shift by whole pixels - of the cell widths the Gray bits allow, those whose periods
+  shift by whole pixels come first (:func:`whole_shift_first`); the profile is stated;
+* the view's extent (:func:`fewest_fringes`): the coarsest set's phase, unwrapped along
+  the image lines, runs through as many cycles as the object shows of it - the set has
+  at least that many fringes over the panel, which rules out the fewer counts that fit
+  the same period ratios (9, 8 and 1 for 45, 40 and 5).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
+from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.waveform import fringe_shape
+from scanqa.errors import ScanQAError
+
+#: Rows and columns the decoding check reads at most (every n-th of a larger frame) [-].
+CHECK_ROWS, CHECK_COLUMNS = 200, 400
+#: Lit pixels the fringe profile is read from at most [-].
+PROFILE_PIXELS = 60000
+#: Noise model of the profile's pixel selection: about 1.7 DN at 100 DN, a good 8-bit
+#: camera (the selection keeps pixels whose phase noise is below 0.05 rad by it).
+PROFILE_SENSOR = SensorModel(gain_e_per_dn=50.0, read_noise_e=50.0)
+
+
+def row_step(rows: int) -> int:
+    """Every how many rows the decoding check reads a frame of ``rows`` rows [-]."""
+    return max(1, rows // CHECK_ROWS)
+
+
+def column_step(columns: int) -> int:
+    """Every how many columns the decoding check reads a frame [-]."""
+    return max(1, columns // CHECK_COLUMNS)
+
+
+def sample_stacks(images: np.ndarray, lists: list) -> list:
+    """Stacks of the frames ``lists`` (indices per set) at every ``row_step``-th row and
+    ``column_step``-th column."""
+    step, cstep = row_step(images.shape[1]), column_step(images.shape[2])
+    return [np.ascontiguousarray(images[idx][:, ::step, ::cstep]) for idx in lists]
+
+
+def check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
+    """Share of the lit pixels (of the sample) that decode valid [-]; -1 when the
+    decoder refuses the description."""
+    quiet = logging.getLogger(decode_images.__module__)
+    level = quiet.level
+    quiet.setLevel(logging.ERROR)  # a candidate's warnings are not the capture's
+    try:
+        pm = decode_images(desc, stacks)
+    except ScanQAError:
+        return -1.0
+    finally:
+        quiet.setLevel(level)
+    lit_rows = lit[::row_step(lit.shape[0]), ::column_step(lit.shape[1])]
+    return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
+
+
+def alternatives(best: PatternDescription, tried: list, share: float,
+                 questions: list) -> None:
+    """Candidates that decode nearly as well as the chosen one become a question
+    (appended to ``questions``)."""
+    def periods(d):
+        return ", ".join(f"{s.period_px:g}" for s in d.sets if isinstance(s, PhaseSet))
+
+    def differ(d):  # by more than the 0.1 % a period is stated to
+        return any(abs(a.period_px / b.period_px - 1) > 1e-3 for a, b in
+                   zip(d.sets, best.sets, strict=True) if isinstance(a, PhaseSet))
+
+    close = [d for d, got in tried if d is not best and got >= 0.9 * share and share > 0
+             and differ(d)]
+    for d in close[:2]:
+        questions.append(f"periods {periods(d)} px decode nearly as many pixels as the "
+                         f"chosen {periods(best)} px: which were projected?")
+    if share < 0.3:
+        questions.append(f"only {100 * max(share, 0):.0f} % of the lit pixels decode: is a "
+                         "set missing or misread?")
+
+
+@dataclass(frozen=True)
+class FringeProfile:
+    """How far a phase set's fringes are from sine waves.
+
+    Attributes
+    ----------
+    staircase : bool
+        The phase clusters at a few values: binary (square-wave) fringes, or clipping.
+    peak_cycles, rms_cycles : float
+        Peak and rms of the phase error the profile causes [cycles of the period].
+    """
+
+    staircase: bool
+    peak_cycles: float
+    rms_cycles: float
+
+    def note(self, name: str, steps: int, period_px: float) -> str:
+        """One sentence naming the profile and its x_p error [px]."""
+        what = (f"its {steps}-step phase clusters at a few values - 50 % square waves "
+                "(binary fringes, as a DLP projects them) or hard clipping" if self.staircase
+                else f"its {steps}-step phase ripples {steps} times per period - a "
+                "projector's gamma or saturation")
+        return (f"the fringes of {name} are not sine waves: {what}; x_p errs by up to "
+                f"+-{self.peak_cycles * period_px:.2g} px (rms "
+                f"{self.rms_cycles * period_px:.2g} px), which scanqa decode adds to "
+                "sigma_xp")
+
+
+def fringe_profile(frames: np.ndarray, shifts: tuple, lit: np.ndarray
+                   ) -> FringeProfile | None:
+    """The profile of one phase set's fringes from its frames, or None for sine waves
+    (or too few clean pixels to tell), as the decoder's check reads it
+    (:func:`scanqa.decoding.waveform.fringe_shape`, here per cycle).
+
+    Parameters
+    ----------
+    frames : (N, H, W) array
+        The set's frames [DN].
+    shifts : tuple of float
+        Their shifts [rad] (the sign measured; the start does not matter).
+    lit : (H, W) bool
+        Pixels to read.
+    """
+    idx = np.flatnonzero(lit)
+    if idx.size > PROFILE_PIXELS:
+        idx = idx[:: idx.size // PROFILE_PIXELS + 1]
+    values = frames.reshape(frames.shape[0], -1)[:, idx].astype(np.float64)
+    quantised = frames.dtype.kind in "ui"
+    sensor = PROFILE_SENSOR.resolved(frames.dtype)
+    shape = fringe_shape(PhaseSet("set", 1.0, frames.shape[0], tuple(shifts)), values,
+                         sensor, quantised)
+    if shape is None:
+        return None
+    return FringeProfile(shape.staircase, shape.peak_px, shape.rms_px)
+
+
+def whole_shift_first(choices: list, periods_in_cells: list, steps: list,
+                      width_px: int) -> list:
+    """The cell widths [px], likeliest first, with those that divide the coded width
+    and whose periods (``cell * ratio``) shift by whole projector pixels (``P / N``
+    whole for every set) ahead of the other dividing ones, the order kept otherwise:
+    binary fringes are shifted by whole pixels (a DLP's 3-step set of 114 px moves by
+    38 px; of the 76, 95 and 114-px cells that 4 bits over 1140 px allow and that
+    divide it, only 114 does)."""
+    def whole(cell):
+        return all(abs(cell * r / n - round(cell * r / n)) < 1e-6
+                   for r, n in zip(periods_in_cells, steps, strict=True))
+    return sorted(choices, key=lambda c: (width_px % c != 0, not whole(c)))
+
+
+def fewest_fringes(z: np.ndarray, axis: int, usable: np.ndarray) -> float:
+    """Cycles a phase set's phase runs through along the image lines (``axis``), a
+    lower bound of its count of fringes over the panel [-].
+
+    The phase is unwrapped along each line over runs of usable pixels (neighbour
+    differences added up) and its range taken per run; the 90th percentile of the
+    lines' largest range is returned (a noisy step that slips a cycle in one line does
+    not count), 0 when fewer than 10 lines hold a run.
+    """
+    zz, ok = np.moveaxis(z, axis, -1), np.moveaxis(usable, axis, -1)
+    step = np.angle(zz[..., 1:] * np.conj(zz[..., :-1])) / (2 * math.pi)
+    best = []
+    for line, good in zip(step, ok[..., 1:] & ok[..., :-1], strict=True):
+        if good.sum() < 8:
+            continue
+        # runs of good neighbour pairs: the phase unwrapped from each run's start
+        breaks = np.flatnonzero(np.diff(np.concatenate([[0], good.astype(np.int8), [0]])))
+        ranges = []
+        for a, b in zip(breaks[0::2], breaks[1::2], strict=True):
+            if b - a >= 8:
+                path = np.concatenate([[0.0], np.cumsum(line[a:b])])
+                ranges.append(float(path.max() - path.min()))
+        if ranges:
+            best.append(max(ranges))
+    return float(np.percentile(best, 90)) if len(best) >= 10 else 0.0
+
+
+def noise_note(desc: PatternDescription) -> str:
+    """One loud line when the described frames hold none of the noise sources the
+    decoder estimates the camera noise from (:mod:`scanqa.decoding.noise`: a phase set
+    of 4 or more steps, two phase sets of one direction, white and black frames, a Gray
+    code with inverses), else ""."""
+    phase = desc.phase_sets
+    gray = desc.gray_set
+    if any(s.steps >= 4 for s in phase) or len(phase) >= 2 or \
+            desc.reference_set is not None or (gray is not None and gray.inverse != "none"):
+        return ""
+    return ("NO NOISE SOURCE in these frames (no white and black pair, no 4-step set, no "
+            "second set, no Gray inverses): scanqa decode will ASSUME every sigma from a "
+            "default camera - add a [sensor] table with gain_e_per_dn and read_noise_e "
+            "(the camera's data sheet, or a photon-transfer measurement) before trusting "
+            "sigma_xp")
