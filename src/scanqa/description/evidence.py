@@ -33,9 +33,12 @@ from scanqa.errors import ScanQAError
 CHECK_ROWS, CHECK_COLUMNS = 200, 400
 #: Lit pixels the fringe profile is read from at most [-].
 PROFILE_PIXELS = 60000
-#: Noise model of the profile's pixel selection: about 1.7 DN at 100 DN, a good 8-bit
-#: camera (the selection keeps pixels whose phase noise is below 0.05 rad by it).
-PROFILE_SENSOR = SensorModel(gain_e_per_dn=50.0, read_noise_e=50.0)
+#: Noise models of the profile's pixel selection (the decoder's check keeps pixels whose
+#: phase noise is below 0.05 rad by the model): the decoder's default camera (4 e-/DN,
+#: 8 e-: only strong fringes, the least blurred ones, count) and a quiet one (0.5 DN:
+#: a real DLP capture's 45-DN fringes count). The profile is named when either finds it.
+PROFILE_SENSORS = (SensorModel(gain_e_per_dn=4.0, read_noise_e=8.0),
+                   SensorModel(gain_e_per_dn=1e6, read_noise_e=5e5))
 
 
 def row_step(rows: int) -> int:
@@ -124,7 +127,8 @@ def fringe_profile(frames: np.ndarray, shifts: tuple, lit: np.ndarray
                    ) -> FringeProfile | None:
     """The profile of one phase set's fringes from its frames, or None for sine waves
     (or too few clean pixels to tell), as the decoder's check reads it
-    (:func:`scanqa.decoding.waveform.fringe_shape`, here per cycle).
+    (:func:`scanqa.decoding.waveform.fringe_shape`, here per cycle), with the larger
+    error of the pixels the two ``PROFILE_SENSORS`` select.
 
     Parameters
     ----------
@@ -139,12 +143,13 @@ def fringe_profile(frames: np.ndarray, shifts: tuple, lit: np.ndarray
     if idx.size > PROFILE_PIXELS:
         idx = idx[:: idx.size // PROFILE_PIXELS + 1]
     values = frames.reshape(frames.shape[0], -1)[:, idx].astype(np.float64)
-    quantised = frames.dtype.kind in "ui"
-    sensor = PROFILE_SENSOR.resolved(frames.dtype)
-    shape = fringe_shape(PhaseSet("set", 1.0, frames.shape[0], tuple(shifts)), values,
-                         sensor, quantised)
-    if shape is None:
+    pset = PhaseSet("set", 1.0, frames.shape[0], tuple(shifts))
+    found = [fringe_shape(pset, values, sensor.resolved(frames.dtype),
+                          frames.dtype.kind in "ui") for sensor in PROFILE_SENSORS]
+    found = [f for f in found if f is not None]
+    if not found:
         return None
+    shape = max(found, key=lambda f: f.peak_px)
     return FringeProfile(shape.staircase, shape.peak_px, shape.rms_px)
 
 
@@ -159,7 +164,8 @@ def whole_shift_first(choices: list, periods_in_cells: list, steps: list,
     def whole(cell):
         return all(abs(cell * r / n - round(cell * r / n)) < 1e-6
                    for r, n in zip(periods_in_cells, steps, strict=True))
-    return sorted(choices, key=lambda c: (width_px % c != 0, not whole(c)))
+    return sorted(choices, key=lambda c: (width_px % c != 0, width_px % c == 0
+                                          and not whole(c)))
 
 
 def fewest_fringes(z: np.ndarray, axis: int, usable: np.ndarray) -> float:

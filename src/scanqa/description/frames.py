@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
 from scanqa.errors import InputError
 
@@ -383,17 +384,20 @@ def edge_direction(frame: np.ndarray, lit: np.ndarray) -> tuple[float, float]:
     The structure tensor of the frame's gradient over the lit pixels (on blocks as
     :func:`gradient_energy` averages them): the angle of its main axis from the camera's
     u axis [rad, in (-pi/2, pi/2]], and the square root of the ratio of its eigenvalues
-    [-] (1 for no direction). Unlike the gradient energies along u and v, neither
-    depends on how the camera is rolled against the projector.
+    [-] (1 for no direction); the frame is smoothed by a 1-px Gaussian first, or the
+    steps of a pixelated oblique edge bias the angle (35 degrees for 30). Unlike the
+    gradient energies along u and v, neither depends on how the camera is rolled
+    against the projector.
     """
     f = max(1, min(frame.shape) // 150) if min(frame.shape) > 300 else 1
     if f > 1:
         h, w = (frame.shape[0] // f) * f, (frame.shape[1] // f) * f
         frame = frame[:h, :w].reshape(h // f, f, w // f, f).mean(axis=(1, 3))
         lit = lit[:h, :w].reshape(h // f, f, w // f, f).all(axis=(1, 3))
-    ok = lit[:-1, :-1] & lit[:-1, 1:] & lit[1:, :-1]
-    gu = (frame[:-1, 1:] - frame[:-1, :-1])[ok].astype(np.float64)
-    gv = (frame[1:, :-1] - frame[:-1, :-1])[ok].astype(np.float64)
+    frame = gaussian_filter(frame.astype(np.float64), 1.0)  # a pixelated edge's steps
+    ok = lit[1:-1, 2:] & lit[1:-1, :-2] & lit[2:, 1:-1] & lit[:-2, 1:-1]
+    gu = (frame[1:-1, 2:] - frame[1:-1, :-2])[ok].astype(np.float64)  # central differences:
+    gv = (frame[2:, 1:-1] - frame[:-2, 1:-1])[ok].astype(np.float64)  # both at the pixel
     a, b, c = float(gu @ gu), float(gv @ gv), float(gu @ gv)
     if a + b <= 0:
         return 0.0, 1.0
