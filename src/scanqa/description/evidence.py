@@ -210,3 +210,74 @@ def noise_note(desc: PatternDescription) -> str:
             "default camera - add a [sensor] table with gain_e_per_dn and read_noise_e "
             "(the camera's data sheet, or a photon-transfer measurement) before trusting "
             "sigma_xp")
+
+
+#: Bins of the wrapped phase in :func:`straightened` [-].
+PHASE_BINS = 360
+
+
+def straightened(z: np.ndarray, sign: float, steps: int, lit: np.ndarray) -> np.ndarray:
+    """A phase set's phasors with the error its fringe profile causes taken out.
+
+    Binary fringes' phase is a staircase (a 3-step set of square waves reads 6 values,
+    off by up to 1/12 of a period); where the Gray code's cell edges fall on one point
+    of the staircase, the phase start measured there is off by as much (x_p then errs
+    by that everywhere). Over many periods the true phase is spread evenly, so the
+    measured phase's cumulative distribution F gives the error ``e = psi - F(psi)``
+    (as :mod:`scanqa.decoding.waveform` reads it); its harmonics at multiples of N, the
+    profile's (a mean of zero: the plateaus' centres read true), are subtracted,
+    ``psi - e(psi)``, on the lit pixels of at least the median modulation.
+
+    Parameters
+    ----------
+    z : (H, W) complex
+        The set's phasors (:func:`scanqa.description.frames.phasor`).
+    sign : float
+        The sign of its shifts (the phase is ``sign * angle(z)``).
+    steps : int
+        N [-].
+    lit : (H, W) bool
+        Pixels to read.
+
+    Returns
+    -------
+    (H, W) complex
+        Phasors of the same modulation and the corrected phase.
+    """
+    phase = (sign * np.angle(z) / (2 * math.pi)) % 1.0
+    strong = lit & (np.abs(z) >= np.median(np.abs(z)[lit]))
+    if strong.sum() < 1000:
+        return z
+    hist = np.bincount((phase[strong] * PHASE_BINS).astype(np.intp) % PHASE_BINS,
+                       minlength=PHASE_BINS)
+    edges = np.arange(1, PHASE_BINS + 1) / PHASE_BINS
+    spectrum = np.fft.rfft(edges - np.cumsum(hist) / strong.sum())
+    k = np.arange(spectrum.size)
+    error = np.fft.irfft(np.where((k > 0) & (k % steps == 0), spectrum, 0), PHASE_BINS)
+    # the error sampled at the bins' upper edges: interpolated periodically
+    grid = np.concatenate([[edges[-1] - 1.0], edges])
+    table = np.concatenate([[error[-1]], error])
+    fixed = phase - np.interp(phase, grid, table)
+    return np.abs(z) * np.exp(1j * sign * 2 * math.pi * fixed)
+
+
+#: How much more of the lit pixels a candidate must decode to be taken over a likelier
+#: one [-]: another shape (periods in cells, phase starts, code), or only another scale.
+MARGIN, SCALE_MARGIN = 0.02, 0.05
+
+
+def scale_only(a: PatternDescription | None, b: PatternDescription | None) -> bool:
+    """True when two candidates differ only by their scale: other Gray cells, the same
+    periods in cells (within 0.2 %), phase starts (0.05 rad) and code. Such candidates
+    decode alike - x_p scales with the cell - and the sample's noise, not the capture,
+    tells their shares apart by a per cent or two."""
+    if a is None or b is None or a.gray_set is None or b.gray_set is None:
+        return False
+    ca, cb = a.gray_set.cell_px, b.gray_set.cell_px
+    if ca == cb or a.gray_set.code != b.gray_set.code:
+        return False
+    for p, q in zip(a.phase_sets, b.phase_sets, strict=True):
+        if abs((p.period_px / ca) / (q.period_px / cb) - 1) > 2e-3 or \
+                abs(math.remainder(p.shifts_rad[0] - q.shifts_rad[0], 2 * math.pi)) > 0.05:
+            return False
+    return True

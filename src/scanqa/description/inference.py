@@ -256,7 +256,8 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
         desc = _with_signs(desc, signs, [r.order for r in phase], offsets)
         got = ev.check(desc, stacks, norm.lit)
         tried.append((desc, got))
-        if got > share + (0.02 if tried[1:] else 0.0):  # the likelier kept unless clearly worse
+        margin = ev.SCALE_MARGIN if ev.scale_only(desc, best) else ev.MARGIN
+        if got > share + (margin if tried[1:] else 0.0):  # the likelier kept unless worse
             best, share = desc, got
     if tried and 0 <= share < 0.3 and tried[0][1] >= 0 and best is not tried[0][0]:
         best, share = tried[0]  # none decodes: the best measured fit is kept
@@ -449,6 +450,8 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group, signs) -> list[_Sc
                                f"the cells that divide {width} px, {ordered[0]:g} px is the "
                                f"one whose periods are (P / N whole), not {choices[0]:g}")
         choices = ordered
+    straight = [z if p is None else ev.straightened(z, sign, len(r.frames), usable)
+                for z, sign, r, p in zip(zs, signs, phase, group.profiles, strict=True)]
     lo, hi = cell_range(width, gray.bits, 0)
     out = []
     for cell in choices[:3]:
@@ -457,7 +460,7 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group, signs) -> list[_Sc
                     f"cells measured")
         for snap in (True, False):
             periods = tuple(cell * (simple_ratio(r) if snap else r) for r in ratios)
-            offsets = edge_offsets(zs, signs, cells, float(cell), periods, axis)
+            offsets = edge_offsets(straight, signs, cells, float(cell), periods, axis)
             scale = _Scale(width, periods, float(cell), evidence, offsets=offsets)
             if scale not in out:
                 out.append(scale)
