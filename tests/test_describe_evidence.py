@@ -119,3 +119,23 @@ def test_a_dlp_rows_capture_of_square_waves_takes_the_114_px_cells(start):
     assert abs(math.remainder(shift - start, 2 * math.pi)) < 0.03
     text = " ".join(d.notes)
     assert "square waves" in text and "NO NOISE SOURCE" in text
+
+
+def test_a_sharp_dlp_capture_of_both_directions_decodes_as_its_hand_description():
+    # 912 x 1140, black first, each direction's LSB-first Gray code before its 3-step
+    # square waves of 114 px, seen sharply (a period over 30 camera px): the staircase
+    # has flat plateaus, and the start read at the cell edges alone was 0.094 and 0.15
+    # rad off (1.7 and 2.7 px); over whole cells, within 0.01 (tuning data)
+    p = 114
+    layout = corpus.Layout("dlp_sharp_both", 912, 1140, (
+        corpus.BLACK, *corpus.gray("vertical", 3, p, msb_first=False),
+        *corpus.phase("vertical", p, 3, 1, 2.0, profile="square"),
+        *corpus.gray("horizontal", 4, p, msb_first=False),
+        *corpus.phase("horizontal", p, 3, 1, 0.3, profile="square")),
+        camera=(300, 240), capture=(("gamma", 1.0), ("blur_px", 0.5), ("noise_dn", 0.5)))
+    images, _ = corpus.capture(layout)
+    described = describe_frames(images, corpus.frame_names(layout), 912, 1140)
+    verdict = corpus.judge_hand(layout, images, described)
+    assert verdict.right, verdict.why
+    for d, start in zip(described, (2.0, 0.3), strict=True):
+        assert abs(d.desc.phase_sets[0].shifts_rad[0] - start) < 0.01

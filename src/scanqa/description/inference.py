@@ -461,6 +461,12 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group, signs) -> list[_Sc
         for snap in (True, False):
             periods = tuple(cell * (simple_ratio(r) if snap else r) for r in ratios)
             offsets = edge_offsets(straight, signs, cells, float(cell), periods, axis)
+            whole = [ev.cell_offsets(z, sign, cells, float(cell), period, axis)
+                     if p is not None and p.staircase else None
+                     for z, sign, period, p in zip(straight, signs, periods,
+                                                   group.profiles, strict=True)]
+            offsets = tuple(o if w is None else w for o, w in zip(offsets, whole,
+                                                                  strict=True))
             scale = _Scale(width, periods, float(cell), evidence, offsets=offsets)
             if scale not in out:
                 out.append(scale)
