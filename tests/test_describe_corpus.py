@@ -48,7 +48,8 @@ profile measured and named, whole-pixel shifts of binary fringes, the coarsest s
 cycles in view as a lower bound of its fringe count: 5 of 9 (7 of 9 against the true
 x_p); the phase start of binary fringes measured over whole Gray cells (their staircase
 read at the edges alone put it up to 0.25 rad off on a DLP's simulated rows; found on
-probes of 912 x 1140 captures, not on these layouts) left the count at 5. Still wrong: the cells of the 1024 x 600 rows (40 taken, 50 projected) and of the
+probes of 912 x 1140 captures, not on these layouts) left the count at 5. Still wrong:
+the cells of the 1024 x 600 rows (40 taken, 50 projected) and of the
 1280 x 720 kamino410-like coding (50 taken, 64 projected) - both fit the bits and the
 cells seen and decode alike, and the files ask; the clipped 4-step sines and the
 2.5-px-blurred square waves are not named, and the decoder's own check does not flag

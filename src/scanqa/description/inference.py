@@ -21,9 +21,11 @@ what each set codes and checks the guess with scanqa's decoder:
   that put the last cell seen on the panel - pinned when the panel's far edge is in
   view, else the same cell for columns and rows, then cells dividing the width, the
   roundest, the finest (:func:`~scanqa.description.gray.rank_cells`);
-* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels);
-  the likeliest is kept unless another decodes clearly more, the others are reported,
-  and the description says how sure it is.
+* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels,
+  :mod:`scanqa.description.evidence`, which also reads the fringe profile, the cycles in
+  view and the phase start of binary fringes over whole cells); the likeliest is kept
+  unless another decodes clearly more, the others are reported, and the description
+  says how sure it is.
 
 Everything the frames cannot tell is said in the written file as a question.
 """
