@@ -45,8 +45,11 @@ TWO_PI = 2 * math.pi
 class Frame:
     """One projected frame.
 
-    kind: "phase" (period, steps, k, sign, offset), "gray" (bit 0 = most significant of
-    ``bits``, cell, inverse, binary, offset), "white" or "black".
+    kind: "phase" (period, steps, k, sign, offset, profile), "gray" (bit 0 = most
+    significant of ``bits``, cell, inverse, binary, offset), "white" or "black".
+    profile: "sine", "square" (a 50 % square wave, as a DLP's binary fringes) or
+    "saturated" (the sine's amplitude driven 1.8 times past the projector's range and
+    clipped).
     """
 
     kind: str
@@ -62,6 +65,7 @@ class Frame:
     inverse: bool = False
     binary: bool = False
     cell_offset_px: float = 0.0
+    profile: str = "sine"
 
 
 @dataclass(frozen=True)
@@ -75,6 +79,7 @@ class Layout:
     camera: tuple = (96, 160)
     notes: str = ""
     directions: tuple = field(default=())
+    capture: tuple = ()  # (name, value) pairs that override capture()'s defaults
 
     @property
     def coded(self) -> tuple:
@@ -86,10 +91,11 @@ class Layout:
 # --------------------------------------------------------------------- frame builders
 
 def phase(orientation: str, period: float, steps: int, sign: float = 1.0,
-          offset_rad: float = 0.0, order=None) -> list[Frame]:
+          offset_rad: float = 0.0, order=None, profile: str = "sine") -> list[Frame]:
     """An N-step set: shifts ``offset + sign 2 pi k / N`` in frame order."""
     ks = range(steps) if order is None else order
-    return [Frame("phase", orientation, period, steps, k, sign, offset_rad) for k in ks]
+    return [Frame("phase", orientation, period, steps, k, sign, offset_rad,
+                  profile=profile) for k in ks]
 
 
 def gray(orientation: str, bits: int, cell: float, inverse: str = "none",
@@ -122,7 +128,12 @@ def _pattern(f: Frame, xp: np.ndarray, yp: np.ndarray) -> np.ndarray:
     x = xp if f.orientation == "vertical" else yp
     if f.kind == "phase":
         delta = f.offset_rad + f.sign * TWO_PI * f.k / f.steps
-        return 0.5 + 0.5 * np.cos(TWO_PI * x / f.period + delta)
+        wave = np.cos(TWO_PI * x / f.period + delta)
+        if f.profile == "square":
+            return (wave >= 0).astype(float)
+        if f.profile == "saturated":
+            return np.clip(0.5 + 0.9 * wave, 0.0, 1.0)
+        return 0.5 + 0.5 * wave
     cell = np.floor((x + 0.5 - f.cell_offset_px) / f.cell).astype(np.int64)
     cell = np.clip(cell, 0, 2 ** f.bits - 1)
     code = cell if f.binary else cell ^ (cell >> 1)
@@ -132,32 +143,63 @@ def _pattern(f: Frame, xp: np.ndarray, yp: np.ndarray) -> np.ndarray:
 
 # ----------------------------------------------------------------------------- camera
 
-def scene(layout: Layout, seed: int = 0) -> dict:
-    """Projector coordinates, albedo and object mask of the camera pixels."""
+def scene(layout: Layout, seed: int = 0, texture: str = "smooth",
+          roll_deg: float = 0.0) -> dict:
+    """Projector coordinates, albedo and object mask of the camera pixels.
+
+    texture: "smooth" (a slow cosine pattern), "checker" (a printed checkerboard of
+    8-px squares, albedo 0.25 / 0.85), "speckle" (albedo varying from pixel to pixel,
+    0.3 to 0.9, lightly smoothed) or "stripes" (dark bands across the fringes).
+    roll_deg: the camera rolled about its axis against the projector [deg] (the fringes
+    run obliquely across the image).
+    """
     h, w = layout.camera
     v, u = np.mgrid[0:h, 0:w].astype(float)
     s, t = u / (w - 1), v / (h - 1)
     rng = np.random.default_rng(seed)
     a, b = rng.uniform(-0.02, 0.02, 2)
-    xp = layout.width * (0.06 + 0.86 * s + 0.03 * t + 0.03 * np.sin(math.pi * s) + a)
-    yp = layout.height * (0.06 + 0.86 * t + 0.03 * s + 0.03 * np.sin(math.pi * t) + b)
+    c, r = math.cos(math.radians(roll_deg)), math.sin(math.radians(roll_deg))
+    sr, tr = 0.5 + c * (s - 0.5) - r * (t - 0.5), 0.5 + r * (s - 0.5) + c * (t - 0.5)
+    xp = layout.width * (0.06 + 0.86 * sr + 0.03 * tr + 0.03 * np.sin(math.pi * sr) + a)
+    yp = layout.height * (0.06 + 0.86 * tr + 0.03 * sr + 0.03 * np.sin(math.pi * tr) + b)
     inside = ((s - 0.5) / 0.47) ** 2 + ((t - 0.5) / 0.46) ** 2 < 1
-    texture = 0.65 + 0.25 * np.cos(v / 7.0) * np.sin(u / 11.0)
+    if texture == "checker":
+        texture = np.where((u // 8 + v // 8) % 2 == 0, 0.85, 0.25)
+    elif texture == "speckle":
+        texture = gaussian_filter(rng.uniform(0.3, 0.9, u.shape), 0.7)
+    elif texture == "stripes":
+        texture = np.where((v // 6) % 3 == 0, 0.2, 0.8) if layout.coded[0] == "vertical" \
+            else np.where((u // 6) % 3 == 0, 0.2, 0.8)
+    else:
+        texture = 0.65 + 0.25 * np.cos(v / 7.0) * np.sin(u / 11.0)
     albedo = np.where(inside, texture, 0.04)
     return {"xp": xp, "yp": yp, "albedo": albedo, "object": inside}
 
 
 def capture(layout: Layout, seed: int = 0, gamma: float = 1.15, blur_px: float = 0.8,
-            noise_dn: float = 1.0, stray: float = 0.05) -> tuple[np.ndarray, dict]:
-    """(K, H, W) uint8 frames of ``layout`` and the scene (the truth)."""
-    sc = scene(layout, seed)
+            noise_dn: float = 1.0, stray: float = 0.05, gain_dn: float = 220.0,
+            texture: str = "smooth") -> tuple[np.ndarray, dict]:
+    """(K, H, W) uint8 frames of ``layout`` and the scene (the truth).
+
+    ``layout.capture`` overrides the keyword defaults (a layout's own camera and scene):
+    ``gain_dn`` is the level of a white albedo-1 pixel above the 6 DN black [DN] (above
+    249 the brightest pixels clip at 255, a saturated camera).
+    """
+    given = dict(layout.capture)
+    gamma = given.get("gamma", gamma)
+    blur_px = given.get("blur_px", blur_px)
+    noise_dn = given.get("noise_dn", noise_dn)
+    stray = given.get("stray", stray)
+    gain_dn = given.get("gain_dn", gain_dn)
+    texture = given.get("texture", texture)
+    sc = scene(layout, seed, texture, given.get("roll_deg", 0.0))
     rng = np.random.default_rng(seed + 1)
     frames = []
     for f in layout.frames:
         light = _pattern(f, sc["xp"], sc["yp"]) ** gamma  # the pre-distortion's residual
         radiance = sc["albedo"] * light
         radiance = gaussian_filter(radiance, blur_px)
-        dn = 6.0 + 220.0 * radiance + stray * 220.0 * float(light.mean()) * 0.5
+        dn = 6.0 + gain_dn * radiance + stray * gain_dn * float(light.mean()) * 0.5
         dn = dn + rng.normal(0.0, 1.0, dn.shape) * np.sqrt(noise_dn ** 2 + 0.02 * dn)
         frames.append(np.clip(np.rint(dn), 0, 255).astype(np.uint8))
     return np.stack(frames), sc
@@ -267,6 +309,203 @@ def held_out_binary_and_starts() -> list[Layout]:
             + phase("vertical", 1280 / 31, 5, 1, -1.5)),
             notes="a cue and two non-nested periods whose phases start off the cue's"),
     ]
+
+
+def _dlp(orientation: str, size: int, period: float, steps: int, offset_rad: float,
+         profile: str = "sine") -> list[Frame]:
+    """A DLP scanner's set: an N-step set and a reflected Gray code of cells equal to the
+    period, least significant bit first, no inverses (the bits that cover ``size``)."""
+    bits = max(1, math.ceil(math.log2(size / period) - 1e-9))
+    return (phase(orientation, period, steps, 1, offset_rad, profile=profile)
+            + gray(orientation, bits, period, msb_first=False))
+
+
+def held_out_round3() -> list[Layout]:
+    """Issue 44's third round (session 43): layouts written down, and committed, before
+    describe was changed for them - DLP projectors of other sizes and pitches than the
+    912 x 1140 kept back, cells equal to the period with the least significant bit
+    first and a black frame only, square-wave and saturated fringes, columns or rows
+    alone, 3- to 5-step sets, a heterodyne triple and a kamino410-like coding on another
+    projector, under gamma, blur, stray light, a saturated camera and other textures."""
+    k3 = -TWO_PI / 3
+    return [
+        Layout("dlp_1280x800_square_columns", 1280, 800, tuple(
+            [*_dlp("vertical", 1280, 80, 3, 0.5, "square"), BLACK]),
+            capture=(("gamma", 1.0),),
+            notes="3-step 50 % square waves, 80-px period and cells, LSB first, black"),
+        Layout("dlp_608x684_square_rows_black_first", 608, 684, tuple(
+            [BLACK, *_dlp("horizontal", 684, 57, 3, -0.7, "square")]),
+            capture=(("gamma", 1.0), ("texture", "checker")),
+            notes="rows only, 57-px period and cells (12 over 684 px), black first"),
+        Layout("dlp_1024x768_both_saturated_4step", 1024, 768, tuple(
+            _dlp("vertical", 1024, 64, 4, 1.1, "saturated")
+            + _dlp("horizontal", 768, 64, 4, -0.4, "saturated") + [BLACK]),
+            capture=(("stray", 0.15),),
+            notes="columns and rows, 4-step clipped sines, 64-px cells, stray light"),
+        Layout("dlp_1920x1080_columns_5step_gamma", 1920, 1080, tuple(
+            [*_dlp("vertical", 1920, 120, 5, 2.0), BLACK]),
+            capture=(("gamma", 2.2), ("blur_px", 1.5), ("texture", "speckle")),
+            notes="5 steps, uncorrected gamma 2.2, blur, a speckled albedo"),
+        Layout("heterodyne_rows_20_17_15_4step", 1280, 800, tuple(
+            [WHITE, BLACK, *phase("horizontal", 800 / 20, 4),
+             *phase("horizontal", 800 / 17, 4), *phase("horizontal", 800 / 15, 4)]),
+            camera=(160, 160), capture=(("stray", 0.15), ("texture", "stripes")),
+            notes="three non-nested periods, beats of 3 and 2 fringes, beat of beats 1"),
+        Layout("kamino_like_1280x720", 1280, 720, tuple(
+            phase("vertical", 48, 3, 1, k3) + phase("vertical", 64, 3, 1, k3)
+            + phase("horizontal", 48, 3, 1, k3) + phase("horizontal", 64, 3, 1, k3)
+            + gray("vertical", 5, 64, "interleaved")
+            + gray("horizontal", 4, 64, "interleaved") + [WHITE, BLACK]),
+            capture=(("gamma", 1.3), ("texture", "checker")),
+            notes="kamino410's coding on another projector: periods 48 and 64, cells 64"),
+        Layout("dlp_854x480_square_4step_blurred", 854, 480, tuple(
+            [BLACK, *_dlp("vertical", 854, 61, 4, 0.3, "square")]),
+            capture=(("blur_px", 2.5), ("stray", 0.1), ("gamma", 1.0)),
+            notes="4-step square waves softened by a 2.5-px blur, 61-px cells"),
+        Layout("dlp_1024x600_rows_saturated_camera", 1024, 600, tuple(
+            [*_dlp("horizontal", 600, 50, 3, 1.6), BLACK]),
+            capture=(("gain_dn", 380.0),),
+            notes="rows, 50-px cells, the camera clipping the bright fringes at 255 DN"),
+        Layout("dlp_1280x720_phases_then_grays_rolled", 1280, 720, tuple(
+            phase("vertical", 80, 3, 1, 0.8, profile="square")
+            + phase("horizontal", 80, 3, 1, -1.0, profile="square")
+            + gray("vertical", 4, 80, msb_first=False)
+            + gray("horizontal", 4, 80, msb_first=False) + [BLACK]),
+            capture=(("gamma", 1.0), ("roll_deg", 25.0)),
+            notes="both phase sets first, then both LSB-first Gray codes (the coarsest "
+                  "column bit next to the finest row bit), the camera rolled 25 deg"),
+    ]
+
+
+def fresh_after_round3() -> list[Layout]:
+    """Three layouts written after describe was changed for :func:`held_out_round3`,
+    run once to check the changes (reported apart as held out): a camera of 240 rows
+    that resolves a DLP's square waves (about 2 projector pixels per camera pixel)."""
+    k3 = -TWO_PI / 3
+    return [
+        Layout("fresh_dlp_960x540_both_square", 960, 540, tuple(
+            _dlp("vertical", 960, 60, 3, 0.4, "square")
+            + _dlp("horizontal", 540, 60, 3, -1.2, "square") + [BLACK]),
+            camera=(240, 400), capture=(("gamma", 1.0),),
+            notes="columns and rows, 3-step square waves of 60 px, cells 60, LSB first"),
+        Layout("fresh_dlp_1280x800_rows_square_p90", 1280, 800, tuple(
+            [BLACK, *_dlp("horizontal", 800, 90, 3, 0.9, "square")]),
+            camera=(240, 320), capture=(("gamma", 1.0), ("texture", "speckle"),
+                                        ("stray", 0.1)),
+            notes="rows only, 3-step square waves of 90 px, cells 90 (not dividing 800)"),
+        Layout("fresh_kamino_coding_other_object", 1920, 1080, tuple(
+            phase("vertical", 200 / 3, 3, 1, k3) + phase("vertical", 100, 3, 1, k3)
+            + phase("horizontal", 200 / 3, 3, 1, k3) + phase("horizontal", 100, 3, 1, k3)
+            + gray("vertical", 5, 100, "interleaved")
+            + gray("horizontal", 4, 100, "interleaved") + [WHITE, BLACK]),
+            camera=(160, 240), capture=(("gamma", 1.3), ("blur_px", 1.2),
+                                        ("texture", "checker"), ("stray", 0.2)),
+            notes="kamino410's object1 coding, another object: checker albedo, more "
+                  "stray light and blur"),
+    ]
+
+
+def hand_description(layout: Layout, orientation: str):
+    """The description a person would write for one direction of ``layout`` (the truth:
+    sets, files, periods, shifts and cells as projected), for :func:`judge_hand`."""
+    from scanqa.decoding.coding import (
+        GrayCodeSet,
+        PatternDescription,
+        PhaseSet,
+        ReferenceSet,
+    )
+
+    names = frame_names(layout)
+    sets = []
+    refs = [(f.kind, n) for f, n in zip(layout.frames, names, strict=True)
+            if f.kind in ("white", "black")]
+    if {k for k, _ in refs} == {"white", "black"}:
+        sets.append(ReferenceSet("white_black", tuple(k for k, _ in refs),
+                                 files=tuple(n for _, n in refs)))
+    grays = [(f, n) for f, n in zip(layout.frames, names, strict=True)
+             if f.kind == "gray" and f.orientation == orientation]
+    if grays:
+        g = grays[0][0]
+        inverse = "none"
+        if any(f.inverse for f, _ in grays):
+            plain = [i for i, (f, _) in enumerate(grays) if not f.inverse]
+            inverse = "grouped" if plain == list(range(len(plain))) or \
+                plain == list(range(len(plain), 2 * len(plain))) else "interleaved"
+        by = {(f.bit, f.inverse): n for f, n in grays}
+        if inverse == "none":
+            files = [by[(b, False)] for b in range(g.bits)]
+        elif inverse == "grouped":
+            files = [by[(b, False)] for b in range(g.bits)] + \
+                [by[(b, True)] for b in range(g.bits)]
+        else:
+            files = [by[(b, inv)] for b in range(g.bits) for inv in (False, True)]
+        sets.append(GrayCodeSet("gray", g.bits, cell_px=g.cell, inverse=inverse,
+                                orientation=orientation, files=tuple(files),
+                                code="binary" if g.binary else "reflected"))
+    periods: dict = {}
+    for f, n in zip(layout.frames, names, strict=True):
+        if f.kind == "phase" and f.orientation == orientation:
+            periods.setdefault(f.period, []).append((f, n))
+    for i, (period, frames) in enumerate(periods.items()):
+        shifts = tuple((f.offset_rad + f.sign * TWO_PI * f.k / f.steps) % TWO_PI
+                       for f, _ in frames)
+        sets.append(PhaseSet(f"p{i}", float(period), len(frames), shifts,
+                             orientation=orientation, files=tuple(n for _, n in frames)))
+    size = layout.width if orientation == "vertical" else layout.height
+    return PatternDescription(int(size), tuple(sets))
+
+
+def judge_hand(layout: Layout, images: np.ndarray, described: list) -> Verdict:
+    """Issue 44's held-out test of a description against the hand one: every coded
+    direction found, and for each the described decode gives >= 90 % of the pixels the
+    hand description decodes, with a median |x_p difference| <= 2 px on the pixels
+    both decode; where the layout's fringes are not sine waves, the description must
+    name them (its text says "square" or "not sine"). Where the hand description decodes
+    nothing (a beat of beats the decoder cannot unwrap, or counts of fringes with a
+    common factor that leave x_p ambiguous), the periods (0.1 %), steps and
+    shift signs must be the projected ones."""
+    from scanqa.decoding.decoder import decode_images
+    from scanqa.errors import ConfigError
+
+    names = frame_names(layout)
+    index = {n: i for i, n in enumerate(names)}
+    got = [d.desc.orientation for d in described]
+    shares: dict = {}
+    if sorted(got) != sorted(layout.coded):
+        return Verdict(layout.name, False, f"directions {got}, want {list(layout.coded)}",
+                       shares)
+    why = []
+    for d in described:
+        o = d.desc.orientation
+        pms = []
+        try:
+            hand_desc = hand_description(layout, o)
+        except ConfigError:  # the projected sets leave x_p ambiguous (45, 40, 5 fringes)
+            hand_desc = None
+        for desc in (d.desc, hand_desc):
+            stacks = [] if desc is None else \
+                [images[[index[f] for f in s.files]] for s in desc.sets]
+            pms.append(None if desc is None else decode_images(desc, stacks))
+        ours, hand = pms
+        if hand is None or not hand.valid.any():  # the decoder cannot unwrap the sets
+            same = _same_phase_sets(layout, d.desc)
+            shares[o] = ("hand decodes 0", same)
+            if not same:
+                why.append(f"{o}: the hand description decodes nothing and the sets "
+                           "differ from the projected ones")
+            continue
+        both = ours.valid & hand.valid
+        share = float(both.sum() / max(hand.valid.sum(), 1))
+        med = float(np.median(np.abs(ours.xp - hand.xp)[both])) if both.any() else math.inf
+        profiles = {f.profile for f in layout.frames if f.kind == "phase"
+                    and f.orientation == o} - {"sine"}
+        text = " ".join([*d.notes, *(n for s in d.set_notes for n in s.notes)]).lower()
+        named = not profiles or "square" in text or "not sine" in text
+        shares[o] = (round(share, 3), round(med, 2), named)
+        if share < 0.9 or med > 2.0 or not named:
+            why.append(f"{o}: {share:.3f} of the hand's pixels, median {med:.2f} px"
+                       + ("" if named else ", fringes not named"))
+    return Verdict(layout.name, not why, "; ".join(why), shares)
 
 
 # ------------------------------------------------------------------------------ judge

@@ -28,6 +28,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.ndimage import gaussian_filter
 
 from scanqa.errors import InputError
 
@@ -158,9 +159,27 @@ def reference_frames(norm: Normalised) -> tuple[int, ...]:
         k = end + 1
     if {levels[i] for i in ends} != {"white", "black"} and inner:
         ends.extend(inner[0])
+    ends = [k for k in ends if not _pattern_among_references(norm, k, ends, levels)]
     if len(ends) == count:  # every frame uniform: nothing is coded
         return ()
     return tuple(sorted(ends))
+
+
+def _pattern_among_references(norm: Normalised, k: int, ends: list, levels: list) -> bool:
+    """True for a frame that looks uniform but is a pattern: another reference frame
+    has its level, and it is on the other side of the mid level at more than 0.1 % of
+    the lit pixels and ten times as many as the cleanest of them (a Gray code's coarsest
+    bit whose one edge is barely in view, next to the black frame; the per-pixel
+    normalisation puts a true reference at the extreme of every pixel)."""
+    same = [j for j in ends if levels[j] == levels[k]]
+    if len(same) < 2:
+        return False
+
+    def other_side(j):
+        values = norm.n[j][norm.lit]
+        return float(np.mean(values > 0.5 if levels[j] == "black" else values < 0.5))
+    share = other_side(k)
+    return share > 1e-3 and share > 10 * min(other_side(j) for j in same)
 
 
 def _sample(norm: Normalised, frames, limit: int = 400_000) -> np.ndarray:
@@ -324,6 +343,7 @@ def split_runs(images: np.ndarray, norm: Normalised, references: tuple) -> list[
     runs = [Run("reference", tuple(references))] if references else []
     rest = [k for k in range(images.shape[0]) if k not in references]
     cov = covariance(norm)
+    parts: list = []  # phase Runs and lists of loose frames, in sequence order
     loose: list[int] = []
     i = 0
     while i < len(rest):
@@ -332,14 +352,76 @@ def split_runs(images: np.ndarray, norm: Normalised, references: tuple) -> list[
             loose.append(rest[i])
             i += 1
             continue
-        runs.extend(_gray_runs(norm, loose))
+        parts.append(loose)
         loose = []
         frames = tuple(rest[i:i + steps])
-        orient, aniso = phase_orientation(phasor(images[list(frames)], order))
-        runs.append(Run("phase", frames, orient, aniso, order))
+        z = phasor(images[list(frames)], order)
+        orient, aniso = phase_orientation(z)
+        parts.append((Run("phase", frames, orient, aniso, order), _phase_angle(z)))
         i += steps
-    runs.extend(_gray_runs(norm, loose))
+    parts.append(loose)
+    angles: dict = {}  # the fringes' direction of each orientation's phase sets
+    for part in parts:
+        if isinstance(part, tuple):
+            angles.setdefault(part[0].orientation, []).append(part[1])
+    directions = {o: 0.5 * math.atan2(np.mean(np.sin(2 * np.array(a))),
+                                      np.mean(np.cos(2 * np.array(a))))
+                  for o, a in angles.items()}
+    for part in parts:
+        runs.extend([part[0]] if isinstance(part, tuple) else
+                    _gray_runs(norm, part, directions))
     return runs
+
+
+def _phase_angle(z: np.ndarray) -> float:
+    """Direction of a phase set's phase gradient from the camera's u axis [rad]."""
+    return math.atan2(phase_frequency(z, 0), phase_frequency(z, 1))
+
+
+def edge_direction(frame: np.ndarray, lit: np.ndarray) -> tuple[float, float]:
+    """Direction of a frame's stripes and how clear it is.
+
+    The structure tensor of the frame's gradient over the lit pixels (on blocks as
+    :func:`gradient_energy` averages them): the angle of its main axis from the camera's
+    u axis [rad, in (-pi/2, pi/2]], and the square root of the ratio of its eigenvalues
+    [-] (1 for no direction); the frame is smoothed by a 1-px Gaussian first, or the
+    steps of a pixelated oblique edge bias the angle (35 degrees for 30). Unlike the
+    gradient energies along u and v, neither depends on how the camera is rolled
+    against the projector.
+    """
+    f = max(1, min(frame.shape) // 150) if min(frame.shape) > 300 else 1
+    if f > 1:
+        h, w = (frame.shape[0] // f) * f, (frame.shape[1] // f) * f
+        frame = frame[:h, :w].reshape(h // f, f, w // f, f).mean(axis=(1, 3))
+        lit = lit[:h, :w].reshape(h // f, f, w // f, f).all(axis=(1, 3))
+    frame = gaussian_filter(frame.astype(np.float64), 1.0)  # a pixelated edge's steps
+    ok = lit[1:-1, 2:] & lit[1:-1, :-2] & lit[2:, 1:-1] & lit[:-2, 1:-1]
+    gu = (frame[1:-1, 2:] - frame[1:-1, :-2])[ok].astype(np.float64)  # central differences:
+    gv = (frame[2:, 1:-1] - frame[:-2, 1:-1])[ok].astype(np.float64)  # both at the pixel
+    a, b, c = float(gu @ gu), float(gv @ gv), float(gu @ gv)
+    if a + b <= 0:
+        return 0.0, 1.0
+    disc = math.hypot((a - b) / 2, c)
+    low = max((a + b) / 2 - disc, 1e-12 * (a + b))
+    return 0.5 * math.atan2(2 * c, a - b), math.sqrt(((a + b) / 2 + disc) / low)
+
+
+def _angle_apart(a: float, b: float) -> float:
+    """Angle between two undirected directions [rad, 0..pi/2]."""
+    return abs(math.remainder(a - b, math.pi))
+
+
+def _stripe_orientation(angle: float, directions: dict) -> str:
+    """The orientation of stripes at ``angle``: that of the phase sets whose fringes run
+    nearest (one orientation's sets only: theirs within 45 degrees, else the other),
+    else "vertical" within 45 degrees of the u axis."""
+    if len(directions) == 2:
+        return min(directions, key=lambda o: _angle_apart(angle, directions[o]))
+    if len(directions) == 1:
+        (o, d), = directions.items()
+        other = "horizontal" if o == "vertical" else "vertical"
+        return o if _angle_apart(angle, d) < math.pi / 4 else other
+    return "vertical" if _angle_apart(angle, 0.0) < math.pi / 4 else "horizontal"
 
 
 def _phase_at(norm: Normalised, rest: list, cov: np.ndarray) -> tuple[int, tuple]:
@@ -360,16 +442,29 @@ def _contiguous(frames) -> bool:
     return all(b == a + 1 for a, b in itertools.pairwise(frames))
 
 
-def _gray_runs(norm: Normalised, frames: list[int]) -> list[Run]:
-    """Gray frames split into runs of one orientation (uncertain frames join a run)."""
+def _gray_runs(norm: Normalised, frames: list[int], directions: dict | None = None
+               ) -> list[Run]:
+    """Gray frames split into runs of one orientation (uncertain frames join a run).
+
+    A frame's orientation is that of its stripes' direction (:func:`edge_direction`)
+    against the phase sets' fringes (``directions``: their angle per orientation
+    [rad]), so a rolled camera's oblique stripes are read right; a frame whose
+    direction is unclear (a coarse bit with an edge or none in view) joins its coarser
+    neighbour - the next bit of its own code, whether the bits come coarse or fine
+    first, where the neighbour across a code's boundary is the other code's finest.
+    """
     if not frames:
         return []
-    seen = [orientation_of(*gradient_energy(norm.n[k], norm.lit)) for k in frames]
-    clear = [o if a > 1.3 else "" for o, a in seen]
-    for i, o in enumerate(clear):  # an unclear frame (a coarse bit) takes its followers'
-        if not o:
-            clear[i] = next((clear[j] for j in _neighbours(i, len(frames)) if clear[j]),
-                            seen[i][0])
+    seen = [edge_direction(norm.n[k], norm.lit) for k in frames]
+    energy = [sum(gradient_energy(norm.n[k], norm.lit)) for k in frames]
+    clear = [_stripe_orientation(a, directions or {}) if r > 1.5 else "" for a, r in seen]
+    for i in sorted(range(len(frames)), key=lambda j: energy[j], reverse=True):
+        if not clear[i]:  # the finer unclear frames first: a coarser one may follow them
+            near = [j for j in (i - 1, i + 1) if 0 <= j < len(frames) and clear[j]
+                    and abs(frames[j] - frames[i]) == 1]
+            coarser = min(near, key=lambda j: energy[j], default=None)
+            clear[i] = clear[coarser] if coarser is not None else \
+                _stripe_orientation(seen[i][0], directions or {})
     runs, start = [], 0
     for i in range(1, len(frames) + 1):
         if i == len(frames) or clear[i] != clear[start] or frames[i] != frames[i - 1] + 1:
@@ -379,12 +474,6 @@ def _gray_runs(norm: Normalised, frames: list[int]) -> list[Run]:
             runs.append(Run("gray", tuple(part), clear[start], aniso))
             start = i
     return runs
-
-
-def _neighbours(i: int, count: int) -> list[int]:
-    """The later indices by distance from i, then the earlier ones: an unclear frame is
-    usually a coarse bit, and a Gray code runs from its coarse bits to its fine ones."""
-    return sorted((j for j in range(count) if j != i), key=lambda j: (j < i, abs(j - i)))
 
 
 def frequency_ratio(z_fine: np.ndarray, z_coarse: np.ndarray, axis: int,

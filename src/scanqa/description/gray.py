@@ -243,7 +243,7 @@ def edge_offsets(zs: list, signs: list, cells: np.ndarray, cell: float, periods:
         psi = sign * np.angle(_edge_phasor(z, ok, axis))
         theta = float(np.angle(np.sum(weight * np.exp(1j * (psi - 2 * np.pi * edge
                                                            / period)))))
-        out.append(_snapped(theta))
+        out.append(snapped(theta))
     return tuple(out)
 
 
@@ -271,7 +271,7 @@ def cue_offsets(zs: list, signs: list, periods: tuple, width: int, usable: np.nd
             continue
         diff = unit[i] * np.conj(unit[cue]) ** round(ratio)
         mean = np.mean(diff)
-        out.append(_snapped(float(np.angle(mean)), _spread(diff, unit[cue]))
+        out.append(snapped(float(np.angle(mean)), _spread(diff, unit[cue]))
                    if abs(mean) >= 0.5 else 0.0)
     return tuple(out)
 
@@ -287,14 +287,15 @@ def _spread(diff: np.ndarray, cue: np.ndarray, parts: int = 4) -> float:
                for p in np.array_split(order, parts) if p.size)
 
 
-def _snapped(theta: float, spread: float = 0.0) -> float:
-    """A phase start snapped to a multiple of pi / 6 within 0.1 rad (a projector's gamma
-    biases the phase by a few hundredths) or within ``spread`` [rad], what the parts of
-    the measurement disagree by, or of pi / 12 within 0.04 rad, else rounded to 1 mrad;
-    0 for a start within 1e-12 of it."""
-    for step, within in ((np.pi / 6, max(0.1, spread)), (np.pi / 12, 0.04)):
+def snapped(theta: float, spread: float = 0.0, within: float = 0.1) -> float:
+    """A phase start snapped to a multiple of pi / 6 within ``within`` [rad] (0.1: a
+    projector's gamma biases the phase at the cell edges by a few hundredths) or within
+    ``spread`` [rad], what the parts of the measurement disagree by, or of pi / 12
+    within 0.04 rad (or ``within``, if less), else rounded to 1 mrad; 0 for a start
+    within 1e-12 of it."""
+    for step, near in ((np.pi / 6, max(within, spread)), (np.pi / 12, min(0.04, within))):
         snap = round(theta / step) * step
-        if abs(snap - theta) <= within:  # the usual starts: multiples of 30 degrees
+        if abs(snap - theta) <= near:  # the usual starts: multiples of 30 degrees
             theta = snap
             break
     else:

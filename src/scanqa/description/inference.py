@@ -21,23 +21,24 @@ what each set codes and checks the guess with scanqa's decoder:
   that put the last cell seen on the panel - pinned when the panel's far edge is in
   view, else the same cell for columns and rows, then cells dividing the width, the
   roundest, the finest (:func:`~scanqa.description.gray.rank_cells`);
-* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels);
-  the likeliest is kept unless another decodes clearly more, the others are reported,
-  and the description says how sure it is.
+* the candidates the measurement leaves open are decoded (on about 200 x 400 pixels,
+  :mod:`scanqa.description.evidence`, which also reads the fringe profile, the cycles in
+  view and the phase start of binary fringes over whole cells); the likeliest is kept
+  unless another decodes clearly more, the others are reported, and the description
+  says how sure it is.
 
 Everything the frames cannot tell is said in the written file as a question.
 """
 
 from __future__ import annotations
 
-import logging
 import math
 from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from scanqa.decoding.coding import GrayCodeSet, PatternDescription, PhaseSet, ReferenceSet
-from scanqa.decoding.decoder import decode_images
+from scanqa.description import evidence as ev
 from scanqa.description import frames as fr
 from scanqa.description.gray import (
     GrayRun,
@@ -58,8 +59,6 @@ from scanqa.description.gray import (
 )
 from scanqa.errors import ConfigError, InputError
 
-#: Rows and columns the decoding check reads at most (every n-th of a larger frame) [-].
-CHECK_ROWS, CHECK_COLUMNS = 200, 400
 #: Largest count of fringes over the panel searched for phase-only codings [-].
 MAX_FRINGES = 256
 
@@ -119,6 +118,7 @@ class _Group:
     range: tuple = ()
     cell_choices: list = field(default_factory=list)
     set_notes: dict = field(default_factory=dict)
+    profiles: list = field(default_factory=list)  # FringeProfile or None per phase run
 
 
 def describe_frames(images: np.ndarray, names: list[str], width_px: int | None = None,
@@ -247,16 +247,19 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     zs = [fr.phasor(data[list(r.frames)], r.order) for r in phase]
     signs = [direction * _sign(fr.phase_frequency(z, axis)) for z in zs]
     _ask_about_runs(group, phase, zs, axis, names)
+    group.profiles = [ev.fringe_profile(images[list(r.frames)], _shifts(sign, r), norm.lit)
+                      for r, sign in zip(phase, signs, strict=True)]
     candidates = _candidates(data, norm, phase, zs, gray, cells, axis, group, signs)
     if gray is not None:  # the other code too: decoding tells a plain binary code apart
         candidates += [(with_code(d), offsets) for d, offsets in candidates]
-    stacks_for = _stacks_factory(images, group, phase, gray, ref)
+    stacks = ev.sample_stacks(images, _frame_lists(group, phase, gray, ref))
     best, share, tried = None, -1.0, []
     for desc, offsets in candidates:
         desc = _with_signs(desc, signs, [r.order for r in phase], offsets)
-        got = _check(desc, stacks_for(desc), norm.lit)
+        got = ev.check(desc, stacks, norm.lit)
         tried.append((desc, got))
-        if got > share + (0.02 if tried[1:] else 0.0):  # the likelier kept unless clearly worse
+        margin = ev.SCALE_MARGIN if ev.scale_only(desc, best) else ev.MARGIN
+        if got > share + (margin if tried[1:] else 0.0):  # the likelier kept unless worse
             best, share = desc, got
     if tried and 0 <= share < 0.3 and tried[0][1] >= 0 and best is not tried[0][0]:
         best, share = tried[0]  # none decodes: the best measured fit is kept
@@ -269,10 +272,15 @@ def _describe_group(images: np.ndarray, data: np.ndarray, norm: fr.Normalised,
     best = _with_files(best, names, group, phase, gray, ref)
     if gray is not None:
         code_note(best, tried, gray, group.notes)
-    _alternatives(best, tried, share, group)
+    for pset, profile in zip(best.phase_sets, group.profiles, strict=True):
+        if profile is not None:
+            group.notes.append(profile.note(pset.name, pset.steps, pset.period_px))
+    if ev.noise_note(best):
+        group.notes.append(ev.noise_note(best))
+    ev.alternatives(best, tried, share, group.questions)
     set_notes = _set_notes(best, phase, gray, ref, signs, direction, notes, group)
-    sample = (len(range(0, images.shape[1], row_step(images.shape[1]))),
-              len(range(0, images.shape[2], _column_step(images.shape[2]))))
+    sample = (len(range(0, images.shape[1], ev.row_step(images.shape[1]))),
+              len(range(0, images.shape[2], ev.column_step(images.shape[2]))))
     return Description(best, set_notes, share, tuple(group.notes), tuple(group.questions),
                        sample, confidence_line(best, share, tried, len(group.questions)))
 
@@ -301,6 +309,12 @@ def _frame_range(frames, names: list[str]) -> str:
 
 def _sign(value: float) -> float:
     return -1.0 if value < 0 else 1.0
+
+
+def _shifts(sign: float, run: fr.Run) -> tuple:
+    """A phase run's shifts from its sign and step order (no start) [rad]."""
+    steps = len(run.frames)
+    return tuple(sign * 2 * math.pi * k / steps for k in (run.order or range(steps)))
 
 
 # ------------------------------------------------------------------- periods and cells
@@ -341,8 +355,9 @@ def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
                          f"only period ratios): give "
                          f"{'width_px' if group.orientation == 'vertical' else 'height_px'}")
     ratios, spreads = _ratios(phase, zs, axis, usable)  # coarsest period / each period
+    seen = ev.fewest_fringes(zs[ratios.index(1.0)], axis, usable)
     loose, score = [], {}
-    for t in range(1, MAX_FRINGES + 1):
+    for t in range(max(1, math.ceil(seen - 0.3)), MAX_FRINGES + 1):
         counts = [t * r for r in ratios]
         gaps = [abs(c - max(1, round(c))) for c in counts]
         if all(g <= 0.03 * c + 0.05 for g, c in zip(gaps, counts, strict=True)):
@@ -351,6 +366,9 @@ def _phase_scales(phase, zs, axis, usable, group) -> list[_Scale]:
                            for g, c, sd in zip(gaps, counts, spreads, strict=True))
     if not loose:
         return []
+    if seen >= 1.3:
+        group.notes.append(f"the coarsest set's phase runs through {seen:.1f} cycles in view: "
+                           f"it has at least {math.ceil(seen - 0.3)} fringes over the panel")
     # in measured spreads; within one spread alike (a multiple of the right counts fits
     # as well), and the fewest counts first among them
     best = sorted(loose, key=lambda t: (max(score[t], 1.0), t))[:3]
@@ -426,6 +444,16 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group, signs) -> list[_Sc
                                    "segments): what is it?")
             return []
         ratios.append(refine_ratio(z, cells, axis, abs(r) * count))  # period in cells
+    if len(choices) > 1 and any(p is not None and p.staircase for p in group.profiles):
+        ordered = ev.whole_shift_first(choices, [simple_ratio(r) for r in ratios],
+                                       [len(r.frames) for r in phase], width)
+        if ordered[0] != choices[0]:
+            group.notes.append(f"binary fringes are shifted by whole projector pixels: of "
+                               f"the cells that divide {width} px, {ordered[0]:g} px is the "
+                               f"one whose periods are (P / N whole), not {choices[0]:g}")
+        choices = ordered
+    straight = [z if p is None else ev.straightened(z, sign, len(r.frames), usable)
+                for z, sign, r, p in zip(zs, signs, phase, group.profiles, strict=True)]
     lo, hi = cell_range(width, gray.bits, 0)
     out = []
     for cell in choices[:3]:
@@ -434,7 +462,13 @@ def _gray_scales(phase, zs, gray, cells, axis, usable, group, signs) -> list[_Sc
                     f"cells measured")
         for snap in (True, False):
             periods = tuple(cell * (simple_ratio(r) if snap else r) for r in ratios)
-            offsets = edge_offsets(zs, signs, cells, float(cell), periods, axis)
+            offsets = edge_offsets(straight, signs, cells, float(cell), periods, axis)
+            whole = [ev.cell_offsets(z, sign, cells, float(cell), period, axis)
+                     if p is not None and p.staircase else None
+                     for z, sign, period, p in zip(straight, signs, periods,
+                                                   group.profiles, strict=True)]
+            offsets = tuple(o if w is None else w for o, w in zip(offsets, whole,
+                                                                  strict=True))
             scale = _Scale(width, periods, float(cell), evidence, offsets=offsets)
             if scale not in out:
                 out.append(scale)
@@ -498,66 +532,12 @@ def _frame_lists(group: _Group, phase: list, gray: GrayRun | None, ref) -> list[
     return lists + [list(r.frames) for r in phase]
 
 
-def row_step(rows: int) -> int:
-    """Every how many rows the decoding check reads a frame of ``rows`` rows [-]."""
-    return max(1, rows // CHECK_ROWS)
-
-
-def _column_step(columns: int) -> int:
-    return max(1, columns // CHECK_COLUMNS)
-
-
-def _stacks_factory(images, group, phase, gray, ref):
-    """Stacks (every ``row_step``-th row) in the set order of the built descriptions."""
-    lists = _frame_lists(group, phase, gray, ref)
-    step, cstep = row_step(images.shape[1]), _column_step(images.shape[2])
-    stacks = [np.ascontiguousarray(images[idx][:, ::step, ::cstep]) for idx in lists]
-    return lambda desc: stacks
-
-
-def _check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
-    """Share of the lit pixels (of the rows checked) that decode valid [-]."""
-    from scanqa.errors import ScanQAError
-
-    quiet = logging.getLogger(decode_images.__module__)
-    level = quiet.level
-    quiet.setLevel(logging.ERROR)  # a candidate's warnings are not the capture's
-    try:
-        pm = decode_images(desc, stacks)
-    except ScanQAError:
-        return -1.0
-    finally:
-        quiet.setLevel(level)
-    lit_rows = lit[::row_step(lit.shape[0]), ::_column_step(lit.shape[1])]
-    return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
-
-
 def _with_files(desc, names, group, phase, gray, ref) -> PatternDescription:
     """The chosen description with the frame file names of every set."""
     lists = _frame_lists(group, phase, gray, ref)
     sets = tuple(replace(s, files=tuple(names[k] for k in idx))
                  for s, idx in zip(desc.sets, lists, strict=True))
     return replace(desc, sets=sets)
-
-
-def _alternatives(best: PatternDescription, tried: list, share: float,
-                  group: _Group) -> None:
-    """Candidates that decode nearly as well as the chosen one become a question."""
-    def periods(d):
-        return ", ".join(f"{s.period_px:g}" for s in d.sets if isinstance(s, PhaseSet))
-
-    def differ(d):  # by more than the 0.1 % a period is stated to
-        return any(abs(a.period_px / b.period_px - 1) > 1e-3 for a, b in
-                   zip(d.sets, best.sets, strict=True) if isinstance(a, PhaseSet))
-
-    close = [d for d, got in tried if d is not best and got >= 0.9 * share and share > 0
-             and differ(d)]
-    for d in close[:2]:
-        group.questions.append(f"periods {periods(d)} px decode nearly as many pixels as "
-                               f"the chosen {periods(best)} px: which were projected?")
-    if share < 0.3:
-        group.questions.append(f"only {100 * max(share, 0):.0f} % of the lit pixels decode: "
-                               "is a set missing or misread?")
 
 
 def _set_notes(desc, phase, gray, ref, signs, direction, notes, group) -> tuple:
