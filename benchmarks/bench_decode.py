@@ -9,9 +9,10 @@ Each decoder runs in its own subprocess so that its peak memory (``ru_maxrss``) 
 own (VmHWM); the images are written once to a temporary ``.npy`` stack (uint16, 12-bit values
 with Gaussian noise) and loaded by both. Reported per decoder: the best wall time of
 ``--repeat`` runs, the process peak RSS, and the peak above the loaded inputs. For
-scanqa the numpy peak from tracemalloc is reported too. fringes (PyPI, numba) is
-JIT-warmed on a small image first so that its compile time is not counted; it runs
-its numba kernel on all cores, scanqa is plain numpy.
+scanqa the numpy peak from tracemalloc is reported too. Both are JIT-warmed on a small
+image first, so that no compile time (or numba's import) is counted: fringes (PyPI,
+numba) runs its numba kernel on all cores; scanqa runs numpy and, with numba installed
+(the ``fast`` extra), its compiled demodulation, on a thread per core.
 
 Usage::
 
@@ -95,6 +96,7 @@ def _run_scanqa(images: np.ndarray, repeat: int, noise_from_data: bool = False) 
 
     desc = _description(noise_from_data)
     stacks = [images[4 * i:4 * i + 4] for i in range(len(PERIODS))]
+    decode_images(desc, [s[:, :16, :64] for s in stacks])  # JIT warm-up, as for fringes
     base = _rss_mb()
     times, cpu, pm = [], [], None
     for _ in range(repeat):

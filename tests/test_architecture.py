@@ -22,7 +22,8 @@ LAYERS = {
     "scanqa.errors": 0, "scanqa.chunks": 0, "scanqa.compiled": 0, "scanqa.progress": 0,
     "scanqa._version": 0, "scanqa.numeric": 0,
     "scanqa.io": 1,
-    "scanqa.decoding": 2, "scanqa.model": 2, "scanqa.provenance": 2,
+    "scanqa.decoding": 2, "scanqa.decoding.phasekernel": 2, "scanqa.model": 2,
+    "scanqa.provenance": 2,
     "scanqa.description": 3, "scanqa.calibration": 3, "scanqa.design": 3,
     "scanqa.characterization": 4, "scanqa.qa": 4, "scanqa.simulator": 4,
     "scanqa.simulator.boardfringes": 4,  # board poses under fringes, for the board path

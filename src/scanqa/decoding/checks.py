@@ -278,9 +278,11 @@ def mirrored(xp: np.ndarray, valid: np.ndarray, orientation: str) -> list[str]:
         return []
     u = np.arange(x.shape[1], dtype=np.float64)
     x, valid, n = x[rows], valid[rows], n[rows]
-    u_mean = (valid * u).sum(axis=1) / n
+    # sum over the valid pixels of (u - u_mean)(x - x_mean) = sum u x - n u_mean x_mean,
+    # x being 0 elsewhere: two matrix-vector products, no (lines, width) temporary
+    u_mean = (valid @ u) / n
     x_mean = x.sum(axis=1) / n
-    cov = (valid * (u - u_mean[:, None]) * (x - x_mean[:, None])).sum(axis=1)
+    cov = x @ u - n * u_mean * x_mean
     falling = float(n[cov < 0].sum() / n.sum())
     if falling < MIRRORED_SHARE:
         return []

@@ -34,6 +34,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from scanqa.compiled import HAVE_NUMBA
 from scanqa.decoding import chain
 from scanqa.decoding.coding import GrayCodeSet, PatternDescription, ReferenceSet, SensorModel
 from scanqa.decoding.demodulate import TWO_PI, ShiftFit, demodulate_flat, sample_variance
@@ -532,18 +533,23 @@ def _unwrap_step(plan: UnwrapPlan, step: chain.Step, x: np.ndarray, var_x: np.nd
                  stats: ChainStats) -> np.ndarray:
     """Unwrap one step with the current estimate; its own coordinate."""
     th = plan.desc.thresholds
-    period = step.period_px
-    r = x / period - frac
-    k = np.rint(r)
-    residual = np.abs(r - k)
-    bad = residual > th.unwrap_max_residual
+    period, margin2 = step.period_px, (3.0 * th.unwrap_sigma_margin) ** 2
     # the odds of the neighbouring order against the one taken, for the observed residual
     # and the predicted noise, exp(-(1 - 2 |r|) / (2 sigma^2)), must stay below those of
-    # a 3 margin sigma excursion, exp(-(3 margin)^2 / 2)
-    variance = (var_x + var_step) / (period * period)
-    noisy = ~(1.0 - 2.0 * residual >= variance * (3.0 * th.unwrap_sigma_margin) ** 2)
+    # a 3 margin sigma excursion, exp(-(3 margin)^2 / 2); with numba in one pass
+    if HAVE_NUMBA:
+        from scanqa.decoding.phasekernel import unwrap_step_compiled
+        x_s, bad, noisy = unwrap_step_compiled(x, var_x, frac, var_step, period,
+                                               th.unwrap_max_residual, margin2)
+    else:
+        r = x / period - frac
+        k = np.rint(r)
+        residual = np.abs(r - k)
+        bad = residual > th.unwrap_max_residual
+        noisy = ~(1.0 - 2.0 * residual >= (var_x + var_step) / (period * period) * margin2)
+        x_s = (frac + k) * period
     _check_step(stats, step.name, flags, bad, 1.0 - 2.0 * th.unwrap_max_residual, noisy)
-    return (frac + k) * period
+    return x_s
 
 
 def _check_step(stats: ChainStats, name: str, flags: _Flags, bad: np.ndarray,
