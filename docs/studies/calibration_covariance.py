@@ -79,6 +79,17 @@ LOW_NOISE_TUNING_SEEDS = tuple(range(5000, 5008))
 LOW_NOISE_HELD_OUT_SEEDS = tuple(range(5100, 5112))
 
 
+#: Session 43, named before any change and before any of them was run. Part "gray"
+#: with the cheaper renderer: 4250-4254 to investigate on (cost, cause, model choice),
+#: 4200-4211 held out (run once, for the reported numbers). Part "other" (the held-out
+#: class: another scanner, Gray codes alone, its truth as the reference calibration):
+#: 4300-4311 held out, never tuned on; 4390 only to see that its renderer runs.
+GRAY43_TUNING_SEEDS = tuple(range(4250, 4255))
+GRAY43_HELD_OUT_SEEDS = tuple(range(4200, 4212))
+OTHER_HELD_OUT_SEEDS = tuple(range(4300, 4312))
+OTHER_SMOKE_SEED = 4390
+
+
 #: ``--release``: the joint fit fits the left-out lens terms the data show
 #: (:func:`scanqa.calibration.bundle.bundle_adjust`'s ``release``).
 RELEASE = {"release": False}
