@@ -211,9 +211,12 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
     rot = rotation_matrix(rvec)
     normal, origin = rot[:, 2], np.asarray(tvec, float)
 
-    def surface(du: float, dv: float) -> tuple[np.ndarray, np.ndarray]:
-        """Camera-frame points and board coordinates seen at pixel offset (du, dv)."""
-        norm = undistort_points(np.column_stack([u.ravel() + du, v.ravel() + dv]),
+    def surface(du: float, dv: float, where: np.ndarray | slice = slice(None)
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """Camera-frame points and board coordinates seen at pixel offset (du, dv), at
+        the pixels ``where`` (flat indices)."""
+        norm = undistort_points(np.column_stack([u.ravel()[where] + du,
+                                                 v.ravel()[where] + dv]),
                                 truth.Kc, truth.kc)
         rays = (norm[:, 0], norm[:, 1], 1.0)
         along = rays[0] * normal[0] + rays[1] * normal[1] + normal[2]  # ray . normal
@@ -241,14 +244,24 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
         return np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), 0.15, out)
 
     # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it; the
-    # centre's points (offset 0, 0) are the ones lit and projected
+    # centre's points (offset 0, 0) are the ones lit and projected. Where the centre
+    # lies more than a square beyond the board's margin, all nine points see the dark
+    # background (a third of a pixel moves them by far less than a square), so the
+    # other eight are only traced near the board: the same frames, ~5 x less work.
+    pts, local = surface(0.0, 0.0)
+    centre = reflectance(local)
+    s = board.square_mm
+    near = np.flatnonzero((local[:, 0] > -3 * s) & (local[:, 0] < (board.columns + 2) * s)
+                          & (local[:, 1] > -3 * s) & (local[:, 1] < (board.rows + 2) * s))
     shades = []
     for du in (-1 / 3, 0, 1 / 3):
         for dv in (-1 / 3, 0, 1 / 3):
-            seen, local = surface(du, dv)
-            shades.append(reflectance(local))
             if du == dv == 0:
-                pts = seen
+                shades.append(centre)
+                continue
+            shade = np.full(len(centre), 0.05)
+            shade[near] = reflectance(surface(du, dv, near)[1])
+            shades.append(shade)
     albedo = np.mean(shades, axis=0)
     proj = project_points(pts, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
     panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
