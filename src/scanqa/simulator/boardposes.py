@@ -84,25 +84,90 @@ def bowed_points(board: Board, bow: np.ndarray) -> np.ndarray:
     return pts
 
 
-def _truth(rng: np.random.Generator) -> OpenCVCalibration:
-    f_c, f_p = rng.uniform(1700, 1900), rng.uniform(1250, 1400)
-    kc = np.array([rng.uniform(-0.12, -0.02), rng.normal(0, 0.05), 0, 0, 0])
-    kp = np.array([rng.uniform(-0.06, 0.0), rng.normal(0, 0.03), 0, 0, 0])
-    cc = np.array([(CAMERA[0] - 1) / 2, (CAMERA[1] - 1) / 2]) + rng.normal(0, 4, 2)
-    rot = rotation_matrix(np.array([rng.normal(0.03, 0.02), rng.uniform(0.2, 0.3),
+@dataclass(frozen=True)
+class ScannerClass:
+    """The ranges one seed's scanner and board poses are drawn from (all uniform but
+    the normal ``*_std`` terms).
+
+    Attributes
+    ----------
+    camera, panel : (int, int)
+        Camera image and projector panel (width, height) [px].
+    focal_camera, focal_projector : (float, float)
+        Focal length ranges [px].
+    k1_camera, k1_projector : (float, float)
+        Radial k1 ranges [-]; k2 is normal with std ``k2_std`` (camera, projector) [-].
+    centre_std : float
+        Std of the camera's principal point about the image centre [px].
+    projector_cy : float
+        The projector's principal point row as a share of the panel's height [-].
+    tilt_y : (float, float)
+        The projector's rotation about the camera's y axis [rad].
+    projector_x : (float, float)
+        The projector centre's x in the camera frame [mm] (its y and z: normal about
+        ``projector_yz`` with std 5 mm).
+    projector_yz : (float, float)
+        [mm].
+    depth : (float, float)
+        The board centre's depth range [mm].
+    """
+
+    camera: tuple = CAMERA
+    panel: tuple = PANEL
+    focal_camera: tuple = (1700.0, 1900.0)
+    focal_projector: tuple = (1250.0, 1400.0)
+    k1_camera: tuple = (-0.12, -0.02)
+    k1_projector: tuple = (-0.06, 0.0)
+    k2_std: tuple = (0.05, 0.03)
+    centre_std: float = 4.0
+    projector_cy: float = 0.85
+    tilt_y: tuple = (0.2, 0.3)
+    projector_x: tuple = (100.0, 140.0)
+    projector_yz: tuple = (10.0, -10.0)
+    depth: tuple = (360.0, 440.0)
+
+
+#: The scanner class the study was built on.
+SCANNER = ScannerClass()
+#: Another scanner class, for held-out checks: a 1024 x 768 camera with pincushion k1
+#: and the projector on its left, a 1024 x 768 projector (Gray codes of 10 bits in both
+#: directions), a farther and wider volume; with :data:`OTHER_BOARD`.
+OTHER_SCANNER = ScannerClass(
+    camera=(1024, 768), panel=(1024, 768), focal_camera=(1350.0, 1500.0),
+    focal_projector=(1500.0, 1650.0), k1_camera=(0.02, 0.10), k1_projector=(-0.10, -0.03),
+    k2_std=(0.08, 0.05), centre_std=6.0, projector_cy=0.78, tilt_y=(-0.26, -0.18),
+    projector_x=(-150.0, -110.0), projector_yz=(-15.0, 5.0), depth=(470.0, 560.0))
+#: The other scanner's board: 7 x 10 inner corners of 12 mm.
+OTHER_BOARD = Board(rows=7, columns=10, square_mm=12.0)
+
+
+def _truth(rng: np.random.Generator, scanner: ScannerClass = SCANNER) -> OpenCVCalibration:
+    camera, panel = scanner.camera, scanner.panel
+    f_c, f_p = rng.uniform(*scanner.focal_camera), rng.uniform(*scanner.focal_projector)
+    kc = np.array([rng.uniform(*scanner.k1_camera), rng.normal(0, scanner.k2_std[0]), 0, 0,
+                   0])
+    kp = np.array([rng.uniform(*scanner.k1_projector), rng.normal(0, scanner.k2_std[1]), 0,
+                   0, 0])
+    cc = np.array([(camera[0] - 1) / 2, (camera[1] - 1) / 2]) + rng.normal(
+        0, scanner.centre_std, 2)
+    rot = rotation_matrix(np.array([rng.normal(0.03, 0.02), rng.uniform(*scanner.tilt_y),
                                  rng.normal(0, 0.02)]))
-    centre = np.array([rng.uniform(100, 140), rng.normal(10, 5), rng.normal(-10, 5)])
+    centre = np.array([rng.uniform(*scanner.projector_x),
+                       rng.normal(scanner.projector_yz[0], 5),
+                       rng.normal(scanner.projector_yz[1], 5)])
     return OpenCVCalibration(
         Kc=np.array([[f_c, 0, cc[0]], [0, f_c, cc[1]], [0, 0, 1.0]]), kc=kc,
-        Kp=np.array([[f_p, 0, PANEL[0] / 2 + rng.normal(0, 10)],
-                     [0, f_p, 0.85 * PANEL[1] + rng.normal(0, 10)], [0, 0, 1.0]]), kp=kp,
+        Kp=np.array([[f_p, 0, panel[0] / 2 + rng.normal(0, 10)],
+                     [0, f_p, scanner.projector_cy * panel[1] + rng.normal(0, 10)],
+                     [0, 0, 1.0]]), kp=kp,
         Rp=rot, Tp=-rot @ centre,
-        sizes={"frameWidth": CAMERA[0], "frameHeight": CAMERA[1], "screenResX": PANEL[0],
-               "screenResY": PANEL[1]})
+        sizes={"frameWidth": camera[0], "frameHeight": camera[1], "screenResX": panel[0],
+               "screenResY": panel[1]})
 
 
 def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 0.15,
-             noise_px: tuple | None = None) -> SimulatedBoardScanner:
+             noise_px: tuple | None = None, scanner: ScannerClass = SCANNER
+             ) -> SimulatedBoardScanner:
     """One seed's scanner and board poses (module notes).
 
     Parameters
@@ -118,13 +183,15 @@ def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 
     noise_px : (float, float), optional
         Corner noise of camera and projector [px] (default drawn: 0.05-0.2 and
         0.03-0.12).
+    scanner : ScannerClass
+        The ranges the scanner and its poses are drawn from.
 
     Returns
     -------
     SimulatedBoardScanner
     """
     rng = np.random.default_rng(seed)
-    truth = _truth(rng)
+    truth = _truth(rng, scanner)
     bow = rng.normal(0, bow_mm, 3)
     noise = noise_px or (rng.uniform(0.05, 0.2), rng.uniform(0.03, 0.12))
     obj = bowed_points(board, bow)
@@ -133,19 +200,19 @@ def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 
     while len(poses) < n_poses:
         rvec = np.array([rng.uniform(-0.4, 0.4), rng.uniform(-0.4, 0.4),
                          rng.uniform(-0.2, 0.2)])
-        depth = rng.uniform(360, 440)
+        depth = rng.uniform(*scanner.depth)
         rmat = rotation_matrix(rvec)
         tvec = np.array([rng.normal(10, 15), rng.normal(0, 15), depth]) - rmat @ centre
         cam = project_points(obj, rvec, tvec, truth.Kc, truth.kc)
         rp = rotation_vector(truth.Rp @ rmat)
         proj = project_points(obj, rp, truth.Rp @ tvec + truth.Tp, truth.Kp, truth.kp)
-        if not (_inside(cam, CAMERA, 20) and _inside(proj, PANEL, 5)):
+        if not (_inside(cam, scanner.camera, 20) and _inside(proj, scanner.panel, 5)):
             continue
         cam = cam + noise[0] * rng.standard_normal(cam.shape)
         proj = proj + noise[1] * rng.standard_normal(proj.shape)
         empty = np.full((1, 1), np.nan)
         poses.append(BoardPose(f"sim{seed}_{len(poses)}", cam, proj, (0, 0, 1, 1), empty,
-                               empty, CAMERA, board))
+                               empty, scanner.camera, board))
         depths.append(depth)
     return SimulatedBoardScanner(truth, bow, tuple(noise), poses,
                                  (float(min(depths)), float(max(depths))))
@@ -170,16 +237,18 @@ def volume_points(truth: OpenCVCalibration, depth_mm: tuple, grid: int = 7,
     xyz : (n, 3) float
         The true points in the camera frame [mm].
     """
-    uu, vv = np.meshgrid(np.linspace(0.1, 0.9, grid) * CAMERA[0],
-                         np.linspace(0.1, 0.9, grid) * CAMERA[1])
+    camera = (truth.sizes["frameWidth"], truth.sizes["frameHeight"])
+    panel = (truth.sizes["screenResX"], truth.sizes["screenResY"])
+    uu, vv = np.meshgrid(np.linspace(0.1, 0.9, grid) * camera[0],
+                         np.linspace(0.1, 0.9, grid) * camera[1])
     pix = np.column_stack([uu.ravel(), vv.ravel()])
     norm = undistort_points(pix, truth.Kc, truth.kc)
     out = []
     for z in np.linspace(*depth_mm, depths):
         xyz = np.column_stack([norm * z, np.full(len(norm), z)])
         prj = project_points(xyz, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
-        ok = (prj[:, 0] > 0) & (prj[:, 0] < PANEL[0]) & (prj[:, 1] > 0) & (
-            prj[:, 1] < PANEL[1])
+        ok = (prj[:, 0] > 0) & (prj[:, 0] < panel[0]) & (prj[:, 1] > 0) & (
+            prj[:, 1] < panel[1])
         out.append((pix[ok, 0], pix[ok, 1], prj[ok, 0], xyz[ok]))
     return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
 
