@@ -91,9 +91,12 @@ LOW_NOISE_HELD_OUT_SEEDS = tuple(range(5100, 5112))
 #: 4200-4211 held out (run once, for the reported numbers). Part "other" (the held-out
 #: class: another scanner, Gray codes alone, its truth as the reference calibration):
 #: 4300-4311 held out, never tuned on; 4390 only to see that its renderer runs.
+#: Seed 4300 stopped in its first pose: the corner search found the board at half size
+#: but not again at full size (scanqa.calibration.board now falls back to the half-size
+#: corners); 4301-4311 were not run, and 4320-4331 were named afresh before the rerun.
 GRAY43_TUNING_SEEDS = tuple(range(4250, 4255))
 GRAY43_HELD_OUT_SEEDS = tuple(range(4200, 4212))
-OTHER_HELD_OUT_SEEDS = tuple(range(4300, 4312))
+OTHER_HELD_OUT_SEEDS = tuple(range(4320, 4332))
 OTHER_SMOKE_SEED = 4390
 
 
