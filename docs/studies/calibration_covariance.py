@@ -20,6 +20,16 @@ Part "gray" (simulated): GRAY_SEEDS' poses rendered as images under Gray codes a
 on the decoded codes) and calibrated; the same error / sigma at the volume points, and
 the focal lengths against the truth's.
 
+Part "other" (simulated; issue 42's held-out class): another scanner's Gray-code-only
+board poses (:data:`scanqa.simulator.boardposes.OTHER_SCANNER` and ``OTHER_BOARD``: 10
+column and 10 row bits with inverses, white, black - 42 frames a pose), its truth the
+reference calibration: the focal lengths against the reference's and the disagreement
+at the volume points against the predicted sigma.
+
+Since session 43 the default fit releases the left-out lens terms the poses identify
+(Eq. 6 of :mod:`scanqa.calibration.bundle`); ``--release all`` and ``--release none``
+give session 42's two variants.
+
 Part "real" (the SLStudio board poses 1, 3-6, model corners, and skull_2x3; needs the
 real-data folder): skull_2x3 triangulated with scanqa's board calibration and with
 calibration.xml: median |dXYZ| / median calibration sigma; the five leave-one-pose-out
