@@ -101,7 +101,7 @@ def test_released_lens_terms_remove_the_bias_the_data_show():
     variance (Eq. 3), so the error is about one sigma at every point. With ``release``
     (Eqs. 4-5) the terms the data show are fitted: the principal point lands within
     3 std of the truth and the error at the volume points drops several-fold (seed 5005,
-    a tuning seed of benchmarks/calibration_covariance.py --noise-px 0.02,0.02)."""
+    a tuning seed of docs/studies/calibration_covariance.py sim --noise-px 0.02,0.02)."""
     from scanqa.calibration.board_fit import joint_fit
 
     sim = simulate(5005, n_poses=5, noise_px=(0.02, 0.02))
