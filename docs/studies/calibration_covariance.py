@@ -114,6 +114,8 @@ OTHER_SMOKE_SEED = 4390
 #: (:func:`scanqa.calibration.board_fit.calibrate_board`'s ``release``; None, the
 #: default: those Eq. 6 of :mod:`scanqa.calibration.bundle` finds identified).
 RELEASE = {"release": None}
+#: ``--give-board``: the board's grid given (``scanqa calibrate --board``), not searched.
+GIVE_BOARD = {"board": False}
 #: ``--noise-px``: corner noise of camera and projector for part "sim" (None: drawn).
 NOISE = {"noise_px": None}
 
@@ -198,7 +200,8 @@ def gray_seed_errors(seed: int, folder: Path, n_poses: int = 5, scanner=SCANNER,
                 cv2.imwrite(str(where / f"{key}_{i:02d}.png"), frame, fast)
         cv2.imwrite(str(where / "white.png"), frames["white"], fast)
         cv2.imwrite(str(where / "black.png"), frames["black"], fast)
-        poses.append(decode_pose(where, *gray_descriptions(bits, panel), board.square_mm))
+        poses.append(decode_pose(where, *gray_descriptions(bits, panel),
+                                 board if GIVE_BOARD["board"] else board.square_mm))
     result = calibrate_board(poses, board, panel, "k1", jackknife=False, **RELEASE)
     cal = from_opencv(result.data)
     u, v, xp, xyz = volume_points(sim.truth, sim.depth_mm)
@@ -262,11 +265,15 @@ def main(argv=None) -> int:
                         help="which left-out lens terms the data show are fitted, not "
                              "stated: those Eq. 6 finds identified (the default), all "
                              "(session 42's --release) or none (session 42's default)")
+    parser.add_argument("--give-board", action="store_true",
+                        help="parts gray, other: give the board's grid to the corner "
+                             "search (--board) instead of searching for it")
     parser.add_argument("--noise-px", default=None, metavar="CAMERA,PROJECTOR",
                         help="part sim: this corner noise [px] and 5 poses, e.g. 0.02,0.02 "
                              "(what rendered Gray-code poses give)")
     args = parser.parse_args(argv)
     chosen = None if args.seeds is None else tuple(int(s) for s in args.seeds.split(","))
+    GIVE_BOARD["board"] = args.give_board
     RELEASE["release"] = {"identified": None, "all": True, "none": False}[args.release]
     if args.noise_px:
         NOISE["noise_px"] = tuple(float(x) for x in args.noise_px.split(","))
