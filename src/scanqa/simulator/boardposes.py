@@ -110,6 +110,11 @@ class ScannerClass:
         [mm].
     depth : (float, float)
         The board centre's depth range [mm].
+    lit_margin : float
+        A pose is kept only if the board, out to this many squares beyond its corner
+        grid, lies within the camera's image and the projector's panel (0: only the
+        corners are checked) [-]. A real capture whose board margin lies outside the
+        projector's light is taken again: the corner search needs the margin.
     """
 
     camera: tuple = CAMERA
@@ -125,6 +130,7 @@ class ScannerClass:
     projector_x: tuple = (100.0, 140.0)
     projector_yz: tuple = (10.0, -10.0)
     depth: tuple = (360.0, 440.0)
+    lit_margin: float = 0.0
 
 
 #: The scanner class the study was built on.
@@ -136,7 +142,8 @@ OTHER_SCANNER = ScannerClass(
     camera=(1024, 768), panel=(1024, 768), focal_camera=(1350.0, 1500.0),
     focal_projector=(1500.0, 1650.0), k1_camera=(0.02, 0.10), k1_projector=(-0.10, -0.03),
     k2_std=(0.08, 0.05), centre_std=6.0, projector_cy=0.78, tilt_y=(-0.26, -0.18),
-    projector_x=(-150.0, -110.0), projector_yz=(-15.0, 5.0), depth=(470.0, 560.0))
+    projector_x=(-150.0, -110.0), projector_yz=(-15.0, 5.0), depth=(470.0, 560.0),
+    lit_margin=1.0)
 #: The other scanner's board: 7 x 10 inner corners of 12 mm.
 OTHER_BOARD = Board(rows=7, columns=10, square_mm=12.0)
 
@@ -208,6 +215,9 @@ def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 
         proj = project_points(obj, rp, truth.Rp @ tvec + truth.Tp, truth.Kp, truth.kp)
         if not (_inside(cam, scanner.camera, 20) and _inside(proj, scanner.panel, 5)):
             continue
+        if scanner.lit_margin and not _outline_inside(board, bow, scanner, truth, rvec,
+                                                      tvec):
+            continue
         cam = cam + noise[0] * rng.standard_normal(cam.shape)
         proj = proj + noise[1] * rng.standard_normal(proj.shape)
         empty = np.full((1, 1), np.nan)
@@ -216,6 +226,27 @@ def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 
         depths.append(depth)
     return SimulatedBoardScanner(truth, bow, tuple(noise), poses,
                                  (float(min(depths)), float(max(depths))))
+
+
+def _outline_inside(board: Board, bow: np.ndarray, scanner: ScannerClass,
+                    truth: OpenCVCalibration, rvec: np.ndarray, tvec: np.ndarray) -> bool:
+    """The board's outline ``scanner.lit_margin`` squares beyond its corner grid (its
+    sides sampled every half square) within the camera's image and the panel."""
+    pts = board.object_points.astype(float)
+    grow = scanner.lit_margin * board.square_mm
+    (x0, y0), (x1, y1) = pts[:, :2].min(axis=0) - grow, pts[:, :2].max(axis=0) + grow
+    n = int(np.ceil(2 * max(x1 - x0, y1 - y0) / board.square_mm)) + 1
+    t = np.linspace(0.0, 1.0, n)
+    xy = np.concatenate([np.column_stack([x0 + (x1 - x0) * t, np.full(n, y)])
+                         for y in (y0, y1)]
+                        + [np.column_stack([np.full(n, x), y0 + (y1 - y0) * t])
+                           for x in (x0, x1)])
+    outline = np.column_stack([xy, sag_mm(board, bow, xy)])
+    rmat = rotation_matrix(rvec)
+    cam = project_points(outline, rvec, tvec, truth.Kc, truth.kc)
+    proj = project_points(outline, rotation_vector(truth.Rp @ rmat), truth.Rp @ tvec
+                          + truth.Tp, truth.Kp, truth.kp)
+    return _inside(cam, scanner.camera, 2) and _inside(proj, scanner.panel, 2)
 
 
 def _inside(px: np.ndarray, size: tuple, margin: float) -> bool:
