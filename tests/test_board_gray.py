@@ -67,7 +67,7 @@ def gray_poses(tmp_path_factory):
 @pytest.mark.slow  # ~30 s of CPU: four poses rendered, decoded, calibrated
 def test_another_scanners_gray_code_poses_calibrate(tmp_path):
     """Issue 42's held-out class, one seed (4340, named before it was run; the study's
-    part "other" runs 4320-4331): a 1024 x 768 camera and projector, 10 + 10 Gray bits
+    part "other" runs 4350-4361): a 1024 x 768 camera and projector, 10 + 10 Gray bits
     with inverses, white and black (42 frames a pose), a 7 x 10 board of 12 mm squares.
     Its truth is the reference calibration: focal lengths within 2 %, and the
     calibration's error at the volume points within 3 predicted sigma (median)."""
