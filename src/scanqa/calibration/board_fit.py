@@ -33,7 +33,13 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from scanqa.calibration.board import Board, BoardPose, decode_pose
-from scanqa.calibration.bundle import BundleResult, bundle_adjust
+from scanqa.calibration.bundle import (
+    BOW_TERMS,
+    RELEASE_STD,
+    BundleResult,
+    bundle_adjust,
+    identified,
+)
 from scanqa.calibration.parametric import ParametricCalibration, from_opencv
 from scanqa.calibration.uncertainty import jackknife_covariance, pack_opencv
 from scanqa.decoding.coding import PatternDescription
@@ -147,8 +153,8 @@ def _std(cov: np.ndarray | None) -> dict | None:
 
 
 def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[int, int],
-                    model: str = "k1", covariance: bool = True, release: bool = False
-                    ) -> BoardCalibration:
+                    model: str = "k1", covariance: bool = True, release=None,
+                    jackknife: bool = True) -> BoardCalibration:
     """Calibrate camera, projector and their pose from board poses (module notes).
 
     Parameters
@@ -165,9 +171,15 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
         Refine jointly and give the joint fit's covariance
         (:mod:`scanqa.calibration.bundle`); with three or more poses also fit every
         leave-one-out subset for the jackknife covariance (the check).
-    release : bool
-        Fit the left-out lens terms the data show instead of stating them
-        (:func:`~scanqa.calibration.bundle.bundle_adjust`'s ``release``).
+    release : bool, optional
+        Which left-out lens terms may be fitted instead of stated
+        (:func:`~scanqa.calibration.bundle.bundle_adjust`'s ``release``). Default (None):
+        with three or more poses, those the poses identify (Eq. 6 of
+        :mod:`scanqa.calibration.bundle`: their leave-one-pose-out estimates agree within
+        their std); True: all; False: none (every one stated, Eq. 3).
+    jackknife : bool
+        Also give the jackknife covariance (the check; five more joint fits when terms
+        are released).
 
     Returns
     -------
@@ -181,22 +193,44 @@ def calibrate_board(poses: list[BoardPose], board: Board, projector_size: tuple[
     data, residuals, fit_std = _fit(poses, board, projector_size, model)
     if not covariance:
         return BoardCalibration(data, tuple(_flag(residuals)), model, fit_std=fit_std)
-    joint = joint_fit(poses, board, data, model, release)
+    subsets = [poses[:k] + poses[k + 1:] for k in range(len(poses))] if len(
+        poses) >= 3 else []
+    starts = [_fit(sub, board, projector_size, model)[0] for sub in subsets]
+    subs = None
+    if release is None:  # Eq. 6: release only the terms the poses identify
+        stated = joint_fit(poses, board, data, model, False)
+        release = False
+        if subsets:
+            subs = [joint_fit(sub, board, start, model, False)
+                    for sub, start in zip(subsets, starts, strict=True)]
+            names = [n for n, t in stated.model_terms.items() if n not in BOW_TERMS]
+            ok = identified([[f.model_terms[n]["estimate"] for n in names] for f in subs],
+                            [stated.model_terms[n]["std"] for n in names])
+            release = [n for n, good in zip(names, ok, strict=True) if good]
+        joint = stated
+        if release and any(abs(stated.model_terms[n]["estimate"])
+                           > RELEASE_STD * stated.model_terms[n]["std"] for n in release):
+            joint = joint_fit(poses, board, data, model, release)
+        checked = {n: bool(n in release) for n in stated.model_terms if n not in BOW_TERMS}
+    else:
+        joint = joint_fit(poses, board, data, model, release)
+        checked = {}
     jack = None
-    if len(poses) >= 3:
-        thetas = [pack_opencv(joint_fit(poses[:k] + poses[k + 1:], board, _fit(
-            poses[:k] + poses[k + 1:], board, projector_size, model)[0], model,
-            release).data)
-                  for k in range(len(poses))]
-        jack = jackknife_covariance(np.array(thetas))
+    if subsets and jackknife:
+        if subs is None or any(t.get("released") for t in joint.model_terms.values()):
+            subs = [joint_fit(sub, board, start, model, release)
+                    for sub, start in zip(subsets, starts, strict=True)]
+        jack = jackknife_covariance(np.array([pack_opencv(f.data) for f in subs]))
+    terms = {n: ({**t, "identified": checked[n]} if n in checked else t)
+             for n, t in joint.model_terms.items()}
     return BoardCalibration(joint.data, tuple(_flag(residuals)), model, fit_std=fit_std,
                             jackknife=jack,
                             bundle={"noise_px": joint.noise_px,
-                                    "model_terms": joint.model_terms})
+                                    "model_terms": terms})
 
 
 def joint_fit(poses: list[BoardPose], board: Board, start: OpenCVCalibration,
-              model: str, release: bool = False) -> BundleResult:
+              model: str, release=False) -> BundleResult:
     """The joint fit of ``poses`` from ``start`` (:func:`bundle_adjust`)."""
     obj, cam, proj = _points(poses, board)
     return bundle_adjust(start, obj, cam, proj, model, board.object_points,

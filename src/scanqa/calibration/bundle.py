@@ -34,13 +34,25 @@ eta^2) for what the calibration assumed to be zero, is
 Eq. 3 states an estimated bias as a zero-mean variance: where it dominates (corner
 noise of a few hundredths of a pixel, as Gray-code poses give, against a principal point
 pixels off), the error at every point of the volume is that one bias, about one sigma
-everywhere, and the share within 2 sigma is near 1 rather than 0.95. With ``release``
-(off by default, issue 42): the corner noise of Eq. 1 is measured on the residuals the
-nuisances' step leaves (Eq. 4: model error is not counted as noise too), and a left-out
-term whose estimate lies beyond :data:`scanqa.calibration.bundle.RELEASE_STD` of its
-std is fitted, not stated (Eq. 5): the calibration takes the nuisance step for it, and
-its uncertainty enters C_fit through the extended fit's (J^T J)^-1, the other left-out
-terms Eq. 3's.
+everywhere, and the share within 2 sigma is near 1 rather than 0.95, on every seed. With
+``release``: the corner noise of Eq. 1 is measured on the residuals the nuisances' step
+leaves (Eq. 4: model error is not counted as noise too), and a left-out term whose
+estimate lies beyond :data:`RELEASE_STD` of its std is fitted, not stated (Eq. 5): it
+becomes a free parameter, started at its Eq. 3 estimate, the fit is run to convergence,
+and its uncertainty enters C_fit; the other left-out terms stay Eq. 3's.
+
+A left-out term can be significant without being identified: on real poses it can take
+up model errors the lens model does not name (on SLStudio's board poses the camera's c_y
+comes out 17 px off at 14 std, and the five fits that each leave a pose out put it
+anywhere from -20.8 to -14.5 px). Released, such a term moves the calibration by far more
+than its covariance says. Eq. 6 is the guard: with the estimates eta_k of the n fits
+that each leave one pose out, the term is identified when their jackknife spread agrees
+with its std sigma_eta in the fit of all poses,
+
+    (n - 1)/n sum_k (eta_k - mean eta)^2 <= sigma_eta^2 chi2_{n-1}(1 - p) / (n - 1)    (6)
+
+at level p = :data:`GUARD_P`; :func:`scanqa.calibration.board_fit.calibrate_board`
+releases only identified terms (three poses or more; fewer: none).
 
 The calibrations that leave one pose out (the jackknife) remain a check
 (:func:`scanqa.calibration.uncertainty.jackknife_covariance`); with five poses their
@@ -73,6 +85,9 @@ LEFT_OUT = {"k1": (("cx", "cy", "k2"), ("k2",)), "k1k2": (("k3",), ("k3",)),
 #: A left-out lens term whose estimate lies beyond this many of its std is released
 #: (Eq. 5) [-].
 RELEASE_STD = 2.0
+#: Eq. 6's level: a left-out term is refused release when its leave-one-pose-out
+#: estimates scatter beyond this tail of the chi-square their stated std predicts [-].
+GUARD_P = 0.001
 #: Board-shape terms of Eq. 3: the quadric's coefficients [mm].
 BOW_TERMS = ("bow_x", "bow_y", "bow_xy")
 _LENS = ("fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2", "k3")
@@ -132,12 +147,11 @@ class _Problem:
     """The scaled residuals of the joint fit as a function of one parameter vector."""
 
     def __init__(self, data: OpenCVCalibration, obj: list, cam: list, proj: list,
-                 model: str, rvecs: list, tvecs: list, extent: np.ndarray) -> None:
+                 terms: tuple, rvecs: list, tvecs: list, extent: np.ndarray) -> None:
         self.obj, self.cam, self.proj = obj, cam, proj
         self.lens0 = (_lens9(data.Kc, data.kc), _lens9(data.Kp, data.kp))
         self.skew = (float(data.Kc[0, 1]), float(data.Kp[0, 1]))
-        self.free = FREE[model]
-        self.left = LEFT_OUT[model]
+        self.free, self.left = terms
         self.basis = [_basis(m, f) for m, f in zip((data.Kc, data.Kp), self.free,
                                                     strict=True)]
         self.nuis_basis = [_basis(m, f) for m, f in zip((data.Kc, data.Kp), self.left,
@@ -311,10 +325,33 @@ def _extended_noise(res: np.ndarray, jac: np.ndarray, jn: np.ndarray, scale: np.
                      for r in np.split(left, [counts[0]])])
 
 
+def identified(estimates: np.ndarray, std: np.ndarray) -> np.ndarray:
+    """Eq. 6: which left-out lens terms the board poses identify - the leave-one-pose-out
+    estimates agree within the full fit's std (module notes).
+
+    Parameters
+    ----------
+    estimates : (n, k) float
+        Each term's estimate from the n fits that each left one pose out.
+    std : (k,) float
+        Each term's std in the fit of all poses.
+
+    Returns
+    -------
+    (k,) bool
+    """
+    from scipy.stats import chi2
+
+    estimates = np.asarray(estimates, float)
+    n = len(estimates)
+    jack = np.sqrt((n - 1) / n * np.sum((estimates - estimates.mean(axis=0)) ** 2, axis=0))
+    limit = np.sqrt(chi2.ppf(1 - GUARD_P, n - 1) / (n - 1))
+    return jack <= limit * np.asarray(std, float)
+
+
 def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, model: str,
-                  extent: np.ndarray, refine: bool = True, release: bool = False
-                  ) -> BundleResult:
-    """Refine a board calibration jointly and give its covariance (Eqs. 1-3).
+                  extent: np.ndarray, refine: bool = True, release=False) -> BundleResult:
+    """Refine a board calibration jointly and give its covariance (Eqs. 1-5).
 
     Parameters
     ----------
@@ -328,20 +365,60 @@ def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, mod
         The board's corners, to scale the bow terms [mm].
     refine : bool
         Refine the parameters (else the covariance at ``data`` as it is).
-    release : bool
-        Eqs. 4-5 (module notes): left-out lens terms the data show are fitted, not
-        stated, and the corner noise is measured after the nuisances. Off by default
-        until checked on real poses and held-out rendered seeds.
+    release : bool or collection of str
+        Eqs. 4-5 (module notes) for these left-out terms (names as in ``model_terms``,
+        e.g. ``"camera_cy"``; True: all of them): those the data show beyond
+        :data:`RELEASE_STD` of their std are fitted, not stated, and the corner noise is
+        measured after the nuisances. :func:`scanqa.calibration.board_fit.calibrate_board`
+        passes the terms Eq. 6 finds identified.
 
     Returns
     -------
     BundleResult
     """
+    if model not in FREE:
+        raise InputError(f"lens model must be one of {FREE.keys()}, got {model!r}")
+    names = [f"{dev}_{n}" for dev, left in zip(("camera", "projector"), LEFT_OUT[model],
+                                               strict=True) for n in left]
+    allowed = set(names) if release is True else set(release or ())
+    first, est, std, stepped = _adjust(data, obj, cam, proj, (FREE[model], LEFT_OUT[model]),
+                                       extent, refine, bool(allowed))
+    shown = [n for n, e, s in zip(names, est, std, strict=True)
+             if n in allowed and abs(e) > RELEASE_STD * s]
+    if not shown:
+        return first
+    # Eq. 5: the shown terms become free parameters, started at their Eq. 3 estimates,
+    # and the fit is run to convergence
+    free = tuple(f + tuple(n for n in left if f"{dev}_{n}" in shown)
+                 for dev, f, left in zip(("camera", "projector"), FREE[model],
+                                         LEFT_OUT[model], strict=True))
+    left = tuple(tuple(n for n in lo if f"{dev}_{n}" not in shown)
+                 for dev, lo in zip(("camera", "projector"), LEFT_OUT[model], strict=True))
+    start = stepped(np.isin(names, shown))
+    out = _adjust(start, obj, cam, proj, (free, left), extent, refine, True)[0]
+    lens0 = np.r_[_lens9(data.Kc, data.kc), _lens9(data.Kp, data.kp)]
+    lens = np.r_[_lens9(out.data.Kc, out.data.kc), _lens9(out.data.Kp, out.data.kp)]
+    terms = dict(out.model_terms)
+    for name in shown:
+        dev, lens_name = name.split("_", 1)
+        k = _LENS.index(lens_name) + (9 if dev == "projector" else 0)
+        terms[name] = {"estimate": float(lens[k] - lens0[k]),
+                       "std": float(np.sqrt(max(out.fit_covariance[k, k], 0.0))),
+                       "released": True}
+    return BundleResult(out.data, out.noise_px, out.fit_covariance,
+                        {k: terms[k] for k in (*names, *BOW_TERMS) if k in terms},
+                        out.rvecs, out.tvecs)
+
+
+def _adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, terms: tuple,
+            extent: np.ndarray, refine: bool, after: bool
+            ) -> tuple:
+    """Eqs. 1-4 with the lens parameters ``terms`` = (free, left out), each per device
+    (Eq. 4 when ``after``). Also returns every left-out term's estimate and std and the
+    calibration one Gauss-Newton step takes with all of them added [px, -]."""
     import cv2
     from scipy.optimize import least_squares
 
-    if model not in FREE:
-        raise InputError(f"lens model must be one of {tuple(FREE)}, got {model!r}")
     obj = [np.asarray(o, float).reshape(-1, 3) for o in obj]
     cam = [np.asarray(c, float).reshape(-1, 2) for c in cam]
     proj = [np.asarray(p, float).reshape(-1, 2) for p in proj]
@@ -350,7 +427,7 @@ def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, mod
         _, r, t = cv2.solvePnP(o, c, data.Kc, data.kc)
         rvecs.append(r.ravel())
         tvecs.append(t.ravel())
-    problem = _Problem(data, obj, cam, proj, model, rvecs, tvecs, np.asarray(extent, float))
+    problem = _Problem(data, obj, cam, proj, terms, rvecs, tvecs, np.asarray(extent, float))
     x = problem.x0.copy()
     problem.scale = _noise(problem, x)
     for _ in range(2 if refine else 0):
@@ -359,7 +436,7 @@ def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, mod
         problem.scale = _noise(problem, x)
     jac = problem.jacobian(x)
     jn = problem.jacobian(x, nuisance=True) if problem.n_nuis else np.zeros((len(jac), 0))
-    if release:  # Eq. 4: the corner noise from what the nuisances leave
+    if after:  # Eq. 4: the corner noise from what the nuisances leave
         counts = [len(r) for r in problem.residuals(x, split=True)]
         noise = _extended_noise(problem.residuals(x), jac, jn, problem.scale, counts)
         ratio = np.repeat(problem.scale / noise, counts)
@@ -367,47 +444,38 @@ def bundle_adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, mod
         problem.scale = noise
     res = problem.residuals(x)
     n_theta = sum(problem.sizes[:3])
-    to24 = problem.to_24()
     # Eq. 3: the nuisances, estimated by one Gauss-Newton step with their columns added
-    inverse, step = _solve(jac, res)
+    inverse, _ = _solve(jac, res)
     full_inv, full_step = _solve(np.hstack([jac, jn]), res, strict=False)
     est, std = full_step[jac.shape[1]:], np.sqrt(np.clip(np.diag(full_inv)[jac.shape[1]:],
                                                          0, None))
-    # Eq. 5: those the data show are released - fitted, not stated
-    shown = (np.abs(est) > RELEASE_STD * std) if release else np.zeros(len(est), bool)
-    eta = np.zeros(problem.n_nuis)
-    if shown.any():
-        inverse, step = _solve(np.hstack([jac, jn[:, shown]]), res)
-        x = x + step[:jac.shape[1]]
-        eta[shown] = step[jac.shape[1]:]
+
+    def stepped(keep: np.ndarray) -> OpenCVCalibration:
+        return problem.calibration(x, data, np.where(keep, est, 0.0))
+
     to_all = np.zeros((24, inverse.shape[0]))
-    to_all[:, :n_theta] = to24
-    to_all[:, jac.shape[1]:] = problem.nuisance_24()[:, shown]
+    to_all[:, :n_theta] = problem.to_24()
     fit_cov = to_all @ inverse @ to_all.T
-    left = ~shown
-    aug = np.hstack([jac, jn[:, shown]])
-    shift = to_all @ (inverse @ (aug.T @ jn[:, left])) - problem.nuisance_24()[:, left]
-    stated = np.clip(est[left] ** 2 - std[left] ** 2, 0.0, None)
+    shift = to_all @ (inverse @ (jac.T @ jn)) - problem.nuisance_24()
+    stated = np.clip(est**2 - std**2, 0.0, None)
     model_cov = shift @ np.diag(stated) @ shift.T
-    names = np.array([f"camera_{n}" for n in problem.left[0]]
-                     + [f"projector_{n}" for n in problem.left[1]], dtype=object)
-    terms = {name: {"estimate": float(e), "std": float(s),
-                    "tz_std_mm": float(abs(shift[-1, k]) * np.sqrt(var))}
-             for k, (name, e, s, var) in enumerate(zip(names[left], est[left], std[left],
-                                                       stated, strict=True))}
-    released = np.sqrt(np.clip(np.diag(inverse)[jac.shape[1]:], 0, None))
-    for name, value, s in zip(names[shown], eta[shown], released, strict=True):
-        terms[name] = {"estimate": float(value), "std": float(s), "released": True}
+    names = [f"camera_{n}" for n in problem.left[0]] + [f"projector_{n}"
+                                                        for n in problem.left[1]]
+    model_terms = {name: {"estimate": float(e), "std": float(s),
+                          "tz_std_mm": float(abs(shift[-1, k]) * np.sqrt(var))}
+                   for k, (name, e, s, var) in enumerate(zip(names, est, std, stated,
+                                                             strict=True))}
     k = n_theta
     for name, value, var in zip(BOW_TERMS, x[k:k + 3], np.diag(inverse)[k:k + 3],
                                 strict=True):
-        terms[name] = {"estimate": float(value), "std": float(np.sqrt(max(var, 0.0))),
-                       "fitted": True}
-    out = problem.calibration(x, data, eta)
+        model_terms[name] = {"estimate": float(value), "std": float(np.sqrt(max(var, 0.0))),
+                             "fitted": True}
+    out = problem.calibration(x, data)
     cov = fit_cov + model_cov
     out = OpenCVCalibration(**{**out.__dict__, "covariance": (cov + cov.T) / 2})
     k = n_theta + len(BOW_TERMS)
-    return BundleResult(out, {"camera": float(problem.scale[0]),
-                              "projector": float(problem.scale[1])}, fit_cov, terms,
-                        [x[k + 6 * i:k + 6 * i + 3] for i in range(len(obj))],
-                        [x[k + 6 * i + 3:k + 6 * i + 6] for i in range(len(obj))])
+    result = BundleResult(out, {"camera": float(problem.scale[0]),
+                                "projector": float(problem.scale[1])}, fit_cov, model_terms,
+                          [x[k + 6 * i:k + 6 * i + 3] for i in range(len(obj))],
+                          [x[k + 6 * i + 3:k + 6 * i + 6] for i in range(len(obj))])
+    return result, est, std, stepped
