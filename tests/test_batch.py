@@ -8,6 +8,7 @@ simulate --seed`` writes, and the results table with the per-scan blocks.csv.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import hashlib
 import logging
@@ -61,17 +62,21 @@ def table(tmp_path_factory) -> Path:
     return sample_table(tmp_path_factory.mktemp("table"))
 
 
+#: What ``--workers 2 --dashboard :0`` asks of scanqa.cluster.open_client.
+TWO_WORKERS = cluster.EngineOptions(workers=2, dashboard=":0")
+
+
 @pytest.fixture(scope="module")
 def local_cluster():
-    """A LocalCluster of 2 worker processes, reached by its address (--scheduler)."""
+    """The LocalCluster of 2 worker processes that ``--workers 2`` starts (scanqa's own
+    :func:`scanqa.cluster.open_client`), started once for the file: (its address, for
+    --scheduler; a client). Each cluster's start costs ~8 s of CPU (two nannies and two
+    workers importing scanqa)."""
     if not cluster.dask_available():
         pytest.skip("Dask distributed is not installed (pip install 'scanqa[cluster]')")
-    from distributed import Client, LocalCluster
-
-    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
-                      dashboard_address=":0", silence_logs=logging.ERROR) as lc, \
-            Client(lc) as client:
-        yield lc.scheduler_address, client
+    with cluster.open_client(TWO_WORKERS) as (client, report):
+        assert report.engine == "local cluster (2 worker processes)"
+        yield client.scheduler.address, client
 
 
 def batch(table: Path, out: Path, *extra: str, scans: str = SCANS) -> int:
@@ -81,11 +86,24 @@ def batch(table: Path, out: Path, *extra: str, scans: str = SCANS) -> int:
 
 @pytest.mark.slow
 @needs_dask
-def test_serial_and_two_workers_write_the_same_bytes(table, tmp_path, capsys):
-    """Every file, byte for byte, and each scan's QA files are those of 'scanqa qa'."""
+def test_serial_and_two_workers_write_the_same_bytes(table, tmp_path, capsys, local_cluster,
+                                                    monkeypatch):
+    """Every file, byte for byte, and each scan's QA files are those of 'scanqa qa'. The
+    cluster ``--workers 2`` asks for is the file's (the same open_client call, made once by
+    the fixture): the command's request is checked, then its tasks run there."""
+    asked, open_client = [], cluster.open_client
+
+    @contextlib.contextmanager
+    def the_files_cluster(options):
+        asked.append(options)
+        with open_client(cluster.EngineOptions(scheduler=local_cluster[0])) as opened:
+            yield opened
+
+    monkeypatch.setattr(cluster, "open_client", the_files_cluster)
     assert batch(table, tmp_path / "serial", "--layout", str(LAYOUT), "--serial") == 0
     assert batch(table, tmp_path / "dask", "--layout", str(LAYOUT), "--workers", "2",
                  "--dashboard", ":0") == 0
+    assert asked == [TWO_WORKERS]
     serial, dask = tree(tmp_path / "serial"), tree(tmp_path / "dask")
     assert len(serial) == 1 + 3 * 7  # results.csv; 6 QA files and done.json per scan
     assert serial.keys() == dask.keys()

@@ -33,6 +33,7 @@ under ``scanqa/closed_loop`` (``.pytest_cache/v/scanqa/closed_loop``).
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from concurrent.futures import ThreadPoolExecutor
@@ -318,6 +319,14 @@ def _holdout_true_phase(sample_config, table) -> tuple[list, list[float]]:
     return parts, list(HOLDOUT_TRUE_Z)
 
 
+@pytest.fixture(scope="session")
+def true_phase_parts(sample_config, calibrated):
+    """:func:`_holdout_true_phase` of the table of each weighting ("model", "none"),
+    computed once: the model table's is asserted by two tests (~1.8 s of CPU each)."""
+    return functools.cache(lambda weights: _holdout_true_phase(sample_config,
+                                                               calibrated[1][weights]))
+
+
 def test_characterisation_is_of_the_same_camera(sample_config, characterised):
     mine = sample_config.to_dict()["camera"]
     for folder in (CAMERA_SWEEP, PROJECTOR_SWEEP):
@@ -386,9 +395,8 @@ def test_sweep_extends_past_the_depth_of_field(sample_config, sweep_observations
     assert (ends.attenuation_camera < 0.49).all()
 
 
-def test_table_systematic_on_holdout_planes(request, sample_config, calibrated,
-                                            focus_sigma_mm):
-    parts, zs = _holdout_true_phase(sample_config, calibrated[1]["model"])
+def test_table_systematic_on_holdout_planes(request, true_phase_parts, focus_sigma_mm):
+    parts, zs = true_phase_parts("model")
     total = pooled(parts)
     change = trend(zs, [p.bias for p in parts])
     _record(request, "issue5_table_xp_true", {
@@ -479,9 +487,8 @@ def test_scan_systematic_on_gauge_blocks(request, gauge_scans, calibrated, focus
     "weights from the measured noise (oracle) gain 5.5 % on the noise part. Much of the "
     "remaining error, the defocus phase bias seen against xp_true, is common to both "
     "tables. Weighting does pay on a sweep reaching 414..490 mm (next test)."))
-def test_weighting_pays_past_the_depth_of_field(request, sample_config, calibrated):
-    tables = calibrated[1]
-    rms = {w: pooled(_holdout_true_phase(sample_config, tables[w])[0]).raw
+def test_weighting_pays_past_the_depth_of_field(request, true_phase_parts):
+    rms = {w: pooled(true_phase_parts(w)[0]).raw
            for w in ("model", "none")}
     _record(request, "issue5_weighting", {"model_rms_um": um(rms["model"]),
                                           "none_rms_um": um(rms["none"]),

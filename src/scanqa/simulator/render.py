@@ -443,8 +443,14 @@ class _CellNoise:
         nx, ny = ix.max() - x0 + 1, iy.max() - y0 + 1
         if nx * ny > 4 * ix.size:
             return cls(ix, iy, None, scale)
-        gx, gy = np.meshgrid(np.arange(x0, x0 + nx), np.arange(y0, y0 + ny))
-        return cls(gx, gy, ((iy - y0) * nx + (ix - x0)).astype(np.intp), scale)
+        # only the cells some sample falls in are hashed (a cell's value depends on its
+        # (ix, iy) alone, so the values are those of the whole grid): with cells smaller
+        # than a sample's footprint most of the bounding grid is never sampled, and the
+        # hash is most of a frame's CPU
+        flat = ((iy - y0) * nx + (ix - x0)).ravel()
+        used, index = np.unique(flat, return_inverse=True)
+        return cls(used % nx + x0, used // nx + y0, index.reshape(ix.shape).astype(np.intp),
+                   scale)
 
     def add_to(self, radiance: np.ndarray, key: int) -> None:
         """Add the noise of stream ``key`` to ``radiance`` in place (float32) [e-]."""
