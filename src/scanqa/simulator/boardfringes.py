@@ -5,9 +5,8 @@ that ``scanqa calibrate --board``, ``scanqa characterize board`` and their Pytho
 
 The scanner and the board come from :func:`scanqa.simulator.boardposes.simulate` (a
 camera and a projector with radial lens distortion, a chessboard bowed by a quadric sag),
-optionally binned to fewer camera pixels (:func:`binned`). The image formation follows
-the Gray-code renderer's (:func:`scanqa.simulator.boardposes.gray_frames`, whose steps
-live inside that function, so :func:`board_view` writes them out again): each camera
+optionally binned to fewer camera pixels (:func:`binned`). What each pixel sees is
+the Gray-code renderer's (:func:`scanqa.simulator.boardposes.board_view`): each camera
 pixel's ray meets the bowed board, the board coordinates of that point give the
 reflectance (0.15 on black squares, 0.85 on white, a white margin of one square, averaged
 over 3 x 3 points of the pixel's area) and its projector pixel the light. Here the light
@@ -33,7 +32,6 @@ from scanqa.calibration.pinhole import (
     project_points,
     rotation_matrix,
     rotation_vector,
-    undistort_points,
 )
 from scanqa.decoding.coding import PatternDescription, PhaseSet
 from scanqa.decoding.patternset import ideal_patterns, write_pattern_set
@@ -41,7 +39,13 @@ from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir, write_text
 from scanqa.io.opencv import OpenCVCalibration
 from scanqa.io.patterns import dumps_patterns
-from scanqa.simulator.boardposes import gaussian_blur, sag_mm, simulate
+from scanqa.simulator.boardposes import (  # noqa: F401 (board_view: this module's API too)
+    ALBEDO,
+    board_view,
+    gaussian_blur,
+    simulate,
+    within_margin,
+)
 
 #: The board of the simulated captures: 7 x 9 inner corners of 15 mm squares (a 120 x
 #: 150 mm grid), about 34 camera px a square at 400 mm with a 2 x 2 binned camera.
@@ -53,8 +57,6 @@ PERIODS_PX = (96.0, 16.0)
 STEPS = 4
 #: Camera image level: dark offset and full white on a reflectance of 1 [DN].
 DARK_DN, WHITE_DN = 8.0, 230.0
-#: Reflectance of black and white squares and of what lies beyond the board [-].
-ALBEDO = {"black": 0.15, "white": 0.85, "beyond": 0.05}
 
 
 @dataclass(frozen=True)
@@ -129,78 +131,6 @@ def fringe_descriptions(panel: tuple[int, int], periods_px: tuple = PERIODS_PX,
                      for p in (float(size), *periods_px))
         out.append(PatternDescription(int(size), sets, description="scanqa simulated board"))
     return out[0], out[1]
-
-
-def board_view(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: np.ndarray,
-               bow: np.ndarray | None = None, squares: bool = True) -> dict:
-    """What each camera pixel sees of a board pose (module notes).
-
-    Parameters
-    ----------
-    truth : OpenCVCalibration
-        The camera and projector.
-    board : Board
-        The chessboard; its frame has the corners at :attr:`Board.object_points`.
-    rvec, tvec : (3,) float
-        The board's pose in the camera frame (Rodrigues vector [rad], translation [mm]).
-    bow : (3,) float, optional
-        The board's quadric sag (:func:`scanqa.simulator.boardposes.sag_mm`) [mm].
-    squares : bool
-        False for a plain white plate over the whole view (a part to scan).
-
-    Returns
-    -------
-    dict
-        ``albedo`` (H, W) [-]; ``xp``, ``yp`` (H, W) projector coordinates of the point
-        at the pixel's centre [projector px]; ``lit`` (H, W) bool, where the projector's
-        panel reaches that point.
-    """
-    width, height = int(truth.sizes["frameWidth"]), int(truth.sizes["frameHeight"])
-    v, u = np.mgrid[0:height, 0:width].astype(float)
-    rot = rotation_matrix(np.asarray(rvec, float))
-    normal, origin = rot[:, 2], np.asarray(tvec, float)
-
-    def surface(du: float, dv: float) -> tuple[np.ndarray, np.ndarray]:
-        """Camera-frame points and board coordinates seen at pixel offset (du, dv)."""
-        norm = undistort_points(np.column_stack([u.ravel() + du, v.ravel() + dv]),
-                                truth.Kc, truth.kc)
-        along = norm[:, 0] * normal[0] + norm[:, 1] * normal[1] + normal[2]
-        depth = np.full(len(along), normal @ origin)
-        for _ in range(3 if bow is not None else 1):  # the plane, then the bowed board
-            scale = depth / along
-            pts = np.column_stack([norm[:, 0] * scale, norm[:, 1] * scale, scale])
-            rel = pts - origin  # column by column: (n, 3) @ (3, 3) is slower here
-            local = np.column_stack([rel[:, 0] * rot[0, j] + rel[:, 1] * rot[1, j]
-                                     + rel[:, 2] * rot[2, j] for j in range(3)])
-            depth = normal @ origin + (sag_mm(board, bow, local) if bow is not None else 0)
-        return pts, local
-
-    def reflectance(local: np.ndarray) -> np.ndarray:
-        sq = np.floor(local[:, :2] / board.square_mm).astype(int) + 1
-        inside = ((sq[:, 0] >= -1) & (sq[:, 0] <= board.columns + 1) & (sq[:, 1] >= -1)
-                  & (sq[:, 1] <= board.rows + 1))
-        out = np.where(inside, ALBEDO["white"], ALBEDO["beyond"])
-        if not squares:
-            return np.full(len(local), ALBEDO["white"])
-        grid = ((sq[:, 0] >= 0) & (sq[:, 0] <= board.columns) & (sq[:, 1] >= 0)
-                & (sq[:, 1] <= board.rows))
-        return np.where(grid & ((sq[:, 0] + sq[:, 1]) % 2 == 0), ALBEDO["black"], out)
-
-    shades = []
-    for du in (-1 / 3, 0, 1 / 3):
-        for dv in (-1 / 3, 0, 1 / 3):
-            seen, local = surface(du, dv)
-            shades.append(reflectance(local))
-            if du == dv == 0:
-                pts = seen
-    proj = project_points(pts, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
-    panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
-    lit = ((proj[:, 0] > -0.5) & (proj[:, 0] < panel[0] - 0.5) & (proj[:, 1] > -0.5)
-           & (proj[:, 1] < panel[1] - 0.5))
-    shape = (height, width)
-    return {"albedo": np.mean(shades, axis=0).reshape(shape),
-            "xp": proj[:, 0].reshape(shape), "yp": proj[:, 1].reshape(shape),
-            "lit": lit.reshape(shape)}
 
 
 def frames(view: dict, description: PatternDescription, rng: np.random.Generator,
@@ -285,18 +215,13 @@ def draw_poses(truth: OpenCVCalibration, board: Board, n_poses: int,
         cam = project_points(outline, rvec, tvec, truth.Kc, truth.kc)
         proj = project_points(outline, rotation_vector(truth.Rp @ rmat),
                               truth.Rp @ tvec + truth.Tp, truth.Kp, truth.kp)
-        if _within(cam, camera, 4) and _within(proj, panel, 4):
+        if within_margin(cam, camera, 4) and within_margin(proj, panel, 4):
             poses.append((rvec, tvec))
     if len(poses) < n_poses:
         raise InputError(f"only {len(poses)} of {n_poses} board poses of a {board.rows} x "
                          f"{board.columns} board fit the camera and the projector: give a "
                          "smaller board or a larger depth_mm")
     return poses
-
-
-def _within(px: np.ndarray, size: tuple, margin: float) -> bool:
-    return bool(np.all(px >= margin) and np.all(px[:, 0] <= size[0] - margin)
-                and np.all(px[:, 1] <= size[1] - margin))
 
 
 def write_board_captures(folder: str | os.PathLike, seed: int, n_poses: int = 3,

@@ -213,7 +213,7 @@ def simulate(seed: int, n_poses: int = 6, board: Board = BOARD, bow_mm: float = 
         cam = project_points(obj, rvec, tvec, truth.Kc, truth.kc)
         rp = rotation_vector(truth.Rp @ rmat)
         proj = project_points(obj, rp, truth.Rp @ tvec + truth.Tp, truth.Kp, truth.kp)
-        if not (_inside(cam, scanner.camera, 20) and _inside(proj, scanner.panel, 5)):
+        if not (within_margin(cam, scanner.camera, 20) and within_margin(proj, scanner.panel, 5)):
             continue
         if scanner.lit_margin and not _outline_inside(board, bow, scanner, truth, rvec,
                                                       tvec):
@@ -246,10 +246,12 @@ def _outline_inside(board: Board, bow: np.ndarray, scanner: ScannerClass,
     cam = project_points(outline, rvec, tvec, truth.Kc, truth.kc)
     proj = project_points(outline, rotation_vector(truth.Rp @ rmat), truth.Rp @ tvec
                           + truth.Tp, truth.Kp, truth.kp)
-    return _inside(cam, scanner.camera, 2) and _inside(proj, scanner.panel, 2)
+    return within_margin(cam, scanner.camera, 2) and within_margin(proj, scanner.panel, 2)
 
 
-def _inside(px: np.ndarray, size: tuple, margin: float) -> bool:
+def within_margin(px: np.ndarray, size: tuple, margin: float) -> bool:
+    """Whether every point ``px`` [px] lies ``margin`` [px] or more inside an image of
+    ``size`` (width, height) [px]."""
     return bool(np.all(px >= margin) and np.all(px[:, 0] <= size[0] - margin)
                 and np.all(px[:, 1] <= size[1] - margin))
 
@@ -284,31 +286,46 @@ def volume_points(truth: OpenCVCalibration, depth_mm: tuple, grid: int = 7,
     return tuple(np.concatenate(parts) for parts in zip(*out, strict=True))
 
 
-def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: np.ndarray,
-                bits: tuple[int, int], rng: np.random.Generator, noise_dn: float = 2.0,
-                blur_px: float = 0.7, bow: np.ndarray | None = None) -> dict:
-    """8-bit frames of one board pose under Gray codes, as public projector-camera
-    calibration tools capture them: for columns and for rows, every bit (most
-    significant first, one projector pixel per code) followed by its inverse, then a
-    white and a black frame.
+ALBEDO = {"black": 0.15, "white": 0.85, "beyond": 0.05}
+"""Reflectance of the board's black squares, its white squares and margin, and what lies
+beyond the board [-]."""
+
+
+def board_view(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: np.ndarray,
+               bow: np.ndarray | None = None, squares: bool = True) -> dict:
+    """What each camera pixel sees of a board pose: its reflectance and its light's
+    projector coordinates.
 
     Each camera pixel's ray meets the board (its plane, then the bowed surface: the
     sag ``bow`` along the board's normal at the point, found by two fixed-point steps
     along the ray, enough for sags of a millimetre); that one point's board coordinates
-    give the reflectance (0.15 black squares, 0.85 white, a white margin of one square
-    around the grid; averaged over 3 x 3 points of the pixel's area) and its projector
-    pixel the light; then a Gaussian blur of
-    ``blur_px`` and Gaussian noise of ``noise_dn``.
+    give the reflectance (:data:`ALBEDO`: black squares, white squares and a white
+    margin of one square around the grid; averaged over 3 x 3 points of the pixel's
+    area) and its projector pixel the light.
+
+    Parameters
+    ----------
+    truth : OpenCVCalibration
+        The camera and projector.
+    board : Board
+        The chessboard; its frame has the corners at :attr:`Board.object_points`.
+    rvec, tvec : (3,) float
+        The board's pose in the camera frame (Rodrigues vector [rad], translation [mm]).
+    bow : (3,) float, optional
+        The board's quadric sag (:func:`sag_mm`) [mm].
+    squares : bool
+        False for a plain white plate over the whole view (a part to scan).
 
     Returns
     -------
     dict
-        ``columns`` and ``rows``: (2 bits, H, W) uint8 frames; ``white``, ``black``:
-        (H, W) uint8 [DN].
+        ``albedo`` (H, W) [-]; ``xp``, ``yp`` (H, W) projector coordinates of the point
+        at the pixel's centre [projector px]; ``lit`` (H, W) bool, where the projector's
+        panel reaches that point.
     """
     width, height = int(truth.sizes["frameWidth"]), int(truth.sizes["frameHeight"])
     v, u = np.mgrid[0:height, 0:width].astype(float)
-    rot = rotation_matrix(rvec)
+    rot = rotation_matrix(np.asarray(rvec, float))
     normal, origin = rot[:, 2], np.asarray(tvec, float)
 
     def surface(du: float, dv: float, where: np.ndarray | slice = slice(None)
@@ -340,33 +357,64 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
                   & (sq[:, 1] <= board.rows + 1))
         grid_in = ((sq[:, 0] >= 0) & (sq[:, 0] <= board.columns) & (sq[:, 1] >= 0)
                    & (sq[:, 1] <= board.rows))
-        out = np.where(inside, 0.85, 0.05)
-        return np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), 0.15, out)
+        out = np.where(inside, ALBEDO["white"], ALBEDO["beyond"])
+        return np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), ALBEDO["black"], out)
 
-    # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it; the
-    # centre's points (offset 0, 0) are the ones lit and projected. Where the centre
-    # lies more than a square beyond the board's margin, all nine points see the dark
-    # background (a third of a pixel moves them by far less than a square), so the
-    # other eight are only traced near the board: the same frames, ~5 x less work.
     pts, local = surface(0.0, 0.0)
-    centre = reflectance(local)
-    s = board.square_mm
-    near = np.flatnonzero((local[:, 0] > -3 * s) & (local[:, 0] < (board.columns + 2) * s)
-                          & (local[:, 1] > -3 * s) & (local[:, 1] < (board.rows + 2) * s))
-    shades = []
-    for du in (-1 / 3, 0, 1 / 3):
-        for dv in (-1 / 3, 0, 1 / 3):
-            if du == dv == 0:
-                shades.append(centre)
-                continue
-            shade = np.full(len(centre), 0.05)
-            shade[near] = reflectance(surface(du, dv, near)[1])
-            shades.append(shade)
-    albedo = np.mean(shades, axis=0)
+    if squares:
+        # the pixel's area: reflectance averaged over a 3 x 3 grid of points within it;
+        # the centre's points (offset 0, 0) are the ones lit and projected. Where the
+        # centre lies more than a square beyond the board's margin, all nine points see
+        # the background (a third of a pixel moves them by far less than a square), so
+        # the other eight are only traced near the board: the same values, ~5 x less work.
+        centre = reflectance(local)
+        s = board.square_mm
+        near = np.flatnonzero((local[:, 0] > -3 * s) & (local[:, 0] < (board.columns + 2) * s)
+                              & (local[:, 1] > -3 * s) & (local[:, 1] < (board.rows + 2) * s))
+        shades = []
+        for du in (-1 / 3, 0, 1 / 3):
+            for dv in (-1 / 3, 0, 1 / 3):
+                if du == dv == 0:
+                    shades.append(centre)
+                    continue
+                shade = np.full(len(centre), ALBEDO["beyond"])
+                shade[near] = reflectance(surface(du, dv, near)[1])
+                shades.append(shade)
+        albedo = np.mean(shades, axis=0)
+    else:
+        albedo = np.full(len(local), ALBEDO["white"])
     proj = project_points(pts, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
     panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
     lit = ((proj[:, 0] > -0.5) & (proj[:, 0] < panel[0] - 0.5) & (proj[:, 1] > -0.5)
            & (proj[:, 1] < panel[1] - 0.5))
+    shape = (height, width)
+    return {"albedo": albedo.reshape(shape), "xp": proj[:, 0].reshape(shape),
+            "yp": proj[:, 1].reshape(shape), "lit": lit.reshape(shape)}
+
+
+def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: np.ndarray,
+                bits: tuple[int, int], rng: np.random.Generator, noise_dn: float = 2.0,
+                blur_px: float = 0.7, bow: np.ndarray | None = None) -> dict:
+    """8-bit frames of one board pose under Gray codes, as public projector-camera
+    calibration tools capture them: for columns and for rows, every bit (most
+    significant first, one projector pixel per code) followed by its inverse, then a
+    white and a black frame.
+
+    What each pixel sees is :func:`board_view`'s (the ray meets the bowed board; the
+    reflectance averaged over the pixel's area; the light at its centre's projector
+    pixel); then a Gaussian blur of ``blur_px`` and Gaussian noise of ``noise_dn``.
+
+    Returns
+    -------
+    dict
+        ``columns`` and ``rows``: (2 bits, H, W) uint8 frames; ``white``, ``black``:
+        (H, W) uint8 [DN].
+    """
+    view = board_view(truth, board, rvec, tvec, bow)
+    height, width = view["albedo"].shape
+    albedo, lit = view["albedo"].ravel(), view["lit"].ravel()
+    proj = np.column_stack([view["xp"].ravel(), view["yp"].ravel()])
+    panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
 
     def shoot(light: np.ndarray) -> np.ndarray:
         image = (8.0 + 230.0 * albedo * np.where(lit, light, 0.0)).reshape(height, width)
