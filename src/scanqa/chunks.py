@@ -19,6 +19,7 @@ from typing import TypeVar
 CHUNK_PIXELS = 16384
 
 T = TypeVar("T")
+R = TypeVar("R")
 
 
 def row_bands(n_rows: int, row_size: int, pixels: int = CHUNK_PIXELS) -> list[tuple[int, int]]:
@@ -68,3 +69,29 @@ def run_bands(work: Callable[[int, int], T], bands: list[tuple[int, int]]) -> li
         return [work(a, b) for a, b in bands]
     with ThreadPoolExecutor(max_workers=workers) as pool:
         return list(pool.map(lambda band: work(*band), bands))
+
+
+def run_bands_with(task: Callable[[], R], work: Callable[[int, int], T],
+                   bands: list[tuple[int, int]]) -> tuple[R, list[T]]:
+    """:func:`run_bands` with one more task on the same pool, submitted first: one thread
+    takes it while the others start on the bands.
+
+    Parameters
+    ----------
+    task : callable
+        Work beside the bands (reads only, or writes what no band touches).
+    work : callable
+        As for :func:`run_bands`.
+    bands : list of (int, int)
+        Row ranges from :func:`row_bands`.
+
+    Returns
+    -------
+    (object, list)
+        ``task``'s result and the bands' results in band order. ``task``'s exception
+        propagates before any band's.
+    """
+    with ThreadPoolExecutor(max_workers=max(min(os.cpu_count() or 1, len(bands)), 1)) as pool:
+        first = pool.submit(task)
+        running = [pool.submit(work, *band) for band in bands]
+        return first.result(), [r.result() for r in running]

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from scanqa.chunks import row_bands
+from scanqa.chunks import row_bands, run_bands_with
 from scanqa.decoding import checks, consistency, diagnostics, framecheck, waveform
 from scanqa.decoding.coding import PatternDescription, SensorModel
 from scanqa.decoding.demodulate import demodulate_sample
@@ -132,14 +132,12 @@ def _decode(desc: PatternDescription, images: Sequence[np.ndarray], chunk_rows: 
                     {k: v[r0:r1] for k, v in out.items()}, part)
         return part
 
-    bands = row_bands(height, width, step * width)
-    with ThreadPoolExecutor(max_workers=max(min(os.cpu_count() or 1, len(bands)), 1)) as pool:
-        found = pool.submit(_sample_checks, desc, sample, noise.sensor, quantised, response,
-                            check)  # first: one worker takes it while the others decode
-        running = [pool.submit(band, *b) for b in bands]
-        # a check's error first, as when the checks ran before the bands
-        shapes, pairs, warnings, contradicted = found.result()
-        parts = [r.result() for r in running]
+    # the sample's checks beside the bands; a check's error first, as when the checks
+    # ran before the bands
+    found, parts = run_bands_with(
+        lambda: _sample_checks(desc, sample, noise.sensor, quantised, response, check),
+        band, row_bands(height, width, step * width))
+    shapes, pairs, warnings, contradicted = found
     stats = ChainStats()
     for part in parts:
         stats.merge(part)
