@@ -41,6 +41,7 @@ from scanqa.calibration.bundle import (
     identified,
 )
 from scanqa.calibration.parametric import ParametricCalibration, from_opencv
+from scanqa.calibration.release import calibrate_released
 from scanqa.calibration.uncertainty import jackknife_covariance, pack_opencv
 from scanqa.decoding.coding import PatternDescription
 from scanqa.errors import InputError
@@ -534,10 +535,11 @@ def board_flatness(poses: list[BoardPose], board: Board, projector_size: tuple[i
                    model: str = "k1") -> dict:
     """How far the board departs from its ideal flat grid, seen by camera and projector.
 
-    The camera is calibrated with the board's corner positions released (OpenCV's
-    ``calibrateCameraRO``, Strobl and Hirzinger [2]_: every corner's 3-D position on the
-    board fitted with the lens, the first, the last of the first row and the last corner
-    holding the gauge). The board so measured by the camera is then given to the
+    The camera is calibrated with the board's corner positions released
+    (:func:`~scanqa.calibration.release.calibrate_released`, OpenCV's
+    ``calibrateCameraRO`` model, Strobl and Hirzinger [2]_: every corner's 3-D position on
+    the board fitted with the lens, the first and the last of the first row held and the
+    last corner's height, OpenCV's gauge). The board so measured by the camera is then given to the
     projector's calibration: if the projector's RMS drops too, the camera's residuals
     come from the board (printing, a bent panel) and not from its lens model or its
     corner detector, since the projector's corners come from the decoded phase, not the
@@ -571,9 +573,8 @@ def board_flatness(poses: list[BoardPose], board: Board, projector_size: tuple[i
         raise InputError("the board's shape needs every corner decoded in every pose")
     size = poses[0].camera_size
     e_c = cv2.calibrateCamera(obj, cam, size, None, None, flags=cam_flags)[0]
-    e_r, *_, fitted = cv2.calibrateCameraRO(obj, cam, size, board.columns - 1, None, None,
-                                            flags=cam_flags)[:6]
-    fitted = fitted.reshape(-1, 3).astype(np.float32)
+    released = calibrate_released(obj, cam, size, board.columns - 1, cam_flags)
+    e_r, fitted = released["rms_px"], released["points"].astype(np.float32)
     e_p, kp_m, kp = cv2.calibrateCamera(obj, proj, tuple(projector_size), None, None,
                                         flags=proj_flags)[:3]
     try:  # OpenCV refuses a starting principal point outside the panel (an offset lens)
