@@ -84,5 +84,5 @@ def test_released_board_refuses_a_bad_gauge():
     with pytest.raises(InputError, match="fixed point"):
         calibrate_released([ideal.astype(np.float32)] * len(views), views, SIZE, 0)
     with pytest.raises(InputError, match="every corner"):
-        calibrate_released([ideal.astype(np.float32)] * 4 + [ideal[:-1].astype(np.float32)],
-                           views[:4] + [views[4][:-1]], SIZE, COLS - 1)
+        calibrate_released([*[ideal.astype(np.float32)] * 4, ideal[:-1].astype(np.float32)],
+                           [*views[:4], views[4][:-1]], SIZE, COLS - 1)
