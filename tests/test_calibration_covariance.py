@@ -140,7 +140,7 @@ def test_a_term_the_poses_do_not_pin_is_not_released():
         assert identified(spread[:, None], [np.sqrt(1.6) / factor]).tolist() == [expected]
 
 
-@pytest.mark.parametrize("model", ["k1", "k1k2"])
+@pytest.mark.parametrize("model", ["k1", "k1k2", "full"])
 def test_the_joint_fits_jacobian_is_the_residuals_derivative(model):
     """The joint fit's analytic Jacobian (OpenCV's projection derivatives chained through
     the projector's pose and the board's bow), against central differences of its
