@@ -138,3 +138,42 @@ def test_a_term_the_poses_do_not_pin_is_not_released():
     spread = np.array([-1.0, 1.0, 0.0, 0.0, 0.0])  # jackknife std sqrt(4 / 5 * 2)
     for factor, expected in ((2.145, True), (2.152, False)):
         assert identified(spread[:, None], [np.sqrt(1.6) / factor]).tolist() == [expected]
+
+
+@pytest.mark.parametrize("model", ["k1", "k1k2", "full"])
+def test_the_joint_fits_jacobian_is_the_residuals_derivative(model):
+    """The joint fit's analytic Jacobian (OpenCV's projection derivatives chained through
+    the projector's pose and the board's bow), against central differences of its
+    residuals taken here, by each parameter and each left-out lens term."""
+    import cv2
+
+    from scanqa.calibration import bundle
+    from scanqa.calibration.board_fit import _fit, _points
+
+    sim = simulate(1000, n_poses=3)
+    data = _fit(sim.poses, BOARD, PANEL, model)[0]
+    obj, cam, proj = (list(map(np.asarray, a)) for a in _points(sim.poses, BOARD))
+    obj = [o.astype(float) for o in obj]
+    poses = [cv2.solvePnP(o, c, data.Kc, data.kc)[1:] for o, c in zip(obj, cam, strict=True)]
+    problem = bundle._Problem(data, obj, [c.astype(float) for c in cam],
+                              [p.astype(float) for p in proj],
+                              (bundle.FREE[model], bundle.LEFT_OUT[model]),
+                              [r.ravel() for r, _ in poses], [t.ravel() for _, t in poses],
+                              BOARD.object_points)
+    problem.scale = np.array([0.3, 0.5])
+    x = problem.x0.copy()
+    x[sum(problem.sizes[:3]):][:3] = (0.05, -0.03, 0.02)  # a bowed board
+    eta = np.full(problem.n_nuis, 1e-3)
+    res, jac, jn = problem.with_jacobian(x, eta)
+    np.testing.assert_array_equal(res, problem.residuals(x, eta))
+    for base, analytic, f in ((x, jac, lambda y: problem.residuals(y, eta)),
+                              (eta, jn, lambda e: problem.residuals(x, e))):
+        # steps: 1e-4 for the large parameters (translations [mm]), else 1e-6
+        steps = np.where(np.abs(base) > 10, 1e-4, 1e-6)
+        for j, h in enumerate(steps):
+            up, down = base.copy(), base.copy()
+            up[j] += h
+            down[j] -= h
+            numeric = (f(up) - f(down)) / (2 * h)
+            np.testing.assert_allclose(analytic[:, j], numeric, rtol=0,
+                                       atol=1e-5 * np.abs(numeric).max() + 1e-9)

@@ -152,14 +152,21 @@ def corner_grid(image: np.ndarray) -> tuple[int, int] | None:
     grid of saddle points at half size and grows it to every square it can follow;
     its meta array has the shape of the whole grid it found. No board size is given.
     """
+    found = _grid_corners(_grey(image))
+    return None if found is None else found[0]
+
+
+def _grid_corners(grey: np.ndarray) -> tuple[tuple[int, int], np.ndarray] | None:
+    """:func:`corner_grid` of an 8-bit image (:func:`_grey`) and the grid's corners at
+    half size [half px], or None."""
     import cv2
 
-    small = cv2.resize(_grey(image), None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-    found, _, meta = cv2.findChessboardCornersSBWithMeta(
+    small = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    found, corners, meta = cv2.findChessboardCornersSBWithMeta(
         small, (4, 4), flags=cv2.CALIB_CB_EXHAUSTIVE | cv2.CALIB_CB_LARGER)
     if not found or meta is None:
         return None
-    return int(min(meta.shape)), int(max(meta.shape))
+    return (int(min(meta.shape)), int(max(meta.shape))), corners.reshape(-1, 2)
 
 
 def find_corners(image: np.ndarray, board: Board, method: str = "opencv"
@@ -193,29 +200,43 @@ def find_corners(image: np.ndarray, board: Board, method: str = "opencv"
     between the column and the row frames of a pose to 0.014 px (OpenCV's own sub-pixel
     corners 0.031 px in the same images).
     """
+    return _find_corners(image, board, method)
+
+
+def _find_corners(image: np.ndarray, board: Board, method: str,
+                  seen: tuple | None = None) -> np.ndarray | None:
+    """:func:`find_corners`; ``seen``: the 8-bit image and the half-size corners of the
+    board's grid where :func:`_grid_corners` found it already."""
     if method not in CORNER_METHODS:
         raise InputError(f"corner method must be one of {CORNER_METHODS}, got {method!r}")
-    corners = _opencv_corners(image, board)
+    corners = _opencv_corners(image, board, seen)
     if corners is None or method == "opencv":
         return corners
     return refine_corners(np.nan_to_num(np.asarray(image, dtype=float)), corners,
                           board.rows, board.columns)
 
 
-def _opencv_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
-    """OpenCV's corners (``findChessboardCornersSB``, half size then the region) [px]."""
+def _opencv_corners(image: np.ndarray, board: Board, seen: tuple | None = None
+                    ) -> np.ndarray | None:
+    """OpenCV's corners (``findChessboardCornersSB``, half size then the region) [px];
+    ``seen`` as :func:`_find_corners`: the same corners at half size, only their
+    bounding box is taken from them (the region)."""
     import cv2
 
-    grey = _grey(image)
     size, flags = (board.columns, board.rows), cv2.CALIB_CB_EXHAUSTIVE
-    small = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
-    found, rough = cv2.findChessboardCornersSB(small, size, flags=flags)
+    if seen is None:
+        grey = _grey(image)
+        found, rough = _half_size_corners(grey, size)
+    else:
+        (grey, rough), found = seen, True
     u0, v0, u1, v1 = (_crop(rough.reshape(-1, 2) * 2 + 0.5, grey.shape, 2 * CORNER_MARGIN_PX)
                       if found else (0, 0, grey.shape[1], grey.shape[0]))
     found_full, corners = cv2.findChessboardCornersSB(
         np.ascontiguousarray(grey[v0:v1, u0:u1]), size, flags=flags | cv2.CALIB_CB_ACCURACY)
     if found_full:
         return corners.reshape(-1, 2).astype(float) + np.array([u0, v0])
+    if seen is not None:  # the fallback below needs the corners in the board's order
+        found, rough = _half_size_corners(grey, size)
     if not found:
         return None
     # the board found at half size but not again at full size (rendered 1024 x 768 poses
@@ -227,6 +248,14 @@ def _opencv_corners(image: np.ndarray, board: Board) -> np.ndarray | None:
     criteria = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 1e-3)
     return cv2.cornerSubPix(grey, start, (half, half), (-1, -1), criteria).reshape(
         -1, 2).astype(float)
+
+
+def _half_size_corners(grey: np.ndarray, size: tuple[int, int]) -> tuple[bool, np.ndarray]:
+    """``findChessboardCornersSB`` of the (columns, rows) grid at half size [half px]."""
+    import cv2
+
+    small = cv2.resize(grey, None, fx=0.5, fy=0.5, interpolation=cv2.INTER_AREA)
+    return cv2.findChessboardCornersSB(small, size, flags=cv2.CALIB_CB_EXHAUSTIVE)
 
 
 def projector_corners(camera_px: np.ndarray, xp: np.ndarray, yp: np.ndarray,
@@ -315,8 +344,13 @@ def decode_pose(folder: str | os.PathLike, columns: PatternDescription,
     else:
         finest = columns.sets.index(columns.phase_sets[-1])
         image = np.asarray(stacks[0][finest], dtype=float).mean(axis=0)
-    board = _board_in(image, board, where)
-    corners = find_corners(image, board, corner_method)
+    grey = _grey(image)
+    grid = _grid_corners(grey)
+    board = _board_in(None if grid is None else grid[0], board, where)
+    # the grid's own corners give the board's region when it is the board's whole grid
+    seen = (grey, grid[1]) if grid is not None and grid[0] == (board.rows,
+                                                                board.columns) else None
+    corners = _find_corners(image, board, corner_method, seen)
     if corners is None:
         raise InputError(f"{where}: no {board.rows} x {board.columns} chessboard found "
                          "(check the board's corner counts and that the board is lit)")
@@ -349,10 +383,9 @@ def _offset_image(stacks: list, descriptions: tuple) -> np.ndarray:
     return np.mean([f.mean(axis=0) for f in frames], axis=0)
 
 
-def _board_in(image: np.ndarray, board: Board | float, where: Path) -> Board:
-    """The board of a pose: its grid found in the image, checked against ``board`` when
-    that is a Board."""
-    grid = corner_grid(image)
+def _board_in(grid: tuple[int, int] | None, board: Board | float, where: Path) -> Board:
+    """The board of a pose: its grid found in the image (:func:`corner_grid`), checked
+    against ``board`` when that is a Board."""
     if isinstance(board, Board):
         if grid is not None and grid != (board.rows, board.columns):
             hint = (" (rows first: the short side's inner corners, then the long side's)"

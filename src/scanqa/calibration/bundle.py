@@ -12,7 +12,8 @@ residuals, corrected for the parameters spent, Eq. 1; iterated once):
     s_d^2 = sum_i r_d,i^2 / (m_d - p m_d / m)                                      (1)
 
 with m_d the device's residuals, m all of them and p the parameters. With J the
-Jacobian of the scaled residuals at the solution (central differences), the covariance
+Jacobian of the scaled residuals at the solution (analytic: OpenCV's projection with its
+derivatives, chained through the projector's pose; the solver uses it too), the covariance
 of all parameters is (J^T J)^-1 (Eq. 2; [1]_, Sec. 9), and that of the calibration's 24
 (:data:`scanqa.io.opencv.COVARIANCE_PARAMETERS`) its block, the board poses'
 uncertainty carried in:
@@ -220,8 +221,65 @@ class _Problem:
             return rc, rp
         return np.concatenate([rc / self.scale[0], rp / self.scale[1]])
 
+    def with_jacobian(self, x: np.ndarray, eta: np.ndarray | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The scaled residuals (as :meth:`residuals`) and their Jacobians d/d x and
+        d/d eta (the left-out lens terms), analytic: ``cv2.projectPoints`` gives each
+        corner's image derivatives by its pose, focal lengths, principal point and
+        distortion; the projector's pose (Rp R, Rp t + Tp) is chained by
+        ``cv2.composeRT``, and the bow moves a corner along the board's normal,
+        d/d z = d/d t R e_z."""
+        import cv2
+
+        lens = self.lenses(x, eta)
+        kc_m, kc = _kd(lens[0], self.skew[0])
+        kp_m, kp = _kd(lens[1], self.skew[1])
+        q0, q1 = self.sizes[:2]
+        k = q0 + q1
+        rvec_p, tp = x[k:k + 3], x[k + 3:k + 6]
+        rot = cv2.Rodrigues(rvec_p)[0]
+        bow = x[k + 6:k + 9]
+        first = k + 6 + len(BOW_TERMS)
+        rows = 2 * sum(len(o) for o in self.obj)
+        res = np.empty(2 * rows)
+        jac = np.zeros((2 * rows, self.n))
+        jn = np.zeros((2 * rows, self.n_nuis))
+        nq0 = self.nuis_basis[0].shape[1]
+        top = 0
+        for i, (o, c, p) in enumerate(zip(self.obj, self.cam, self.proj, strict=True)):
+            j = first + 6 * i
+            rvec, tvec = x[j:j + 3], x[j + 3:j + 6]
+            pts = o.copy()
+            pts[:, 2] = pts[:, 2] + self.shape[i] @ bow
+            shape = np.repeat(self.shape[i], 2, axis=0)
+            cam_rows = slice(top, top + 2 * len(o))
+            proj_rows = slice(rows + top, rows + top + 2 * len(o))
+            top += 2 * len(o)
+            pix, d = cv2.projectPoints(pts, rvec, tvec, kc_m, kc)
+            res[cam_rows] = (pix.reshape(-1, 2) - c).ravel()
+            jac[cam_rows, :q0] = d[:, 6:15] @ self.basis[0]
+            jn[cam_rows, :nq0] = d[:, 6:15] @ self.nuis_basis[0]
+            jac[cam_rows, j:j + 6] = d[:, :6]
+            r1 = cv2.Rodrigues(rvec)[0]
+            jac[cam_rows, k + 6:first] = (d[:, 3:6] @ r1[:, 2])[:, None] * shape
+            r2 = cv2.Rodrigues(rot @ r1)[0]
+            pix, d = cv2.projectPoints(pts, r2, rot @ tvec + tp, kp_m, kp)
+            res[proj_rows] = (pix.reshape(-1, 2) - p).ravel()
+            chain = cv2.composeRT(rvec, tvec, rvec_p, tp)
+            jac[proj_rows, q0:k] = d[:, 6:15] @ self.basis[1]
+            jn[proj_rows, nq0:] = d[:, 6:15] @ self.nuis_basis[1]
+            jac[proj_rows, j:j + 3] = d[:, :3] @ chain[2]
+            jac[proj_rows, j + 3:j + 6] = d[:, 3:6] @ chain[7]
+            jac[proj_rows, k:k + 3] = d[:, :3] @ chain[4] + d[:, 3:6] @ chain[8]
+            jac[proj_rows, k + 3:k + 6] = d[:, 3:6]
+            jac[proj_rows, k + 6:first] = ((d[:, 3:6] @ cv2.Rodrigues(r2)[0][:, 2])[:, None]
+                                           * shape)
+        weight = np.repeat(1.0 / self.scale, rows)
+        return res * weight, jac * weight[:, None], jn * weight[:, None]
+
     def step(self, x: np.ndarray) -> np.ndarray:
-        """Central-difference steps of each parameter."""
+        """A typical small change of each parameter (the solver's ``x_scale`` is 1000 of
+        them) [px, -, rad, mm]."""
         h = np.full(len(x), 1e-6)
         lens_steps = np.concatenate([np.array([1e-3, 1e-3, 1e-3, 1e-3, 1e-6, 1e-6, 1e-7,
                                                1e-7, 1e-6]) @ np.abs(b) for b in self.basis])
@@ -232,29 +290,6 @@ class _Problem:
         for i in range(len(self.obj)):
             h[k + 6 + 6 * i + 3:k + 12 + 6 * i] = 1e-4
         return h
-
-    def jacobian(self, x: np.ndarray, eta: np.ndarray | None = None,
-                 nuisance: bool = False) -> np.ndarray:
-        """d residuals / d x (or / d eta with ``nuisance``), central differences."""
-        if nuisance:
-            base = np.zeros(self.n_nuis) if eta is None else eta
-            steps = np.full(self.n_nuis, 1e-6)
-            steps[[n in ("cx", "cy") for n in (*self.left[0], *self.left[1])]] = 1e-3
-
-            def f(e):
-                return self.residuals(x, e)
-        else:
-            base, steps = x, self.step(x)
-
-            def f(y):
-                return self.residuals(y, eta)
-        cols = []
-        for j, h in enumerate(steps):
-            plus, minus = base.copy(), base.copy()
-            plus[j] += h
-            minus[j] -= h
-            cols.append((f(plus) - f(minus)) / (2 * h))
-        return np.array(cols).T
 
     def to_24(self) -> np.ndarray:
         """(24, n_theta) map from the free calibration parameters to the 24."""
@@ -431,11 +466,10 @@ def _adjust(data: OpenCVCalibration, obj: list, cam: list, proj: list, terms: tu
     x = problem.x0.copy()
     problem.scale = _noise(problem, x)
     for _ in range(2 if refine else 0):
-        x = least_squares(problem.residuals, x, x_scale=problem.step(x) * 1e3,
-                          method="lm").x
+        x = least_squares(problem.residuals, x, jac=lambda y: problem.with_jacobian(y)[1],
+                          x_scale=problem.step(x) * 1e3, method="lm").x
         problem.scale = _noise(problem, x)
-    jac = problem.jacobian(x)
-    jn = problem.jacobian(x, nuisance=True) if problem.n_nuis else np.zeros((len(jac), 0))
+    _, jac, jn = problem.with_jacobian(x)
     if after:  # Eq. 4: the corner noise from what the nuisances leave
         counts = [len(r) for r in problem.residuals(x, split=True)]
         noise = _extended_noise(problem.residuals(x), jac, jn, problem.scale, counts)
