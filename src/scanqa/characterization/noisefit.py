@@ -321,12 +321,18 @@ def _deviance(prob: _Problem, spec: _Spec, x_hat: np.ndarray, rss_min: float, j:
     name = spec.free[j]
     rest = spec.free[:j] + spec.free[j + 1:]
     start = [np.delete(x_hat, j)]
+    seen: dict[float, float] = {}
 
     def dev(v: float) -> float:
-        held = _Spec(spec.floor, spec.form, spec.reading, rest,
-                     {**spec.held, name: float(np.exp(v))})
-        _, rss = _fit(prob, held, start)
-        return prob.n * math.log(max(rss, 1e-300) / max(rss_min, 1e-300)) - CHI2_95
+        # brentq evaluates its bracket's ends again: the range's end, tried first by
+        # _interval, and the centre, shared by the low and the high interval
+        v = float(v)
+        if v not in seen:
+            held = _Spec(spec.floor, spec.form, spec.reading, rest,
+                         {**spec.held, name: float(np.exp(v))})
+            _, rss = _fit(prob, held, start)
+            seen[v] = prob.n * math.log(max(rss, 1e-300) / max(rss_min, 1e-300)) - CHI2_95
+        return seen[v]
 
     return dev
 
