@@ -75,10 +75,11 @@ def json_ready(value):
     return value
 
 
-def ill_conditioned(matrices: np.ndarray, limit: float) -> np.ndarray:
+def ill_conditioned(matrices: np.ndarray, limit: float) -> tuple:
     """``~(np.linalg.cond(matrices) < limit)`` per matrix of a (..., k, k) stack, with the
     SVD run only where the cheap bound cond <= ||M||_F ||M^-1||_F does not already put
-    the matrix 100x below ``limit`` (an SVD per small matrix costs ~5x an inverse).
+    the matrix 100x below ``limit`` (an SVD per small matrix costs ~5x an inverse); and
+    the inverses that bound needed.
 
     Parameters
     ----------
@@ -89,9 +90,12 @@ def ill_conditioned(matrices: np.ndarray, limit: float) -> np.ndarray:
 
     Returns
     -------
-    (...,) bool
+    flags : (...,) bool
         True where cond >= ``limit`` or is NaN; the same as computing every cond.
+    inverses : (..., k, k) float or None
+        ``np.linalg.inv(matrices)``; None when one of them is exactly singular.
     """
+    inv = None
     try:
         inv = np.linalg.inv(matrices)
         bound = (np.einsum("...ab,...ab->...", matrices, matrices)
@@ -101,4 +105,4 @@ def ill_conditioned(matrices: np.ndarray, limit: float) -> np.ndarray:
         unsure = np.ones(matrices.shape[:-2], bool)
     out = np.zeros(matrices.shape[:-2], bool)
     out[unsure] = ~(np.linalg.cond(matrices[unsure]) < limit)
-    return out
+    return out, inv

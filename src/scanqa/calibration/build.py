@@ -371,8 +371,7 @@ def smooth_cells(x: np.ndarray, w: np.ndarray, cell: float, half: int = SMOOTH_H
         return x, w, 0
     basis, _ = _window_terms(half)
     ok = (w > 0) & np.isfinite(x)
-    wv = np.where(ok, w, 0.0)
-    xv = np.where(ok, x, 0.0)
+    wv, xv = np.where(ok, w, 0.0), np.where(ok, x, 0.0)
     k = basis.shape[0]
     moments, rhs = np.empty((*x.shape, k, k)), np.empty((*x.shape, k))
     wx, done = wv * xv, {}  # 15 of the 21 basis products differ (di * di = di^2 * 1)
@@ -386,12 +385,13 @@ def smooth_cells(x: np.ndarray, w: np.ndarray, cell: float, half: int = SMOOTH_H
     count = correlate(ok.astype(float), np.ones_like(basis[0]), mode="constant")
     good = ok & (count >= 3 * k)
     moments[~good] = np.eye(k)
-    # a window whose samples lie on a line has a singular normal matrix: that cell keeps
-    # its own value (counted), the others are smoothed
-    singular = good & ill_conditioned(moments, 1e12)
+    # windows whose samples lie on a line: singular, their cells keep their value (counted)
+    flags, inv = ill_conditioned(moments, 1e12)
+    singular = good & flags
     good &= ~singular
-    moments[singular] = np.eye(k)
-    inv = np.linalg.inv(moments)
+    if singular.any() or inv is None:
+        moments[singular] = np.eye(k)
+        inv = np.linalg.inv(moments)
     coef = np.einsum("...ab,...b->...a", inv, rhs)
     du2 = (cell * cell - 1.0) / 12.0 / (cell * cell)  # <du^2> of a cell, in cells^2
     value = coef[..., 0] - (coef[..., 3] + coef[..., 5]) * du2
