@@ -184,7 +184,8 @@ def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
                          "row and column) and that the whole board is in view")
     labels, bright = square_labels(corners, phase_map.offset)
     look = calibration.apply_image(phase_map.xp)
-    on = (labels > 0) & np.isfinite(look.xyz).all(axis=-1)
+    on = labels > 0
+    on[on] = np.isfinite(look.xyz[on]).all(axis=-1)  # the board's pixels only
     xyz = look.xyz[on]
     normal, resid = _plane(xyz)
     ray = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
