@@ -70,6 +70,25 @@ def test_write_then_read_round_trip(tmp_path, fmt):
     np.testing.assert_allclose(pm.xp, expected, atol=0.01)  # rounding to integer DN
 
 
+def test_an_image_read_again_is_the_file_as_it_is_now(tmp_path):
+    """read_image keeps decoded images for files read again (by their bytes): each
+    caller gets its own array, and a file rewritten in place - same size, maybe the same
+    time stamp - is read as it is now."""
+    path = tmp_path / "frame.bmp"  # BMP: the same size whatever the pixels
+    first = np.arange(12 * 40, dtype=np.uint8).reshape(12, 40)
+    write_image(path, first)
+    got = read_image(path)
+    got[0, 0] = 99
+    np.testing.assert_array_equal(read_image(path), first)
+    second = first[::-1].copy()
+    data = path.read_bytes()
+    write_image(tmp_path / "other.bmp", second)
+    path.write_bytes((tmp_path / "other.bmp").read_bytes())
+    assert path.stat().st_size == len(data)
+    np.testing.assert_array_equal(read_image(path), second)
+    np.testing.assert_array_equal(read_image(tmp_path / "other.bmp"), second)
+
+
 def test_eight_bit_png_and_float_npz(tmp_path):
     desc = _desc()
     eight = _images(desc, np.uint8)

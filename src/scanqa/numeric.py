@@ -73,3 +73,36 @@ def json_ready(value):
         out = [json_ready(v) for v in value]
         return tuple(out) if isinstance(value, tuple) else out
     return value
+
+
+def ill_conditioned(matrices: np.ndarray, limit: float) -> tuple:
+    """``~(np.linalg.cond(matrices) < limit)`` per matrix of a (..., k, k) stack, with the
+    SVD run only where the cheap bound cond <= ||M||_F ||M^-1||_F does not already put
+    the matrix 100x below ``limit`` (an SVD per small matrix costs ~5x an inverse); and
+    the inverses that bound needed.
+
+    Parameters
+    ----------
+    matrices : (..., k, k) float
+        Square matrices [any unit].
+    limit : float
+        Condition number from which a matrix counts as ill-conditioned [-].
+
+    Returns
+    -------
+    flags : (...,) bool
+        True where cond >= ``limit`` or is NaN; the same as computing every cond.
+    inverses : (..., k, k) float or None
+        ``np.linalg.inv(matrices)``; None when one of them is exactly singular.
+    """
+    inv = None
+    try:
+        inv = np.linalg.inv(matrices)
+        bound = (np.einsum("...ab,...ab->...", matrices, matrices)
+                 * np.einsum("...ab,...ab->...", inv, inv))
+        unsure = ~(bound < (limit / 100.0) ** 2)
+    except np.linalg.LinAlgError:  # an exactly singular matrix: check every one
+        unsure = np.ones(matrices.shape[:-2], bool)
+    out = np.zeros(matrices.shape[:-2], bool)
+    out[unsure] = ~(np.linalg.cond(matrices[unsure]) < limit)
+    return out, inv

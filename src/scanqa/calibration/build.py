@@ -54,7 +54,7 @@ from scanqa.chunks import row_bands, run_bands
 from scanqa.errors import InputError
 from scanqa.model import optics
 from scanqa.model.config import ScannerConfig
-from scanqa.numeric import MAD_TO_SIGMA
+from scanqa.numeric import MAD_TO_SIGMA, ill_conditioned
 from scanqa.progress import Progress
 
 log = logging.getLogger(__name__)
@@ -371,25 +371,27 @@ def smooth_cells(x: np.ndarray, w: np.ndarray, cell: float, half: int = SMOOTH_H
         return x, w, 0
     basis, _ = _window_terms(half)
     ok = (w > 0) & np.isfinite(x)
-    wv = np.where(ok, w, 0.0)
-    xv = np.where(ok, x, 0.0)
+    wv, xv = np.where(ok, w, 0.0), np.where(ok, x, 0.0)
     k = basis.shape[0]
-    moments = np.empty((*x.shape, k, k))
-    rhs = np.empty((*x.shape, k))
+    moments, rhs = np.empty((*x.shape, k, k)), np.empty((*x.shape, k))
+    wx, done = wv * xv, {}  # 15 of the 21 basis products differ (di * di = di^2 * 1)
     for a in range(k):
-        rhs[..., a] = correlate(wv * xv, basis[a], mode="constant")
+        rhs[..., a] = correlate(wx, basis[a], mode="constant")
         for b in range(a, k):
-            moments[..., a, b] = moments[..., b, a] = correlate(wv, basis[a] * basis[b],
-                                                                mode="constant")
+            key = (basis[a] * basis[b]).tobytes()
+            if key not in done:
+                done[key] = correlate(wv, basis[a] * basis[b], mode="constant")
+            moments[..., a, b] = moments[..., b, a] = done[key]
     count = correlate(ok.astype(float), np.ones_like(basis[0]), mode="constant")
     good = ok & (count >= 3 * k)
     moments[~good] = np.eye(k)
-    # a window whose samples lie on a line has a singular normal matrix: that cell keeps
-    # its own value (counted), the others are smoothed
-    singular = good & ~(np.linalg.cond(moments) < 1e12)
+    # windows whose samples lie on a line: singular, their cells keep their value (counted)
+    flags, inv = ill_conditioned(moments, 1e12)
+    singular = good & flags
     good &= ~singular
-    moments[singular] = np.eye(k)
-    inv = np.linalg.inv(moments)
+    if singular.any() or inv is None:
+        moments[singular] = np.eye(k)
+        inv = np.linalg.inv(moments)
     coef = np.einsum("...ab,...b->...a", inv, rhs)
     du2 = (cell * cell - 1.0) / 12.0 / (cell * cell)  # <du^2> of a cell, in cells^2
     value = coef[..., 0] - (coef[..., 3] + coef[..., 5]) * du2

@@ -28,6 +28,7 @@ from the measured ``B`` of each pixel.
 from __future__ import annotations
 
 import hashlib
+import itertools
 import math
 from dataclasses import dataclass, field
 
@@ -129,7 +130,8 @@ def square_labels(corners: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, 
             fill_convex(labels, np.round(quad), len(parity) + 1)
             parity.append((i + j) % 2)
     parity = np.array(parity)
-    level = np.array([np.nanmedian(offset[labels == k + 1]) for k in range(parity.size)])
+    level = np.array([np.nanmedian(v) for v in _by_label(labels.ravel(), offset.ravel(),
+                                                         parity.size)])
     even_bright = np.nanmedian(level[parity == 0]) > np.nanmedian(level[parity == 1])
     return labels, (parity == 0) == even_bright
 
@@ -182,7 +184,8 @@ def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
                          "row and column) and that the whole board is in view")
     labels, bright = square_labels(corners, phase_map.offset)
     look = calibration.apply_image(phase_map.xp)
-    on = (labels > 0) & np.isfinite(look.xyz).all(axis=-1)
+    on = labels > 0
+    on[on] = np.isfinite(look.xyz[on]).all(axis=-1)  # the board's pixels only
     xyz = look.xyz[on]
     normal, resid = _plane(xyz)
     ray = xyz / np.linalg.norm(xyz, axis=1, keepdims=True)
@@ -192,8 +195,9 @@ def pose_residual(name: str, phase_map: PhaseMap, calibration: Calibration,
     smooth, ripple = parts
     random = resid - smooth - ripple
     lab = labels[on]
-    terms = _law_terms(phase_map, look.s_t[on], cos, on)
-    sig_img = look.s_t[on] * phase_map.sigma_xp[on] * cos
+    s_t = np.linalg.norm(look.slope[on], axis=-1)  # look.s_t[on], of the board only
+    terms = _law_terms(phase_map, s_t, cos, on)
+    sig_img = s_t * phase_map.sigma_xp[on] * cos
     squares = _per_square(lab, bright, keep, random, resid, terms, sig_img)
     is_bright = bright[lab - 1]
     pooled = {"bright": 1e3 * robust_std(resid[is_bright]),
@@ -261,18 +265,25 @@ def _law_terms(phase_map: PhaseMap, s_t: np.ndarray, cos: np.ndarray, on: np.nda
     return read, read * np.maximum(phase_map.offset[on].astype(float), 0.0)
 
 
+def _by_label(labels: np.ndarray, values: np.ndarray, n: int) -> list[np.ndarray]:
+    """``[values[labels == k] for k in 1..n]`` in their order, from one stable sort."""
+    order = np.argsort(labels, kind="stable")
+    ends = np.searchsorted(labels[order], np.arange(1, n + 2))
+    return [values[order[a:b]] for a, b in itertools.pairwise(ends)]
+
+
 def _per_square(lab, bright, keep, random, resid, terms, sig_img) -> dict:
     """Per-square statistics (see :class:`PoseResidual`)."""
     out = {k: [] for k in ("bright", "n", "var_random_mm2", "var_plane_mm2", "read_term",
                            "shot_term", "sigma_images_mm")}
-    for k in range(bright.size):
-        sel = (lab == k + 1) & keep
-        if sel.sum() < MIN_SQUARE_POINTS:
+    for k, square in enumerate(_by_label(lab, np.arange(lab.size), bright.size)):
+        sel = square[keep[square]]
+        if sel.size < MIN_SQUARE_POINTS:
             continue
         out["bright"].append(bool(bright[k]))
-        out["n"].append(int(sel.sum()))
+        out["n"].append(int(sel.size))
         out["var_random_mm2"].append(robust_std(random[sel]) ** 2)
-        out["var_plane_mm2"].append(robust_std(resid[lab == k + 1]) ** 2)
+        out["var_plane_mm2"].append(robust_std(resid[square]) ** 2)
         out["read_term"].append(float(np.mean(terms[0][sel])))
         out["shot_term"].append(float(np.mean(terms[1][sel])))
         out["sigma_images_mm"].append(float(np.nanmedian(sig_img[sel])))

@@ -26,6 +26,7 @@ variant that does not beat it is reported as such.
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass, field, fields, replace
 
@@ -184,6 +185,11 @@ class _Problem:
     def n(self) -> int:
         return int(self.std.size)
 
+    @functools.cached_property
+    def log_std(self) -> np.ndarray:
+        """log of the measured stds, once per problem (every residual needs it)."""
+        return np.log(self.std)
+
     def take(self, idx: np.ndarray) -> _Problem:
         arrays = {f.name: getattr(self.terms, f.name)[idx]
                   for f in fields(self.terms) if isinstance(getattr(self.terms, f.name),
@@ -201,7 +207,7 @@ def _problem(config: ScannerConfig, data: NoiseData, form: str) -> _Problem:
 
 
 def _residuals(prob: _Problem, spec: _Spec, x: np.ndarray) -> np.ndarray:
-    r = np.log(prob.model(spec, _values(spec, x))) - np.log(prob.std)
+    r = np.log(prob.model(spec, _values(spec, x))) - prob.log_std
     return np.where(np.isfinite(r), r, 10.0)  # a NaN model (past J1's zero) fits badly
 
 
@@ -253,7 +259,7 @@ def _projected_residuals(prob: _Problem, spec: _Spec, y: np.ndarray
     gamma = inner.get("gamma", spec.held.get("gamma", 1.0))
     rho = inner.get("rho", 0.0)
     g = np.log(prob.terms.s_o_with(gamma, spec.floor, spec.reading, rho))
-    d = np.where(np.isfinite(g), np.log(prob.std) - g, -10.0)
+    d = np.where(np.isfinite(g), prob.log_std - g, -10.0)
     scale = float(np.mean(d))
     return scale - d, scale
 
@@ -321,12 +327,18 @@ def _deviance(prob: _Problem, spec: _Spec, x_hat: np.ndarray, rss_min: float, j:
     name = spec.free[j]
     rest = spec.free[:j] + spec.free[j + 1:]
     start = [np.delete(x_hat, j)]
+    seen: dict[float, float] = {}
 
     def dev(v: float) -> float:
-        held = _Spec(spec.floor, spec.form, spec.reading, rest,
-                     {**spec.held, name: float(np.exp(v))})
-        _, rss = _fit(prob, held, start)
-        return prob.n * math.log(max(rss, 1e-300) / max(rss_min, 1e-300)) - CHI2_95
+        # brentq evaluates its bracket's ends again: the range's end, tried first by
+        # _interval, and the centre, shared by the low and the high interval
+        v = float(v)
+        if v not in seen:
+            held = _Spec(spec.floor, spec.form, spec.reading, rest,
+                         {**spec.held, name: float(np.exp(v))})
+            _, rss = _fit(prob, held, start)
+            seen[v] = prob.n * math.log(max(rss, 1e-300) / max(rss_min, 1e-300)) - CHI2_95
+        return seen[v]
 
     return dev
 
