@@ -26,7 +26,10 @@ _META = ("width_px", "height_px", "weights", "config", "provenance")
 
 
 def write_table_file(path: str | os.PathLike, arrays: dict, meta: dict) -> Path:
-    """Write a table's arrays and metadata to ``path`` (compressed npz), atomically.
+    """Write a table's arrays and metadata to ``path`` (npz, stored), atomically.
+
+    Stored, not deflated: a table's float arrays barely compress (the sample table 28.7
+    MB deflated against 30.9 MB stored) and deflating cost ~0.4 s of CPU per write.
 
     Parameters
     ----------
@@ -40,7 +43,7 @@ def write_table_file(path: str | os.PathLike, arrays: dict, meta: dict) -> Path:
     """
     text = json.dumps({"format": FORMAT, **meta})
     with atomic_path(path, suffix=".npz") as tmp, open(tmp, "wb") as fh:
-        np.savez_compressed(fh, meta=np.array(text), **{k: arrays[k] for k in ARRAYS})
+        np.savez(fh, meta=np.array(text), **{k: arrays[k] for k in ARRAYS})
     return Path(path)
 
 
