@@ -64,6 +64,10 @@ def figure_data_uri(fig, dpi: int = 100) -> str:
                 coll.set_rasterized(True)
     buf = io.BytesIO()
     fig.tight_layout()
+    # tight_layout leaves a placeholder layout engine, and savefig draws the whole figure
+    # once more (rasterised scatters too) before printing when there is one: the layout
+    # is done, so drop it - the same bytes from one draw instead of two
+    fig.set_layout_engine(None)
     # a fixed salt for the SVG's element ids: the same figure gives the same bytes
     with plt.rc_context({"svg.hashsalt": "scanqa"}):
         fig.savefig(buf, format="svg", dpi=dpi, metadata={"Date": None})

@@ -23,6 +23,7 @@ def new_figure(ncols: int = 1, nrows: int = 1, width: float = 6.4, height: float
 def save_png(fig, path: str | os.PathLike, dpi: int = 110) -> Path:
     """Write ``fig`` as PNG atomically, close it and return the path."""
     fig.tight_layout()
+    fig.set_layout_engine(None)  # the layout is done: savefig draws once, not twice
     with atomic_path(path, suffix=".png") as tmp:
         fig.savefig(tmp, dpi=dpi, format="png")
     plt.close(fig)
