@@ -168,7 +168,7 @@ MAP_CELLS = 400
 def map_cell_mm(x: np.ndarray, y: np.ndarray, cells: int = MAP_CELLS) -> float:
     """Cell of a map of points drawn as an image: 1.5 times the median distance of a point
     to its nearest neighbour in XY (so a region sampled on a grid leaves no cell empty),
-    and at least the longer side over ``cells`` [mm]; NaN for fewer than two points.
+    and at least the longer side over ``cells`` [mm]; 1 mm for one point, NaN for none.
 
     Parameters
     ----------
@@ -180,7 +180,7 @@ def map_cell_mm(x: np.ndarray, y: np.ndarray, cells: int = MAP_CELLS) -> float:
     from scipy.spatial import cKDTree
 
     if len(x) < 2:
-        return math.nan
+        return 1.0 if len(x) else math.nan
     xy = np.stack([x, y], -1)
     span = float(np.ptp(xy, axis=0).max())
     probe = xy[::max(1, len(xy) // 2000)]  # a fixed stride, not a random draw
