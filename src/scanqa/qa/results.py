@@ -176,6 +176,14 @@ def map_cell_mm(x: np.ndarray, y: np.ndarray, cells: int = MAP_CELLS) -> float:
         The points' coordinates [mm].
     cells : int
         Most cells along the longer side [-].
+
+    Notes
+    -----
+    A display rule, scanqa's own (docs/formats.rst, "QA outputs"): a grid of spacing h
+    puts at least one point in every interval longer than h, so cells of 1.5 h leave no
+    cell of a sampled region empty (1 to 4 points each), and a map ~450 px wide shows no
+    more than ``cells`` of them. The median is taken over a fixed stride of at most ~2000
+    points.
     """
     from scipy.spatial import cKDTree
 
