@@ -160,6 +160,44 @@ class StepResult:
                 "evaluated": self.evaluated}
 
 
+#: A residual map has at most this many cells along its longer side (its axes are
+#: ~450 px wide).
+MAP_CELLS = 400
+
+
+def map_cell_mm(x: np.ndarray, y: np.ndarray, cells: int = MAP_CELLS) -> float:
+    """Cell of a map of points drawn as an image: 1.5 times the median distance of a point
+    to its nearest neighbour in XY (so a region sampled on a grid leaves no cell empty),
+    and at least the longer side over ``cells`` [mm]; 1 mm for one point, NaN for none.
+
+    Parameters
+    ----------
+    x, y : ndarray
+        The points' coordinates [mm].
+    cells : int
+        Most cells along the longer side [-].
+
+    Notes
+    -----
+    A display rule, scanqa's own (docs/formats.rst, "QA outputs"): a grid of spacing h
+    puts at least one point in every interval longer than h, so cells of 1.5 h leave no
+    cell of a sampled region empty (1 to 4 points each), and a map ~450 px wide shows no
+    more than ``cells`` of them. The median is taken over a fixed stride of at most ~2000
+    points.
+    """
+    from scipy.spatial import cKDTree
+
+    if len(x) < 2:
+        return 1.0 if len(x) else math.nan
+    xy = np.stack([x, y], -1)
+    span = float(np.ptp(xy, axis=0).max())
+    probe = xy[::max(1, len(xy) // 2000)]  # a fixed stride, not a random draw
+    dist = cKDTree(xy).query(probe, k=2)[0][:, 1]
+    dist = dist[dist > 0]
+    spacing = 1.5 * float(np.median(dist)) if len(dist) else 0.0
+    return max(spacing, span / cells) or 1.0
+
+
 @dataclass(frozen=True)
 class QAResult:
     """Everything the QA computed; the report layer only renders it.
@@ -197,6 +235,15 @@ class QAResult:
         if not sel.any():
             return math.nan
         return float(np.nanpercentile(np.abs(self.residual_um[sel]), percentile))
+
+    def residual_map_cell_mm(self) -> float:
+        """Cell of the residual map (:func:`map_cell_mm` of the XY of the points in a
+        block with a residual) [mm]; NaN without such points or without the cloud."""
+        if self.cloud is None:
+            return math.nan
+        xy = self.cloud.xyz[:, :2]
+        sel = (self.block_id >= 0) & np.isfinite(self.residual_um) & np.isfinite(xy).all(1)
+        return map_cell_mm(xy[sel, 0], xy[sel, 1])
 
     def summary(self) -> dict:
         """JSON-ready summary: settings, every block and step with its budget, the counts.

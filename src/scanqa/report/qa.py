@@ -18,7 +18,7 @@ from scanqa.qa.blocks import QAResult
 from scanqa.qa.paper import TABLE3_COLUMNS, paper_series, table3_rows
 from scanqa.qa.verdict import verdict
 from scanqa.report.html import Page
-from scanqa.report.plots import new_figure
+from scanqa.report.plots import cell_map, new_figure
 
 BLOCK_COLUMNS = ("block_id", "nominal_height_mm", "n_points", "measured_std_um",
                  "measured_std_u_um", "predicted_std_um", "ratio", "flatness_um",
@@ -214,18 +214,23 @@ def _range_section(page: Page, result: QAResult, curve: dict | None) -> None:
 def _residual_section(page: Page, result: QAResult, xyz: np.ndarray) -> None:
     page.heading("Residual maps", "residuals")
     fig, ax = new_figure(width=7.0, height=5.0)
-    sel = result.block_id >= 0
+    sel = (result.block_id >= 0) & np.isfinite(result.residual_um) \
+        & np.isfinite(xyz[:, :2]).all(axis=1)
+    cell = math.nan
     if sel.any():
         lim = result.residual_limit_um()
-        stride = max(1, int(sel.sum() // 200_000))
-        idx = np.flatnonzero(sel)[::stride]
-        sc = ax[0][0].scatter(xyz[idx, 0], xyz[idx, 1], c=result.residual_um[idx], s=1,
-                              cmap="RdBu_r", vmin=-lim, vmax=lim)
-        fig.colorbar(sc, ax=ax[0][0], label="residual to the block's plane [um]")
+        x, y = xyz[sel, 0], xyz[sel, 1]
+        cell = result.residual_map_cell_mm()
+        im = cell_map(ax[0][0], x, y, result.residual_um[sel], cell, cmap="RdBu_r",
+                      vmin=-lim, vmax=lim)
+        fig.colorbar(im, ax=ax[0][0], label="residual to the block's plane [um]")
     ax[0][0].set(xlabel="X [mm]", ylabel="Y [mm]", aspect="equal",
                  title="plane residuals per block")
     ax[0][0].invert_yaxis()
-    page.figure(fig, "residuals of every block's orthogonal plane fit", "residuals")
+    page.figure(fig, "residuals of every block's orthogonal plane fit"
+                + (f", on cells of {cell:.3g} mm (1.5 times the points' spacing): each "
+                   "shows the residual of its last point" if math.isfinite(cell) else ""),
+                "residuals")
 
 
 def _budget_section(page: Page, result: QAResult, info: dict) -> None:
