@@ -28,6 +28,7 @@ LAYERS = {
     "scanqa.description": 3, "scanqa.calibration": 3, "scanqa.design": 3,
     "scanqa.characterization": 4, "scanqa.qa": 4, "scanqa.simulator": 4,
     "scanqa.simulator.boardfringes": 4,  # board poses under fringes, for the board path
+    "scanqa.simulator.boardkernels": 4,  # the board renderers' compiled loops
     "scanqa.annotation": 5,
     "scanqa.report": 6,
     "scanqa.runs": 7, "scanqa.cluster": 7, "scanqa.api": 7, "scanqa": 7,

@@ -8,6 +8,8 @@ frame loops.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
@@ -217,6 +219,39 @@ def test_ladder_groups_equal_numpys_sort(shape):
     assert np.all(np.abs(level - level_ref)[edge] <= 1)
     assert np.all(np.abs(frac - frac_ref)[same] <= tol[same])
     assert blur._groups(diameter, np.zeros(shape, bool)) == []
+
+
+def _splitmix_normal(key: int, ix: int, iy: int) -> float:
+    """The scene noise's value of one cell, written out in Python integers and math."""
+    def mix(x):
+        x = (x + 0x9E3779B97F4A7C15) % 2**64
+        x = ((x ^ (x >> 30)) * 0xBF58476D1CE4E5B9) % 2**64
+        x = ((x ^ (x >> 27)) * 0x94D049BB133111EB) % 2**64
+        return x ^ (x >> 31)
+    h = mix(mix(key ^ (ix % 2**64)) ^ (iy % 2**64))
+    u1 = ((h >> 11) + 1.0) * 2.0 ** -53
+    u2 = (mix(h) >> 11) * 2.0 ** -53
+    return math.sqrt(-2.0 * math.log(u1)) * math.cos(2.0 * math.pi * u2)
+
+
+@pytest.mark.compiled_vs_numpy
+def test_hash_normal_is_splitmix64_box_muller():
+    rng = np.random.default_rng(9)
+    ix = rng.integers(-2**40, 2**40, (300, 200))
+    iy = rng.integers(-5000, 5000, ix.shape)
+    key = 0x5DEECE66D1234567
+    got = raykernels.hash_normal(key, ix, iy)
+    assert got.dtype == np.float32 and got.shape == ix.shape
+    want = raykernels.hash_normal_numpy(key, ix, iy)
+    # log, sqrt, cos (libm or SIMD, per CPU) and 3 products on values below 9 (sqrt(-2
+    # log 2**-53) = 8.6) in float64, then one float32 rounding that a float64 difference
+    # may push across a float32 step
+    tol = op_bound(6, 9.0) + np.spacing(np.abs(want))
+    assert np.all(np.abs(got - want) <= tol)
+    some = [(int(a), int(b)) for a, b in zip(ix.ravel()[:40], iy.ravel()[:40], strict=True)]
+    direct = np.array([_splitmix_normal(key, a, b) for a, b in some], np.float32)
+    assert np.all(np.abs(got.ravel()[:40] - direct) <= tol.ravel()[:40])
+    assert abs(float(got.mean())) < 0.02 and abs(float(got.std()) - 1.0) < 0.02  # N(0, 1)
 
 
 

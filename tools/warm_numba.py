@@ -40,6 +40,7 @@ def warm() -> None:
         experiments.run_experiment("gauge-blocks", config, Path(tmp) / "g", repeats=1)
         experiments.run_experiment("sphere", config, Path(tmp) / "s", positions=[450.0],
                                    repeats=1)
+    _warm_board()
     try:
         import fringes
     except ImportError:
@@ -55,6 +56,25 @@ def warm() -> None:
         f.decode(np.full((12, 32, 128), 1000, np.uint16))
     except Exception as err:  # not scanqa's: say so and go on
         print(f"numba: fringes' decoder not compiled ahead ({err})")
+
+
+def _warm_board() -> None:
+    """The board renderers' loops: a Gray-code pose and a fringe frame on a tiny camera."""
+    from dataclasses import replace
+
+    import numpy as np
+
+    from scanqa.simulator import boardfringes, boardposes
+
+    sim = boardposes.simulate(1, n_poses=1)
+    truth = replace(sim.truth, sizes=dict(sim.truth.sizes, frameWidth=16, frameHeight=12))
+    rng = np.random.default_rng(0)
+    rvec, tvec = np.zeros(3), np.array([-50.0, -40.0, 400.0])
+    boardposes.gray_frames(truth, boardposes.BOARD, rvec, tvec, (1, 1), rng, bow=sim.bow)
+    view = boardposes.board_view(truth, boardposes.BOARD, rvec, tvec, squares=False)
+    columns, _ = boardfringes.fringe_descriptions((912, 1140), (96.0,), 3)
+    boardfringes.frames(view, columns, rng)
+    boardposes.gaussian_blur(np.zeros((4, 5)), 0.7)
 
 
 def main() -> int:

@@ -39,10 +39,10 @@ from scanqa.errors import InputError
 from scanqa.io.atomic import make_out_dir, write_text
 from scanqa.io.opencv import OpenCVCalibration
 from scanqa.io.patterns import dumps_patterns
+from scanqa.simulator import boardkernels
 from scanqa.simulator.boardposes import (  # noqa: F401 (board_view: this module's API too)
     ALBEDO,
     board_view,
-    gaussian_blur,
     simulate,
     within_margin,
 )
@@ -157,15 +157,18 @@ def frames(view: dict, description: PatternDescription, rng: np.random.Generator
         One stack per set, in ``description.sets`` order [DN].
     """
     out = []
+    gain, weights = WHITE_DN * view["albedo"], boardkernels.gaussian_weights(blur_px)
+    noise = np.empty(gain.shape)
     for k, pset in enumerate(description.sets):
         coordinate = view["yp"] if pset.orientation == "horizontal" else view["xp"]
         light = ideal_patterns(description, k, coordinate) * view["lit"]
         stack = []
         for shown in light:
-            image = gaussian_blur(DARK_DN + WHITE_DN * view["albedo"] * shown, blur_px)
-            noise = np.sqrt(read_var_dn2 + shot_dn * np.maximum(image, 0.0))
-            image = image + noise * rng.standard_normal(image.shape)
-            stack.append(np.clip(np.round(image), 0, 255).astype(np.uint8))
+            # (DARK + WHITE albedo light) blurred (gaussian_blur's kernel), the noise,
+            # 8-bit rounding: one pass (boardkernels.fringe_shot)
+            rng.standard_normal(noise.shape, out=noise)
+            stack.append(boardkernels.fringe_shot(DARK_DN, gain, np.ascontiguousarray(shown),
+                                                  weights, noise, read_var_dn2, shot_dn))
         out.append(np.array(stack))
     return out
 

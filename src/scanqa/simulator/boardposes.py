@@ -25,6 +25,7 @@ from scanqa.calibration.pinhole import (
     undistort_points,
 )
 from scanqa.io.opencv import OpenCVCalibration
+from scanqa.simulator import boardkernels
 
 CAMERA = (1280, 1024)
 PANEL = (912, 1140)
@@ -67,14 +68,12 @@ def sag_mm(board: Board, bow: np.ndarray, xy: np.ndarray) -> np.ndarray:
 
 
 def gaussian_blur(image: np.ndarray, sigma_px: float) -> np.ndarray:
-    """``cv2.GaussianBlur(image, (0, 0), sigma_px)`` of a float image in scipy: OpenCV's
-    kernel (radius round(4 sigma) for a float image, sampled and normalised) and its
-    default border (reflect-101, scipy's 'mirror') [DN]."""
-    from scipy.ndimage import gaussian_filter
-
-    radius = (int(np.rint(sigma_px * 8 + 1)) | 1) // 2
-    return gaussian_filter(np.asarray(image, dtype=float), sigma_px, mode="mirror",
-                           radius=radius)
+    """``cv2.GaussianBlur(image, (0, 0), sigma_px)`` of a float image: OpenCV's kernel
+    (radius round(4 sigma) for a float image, sampled and normalised) and its default
+    border (reflect-101), as scipy's ``gaussian_filter(mode="mirror")`` computes it
+    (:func:`scanqa.simulator.boardkernels.blur`) [DN]."""
+    return boardkernels.blur(np.ascontiguousarray(image, dtype=float),
+                             boardkernels.gaussian_weights(sigma_px))
 
 
 def bowed_points(board: Board, bow: np.ndarray) -> np.ndarray:
@@ -325,40 +324,29 @@ def board_view(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: n
     """
     width, height = int(truth.sizes["frameWidth"]), int(truth.sizes["frameHeight"])
     v, u = np.mgrid[0:height, 0:width].astype(float)
+    u, v = u.ravel(), v.ravel()
     rot = rotation_matrix(np.asarray(rvec, float))
     normal, origin = rot[:, 2], np.asarray(tvec, float)
+    obj = board.object_points.astype(float)
+    centre = (obj.max(axis=0) + obj.min(axis=0)) / 2  # sag_mm's x', y'
+    half = np.maximum((obj.max(axis=0) - obj.min(axis=0)) / 2, 1e-9)
+    sag = (np.zeros(3), 0) if bow is None else (np.asarray(bow, float), 2)
 
     def surface(du: float, dv: float, where: np.ndarray | slice = slice(None)
                 ) -> tuple[np.ndarray, np.ndarray]:
         """Camera-frame points and board coordinates seen at pixel offset (du, dv), at
-        the pixels ``where`` (flat indices)."""
-        norm = undistort_points(np.column_stack([u.ravel()[where] + du,
-                                                 v.ravel()[where] + dv]),
+        the pixels ``where`` (flat indices): the plane, then two fixed-point steps along
+        the ray onto the bowed board (:func:`~scanqa.simulator.boardkernels.board_points`)."""
+        norm = undistort_points(np.column_stack([u[where] + du, v[where] + dv]),
                                 truth.Kc, truth.kc)
-        rays = (norm[:, 0], norm[:, 1], 1.0)
-        along = rays[0] * normal[0] + rays[1] * normal[1] + normal[2]  # ray . normal
-        # column by column: numpy's (n, 3) @ (3, 3) is ~5x slower for a million rows
-        def at(depth: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-            scale = depth / along
-            pts = np.column_stack([rays[0] * scale, rays[1] * scale, scale])
-            rel = pts - origin
-            local = np.column_stack([rel[:, 0] * rot[0, j] + rel[:, 1] * rot[1, j]
-                                     + rel[:, 2] * rot[2, j] for j in range(3)])
-            return pts, local
-
-        pts, local = at(np.full(len(along), normal @ origin))
-        for _ in range(2 if bow is not None else 0):  # onto the bowed board, along the ray
-            pts, local = at(normal @ origin + sag_mm(board, bow, local))
-        return pts, local
+        return boardkernels.board_points(
+            np.ascontiguousarray(norm[:, 0]), np.ascontiguousarray(norm[:, 1]), normal,
+            origin, rot, float(normal @ origin), sag[0], centre[:2], half[:2], sag[1])
 
     def reflectance(local: np.ndarray) -> np.ndarray:
-        sq = np.floor(local[:, :2] / board.square_mm).astype(int) + 1
-        inside = ((sq[:, 0] >= -1) & (sq[:, 0] <= board.columns + 1) & (sq[:, 1] >= -1)
-                  & (sq[:, 1] <= board.rows + 1))
-        grid_in = ((sq[:, 0] >= 0) & (sq[:, 0] <= board.columns) & (sq[:, 1] >= 0)
-                   & (sq[:, 1] <= board.rows))
-        out = np.where(inside, ALBEDO["white"], ALBEDO["beyond"])
-        return np.where(grid_in & ((sq[:, 0] + sq[:, 1]) % 2 == 0), ALBEDO["black"], out)
+        return boardkernels.board_reflectance(local, float(board.square_mm), board.columns,
+                                              board.rows, ALBEDO["white"], ALBEDO["black"],
+                                              ALBEDO["beyond"])
 
     pts, local = surface(0.0, 0.0)
     if squares:
@@ -367,20 +355,20 @@ def board_view(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: n
         # centre lies more than a square beyond the board's margin, all nine points see
         # the background (a third of a pixel moves them by far less than a square), so
         # the other eight are only traced near the board: the same values, ~5 x less work.
-        centre = reflectance(local)
+        centre_shade = reflectance(local)
         s = board.square_mm
         near = np.flatnonzero((local[:, 0] > -3 * s) & (local[:, 0] < (board.columns + 2) * s)
                               & (local[:, 1] > -3 * s) & (local[:, 1] < (board.rows + 2) * s))
-        shades = []
+        total = None  # the nine in order, summed one after another, as np.mean's sum
         for du in (-1 / 3, 0, 1 / 3):
             for dv in (-1 / 3, 0, 1 / 3):
                 if du == dv == 0:
-                    shades.append(centre)
-                    continue
-                shade = np.full(len(centre), ALBEDO["beyond"])
-                shade[near] = reflectance(surface(du, dv, near)[1])
-                shades.append(shade)
-        albedo = np.mean(shades, axis=0)
+                    shade = centre_shade
+                else:
+                    shade = np.full(len(centre_shade), ALBEDO["beyond"])
+                    shade[near] = reflectance(surface(du, dv, near)[1])
+                total = shade.copy() if total is None else total.__iadd__(shade)
+        albedo = total / 9
     else:
         albedo = np.full(len(local), ALBEDO["white"])
     proj = project_points(pts, rotation_vector(truth.Rp), truth.Tp, truth.Kp, truth.kp)
@@ -412,15 +400,17 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
     """
     view = board_view(truth, board, rvec, tvec, bow)
     height, width = view["albedo"].shape
-    albedo, lit = view["albedo"].ravel(), view["lit"].ravel()
+    gain, lit = 230.0 * view["albedo"], view["lit"]
     proj = np.column_stack([view["xp"].ravel(), view["yp"].ravel()])
     panel = (int(truth.sizes["screenResX"]), int(truth.sizes["screenResY"]))
+    weights = boardkernels.gaussian_weights(blur_px)
+    noise = np.empty((height, width))
 
     def shoot(light: np.ndarray) -> np.ndarray:
-        image = (8.0 + 230.0 * albedo * np.where(lit, light, 0.0)).reshape(height, width)
-        image = gaussian_blur(image, blur_px)
-        return np.clip(np.round(image + noise_dn * rng.standard_normal(image.shape)), 0,
-                       255).astype(np.uint8)
+        # (8 + 230 albedo light) blurred, plus the noise, rounded to 8 bits in one pass
+        rng.standard_normal(noise.shape, out=noise)
+        return boardkernels.gray_shot(8.0, gain, lit, light.reshape(height, width),
+                                      weights, noise, noise_dn)
 
     out = {}
     for key, axis, n in (("columns", 0, bits[0]), ("rows", 1, bits[1])):

@@ -8,8 +8,9 @@ with the GIL released (the renderer's tile pool runs one per core). open3d still
 the hit triangle; the float64 refinement against that triangle's plane is the formula
 of :meth:`scanqa.simulator.scene.Scene.cast`. The frame loops (:func:`add_fringe`,
 :func:`add_cell_noise`, :func:`add_pixel_means`), :func:`phasor_parts`,
-:func:`noise_cells` and :func:`ladder_groups` replace numpy passes of the tiles and of
-the blur plan.
+:func:`noise_cells`, :func:`hash_normal` (the scene noise's counter-based normals, most
+of a small frame's CPU in numpy passes) and :func:`ladder_groups` replace numpy passes of
+the tiles and of the blur plan.
 
 Every loop repeats numpy's arithmetic in numpy's order (einsum's three-term dot product
 as ``(a0 b0 + a2 b2) + a1 b1``, matrix products with fused multiply-adds as BLAS forms
@@ -403,6 +404,40 @@ def ladder_groups(diameter: np.ndarray, hit: np.ndarray, d_step: float, d_lin: f
     return out_flat, out_frac, present + lo, starts[present], starts[present + 1]
 
 
+#: splitmix64's constants (its finaliser's multipliers and the golden-ratio increment).
+_M1, _M2, _GOLD = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB), \
+    np.uint64(0x9E3779B97F4A7C15)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _mix64(x: np.uint64) -> np.uint64:
+    """splitmix64 finaliser of one uint64 (wrapping arithmetic)."""
+    x = x + _GOLD
+    x = (x ^ (x >> np.uint64(30))) * _M1
+    x = (x ^ (x >> np.uint64(27))) * _M2
+    return x ^ (x >> np.uint64(31))
+
+
+@njit(cache=True, nogil=True)
+def hash_normal(key: int, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+    """Standard normal values that depend only on (key, ix, iy), float32 [-].
+
+    A counter-based stream: splitmix64 of the 63-bit ``key`` and the int64 cell indices
+    ``ix``, ``iy`` (any shape, the same for both) gives two uniforms, Box-Muller one
+    normal; in float64, rounded to float32 once, in the order of :func:`hash_normal_numpy`.
+    """
+    x, y = ix.reshape(-1), iy.reshape(-1)
+    out = np.empty(x.size, np.float32)
+    k = np.uint64(key)
+    for i in range(x.size):
+        h = _mix64(_mix64(k ^ np.uint64(x[i])) ^ np.uint64(y[i]))
+        h2 = _mix64(h)
+        u1 = (np.float64(h >> np.uint64(11)) + 1.0) * 2.0 ** -53
+        u2 = np.float64(h2 >> np.uint64(11)) * 2.0 ** -53
+        out[i] = np.float32(np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2))
+    return out.reshape(ix.shape)
+
+
 # --------------------------------------------------------------- numpy twins (no numba)
 
 def add_fringe_numpy(radiance: np.ndarray, cos_h: np.float32, q_re: np.ndarray,
@@ -461,10 +496,30 @@ def ladder_groups_numpy(diameter: np.ndarray, hit: np.ndarray, d_step: float, d_
     return flat, frac, present, start, start + count
 
 
+def _mix_numpy(x: np.ndarray) -> np.ndarray:
+    """splitmix64 finaliser on uint64 arrays."""
+    x = x + _GOLD
+    x = (x ^ (x >> np.uint64(30))) * _M1
+    x = (x ^ (x >> np.uint64(27))) * _M2
+    return x ^ (x >> np.uint64(31))
+
+
+def hash_normal_numpy(key: int, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
+    """:func:`hash_normal` in numpy passes over uint64 and float64 arrays [-]."""
+    with np.errstate(over="ignore"):
+        h = _mix_numpy(_mix_numpy(np.uint64(key) ^ ix.astype(np.int64).view(np.uint64))
+                       ^ iy.astype(np.int64).view(np.uint64))
+        h2 = _mix_numpy(h)
+    u1 = ((h >> np.uint64(11)).astype(np.float64) + 1.0) * 2.0 ** -53
+    u2 = (h2 >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
+    return (np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)).astype(np.float32)
+
+
 #: The compiled loops and their numpy twins, by name.
 NUMPY_TWINS = {"add_fringe": add_fringe_numpy, "add_cell_noise": add_cell_noise_numpy,
                "add_pixel_means": add_pixel_means_numpy, "noise_cells": noise_cells_numpy,
-               "phasor_parts": phasor_parts_numpy, "ladder_groups": ladder_groups_numpy}
+               "phasor_parts": phasor_parts_numpy, "ladder_groups": ladder_groups_numpy,
+               "hash_normal": hash_normal_numpy}
 
 if not compiled.HAVE_NUMBA:  # a Python loop over every sample would be far too slow
     globals().update(NUMPY_TWINS)

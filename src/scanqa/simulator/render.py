@@ -198,29 +198,6 @@ def truth_for(config: ScannerConfig, acq: Acquisition) -> Truth:
 
 # --------------------------------------------------------------------- noise streams
 
-_M1, _M2, _GOLD = np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB), \
-    np.uint64(0x9E3779B97F4A7C15)
-
-
-def _mix(x: np.ndarray) -> np.ndarray:
-    """splitmix64 finaliser (a counter-based hash) on uint64 arrays."""
-    x = x + _GOLD
-    x = (x ^ (x >> np.uint64(30))) * _M1
-    x = (x ^ (x >> np.uint64(27))) * _M2
-    return x ^ (x >> np.uint64(31))
-
-
-def _hash_normal(key: int, ix: np.ndarray, iy: np.ndarray) -> np.ndarray:
-    """Standard normal values that depend only on (key, ix, iy) (Box-Muller)."""
-    with np.errstate(over="ignore"):
-        h = _mix(_mix(np.uint64(key) ^ ix.astype(np.int64).view(np.uint64))
-                 ^ iy.astype(np.int64).view(np.uint64))
-        h2 = _mix(h)
-    u1 = ((h >> np.uint64(11)).astype(np.float64) + 1.0) * 2.0 ** -53
-    u2 = (h2 >> np.uint64(11)).astype(np.float64) * 2.0 ** -53
-    return np.sqrt(-2.0 * np.log(u1)) * np.cos(2.0 * np.pi * u2)
-
-
 def _stream_key(config: ScannerConfig, key: Sequence[int]) -> int:
     """One 63-bit integer from the seed and a tuple of stream indices."""
     seq = np.random.SeedSequence([config.simulator.seed, *[int(k) for k in key]])
@@ -456,7 +433,8 @@ class _CellNoise:
         """Add the noise of stream ``key`` to ``radiance`` in place (float32) [e-]."""
         if self.scale is None:
             return
-        cells = _hash_normal(key, self.gx, self.gy).astype(np.float32)
+        cells = raykernels.hash_normal(key, np.ascontiguousarray(self.gx),
+                                        np.ascontiguousarray(self.gy))
         if self.index is None:  # one cell per sample
             cells *= self.scale
             radiance += cells
