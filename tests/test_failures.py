@@ -602,10 +602,12 @@ def test_no_blanket_exception_handlers_in_the_library():
                # results table and the batch goes on (docs/cluster.rst)
                ("cluster.py", "Exception"),
                ("covariance.py", "TypeError")}  # a covariance file's ragged matrix
+    from tests.source_index import modules, nodes
+
     found = []
-    for path in (ROOT / "src" / "scanqa").rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ExceptHandler) and node.type is not None:
+    for path in modules():  # each parsed once per process (tests/source_index.py)
+        for node in nodes(path, ast.ExceptHandler):
+            if node.type is not None:
                 names = [n.id for n in ast.walk(node.type) if isinstance(n, ast.Name)]
                 found += [(path.name, n) for n in names
                           if n in ("Exception", "BaseException", "TypeError")]
