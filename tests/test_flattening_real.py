@@ -29,6 +29,7 @@ from scanqa.io.patterns import dumps_patterns
 from scanqa.model.config import load_config
 from scanqa.numeric import robust_std
 from tests.conftest import ROOT
+from tests.local_scatter import window_medians
 from tests.realdata import SLSTUDIO, needs_slstudio
 
 # slow: real 2.3 MP captures decoded, flattened and split about their planes: ~80 s for
@@ -175,10 +176,8 @@ def test_skull_flattened_through_the_cli(skull_flattened):
     zmap, szmap = np.full((height, width), np.nan), np.full((height, width), np.nan)
     rows, cols = a["pixel_v"].astype(int), a["pixel_u"].astype(int)
     zmap[rows, cols], szmap[rows, cols] = z, a["sz_um"]
-    windows = np.lib.stride_tricks.sliding_window_view(
-        np.pad(zmap, 7, constant_values=np.nan), (15, 15)).reshape(height, width, 225)
-    full = np.isfinite(windows).all(axis=2)
-    local = 1e3 * (zmap[full] - np.median(windows[full], axis=1))
+    full, medians = window_medians(zmap, 15)
+    local = 1e3 * (zmap[full] - medians)
     ratio = robust_std(local) / float(np.median(szmap[full]))
     print(f"skull: local scatter / predicted sigma_z {ratio:.3f} (target {target:.1f} um)")
     assert 0.8 <= ratio <= 1.25, ratio

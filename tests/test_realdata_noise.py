@@ -27,6 +27,7 @@ from scanqa.io.patterns import dumps_patterns
 from scanqa.model.config import load_config
 from scanqa.numeric import robust_std
 from tests.conftest import ROOT
+from tests.local_scatter import window_medians
 from tests.realdata import SLSTUDIO, needs_slstudio
 
 pytestmark = [needs_slstudio, pytest.mark.slow]
@@ -158,9 +159,7 @@ def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):
     sz = np.full((height, width), np.nan)
     rows, cols = a["pixel_v"].astype(int), a["pixel_u"].astype(int)
     z[rows, cols], sz[rows, cols] = cloud.xyz[:, 2], a["sz_um"]
-    windows = np.lib.stride_tricks.sliding_window_view(
-        np.pad(z, 2, constant_values=np.nan), (5, 5)).reshape(height, width, 25)
-    full = np.isfinite(windows).all(axis=2)
-    local = 1e3 * (z[full] - np.median(windows[full], axis=1))
+    full, medians = window_medians(z, 5)
+    local = 1e3 * (z[full] - medians)
     ratio = robust_std(local) / float(np.median(sz[full]))
     assert 0.67 <= ratio <= 1.5, ratio
