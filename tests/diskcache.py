@@ -26,6 +26,7 @@ import hashlib
 import os
 import pickle
 import sys
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -125,12 +126,21 @@ def cached(name: str, build: Callable[[], Any], *inputs: Any) -> Any:
         lock = open(path.with_suffix(".lock"), "w")  # closed by the with below
     except OSError:  # a read-only checkout: no cache, the value is computed
         return build()
+    me = (path, threading.get_ident())
+    if me in _BUILDING:  # flock would wait for this very thread: say so instead
+        lock.close()
+        raise RuntimeError(f"{name}: asked for again while it is being computed (a patched "
+                           "function that comes back to the cache)")
     with lock:
         fcntl.flock(lock, fcntl.LOCK_EX)  # the other worker computes it: wait for it
         value = _read(path)
         if value is not None:
             return value[0]
-        result = build()
+        _BUILDING.add(me)
+        try:
+            result = build()
+        finally:
+            _BUILDING.discard(me)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         try:
             with open(tmp, "wb") as fh:
@@ -139,6 +149,11 @@ def cached(name: str, build: Callable[[], Any], *inputs: Any) -> Any:
         except OSError:  # a full disk: the value is still right, only not kept
             tmp.unlink(missing_ok=True)
     return result
+
+
+#: The entries each thread of this process is computing (the same thread asking for one
+#: again, from inside its computation, would wait on its own lock for ever).
+_BUILDING: set[tuple[Path, int]] = set()
 
 
 def memoized(name: str, function: Callable, key_of: Callable[..., tuple]) -> Callable:

@@ -312,7 +312,13 @@ def _find_all(data: bytes | bytearray, sig: bytes) -> list[int]:
 
 def _deflate_bomb() -> bytes:
     """An npz whose one entry is an honest deflate stream of zeros declaring 1.25 GiB
-    (5 MiB of file; the reader must refuse it from the directory, before inflating)."""
+    (1.3 MB of file; the reader must refuse it from the directory, before inflating).
+
+    Built without deflating 1.25 GiB (6.6 s of CPU): each 16 MiB of zeros is deflated
+    once and ended with a full flush, which resets the compressor, so that every further
+    16 MiB is the same bytes again; the CRC-32 of the zeros comes from the CRC's own
+    algebra (:func:`_crc32_zeros`). The stream inflates to the header and 1.25 GiB of
+    zeros at deflate's ratio limit (1028:1, as one deflated in a piece; same CRC)."""
     global _BOMB
     if _BOMB is None:
         import zlib
@@ -323,12 +329,10 @@ def _deflate_bomb() -> bytes:
                                                       False, "shape": (n,)})
         head = header.getvalue()
         comp = zlib.compressobj(9, zlib.DEFLATED, -15)
-        chunk, parts, crc = bytes(1 << 24), [comp.compress(head)], zlib.crc32(head)
-        for _ in range((5 << 28) >> 24):
-            parts.append(comp.compress(chunk))
-            crc = zlib.crc32(chunk, crc)
-        parts.append(comp.flush())
-        body = b"".join(parts)
+        first = comp.compress(head) + comp.flush(zlib.Z_FULL_FLUSH)
+        chunk = comp.compress(bytes(1 << 24)) + comp.flush(zlib.Z_FULL_FLUSH)
+        body = first + chunk * ((5 << 28) >> 24) + comp.flush()
+        crc = _crc32_zeros(zlib.crc32(head), 5 << 28)
         info = zipfile.ZipInfo("xp.npy")
         info.compress_type = zipfile.ZIP_DEFLATED
         buf = io.BytesIO()
@@ -343,6 +347,31 @@ def _deflate_bomb() -> bytes:
             zf.start_dir = zf.fp.tell()
         _BOMB = buf.getvalue()
     return _BOMB
+
+
+def _crc32_zeros(crc: int, n: int) -> int:
+    """``zlib.crc32(bytes(n), crc)`` without reading n bytes: over a zero byte the CRC's
+    register moves linearly (a 32 x 32 matrix over GF(2)), so n bytes are that matrix to
+    the n-th power, by repeated squaring (zlib's crc32_combine)."""
+
+    def times(matrix: list[int], vector: int) -> int:
+        out, bit = 0, 0
+        while vector:
+            if vector & 1:
+                out ^= matrix[bit]
+            vector, bit = vector >> 1, bit + 1
+        return out
+
+    step = [0xEDB88320] + [1 << k for k in range(31)]  # one zero bit: shift, reduce
+    for _ in range(3):  # one zero byte: eight bits
+        step = [times(step, column) for column in step]
+    register = crc ^ 0xFFFFFFFF
+    while n:
+        if n & 1:
+            register = times(step, register)
+        step = [times(step, column) for column in step]
+        n >>= 1
+    return register ^ 0xFFFFFFFF
 
 
 _BOMB: bytes | None = None

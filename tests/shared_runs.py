@@ -78,6 +78,19 @@ def _characterisation_key(sweep_dirs, config=None, min_attenuation=0.49, roi_px=
     return sweeps, repr(config), float(min_attenuation), int(roi_px)
 
 
+def share_sweep_characterisation(monkeypatch) -> None:
+    """Make :func:`scanqa.characterization.sweep.characterize_sweeps` (the fit behind
+    ``scanqa characterize sweep``, ~2.5 s of CPU for the sample camera sweep) run once per
+    make test for the same sweeps, config and options: test_failures.py runs the command
+    on the sample camera sweep twice (its plots failing, then whole); each run writes and
+    checks its own outputs from the result."""
+    from scanqa.characterization import sweep
+    from tests.diskcache import memoized
+
+    monkeypatch.setattr(sweep, "characterize_sweeps", memoized(
+        "sweep_characterisation", sweep.characterize_sweeps, _characterisation_key))
+
+
 def share_demo_characterisation(monkeypatch) -> None:
     """Make the fit of the demo's first stage
     (:func:`scanqa.characterization.sweep.characterize_sweeps` of the sample sweeps, ~4 s
@@ -89,3 +102,27 @@ def share_demo_characterisation(monkeypatch) -> None:
 
     monkeypatch.setattr(demo, "characterize_sweeps", memoized(
         "demo_characterisation", demo.characterize_sweeps, _characterisation_key))
+
+
+
+def board_column_residual(k: int, phase_map, calibration, description: dict,
+                          calibration_file: Path, split=None):
+    """:func:`scanqa.characterization.board.pose_residual` of SLStudio's pose calseq<k>
+    (9 x 13 inner corners), computed once per make test: test_realdata_noise.py (all six
+    poses, through characterize_board) and test_flattening_real.py (poses 1, 2 and 5
+    before flattening) split the same decode of the same frames about its plane.
+
+    ``phase_map`` is the caller's decode of the patterns.toml ``description`` (a
+    scanqa-patterns document naming its frames by absolute path), ``calibration`` what
+    ``calibration_file`` holds. The key is the description, its frames' bytes, the
+    calibration file's bytes and the sources, so the result is what ``pose_residual``
+    gives that decode; a caller whose description differs gets its own. ``split`` is
+    ``pose_residual`` itself (default), given by a caller that has replaced the module's
+    name with a function that comes back here."""
+    if split is None:
+        from scanqa.characterization.board import pose_residual as split
+
+    frames = [Path(f) for s in description["set"] for f in s["files"]]
+    return cached("board_column_residual",
+                  lambda: split(f"calseq{k}", phase_map, calibration, (13, 9)),
+                  k, description, frames, calibration_file)

@@ -10,6 +10,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.source_index import nodes
+
 SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
 
 #: Layer of every module or subpackage, lowest first: one entry per room (a folder of
@@ -48,11 +50,10 @@ def layer(name: str) -> int:
 
 def imports(path: Path) -> list[tuple[str, int, tuple[str, ...]]]:
     """(imported scanqa module, line, names) of every import statement, nested ones too."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
     me = module_name(path)
     package = me if path.name == "__init__.py" else me.rsplit(".", 1)[0]
     out = []
-    for node in ast.walk(tree):
+    for node in nodes(path, ast.Import, ast.ImportFrom):  # parsed once per process
         if isinstance(node, ast.Import):
             out += [(a.name, node.lineno, ()) for a in node.names if a.name.startswith("scanqa")]
         elif isinstance(node, ast.ImportFrom):

@@ -31,6 +31,7 @@ the direction's own jackknife std (0.44 deg).
 
 from __future__ import annotations
 
+import functools
 import json
 from dataclasses import replace
 
@@ -236,10 +237,19 @@ def test_cli_refuses_a_board_without_its_size(patterns, tmp_path, capsys):
 
 def _frames(k: int) -> np.ndarray:
     """The 12 frames of pose calseq<k> (README: 00-05 columns, 06-11 rows) [DN]."""
+    return _png_frames(k).astype(float)
+
+
+@functools.lru_cache(maxsize=6)
+def _png_frames(k: int) -> np.ndarray:
+    """calseq<k>'s 12 PNG files decoded once for the file's tests (poses 1, 4 and 5 are
+    read by two or three of them; 27 MB a pose as read) [DN]."""
     import cv2
 
-    return np.array([cv2.imread(str(CALIBRATION / f"calseq{k}" / f"frameSeq_{i:02d}.png"),
-                                cv2.IMREAD_GRAYSCALE) for i in range(12)], dtype=float)
+    frames = np.array([cv2.imread(str(CALIBRATION / f"calseq{k}" / f"frameSeq_{i:02d}.png"),
+                                  cv2.IMREAD_GRAYSCALE) for i in range(12)])
+    frames.flags.writeable = False
+    return frames
 
 
 @pytest.fixture(scope="module")

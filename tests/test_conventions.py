@@ -9,44 +9,44 @@ import dataclasses
 import functools
 import inspect
 import re
-from pathlib import Path
 
 import pytest
 
 import scanqa.qa.results as results
+from tests.source_index import SRC, index, may_hold, modules, nodes, parsed, rel, text
 
-SRC = Path(__file__).resolve().parents[1] / "src" / "scanqa"
-
-
-@functools.cache
-def _parsed(path: Path) -> ast.Module:
-    """A source file's tree, parsed once for the file's tests (~1 s of CPU per pass over
-    src; the tests only read the trees)."""
-    return ast.parse(path.read_text())
+_FUNCTIONS = ast.FunctionDef | ast.AsyncFunctionDef
 
 
-def _functions():
-    """(module path relative to src/scanqa, function node) of every function in src."""
-    for path in sorted(SRC.rglob("*.py")):
-        tree = _parsed(path)
-        for node in ast.walk(tree):
-            if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
-                yield path.relative_to(SRC).as_posix(), node
+def _functions(path=None):
+    """(module path relative to src/scanqa, function node) of every function in src (or
+    in the module at ``path``)."""
+    for p in modules() if path is None else (path,):
+        for node in nodes(p, _FUNCTIONS):
+            yield rel(p), node
 
 
 def _is_abs(node) -> bool:
     return isinstance(node, ast.Call) and ast.unparse(node.func) in ("abs", "np.abs")
 
 
-def _writes_the_decision(func) -> bool:
-    """|E| <= T - U and |E| > T + U in one function: the ISO 14253-1 rule written out."""
+_DECISION = {(ast.LtE, ast.Sub), (ast.Gt, ast.Add)}
+
+
+def _decision_ops(compares) -> set:
+    """(comparison, operation) of each ``abs(e) <op> a <op> b`` among ``compares``."""
     ops = set()
-    for node in ast.walk(func):
+    for node in compares:
         if isinstance(node, ast.Compare) and _is_abs(node.left) and len(node.ops) == 1:
             right = node.comparators[0]
             if isinstance(right, ast.BinOp):
                 ops.add((type(node.ops[0]), type(right.op)))
-    return {(ast.LtE, ast.Sub), (ast.Gt, ast.Add)} <= ops
+    return ops
+
+
+def _writes_the_decision(func) -> bool:
+    """|E| <= T - U and |E| > T + U in one function: the ISO 14253-1 rule written out."""
+    return _DECISION <= _decision_ops(ast.walk(func))
 
 
 def _writes_the_sandwich(func) -> bool:
@@ -58,9 +58,16 @@ def _writes_the_sandwich(func) -> bool:
 
 
 def test_one_decision_and_one_correlation_factor_in_the_code():
-    found = [(m, f.name) for m, f in _functions() if _writes_the_decision(f)]
+    # a function of a module can only write the decision if the module's comparisons
+    # hold both halves, and the sandwich if its text holds "bincount" and "@" (the
+    # unparsed function is made of the module's own words and operators): the
+    # functions of the other modules are not looked at one by one
+    found = [(m, f.name) for p in modules() if _DECISION <= _decision_ops(
+        nodes(p, ast.Compare)) for m, f in _functions(p) if _writes_the_decision(f)]
     assert found == [("qa/verdict.py", "decide")]
-    found = [(m, f.name) for m, f in _functions() if _writes_the_sandwich(f)]
+    found = [(m, f.name) for p in modules()
+             if all(w in text(p) for w in ("bincount", "weights", "@"))
+             for m, f in _functions(p) if _writes_the_sandwich(f)]
     assert found == [("qa/correlation.py", "noise_correlation")]
 
 
@@ -86,26 +93,24 @@ def test_every_result_dataclass_of_qa_is_frozen():
     """Every dataclass declared in qa/ is frozen (results, fits, specs alike)."""
     mutable = []
     for path in sorted((SRC / "qa").glob("*.py")):
-        for node in ast.walk(_parsed(path)):
-            if isinstance(node, ast.ClassDef):
-                for dec in node.decorator_list:
-                    text = ast.unparse(dec)
-                    if "dataclass" in text and "frozen=True" not in text:
-                        mutable.append(f"{path.name}:{node.name}")
+        for node in nodes(path, ast.ClassDef):
+            for dec in node.decorator_list:
+                code = ast.unparse(dec)
+                if "dataclass" in code and "frozen=True" not in code:
+                    mutable.append(f"{path.name}:{node.name}")
     assert mutable == []
 
 
 def test_library_errors_name_no_command_line_flag():
     """No "--flag" in an exception raised outside cli/ (the CLI adds its flags)."""
     found: dict[str, int] = {}
-    for path in sorted(SRC.rglob("*.py")):
-        rel = path.relative_to(SRC).as_posix()
-        if rel.startswith("cli/"):
+    for path in modules():
+        name = rel(path)
+        if name.startswith("cli/"):
             continue
-        for node in ast.walk(_parsed(path)):
-            if isinstance(node, ast.Raise) and node.exc is not None and re.search(
-                    r"(?<![\w-])--[a-z]", ast.unparse(node.exc)):
-                found[rel] = found.get(rel, 0) + 1
+        for node in nodes(path, ast.Raise):
+            if node.exc is not None and re.search(r"(?<![\w-])--[a-z]", ast.unparse(node.exc)):
+                found[name] = found.get(name, 0) + 1
     assert found == {}
 
 
@@ -142,18 +147,21 @@ def test_the_statistics_finder_is_not_blind():
     assert REDUCTIONS.findall("m = np.nanmedian(sig)")
 
 
-def _dataclasses_outside_qa():
-    """(module, class, frozen) of every dataclass declared outside qa/."""
-    for path in sorted(SRC.rglob("*.py")):
-        rel = path.relative_to(SRC).as_posix()
-        if rel.startswith("qa/"):
+@functools.cache
+def _dataclasses_outside_qa() -> tuple[tuple[str, str, bool], ...]:
+    """(module, class, frozen) of every dataclass declared outside qa/ (read once for the
+    tests below)."""
+    found = []
+    for path in modules():
+        name = rel(path)
+        if name.startswith("qa/"):
             continue
-        for node in ast.walk(_parsed(path)):
-            if isinstance(node, ast.ClassDef):
-                for dec in node.decorator_list:
-                    text = ast.unparse(dec)
-                    if "dataclass" in text:
-                        yield rel, node.name, "frozen=True" in text
+        for node in nodes(path, ast.ClassDef):
+            for dec in node.decorator_list:
+                code = ast.unparse(dec)
+                if "dataclass" in code:
+                    found.append((name, node.name, "frozen=True" in code))
+    return tuple(found)
 
 
 #: Dataclasses outside qa/ left mutable, each because something changes it after
@@ -191,10 +199,9 @@ NUMERIC = "numeric.py"
 
 def _sources():
     """(module path relative to src/scanqa, parsed tree) of every module but the home."""
-    for path in sorted(SRC.rglob("*.py")):
-        rel = path.relative_to(SRC).as_posix()
-        if rel != NUMERIC:
-            yield rel, _parsed(path)
+    for path in modules():
+        if rel(path) != NUMERIC:
+            yield rel(path), parsed(path)
 
 
 #: 1.4826 MAD written out: median(abs(x - median(x))).
@@ -204,18 +211,18 @@ _MAD = re.compile(r"median\(np\.abs\((\w+) - np\.(nan)?median\(\1\)")
 def _robust_stds(tree) -> list[int]:
     """Lines that write the robust spread again: the constant 1.4826 (or its inverse
     0.6745) or a median absolute deviation."""
-    lines = [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Constant)
-             and isinstance(n.value, float) and round(n.value, 4) in (1.4826, 0.6745)]
-    return lines + [n.lineno for n in ast.walk(tree) if isinstance(n, ast.Call)
-                    and _MAD.search(ast.unparse(n))]
+    lines = [n.lineno for n in index(tree).of(ast.Constant)
+             if isinstance(n.value, float) and round(n.value, 4) in (1.4826, 0.6745)]
+    return lines + [n.lineno for n in index(tree).of(ast.Call)
+                    if may_hold(tree, n, ("median", "abs")) and _MAD.search(ast.unparse(n))]
 
 
 def _json_cleanings(tree) -> list[int]:
     """Lines that turn a non-finite number into None (JSON null) themselves: ``x if
     isfinite(x) else None``, or a type test with isfinite that returns None."""
     found = []
-    for n in ast.walk(tree):
-        test = ast.unparse(n.test) if isinstance(n, ast.IfExp | ast.If) else ""
+    for n in index(tree).of(ast.IfExp, ast.If):
+        test = ast.unparse(n.test)
         if isinstance(n, ast.IfExp) and isinstance(n.orelse, ast.Constant) \
                 and n.orelse.value is None:
             found += [n.lineno for c in ast.walk(n.test) if isinstance(c, ast.Call)
@@ -234,9 +241,13 @@ _RANGE = re.compile(r"float\(\w+\) for \w+ in \w+\.split\(['\"]:['\"]\)|"
 
 
 def _range_parsers(tree) -> list[int]:
-    return sorted({n.lineno for n in ast.walk(tree) if isinstance(n, ast.stmt)
-                   and not isinstance(n, ast.FunctionDef | ast.ClassDef | ast.If | ast.For
-                                      | ast.While | ast.With | ast.Try)
+    # the first form needs "float" and "split" in the statement's lines, the second a
+    # subtraction, a division and an addition
+    return sorted({n.lineno for n in index(tree).of(ast.stmt)
+                   if not isinstance(n, ast.FunctionDef | ast.ClassDef | ast.If | ast.For
+                                     | ast.While | ast.With | ast.Try)
+                   and (may_hold(tree, n, ("float", "split"))
+                        or may_hold(tree, n, ("-", "/", "+")))
                    and _RANGE.search(ast.unparse(n))})
 
 
@@ -244,7 +255,7 @@ def _range_parsers(tree) -> list[int]:
 def test_one_robust_std_json_cleaning_and_range_parser(finder):
     """scanqa.numeric's robust_std, json_ready and inclusive_range / parse_range are the
     only ones: a second copy elsewhere in src fails here."""
-    found = {rel: lines for rel, tree in _sources() if (lines := finder(tree))}
+    found = {name: lines for name, tree in _sources() if (lines := finder(tree))}
     assert found == {}
 
 
@@ -271,11 +282,12 @@ def test_benchmarks_hold_speed_and_memory_benchmarks_only():
               if not re.fullmatch(r"(bench_\w+|profile_\w+|run_all)\.py", p.name)]
     assert others == []
     studies = {p.stem for p in (root / "docs" / "studies").glob("*.py")}
+    # a file that names no study anywhere in its text imports none (not parsed)
     importing = [p.name for p in sorted((root / "tests").glob("*.py"))
-                 if any(isinstance(n, ast.Import | ast.ImportFrom) and studies & {
-                     *(a.name.split(".")[-1] for a in n.names),
-                     *(str(getattr(n, "module", "") or "").split("."))}
-                        for n in ast.walk(ast.parse(p.read_text())))]
+                 if any(stem in text(p) for stem in studies)
+                 and any(studies & {*(a.name.split(".")[-1] for a in n.names),
+                                    *(str(getattr(n, "module", "") or "").split("."))}
+                         for n in nodes(p, ast.Import, ast.ImportFrom))]
     assert importing == []
 
 
@@ -330,11 +342,14 @@ def _declares(node) -> bool:
 def _field_declarations(tree) -> list[str]:
     """Names of the top-level statements of a module that declare fields by a system of
     their own (:func:`_declares` anywhere inside them)."""
+    tops = index(tree)
+    declaring = {id(tops.top(n)) for n in tops.of(ast.ClassDef, _FUNCTIONS, ast.Dict,
+                                                   ast.Tuple, ast.List) if _declares(n)}
     found = []
-    for stmt in tree.body:
+    for stmt in tree.body:  # the other nodes declare nothing (_declares)
         name = getattr(stmt, "name", None) or ast.unparse(
             getattr(stmt, "target", None) or (getattr(stmt, "targets", None) or [stmt])[0])
-        if any(_declares(n) for n in ast.walk(stmt)):
+        if id(stmt) in declaring:
             found.append(name)
     return found
 
@@ -342,9 +357,8 @@ def _field_declarations(tree) -> list[str]:
 def test_one_field_declaration_system():
     """Keys with a unit and limits are declared as io.schema.Field records only: a second
     system (a spec helper, a metadata dict, a table of (name, unit, low, high)) fails."""
-    found = {f"{path.relative_to(SRC).as_posix()}:{name}" for path in sorted(SRC.rglob("*.py"))
-             if path.relative_to(SRC).as_posix() != SCHEMA_HOME
-             for name in _field_declarations(ast.parse(path.read_text()))}
+    found = {f"{rel(path)}:{name}" for path in modules() if rel(path) != SCHEMA_HOME
+             for name in _field_declarations(parsed(path))}
     assert found == set(OTHER_DECLARATIONS)
 
 

@@ -27,7 +27,7 @@ from scanqa.errors import InputError
 from scanqa.io import atomic
 from scanqa.io.ply import read_ply, write_ply
 
-from .shared_runs import share_demo_characterisation
+from .shared_runs import share_demo_characterisation, share_sweep_characterisation
 from .smallcases import BLOCKS, LAYOUT_TOML, gauge_cloud, small_config, write_inputs
 from .synth_sweep import sweep
 
@@ -130,6 +130,7 @@ def test_demo_and_characterize_publish_together_or_not_at_all(tmp_path, capsys, 
     code = main(["demo", "--out", str(tmp_path / "d"), "--data", str(SAMPLE), "-q"])
     assert "No space left" in one_line_error(capsys, code)
     monkeypatch.setattr(report, "_plot", fail)
+    share_sweep_characterisation(monkeypatch)  # the fit, as the manifest-config test's
     code = main(["characterize", "sweep", str(SAMPLE / "camera_sweep"),
                  "--out", str(tmp_path / "c"), "-q"])
     assert "No space left" in one_line_error(capsys, code)
@@ -541,9 +542,10 @@ def test_calibrate_refuses_a_config_of_another_camera(tmp_path, capsys):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_characterize_uses_or_checks_the_manifest_config(tmp_path, capsys):
+def test_characterize_uses_or_checks_the_manifest_config(tmp_path, capsys, monkeypatch):
     """Without --config the sweep's recorded config is used (the fit matches the sample
     profile's sigma_p, which came from this sweep); the paper's config is refused."""
+    share_sweep_characterisation(monkeypatch)  # the fit, as the publish-together test's
     code = main(["characterize", "sweep", str(SAMPLE / "camera_sweep"), "--config",
                  str(ROOT / "calib" / "paper_scanner.toml"), "--out", str(tmp_path / "a")])
     line = one_line_error(capsys, code)
@@ -602,10 +604,12 @@ def test_no_blanket_exception_handlers_in_the_library():
                # results table and the batch goes on (docs/cluster.rst)
                ("cluster.py", "Exception"),
                ("covariance.py", "TypeError")}  # a covariance file's ragged matrix
+    from tests.source_index import modules, nodes
+
     found = []
-    for path in (ROOT / "src" / "scanqa").rglob("*.py"):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.ExceptHandler) and node.type is not None:
+    for path in modules():  # each parsed once per process (tests/source_index.py)
+        for node in nodes(path, ast.ExceptHandler):
+            if node.type is not None:
                 names = [n.id for n in ast.walk(node.type) if isinstance(n, ast.Name)]
                 found += [(path.name, n) for n in names
                           if n in ("Exception", "BaseException", "TypeError")]

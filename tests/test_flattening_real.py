@@ -29,7 +29,9 @@ from scanqa.io.patterns import dumps_patterns
 from scanqa.model.config import load_config
 from scanqa.numeric import robust_std
 from tests.conftest import ROOT
+from tests.local_scatter import window_medians
 from tests.realdata import SLSTUDIO, needs_slstudio
+from tests.shared_runs import board_column_residual
 
 # slow: real 2.3 MP captures decoded, flattened and split about their planes: ~80 s for
 # the file on the shared 2 cores (board poses 37 s, skull through the CLI 24 s, decode
@@ -43,20 +45,26 @@ CONFIG = ROOT / "calib" / "slstudio_example.toml"
 POSES = (1, 2, 5)
 
 
-def _folder(tmp, name, frames):
-    folder = tmp / name
-    folder.mkdir()
+def _doc(frames) -> dict:
     sets = [{"kind": "phase", "name": n, "period_px": p, "steps": 3, "shifts_rad": SHIFTS,
              "files": [str(f) for f in fr]}
             for n, p, fr in (("p114", 114.0, frames[:3]), ("p1824", 1824.0, frames[3:6]))]
-    doc = {"format": "scanqa-patterns/2", "projector_width_px": 1824, "set": sets}
-    (folder / "patterns.toml").write_text(dumps_patterns(doc))
+    return {"format": "scanqa-patterns/2", "projector_width_px": 1824, "set": sets}
+
+
+def _folder(tmp, name, frames):
+    folder = tmp / name
+    folder.mkdir()
+    (folder / "patterns.toml").write_text(dumps_patterns(_doc(frames)))
     return folder
+
+
+CALIBRATION_XML = SLSTUDIO / "calibration" / "calibration.xml"
 
 
 @pytest.fixture(scope="module")
 def calibration():
-    return load_opencv_calibration(SLSTUDIO / "calibration" / "calibration.xml")
+    return load_opencv_calibration(CALIBRATION_XML)
 
 
 @pytest.fixture(scope="module")
@@ -64,20 +72,26 @@ def boards(tmp_path_factory, calibration):
     """Per pose: measured/predicted per colour before and after, and the std."""
     tmp = tmp_path_factory.mktemp("boards")
     config = load_config(CONFIG)
-    scans = {}
+    scans, docs = {}, {}
     for k in POSES:
         folder = SLSTUDIO / "calibration" / f"calseq{k}"
         frames = [folder / f"frameSeq_{i:02d}.png" for i in range(6)]
         desc, stacks = load_pattern_dir(_folder(tmp, f"calseq{k}", frames))
         scans[f"calseq{k}"] = (desc, stacks, decode_images(desc, stacks))
+        docs[f"calseq{k}"] = _doc(frames)
     target = min(plan(pixel_noise(pm, calibration, config, 4), config).target_um
                  for _, _, pm in scans.values())
     rows = []
     for name, (desc, stacks, pm) in scans.items():
         flat = flatten(desc, stacks, pm, calibration, config, target)
         row = {"pose": name, "flat": flat}
-        for label, m in (("before", pm), ("after", flat.phase_map)):
-            sq = board.pose_residual(name, m, calibration, (13, 9)).squares
+        # before: the decode's residual, computed once per make test with
+        # test_realdata_noise's (tests/shared_runs.py)
+        before = board_column_residual(int(name[-1]), pm, calibration, docs[name],
+                                       CALIBRATION_XML)
+        after = board.pose_residual(name, flat.phase_map, calibration, (13, 9))
+        for label, residual in (("before", before), ("after", after)):
+            sq = residual.squares
             random = np.sqrt(sq["var_random_mm2"])
             for colour, sel in (("bright", sq["bright"]), ("dark", ~sq["bright"])):
                 row[f"{label}_{colour}_um"] = 1e3 * float(np.median(random[sel]))
@@ -175,10 +189,8 @@ def test_skull_flattened_through_the_cli(skull_flattened):
     zmap, szmap = np.full((height, width), np.nan), np.full((height, width), np.nan)
     rows, cols = a["pixel_v"].astype(int), a["pixel_u"].astype(int)
     zmap[rows, cols], szmap[rows, cols] = z, a["sz_um"]
-    windows = np.lib.stride_tricks.sliding_window_view(
-        np.pad(zmap, 7, constant_values=np.nan), (15, 15)).reshape(height, width, 225)
-    full = np.isfinite(windows).all(axis=2)
-    local = 1e3 * (zmap[full] - np.median(windows[full], axis=1))
+    full, medians = window_medians(zmap, 15)
+    local = 1e3 * (zmap[full] - medians)
     ratio = robust_std(local) / float(np.median(szmap[full]))
     print(f"skull: local scatter / predicted sigma_z {ratio:.3f} (target {target:.1f} um)")
     assert 0.8 <= ratio <= 1.25, ratio

@@ -31,6 +31,7 @@ from scanqa.io.response import read_response_file
 from scanqa.io.spec import read_spec
 from scanqa.io.sweep import load_sweep
 from scanqa.model.config import SCHEMA as CONFIG
+from tests.source_index import nodes
 
 ROOT = Path(__file__).resolve().parents[1]
 IO = ROOT / "src" / "scanqa" / "io"
@@ -192,8 +193,8 @@ NOT_READERS = {("tomlfile.py", "read_toml"), ("artefacts.py", "layout_format")}
 def test_every_io_function_that_parses_toml_validates_a_schema():
     found = []
     for path in sorted(IO.glob("*.py")):
-        for node in ast.walk(ast.parse(path.read_text())):
-            if isinstance(node, ast.FunctionDef) and {"read_toml", "loads_toml"} & _calls(node):
+        for node in nodes(path, ast.FunctionDef):  # parsed once per process
+            if {"read_toml", "loads_toml"} & _calls(node):
                 if (path.name, node.name) not in NOT_READERS:
                     found.append((path.name, node.name, "validate" in _calls(node)))
     assert len({f for f, _, _ in found}) == 10  # the ten document modules

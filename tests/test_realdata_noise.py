@@ -27,7 +27,9 @@ from scanqa.io.patterns import dumps_patterns
 from scanqa.model.config import load_config
 from scanqa.numeric import robust_std
 from tests.conftest import ROOT
+from tests.local_scatter import window_medians
 from tests.realdata import SLSTUDIO, needs_slstudio
+from tests.shared_runs import board_column_residual
 
 pytestmark = [needs_slstudio, pytest.mark.slow]
 
@@ -39,31 +41,50 @@ def _phase_set(name, period, files):
             "shifts_rad": SHIFTS, "files": [str(f) for f in files]}
 
 
-def _decode(tmp, name, sets, sensor=None):
-    folder = tmp / name
-    folder.mkdir()
+def _doc(sets, sensor=None) -> dict:
     doc = {"format": "scanqa-patterns/2", "projector_width_px": 1824, "set": sets}
     if sensor:
         doc["sensor"] = sensor
-    (folder / "patterns.toml").write_text(dumps_patterns(doc))
+    return doc
+
+
+def _decode(tmp, name, sets, sensor=None):
+    folder = tmp / name
+    folder.mkdir()
+    (folder / "patterns.toml").write_text(dumps_patterns(_doc(sets, sensor)))
     return decode_pattern_dir(str(folder))
+
+
+CALIBRATION_XML = SLSTUDIO / "calibration" / "calibration.xml"
 
 
 @pytest.fixture(scope="module")
 def calibration():
-    return load_opencv_calibration(SLSTUDIO / "calibration" / "calibration.xml")
+    return load_opencv_calibration(CALIBRATION_XML)
 
 
 @pytest.fixture(scope="module")
 def board(tmp_path_factory, calibration):
     tmp = tmp_path_factory.mktemp("board")
-    poses = {}
+    poses, docs = {}, {}
     for k in range(1, 7):
         folder = SLSTUDIO / "calibration" / f"calseq{k}"
         frames = [folder / f"frameSeq_{i:02d}.png" for i in range(6)]
-        poses[f"calseq{k}"] = _decode(tmp, f"calseq{k}", [
-            _phase_set("p114", 114.0, frames[:3]), _phase_set("p1824", 1824.0, frames[3:])])
-    return boardnoise.characterize_board(poses, calibration, (13, 9))
+        sets = [_phase_set("p114", 114.0, frames[:3]), _phase_set("p1824", 1824.0, frames[3:])]
+        poses[f"calseq{k}"], docs[f"calseq{k}"] = _decode(tmp, f"calseq{k}", sets), _doc(sets)
+    original = boardnoise.pose_residual
+
+    def shared(name, phase_map, cal, inner):
+        """Each pose's residual about its plane, computed once per make test with
+        test_flattening_real's (tests/shared_runs.py): these decodes, this calibration."""
+        if phase_map is poses.get(name) and cal is calibration and tuple(inner) == (13, 9):
+            return board_column_residual(int(name[-1]), phase_map, cal, docs[name],
+                                         CALIBRATION_XML, split=original)
+        return original(name, phase_map, cal, inner)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(boardnoise, "pose_residual", shared)
+        return boardnoise.characterize_board(poses, calibration, (13, 9))
 
 
 def test_held_out_poses_match_the_board_law(board):
@@ -158,9 +179,7 @@ def test_skull_cue_against_fine_decode_and_local_scatter(tmp_path, calibration):
     sz = np.full((height, width), np.nan)
     rows, cols = a["pixel_v"].astype(int), a["pixel_u"].astype(int)
     z[rows, cols], sz[rows, cols] = cloud.xyz[:, 2], a["sz_um"]
-    windows = np.lib.stride_tricks.sliding_window_view(
-        np.pad(z, 2, constant_values=np.nan), (5, 5)).reshape(height, width, 25)
-    full = np.isfinite(windows).all(axis=2)
-    local = 1e3 * (z[full] - np.median(windows[full], axis=1))
+    full, medians = window_medians(z, 5)
+    local = 1e3 * (z[full] - medians)
     ratio = robust_std(local) / float(np.median(sz[full]))
     assert 0.67 <= ratio <= 1.5, ratio
