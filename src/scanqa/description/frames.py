@@ -115,8 +115,14 @@ def normalise(images: np.ndarray, lo: np.ndarray | None = None,
         raise InputError("the frames do not change: every pixel has the same value in "
                          "every frame (is this a pattern sequence?)")
     lit = span > max(0.15 * top, 1e-6)
-    n = np.where(lit, (images - lo) / np.where(lit, span, 1.0), 0.5).astype(np.float32)
-    return Normalised(n, lit)
+    n = np.subtract(images, lo)  # then in place: one (K, H, W) array, not four
+    scale = np.where(lit, span, 1.0)
+    if np.result_type(n, scale) == n.dtype:
+        np.divide(n, scale, out=n)
+    else:  # integer frames: the quotient is a new float array
+        n = n / scale
+    np.copyto(n, 0.5, where=~lit)
+    return Normalised(n.astype(np.float32, copy=False), lit)
 
 
 def frame_level(norm: Normalised, k: int) -> str:

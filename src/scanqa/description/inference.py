@@ -335,8 +335,10 @@ def _candidates(data, norm, phase, zs, gray, cells, axis, group, signs) -> list:
     """Descriptions the measurement leaves open (decoded later to choose)."""
     usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
                                 for z in zs], axis=0) if zs else norm.lit
+    memo: dict = {}  # the cue's unit phasors and starts, shared by the candidates
     scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs) if gray
-              else [replace(s, offsets=cue_offsets(zs, signs, s.periods, s.width_px, usable))
+              else [replace(s, offsets=cue_offsets(zs, signs, s.periods, s.width_px, usable,
+                                                   memo))
                     for s in _phase_scales(phase, zs, axis, usable, group)])
     out = []
     for scale in scales:
