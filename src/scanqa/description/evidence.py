@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
-from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.decoder import decoded_valid
 from scanqa.decoding.waveform import fringe_shape
 from scanqa.description.gray import snapped
 from scanqa.errors import ScanQAError
@@ -62,17 +62,17 @@ def sample_stacks(images: np.ndarray, lists: list) -> list:
 def check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
     """Share of the lit pixels (of the sample) that decode valid [-]; -1 when the
     decoder refuses the description."""
-    quiet = logging.getLogger(decode_images.__module__)
+    quiet = logging.getLogger(decoded_valid.__module__)
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # a candidate's warnings are not the capture's
     try:
-        pm = decode_images(desc, stacks)
+        valid = decoded_valid(desc, stacks)  # decode_images' valid pixels, no summary
     except ScanQAError:
         return -1.0
     finally:
         quiet.setLevel(level)
     lit_rows = lit[::row_step(lit.shape[0]), ::column_step(lit.shape[1])]
-    return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
+    return float(np.count_nonzero(valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
 
 
 def alternatives(best: PatternDescription, tried: list, share: float,
