@@ -302,7 +302,7 @@ def phasor(images: np.ndarray, order=()) -> np.ndarray:
     steps = images.shape[0]
     m = np.asarray(order) if len(order) else np.arange(steps)
     weights = np.exp(-2j * np.pi * m / steps).astype(np.complex64)
-    return np.tensordot(weights, images.astype(np.float32), axes=1)
+    return np.tensordot(weights, images.astype(np.float32, copy=False), axes=1)
 
 
 def phase_frequency(z: np.ndarray, axis: int) -> float:
