@@ -162,7 +162,7 @@ def describe_frames(images: np.ndarray, names: list[str], width_px: int | None =
         lo = [data[k] for k, v in zip(refs, levels, strict=True) if v == "black"]
         hi = [data[k] for k, v in zip(refs, levels, strict=True) if v == "white"]
         norm = fr.normalise(data, np.mean(lo, 0) if lo else None,
-                            np.mean(hi, 0) if hi else None)
+                            np.mean(hi, 0) if hi else None, out=norm.n)
     runs = fr.split_runs(data, norm, refs)
     lone = ()
     if refs and len(set(levels)) < 2:  # a black (or white) frame alone: no reference set
