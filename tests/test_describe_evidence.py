@@ -139,3 +139,31 @@ def test_a_sharp_dlp_capture_of_both_directions_decodes_as_its_hand_description(
     assert verdict.right, verdict.why
     for d, start in zip(described, (2.0, 0.3), strict=True):
         assert abs(d.desc.phase_sets[0].shifts_rad[0] - start) < 0.01
+
+
+def test_the_decoding_check_reads_decode_images_valid_mask():
+    # a candidate's check reads decoder.decoded_valid: the same decode and guards as
+    # decode_images, whose map's valid mask it must equal - for the description as
+    # projected and for misstated ones (a period halved, a Gray code read as binary)
+    from dataclasses import replace
+
+    from scanqa.decoding.decoder import decode_images, decoded_valid
+    layout = corpus.Layout("check_mask", 256, 192, (
+        corpus.WHITE, corpus.BLACK, *corpus.gray("vertical", 4, 16, "interleaved"),
+        *corpus.phase("vertical", 32, 4), *corpus.phase("vertical", 12, 3)),
+        camera=(64, 96))
+    images, _ = corpus.capture(layout)
+    names = corpus.frame_names(layout)
+    right = corpus.hand_description(layout, "vertical")
+    fine = right.phase_sets[-1]
+    wrong = [replace(right, sets=tuple(replace(s, period_px=fine.period_px / 2)
+                                       if s is fine else s for s in right.sets)),
+             replace(right, sets=tuple(replace(s, code="binary") if s is right.gray_set
+                                       else s for s in right.sets))]
+    shares = []
+    for desc in (right, *wrong):
+        stacks = [images[[names.index(f) for f in s.files]] for s in desc.sets]
+        valid = decoded_valid(desc, stacks)
+        assert np.array_equal(valid, decode_images(desc, stacks).valid)
+        shares.append(valid.mean())
+    assert shares[0] > 0.5 and min(shares[1:]) < shares[0]

@@ -29,7 +29,7 @@ from scanqa.decoding.demodulate import demodulate_sample
 from scanqa.decoding.noise import NoiseEstimate, resolve_noise
 from scanqa.decoding.parsing import load_patterns
 from scanqa.decoding.patternset import lossy_image_note, read_pattern_images
-from scanqa.decoding.phasemap import PhaseMap, count_reasons, load_phase_map
+from scanqa.decoding.phasemap import MASK_VALID, PhaseMap, count_reasons, load_phase_map
 from scanqa.decoding.response import ProjectorResponse, load_response, measure_tables
 from scanqa.decoding.unwrap import (
     ChainStats,
@@ -88,6 +88,22 @@ def decode_images(desc: PatternDescription, images: Sequence[np.ndarray], *,
         progress(f"decoded {out['xp'].shape[0]} x {out['xp'].shape[1]} px in "
                  f"{time.perf_counter() - t0:.2f} s")
     return _phase_map(desc, run, response, images, notes)
+
+
+def decoded_valid(desc: PatternDescription, images: Sequence[np.ndarray]) -> np.ndarray:
+    """(H, W) bool: where :func:`decode_images` gives a valid x_p - the same decode and
+    the same guards, without the map's diagnostics, warnings and provenance (``scanqa
+    describe`` checks its candidate descriptions with it).
+
+    Raises
+    ------
+    InputError
+        As :func:`decode_images`.
+    """
+    run = _decode(desc, images, None, None, keep_sets=False)
+    if diagnostics.misstated_steps(desc, run.stats) or run.contradicted:
+        diagnostics.apply_guard(run.out)
+    return run.out["mask"] == MASK_VALID
 
 
 @dataclass(frozen=True, eq=False)

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from scanqa.decoding.coding import PatternDescription, PhaseSet, SensorModel
-from scanqa.decoding.decoder import decode_images
+from scanqa.decoding.decoder import decoded_valid
 from scanqa.decoding.waveform import fringe_shape
 from scanqa.description.gray import snapped
 from scanqa.errors import ScanQAError
@@ -62,17 +62,17 @@ def sample_stacks(images: np.ndarray, lists: list) -> list:
 def check(desc: PatternDescription, stacks: list, lit: np.ndarray) -> float:
     """Share of the lit pixels (of the sample) that decode valid [-]; -1 when the
     decoder refuses the description."""
-    quiet = logging.getLogger(decode_images.__module__)
+    quiet = logging.getLogger(decoded_valid.__module__)
     level = quiet.level
     quiet.setLevel(logging.ERROR)  # a candidate's warnings are not the capture's
     try:
-        pm = decode_images(desc, stacks)
+        valid = decoded_valid(desc, stacks)  # decode_images' valid pixels, no summary
     except ScanQAError:
         return -1.0
     finally:
         quiet.setLevel(level)
     lit_rows = lit[::row_step(lit.shape[0]), ::column_step(lit.shape[1])]
-    return float(np.count_nonzero(pm.valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
+    return float(np.count_nonzero(valid & lit_rows) / max(np.count_nonzero(lit_rows), 1))
 
 
 def alternatives(best: PatternDescription, tried: list, share: float,
@@ -180,20 +180,32 @@ def fewest_fringes(z: np.ndarray, axis: int, usable: np.ndarray) -> float:
     """
     zz, ok = np.moveaxis(z, axis, -1), np.moveaxis(usable, axis, -1)
     step = np.angle(zz[..., 1:] * np.conj(zz[..., :-1])) / (2 * math.pi)
-    best = []
-    for line, good in zip(step, ok[..., 1:] & ok[..., :-1], strict=True):
-        if good.sum() < 8:
-            continue
-        # runs of good neighbour pairs: the phase unwrapped from each run's start
-        breaks = np.flatnonzero(np.diff(np.concatenate([[0], good.astype(np.int8), [0]])))
-        ranges = []
-        for a, b in zip(breaks[0::2], breaks[1::2], strict=True):
-            if b - a >= 8:
-                path = np.concatenate([[0.0], np.cumsum(line[a:b])])
-                ranges.append(float(path.max() - path.min()))
-        if ranges:
-            best.append(max(ranges))
-    return float(np.percentile(best, 90)) if len(best) >= 10 else 0.0
+    step = step.reshape(-1, step.shape[-1])
+    good = (ok[..., 1:] & ok[..., :-1]).reshape(step.shape)
+    # runs of good neighbour pairs (row-major, so the ends pair with the starts)
+    edge = np.diff(np.pad(good.astype(np.int8), ((0, 0), (1, 1))), axis=1)
+    line, start = np.nonzero(edge == 1)
+    end = np.nonzero(edge == -1)[1]
+    long = end - start >= 8
+    line, start, length = line[long], start[long], (end - start)[long]
+    if np.unique(line).size < 10:
+        return 0.0
+    ranges = np.empty(length.size)
+    size = 1 << (int(length.max()) - 1).bit_length()
+    while size >= 8:  # runs of (size/2, size] pixels together, padded with zeros
+        part = np.flatnonzero((length <= size) & (length > size // 2))
+        if part.size:
+            j = np.arange(size)
+            take = start[part, None] + np.minimum(j, length[part, None] - 1)
+            steps = np.where(j < length[part, None], step[line[part, None], take], 0)
+            path = np.cumsum(steps, axis=1)  # each run's phase from its start, in
+            # sequence as each run's own sum; the padding repeats its last value
+            ranges[part] = (np.maximum(path.max(axis=1), 0.0).astype(np.float64)
+                            - np.minimum(path.min(axis=1), 0.0))
+        size //= 2
+    best = np.full(step.shape[0], -np.inf)
+    np.maximum.at(best, line, ranges)
+    return float(np.percentile(best[np.isfinite(best)], 90))
 
 
 def noise_note(desc: PatternDescription) -> str:
@@ -306,23 +318,33 @@ def cell_offsets(z: np.ndarray, sign: float, cells: np.ndarray, cell: float,
     """
     cc = np.moveaxis(cells, axis, -1)
     psi = sign * np.angle(np.moveaxis(z, axis, -1))
-    total, runs = 0j, 0
-    for line, phase in zip(cc.reshape(-1, cc.shape[-1]), psi.reshape(-1, psi.shape[-1]),
-                           strict=True):
-        ok = np.isfinite(line)
-        if ok.sum() < 8:
-            continue
-        value = np.where(ok, line, -10.0)
-        starts = np.flatnonzero(np.diff(np.concatenate([[-20.0], value])) != 0)
-        ends = np.append(starts[1:], value.size)
-        for i in range(1, len(starts) - 1):
-            a, b = starts[i], ends[i]
-            idx = value[a]
-            if idx < 0 or b - a < 6 or value[a - 1] != idx - 1 or value[b] != idx + 1:
-                continue
-            x = idx * cell - 0.5 + (np.arange(b - a) + 0.5) / (b - a) * cell
-            total += np.sum(np.exp(1j * (phase[a:b] - 2 * np.pi * x / period))) / (b - a)
-            runs += 1
-    if runs < 20:
+    cc, psi = cc.reshape(-1, cc.shape[-1]), psi.reshape(-1, psi.shape[-1])
+    ok = np.isfinite(cc)
+    value = np.where(ok, cc, -10.0)
+    # runs of one value along each line (of 8 or more lit pixels), not a line's first
+    # or last, of a cell whose left and right neighbours are the cells before and after
+    change = np.diff(value, axis=1) != 0
+    line, a = np.nonzero(change)
+    a = a + 1
+    nxt = np.append(a[1:], value.shape[1])
+    b = np.where(np.append(line[1:] == line[:-1], False), nxt, value.shape[1])
+    keep = (ok.sum(axis=1) >= 8)[line] & (b < value.shape[1])
+    line, a, b = line[keep], a[keep], b[keep]
+    idx = value[line, a]
+    keep = ((idx >= 0) & (b - a >= 6) & (value[line, a - 1] == idx - 1)
+            & (value[line, np.minimum(b, value.shape[1] - 1)] == idx + 1))
+    line, a, b, idx = line[keep], a[keep], b[keep], idx[keep]
+    if line.size < 20:
         return None
+    length = b - a
+    means = np.empty(line.size, complex)
+    for n in np.unique(length):  # runs of one length summed together, each as alone
+        part = np.flatnonzero(length == n)
+        j = np.arange(n)
+        x = idx[part, None] * cell - 0.5 + (j + 0.5) / n * cell
+        phase = psi[line[part, None], a[part, None] + j]
+        means[part] = np.sum(np.exp(1j * (phase - 2 * np.pi * x / period)), axis=1) / n
+    total = 0j
+    for m in means.tolist():  # in the lines' order, as the runs were found
+        total += m
     return snapped(float(np.angle(total)), within=CELL_SNAP_RAD)

@@ -91,7 +91,7 @@ class Run:
 
 
 def normalise(images: np.ndarray, lo: np.ndarray | None = None,
-              hi: np.ndarray | None = None) -> Normalised:
+              hi: np.ndarray | None = None, out: np.ndarray | None = None) -> Normalised:
     """Per-pixel normalised frames and the lit mask.
 
     Parameters
@@ -101,6 +101,10 @@ def normalise(images: np.ndarray, lo: np.ndarray | None = None,
     lo, hi : (H, W) float, optional
         Dark and bright level of each pixel [DN]; default the darkest and brightest
         sample over the frames.
+    out : (K, H, W) float32, optional
+        An array no longer needed (an earlier ``Normalised.n`` of the same frames) to
+        write the result into when the arithmetic is float32 anyway: a new array of a
+        few hundred MB costs more in page faults than the arithmetic.
 
     Returns
     -------
@@ -115,8 +119,16 @@ def normalise(images: np.ndarray, lo: np.ndarray | None = None,
         raise InputError("the frames do not change: every pixel has the same value in "
                          "every frame (is this a pattern sequence?)")
     lit = span > max(0.15 * top, 1e-6)
-    n = np.where(lit, (images - lo) / np.where(lit, span, 1.0), 0.5).astype(np.float32)
-    return Normalised(n, lit)
+    reuse = (out is not None and out.shape == images.shape
+             and np.result_type(images, lo) == out.dtype == np.float32)
+    n = np.subtract(images, lo, out=out if reuse else None)  # then in place
+    scale = np.where(lit, span, 1.0)
+    if np.result_type(n, scale) == n.dtype:
+        np.divide(n, scale, out=n)
+    else:  # integer frames: the quotient is a new float array
+        n = n / scale
+    np.copyto(n, 0.5, where=~lit)
+    return Normalised(n.astype(np.float32, copy=False), lit)
 
 
 def frame_level(norm: Normalised, k: int) -> str:
@@ -296,7 +308,7 @@ def phasor(images: np.ndarray, order=()) -> np.ndarray:
     steps = images.shape[0]
     m = np.asarray(order) if len(order) else np.arange(steps)
     weights = np.exp(-2j * np.pi * m / steps).astype(np.complex64)
-    return np.tensordot(weights, images.astype(np.float32), axes=1)
+    return np.tensordot(weights, images.astype(np.float32, copy=False), axes=1)
 
 
 def phase_frequency(z: np.ndarray, axis: int) -> float:

@@ -162,7 +162,7 @@ def describe_frames(images: np.ndarray, names: list[str], width_px: int | None =
         lo = [data[k] for k, v in zip(refs, levels, strict=True) if v == "black"]
         hi = [data[k] for k, v in zip(refs, levels, strict=True) if v == "white"]
         norm = fr.normalise(data, np.mean(lo, 0) if lo else None,
-                            np.mean(hi, 0) if hi else None)
+                            np.mean(hi, 0) if hi else None, out=norm.n)
     runs = fr.split_runs(data, norm, refs)
     lone = ()
     if refs and len(set(levels)) < 2:  # a black (or white) frame alone: no reference set
@@ -335,8 +335,10 @@ def _candidates(data, norm, phase, zs, gray, cells, axis, group, signs) -> list:
     """Descriptions the measurement leaves open (decoded later to choose)."""
     usable = norm.lit & np.all([np.abs(z) > 0.1 * np.percentile(np.abs(z)[norm.lit], 95)
                                 for z in zs], axis=0) if zs else norm.lit
+    memo: dict = {}  # the cue's unit phasors and starts, shared by the candidates
     scales = (_gray_scales(phase, zs, gray, cells, axis, usable, group, signs) if gray
-              else [replace(s, offsets=cue_offsets(zs, signs, s.periods, s.width_px, usable))
+              else [replace(s, offsets=cue_offsets(zs, signs, s.periods, s.width_px, usable,
+                                                   memo))
                     for s in _phase_scales(phase, zs, axis, usable, group)])
     out = []
     for scale in scales:
