@@ -46,28 +46,28 @@ def paper_config_text() -> str:
 #: module fixtures are built once, and workers take files in collection order (xdist's
 #: reordering is turned off below); started first, the long files no longer leave one
 #: worker running alone at the end.
-HEAVY_FIRST = (  # CPU seconds per file: one -n 2 run, session 42 (docs/benchmarks.rst)
-    "test_closed_loop.py",              # 146.3 (computes the sample table: shared_runs)
-    "test_board_real.py",               # 108.4 (the board calibration test_api reads)
-    "test_board_gray.py",               # 77.8
-    "test_batch.py",                    # 75.6 (LocalClusters)
-    "test_flattening_real.py",          # 53.2
-    "test_failures.py",                 # 44.8
-    "test_describe_real.py",            # 39.0
-    "test_sweep_fit.py",                # 36.1
-    "test_realdata_noise.py",           # 24.7
-    "test_characterize.py",             # 23.2
-    "test_generic_cpu.py",              # 19.4 (one child pytest)
-    "test_fuzz.py",                     # 19.3
-    "test_demo.py",                     # 18.7
-    "test_target.py",                   # 18.0
-    "test_readme.py",                   # 17.3
-    "test_compare.py",                  # 17.2
-    "test_describe.py",                 # 17.0
-    "test_describe_kamino.py",          # 16.9
-    "test_decoding_checks.py",          # 16.9
-    "test_calibration_covariance.py",   # 16.4
-    "test_report_pdf.py",               # 15.8
+HEAVY_FIRST = (  # CPU seconds per file: one -n 2 run, session 44 (docs/benchmarks.rst)
+    "test_closed_loop.py",              # 72.8 (computes the sample table: shared_runs)
+    "test_board_real.py",               # 45.3 (the board calibration test_api reads)
+    "test_batch.py",                    # 43.0 (LocalClusters)
+    "test_board_gray.py",               # 35.2
+    "test_flattening_real.py",          # 28.2
+    "test_failures.py",                 # 24.7
+    "test_sweep_fit.py",                # 23.0
+    "test_describe_real.py",            # 20.8
+    "test_readme.py",                   # 17.8
+    "test_target.py",                   # 16.2
+    "test_generic_cpu.py",              # 14.8 (one child pytest)
+    "test_characterize.py",             # 14.3
+    "test_compare.py",                  # 11.1
+    "test_fuzz.py",                     # 10.2
+    "test_describe_corpus.py",          # 10.0
+    "test_realdata_noise.py",           # 9.5
+    "test_demo.py",                     # 9.2
+    "test_misdescribed_real.py",        # 8.9
+    "test_align.py",                    # 8.5
+    "test_describe_kamino.py",          # 7.9
+    "test_decoding_checks.py",          # 7.6
 )
 
 
