@@ -12,11 +12,15 @@ import pytest
 
 cv2 = pytest.importorskip("cv2")
 
-from scanqa.calibration.board_fit import _flags  # noqa: E402
 from scanqa.calibration.release import calibrate_released  # noqa: E402
 from scanqa.errors import InputError  # noqa: E402
 
 COLS, ROWS, SQUARE = 8, 6, 10.0
+#: OpenCV flags of the lens models scanqa calibrates: k1 (square pixels, the principal
+#: point held, k1 only) and full (k1 k2 p1 p2 k3, everything free)
+FLAGS = {"k1": (cv2.CALIB_FIX_ASPECT_RATIO | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_K2
+                | cv2.CALIB_FIX_K3 | cv2.CALIB_FIX_PRINCIPAL_POINT),
+         "full": 0}
 SIZE = (1280, 960)
 K = np.array([[1500.0, 0, 652.0], [0, 1500.0, 470.0], [0, 0, 1]])
 DIST = np.array([-0.08, 0.05, 0.0, 0.0, 0.0])
@@ -50,7 +54,7 @@ def test_released_board_is_opencvs(model):
     ideal, true = _board(0.4)
     views = _views(true, 0.05, seed=11)
     obj = [ideal.astype(np.float32)] * len(views)
-    flags = _flags()[model][0]
+    flags = FLAGS[model]
     ours = calibrate_released(obj, views, SIZE, COLS - 1, flags)
     rms, matrix, dist, _, _, points = cv2.calibrateCameraRO(
         obj, views, SIZE, COLS - 1, None, None, flags=flags)[:6]
@@ -67,14 +71,14 @@ def test_released_board_finds_the_bow():
     ideal, true = _board(0.4)
     views = _views(true, 0.03, seed=12)
     fit = calibrate_released([ideal.astype(np.float32)] * len(views), views, SIZE,
-                             COLS - 1, _flags()["full"][0])
+                             COLS - 1, FLAGS["full"])
     a = np.column_stack([ideal[:, :2], np.ones(len(ideal))])
     dz = fit["points"][:, 2] - true[:, 2]
     dz -= a @ np.linalg.lstsq(a, dz, rcond=None)[0]
     assert np.sqrt(np.mean(dz ** 2)) < 0.05
     assert fit["rms_px"] < 0.04  # the released board explains the bow: noise is 0.03 px
     flat = cv2.calibrateCamera([ideal.astype(np.float32)] * len(views), views, SIZE, None,
-                               None, flags=_flags()["full"][0])[0]
+                               None, flags=FLAGS["full"])[0]
     assert flat > 1.5 * fit["rms_px"]  # the ideal flat grid cannot
 
 
