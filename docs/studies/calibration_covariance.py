@@ -162,52 +162,21 @@ def run_sim(seeds) -> dict:
     return summary
 
 
-def gray_descriptions(bits: tuple[int, int], panel: tuple[int, int]):
-    """The column and row pattern descriptions of Gray-code-only poses: each bit with its
-    inverse (interleaved), then white and black."""
-    from scanqa.decoding.coding import GrayCodeSet, PatternDescription, ReferenceSet
-
-    out = []
-    for key, orientation, n, width in (("columns", "vertical", bits[0], panel[0]),
-                                       ("rows", "horizontal", bits[1], panel[1])):
-        names = tuple(f"{key}_{i:02d}.png" for i in range(2 * n))
-        out.append(PatternDescription(width, (
-            GrayCodeSet("gray", n, cell_px=1.0, inverse="interleaved",
-                        threshold="inverse", orientation=orientation, files=names),
-            ReferenceSet("wb", ("white", "black"), files=("white.png", "black.png")))))
-    return out[0], out[1]
-
-
 def gray_seed_errors(seed: int, folder: Path, n_poses: int = 5, scanner=SCANNER,
                      board=BOARD, bits=(10, 11)) -> dict:
     """One seed rendered under Gray codes, decoded and calibrated (parts "gray", "other").
 
     The truth is the reference calibration: the calibration's error at the volume points
     along the line of sight and in 3-D, its predicted sigma, and the focal lengths'."""
-    import cv2
-
     from scanqa.calibration.board import decode_pose
-    from scanqa.simulator.boardposes import gray_frames
+    from scanqa.simulator.boardposes import gray_descriptions, write_gray_poses
 
     sim = simulate(seed, n_poses=n_poses, noise_px=(0.0, 0.0), scanner=scanner, board=board)
-    rng = np.random.default_rng(seed)
     panel = scanner.panel
-    poses = []
-    for k, pose in enumerate(sim.poses):
-        _, rvec, tvec = cv2.solvePnP(board.object_points.astype(float), pose.camera_px,
-                                     sim.truth.Kc, sim.truth.kc)
-        frames = gray_frames(sim.truth, board, rvec.ravel(), tvec.ravel(), bits, rng,
-                             bow=sim.bow)
-        where = folder / f"s{seed}_{k}"
-        where.mkdir(parents=True, exist_ok=True)
-        fast = [cv2.IMWRITE_PNG_COMPRESSION, 1]  # lossless either way, 3 x quicker
-        for key in ("columns", "rows"):
-            for i, frame in enumerate(frames[key]):
-                cv2.imwrite(str(where / f"{key}_{i:02d}.png"), frame, fast)
-        cv2.imwrite(str(where / "white.png"), frames["white"], fast)
-        cv2.imwrite(str(where / "black.png"), frames["black"], fast)
-        poses.append(decode_pose(where, *gray_descriptions(bits, panel),
-                                 board if GIVE_BOARD["board"] else board.square_mm))
+    folders = write_gray_poses(sim, board, bits, seed, folder, name=f"s{seed}_{{k}}")
+    poses = [decode_pose(where, *gray_descriptions(bits, panel),
+                         board if GIVE_BOARD["board"] else board.square_mm)
+             for where in folders]
     result = calibrate_board(poses, board, panel, "k1", jackknife=False, **RELEASE)
     cal = from_opencv(result.data)
     u, v, xp, xyz = volume_points(sim.truth, sim.depth_mm)

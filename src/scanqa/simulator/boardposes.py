@@ -14,6 +14,7 @@ these corners and compares the calibration's 3-D points with the truth
 from __future__ import annotations
 
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -423,3 +424,49 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
         out[key] = np.array(frames)
     out["white"], out["black"] = shoot(np.ones(len(proj))), shoot(np.zeros(len(proj)))
     return out
+
+
+def gray_descriptions(bits: tuple[int, int], panel: tuple[int, int]) -> tuple:
+    """The column and row pattern descriptions of the folders :func:`write_gray_poses`
+    writes: each bit with its inverse (interleaved, ``columns_00.png`` ...), then
+    ``white.png`` and ``black.png``; ``bits`` and ``panel`` [px] as :func:`gray_frames`.
+    """
+    from scanqa.decoding.coding import GrayCodeSet, PatternDescription, ReferenceSet
+
+    out = []
+    for key, orientation, n, width in (("columns", "vertical", bits[0], panel[0]),
+                                       ("rows", "horizontal", bits[1], panel[1])):
+        names = tuple(f"{key}_{i:02d}.png" for i in range(2 * n))
+        out.append(PatternDescription(width, (
+            GrayCodeSet("gray", n, cell_px=1.0, inverse="interleaved",
+                        threshold="inverse", orientation=orientation, files=names),
+            ReferenceSet("wb", ("white", "black"), files=("white.png", "black.png")))))
+    return out[0], out[1]
+
+
+def write_gray_poses(sim: SimulatedBoardScanner, board: Board, bits: tuple[int, int],
+                     seed: int, root, name: str = "pose{k}") -> list:
+    """Each pose of ``sim`` rendered under Gray codes (:func:`gray_frames`, one random
+    stream seeded by ``seed``) and written as 8-bit PNG files into ``root / name``
+    (``{k}`` the pose's index), as :func:`gray_descriptions` names them; returns the
+    folders. Needs OpenCV (the pose from the corners: ``solvePnP``)."""
+    import cv2
+
+    from scanqa.io.images import write_image
+
+    rng = np.random.default_rng(seed)
+    folders = []
+    for k, pose in enumerate(sim.poses):
+        _, rvec, tvec = cv2.solvePnP(board.object_points.astype(float), pose.camera_px,
+                                     sim.truth.Kc, sim.truth.kc)
+        frames = gray_frames(sim.truth, board, rvec.ravel(), tvec.ravel(), bits, rng,
+                             bow=sim.bow)
+        folder = Path(root) / name.format(k=k)
+        folder.mkdir(parents=True, exist_ok=True)
+        for key in ("columns", "rows"):
+            for i, frame in enumerate(frames[key]):
+                write_image(folder / f"{key}_{i:02d}.png", frame)
+        write_image(folder / "white.png", frames["white"])
+        write_image(folder / "black.png", frames["black"])
+        folders.append(folder)
+    return folders
