@@ -59,11 +59,13 @@ def test_shots_agree_with_their_numpy_twins():
     light = (rng.random(shape) < 0.5).astype(float)
     noise = rng.standard_normal(shape)
     w = bk.gaussian_weights(0.7)
-    got = bk.gray_shot(8.0, gain, lit, light, w, noise, 2.0)
+    # a Gray-code frame: light where lit, constant noise of 2 DN (variance 4, no shot)
+    got = bk.fringe_shot(8.0, gain, np.where(lit, light, 0.0), w, noise, 4.0, 0.0)
     assert got.shape == shape and got.dtype == np.uint8
     level = bk.blur_numpy(8.0 + gain * np.where(lit, light, 0.0), w) + 2.0 * noise
     _frames_agree(got, level)
-    _frames_agree(bk.gray_shot_numpy(8.0, gain, lit, light, w, noise, 2.0), level)
+    _frames_agree(bk.fringe_shot_numpy(8.0, gain, np.where(lit, light, 0.0), w, noise, 4.0,
+                                       0.0), level)
 
     shown = rng.uniform(0, 1, shape) * lit
     noise *= 30.0  # both clips reached

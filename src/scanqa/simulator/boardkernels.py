@@ -97,35 +97,14 @@ def _to_uint8(x: float) -> np.uint8:
 
 
 @njit(cache=True, nogil=True)
-def gray_shot(dark: float, gain: np.ndarray, lit: np.ndarray, light: np.ndarray,
-              w: np.ndarray, noise: np.ndarray, noise_dn: float) -> np.ndarray:
-    """One Gray-code frame: ``dark + gain * where(lit, light, 0)`` blurred, plus
-    ``noise_dn * noise``, rounded and clipped to 8 bits, (H, W) uint8 [DN].
-
-    ``gain`` (H, W) is ``230 albedo`` [DN], ``w`` :func:`gaussian_weights`, ``noise``
-    (H, W) the frame's standard normal draws [-].
-    """
-    height, width = gain.shape
-    image = np.empty((height, width))
-    for r in range(height):
-        for c in range(width):
-            image[r, c] = dark + gain[r, c] * (light[r, c] if lit[r, c] else 0.0)
-    out = np.empty((height, width), np.uint8)
-    column, padded = np.empty(width), np.empty(width + 2 * (w.shape[0] - 1))
-    row = np.empty(width)
-    for r in range(height):
-        _blur_row(image, r, w, column, padded, row)
-        for c in range(width):
-            out[r, c] = _to_uint8(row[c] + noise_dn * noise[r, c])
-    return out
-
-
-@njit(cache=True, nogil=True)
 def fringe_shot(dark: float, gain: np.ndarray, light: np.ndarray, w: np.ndarray,
                 noise: np.ndarray, read_var_dn2: float, shot_dn: float) -> np.ndarray:
-    """One phase-shift board frame: ``dark + gain * light`` blurred, plus noise of
-    variance ``read_var_dn2 + shot_dn max(I, 0)`` (``noise`` the standard normal draws),
-    rounded and clipped to 8 bits, (H, W) uint8 [DN]."""
+    """One board frame: ``dark + gain * light`` blurred, plus noise of variance
+    ``read_var_dn2 + shot_dn max(I, 0)`` (``noise`` the standard normal draws), rounded
+    and clipped to 8 bits, (H, W) uint8 [DN]. A Gray-code frame's constant noise is
+    ``read_var_dn2 = noise_dn ** 2``, ``shot_dn = 0`` (the square root of a square is
+    the number itself in IEEE arithmetic, so the frame is ``noise_dn * noise`` exactly).
+    """
     height, width = gain.shape
     image = np.empty((height, width))
     for r in range(height):
@@ -207,13 +186,6 @@ def board_reflectance(local: np.ndarray, square_mm: float, columns: int, rows: i
 
 # --------------------------------------------------------------- numpy twins (no numba)
 
-def gray_shot_numpy(dark: float, gain: np.ndarray, lit: np.ndarray, light: np.ndarray,
-                    w: np.ndarray, noise: np.ndarray, noise_dn: float) -> np.ndarray:
-    """:func:`gray_shot` in numpy passes and scipy's blur [DN]."""
-    image = blur_numpy(dark + gain * np.where(lit, light, 0.0), w)
-    return np.clip(np.round(image + noise_dn * noise), 0, 255).astype(np.uint8)
-
-
 def fringe_shot_numpy(dark: float, gain: np.ndarray, light: np.ndarray, w: np.ndarray,
                       noise: np.ndarray, read_var_dn2: float, shot_dn: float
                       ) -> np.ndarray:
@@ -269,7 +241,7 @@ def board_reflectance_numpy(local: np.ndarray, square_mm: float, columns: int, r
 
 
 #: The compiled loops and their numpy twins, by name.
-NUMPY_TWINS = {"blur": blur_numpy, "gray_shot": gray_shot_numpy,
+NUMPY_TWINS = {"blur": blur_numpy,
                "fringe_shot": fringe_shot_numpy, "board_points": board_points_numpy,
                "board_reflectance": board_reflectance_numpy}
 

@@ -408,10 +408,11 @@ def gray_frames(truth: OpenCVCalibration, board: Board, rvec: np.ndarray, tvec: 
     noise = np.empty((height, width))
 
     def shoot(light: np.ndarray) -> np.ndarray:
-        # (8 + 230 albedo light) blurred, plus the noise, rounded to 8 bits in one pass
+        # (8 + 230 albedo light where lit) blurred, plus the noise, rounded to 8 bits
         rng.standard_normal(noise.shape, out=noise)
-        return boardkernels.gray_shot(8.0, gain, lit, light.reshape(height, width),
-                                      weights, noise, noise_dn)
+        return boardkernels.fringe_shot(8.0, gain, np.where(lit, light.reshape(height, width),
+                                                            0.0),
+                                        weights, noise, noise_dn * noise_dn, 0.0)
 
     out = {}
     for key, axis, n in (("columns", 0, bits[0]), ("rows", 1, bits[1])):
