@@ -572,9 +572,9 @@ def board_flatness(poses: list[BoardPose], board: Board, projector_size: tuple[i
     if any(len(o) != len(board.object_points) for o in obj):
         raise InputError("the board's shape needs every corner decoded in every pose")
     size = poses[0].camera_size
-    e_c = cv2.calibrateCamera(obj, cam, size, None, None, flags=cam_flags)[0]
     released = calibrate_released(obj, cam, size, board.columns - 1, cam_flags)
-    e_r, fitted = released["rms_px"], released["points"].astype(np.float32)
+    e_c, e_r = released["ideal_rms_px"], released["rms_px"]  # ideal board, released
+    fitted = released["points"].astype(np.float32)
     e_p, kp_m, kp = cv2.calibrateCamera(obj, proj, tuple(projector_size), None, None,
                                         flags=proj_flags)[:3]
     try:  # OpenCV refuses a starting principal point outside the panel (an offset lens)

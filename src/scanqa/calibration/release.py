@@ -71,7 +71,8 @@ def calibrate_released(object_points: list, image_points: list, image_size: tupl
     dict
         ``rms_px`` (the residuals' RMS per corner, OpenCV's definition), ``matrix``
         (3, 3), ``dist`` (5,), ``rvecs`` and ``tvecs`` (poses, 3), ``points`` (n, 3) the
-        fitted board [mm].
+        fitted board [mm], and ``ideal_rms_px``: the start's RMS, the camera calibrated
+        on the ideal board (``cv2.calibrateCamera``) [px].
     """
     import cv2
     from scipy.optimize import least_squares
@@ -84,7 +85,7 @@ def calibrate_released(object_points: list, image_points: list, image_size: tupl
     if any(np.asarray(o).reshape(-1, 3).shape != ref.shape for o in object_points):
         raise InputError("released-board calibration needs every corner in every pose")
     seen = [np.asarray(p, dtype=float).reshape(-1, 2) for p in image_points]
-    _, k0, d0, rvecs, tvecs = cv2.calibrateCamera(
+    start_rms, k0, d0, rvecs, tvecs = cv2.calibrateCamera(
         [np.asarray(o, np.float32) for o in object_points],
         [np.asarray(p, np.float32) for p in image_points], tuple(image_size), None, None,
         flags=flags)
@@ -142,4 +143,4 @@ def calibrate_released(object_points: list, image_points: list, image_size: tupl
     matrix, dist, extrinsic, pts = unpack(fit.x)
     return {"rms_px": float(np.sqrt(np.sum(fit.fun ** 2) / (n * poses))), "matrix": matrix,
             "dist": dist, "rvecs": extrinsic[:, :3], "tvecs": extrinsic[:, 3:],
-            "points": pts}
+            "points": pts, "ideal_rms_px": float(start_rms)}
