@@ -82,7 +82,7 @@ def read_image(path: str | os.PathLike, channel: str = "") -> np.ndarray:
     if not p.exists():
         raise InputError(f"image file {p} does not exist (check the files list)")
     regular_file(p, "image file")
-    key = _content_key(p, channel)
+    key, raw = _content_key(p, channel)
     with _cache_lock:
         hit = _cache.get(key)
         if hit is not None:
@@ -90,7 +90,7 @@ def read_image(path: str | os.PathLike, channel: str = "") -> np.ndarray:
     if hit is not None:
         check_size(*_size_check(p, *hit[1]))  # the limit may have changed since
         return hit[0].copy()
-    image, declared = _decode(p, channel)
+    image, declared = _decode(p, channel, raw)
     if key is not None and image.nbytes <= CACHE_BYTES // 4:
         with _cache_lock:
             if key not in _cache:
@@ -101,15 +101,17 @@ def read_image(path: str | os.PathLike, channel: str = "") -> np.ndarray:
     return image
 
 
-def _content_key(p: Path, channel: str) -> tuple | None:
-    """The cache's key of an image file: its bytes' digest and the channel; None for a
+def _content_key(p: Path, channel: str) -> tuple[tuple | None, bytes | None]:
+    """The cache's key of an image file (its bytes' digest and the channel) and the bytes
+    read for it, which the decoder then reads instead of the file; (None, None) for a
     file too big to keep or that cannot be read (the decoder then says why)."""
     try:
         if p.stat().st_size > CACHE_BYTES // 4:
-            return None
-        return hashlib.blake2b(p.read_bytes(), digest_size=16).digest(), channel
+            return None, None
+        raw = p.read_bytes()
     except OSError:
-        return None
+        return None, None
+    return (hashlib.blake2b(raw, digest_size=16).digest(), channel), raw
 
 
 def _size_check(path: Path, width: int, height: int, planes: int) -> tuple:
@@ -118,13 +120,15 @@ def _size_check(path: Path, width: int, height: int, planes: int) -> tuple:
             f"its header declares {width} x {height} px of {planes} band(s)")
 
 
-def _decode(p: Path, channel: str) -> tuple[np.ndarray, tuple]:
-    """Decode an image file (:func:`read_image`); also its header's width, height and
-    bands."""
+def _decode(p: Path, channel: str, raw: bytes | None = None) -> tuple[np.ndarray, tuple]:
+    """Decode an image file (:func:`read_image`), from ``raw`` (its bytes, already read)
+    when given; also its header's width, height and bands."""
+    import io
+
     from PIL import Image, UnidentifiedImageError
 
     try:
-        with Image.open(p) as img:
+        with Image.open(p if raw is None else io.BytesIO(raw)) as img:
             declared = _check_dimensions(img, p)
             mode = img.mode
             data = _pil_array(img, mode, channel, p)
