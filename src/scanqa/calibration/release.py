@@ -95,6 +95,8 @@ def calibrate_released(object_points: list, image_points: list, image_size: tupl
     columns = _intrinsic_columns(flags, aspect)
     held = [0, 1, 2, 3 * fixed_point, 3 * fixed_point + 1, 3 * fixed_point + 2, 3 * n - 1]
     free = np.setdiff1d(np.arange(3 * n), held)
+    corner, axis = np.divmod(free, 3)  # each free coordinate's corner and x/y/z
+    columns_free = np.arange(free.size)
     ni = len(columns)
 
     def unpack(x):
@@ -111,7 +113,6 @@ def calibrate_released(object_points: list, image_points: list, image_size: tupl
         matrix, dist, extrinsic, pts = unpack(x)
         res = np.empty(2 * n * poses)
         jac = np.zeros((2 * n * poses, x.size))
-        diag = np.arange(n)
         for p in range(poses):
             pix, j = cv2.projectPoints(pts, extrinsic[p, :3], extrinsic[p, 3:], matrix, dist)
             rows = slice(2 * n * p, 2 * n * (p + 1))
@@ -120,9 +121,9 @@ def calibrate_released(object_points: list, image_points: list, image_size: tupl
                 jac[rows, k] = sum(weight * j[:, col] for col, weight in cols)
             jac[rows, ni + 6 * p:ni + 6 * p + 6] = j[:, :6]
             d_point = j[:, 3:6].reshape(n, 2, 3) @ cv2.Rodrigues(extrinsic[p, :3])[0]
-            block = np.zeros((n, 2, n, 3))
-            block[diag, :, diag, :] = d_point
-            jac[rows, ni + 6 * poses:] = block.reshape(2 * n, 3 * n)[:, free]
+            for k in (0, 1):  # a coordinate moves its own corner's x and y pixel only
+                jac[2 * n * p + 2 * corner + k, ni + 6 * poses + columns_free] = \
+                    d_point[corner, k, axis]
         return res, jac
 
     cache: dict = {}
