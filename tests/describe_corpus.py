@@ -455,6 +455,15 @@ def hand_description(layout: Layout, orientation: str):
     return PatternDescription(int(size), tuple(sets))
 
 
+def _directions_wrong(layout: Layout, described: list) -> Verdict | None:
+    """A wrong verdict when the described directions are not the coded ones (each once)."""
+    got = [d.desc.orientation for d in described]
+    if sorted(got) != sorted(layout.coded):
+        return Verdict(layout.name, False, f"directions {got}, want {list(layout.coded)}",
+                       {})
+    return None
+
+
 def judge_hand(layout: Layout, images: np.ndarray, described: list) -> Verdict:
     """Issue 44's held-out test of a description against the hand one: every coded
     direction found, and for each the described decode gives >= 90 % of the pixels the
@@ -467,13 +476,11 @@ def judge_hand(layout: Layout, images: np.ndarray, described: list) -> Verdict:
     from scanqa.decoding.decoder import decode_images
     from scanqa.errors import ConfigError
 
-    names = frame_names(layout)
-    index = {n: i for i, n in enumerate(names)}
-    got = [d.desc.orientation for d in described]
+    index = {n: i for i, n in enumerate(frame_names(layout))}
     shares: dict = {}
-    if sorted(got) != sorted(layout.coded):
-        return Verdict(layout.name, False, f"directions {got}, want {list(layout.coded)}",
-                       shares)
+    wrong = _directions_wrong(layout, described)
+    if wrong:
+        return wrong
     why = []
     for d in described:
         o = d.desc.orientation
@@ -534,13 +541,11 @@ def judge(layout: Layout, images: np.ndarray, sc: dict, described: list) -> Verd
     from scanqa.decoding.coding import GrayCodeSet
     from scanqa.decoding.decoder import decode_images
 
-    names = frame_names(layout)
-    index = {n: i for i, n in enumerate(names)}
-    got = [d.desc.orientation for d in described]
+    index = {n: i for i, n in enumerate(frame_names(layout))}
     shares: dict = {}
-    if sorted(got) != sorted(layout.coded):
-        return Verdict(layout.name, False, f"directions {got}, want {list(layout.coded)}",
-                       shares)
+    wrong = _directions_wrong(layout, described)
+    if wrong:
+        return wrong
     from scipy.ndimage import binary_erosion
     core = binary_erosion(sc["object"], iterations=3)
     for d in described:
